@@ -1,0 +1,128 @@
+"""The backend interface: everything the agent may ask of a robot, real or simulated.
+
+Implementations: `backends.mock.MockBackend` (PyBullet, simulated clock), `backends.bridge.BridgeBackend`
+(network client of `naocal bridge serve`, which in turn drives the mock or NAOqi), and the wrapper
+`backends.compensated.CompensatedBackend`. All angles are in rad, all times in s on the robot's clock.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JointReading:
+    """One sample of the joint sensors."""
+
+    angles_rad: dict[str, float]
+    t_s: float  # robot clock time at which the encoders were sampled
+
+
+@dataclass(frozen=True)
+class CameraImage:
+    """One image of the bottom camera."""
+
+    pixels: np.ndarray  # (height, width, 3) uint8, BGR
+    t_exposure_s: float  # robot clock time of the exposure (middle of the frame)
+    camera: str = "bottom"
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics in the OpenCV sense; see docs/CONVENTIONS.md for the NAO camera frame."""
+
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    distortion: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))  # k1, k2, p1, p2, k3
+
+    def to_dict(self) -> dict:
+        return {
+            "name": "bottom",
+            "width_px": int(self.width_px),
+            "height_px": int(self.height_px),
+            "fx_px": float(self.fx_px),
+            "fy_px": float(self.fy_px),
+            "cx_px": float(self.cx_px),
+            "cy_px": float(self.cy_px),
+            "distortion": [float(d) for d in self.distortion],
+        }
+
+
+class Backend(abc.ABC):
+    """A NAO, as the calibration agent sees it.
+
+    Commands are non-blocking: `command` sets targets and returns; the joints then move at
+    `speed_fraction` of their maximum speed. Waiting is done with `sleep` on the backend's own clock
+    (simulated for the mock, wall-clock for a robot), so every deadline the agent sets is in robot time.
+    """
+
+    name = "abstract"
+
+    @abc.abstractmethod
+    def robot_identity(self) -> dict:
+        """{'id': str, 'model': str, 'body_id': str, 'head_id': str}."""
+
+    @abc.abstractmethod
+    def joint_names(self) -> tuple[str, ...]:
+        """The joints this backend can command and read (at least solver.joints.JOINTS)."""
+
+    @abc.abstractmethod
+    def joint_limits(self) -> dict[str, tuple[float, float]]:
+        """(lower, upper) in rad per joint, as the robot enforces them."""
+
+    @abc.abstractmethod
+    def max_speeds(self) -> dict[str, float]:
+        """Maximum joint speed in rad/s per joint."""
+
+    @abc.abstractmethod
+    def command(self, targets_rad: dict[str, float], speed_fraction: float) -> None:
+        """Start moving the named joints to their targets. Raises SafetyError for an unsafe target."""
+
+    @abc.abstractmethod
+    def read_joints(self) -> JointReading:
+        """The newest sample of the joint sensors (it lags the true motion by a few sensor cycles)."""
+
+    @abc.abstractmethod
+    def set_stiffness(self, names, stiffness: float) -> None:
+        """Set the stiffness (0..1) of the named joints."""
+
+    @abc.abstractmethod
+    def capture(self) -> CameraImage | None:
+        """The newest bottom-camera image that has arrived, or None if none has yet.
+
+        Images arrive some time after their exposure: an image returned now may show the robot as it was
+        before the last command. Check `t_exposure_s`.
+        """
+
+    @abc.abstractmethod
+    def intrinsics(self) -> CameraIntrinsics:
+        """The bottom camera's nominal (prior) intrinsics."""
+
+    @abc.abstractmethod
+    def now(self) -> float:
+        """Robot clock, s."""
+
+    @abc.abstractmethod
+    def sleep(self, duration_s: float) -> None:
+        """Let `duration_s` of robot time pass."""
+
+    def gravity_torso_mps2(self) -> np.ndarray:
+        """Gravity in the torso frame (m/s^2). A robot lying on its back: (-9.81, 0, 0)."""
+        return np.array([-9.81, 0.0, 0.0])
+
+    def close(self) -> None:
+        """Release the robot (idempotent)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

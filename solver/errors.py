@@ -1,0 +1,43 @@
+"""Typed errors raised at naocal's boundaries.
+
+A `NaocalError` is a user-facing problem (bad file, bad argument, robot that never settles): the CLI prints its
+message on one line and exits non-zero without a traceback. Anything else is a bug and keeps its traceback.
+"""
+
+
+class NaocalError(Exception):
+    """A problem the user can act on. `str(err)` is a complete one-line message."""
+
+    exit_code = 2
+
+
+class DataError(NaocalError):
+    """Bad input data. Names the file and, when known, the line and the field."""
+
+    def __init__(self, path, problem, *, line=None, field=None):
+        self.path = str(path)
+        self.problem = problem
+        self.line = line
+        self.field = field
+        where = self.path
+        if line is not None:
+            where += f", line {line}"
+        if field is not None:
+            where += f", field '{field}'"
+        super().__init__(f"{where}: {problem}")
+
+
+class SolveError(NaocalError):
+    """Identification failed or cannot be trusted; nothing is written."""
+
+
+class SafetyError(NaocalError):
+    """A command was refused because it would leave the joint limits or collide."""
+
+
+class RobotTimeout(NaocalError):
+    """A wait on the robot passed its deadline."""
+
+
+class BridgeError(NaocalError):
+    """The network bridge failed after its retries, or the server answered with an error."""

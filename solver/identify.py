@@ -1,0 +1,278 @@
+"""Identification: Levenberg-Marquardt over the registry's free parameters, with uncertainty and identifiability.
+
+`identify(data, registry)` is a pure function of the data; it never writes anything. The result says whether it
+can be trusted (`success`), how well it fits, how precisely each parameter is known and which combinations of
+parameters the data cannot tell apart.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from solver.errors import SolveError
+from solver.model import Model, ModelData
+from solver.registry import Registry
+
+# A direction whose singular value (of the column-scaled Jacobian) is below this fraction of the largest is
+# treated as unidentifiable: the data cannot fix that combination of parameters.
+UNIDENTIFIABLE_RATIO = 1e-6
+# Below this ratio a direction is identifiable in principle but weak: reported, not fatal.
+WEAK_RATIO = 1e-3
+# Robust loss: images whose mean weight falls below this are reported as down-weighted.
+DOWNWEIGHT_REPORT = 0.5
+
+
+@dataclass
+class WeakDirection:
+    """A combination of parameters the data determine poorly: sum(coefficients[name] * value / scale)."""
+
+    singular_value: float  # relative to the largest singular value of the column-scaled Jacobian
+    std_along: float  # standard deviation along this unit direction (in scaled units)
+    coefficients: dict[str, float]
+
+    def describe(self, top=4) -> str:
+        terms = sorted(self.coefficients.items(), key=lambda kv: -abs(kv[1]))[:top]
+        return " ".join(f"{c:+.2f} {n}" for n, c in terms)
+
+
+@dataclass
+class IdentificationResult:
+    success: bool
+    status: int
+    message: str
+    registry: Registry
+    values: np.ndarray  # full parameter vector
+    std: np.ndarray  # full vector of standard deviations (tied ones copy their source; fixed ones are 0)
+    covariance: np.ndarray  # of the free parameters
+    correlation: np.ndarray  # of the free parameters
+    condition_number: float  # of the column-scaled Jacobian
+    weak_directions: list[WeakDirection]
+    residuals_px: np.ndarray  # (N, 2) predicted - detected, rows of `model.data`
+    weights: np.ndarray  # (N,) robust-loss weight of each vertex (1 without a robust loss)
+    rms_px: tuple[float, float]
+    iterations: int  # Jacobian evaluations
+    function_evaluations: int
+    solve_time_s: float
+    model: Model
+    downweighted_images: list[int] = field(default_factory=list)  # dataset image ids
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def sigma_px(self) -> float:
+        """Fitted noise level s = sqrt(RSS / (n - p)) over both pixel coordinates."""
+        dof = max(self.residuals_px.size - len(self.registry.free_names), 1)
+        return float(np.sqrt(np.sum(self.residuals_px ** 2) / dof))
+
+    def value(self, name: str) -> float:
+        return float(self.values[self.registry.index[name]])
+
+    def parameters_dict(self) -> dict:
+        return {
+            name: {"value": float(v), "std": float(s), "unit": self.registry.unit(name)}
+            for name, v, s in zip(self.registry.names, self.values, self.std)
+        }
+
+
+def identifiability(J_free: np.ndarray, registry: Registry):
+    """Column-scaled SVD of the Jacobian: condition number, and the weakest directions in parameter names."""
+    scales = registry.scales[registry.free_index]
+    Js = J_free * scales
+    # Singular values from the small normal matrix: exact enough here (we only compare against 1e-6 of the
+    # largest) and 50x cheaper than an SVD of the tall Jacobian.
+    eigenvalues, vectors = np.linalg.eigh(Js.T @ Js)
+    order = np.argsort(eigenvalues)[::-1]
+    sv = np.sqrt(np.clip(eigenvalues[order], 0.0, None))
+    Vt = vectors[:, order].T
+    if sv[0] == 0:
+        return np.inf, sv, Vt
+    return float(sv[0] / max(sv[-1], np.finfo(float).tiny)), sv, Vt
+
+
+def _direction(sv_rel, std_along, vector, names) -> WeakDirection:
+    coefficients = {n: float(c) for n, c in zip(names, vector) if abs(c) > 0.05}
+    return WeakDirection(float(sv_rel), float(std_along), coefficients)
+
+
+def check_identifiable(J_free: np.ndarray, registry: Registry):
+    """Raise SolveError naming the parameters that the data cannot determine at all."""
+    cond, sv, Vt = identifiability(J_free, registry)
+    bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
+    if len(bad):
+        names = registry.free_names
+        involved = sorted({names[i] for k in bad for i in np.flatnonzero(np.abs(Vt[k]) > 0.05)})
+        combos = "; ".join(_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names).describe() for k in bad[:3])
+        raise SolveError(
+            f"the data cannot determine {len(bad)} parameter combination(s) ({combos}); involved: "
+            f"{', '.join(involved)}. Measure more varied stances (both legs, several head postures), "
+            f"or fix these parameters (--fix)."
+        )
+
+
+def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
+    """Levenberg-Marquardt with Nielsen's damping update, on the normal equations in scaled variables.
+
+    `fun_and_jac(x)` returns (r, J). The variables are scaled by `scales` (x = scales * xs) so that parameters in
+    m, rad and px are conditioned alike. Returns (x, r, J, status, message, n_jacobians, n_functions).
+    The normal equations cost O(m n^2) once per iteration with BLAS (dsyrk): for the 3456-vertex problem that
+    is ~0.1 ms, where MINPACK's unblocked QR costs ~3 ms (see benchmarks/bench_identify.py).
+    """
+    x = np.array(x0, dtype=float)
+    r, J = fun_and_jac(x)
+    n_fun = n_jac = 1
+    Js = J * scales
+    A, g = Js.T @ Js, Js.T @ r
+    cost = 0.5 * float(r @ r)
+    mu = 1e-6 * float(np.max(np.diag(A))) if A.size else 0.0
+    nu = 2.0
+    identity = np.eye(len(x))
+    for _ in range(max_iterations):
+        if np.max(np.abs(g), initial=0.0) <= gtol:
+            return x, r, J, 1, "gradient below gtol", n_jac, n_fun
+        try:
+            step_s = -np.linalg.solve(A + mu * identity, g)
+        except np.linalg.LinAlgError:
+            mu, nu = mu * nu, nu * 2.0
+            continue
+        xs = x / scales
+        if np.linalg.norm(step_s) <= xtol * (np.linalg.norm(xs) + xtol):
+            return x, r, J, 2, "step below xtol", n_jac, n_fun
+        predicted = 0.5 * float(step_s @ (mu * step_s - g))  # cost reduction the linear model promises
+        if predicted <= ftol * cost:
+            return x, r, J, 3, "predicted cost reduction below ftol", n_jac, n_fun
+        x_new = x + step_s * scales
+        r_new, J_new = fun_and_jac(x_new)
+        n_fun += 1
+        cost_new = 0.5 * float(r_new @ r_new)
+        rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
+        if rho > 0:
+            reduction = cost - cost_new
+            x, r, J, cost = x_new, r_new, J_new, cost_new
+            n_jac += 1
+            Js = J * scales
+            A, g = Js.T @ Js, Js.T @ r
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if reduction <= ftol * cost_new:
+                return x, r, J, 3, "relative cost reduction below ftol", n_jac, n_fun
+        else:
+            mu, nu = mu * nu, nu * 2.0
+    return x, r, J, 0, f"no convergence in {max_iterations} iterations", n_jac, n_fun
+
+
+def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",
+             loss_scale_px: float = 1.0, max_iterations: int = 100, check: bool = True,
+             solver: str = "lm") -> IdentificationResult:
+    """Fit the registry's free parameters to the detected vertices.
+
+    Parameters
+    ----------
+    x0 : full parameter vector to start from (default: zero, the nominal robot).
+    loss : 'linear' (plain least squares) or a robust loss of scipy.optimize.least_squares ('soft_l1', 'huber',
+        'cauchy'), solved by its trust-region method; images it down-weights are reported.
+    loss_scale_px : residual size at which the robust loss starts to down-weight, px.
+    solver : 'lm' (naocal's Levenberg-Marquardt on the normal equations, the fast default) or 'minpack'
+        (scipy.optimize.least_squares(method='lm')); both minimise the same sum of squares.
+    """
+    start = time.perf_counter()
+    warnings = []
+    base = registry.zeros() if x0 is None else np.asarray(x0, dtype=float)
+
+    def make_problem(registry):
+        """The model and a cached residual-and-Jacobian function of the free vector (LM asks both at one x)."""
+        model = Model(data, registry)
+        P = len(registry)
+        identity_expand = registry.expand.shape == (P, P) and np.array_equal(registry.expand, np.eye(P))
+        cache = {}
+
+        def fun_and_jac(free):
+            key = free.tobytes()
+            if key not in cache:
+                cache.clear()
+                r, J = model.evaluate(registry.unpack(free, base))
+                J = J.reshape(-1, P)
+                cache[key] = (r.ravel(), J if identity_expand else registry.free_jacobian(J))
+            return cache[key]
+
+        return model, fun_and_jac
+
+    model, fun_and_jac = make_problem(registry)
+    if check:
+        J0 = fun_and_jac(registry.pack(base))[1]
+        empty = [n for n, col in zip(registry.free_names, J0.T) if not np.any(col)]
+        if empty:
+            warnings.append(f"no data for {', '.join(empty)}: these parameters are fixed at their start values")
+            registry = registry.with_fixed(empty)
+            model, fun_and_jac = make_problem(registry)
+    if not len(registry.free_names):
+        raise SolveError("no free parameters to identify")
+
+    scales = registry.scales[registry.free_index]
+    free0 = registry.pack(base)
+    with np.errstate(over="raise", invalid="raise", divide="raise"):
+        try:
+            if check:
+                check_identifiable(fun_and_jac(free0)[1], registry)
+            if loss == "linear" and solver == "lm":
+                free, r, J_free, status, message, n_jac, n_fun = levenberg_marquardt(
+                    fun_and_jac, free0, scales, max_iterations=max_iterations)
+                success = status > 0
+            else:
+                method = "lm" if loss == "linear" else "trf"
+                sol = least_squares(
+                    lambda f: fun_and_jac(f)[0], free0, jac=lambda f: fun_and_jac(f)[1], method=method,
+                    x_scale=scales, loss=loss, f_scale=loss_scale_px,
+                    max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
+                )
+                free, status, message = sol.x, int(sol.status), str(sol.message)
+                n_jac, n_fun, success = int(sol.njev or 0), int(sol.nfev), bool(sol.success)
+                r, J_free = fun_and_jac(free)
+        except FloatingPointError as err:
+            raise SolveError(f"the model could not be evaluated during the solve ({err}): is a board behind the "
+                             "camera, or are the start values wildly wrong?") from None
+
+    values = registry.unpack(free, base)
+    residuals = r.reshape(-1, 2)
+    weights = np.ones(len(residuals))
+    if loss != "linear":
+        z = (r / loss_scale_px) ** 2
+        rho1 = {"soft_l1": lambda z: 1 / np.sqrt(1 + z), "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(z)),
+                "cauchy": lambda z: 1 / (1 + z)}[loss](z)
+        weights = rho1.reshape(-1, 2).mean(axis=1)
+    dof = max(r.size - J_free.shape[1], 1)
+    s2 = float(np.sum(weights.repeat(2) * r ** 2) / dof)
+
+    cond, sv, Vt = identifiability(J_free, registry)
+    usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
+    inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
+    covariance = ((Vt.T * inv_sv2) @ Vt * s2) * np.outer(scales, scales)
+    std_free = np.sqrt(np.diag(covariance))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        correlation = covariance / np.outer(std_free, std_free)
+    std = np.abs(registry.expand) @ std_free
+    weak = [_direction(sv[k] / sv[0], float(np.sqrt(s2) / sv[k]) if sv[k] > 0 else np.inf, Vt[k],
+                       registry.free_names) for k in np.argsort(sv)[:3]]
+    for direction in weak:
+        if direction.singular_value < WEAK_RATIO:
+            warnings.append(f"weakly determined combination (relative singular value {direction.singular_value:.1e}):"
+                            f" {direction.describe()}")
+
+    downweighted = []
+    if loss != "linear":
+        per_image = np.bincount(model.data.image_of_row, weights=weights, minlength=model.data.n_images)
+        counts = np.bincount(model.data.image_of_row, minlength=model.data.n_images)
+        mean_w = per_image / np.maximum(counts, 1)
+        downweighted = [int(model.data.image_id[m]) for m in np.flatnonzero(mean_w < DOWNWEIGHT_REPORT)]
+
+    rms = np.sqrt(np.mean(residuals ** 2, axis=0))
+    success = bool(success) and bool(np.all(np.isfinite(values)))
+    return IdentificationResult(
+        success=success, status=int(status), message=message, registry=registry, values=values,
+        std=std, covariance=covariance, correlation=correlation, condition_number=cond, weak_directions=weak,
+        residuals_px=residuals, weights=weights, rms_px=(float(rms[0]), float(rms[1])),
+        iterations=int(n_jac), function_evaluations=int(n_fun), solve_time_s=time.perf_counter() - start,
+        model=model, downweighted_images=downweighted, warnings=warnings,
+    )

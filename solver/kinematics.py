@@ -1,0 +1,103 @@
+"""Forward kinematics and static gravity torques of the NAO: pure functions, vectorised over configurations.
+
+Shapes: N configurations. Leg angles (N, 6) in hip-to-ankle order (solver.joints.leg_joints), head angles
+(N, 2) as (HeadYaw, HeadPitch). Every pose is T_torso_<frame> (N, 4, 4), every point in m.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solver.nao_model import (
+    BOARD_CENTER_X_M, SANDAL_MASS_KG, THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, Chain, head_chain, leg_chain,
+)
+from solver.transforms import rot_axis_angle
+
+
+def chain_frames(chain: Chain, q, *, length_deltas_m=None):
+    """Poses of every joint's child frame and of the end frame in the torso frame.
+
+    Parameters
+    ----------
+    q : (N, k) joint angles, rad.
+    length_deltas_m : optional dict {joint index: (N,) or scalar} lengthening the joint's origin offset
+        along its direction (used for thigh and tibia length corrections), m.
+
+    Returns
+    -------
+    T_torso_joint : (N, k, 4, 4) pose of joint k's child frame (after its rotation).
+    T_torso_end : (N, 4, 4).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n, k = q.shape
+    if k != len(chain.joint_names):
+        raise ValueError(f"expected {len(chain.joint_names)} joint angles per row, got {k}")
+    frames = np.zeros((n, k, 4, 4))
+    frames[:, :, 3, 3] = 1.0
+    R = np.broadcast_to(np.eye(3), (n, 3, 3))
+    t = np.zeros((n, 3))
+    for j in range(k):
+        offset = chain.T_origin[j, :3, 3]
+        if length_deltas_m is not None and j in length_deltas_m:
+            delta = np.asarray(length_deltas_m[j], dtype=float)
+            offset = offset + delta[..., None] * (offset / np.linalg.norm(offset))
+        t = t + np.einsum("nij,...j->ni", R, offset)
+        R_origin = chain.T_origin[j, :3, :3]
+        R_joint = rot_axis_angle(chain.axes[j], q[:, j])
+        R = R @ (R_joint if np.array_equal(R_origin, np.eye(3)) else R_origin @ R_joint)
+        frames[:, j, :3, :3] = R
+        frames[:, j, :3, 3] = t
+    T_end = np.zeros((n, 4, 4))
+    T_end[:, :3, :3] = R @ chain.T_end[:3, :3]
+    T_end[:, :3, 3] = t + R @ chain.T_end[:3, 3]
+    T_end[:, 3, 3] = 1.0
+    return frames, T_end
+
+
+def leg_length_deltas(thigh_delta_m=0.0, tibia_delta_m=0.0) -> dict:
+    """Length corrections for `chain_frames` of a leg: thigh (hip to knee) and tibia (knee to ankle)."""
+    return {THIGH_JOINT_INDEX + 1: thigh_delta_m, TIBIA_JOINT_INDEX + 1: tibia_delta_m}
+
+
+def leg_fk(q_leg, leg: str, *, thigh_delta_m=0.0, tibia_delta_m=0.0):
+    """T_torso_sole (N, 4, 4) for leg angles (N, 6) of leg 'L' or 'R'."""
+    deltas = None
+    if np.any(thigh_delta_m) or np.any(tibia_delta_m):
+        deltas = leg_length_deltas(thigh_delta_m, tibia_delta_m)
+    return chain_frames(leg_chain(leg), q_leg, length_deltas_m=deltas)[1]
+
+
+def camera_fk(q_head, camera: str = "bottom"):
+    """T_torso_camera (N, 4, 4) for head angles (N, 2) = (HeadYaw, HeadPitch). NAO camera frame."""
+    return chain_frames(head_chain(camera), q_head)[1]
+
+
+def joint_axes_and_origins(T_torso_joint, chain: Chain):
+    """Unit axes (N, k, 3) and positions (N, k, 3) of the chain's joints in the torso frame."""
+    axes = np.einsum("nkij,kj->nki", T_torso_joint[..., :3, :3], chain.axes)
+    return axes, T_torso_joint[..., :3, 3]
+
+
+def gravity_torques(q_leg, leg: str, gravity_torso_mps2=(-9.81, 0.0, 0.0), *,
+                    sandal_mass_kg=SANDAL_MASS_KG, sandal_com_sole_m=(BOARD_CENTER_X_M, 0.0, 0.0)):
+    """Static torque (N m) that gravity exerts about each leg joint's axis, (N, 6).
+
+    Sums, for joint j, every link distal to j (the link j moves and all after it) plus the sandal (a point mass at
+    the board centre): tau_j = z_j . sum_l m_l (c_l - o_j) x g. Positive tau_j turns the leg in +q_j.
+    """
+    chain = leg_chain(leg)
+    frames, T_torso_sole = chain_frames(chain, q_leg)
+    axes, origins = joint_axes_and_origins(frames, chain)
+    g = np.asarray(gravity_torso_mps2, dtype=float)
+    coms = np.einsum("nkij,kj->nki", frames[..., :3, :3], chain.link_com) + frames[..., :3, 3]
+    sandal = T_torso_sole[:, :3, :3] @ np.asarray(sandal_com_sole_m, dtype=float) + T_torso_sole[:, :3, 3]
+    masses = np.concatenate([chain.link_mass, [sandal_mass_kg]])
+    points = np.concatenate([coms, sandal[:, None, :]], axis=1)  # (N, 7, 3)
+    weights = masses[None, :, None] * g  # (1, 7, 3) force of each mass
+    k = len(chain.joint_names)
+    tau = np.empty(origins.shape[:2])
+    for j in range(k):
+        lever = points[:, j:] - origins[:, j : j + 1]
+        moment = np.cross(lever, weights[:, j:]).sum(axis=1)
+        tau[:, j] = np.einsum("ni,ni->n", moment, axes[:, j])
+    return tau

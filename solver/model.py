@@ -1,0 +1,342 @@
+"""The measurement model: predicted pixel positions of the board vertices and their exact Jacobian.
+
+    q            = theta + sum over joint-level terms (value * regressor)           (Eq. 2, plus effects)
+    T_torso_cam  = T_torso_cam(q_head) @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)   (Eq. 3)
+    p_sole'      = Rot_z(rot_z) @ Trans_x(x) @ Trans_y(y) @ p_sole                 (Eq. 4)
+    p_cam        = T_cam_torso @ T_torso_sole(q_leg) @ p_sole'
+    (u, v)       = (cx, cy) + (fx, fy) * distort(-y/x, -z/x)                         (Eq. 1, OpenCV distortion)
+    residual     = predicted - detected, px
+
+Everything here is a pure function of (ModelData, Registry, parameter vector).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEGS, leg_joints
+from solver.kinematics import chain_frames, gravity_torques, joint_axes_and_origins, leg_length_deltas
+from solver.nao_model import THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, head_chain, leg_chain
+from solver.registry import Registry
+from solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_x, rot_y, rot_z
+
+LEG_COLUMNS = {leg: np.array([JOINT_INDEX[j] for j in leg_joints(leg)]) for leg in LEGS}
+HEAD_COLUMNS = np.array([JOINT_INDEX[j] for j in HEAD_JOINTS])
+
+
+@dataclass
+class ModelData:
+    """What the model needs from a dataset, as arrays. M images, N vertex rows.
+
+    theta, direction, velocity, tau: (M, 14) per image, columns in solver.joints.JOINTS order.
+    """
+
+    image_of_row: np.ndarray  # (N,) index 0..M-1 into the per-image arrays
+    vertex: np.ndarray  # (N,) vertex index on its board
+    uv_px: np.ndarray  # (N, 2) detected vertex positions
+    p_sole: np.ndarray  # (N, 3) nominal vertex positions in the sole frame, m
+    leg: np.ndarray  # (M,) 'L' or 'R'
+    image_id: np.ndarray  # (M,) the dataset's image index
+    stance: np.ndarray  # (M,)
+    head_posture: np.ndarray  # (M,)
+    theta: np.ndarray  # (M, 14) measured angles, rad
+    direction: np.ndarray  # (M, 14) approach direction -1/0/1
+    tau: np.ndarray  # (M, 14) static gravity torque at theta (leg joints of the image's leg), N m
+    velocity: np.ndarray | None  # (M, 14) rad/s at t_joints, or None if the dataset has none
+    intrinsics: dict  # fx_px, fy_px, cx_px, cy_px, distortion (5,)
+    gravity_torso_mps2: np.ndarray = field(default_factory=lambda: np.array([-9.81, 0.0, 0.0]))
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.image_of_row)
+
+    @property
+    def n_images(self) -> int:
+        return len(self.leg)
+
+    def is_sorted_by_leg(self) -> bool:
+        """Images of leg L before those of R, and rows in image order: the layout Model works on."""
+        leg_key = (self.leg == "R").astype(int)
+        return bool(np.all(np.diff(leg_key) >= 0) and np.all(np.diff(self.image_of_row) >= 0))
+
+    def sorted_by_leg(self) -> "ModelData":
+        """The same data with images ordered L then R (stable) and rows in image order."""
+        if self.is_sorted_by_leg():
+            return self
+        order = np.argsort((self.leg == "R").astype(int), kind="stable")
+        return self.reordered(order)
+
+    def rows_of_images(self, images: np.ndarray) -> np.ndarray:
+        return np.flatnonzero(np.isin(self.image_of_row, images))
+
+    def subset(self, images) -> "ModelData":
+        """The data of some images only (index 0..M-1), re-indexed."""
+        images = np.asarray(sorted(set(np.asarray(images).tolist())), dtype=int)
+        return self.reordered(images)
+
+    def reordered(self, images) -> "ModelData":
+        """The data of the images `images` (index 0..M-1), in that order, rows grouped by image."""
+        images = np.asarray(images, dtype=int)
+        position = -np.ones(self.n_images, dtype=int)
+        position[images] = np.arange(len(images))
+        kept = np.flatnonzero(position[self.image_of_row] >= 0)
+        rows = kept[np.argsort(position[self.image_of_row[kept]], kind="stable")]
+        per_image = lambda a: None if a is None else a[images]  # noqa: E731
+        return ModelData(
+            image_of_row=position[self.image_of_row[rows]], vertex=self.vertex[rows], uv_px=self.uv_px[rows],
+            p_sole=self.p_sole[rows], leg=self.leg[images], image_id=self.image_id[images],
+            stance=self.stance[images], head_posture=self.head_posture[images], theta=self.theta[images],
+            direction=self.direction[images], tau=self.tau[images], velocity=per_image(self.velocity),
+            intrinsics=self.intrinsics, gravity_torso_mps2=self.gravity_torso_mps2,
+        )
+
+
+def compute_gravity_torques(theta, leg, gravity_torso_mps2):
+    """(M, 14) gravity torque on the joints of each image's own leg (zero elsewhere)."""
+    tau = np.zeros_like(theta)
+    for name in LEGS:
+        images = np.flatnonzero(leg == name)
+        if len(images):
+            cols = LEG_COLUMNS[name]
+            tau[np.ix_(images, cols)] = gravity_torques(theta[np.ix_(images, cols)], name, gravity_torso_mps2)
+    return tau
+
+
+@dataclass
+class _Terms:
+    """Precomputed layout of one (data, registry) pair: which entries of the parameter vector do what."""
+
+    joint_param: np.ndarray  # (K,) parameter index of each joint-level entry
+    joint_col: np.ndarray  # (K,) joint column it acts on
+    regressor: np.ndarray  # (M, K) multiplier of the parameter's value for each image
+    index: dict  # parameter name -> full index
+    uses_head: bool  # some term acts on a head joint
+
+
+def _terms(data: ModelData, registry: Registry) -> _Terms:
+    params, cols, regs = [], [], []
+    M = data.n_images
+    for i, p in enumerate(registry.parameters):
+        effect = p.effect
+        if effect == "time_lag":
+            if data.velocity is None:
+                raise ValueError("the time_lag effect needs joint velocities (vel_<Joint> columns) in the dataset")
+            for c in range(len(JOINTS)):
+                params.append(i), cols.append(c), regs.append(data.velocity[:, c])
+            continue
+        if p.joint is None:
+            continue
+        c = JOINT_INDEX[p.joint]
+        if effect in ("joint_offsets", "head_offsets"):
+            reg = np.ones(M)
+        elif effect == "elasticity":
+            reg = data.tau[:, c]
+        elif effect == "backlash":
+            reg = data.direction[:, c]
+        else:
+            raise AssertionError(effect)
+        params.append(i), cols.append(c), regs.append(reg)
+    regressor = np.stack(regs, axis=1) if regs else np.zeros((M, 0))
+    cols = np.array(cols, dtype=int)
+    uses_head = bool(np.isin(cols, HEAD_COLUMNS).any())
+    return _Terms(np.array(params, dtype=int), cols, regressor, registry.index, uses_head)
+
+
+def _get(values, terms, name, default=0.0):
+    i = terms.index.get(name)
+    return default if i is None else values[i]
+
+
+def _distort(xn, yn, k):
+    """OpenCV distortion of normalised coordinates and its 2x2 Jacobian (N, 2, 2)."""
+    k1, k2, p1, p2, k3 = k
+    r2 = xn * xn + yn * yn
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d radial / d r2, times 2
+    xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+    D = np.empty(xn.shape + (2, 2))
+    D[:, 0, 0] = radial + g * xn * xn + 2.0 * p1 * yn + 6.0 * p2 * xn
+    D[:, 0, 1] = g * xn * yn + 2.0 * p1 * xn + 2.0 * p2 * yn
+    D[:, 1, 0] = g * xn * yn + 2.0 * p1 * xn + 2.0 * p2 * yn
+    D[:, 1, 1] = radial + g * yn * yn + 6.0 * p1 * yn + 2.0 * p2 * xn
+    return xd, yd, r2, D
+
+
+def _cross(a, b):
+    """Cross product over the last axis (faster than np.cross for small broadcast arrays)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+class Model:
+    """Residuals and exact Jacobian of one dataset under one registry.
+
+    Works on the data sorted by leg (`self.data`), so each leg's images and rows are contiguous slices.
+    """
+
+    def __init__(self, data: ModelData, registry: Registry):
+        self.data = data = data.sorted_by_leg()
+        self.registry = registry
+        self.terms = t = _terms(data, registry)
+        n_images_L = int(np.sum(data.leg == "L"))
+        n_rows_L = int(np.searchsorted(data.image_of_row, n_images_L))
+        self.image_slices = {"L": slice(0, n_images_L), "R": slice(n_images_L, data.n_images)}
+        self.row_slices = {"L": slice(0, n_rows_L), "R": slice(n_rows_L, data.n_rows)}
+        P, K = len(registry), len(t.joint_param)
+        self._entry_to_joint = np.zeros((K, len(JOINTS)))
+        self._entry_to_joint[np.arange(K), t.joint_col] = 1.0
+        self._entry_to_param = np.zeros((K, P))
+        self._entry_to_param[np.arange(K), t.joint_param] = 1.0
+        counts = np.bincount(data.image_of_row, minlength=data.n_images)
+        self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
+
+    def joint_angles(self, values) -> np.ndarray:
+        """q (M, 14): measured angles plus every joint-level term."""
+        t = self.terms
+        return self.data.theta + (t.regressor * np.asarray(values)[t.joint_param]) @ self._entry_to_joint
+
+    def residuals(self, values) -> np.ndarray:
+        """Predicted minus detected pixel positions, (N, 2), rows as in `self.data`."""
+        return self.evaluate(values, jacobian=False)[0]
+
+    def evaluate(self, values, *, jacobian=True):
+        """Residuals (N, 2) and, if asked, the Jacobian (N, 2, P) with respect to the full parameter vector."""
+        data, t = self.data, self.terms
+        values = np.asarray(values, dtype=float)
+        img = data.image_of_row
+        N, M = data.n_rows, data.n_images
+        q = self.joint_angles(values)
+
+        # Legs (Eq. 2): sole poses, and for the Jacobian the joint axes, origins and link directions.
+        R_ts, t_ts = np.empty((M, 3, 3)), np.empty((M, 3))
+        leg_axes, leg_origins, link_dirs = np.zeros((M, 6, 3)), np.zeros((M, 6, 3)), np.zeros((M, 2, 3))
+        for leg in LEGS:
+            images = self.image_slices[leg]
+            if images.start == images.stop:
+                continue
+            chain = leg_chain(leg)
+            deltas = leg_length_deltas(_get(values, t, f"link_length.{leg}.thigh"),
+                                       _get(values, t, f"link_length.{leg}.tibia"))
+            frames, T_end = chain_frames(chain, q[images][:, LEG_COLUMNS[leg]], length_deltas_m=deltas)
+            R_ts[images], t_ts[images] = T_end[:, :3, :3], T_end[:, :3, 3]
+            if jacobian:
+                leg_axes[images], leg_origins[images] = joint_axes_and_origins(frames, chain)
+                for k, j in enumerate((THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX)):
+                    offset = chain.T_origin[j + 1][:3, 3]
+                    link_dirs[images, k] = frames[:, j, :3, :3] @ (offset / np.linalg.norm(offset))
+
+        # Head and camera (Eq. 3): R_tc = R_tc0 @ R_off.
+        chain = head_chain("bottom")
+        head_frames, T_torso_cam0 = chain_frames(chain, q[:, HEAD_COLUMNS])
+        roll, pitch, yaw = (_get(values, t, f"camera.{a}") for a in ("roll", "pitch", "yaw"))
+        Ry, Rx, Rz = rot_y(pitch), rot_x(roll), rot_z(yaw)
+        R_off = Ry @ Rx @ Rz
+        R_tc = T_torso_cam0[:, :3, :3] @ R_off
+        t_tc = T_torso_cam0[:, :3, 3]
+        R_ct = np.swapaxes(R_tc, 1, 2)
+        R_cs = R_ct @ R_ts  # pose of the sole in the camera frame, per image
+        t_cs = np.einsum("mij,mj->mi", R_ct, t_ts - t_tc)
+
+        # Board mount (Eq. 4), per leg.
+        p_board = np.empty((N, 3))
+        board_rot = {}
+        for leg in LEGS:
+            rows = self.row_slices[leg]
+            rz = _get(values, t, f"board.{leg}.rot_z")
+            c, s = np.cos(rz), np.sin(rz)
+            px = data.p_sole[rows, 0] + _get(values, t, f"board.{leg}.trans_x")
+            py = data.p_sole[rows, 1] + _get(values, t, f"board.{leg}.trans_y")
+            p_board[rows, 0], p_board[rows, 1], p_board[rows, 2] = c * px - s * py, s * px + c * py, data.p_sole[rows, 2]
+            board_rot[leg] = (c, s, px, py)
+        p_cam = np.einsum("nij,nj->ni", R_cs[img], p_board) + t_cs[img]
+
+        # Projection (Eq. 1) with the prior distortion plus the distortion effect.
+        intr = data.intrinsics
+        fx = intr["fx_px"] + _get(values, t, "intrinsics.fx")
+        fy = intr["fy_px"] + _get(values, t, "intrinsics.fy")
+        cx = intr["cx_px"] + _get(values, t, "intrinsics.cx")
+        cy = intr["cy_px"] + _get(values, t, "intrinsics.cy")
+        k = np.array(intr.get("distortion", (0, 0, 0, 0, 0)), dtype=float).copy()
+        k[0] += _get(values, t, "distortion.k1")
+        k[1] += _get(values, t, "distortion.k2")
+        x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
+        inv_x = 1.0 / x
+        xn, yn = -y * inv_x, -z * inv_x
+        xd, yd, r2, D = _distort(xn, yn, k)
+        residual = np.stack([cx + fx * xd, cy + fy * yd], axis=1) - data.uv_px
+        if not jacobian:
+            return residual, None
+
+        # Every kinematic parameter moves the board rigidly relative to the camera: a twist (v, w) per image in the
+        # camera frame, dp = v + w x p. Per vertex, d(u, v)/d twist is the 2 x 6 interaction matrix L = [A, p x a_i].
+        L = np.empty((N, 2, 6))
+        for row, f, D_xn, D_yn in ((0, fx, D[:, 0, 0], D[:, 0, 1]), (1, fy, D[:, 1, 0], D[:, 1, 1])):
+            a0 = -(D_xn * xn + D_yn * yn) * f * inv_x  # d u / d p_cam (row 0) or d v / d p_cam (row 1)
+            a1 = -D_xn * f * inv_x
+            a2 = -D_yn * f * inv_x
+            L[:, row, 0], L[:, row, 1], L[:, row, 2] = a0, a1, a2
+            L[:, row, 3] = y * a2 - z * a1  # p x a
+            L[:, row, 4] = z * a0 - x * a2
+            L[:, row, 5] = x * a1 - y * a0
+
+        P = len(values)
+        twists = np.zeros((M, 6, P))  # per image: d(v, w) / d parameter
+        joint_twists = np.zeros((M, 6, len(JOINTS)))
+        for leg in LEGS:
+            images = self.image_slices[leg]
+            if images.start == images.stop:
+                continue
+            z_c = np.einsum("mij,mkj->mki", R_ct[images], leg_axes[images])
+            o_c = np.einsum("mij,mkj->mki", R_ct[images], leg_origins[images] - t_tc[images, None, :])
+            joint_twists[images, :3, LEG_COLUMNS[leg][0]:LEG_COLUMNS[leg][-1] + 1] = np.swapaxes(_cross(o_c, z_c), 1, 2)
+            joint_twists[images, 3:, LEG_COLUMNS[leg][0]:LEG_COLUMNS[leg][-1] + 1] = np.swapaxes(z_c, 1, 2)
+            if f"board.{leg}.rot_z" in t.index:
+                c, s, _, _ = board_rot[leg]
+                w = R_cs[images, :, 2]  # the sole's z axis in the camera frame
+                i = t.index[f"board.{leg}.rot_z"]
+                twists[images, :3, i] = _cross(t_cs[images], w)
+                twists[images, 3:, i] = w
+                twists[images, :3, t.index[f"board.{leg}.trans_x"]] = R_cs[images] @ np.array([c, s, 0.0])
+                twists[images, :3, t.index[f"board.{leg}.trans_y"]] = R_cs[images] @ np.array([-s, c, 0.0])
+            if f"link_length.{leg}.thigh" in t.index:
+                dirs_c = np.einsum("mij,mkj->mik", R_ct[images], link_dirs[images])  # (m, 3, 2)
+                i = t.index[f"link_length.{leg}.thigh"]
+                twists[images, :3, i:i + 2] = dirs_c
+        if t.uses_head:
+            head_axes, head_origins = joint_axes_and_origins(head_frames, chain)
+            z_c = np.einsum("mij,mkj->mki", R_ct, head_axes)
+            o_c = np.einsum("mij,mkj->mki", R_ct, head_origins - t_tc[:, None, :])
+            # The camera turns about the head joint: the point moves the opposite way.
+            joint_twists[:, :3, HEAD_COLUMNS] = -np.swapaxes(_cross(o_c, z_c), 1, 2)
+            joint_twists[:, 3:, HEAD_COLUMNS] = -np.swapaxes(z_c, 1, 2)
+        if len(t.joint_param):
+            entries = joint_twists[:, :, t.joint_col] * t.regressor[:, None, :]  # (M, 6, K)
+            twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
+        if "camera.pitch" in t.index:
+            # p_cam = R_off^T p_cam0, so dp = dR^T R_off p_cam: a rotation with w = vee(dR^T R_off).
+            for name, dR in (("camera.pitch", d_rot_y(pitch) @ Rx @ Rz), ("camera.roll", Ry @ d_rot_x(roll) @ Rz),
+                             ("camera.yaw", Ry @ Rx @ d_rot_z(yaw))):
+                G = dR.T @ R_off
+                twists[:, 3:, t.index[name]] = (G[2, 1], G[0, 2], G[1, 0])
+
+        if self._regular:
+            V = N // M
+            J = np.matmul(L.reshape(M, 2 * V, 6), twists).reshape(N, 2, P)
+        else:
+            J = np.einsum("nik,nkp->nip", L, twists[img])
+
+        # Intrinsics and distortion.
+        for name, col, axis in (("intrinsics.fx", xd, 0), ("intrinsics.fy", yd, 1),
+                                ("intrinsics.cx", 1.0, 0), ("intrinsics.cy", 1.0, 1)):
+            if name in t.index:
+                J[:, axis, t.index[name]] = col
+        for name, power in (("distortion.k1", 1), ("distortion.k2", 2)):
+            if name in t.index:
+                rp = r2 ** power
+                J[:, 0, t.index[name]] = fx * xn * rp
+                J[:, 1, t.index[name]] = fy * yn * rp
+        return residual, J

@@ -1,0 +1,9 @@
+import sys
+from pathlib import Path
+
+# Tests import the packages from this checkout, installed or not.
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+SHARED = ROOT.parent / "shared"

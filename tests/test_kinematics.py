@@ -1,0 +1,136 @@
+"""Forward kinematics and gravity torques against independent computations."""
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import SHARED
+from solver import kinematics
+from solver.joints import HEAD_JOINTS, leg_joints
+from solver.nao_model import SANDAL_MASS_KG, board_vertices_sole, leg_chain
+from solver.urdf import nominal_urdf
+
+URDF = SHARED / "reference" / "nao_v50.urdf"
+
+
+class XmlChain:
+    """A chain walked from the raw URDF XML with scipy rotations: shares no code with solver/."""
+
+    def __init__(self, path):
+        root = ET.parse(path).getroot()
+        self.by_child = {}
+        for joint in root.findall("joint"):
+            origin = joint.find("origin")
+            axis = joint.find("axis")
+            self.by_child[joint.find("child").get("link")] = {
+                "name": joint.get("name"),
+                "type": joint.get("type"),
+                "parent": joint.find("parent").get("link"),
+                "xyz": np.array([float(v) for v in origin.get("xyz").split()]),
+                "rpy": [float(v) for v in origin.get("rpy").split()],
+                "axis": np.array([float(v) for v in axis.get("xyz").split()]) if axis is not None else None,
+            }
+
+    def pose(self, link, angles):
+        """(R, t) of `link` in the torso frame, with joint angles from the dict `angles`."""
+        R, t = np.eye(3), np.zeros(3)
+        while link != "torso":
+            joint = self.by_child[link]
+            R_origin = Rotation.from_euler("xyz", joint["rpy"]).as_matrix()  # extrinsic x, y, z = URDF rpy
+            R_joint = np.eye(3)
+            if joint["type"] == "revolute":
+                axis = joint["axis"] / np.linalg.norm(joint["axis"])
+                R_joint = Rotation.from_rotvec(axis * angles[joint["name"]]).as_matrix()
+            # pose_parent_child = (R_origin R_joint, xyz); compose on the left of what we have.
+            R, t = R_origin @ R_joint @ R, R_origin @ R_joint @ t + joint["xyz"]
+            link = joint["parent"]
+        return R, t
+
+
+def random_angles(rng, names, n):
+    urdf = nominal_urdf()
+    lower = np.array([urdf.joints[j].lower for j in names])
+    upper = np.array([urdf.joints[j].upper for j in names])
+    return rng.uniform(lower, upper, size=(n, len(names)))
+
+
+@pytest.fixture(scope="module")
+def xml_chain():
+    return XmlChain(URDF)
+
+
+@pytest.mark.parametrize("leg,sole", [("L", "l_sole"), ("R", "r_sole")])
+def test_leg_fk_matches_independent_chain(xml_chain, leg, sole):
+    rng = np.random.default_rng(0)
+    names = leg_joints(leg)
+    q = random_angles(rng, names, 1000)
+    T = kinematics.leg_fk(q, leg)
+    worst_t = worst_R = 0.0
+    for i in range(len(q)):
+        R, t = xml_chain.pose(sole, dict(zip(names, q[i])))
+        worst_t = max(worst_t, np.abs(T[i, :3, 3] - t).max())
+        worst_R = max(worst_R, np.linalg.norm(Rotation.from_matrix(T[i, :3, :3] @ R.T).as_rotvec()))
+    assert worst_t < 1e-9 and worst_R < 1e-9
+
+
+@pytest.mark.parametrize("camera,link", [("bottom", "CameraBottom_frame"), ("top", "CameraTop_frame")])
+def test_camera_fk_matches_independent_chain(xml_chain, camera, link):
+    rng = np.random.default_rng(1)
+    q = random_angles(rng, HEAD_JOINTS, 1000)
+    T = kinematics.camera_fk(q, camera)
+    for i in range(len(q)):
+        R, t = xml_chain.pose(link, dict(zip(HEAD_JOINTS, q[i])))
+        assert np.abs(T[i, :3, 3] - t).max() < 1e-9
+        assert np.linalg.norm(Rotation.from_matrix(T[i, :3, :3] @ R.T).as_rotvec()) < 1e-9
+
+
+def test_zero_pose_geometry_matches_documented_dimensions():
+    T = kinematics.leg_fk(np.zeros((1, 6)), "L")[0]
+    # HipOffsetY 0.050, HipOffsetZ 0.085, Thigh 0.100, Tibia 0.1029, FootHeight 0.04511 (URDF value).
+    np.testing.assert_allclose(T[:3, 3], [0.0, 0.050, -(0.085 + 0.100 + 0.1029 + 0.04511)], atol=1e-12)
+    np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-12)
+
+
+def test_link_length_corrections_lengthen_the_straight_leg():
+    q = np.zeros((1, 6))
+    base = kinematics.leg_fk(q, "R")[0, 2, 3]
+    longer = kinematics.leg_fk(q, "R", thigh_delta_m=0.002, tibia_delta_m=-0.001)[0, 2, 3]
+    assert longer - base == pytest.approx(-0.001, abs=1e-12)
+
+
+def potential_energy(q_leg, leg, g):
+    """U = -sum m g . p over the leg's links and the sandal."""
+    chain = leg_chain(leg)
+    frames, T_sole = kinematics.chain_frames(chain, q_leg[None])
+    U = 0.0
+    for k in range(6):
+        com = frames[0, k, :3, :3] @ chain.link_com[k] + frames[0, k, :3, 3]
+        U -= chain.link_mass[k] * g @ com
+    sandal = T_sole[0, :3, :3] @ np.array([0.17, 0, 0]) + T_sole[0, :3, 3]
+    return U - SANDAL_MASS_KG * g @ sandal
+
+
+@pytest.mark.parametrize("leg", ["L", "R"])
+def test_gravity_torque_is_minus_gradient_of_potential(leg):
+    rng = np.random.default_rng(2)
+    g = np.array([-9.81, 0.3, -0.5])
+    q = random_angles(rng, leg_joints(leg), 20)
+    tau = kinematics.gravity_torques(q, leg, g)
+    h = 1e-6
+    for i in range(len(q)):
+        for j in range(6):
+            dq = np.zeros(6)
+            dq[j] = h
+            grad = (potential_energy(q[i] + dq, leg, g) - potential_energy(q[i] - dq, leg, g)) / (2 * h)
+            assert tau[i, j] == pytest.approx(-grad, abs=1e-8)
+
+
+def test_board_vertices_span_documented_area():
+    v = board_vertices_sole()
+    assert v.shape == (24, 3)
+    np.testing.assert_allclose([v[:, 0].min(), v[:, 0].max()], [0.1075, 0.2325])
+    np.testing.assert_allclose([v[:, 1].min(), v[:, 1].max()], [-0.0375, 0.0375])
+    np.testing.assert_allclose(v[0], [0.1075, -0.0375, 0.0])
+    np.testing.assert_allclose(v[1], [0.1325, -0.0375, 0.0])
