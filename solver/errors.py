@@ -30,6 +30,8 @@ class DataError(NaocalError):
 class SolveError(NaocalError):
     """Identification failed or cannot be trusted; nothing is written."""
 
+    exit_code = 3
+
 
 class SafetyError(NaocalError):
     """A command was refused because it would leave the joint limits or collide."""

@@ -46,8 +46,9 @@ class IdentificationResult:
     message: str
     registry: Registry
     values: np.ndarray  # full parameter vector
-    std: np.ndarray  # full vector of standard deviations (tied ones copy their source; fixed ones are 0)
-    covariance: np.ndarray  # of the free parameters
+    std: np.ndarray  # full vector of standard deviations, per-image cluster-robust (tied copy their source; fixed 0)
+    std_iid: np.ndarray  # the classic s^2 (J^T J)^-1 standard deviations, for comparison
+    covariance: np.ndarray  # of the free parameters (cluster-robust)
     correlation: np.ndarray  # of the free parameters
     condition_number: float  # of the column-scaled Jacobian
     weak_directions: list[WeakDirection]
@@ -87,14 +88,31 @@ def identifiability(J_free: np.ndarray, registry: Registry):
     order = np.argsort(eigenvalues)[::-1]
     sv = np.sqrt(np.clip(eigenvalues[order], 0.0, None))
     Vt = vectors[:, order].T
-    if sv[0] == 0:
+    if sv[0] == 0 or sv[-1] <= sv[0] * 1e-300:
         return np.inf, sv, Vt
-    return float(sv[0] / max(sv[-1], np.finfo(float).tiny)), sv, Vt
+    return float(sv[0] / sv[-1]), sv, Vt
 
 
 def _direction(sv_rel, std_along, vector, names) -> WeakDirection:
     coefficients = {n: float(c) for n, c in zip(names, vector) if abs(c) > 0.05}
     return WeakDirection(float(sv_rel), float(std_along), coefficients)
+
+
+# An image needs at least this many vertices to determine its board's pose by itself (4 points, 8 equations).
+MIN_VERTICES_PER_IMAGE = 4
+
+
+def data_warnings(data: ModelData) -> list[str]:
+    """Problems of the data that do not stop the solve but that the user must know about."""
+    warnings = []
+    counts = np.bincount(data.image_of_row, minlength=data.n_images)
+    thin = data.image_id[counts < MIN_VERTICES_PER_IMAGE]
+    if len(thin):
+        listed = ", ".join(str(int(i)) for i in thin[:10]) + (" ..." if len(thin) > 10 else "")
+        warnings.append(f"{len(thin)} of {data.n_images} images have fewer than {MIN_VERTICES_PER_IMAGE} vertices "
+                        f"(images {listed}): each alone cannot fix its board's pose, so a bad detection in them "
+                        "cannot be told from a model error")
+    return warnings
 
 
 def check_identifiable(J_free: np.ndarray, registry: Registry):
@@ -110,6 +128,30 @@ def check_identifiable(J_free: np.ndarray, registry: Registry):
             f"{', '.join(involved)}. Measure more varied stances (both legs, several head postures), "
             f"or fix these parameters (--fix)."
         )
+
+
+def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, dof):
+    """Covariance of the free parameters: per-image cluster-robust (sandwich), and the classic s^2 (J^T J)^-1.
+
+    The 24 vertices of one image share its errors (encoder quantisation, backlash, a board that flexes), so the
+    classic estimate, which treats every pixel as independent, is too optimistic; the sandwich
+    (J^T J)^-1 (sum_m g_m g_m^T) (J^T J)^-1 with g_m = J_m^T r_m the score of image m is not. Both are in the
+    unscaled parameter units. Unidentifiable directions (singular value below UNIDENTIFIABLE_RATIO) are left out.
+    """
+    usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
+    inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
+    bread = (Vt.T * inv_sv2) @ Vt  # (Js^T Js)^+ in scaled units
+    s2 = float(r @ r) / dof
+    covariance_iid = bread * s2 * np.outer(scales, scales)
+    Js = J_free * scales
+    n_images = int(image_of_row.max()) + 1 if len(image_of_row) else 0
+    rows = np.repeat(image_of_row, 2)
+    scores = np.zeros((n_images, Js.shape[1]))
+    np.add.at(scores, rows, Js * r[:, None])
+    n, p = len(r), Js.shape[1]
+    small_sample = n_images / max(n_images - 1, 1) * (n - 1) / max(n - p, 1)
+    covariance = bread @ (scores.T @ scores) @ bread * small_sample * np.outer(scales, scales)
+    return covariance, covariance_iid
 
 
 def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
@@ -201,6 +243,7 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
 
     model, fun_and_jac = make_problem(registry)
     if check:
+        warnings.extend(data_warnings(model.data))
         J0 = fun_and_jac(registry.pack(base))[1]
         empty = [n for n, col in zip(registry.free_names, J0.T) if not np.any(col)]
         if empty:
@@ -212,10 +255,10 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
 
     scales = registry.scales[registry.free_index]
     free0 = registry.pack(base)
+    if check:
+        check_identifiable(fun_and_jac(free0)[1], registry)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         try:
-            if check:
-                check_identifiable(fun_and_jac(free0)[1], registry)
             if loss == "linear" and solver == "lm":
                 free, r, J_free, status, message, n_jac, n_fun = levenberg_marquardt(
                     fun_and_jac, free0, scales, max_iterations=max_iterations)
@@ -246,13 +289,13 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     s2 = float(np.sum(weights.repeat(2) * r ** 2) / dof)
 
     cond, sv, Vt = identifiability(J_free, registry)
-    usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
-    inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
-    covariance = ((Vt.T * inv_sv2) @ Vt * s2) * np.outer(scales, scales)
+    covariance, covariance_iid = parameter_covariance(J_free, r * np.sqrt(weights.repeat(2)), sv, Vt, scales,
+                                                      model.data.image_of_row, dof)
     std_free = np.sqrt(np.diag(covariance))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)
     std = np.abs(registry.expand) @ std_free
+    std_iid = np.abs(registry.expand) @ np.sqrt(np.diag(covariance_iid))
     weak = [_direction(sv[k] / sv[0], float(np.sqrt(s2) / sv[k]) if sv[k] > 0 else np.inf, Vt[k],
                        registry.free_names) for k in np.argsort(sv)[:3]]
     for direction in weak:
@@ -271,7 +314,7 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     success = bool(success) and bool(np.all(np.isfinite(values)))
     return IdentificationResult(
         success=success, status=int(status), message=message, registry=registry, values=values,
-        std=std, covariance=covariance, correlation=correlation, condition_number=cond, weak_directions=weak,
+        std=std, std_iid=std_iid, covariance=covariance, correlation=correlation, condition_number=cond, weak_directions=weak,
         residuals_px=residuals, weights=weights, rms_px=(float(rms[0]), float(rms[1])),
         iterations=int(n_jac), function_evaluations=int(n_fun), solve_time_s=time.perf_counter() - start,
         model=model, downweighted_images=downweighted, warnings=warnings,

@@ -41,7 +41,7 @@ def chain_frames(chain: Chain, q, *, length_deltas_m=None):
         if length_deltas_m is not None and j in length_deltas_m:
             delta = np.asarray(length_deltas_m[j], dtype=float)
             offset = offset + delta[..., None] * (offset / np.linalg.norm(offset))
-        t = t + np.einsum("nij,...j->ni", R, offset)
+        t = t + (R @ offset[..., None])[..., 0] if np.ndim(offset) > 1 else t + R @ offset
         R_origin = chain.T_origin[j, :3, :3]
         R_joint = rot_axis_angle(chain.axes[j], q[:, j])
         R = R @ (R_joint if np.array_equal(R_origin, np.eye(3)) else R_origin @ R_joint)

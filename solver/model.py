@@ -252,7 +252,11 @@ class Model:
             py = data.p_sole[rows, 1] + _get(values, t, f"board.{leg}.trans_y")
             p_board[rows, 0], p_board[rows, 1], p_board[rows, 2] = c * px - s * py, s * px + c * py, data.p_sole[rows, 2]
             board_rot[leg] = (c, s, px, py)
-        p_cam = np.einsum("nij,nj->ni", R_cs[img], p_board) + t_cs[img]
+        if self._regular:  # batched per image: (M, V, 3) @ (M, 3, 3)^T
+            V = N // M
+            p_cam = (p_board.reshape(M, V, 3) @ np.swapaxes(R_cs, 1, 2) + t_cs[:, None, :]).reshape(N, 3)
+        else:
+            p_cam = np.einsum("nij,nj->ni", R_cs[img], p_board) + t_cs[img]
 
         # Projection (Eq. 1) with the prior distortion plus the distortion effect.
         intr = data.intrinsics
@@ -340,3 +344,38 @@ class Model:
                 J[:, 0, t.index[name]] = fx * xn * rp
                 J[:, 1, t.index[name]] = fy * yn * rp
         return residual, J
+
+
+def model_data_from_dataset(dataset) -> ModelData:
+    """ModelData from a read `naocal.dataset/1` (solver.dataset.Dataset): per-image arrays, rows sorted by leg.
+
+    Per-image values (leg, stance, posture, angles) are taken from the first row of each image; the reader has
+    already checked that they agree within an image.
+    """
+    cols = dataset.columns
+    image = np.asarray(cols["image"], dtype=np.int64)
+    image_ids, first_row, image_of_row = np.unique(image, return_index=True, return_inverse=True)
+    theta = dataset.joint_matrix("")[first_row]
+    direction = dataset.joint_matrix("dir_")[first_row]
+    velocity = dataset.joint_matrix("vel_")[first_row] if dataset.has_velocities else None
+    leg = np.asarray(cols["leg"]).astype(str)[first_row]
+    camera = dataset.meta["camera"]
+    distortion = list(camera.get("distortion") or [0.0] * 5) + [0.0] * 5
+    intrinsics = {
+        "fx_px": float(camera["fx_px"]), "fy_px": float(camera["fy_px"]),
+        "cx_px": float(camera["cx_px"]), "cy_px": float(camera["cy_px"]),
+        "width_px": int(camera["width_px"]), "height_px": int(camera["height_px"]),
+        "distortion": [float(d) for d in distortion[:5]],
+    }
+    gravity = np.asarray(dataset.meta.get("gravity_torso_mps2", (-9.81, 0.0, 0.0)), dtype=float)
+    order = np.lexsort((np.asarray(cols["vertex"]), image_of_row))  # rows grouped by image
+    data = ModelData(
+        image_of_row=image_of_row[order], vertex=np.asarray(cols["vertex"], dtype=np.int64)[order],
+        uv_px=np.column_stack([cols["u_px"], cols["v_px"]]).astype(float)[order],
+        p_sole=np.column_stack([cols["x_sole_m"], cols["y_sole_m"], cols["z_sole_m"]]).astype(float)[order],
+        leg=leg, image_id=image_ids, stance=np.asarray(cols["stance"], dtype=np.int64)[first_row],
+        head_posture=np.asarray(cols["head_posture"], dtype=np.int64)[first_row], theta=theta,
+        direction=direction, tau=compute_gravity_torques(theta, leg, gravity), velocity=velocity,
+        intrinsics=intrinsics, gravity_torso_mps2=gravity,
+    )
+    return data.sorted_by_leg()

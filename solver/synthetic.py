@@ -111,3 +111,39 @@ def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, boa
         else:
             truth[p.name] = rng.uniform(-1.0, 1.0) * p.scale
     return truth
+
+
+def dataset_parts(data: ModelData, *, robot_id="synthetic", pixel_noise_px=None, source="naocal synthetic"):
+    """(meta, columns) of a naocal.dataset/1 holding `data` (commanded = measured angles, still captures)."""
+    from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG
+
+    intr = data.intrinsics
+    meta = {
+        "schema": "naocal.dataset/1",
+        "robot": {"id": robot_id, "model": "NAO H25 V5"},
+        "camera": {"name": "bottom", "width_px": int(intr.get("width_px", 640)),
+                   "height_px": int(intr.get("height_px", 480)), "fx_px": float(intr["fx_px"]),
+                   "fy_px": float(intr["fy_px"]), "cx_px": float(intr["cx_px"]), "cy_px": float(intr["cy_px"]),
+                   "distortion": [float(d) for d in intr.get("distortion", [0.0] * 5)]},
+        "board": {"columns": BOARD_COLUMNS, "rows": BOARD_ROWS, "square_m": BOARD_SQUARE_M,
+                  "center_x_m": BOARD_CENTER_X_M, "mass_kg": SANDAL_MASS_KG},
+        "source": source,
+        "gravity_torso_mps2": [float(g) for g in data.gravity_torso_mps2],
+    }
+    if pixel_noise_px is not None:
+        meta["pixel_noise_px"] = float(pixel_noise_px)
+    img = data.image_of_row
+    columns = {
+        "image": data.image_id[img], "leg": data.leg[img], "stance": data.stance[img],
+        "head_posture": data.head_posture[img], "vertex": data.vertex,
+        "u_px": data.uv_px[:, 0], "v_px": data.uv_px[:, 1],
+        "x_sole_m": data.p_sole[:, 0], "y_sole_m": data.p_sole[:, 1], "z_sole_m": data.p_sole[:, 2],
+        "t_image_s": data.image_id[img] * 2.0 + 1.0, "t_joints_s": data.image_id[img] * 2.0 + 1.0,
+    }
+    for c, joint in enumerate(JOINTS):
+        columns[joint] = data.theta[img, c]
+        columns["cmd_" + joint] = data.theta[img, c]
+        columns["dir_" + joint] = data.direction[img, c]
+        if data.velocity is not None:
+            columns["vel_" + joint] = data.velocity[img, c]
+    return meta, columns

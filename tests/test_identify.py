@@ -1,0 +1,175 @@
+"""Identification (issue 3): recovers known truth, honest uncertainty, exact Jacobian, clear failures."""
+
+import numpy as np
+import pytest
+
+from solver.errors import SolveError
+from solver.identify import identify
+from solver.model import Model
+from solver.registry import EXTRA_EFFECTS, LEG_JOINTS, Registry
+from solver.synthetic import random_truth, synthesize
+
+DEG = np.pi / 180
+
+
+def errors(result, truth):
+    return {n: result.value(n) - truth.get(n, 0.0) for n in result.registry.names}
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_recovers_truth_from_noisy_pixels(seed):
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    result = identify(data, Registry())
+    assert result.success, result.message
+    err = errors(result, truth)
+    for joint in LEG_JOINTS:
+        assert abs(err[f"joint_offset.{joint}"]) < 0.02 * DEG, joint
+    for angle in ("roll", "pitch", "yaw"):
+        assert abs(err[f"camera.{angle}"]) < 0.01 * DEG, angle
+    assert all(abs(r - 0.1) < 0.01 for r in result.rms_px), result.rms_px
+
+
+def test_quantised_encoders_give_errors_consistent_with_reported_std():
+    """With 0.1 deg encoder quantisation the errors grow, and the reported std grows with them."""
+    z2 = []
+    for seed in range(6):
+        rng = np.random.default_rng(100 + seed)
+        truth = random_truth(rng)
+        data = synthesize(rng, truth, pixel_noise_px=0.1, encoder_resolution_rad=0.1 * DEG)
+        result = identify(data, Registry())
+        err = errors(result, truth)
+        z2.extend((err[n] / result.std[result.registry.index[n]]) ** 2 for n in result.registry.names)
+    # Mean of squared normalised errors is 1 for honest standard deviations; allow for the non-Gaussian,
+    # image-correlated quantisation error.
+    assert 0.3 < np.mean(z2) < 3.0, np.mean(z2)
+
+
+def test_started_at_truth_stays_within_noise():
+    rng = np.random.default_rng(5)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    registry = Registry()
+    at_truth = identify(data, registry, x0=registry.from_dict(truth))
+    from_zero = identify(data, registry)
+    normalised = (at_truth.values - registry.from_dict(truth)) / at_truth.std
+    assert np.all(np.abs(normalised) < 4), normalised
+    np.testing.assert_allclose(at_truth.values, from_zero.values, atol=1e-4 * at_truth.std.min())
+
+
+def test_minpack_and_naocal_lm_agree():
+    rng = np.random.default_rng(6)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=0.2)
+    ours = identify(data, Registry())
+    scipy_lm = identify(data, Registry(), solver="minpack")
+    assert scipy_lm.success
+    np.testing.assert_allclose(ours.values, scipy_lm.values, atol=1e-3 * ours.std.min())
+
+
+def test_tied_hip_yaw_pitch_takes_one_value():
+    rng = np.random.default_rng(7)
+    truth = random_truth(rng)
+    truth["joint_offset.RHipYawPitch"] = truth["joint_offset.LHipYawPitch"]
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    result = identify(data, Registry(tie_hip_yaw_pitch=True))
+    assert result.value("joint_offset.RHipYawPitch") == result.value("joint_offset.LHipYawPitch")
+    assert abs(result.value("joint_offset.LHipYawPitch") - truth["joint_offset.LHipYawPitch"]) < 0.02 * DEG
+    assert len(result.registry.free_names) == 20
+
+
+def test_fixed_effect_stays_at_zero():
+    rng = np.random.default_rng(8)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=0.1)
+    result = identify(data, Registry(fixed=["board_mount"]))
+    assert all(result.value(n) == 0.0 for n in result.registry.names if n.startswith("board."))
+
+
+def test_robust_loss_reports_the_corrupted_images():
+    rng = np.random.default_rng(9)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    bad = [3, 50, 100]
+    for m in bad:
+        data.uv_px[data.image_of_row == m] += rng.normal(0, 15, size=(24, 2))
+    result = identify(data, Registry(), loss="soft_l1", loss_scale_px=0.5)
+    assert sorted(result.downweighted_images) == sorted(int(data.image_id[m]) for m in bad)
+    err = errors(result, truth)
+    assert max(abs(err[f"joint_offset.{j}"]) for j in LEG_JOINTS) < 0.05 * DEG
+
+
+@pytest.mark.parametrize("effects", [(), EXTRA_EFFECTS])
+def test_jacobian_matches_finite_differences(effects):
+    rng = np.random.default_rng(10)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=4, velocity=rng.normal(0, 0.3, (24, 14)))
+    registry = Registry(effects)
+    model = Model(data, registry)
+    x = registry.from_dict(random_truth(rng, effects))
+    if "distortion.k1" in registry.index:
+        x[registry.index["distortion.k1"]] = 0.05
+    _, J = model.evaluate(x)
+    h = 1e-6
+    for i, name in enumerate(registry.names):
+        step = np.zeros(len(x))
+        step[i] = h * registry.scales[i] / 0.01
+        fd = (model.residuals(x + step) - model.residuals(x - step)) / (2 * step[i])
+        scale = max(np.abs(J[:, :, i]).max(), 1e-12)
+        assert np.abs(fd - J[:, :, i]).max() / scale < 1e-5, name
+
+
+def test_weakest_direction_names_the_parallel_pitch_joints():
+    """HipPitch, KneePitch and AnklePitch are parallel axes: the weakest directions must say so."""
+    rng = np.random.default_rng(11)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=0.1)
+    result = identify(data, Registry())
+    named = set().union(*(w.coefficients for w in result.weak_directions[:2]))
+    assert any("KneePitch" in n for n in named) and any("HipPitch" in n for n in named)
+
+
+# ---------------------------------------------------------------------------------------- degenerate data
+
+
+def test_one_stance_per_leg_is_refused_naming_the_parameters():
+    rng = np.random.default_rng(12)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=1)
+    with pytest.raises(SolveError, match="joint_offset"):
+        identify(data, Registry())
+
+
+def test_identical_stances_are_refused():
+    rng = np.random.default_rng(13)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=6)
+    for leg in ("L", "R"):
+        images = np.flatnonzero(data.leg == leg)
+        data.theta[images, 2:] = data.theta[images[0], 2:]
+        data.head_posture[images] = 0
+    with pytest.raises(SolveError, match="cannot determine"):
+        identify(data, Registry())
+
+
+def test_one_leg_only_warns_and_fixes_the_other_legs_parameters():
+    rng = np.random.default_rng(14)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    left = data.subset(np.flatnonzero(data.leg == "L"))
+    result = identify(left, Registry())
+    assert result.success
+    assert any("joint_offset.RHipPitch" in w and "board.R.rot_z" in w for w in result.warnings), result.warnings
+    assert result.value("joint_offset.RHipPitch") == 0.0
+    assert abs(result.value("joint_offset.LKneePitch") - truth["joint_offset.LKneePitch"]) < 0.05 * DEG
+
+
+def test_two_vertices_per_image_warns_and_stays_honest():
+    """Two vertices per image still determine the 21 parameters (many images), but not each image's board
+    pose: the result must warn, and its errors must agree with its standard deviations."""
+    rng = np.random.default_rng(15)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    keep = np.flatnonzero(np.isin(data.vertex, [0, 1]))  # two neighbouring vertices: the board's roll is lost
+    thin = data.subset(np.arange(data.n_images))
+    for name in ("vertex", "uv_px", "p_sole", "image_of_row"):
+        setattr(thin, name, getattr(data, name)[keep])
+    result = identify(thin, Registry())
+    assert any("fewer than 4 vertices" in w for w in result.warnings), result.warnings
+    normalised = [(result.value(n) - truth[n]) / result.std[result.registry.index[n]] for n in truth]
+    assert np.max(np.abs(normalised)) < 5

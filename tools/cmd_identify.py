@@ -1,0 +1,165 @@
+"""`naocal identify DATASET`: fit the model to a dataset and print (or save) the parameters."""
+
+import argparse
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "identify",
+        help="identify joint offsets, camera rotation and board mounts from a dataset",
+        description=(
+            "Fit the paper's 21-parameter model (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per "
+            "leg), plus any --effects, to a naocal.dataset/1 directory by Levenberg-Marquardt on the pixel error of "
+            "the board vertices. Prints a table (or --json); --out writes a naocal.offsets/1 file. Exit 0 on "
+            "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
+        ),
+    )
+    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("--effects", default="", help="extra model terms, comma separated: elasticity, backlash, "
+                   "link_lengths, head_offsets, intrinsics, distortion, time_lag")
+    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/1 file (atomic, old one kept as .bak)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--tie-hip-yaw-pitch", action="store_true",
+                   help="RHipYawPitch takes LHipYawPitch's offset (one motor on the robot)")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME",
+                   help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw")
+    p.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
+                   help="robust loss; images it down-weights are reported (default: linear)")
+    p.add_argument("--loss-scale-px", type=float, default=1.0, help="residual where the robust loss bends (px)")
+    p.add_argument("--solver", default="lm", choices=("lm", "minpack"),
+                   help="lm: naocal's Levenberg-Marquardt (fast); minpack: scipy.optimize.least_squares(method='lm')")
+    p.add_argument("--cv-folds", type=int, default=5,
+                   help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    import json
+
+    import numpy as np
+
+    from solver.dataset import read_dataset
+    from solver.errors import NaocalError, SolveError
+    from solver.identify import identify
+    from solver.model import model_data_from_dataset
+    from solver.registry import Registry, parse_effects
+
+    if args.loss_scale_px <= 0:
+        raise NaocalError("--loss-scale-px must be positive")
+    effects = parse_effects(args.effects)
+    registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
+    dataset = read_dataset(args.dataset)
+    data = model_data_from_dataset(dataset)
+    if "time_lag" in effects and data.velocity is None:
+        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+    result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
+    if not result.success:
+        raise SolveError(f"the solve did not converge ({result.message}); nothing written")
+
+    cv_rms = None
+    if args.cv_folds and args.cv_folds > 1:
+        from solver.crossval import grouped_cv_rms
+
+        cv_rms = grouped_cv_rms(data, result.registry, n_folds=args.cv_folds)
+
+    if args.out:
+        write_offsets_file(args.out, result, dataset, args.dataset)
+
+    if args.json:
+        print(json.dumps(result_json(result, effects, cv_rms), indent=1))
+    else:
+        print(format_table(result, cv_rms))
+    return 0
+
+
+def result_json(result, effects, cv_rms) -> dict:
+    import numpy as np
+
+    free = list(result.registry.free_names)
+    return {
+        "success": result.success,
+        "message": result.message,
+        "rms_px": list(result.rms_px),
+        "cv_rms_px": None if cv_rms is None else [float(v) for v in cv_rms],
+        "solve_time_s": result.solve_time_s,
+        "iterations": result.iterations,
+        "function_evaluations": result.function_evaluations,
+        "effects": list(effects),
+        "n_vertices": int(result.model.data.n_rows),
+        "n_images": int(result.model.data.n_images),
+        "parameters": result.parameters_dict(),
+        "condition_number": result.condition_number,
+        "weak_directions": [
+            {"singular_value": w.singular_value, "coefficients": w.coefficients} for w in result.weak_directions
+        ],
+        "correlation": {"names": free, "matrix": np.round(np.nan_to_num(result.correlation), 4).tolist()},
+        "downweighted_images": result.downweighted_images,
+        "warnings": result.warnings,
+    }
+
+
+def format_table(result, cv_rms) -> str:
+    import numpy as np
+
+    lines = [
+        f"fit: RMS {result.rms_px[0]:.3f} px (x), {result.rms_px[1]:.3f} px (y) over "
+        f"{result.model.data.n_rows} vertices in {result.model.data.n_images} images; "
+        f"{result.iterations} iterations, {result.solve_time_s * 1e3:.1f} ms",
+    ]
+    if cv_rms is not None:
+        lines.append(f"cross-validated (whole stances held out): RMS {cv_rms[0]:.3f} px (x), {cv_rms[1]:.3f} px (y)")
+    lines.append("")
+    lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
+    for name, entry in result.parameters_dict().items():
+        value, std, unit = entry["value"], entry["std"], entry["unit"]
+        if unit == "rad":
+            value, std, unit = np.degrees(value), np.degrees(std), "deg"
+        elif unit == "m":
+            value, std, unit = value * 1e3, std * 1e3, "mm"
+        elif unit == "rad/(N m)":
+            value, std, unit = np.degrees(value), np.degrees(std), "deg/(N m)"
+        fixed = "  (fixed)" if name in result.registry.fixed else ""
+        lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}")
+    lines.append("")
+    lines.append(f"condition number (scaled Jacobian): {result.condition_number:.3g}")
+    lines.append("weakest directions (what the data determine least; why repeated runs can differ):")
+    for w in result.weak_directions:
+        lines.append(f"  relative singular value {w.singular_value:.2e}: {w.describe()}")
+    strong = strongest_correlations(result)
+    if strong:
+        lines.append("strongest correlations:")
+        lines.extend(f"  {a} ~ {b}: {c:+.3f}" for a, b, c in strong)
+    if result.downweighted_images:
+        lines.append(f"down-weighted by the robust loss: images {result.downweighted_images}")
+    for warning in result.warnings:
+        lines.append(f"warning: {warning}")
+    return "\n".join(lines)
+
+
+def strongest_correlations(result, count=5, threshold=0.8):
+    import numpy as np
+
+    names = result.registry.free_names
+    C = np.nan_to_num(result.correlation)
+    pairs = [(abs(C[i, j]), names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i)]
+    pairs.sort(reverse=True)
+    return [(a, b, c) for m, a, b, c in pairs[:count] if m >= threshold]
+
+
+def write_offsets_file(path, result, dataset, dataset_path):
+    from solver.offsets import offsets_from_parameters, write_offsets
+
+    robot_meta = dataset.meta.get("robot", {})
+    robot = {
+        "id": str(robot_meta.get("id", "unknown")),
+        "body_id": str(robot_meta.get("body_id", robot_meta.get("id", "unknown"))),
+        "head_id": str(robot_meta.get("head_id", robot_meta.get("id", "unknown"))),
+    }
+    fit = {"rms_px": list(result.rms_px), "n_vertices": int(result.model.data.n_rows),
+           "n_images": int(result.model.data.n_images)}
+    offsets = offsets_from_parameters(
+        result.parameters_dict(), robot=robot, fit=fit,
+        effects=[e for e in result.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")],
+        source={"tool": "naocal identify", "dataset": str(dataset_path), "dataset_source": dataset.meta.get("source")},
+    )
+    write_offsets(offsets, path)
