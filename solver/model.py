@@ -193,6 +193,14 @@ class Model:
         self._entry_to_param[np.arange(K), t.joint_param] = 1.0
         counts = np.bincount(data.image_of_row, minlength=data.n_images)
         self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
+        self._head_cache = None
+
+    def _head_fk(self, q_head):
+        """Head chain FK, cached: without head terms the head angles never change during a fit."""
+        key = q_head.tobytes()
+        if self._head_cache is None or self._head_cache[0] != key:
+            self._head_cache = (key, *chain_frames(head_chain("bottom"), q_head))
+        return self._head_cache[1], self._head_cache[2]
 
     def joint_angles(self, values) -> np.ndarray:
         """q (M, 14): measured angles plus every joint-level term."""
@@ -203,7 +211,15 @@ class Model:
         """Predicted minus detected pixel positions, (N, 2), rows as in `self.data`."""
         return self.evaluate(values, jacobian=False)[0]
 
-    def evaluate(self, values, *, jacobian=True):
+    def board_twist_jacobian(self, values) -> np.ndarray:
+        """(N, 2, 6): d residual / d twist (v, w) of each image's board in the camera frame, v in m, w in rad.
+
+        Its six columns per image span every rigid motion of that board relative to the camera (what kinematic
+        errors can do); the diagnostics split residuals into this rigid part and a non-rigid remainder.
+        """
+        return self.evaluate(values, jacobian=False, _twist_only=True)[1]
+
+    def evaluate(self, values, *, jacobian=True, _twist_only=False):
         """Residuals (N, 2) and, if asked, the Jacobian (N, 2, P) with respect to the full parameter vector."""
         data, t = self.data, self.terms
         values = np.asarray(values, dtype=float)
@@ -231,7 +247,7 @@ class Model:
 
         # Head and camera (Eq. 3): R_tc = R_tc0 @ R_off.
         chain = head_chain("bottom")
-        head_frames, T_torso_cam0 = chain_frames(chain, q[:, HEAD_COLUMNS])
+        head_frames, T_torso_cam0 = self._head_fk(q[:, HEAD_COLUMNS])
         roll, pitch, yaw = (_get(values, t, f"camera.{a}") for a in ("roll", "pitch", "yaw"))
         Ry, Rx, Rz = rot_y(pitch), rot_x(roll), rot_z(yaw)
         R_off = Ry @ Rx @ Rz
@@ -272,7 +288,7 @@ class Model:
         xn, yn = -y * inv_x, -z * inv_x
         xd, yd, r2, D = _distort(xn, yn, k)
         residual = np.stack([cx + fx * xd, cy + fy * yd], axis=1) - data.uv_px
-        if not jacobian:
+        if not (jacobian or _twist_only):
             return residual, None
 
         # Every kinematic parameter moves the board rigidly relative to the camera: a twist (v, w) per image in the
@@ -286,6 +302,8 @@ class Model:
             L[:, row, 3] = y * a2 - z * a1  # p x a
             L[:, row, 4] = z * a0 - x * a2
             L[:, row, 5] = x * a1 - y * a0
+        if _twist_only:
+            return residual, L
 
         P = len(values)
         twists = np.zeros((M, 6, P))  # per image: d(v, w) / d parameter
