@@ -1,0 +1,748 @@
+"""The `naocal.dataset/1` directory format: what the agent records and the solver replays.
+
+A dataset is a directory holding
+- `dataset.json`: robot, prior camera intrinsics, board, source, optional gravity and pixel noise;
+- `observations.csv`: a header row, then one row per detected board vertex (columns below, any order,
+  extra columns allowed and kept);
+- optionally `images/` with the captured images (never read here).
+
+Every problem is a `DataError` naming the file, the line (1-based, the header is line 1) and the column or field.
+`DatasetAppender` lets the agent save each capture as it goes, so a crash never loses a complete capture.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import logging
+import math
+import operator
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from solver.errors import DataError
+from solver.fileio import atomic_write_text, fsync_directory
+from solver.joints import JOINTS
+
+log = logging.getLogger(__name__)
+
+SCHEMA = "naocal.dataset/1"
+META_FILE = "dataset.json"
+OBSERVATIONS_FILE = "observations.csv"
+IMAGES_DIR = "images"
+DEFAULT_GRAVITY_TORSO_MPS2 = (-9.81, 0.0, 0.0)  # a robot lying on its back
+
+INT_COLUMNS = ("image", "stance", "head_posture", "vertex")
+FLOAT_COLUMNS = ("u_px", "v_px", "x_sole_m", "y_sole_m", "z_sole_m", "t_image_s", "t_joints_s")
+MEASURED_COLUMNS = JOINTS
+COMMANDED_COLUMNS = tuple("cmd_" + j for j in JOINTS)
+DIRECTION_COLUMNS = tuple("dir_" + j for j in JOINTS)
+VELOCITY_COLUMNS = tuple("vel_" + j for j in JOINTS)  # naocal extension: rad/s at t_joints_s, all 14 or none
+# The required columns, in the order issue 2 lists them (also the order the writer uses).
+REQUIRED_COLUMNS = (
+    ("image", "leg", "stance", "head_posture", "vertex")
+    + FLOAT_COLUMNS
+    + MEASURED_COLUMNS
+    + COMMANDED_COLUMNS
+    + DIRECTION_COLUMNS
+)
+LEGS = ("L", "R")
+# Values that describe the robot's state when an image was taken: identical on every row of one image.
+PER_IMAGE_COLUMNS = ("leg", "stance", "head_posture") + MEASURED_COLUMNS + COMMANDED_COLUMNS + DIRECTION_COLUMNS
+
+
+@dataclass
+class Dataset:
+    """A dataset in memory.
+
+    Attributes
+    ----------
+    meta : dict
+        The contents of dataset.json, with defaults filled in (gravity_torso_mps2).
+    columns : dict[str, np.ndarray]
+        Column name -> (N,) array. Numeric columns float64; image, stance, head_posture, vertex int64;
+        leg a str array of 'L'/'R'; extra columns float64 if every value is a number, else str.
+    path : Path or None
+        The dataset directory it was read from or written to.
+    """
+
+    meta: dict
+    columns: dict
+    path: Path | None = None
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.columns["image"])
+
+    def joint_matrix(self, prefix: str = "") -> np.ndarray:
+        """(N, 14) float array in solver.joints.JOINTS order.
+
+        prefix "" gives the measured angles (rad), "cmd_" the commanded angles (rad), "dir_" the approach
+        directions (-1, 0, 1), "vel_" the joint velocities (rad/s, only if the dataset has them).
+        """
+        names = [prefix + j for j in JOINTS]
+        missing = [n for n in names if n not in self.columns]
+        if missing:
+            raise KeyError(f"dataset has no column {missing[0]!r}")
+        return np.stack([np.asarray(self.columns[n], dtype=np.float64) for n in names], axis=1)
+
+    def images(self) -> np.ndarray:
+        """Sorted unique image indices, int64."""
+        return np.unique(self.columns["image"])
+
+    @property
+    def has_velocities(self) -> bool:
+        return VELOCITY_COLUMNS[0] in self.columns
+
+    def select(self, rows) -> Dataset:
+        """A new dataset with only `rows` (boolean mask or index array); meta is copied."""
+        return Dataset(copy.deepcopy(self.meta), {k: v[rows] for k, v in self.columns.items()}, self.path)
+
+
+# ----------------------------------------------------------------------------------------------------- meta
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _require(meta: dict, key: str, path, where: str):
+    if key not in meta:
+        raise DataError(path, "missing required key", field=f"{where}{key}")
+    return meta[key]
+
+
+def _check_object(value, path, field) -> dict:
+    if not isinstance(value, dict):
+        raise DataError(path, f"expected a JSON object, got {type(value).__name__}", field=field)
+    return value
+
+
+def _check_string(value, path, field) -> str:
+    if not isinstance(value, str):
+        raise DataError(path, f"expected a string, got {value!r}", field=field)
+    return value
+
+
+def _check_number(value, path, field, *, positive=False, non_negative=False, integer=False):
+    if not _is_number(value):
+        raise DataError(path, f"expected a number, got {value!r}", field=field)
+    if not math.isfinite(value):
+        raise DataError(path, f"non-finite value {value!r}", field=field)
+    if integer and value != int(value):
+        raise DataError(path, f"expected an integer, got {value!r}", field=field)
+    if positive and value <= 0:
+        raise DataError(path, f"must be positive, got {value!r}", field=field)
+    if non_negative and value < 0:
+        raise DataError(path, f"must not be negative, got {value!r}", field=field)
+    return value
+
+
+def _check_vector(value, n, path, field):
+    if not isinstance(value, list) or len(value) != n:
+        raise DataError(path, f"expected a list of {n} numbers, got {value!r}", field=field)
+    for i, v in enumerate(value):
+        _check_number(v, path, f"{field}[{i}]")
+    return value
+
+
+def find_non_finite(obj, where=""):
+    """Field path of the first NaN or infinity in a JSON document, or None."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return where or "(top level)"
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            hit = find_non_finite(value, f"{where}.{key}" if where else str(key))
+            if hit:
+                return hit
+    elif isinstance(obj, list):
+        for i, value in enumerate(obj):
+            hit = find_non_finite(value, f"{where}[{i}]")
+            if hit:
+                return hit
+    return None
+
+
+def parse_json_text(text: str, path):
+    """json.loads with a DataError naming the file, line and column (and saying 'truncated' at the end)."""
+    if not text.strip():
+        raise DataError(path, "empty file: expected a JSON object")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        truncated = err.pos >= len(text.rstrip()) or err.msg.startswith("Unterminated string")
+        kind = "truncated JSON" if truncated else "invalid JSON"
+        raise DataError(path, f"{kind}: {err.msg} (column {err.colno})", line=err.lineno) from None
+
+
+def read_text(path) -> str:
+    """The UTF-8 text of `path`, with OS errors as DataError."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(path, "file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, "is a directory, expected a file") from None
+    except UnicodeDecodeError as err:
+        raise DataError(path, f"not UTF-8 text ({err.reason} at byte {err.start})") from None
+    except OSError as err:
+        raise DataError(path, err.strerror or str(err)) from None
+
+
+def validate_meta(meta, path) -> dict:
+    """Check a dataset.json document and return a copy with defaults filled in."""
+    meta = _check_object(meta, path, "(top level)")
+    schema = _require(meta, "schema", path, "")
+    if schema != SCHEMA:
+        raise DataError(path, f"wrong schema {schema!r}, expected {SCHEMA!r}", field="schema")
+    bad = find_non_finite(meta)
+    if bad:
+        raise DataError(path, "non-finite value (NaN or infinity)", field=bad)
+
+    robot = _check_object(_require(meta, "robot", path, ""), path, "robot")
+    for key in ("id", "model"):
+        _check_string(_require(robot, key, path, "robot."), path, f"robot.{key}")
+
+    camera = _check_object(_require(meta, "camera", path, ""), path, "camera")
+    name = _check_string(_require(camera, "name", path, "camera."), path, "camera.name")
+    if name != "bottom":
+        raise DataError(path, f"camera {name!r} is not supported, expected 'bottom'", field="camera.name")
+    for key in ("width_px", "height_px"):
+        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True, integer=True)
+    for key in ("fx_px", "fy_px"):
+        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True)
+    for key in ("cx_px", "cy_px"):
+        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}")
+    if "distortion" in camera:
+        _check_vector(camera["distortion"], 5, path, "camera.distortion")
+
+    board = _check_object(_require(meta, "board", path, ""), path, "board")
+    for key in ("columns", "rows"):
+        n = _check_number(_require(board, key, path, "board."), path, f"board.{key}", positive=True, integer=True)
+        if n < 2:
+            raise DataError(path, f"a board needs at least 2 squares, got {n}", field=f"board.{key}")
+    _check_number(_require(board, "square_m", path, "board."), path, "board.square_m", positive=True)
+    _check_number(_require(board, "center_x_m", path, "board."), path, "board.center_x_m")
+    _check_number(_require(board, "mass_kg", path, "board."), path, "board.mass_kg", non_negative=True)
+
+    _check_string(_require(meta, "source", path, ""), path, "source")
+    if "pixel_noise_px" in meta:
+        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True)
+    meta = copy.deepcopy(meta)
+    if "gravity_torso_mps2" in meta:
+        _check_vector(meta["gravity_torso_mps2"], 3, path, "gravity_torso_mps2")
+    else:
+        meta["gravity_torso_mps2"] = list(DEFAULT_GRAVITY_TORSO_MPS2)
+    return meta
+
+
+def n_board_vertices(meta: dict) -> int:
+    board = meta["board"]
+    return (int(board["columns"]) - 1) * (int(board["rows"]) - 1)
+
+
+# ------------------------------------------------------------------------------------------ observations
+
+
+def _first_bad(mask) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def _to_float(values, path, name: str, line_numbers) -> np.ndarray:
+    """Parse strings to float64, or raise naming the first value that is not a number."""
+    try:
+        return np.array(values, dtype=np.float64)
+    except ValueError:
+        pass
+    for i, text in enumerate(values):
+        try:
+            float(text)
+        except ValueError:
+            raise DataError(path, f"not a number: {text!r}", line=line_numbers[i], field=name) from None
+    raise AssertionError("unreachable: numpy refused a column that float() accepts")  # pragma: no cover
+
+
+def _try_float(values):
+    try:
+        return np.array(values, dtype=np.float64)
+    except ValueError:
+        return None
+
+
+def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
+    """One required (or vel_) column: parse and check the values of a single column."""
+    if name == "leg":
+        leg = np.array(strings, dtype=str) if len(strings) else np.array([], dtype="<U1")
+        bad = ~np.isin(leg, LEGS)
+        if bad.any():
+            i = _first_bad(bad)
+            raise DataError(path, f"unknown leg {leg[i]!r}, expected 'L' or 'R'", line=line_numbers[i], field=name)
+        return leg
+    values = _to_float(strings, path, name, line_numbers)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i = _first_bad(bad)
+        raise DataError(path, f"non-finite value {strings[i]!r}", line=line_numbers[i], field=name)
+    if name in INT_COLUMNS:
+        bad = values != np.round(values)
+        if bad.any():
+            i = _first_bad(bad)
+            raise DataError(path, f"expected an integer, got {strings[i]!r}", line=line_numbers[i], field=name)
+        values = values.astype(np.int64)
+    if name in DIRECTION_COLUMNS:
+        bad = ~np.isin(values, (-1.0, 0.0, 1.0))
+        if bad.any():
+            i = _first_bad(bad)
+            raise DataError(path, f"direction must be -1, 0 or 1, got {strings[i]!r}", line=line_numbers[i],
+                            field=name)
+    return values
+
+
+def _read_table(text: str, path):
+    """(header, raw columns {name: list of str}, line numbers of the data rows) of CSV text.
+
+    Blank lines are skipped; line numbers are 1-based (the header is line 1). The header is checked here.
+    """
+    if '"' not in text:  # no quoting: C-level splitting is several times faster than the csv module
+        lines = text.split("\n")
+        if "\r" in text:
+            lines = [line.rstrip("\r") for line in lines]
+        numbered = [(n, line) for n, line in enumerate(lines, start=1) if line]
+        if not numbered:
+            raise DataError(path, "empty file: expected a header row and observations")
+        header = numbered[0][1].split(",")
+        data = numbered[1:]
+        _check_header_position(numbered[0][0], path)
+        velocity_names = _check_header(header, path)
+        n_fields = len(header)
+        for line_number, line in data:
+            if line.count(",") != n_fields - 1:
+                raise DataError(path, f"{line.count(',') + 1} fields, but the header has {n_fields}",
+                                line=line_number)
+        flat = ",".join(line for _, line in data).split(",") if data else []
+        raw = {name: flat[j::n_fields] for j, name in enumerate(header)}
+        return header, raw, [n for n, _ in data], velocity_names
+
+    reader = csv.reader(io.StringIO(text, newline=""))
+    numbered = []
+    try:
+        for row in reader:
+            if row:
+                numbered.append((reader.line_num, row))
+    except csv.Error as err:
+        raise DataError(path, f"malformed CSV: {err}", line=reader.line_num) from None
+    if not numbered:
+        raise DataError(path, "empty file: expected a header row and observations")
+    _check_header_position(numbered[0][0], path)
+    header, data = numbered[0][1], numbered[1:]
+    velocity_names = _check_header(header, path)
+    for line_number, row in data:
+        if len(row) != len(header):
+            raise DataError(path, f"{len(row)} fields, but the header has {len(header)}", line=line_number)
+    transposed = list(zip(*(row for _, row in data))) if data else [()] * len(header)
+    raw = {name: list(values) for name, values in zip(header, transposed)}
+    return header, raw, [n for n, _ in data], velocity_names
+
+
+def _check_header_position(line_number, path):
+    if line_number != 1:
+        raise DataError(path, "the header must be the first line", line=1)
+
+
+def _check_header(header, path):
+    if header[0].startswith("\ufeff"):  # byte order mark written by some spreadsheets
+        header[0] = header[0][1:]
+    seen = set()
+    for name in header:
+        if not name:
+            raise DataError(path, "empty column name in the header", line=1)
+        if name in seen:
+            raise DataError(path, "duplicate column in the header", line=1, field=name)
+        seen.add(name)
+    missing = [name for name in REQUIRED_COLUMNS if name not in seen]
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise DataError(path, f"missing required column{more}", line=1, field=missing[0])
+    present_vel = tuple(name for name in VELOCITY_COLUMNS if name in seen)
+    if present_vel and len(present_vel) != len(VELOCITY_COLUMNS):
+        absent = next(name for name in VELOCITY_COLUMNS if name not in seen)
+        raise DataError(path, "vel_ columns must be given for all 14 joints or none", line=1, field=absent)
+    return present_vel
+
+
+def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False):
+    """Parse and validate observations.csv text.
+
+    Returns (columns, header): columns as in `Dataset.columns`, header the column names in file order.
+    """
+    header, raw, line_numbers, velocity_names = _read_table(text, path)
+    n_rows = len(line_numbers)
+    if not n_rows and not allow_empty:
+        raise DataError(path, "no observations: the file has only a header")
+
+    columns = {"image": _parse_column("image", raw["image"], line_numbers, path)}
+    per_image = PER_IMAGE_COLUMNS + velocity_names
+    _, first, inverse = np.unique(columns["image"], return_index=True, return_inverse=True)
+    if n_rows and _constant_within_images(raw, per_image, first[inverse]):
+        # Parse each image's values once (from its first row, in file order) and broadcast them to its rows.
+        order = np.argsort(first)
+        first_rows = first[order].tolist()
+        first_lines = [line_numbers[i] for i in first_rows]
+        for name in per_image:
+            strings = [raw[name][i] for i in first_rows]
+            parsed = _parse_column(name, strings, first_lines, path)
+            per_image_values = np.empty_like(parsed)
+            per_image_values[order] = parsed
+            columns[name] = per_image_values[inverse]
+        per_row, check_per_image = [n for n in REQUIRED_COLUMNS if n not in columns], False
+    else:
+        per_row, check_per_image = [n for n in REQUIRED_COLUMNS + velocity_names if n != "image"], True
+    for name in per_row:
+        columns[name] = _parse_column(name, raw[name], line_numbers, path)
+
+    n_vertices = n_board_vertices(meta)
+    checks = (
+        ("image", columns["image"] < 0, "image index must not be negative"),
+        ("vertex", (columns["vertex"] < 0) | (columns["vertex"] >= n_vertices),
+         f"vertex must be in 0..{n_vertices - 1}"),
+    )
+    for name, bad, problem in checks:
+        if bad.any():
+            i = _first_bad(bad)
+            raise DataError(path, f"{problem}, got {raw[name][i]!r}", line=line_numbers[i], field=name)
+    if n_rows:
+        _check_unique_vertices(columns, path, line_numbers, n_vertices)
+        if check_per_image:
+            _check_per_image(columns, path, line_numbers, velocity_names)
+
+    for name in header:
+        if name not in columns:  # extra column: numbers if every value is one, else text
+            values = _try_float(raw[name]) if n_rows else np.array([], dtype=np.float64)
+            columns[name] = values if values is not None else np.array(raw[name], dtype=str)
+    return {name: columns[name] for name in header}, header
+
+
+def _constant_within_images(raw: dict, names, first_row) -> bool:
+    """True if, in every column of `names`, each row holds exactly the text of its image's first row.
+
+    first_row : (N,) index of the first row of each row's image. Text equality is a sufficient check that lets
+    us parse each image's values once; if it fails, the caller compares parsed numbers instead.
+    """
+    if len(first_row) < 2:
+        return True
+    gather = operator.itemgetter(*first_row.tolist())  # C-level gather of a whole column
+    return all(gather(raw[name]) == tuple(raw[name]) for name in names)
+
+
+def _check_unique_vertices(columns, path, line_numbers, n_vertices):
+    key = columns["image"] * n_vertices + columns["vertex"]
+    order = np.argsort(key, kind="stable")
+    dup = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if dup.size:
+        later = order[dup + 1]
+        i = int(later.min())  # the first row (in file order) that repeats an earlier one
+        raise DataError(path, f"duplicate observation of vertex {columns['vertex'][i]} in image "
+                              f"{columns['image'][i]}", line=line_numbers[i], field="vertex")
+
+
+def _check_per_image(columns, path, line_numbers, velocity_columns):
+    _, first, inverse = np.unique(columns["image"], return_index=True, return_inverse=True)
+    first_row = first[inverse]  # for each row, the first row of the same image
+    for name in PER_IMAGE_COLUMNS + velocity_columns:
+        values = columns[name]
+        bad = values != values[first_row]
+        if bad.any():
+            i = _first_bad(bad)
+            raise DataError(path, f"differs within image {columns['image'][i]}: {values[i]!r} here, "
+                                  f"{values[first_row[i]]!r} on line {line_numbers[first_row[i]]}",
+                            line=line_numbers[i], field=name)
+
+
+# ---------------------------------------------------------------------------------------------- reading
+
+
+def read_dataset(path) -> Dataset:
+    """Read and validate a `naocal.dataset/1` directory. Raises DataError on any problem."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(path, "dataset directory not found")
+    if not path.is_dir():
+        raise DataError(path, "a dataset is a directory holding dataset.json and observations.csv")
+    images = path / IMAGES_DIR
+    if images.exists() and not images.is_dir():
+        raise DataError(images, "expected a directory of images")
+    meta_path = path / META_FILE
+    meta = validate_meta(parse_json_text(read_text(meta_path), meta_path), meta_path)
+    obs_path = path / OBSERVATIONS_FILE
+    columns, _ = parse_observations(read_text(obs_path), obs_path, meta)
+    return Dataset(meta=meta, columns=columns, path=path)
+
+
+# ---------------------------------------------------------------------------------------------- writing
+
+
+def ordered_column_names(names) -> list[str]:
+    """Required columns in issue 2's order, then vel_ columns in joint order, then extras in their order."""
+    names = list(names)
+    known = set(REQUIRED_COLUMNS) | set(VELOCITY_COLUMNS)
+    ordered = [n for n in REQUIRED_COLUMNS if n in names]
+    ordered += [n for n in VELOCITY_COLUMNS if n in names]
+    ordered += [n for n in names if n not in known]
+    return ordered
+
+
+def _format_int(value) -> str:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return str(value)  # the parser names it
+    return str(int(number)) if number.is_integer() else repr(number)
+
+
+def _format_column(name, values) -> list[str]:
+    values = np.asarray(values)
+    if name in INT_COLUMNS:
+        return [_format_int(v) for v in values]
+    if values.dtype.kind in "fiub":
+        return [repr(float(v)) for v in values]  # repr round-trips a float64 exactly
+    return [str(v) for v in values]
+
+
+def format_rows(columns: dict, names) -> str:
+    """CSV text (no header) of `columns` in the order `names`."""
+    formatted = [_format_column(n, columns[n]) for n in names]
+    lengths = {len(c) for c in formatted}
+    if len(lengths) > 1:
+        raise ValueError(f"columns have different lengths: {sorted(lengths)}")
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows(zip(*formatted))
+    return out.getvalue()
+
+
+def format_header(names) -> str:
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerow(list(names))
+    return out.getvalue()
+
+
+def format_meta(meta: dict) -> str:
+    return json.dumps(meta, indent=2, allow_nan=False) + "\n"
+
+
+def _split_parts(dataset_or_parts):
+    if isinstance(dataset_or_parts, Dataset):
+        return dataset_or_parts.meta, dataset_or_parts.columns
+    if isinstance(dataset_or_parts, dict) and set(dataset_or_parts) == {"meta", "columns"}:
+        return dataset_or_parts["meta"], dataset_or_parts["columns"]
+    if isinstance(dataset_or_parts, tuple) and len(dataset_or_parts) == 2:
+        return dataset_or_parts
+    raise TypeError("write_dataset expects a Dataset, a (meta, columns) tuple or {'meta': ..., 'columns': ...}")
+
+
+def write_dataset(dataset_or_parts, path) -> Dataset:
+    """Write a dataset directory atomically (each file via temporary file, fsync, rename).
+
+    Accepts a Dataset, a (meta, columns) tuple or a {"meta", "columns"} dict; columns may be any sequences.
+    The data is validated exactly as `read_dataset` would before anything is written, and the Dataset that
+    reading the files back gives is returned. Floats are written with repr(), so a round trip is bit-identical.
+    """
+    path = Path(path)
+    meta, columns = _split_parts(dataset_or_parts)
+    meta_path, obs_path = path / META_FILE, path / OBSERVATIONS_FILE
+    meta = validate_meta(meta, meta_path)
+    names = ordered_column_names(columns)
+    csv_text = format_header(names) + format_rows(columns, names)
+    parsed, _ = parse_observations(csv_text, obs_path, meta)  # never write what we could not read back
+    path.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(obs_path, csv_text)
+    atomic_write_text(meta_path, format_meta(meta))
+    return Dataset(meta=meta, columns=parsed, path=path)
+
+
+# ------------------------------------------------------------------------------------------- appending
+
+
+ROWS_IN_IMAGE_COLUMN = "rows_in_image"  # written by the appender: lets a resume tell a complete image from a torn one
+_COMPARED_META_KEYS = ("schema", "robot", "camera", "board", "gravity_torso_mps2")
+
+
+def _rows_to_columns(rows) -> dict:
+    """A list of row dicts, or a dict of equal-length sequences, as a dict of lists."""
+    if isinstance(rows, dict):
+        return {k: list(np.atleast_1d(np.asarray(v))) for k, v in rows.items()}
+    rows = list(rows)
+    if not rows:
+        return {}
+    names = list(rows[0])
+    for i, row in enumerate(rows):
+        if set(row) != set(names):
+            raise ValueError(f"row {i} has columns {sorted(row)}, row 0 has {sorted(names)}")
+    return {n: [row[n] for row in rows] for n in names}
+
+
+class DatasetAppender:
+    """Saves a dataset capture by capture, so a crash never loses a complete capture nor keeps half of one.
+
+    On open: creates the directory and dataset.json (atomically) if absent, else checks that the existing
+    dataset.json is compatible with `meta` (same robot, camera, board, gravity). If observations.csv ends in a
+    torn write (a last line without newline, or an image with fewer rows than its `rows_in_image` says), the
+    torn rows are cut off, saved to `observations.csv.torn`, logged, and described in `self.repair`.
+
+    `append(rows)` writes one capture (all rows of one image) with a single write, then flush and fsync.
+    It adds the column `rows_in_image` (an extra column in the naocal.dataset/1 sense).
+    """
+
+    def __init__(self, path, meta: dict):
+        self.path = Path(path)
+        self.meta_path = self.path / META_FILE
+        self.obs_path = self.path / OBSERVATIONS_FILE
+        self.repair: str | None = None  # what was cut off on open, if anything
+        self._header: list[str] | None = None
+        self._images: set[int] = set()
+        self.meta = self._open_meta(meta)
+        self._open_observations()
+
+    # -- opening
+
+    def _open_meta(self, meta: dict) -> dict:
+        meta = validate_meta(meta, "<meta given to DatasetAppender>")
+        if self.path.exists() and not self.path.is_dir():
+            raise DataError(self.path, "exists and is not a directory")
+        if not self.meta_path.exists():
+            self.path.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.meta_path, format_meta(meta))
+            return meta
+        existing = validate_meta(parse_json_text(read_text(self.meta_path), self.meta_path), self.meta_path)
+        for key in _COMPARED_META_KEYS:
+            if existing.get(key) != meta.get(key):
+                raise DataError(self.meta_path, f"existing dataset has a different {key!r} "
+                                                f"({existing.get(key)!r} != {meta.get(key)!r}): "
+                                                "refusing to mix captures of two set-ups", field=key)
+        return existing
+
+    def _open_observations(self) -> None:
+        if not self.obs_path.exists():
+            return
+        data = self.obs_path.read_bytes()
+        keep = self._complete_prefix_length(data)
+        if keep < len(data) and data[:keep].count(b"\n") <= 1:
+            keep = 0  # only the header of the torn first capture is left: the next capture writes its own
+        if keep < len(data):
+            self._cut(data, keep)
+            data = data[:keep]
+        if not data:
+            return
+        columns, header = parse_observations(data.decode("utf-8"), self.obs_path, self.meta, allow_empty=True)
+        self._header = header
+        self._images = set(int(i) for i in columns["image"])
+
+    def _complete_prefix_length(self, data: bytes) -> int:
+        """Length of the longest prefix of `data` that holds only complete lines of complete captures."""
+        end = data.rfind(b"\n") + 1  # drop a last line without newline
+        if end == 0:
+            return 0
+        lines = data[:end].decode("utf-8", errors="replace").splitlines(keepends=True)
+        header = next(csv.reader([lines[0]]))
+        if ROWS_IN_IMAGE_COLUMN not in header or "image" not in header or len(lines) == 1:
+            return end
+        i_image, i_count = header.index("image"), header.index(ROWS_IN_IMAGE_COLUMN)
+        # Walk back over the rows of the last image; if fewer than it announces, the write was torn.
+        last = next(csv.reader([lines[-1]]))
+        try:
+            image, announced = last[i_image], int(float(last[i_count]))
+        except (IndexError, ValueError):
+            return end  # not ours to judge: read_dataset will name the bad line
+        n = 0
+        for line in reversed(lines[1:]):
+            fields = next(csv.reader([line]))
+            if len(fields) <= i_image or fields[i_image] != image:
+                break
+            n += 1
+        if n >= announced:
+            return end
+        return end - sum(len(line.encode("utf-8")) for line in lines[len(lines) - n:])
+
+    def _cut(self, data: bytes, keep: int) -> None:
+        torn = data[keep:]
+        torn_path = self.obs_path.with_name(self.obs_path.name + ".torn")
+        _append_and_sync(torn_path, torn)
+        with open(self.obs_path, "r+b") as f:
+            f.truncate(keep)
+            f.flush()
+            os.fsync(f.fileno())
+        n_lines = torn.count(b"\n") + (0 if torn.endswith(b"\n") else 1)
+        self.repair = (f"{self.obs_path}: cut off a torn last capture ({len(torn)} bytes, {n_lines} line(s)), "
+                       f"kept in {torn_path.name}")
+        log.warning(self.repair)
+
+    # -- appending
+
+    def captured_images(self) -> set[int]:
+        """Image indices already saved."""
+        return set(self._images)
+
+    def append(self, rows) -> int:
+        """Append the rows of one capture (one image): a list of row dicts or a dict of columns.
+
+        Values are validated like read_dataset does; the image must not be on disk yet. Returns the number
+        of rows written (0 for no rows).
+        """
+        columns = _rows_to_columns(rows)
+        if not columns or not len(next(iter(columns.values()))):
+            return 0
+        n = len(next(iter(columns.values())))
+        if self._header is None or ROWS_IN_IMAGE_COLUMN in self._header:  # not in datasets other tools began
+            columns[ROWS_IN_IMAGE_COLUMN] = [n] * n
+        if self._header is None:
+            names = ordered_column_names(columns)
+        else:
+            names = self._header
+            if set(columns) != set(names):
+                extra = sorted(set(columns) - set(names))
+                lacking = sorted(set(names) - set(columns))
+                raise DataError(self.obs_path, f"capture columns differ from the file's header: extra {extra}, "
+                                               f"missing {lacking}")
+        text = format_rows(columns, names)
+        header_text = format_header(names)
+        label = f"{self.obs_path} (capture being appended)"
+        parsed, _ = parse_observations(header_text + text, label, self.meta)
+        images = set(int(i) for i in np.unique(parsed["image"]))
+        if len(images) != 1:
+            raise DataError(label, f"one capture must hold one image, got images {sorted(images)}", field="image")
+        image = images.pop()
+        if image in self._images:
+            raise DataError(label, f"image {image} is already saved", field="image")
+        data = (text if self._header is not None else header_text + text).encode("utf-8")
+        self._write_all(data, new_file=self._header is None)
+        self._header = names
+        self._images.add(image)
+        return n
+
+    def _write_all(self, data: bytes, *, new_file: bool) -> None:
+        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
+        if new_file:
+            flags |= os.O_TRUNC  # an empty or torn-away file is rewritten from its header
+        fd = os.open(self.obs_path, flags, 0o644)
+        try:
+            view = memoryview(data)
+            while view:  # one write for a regular file; loop only in case of a short write
+                written = os.write(fd, view)
+                view = view[written:]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        if new_file:
+            fsync_directory(self.path)
+
+
+def _append_and_sync(path: Path, data: bytes) -> None:
+    """Append `data` to `path` (created if absent) and fsync: used for the record of cut-off torn rows."""
+    with open(path, "ab") as f:
+        f.write(data if data.endswith(b"\n") else data + b"\n")
+        f.flush()
+        os.fsync(f.fileno())

@@ -1,0 +1,324 @@
+"""naocal offsets: inspect, compare, validate, export and apply offset files (naocal.offsets/1).
+
+A stored joint offset c is ADDED to every commanded angle and SUBTRACTED from every measured angle (c = -alpha of
+the model q_true = theta + alpha). Camera rotation and board mount are the model's alphas as they are.
+Every error is one line on stderr and exit code 2.
+"""
+
+import argparse
+import sys
+
+COMMANDS_HELP = """commands:
+  show FILE                       offsets (deg, with std), camera rotation, board mount, model effects, fit, source
+  diff A B                        per-parameter differences; '*' marks |B - A| > sqrt(std_A^2 + std_B^2)
+  validate FILE                   schema, names, units, finite values, plausible sizes: prints 'ok' (exit 0)
+                                  or one line with the reason (exit 2)
+  export FILE --format FORMAT     bhuman | urdf | json, to stdout or --out (written atomically: a failed export
+                                  never replaces an existing file)
+  apply FILE --command|--reading JOINT=ANGLE ...
+                                  compensated command = requested + c, corrected reading = measured - c
+"""
+
+
+def register(subparsers):
+    parser = subparsers.add_parser(
+        "offsets", help="inspect, compare, validate, export and apply offset files",
+        description=__doc__, epilog=COMMANDS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="offsets_command", metavar="COMMAND")
+    commands.required = True
+
+    show = commands.add_parser("show", help="print a file's contents as tables (angles in deg, lengths in mm)")
+    show.add_argument("file", metavar="FILE")
+
+    diff = commands.add_parser(
+        "diff", help="compare two files parameter by parameter",
+        description="Per-parameter differences B - A. A '*' marks a difference larger than the combined "
+                    "uncertainty sqrt(std_A^2 + std_B^2) (std from model.parameters; 0 where a file has none). "
+                    "Exit code 0 unless --fail-on-difference is given and something is marked (then 1).")
+    diff.add_argument("file_a", metavar="A")
+    diff.add_argument("file_b", metavar="B")
+    diff.add_argument("--fail-on-difference", action="store_true",
+                      help="exit 1 if any difference exceeds the combined uncertainty")
+
+    validate = commands.add_parser(
+        "validate", help="check a file: prints 'ok' (exit 0) or one line with the reason (exit 2)")
+    validate.add_argument("file", metavar="FILE")
+
+    export = commands.add_parser(
+        "export", help="write the offsets for other software",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="""Formats:
+  bhuman  B-Human jointCalibration.cfg (offsets = { headYaw = ..deg; ... };, added to every joint request: the
+          same sign as naocal's c) and cameraCalibration.cfg (cameraRotationCorrections = { lower = {x; y; z};
+          upper = {...}; };). B-Human turns the camera by rotateY(tilt + y) * rotateX(x) * rotateZ(z) in a frame
+          with x forward, y left, z up, exactly naocal's Rot_y(pitch) Rot_x(roll) Rot_z(yaw): so x = roll,
+          y = pitch, z = yaw of camera_rotation_rad, same signs; lower = bottom camera. With --out, DIR gets both
+          files; without it, both are printed.
+  urdf    the nominal NAO URDF (nao_v50) with <calibration rising="c"/> in every calibrated joint, the
+          RHipYawPitch mimic offset c_L - c_R, and CameraBottom_sensor_fixedjoint's rpy turned by the camera
+          correction (T_head_cam = T_nominal @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)).
+  json    the file itself, validated, in canonical form.""")
+    export.add_argument("file", metavar="FILE")
+    export.add_argument("--format", required=True, choices=("bhuman", "urdf", "json"))
+    export.add_argument("--out", metavar="PATH",
+                        help="output file (urdf, json) or directory (bhuman); default: standard output")
+    export.add_argument("--strip-meshes", action="store_true",
+                        help="urdf: drop the mesh visuals/collisions (their files are not shipped), e.g. for PyBullet")
+    export.add_argument("--nominal-urdf", metavar="URDF", help="urdf: start from this URDF instead of nao_v50")
+
+    apply = commands.add_parser(
+        "apply", help="compensate commands or correct readings with a file's joint offsets",
+        description="Prints JOINT=ANGLE lines, in the unit given (deg unless --rad). --command: the angle to "
+                    "send so that the joint reaches the requested one (requested + c). --reading: the true "
+                    "angle for an encoder reading (measured - c). Joints without an offset pass unchanged. "
+                    "Example: naocal offsets apply nao17.json --command LHipPitch=-20 LKneePitch=40")
+    apply.add_argument("file", metavar="FILE")
+    mode = apply.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--command", dest="mode", action="store_const", const="command",
+                      help="the angles are requested angles: print the commands to send")
+    mode.add_argument("--reading", dest="mode", action="store_const", const="reading",
+                      help="the angles are encoder readings: print the corrected (true) angles")
+    apply.add_argument("angles", nargs="+", metavar="JOINT=ANGLE", help="e.g. LHipPitch=-20.5")
+    apply.add_argument("--rad", action="store_true", help="angles in and out in rad instead of deg")
+    parser.set_defaults(run=run)
+
+
+def run(args) -> int:
+    handlers = {"show": run_show, "diff": run_diff, "validate": run_validate, "export": run_export,
+                "apply": run_apply}
+    return handlers[args.offsets_command](args, sys.stdout)
+
+
+# ----------------------------------------------------------------------------------------------- display
+
+# Display units: angles in deg, lengths in mm, time in ms.
+_DISPLAY = {"rad": (57.29577951308232, "deg"), "m": (1000.0, "mm"), "rad/(N m)": (57.29577951308232, "deg/(N m)"),
+            "s": (1000.0, "ms"), "px": (1.0, "px"), "1": (1.0, "")}
+_SHOWN_ELSEWHERE = ("joint_offset.", "head_offset.", "camera.", "board.")  # model names with their own table
+_BOARD_ROWS = (("rot_z_rad", "rot_z", "rad"), ("trans_x_m", "trans_x", "m"), ("trans_y_m", "trans_y", "m"))
+
+
+def _num(value, width=10, digits=4) -> str:
+    return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
+
+
+def _shown(value, unit):
+    scale, _ = _DISPLAY[unit]
+    return None if value is None else value * scale
+
+
+def _joint_std(offsets, joint):
+    for name in (f"joint_offset.{joint}", f"head_offset.{joint}"):
+        if offsets.std(name) is not None:
+            return offsets.std(name)
+    tied = joint == "RHipYawPitch" and offsets.joint_offset("RHipYawPitch") == offsets.joint_offset("LHipYawPitch")
+    return offsets.std("joint_offset.LHipYawPitch") if tied else None  # one motor: R follows L
+
+
+def parameter_rows(offsets) -> list:
+    """(label, unit, value, std) in SI units for everything a file holds, in display order.
+
+    Joint offsets are c (the file's value); the other parameters are the model's values.
+    """
+    from solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
+
+    rows = [(f"c {j}", "rad", offsets.joint_offsets_rad[j], _joint_std(offsets, j))
+            for j in OFFSET_JOINTS if j in offsets.joint_offsets_rad]
+    for camera, angles in offsets.camera_rotation_rad.items():
+        prefix = "camera" if camera == "bottom" else f"camera.{camera}"
+        rows += [(f"{prefix}.{a}", "rad", angles[a], offsets.std(f"camera.{a}") if camera == "bottom" else None)
+                 for a in CAMERA_ANGLES]
+    for leg, mount in offsets.board_mount.items():
+        rows += [(f"board.{leg}.{short}", unit, mount[key], offsets.std(f"board.{leg}.{short}"))
+                 for key, short, unit in _BOARD_ROWS]
+    for name, entry in offsets.model["parameters"].items():
+        if not name.startswith(_SHOWN_ELSEWHERE):
+            rows.append((name, entry["unit"], entry["value"], entry["std"]))
+    return rows
+
+
+def format_show(offsets, name: str) -> str:
+    from solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
+
+    robot, fit = offsets.robot, offsets.fit
+    out = [name,
+           f"  robot     id {robot.get('id')}, body {robot.get('body_id')}, head {robot.get('head_id')}",
+           f"  created   {offsets.created}",
+           "  source    " + ("; ".join(f"{k}: {v}" for k, v in offsets.source.items()) or "-"),
+           "",
+           "joint offsets c (added to commands, subtracted from readings)",
+           f"  {'joint':<16}{'c [deg]':>10}{'std [deg]':>11}"]
+    for joint in OFFSET_JOINTS:
+        if joint in offsets.joint_offsets_rad:
+            out.append(f"  {joint:<16}{_num(_shown(offsets.joint_offsets_rad[joint], 'rad'))} "
+                       f"{_num(_shown(_joint_std(offsets, joint), 'rad'))}")
+    for camera, angles in offsets.camera_rotation_rad.items():
+        out += ["", f"camera rotation, {camera} camera (model alpha: T_head_cam = T_nominal @ Rot_y(pitch) "
+                    "@ Rot_x(roll) @ Rot_z(yaw))",
+                f"  {'angle':<16}{'[deg]':>10}{'std [deg]':>11}"]
+        for a in CAMERA_ANGLES:
+            std = offsets.std(f"camera.{a}") if camera == "bottom" else None
+            out.append(f"  {a:<16}{_num(_shown(angles[a], 'rad'))} {_num(_shown(std, 'rad'))}")
+    out += ["", "board mount (model alpha: p = Rot_z(rot_z) Trans_x(trans_x) Trans_y(trans_y) p_sole)",
+            f"  {'leg':<6}{'rot_z [deg]':>12}{'trans_x [mm]':>14}{'trans_y [mm]':>14}"]
+    for leg, mount in offsets.board_mount.items():
+        values = "".join(f"{_num(_shown(mount[key], unit), width)}"
+                         for (key, _, unit), width in zip(_BOARD_ROWS, (12, 14, 14)))
+        out.append(f"  {leg:<6}{values}")
+        stds = [offsets.std(f"board.{leg}.{short}") for _, short, _ in _BOARD_ROWS]
+        if any(s is not None for s in stds):
+            out.append(f"  {'  std':<6}" + "".join(_num(_shown(s, unit), width) for s, (_, _, unit), width
+                                                  in zip(stds, _BOARD_ROWS, (12, 14, 14))))
+    effects = offsets.model["effects"]
+    out += ["", "model effects: " + (", ".join(effects) if effects else "-")]
+    extra = [r for r in parameter_rows(offsets) if r[0] in offsets.model["parameters"]
+             and not r[0].startswith(_SHOWN_ELSEWHERE)]
+    if extra:
+        out.append(f"  {'parameter':<28}{'value':>12}{'std':>12}  unit")
+        for label, unit, value, std in extra:
+            out.append(f"  {label:<28}{_num(_shown(value, unit), 12, 5)}{_num(_shown(std, unit), 12, 5)}  "
+                       f"{_DISPLAY[unit][1]}")
+    rms_x, rms_y = fit["rms_px"]
+    out += ["", f"fit: rms {rms_x:.3f} px (x), {rms_y:.3f} px (y) over {fit['n_vertices']} vertices "
+                f"in {fit['n_images']} images"]
+    return "\n".join(out) + "\n"
+
+
+def format_diff(a, b, name_a: str, name_b: str):
+    """(text, number of marked differences): B - A per parameter, '*' where it exceeds the combined std."""
+    import math
+
+    rows_a = {label: (unit, value, std) for label, unit, value, std in parameter_rows(a)}
+    rows_b = {label: (unit, value, std) for label, unit, value, std in parameter_rows(b)}
+    labels = list(rows_a) + [label for label in rows_b if label not in rows_a]
+    out = [f"A = {name_a}", f"B = {name_b}"]
+    for key in ("id", "body_id", "head_id"):
+        if a.robot.get(key) != b.robot.get(key):
+            out.append(f"note: robot {key} differs ({a.robot.get(key)} vs {b.robot.get(key)})")
+    out.append(f"  {'parameter':<28}{'A':>11}{'B':>11}{'B - A':>11}{'sigma':>10}  unit")
+    marked = 0
+    for label in labels:
+        unit, value_a, std_a = rows_a.get(label, (rows_b[label][0], None, None))
+        _, value_b, std_b = rows_b.get(label, (unit, None, None))
+        delta = sigma = None
+        mark = ""
+        if value_a is not None and value_b is not None:
+            delta = value_b - value_a
+            sigma = math.hypot(std_a or 0.0, std_b or 0.0)
+            if abs(delta) > sigma:
+                mark, marked = " *", marked + 1
+        else:
+            mark = " (only in A)" if value_b is None else " (only in B)"
+        out.append(f"  {label:<28}{_num(_shown(value_a, unit), 11)}{_num(_shown(value_b, unit), 11)}"
+                   f"{_num(_shown(delta, unit), 11)}{_num(_shown(sigma, unit), 10)}  {_DISPLAY[unit][1]}{mark}")
+    out.append(f"{marked} of {len(labels)} parameters differ by more than their combined uncertainty (*)")
+    return "\n".join(out) + "\n", marked
+
+
+# -------------------------------------------------------------------------------------------------- verbs
+
+
+def run_show(args, out) -> int:
+    from solver.offsets import read_offsets
+
+    out.write(format_show(read_offsets(args.file), args.file))
+    return 0
+
+
+def run_diff(args, out) -> int:
+    from solver.offsets import read_offsets
+
+    text, marked = format_diff(read_offsets(args.file_a), read_offsets(args.file_b), args.file_a, args.file_b)
+    out.write(text)
+    return 1 if (marked and args.fail_on_difference) else 0
+
+
+def run_validate(args, out) -> int:
+    from solver.offsets import read_offsets
+
+    read_offsets(args.file)
+    out.write("ok\n")
+    return 0
+
+
+def run_export(args, out) -> int:
+    from pathlib import Path
+
+    from solver.errors import DataError
+    from solver.fileio import atomic_write_text
+    from solver.offsets import read_offsets
+    from tools import offsets_export
+
+    offsets = read_offsets(args.file)
+    source_name = Path(args.file).name
+    if args.format == "bhuman":
+        files = offsets_export.export_bhuman(offsets, source_name)
+    elif args.format == "urdf":
+        nominal = args.nominal_urdf or offsets_export.NOMINAL_URDF
+        files = {"calibrated.urdf": offsets_export.export_urdf(offsets, nominal, strip_meshes=args.strip_meshes,
+                                                               source_name=source_name)}
+    else:
+        files = {"offsets.json": offsets_export.export_json(offsets)}
+    # Everything is built before anything is written: a failed export leaves existing files untouched.
+    if args.out is None:
+        for file_name, text in files.items():
+            if len(files) > 1:
+                out.write(f"// ---- {file_name}\n")
+            out.write(text)
+        return 0
+    target = Path(args.out)
+    if args.format == "bhuman":
+        if target.exists() and not target.is_dir():
+            raise DataError(target, "--out must be a directory for the bhuman format (it gets two files)")
+        paths = {target / name: text for name, text in files.items()}
+    else:
+        if target.is_dir():
+            raise DataError(target, "--out is a directory; give a file name")
+        paths = {target: next(iter(files.values()))}
+    for path, text in paths.items():
+        try:
+            atomic_write_text(path, text)
+        except OSError as err:
+            raise DataError(path, f"cannot write: {err.strerror or err}") from None
+        print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def parse_assignment(text: str):
+    """'LHipPitch=-20.5' -> ('LHipPitch', -20.5); NaocalError for anything else."""
+    import math
+
+    from solver.errors import NaocalError
+    from solver.joints import JOINTS
+
+    joint, sep, value = text.partition("=")
+    joint = joint.strip()
+    if not sep or not joint:
+        raise NaocalError(f"expected JOINT=ANGLE, got {text!r}")
+    try:
+        angle = float(value)
+    except ValueError:
+        raise NaocalError(f"{joint}: not a number: {value!r}") from None
+    if not math.isfinite(angle):
+        raise NaocalError(f"{joint}: non-finite angle {value!r}")
+    known = set(JOINTS) | {"LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw", "LHand",
+                           "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw", "RHand"}
+    if joint not in known:
+        raise NaocalError(f"unknown joint {joint!r}")
+    return joint, angle
+
+
+def run_apply(args, out) -> int:
+    import math
+
+    from solver.compensation import compensate_command, correct_reading
+    from solver.offsets import read_offsets
+
+    offsets = read_offsets(args.file)
+    posture = dict(parse_assignment(text) for text in args.angles)
+    to_rad = 1.0 if args.rad else math.pi / 180.0
+    posture_rad = {joint: angle * to_rad for joint, angle in posture.items()}
+    apply = compensate_command if args.mode == "command" else correct_reading
+    for joint, angle_rad in apply(posture_rad, offsets).items():
+        out.write(f"{joint}={angle_rad / to_rad:.10g}\n")
+    return 0
