@@ -1,0 +1,280 @@
+"""The naocal bridge wire protocol (version 1): msgpack maps over ZeroMQ. Specified in docs/PROTOCOL.md.
+
+Request:  {"v": 1, "id": "<client_id>:<seq>", "cmd": str, "args": {...}}
+Reply:    {"v": 1, "id": <the request's id>, "ok": true, "result": ...}
+          {"v": 1, "id": <id or None>, "ok": false, "error": {"type": str, "message": str}}
+
+Only msgpack's plain types cross the wire (nil, bool, int, float, str, bin, array, map with str keys): no pickle,
+no eval, no msgpack extension types. Arrays travel as raw bytes with an explicit shape and dtype. Argument keys
+carry their unit (`targets_rad`, `duration_s`); unknown keys are refused, so a key in the wrong unit never passes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+
+import msgpack
+import numpy as np
+
+from backends.base import CameraImage, CameraIntrinsics, JointReading
+from solver.errors import BridgeError
+
+PROTOCOL_VERSION = 1
+MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply
+ZMQ_MAX_INBOUND_BYTES = 4 << 20  # ZMQ_MAXMSGSIZE of the server socket: libzmq drops the peer beyond this
+MAX_REPLY_BYTES = 16 << 20  # ZMQ_MAXMSGSIZE of the client socket (a VGA BGR image is 0.9 MiB)
+MAX_SLEEP_S = 60.0  # longest single `sleep` the server accepts
+
+REQUEST_KEYS = frozenset({"v", "id", "cmd", "args"})
+REQUEST_ID_PATTERN = re.compile(r"^([A-Za-z0-9_.-]{1,64}):([0-9]{1,18})$")
+IMAGE_DTYPES = frozenset({"uint8"})
+
+# Error types on the wire. The client re-raises SafetyError and RobotTimeout as themselves, ControlError as
+# ControlError, everything else as BridgeError.
+ERROR_TYPES = (
+    "ProtocolError",  # not a well-formed request of this protocol
+    "UnsupportedVersion",
+    "UnknownCommand",
+    "TooLarge",
+    "StaleRequest",  # a request id older than the replies the server keeps: refused, not executed
+    "ControlError",  # another client holds the motion lease
+    "SafetyError",
+    "RobotTimeout",
+    "NaocalError",
+    "InternalError",
+)
+
+
+class ProtocolError(BridgeError):
+    """A message that does not follow this protocol. `error_type` is the wire error type to answer with."""
+
+    def __init__(self, message: str, error_type: str = "ProtocolError"):
+        super().__init__(message)
+        self.error_type = error_type
+
+
+class ControlError(BridgeError):
+    """A motion command refused because another client controls the robot."""
+
+
+# ---------------------------------------------------------------------------------------------- arguments
+def _finite_or_nan_float(value, key):
+    # Non-finite numbers are passed through so the backend refuses them with a SafetyError, like a direct call.
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ProtocolError(f"args.{key} must be a number, got {type(value).__name__}")
+    return float(value)
+
+
+def _float_map(value, key):
+    if not isinstance(value, dict):
+        raise ProtocolError(f"args.{key} must be a map of joint name to number, got {type(value).__name__}")
+    out = {}
+    for name, number in value.items():
+        if not isinstance(name, str):
+            raise ProtocolError(f"args.{key} keys must be strings")
+        out[name] = _finite_or_nan_float(number, f"{key}.{name}")
+    return out
+
+
+def _str_list(value, key):
+    if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
+        raise ProtocolError(f"args.{key} must be an array of strings")
+    return list(value)
+
+
+# cmd -> (argument validators, needs the motion lease). Everything not marked is a read without side effects.
+COMMANDS = {
+    "hello": ({}, False),
+    "robot_identity": ({}, False),
+    "joint_names": ({}, False),
+    "joint_limits": ({}, False),
+    "max_speeds": ({}, False),
+    "intrinsics": ({}, False),
+    "gravity_torso": ({}, False),
+    "read_joints": ({}, False),
+    "capture": ({}, False),
+    "now": ({}, False),
+    "command": ({"targets_rad": _float_map, "speed_fraction": _finite_or_nan_float}, True),
+    "set_stiffness": ({"names": _str_list, "stiffness": _finite_or_nan_float}, True),
+    "sleep": ({"duration_s": _finite_or_nan_float}, True),
+    "release": ({}, False),
+}
+MOTION_COMMANDS = frozenset(cmd for cmd, (_, motion) in COMMANDS.items() if motion)
+
+
+# ---------------------------------------------------------------------------------------------- framing
+_thread_local = threading.local()
+
+
+def pack(message) -> bytes:
+    """msgpack-encode a message built from plain Python types only (numpy values must be converted first).
+
+    One Packer per thread keeps its buffer: packing an image into a fresh buffer each time costs 15x more.
+    """
+    packer = getattr(_thread_local, "packer", None)
+    if packer is None:
+        packer = _thread_local.packer = msgpack.Packer(use_bin_type=True, autoreset=False, datetime=False)
+    try:
+        packer.pack(message)
+        return packer.bytes()
+    finally:
+        packer.reset()
+
+
+def _refuse_extension(code, data):
+    raise ValueError(f"msgpack extension type {code} is not allowed")
+
+
+def unpack(data: bytes, *, max_bytes: int):
+    """Decode one msgpack message with strict limits: str map keys only, no extension types, bounded sizes."""
+    if len(data) > max_bytes:
+        raise ProtocolError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes", "TooLarge")
+    try:
+        return msgpack.unpackb(
+            data,
+            raw=False,
+            use_list=True,
+            strict_map_key=True,
+            max_bin_len=max_bytes,
+            max_str_len=max_bytes,
+            max_array_len=max_bytes,
+            max_map_len=max_bytes,
+            max_ext_len=0,
+            ext_hook=_refuse_extension,
+        )
+    except Exception as err:  # msgpack raises a dozen different types for bad input
+        raise ProtocolError(f"not a msgpack message: {type(err).__name__}: {err}"[:200]) from None
+
+
+def parse_request_id(request_id) -> tuple[str, int]:
+    """'<client_id>:<seq>' -> (client_id, seq)."""
+    if not isinstance(request_id, str):
+        raise ProtocolError("'id' must be a string '<client_id>:<seq>'")
+    match = REQUEST_ID_PATTERN.match(request_id)
+    if match is None:
+        raise ProtocolError("'id' must look like '<client_id>:<seq>' (client id [A-Za-z0-9_.-]{1,64})")
+    return match.group(1), int(match.group(2))
+
+
+def make_request(request_id: str, cmd: str, args: dict | None = None) -> dict:
+    return {"v": PROTOCOL_VERSION, "id": request_id, "cmd": cmd, "args": dict(args or {})}
+
+
+def validate_request(message) -> tuple[str, str, dict]:
+    """Check a decoded request against the schema; return (id, cmd, validated args) or raise ProtocolError."""
+    if not isinstance(message, dict):
+        raise ProtocolError(f"a request must be a map, got {type(message).__name__}")
+    if type(message.get("v")) is not int or message["v"] != PROTOCOL_VERSION:
+        raise ProtocolError(
+            f"unsupported protocol version {message.get('v')!r}; this server speaks {PROTOCOL_VERSION}",
+            "UnsupportedVersion",
+        )
+    missing = REQUEST_KEYS - message.keys()
+    extra = message.keys() - REQUEST_KEYS
+    if missing or extra:
+        raise ProtocolError(f"request keys must be {sorted(REQUEST_KEYS)}; missing {sorted(missing)}, "
+                            f"unexpected {sorted(map(str, extra))}")
+    request_id = message["id"]
+    parse_request_id(request_id)
+    cmd = message["cmd"]
+    if not isinstance(cmd, str):
+        raise ProtocolError("'cmd' must be a string")
+    if cmd not in COMMANDS:
+        raise ProtocolError(f"unknown command {cmd[:64]!r}", "UnknownCommand")
+    args = message["args"]
+    if not isinstance(args, dict):
+        raise ProtocolError("'args' must be a map")
+    validators, _ = COMMANDS[cmd]
+    missing = validators.keys() - args.keys()
+    extra = args.keys() - validators.keys()
+    if missing or extra:
+        raise ProtocolError(f"{cmd}: args must be {sorted(validators)}; missing {sorted(missing)}, "
+                            f"unexpected {sorted(map(str, extra))}")
+    return request_id, cmd, {key: check(args[key], key) for key, check in validators.items()}
+
+
+def ok_reply(request_id, result) -> dict:
+    return {"v": PROTOCOL_VERSION, "id": request_id, "ok": True, "result": result}
+
+
+def error_reply(request_id, error_type: str, message: str) -> dict:
+    one_line = " ".join(str(message).split())[:500]
+    return {"v": PROTOCOL_VERSION, "id": request_id, "ok": False, "error": {"type": error_type, "message": one_line}}
+
+
+def validate_reply(message, request_id) -> dict:
+    """Check a decoded reply's shape; raises ProtocolError. Returns the reply."""
+    if not isinstance(message, dict) or message.get("v") != PROTOCOL_VERSION:
+        raise ProtocolError("reply is not a protocol-1 map")
+    if message.get("id") != request_id:
+        raise ProtocolError(f"reply id {message.get('id')!r} does not match request id {request_id!r}")
+    if message.get("ok") is True and "result" in message:
+        return message
+    error = message.get("error")
+    if message.get("ok") is False and isinstance(error, dict) and isinstance(error.get("type"), str) \
+            and isinstance(error.get("message"), str):
+        return message
+    raise ProtocolError("reply has neither ok+result nor an error {type, message}")
+
+
+# ---------------------------------------------------------------------------------------------- payloads
+def joint_reading_to_wire(reading: JointReading) -> dict:
+    return {"angles_rad": {name: float(v) for name, v in reading.angles_rad.items()}, "t_s": float(reading.t_s)}
+
+
+def joint_reading_from_wire(data) -> JointReading:
+    try:
+        angles = {str(name): float(v) for name, v in data["angles_rad"].items()}
+        return JointReading(angles_rad=angles, t_s=float(data["t_s"]))
+    except (TypeError, KeyError, AttributeError, ValueError) as err:
+        raise ProtocolError(f"malformed joint reading: {err}") from None
+
+
+def image_to_wire(image: CameraImage | None):
+    if image is None:
+        return None
+    pixels = np.ascontiguousarray(image.pixels)
+    if pixels.dtype.name not in IMAGE_DTYPES:
+        raise ProtocolError(f"image dtype {pixels.dtype} is not one of {sorted(IMAGE_DTYPES)}")
+    return {
+        "pixels": memoryview(pixels).cast("B"),  # packed as bin without an intermediate bytes copy
+        "shape": [int(n) for n in pixels.shape],
+        "dtype": pixels.dtype.name,
+        "t_exposure_s": float(image.t_exposure_s),
+        "camera": str(image.camera),
+    }
+
+
+def image_from_wire(data) -> CameraImage | None:
+    if data is None:
+        return None
+    try:
+        raw, shape, dtype = data["pixels"], data["shape"], data["dtype"]
+        t_exposure_s, camera = float(data["t_exposure_s"]), str(data["camera"])
+    except (TypeError, KeyError, ValueError) as err:
+        raise ProtocolError(f"malformed image: {err}") from None
+    if not isinstance(raw, bytes) or dtype not in IMAGE_DTYPES or not isinstance(shape, list) \
+            or not all(isinstance(n, int) and not isinstance(n, bool) and 0 < n < 1 << 16 for n in shape):
+        raise ProtocolError("malformed image: need pixels (bin), shape (array of int) and dtype 'uint8'")
+    if math.prod(shape) * np.dtype(dtype).itemsize != len(raw):
+        raise ProtocolError(f"image of shape {shape} and dtype {dtype} cannot hold {len(raw)} bytes")
+    # bytearray: the array owns writable memory (consumers may draw on it).
+    pixels = np.frombuffer(bytearray(raw), dtype=dtype).reshape(shape)
+    return CameraImage(pixels=pixels, t_exposure_s=t_exposure_s, camera=camera)
+
+
+def intrinsics_from_wire(data) -> CameraIntrinsics:
+    try:
+        return CameraIntrinsics(
+            width_px=int(data["width_px"]),
+            height_px=int(data["height_px"]),
+            fx_px=float(data["fx_px"]),
+            fy_px=float(data["fy_px"]),
+            cx_px=float(data["cx_px"]),
+            cy_px=float(data["cy_px"]),
+            distortion=tuple(float(d) for d in data["distortion"]),
+        )
+    except (TypeError, KeyError, ValueError) as err:
+        raise ProtocolError(f"malformed intrinsics: {err}") from None
