@@ -6,15 +6,14 @@ Every backend that can move a real joint checks its targets against these before
 
 from __future__ import annotations
 
-import functools
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from solver.errors import DataError
+from solver.urdf import NOMINAL_URDF, nominal_urdf, parse_urdf
 
-URDF_PATH = Path(__file__).resolve().parent / "data" / "nao_v50.urdf"
+URDF_PATH = NOMINAL_URDF
 
 # The URDF's RKneePitch range copies LKneePitch; the Aldebaran documentation gives the right knee its own range.
 DOCUMENTED_LIMITS_RAD = {"RKneePitch": (-0.103083, 2.120198)}
@@ -49,26 +48,17 @@ def head_pitch_limits(head_yaw_rad: float) -> tuple[float, float]:
     return lower, upper
 
 
-@functools.lru_cache(maxsize=4)
-def _urdf_joint_table(urdf_path: str) -> dict[str, tuple[float, float, float]]:
+def _urdf_joint_table(urdf_path) -> dict[str, tuple[float, float, float]]:
     """{joint: (lower_rad, upper_rad, max_speed_rad_per_s)} for every revolute joint of the URDF."""
-    try:
-        root = ET.parse(urdf_path).getroot()
-    except (OSError, ET.ParseError) as err:
-        raise DataError(urdf_path, f"cannot read the robot model: {err}") from None
+    urdf = nominal_urdf() if Path(urdf_path) == NOMINAL_URDF else parse_urdf(urdf_path)
     table = {}
-    for joint in root.iter("joint"):
-        if joint.get("type") != "revolute":
+    for joint in urdf.joints.values():
+        if joint.kind != "revolute":
             continue
-        name = joint.get("name")
-        limit = joint.find("limit")
-        if limit is None:
-            raise DataError(urdf_path, "revolute joint without <limit>", field=name)
-        try:
-            values = tuple(float(limit.get(key)) for key in ("lower", "upper", "velocity"))
-        except (TypeError, ValueError):
-            raise DataError(urdf_path, "<limit> needs numeric lower, upper and velocity", field=name) from None
-        table[name] = values
+        values = (joint.lower, joint.upper, joint.velocity)
+        if not all(np.isfinite(values)):
+            raise DataError(urdf_path, "<limit> needs numeric lower, upper and velocity", field=joint.name)
+        table[joint.name] = values
     return table
 
 

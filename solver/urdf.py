@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.errors import DataError
+
 NOMINAL_URDF = Path(__file__).with_name("data") / "nao_v50.urdf"
 
 
@@ -54,40 +56,60 @@ def _floats(text: str | None, default: str) -> tuple[float, ...]:
 
 
 def parse_urdf(path=NOMINAL_URDF) -> Urdf:
-    root = ET.parse(path).getroot()
+    """Joints and link inertias of a URDF file; a malformed file raises DataError naming it and the element."""
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as err:
+        raise DataError(path, f"cannot read the robot model: {err}") from None
     joints = {}
     for element in root.findall("joint"):
-        origin = element.find("origin")
-        axis_element = element.find("axis")
-        axis = np.array(_floats(axis_element.get("xyz") if axis_element is not None else None, "1 0 0"))
-        norm = np.linalg.norm(axis)
-        axis = tuple(float(a) for a in axis / norm) if norm > 0 else (0.0, 0.0, 0.0)
-        limit = element.find("limit")
-        limits = {}
-        if limit is not None:
-            limits = {key: float(limit.get(key, "nan")) for key in ("lower", "upper", "velocity", "effort")}
-        joints[element.get("name")] = UrdfJoint(
-            name=element.get("name"),
-            kind=element.get("type"),
-            parent=element.find("parent").get("link"),
-            child=element.find("child").get("link"),
-            xyz=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
-            rpy=_floats(origin.get("rpy") if origin is not None else None, "0 0 0"),
-            axis=axis,
-            **limits,
-        )
+        try:
+            joints[element.get("name")] = _parse_joint(element)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise DataError(path, f"malformed joint: {err}", field=element.get("name")) from None
     links = {}
     for element in root.findall("link"):
-        inertial = element.find("inertial")
-        if inertial is None or inertial.find("mass") is None:
-            continue
-        origin = inertial.find("origin")
-        links[element.get("name")] = UrdfLink(
-            name=element.get("name"),
-            mass=float(inertial.find("mass").get("value")),
-            com=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
-        )
+        try:
+            link = _parse_link(element)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise DataError(path, f"malformed link: {err}", field=element.get("name")) from None
+        if link is not None:
+            links[link.name] = link
     return Urdf(joints=joints, links=links)
+
+
+def _parse_joint(element) -> UrdfJoint:
+    origin = element.find("origin")
+    axis_element = element.find("axis")
+    axis = np.array(_floats(axis_element.get("xyz") if axis_element is not None else None, "1 0 0"))
+    norm = np.linalg.norm(axis)
+    axis = tuple(float(a) for a in axis / norm) if norm > 0 else (0.0, 0.0, 0.0)
+    limit = element.find("limit")
+    limits = {}
+    if limit is not None:
+        limits = {key: float(limit.get(key, "nan")) for key in ("lower", "upper", "velocity", "effort")}
+    return UrdfJoint(
+        name=element.get("name"),
+        kind=element.get("type"),
+        parent=element.find("parent").get("link"),
+        child=element.find("child").get("link"),
+        xyz=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
+        rpy=_floats(origin.get("rpy") if origin is not None else None, "0 0 0"),
+        axis=axis,
+        **limits,
+    )
+
+
+def _parse_link(element) -> UrdfLink | None:
+    inertial = element.find("inertial")
+    if inertial is None or inertial.find("mass") is None:
+        return None
+    origin = inertial.find("origin")
+    return UrdfLink(
+        name=element.get("name"),
+        mass=float(inertial.find("mass").get("value")),
+        com=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
+    )
 
 
 @functools.lru_cache(maxsize=1)

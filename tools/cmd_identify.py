@@ -1,7 +1,5 @@
 """`naocal identify DATASET`: fit the model to a dataset and print (or save) the parameters."""
 
-import argparse
-
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -35,8 +33,6 @@ def register(subparsers):
 
 def run(args) -> int:
     import json
-
-    import numpy as np
 
     from solver.dataset import read_dataset
     from solver.errors import NaocalError, SolveError
