@@ -47,6 +47,8 @@ class ModelData:
     velocity: np.ndarray | None  # (M, 14) rad/s at t_joints, or None if the dataset has none
     intrinsics: dict  # fx_px, fy_px, cx_px, cy_px, distortion (5,)
     gravity_torso_mps2: np.ndarray = field(default_factory=lambda: np.array([-9.81, 0.0, 0.0]))
+    angle_choice: "AngleChoice | None" = None  # how theta was taken from a dataset (None: given directly)
+    commanded: np.ndarray | None = None  # (M, 14) commanded angles, when known
 
     @property
     def n_rows(self) -> int:
@@ -89,7 +91,8 @@ class ModelData:
             p_sole=self.p_sole[rows], leg=self.leg[images], image_id=self.image_id[images],
             stance=self.stance[images], head_posture=self.head_posture[images], theta=self.theta[images],
             direction=self.direction[images], tau=self.tau[images], velocity=per_image(self.velocity),
-            intrinsics=self.intrinsics, gravity_torso_mps2=self.gravity_torso_mps2,
+            intrinsics=self.intrinsics, gravity_torso_mps2=self.gravity_torso_mps2, angle_choice=self.angle_choice,
+            commanded=per_image(self.commanded),
         )
 
 
@@ -364,18 +367,90 @@ class Model:
         return residual, J
 
 
-def model_data_from_dataset(dataset) -> ModelData:
+def encoder_resolution(readings: np.ndarray, *, tolerance=1e-9) -> float | None:
+    """The grid a joint's readings lie on (rad), or None if they are not quantised.
+
+    Quantised readings are integer multiples of one step; we take the smallest gap between distinct readings as
+    the candidate step and accept it only if every reading is a whole multiple of it.
+    """
+    values = np.unique(np.asarray(readings, dtype=float))
+    if len(values) < 3:
+        return None
+    gaps = np.diff(values)
+    step = float(gaps[gaps > tolerance].min()) if np.any(gaps > tolerance) else 0.0
+    if step <= 0:
+        return None
+    # the smallest gap may be a multiple of the true step; try its integer fractions
+    for divisor in range(1, 6):
+        candidate = step / divisor
+        multiples = values / candidate
+        if np.all(np.abs(multiples - np.round(multiples)) < 1e-6):
+            return candidate
+    return None
+
+
+@dataclass
+class AngleChoice:
+    """How the joint angles theta were taken from a dataset's measured and commanded columns."""
+
+    mode: str  # 'measured', 'commanded' or 'auto'
+    resolution_rad: dict  # joint -> detected encoder step (rad), for joints whose readings are quantised
+    n_commanded: int  # joint readings replaced by their command
+    n_total: int
+
+    def describe(self) -> str:
+        if self.mode != "auto" or not self.n_commanded:
+            return f"joint angles: {self.mode} readings"
+        steps = sorted({round(np.degrees(r), 4) for r in self.resolution_rad.values()})
+        return (f"joint angles: readings quantised to {', '.join(f'{s:g}' for s in steps)} deg; used the command for "
+                f"{self.n_commanded} of {self.n_total} still joint readings whose command lies inside the reading's "
+                "quantisation cell (the servo drives its sensor to the command; the reading only says which cell)")
+
+
+def choose_angles(measured, commanded, velocity, mode="auto", *, still_rad_per_s=1e-3):
+    """theta (M, 14) from measured and commanded angles (M, 14), per `mode`, and an AngleChoice saying what was done.
+
+    'measured' is the paper's choice. 'auto' also uses measured angles, except for joints whose readings are
+    quantised: there, for a still joint whose command lies inside its reading's quantisation cell, the command is
+    the better estimate (quantisation error up to half a step, shared by every image of a stance, otherwise
+    dominates the leg offsets). 'commanded' uses the commands throughout.
+    """
+    measured = np.asarray(measured, dtype=float)
+    commanded = np.asarray(commanded, dtype=float)
+    if mode == "measured":
+        return measured.copy(), AngleChoice(mode, {}, 0, measured.size)
+    if mode == "commanded":
+        return commanded.copy(), AngleChoice(mode, {}, measured.size, measured.size)
+    if mode != "auto":
+        raise ValueError(f"unknown angle mode {mode!r}: expected measured, commanded or auto")
+    theta = measured.copy()
+    still = np.ones(measured.shape, dtype=bool) if velocity is None else np.abs(velocity) < still_rad_per_s
+    resolutions, replaced = {}, 0
+    for c, joint in enumerate(JOINTS):
+        step = encoder_resolution(measured[:, c])
+        if step is None:
+            continue
+        resolutions[joint] = step
+        inside = still[:, c] & (np.abs(commanded[:, c] - measured[:, c]) <= 0.5 * step + 1e-9)
+        theta[inside, c] = commanded[inside, c]
+        replaced += int(inside.sum())
+    return theta, AngleChoice(mode, resolutions, replaced, measured.size)
+
+
+def model_data_from_dataset(dataset, angles: str = "auto") -> ModelData:
     """ModelData from a read `naocal.dataset/1` (solver.dataset.Dataset): per-image arrays, rows sorted by leg.
 
     Per-image values (leg, stance, posture, angles) are taken from the first row of each image; the reader has
-    already checked that they agree within an image.
+    already checked that they agree within an image. `angles` chooses theta (see `choose_angles`); what was done
+    is in the returned data's `angle_choice`.
     """
     cols = dataset.columns
     image = np.asarray(cols["image"], dtype=np.int64)
     image_ids, first_row, image_of_row = np.unique(image, return_index=True, return_inverse=True)
-    theta = dataset.joint_matrix("")[first_row]
-    direction = dataset.joint_matrix("dir_")[first_row]
     velocity = dataset.joint_matrix("vel_")[first_row] if dataset.has_velocities else None
+    commanded = dataset.joint_matrix("cmd_")[first_row]
+    theta, choice = choose_angles(dataset.joint_matrix("")[first_row], commanded, velocity, angles)
+    direction = dataset.joint_matrix("dir_")[first_row]
     leg = np.asarray(cols["leg"]).astype(str)[first_row]
     camera = dataset.meta["camera"]
     distortion = list(camera.get("distortion") or [0.0] * 5) + [0.0] * 5
@@ -394,6 +469,6 @@ def model_data_from_dataset(dataset) -> ModelData:
         leg=leg, image_id=image_ids, stance=np.asarray(cols["stance"], dtype=np.int64)[first_row],
         head_posture=np.asarray(cols["head_posture"], dtype=np.int64)[first_row], theta=theta,
         direction=direction, tau=compute_gravity_torques(theta, leg, gravity), velocity=velocity,
-        intrinsics=intrinsics, gravity_torso_mps2=gravity,
+        intrinsics=intrinsics, gravity_torso_mps2=gravity, angle_choice=choice, commanded=commanded,
     )
     return data.sorted_by_leg()

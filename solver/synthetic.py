@@ -90,10 +90,12 @@ def synthesize(rng, truth: dict, *, effects=(), n_stances_per_leg=24, n_head_pos
     data = make_model_data(theta, leg, stance, posture, direction=direction, velocity=velocity)
     registry = Registry(effects)
     uv = data.uv_px + Model(data, registry).residuals(registry.from_dict(truth))
+    theta_servo = theta.copy()
     if encoder_resolution_rad:
         theta = np.round(theta / encoder_resolution_rad) * encoder_resolution_rad
         data = make_model_data(theta, leg, stance, posture, direction=direction, velocity=velocity)
     data.uv_px = uv + rng.normal(0.0, pixel_noise_px, size=uv.shape)
+    data.commanded = theta_servo  # the servo drives its sensor exactly to the command (as the mock does)
     return data
 
 
@@ -114,7 +116,7 @@ def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, boa
 
 
 def dataset_parts(data: ModelData, *, robot_id="synthetic", pixel_noise_px=None, source="naocal synthetic"):
-    """(meta, columns) of a naocal.dataset/1 holding `data` (commanded = measured angles, still captures)."""
+    """(meta, columns) of a naocal.dataset/1 holding `data`; commanded angles default to the measured ones."""
     from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG
 
     intr = data.intrinsics
@@ -142,7 +144,7 @@ def dataset_parts(data: ModelData, *, robot_id="synthetic", pixel_noise_px=None,
     }
     for c, joint in enumerate(JOINTS):
         columns[joint] = data.theta[img, c]
-        columns["cmd_" + joint] = data.theta[img, c]
+        columns["cmd_" + joint] = (data.theta if data.commanded is None else data.commanded)[img, c]
         columns["dir_" + joint] = data.direction[img, c]
         if data.velocity is not None:
             columns["vel_" + joint] = data.velocity[img, c]

@@ -26,6 +26,10 @@ def register(subparsers):
     p.add_argument("--loss-scale-px", type=float, default=1.0, help="residual where the robust loss bends (px)")
     p.add_argument("--solver", default="lm", choices=("lm", "minpack"),
                    help="lm: naocal's Levenberg-Marquardt (fast); minpack: scipy.optimize.least_squares(method='lm')")
+    p.add_argument("--angles", default="auto", choices=("auto", "measured", "commanded"),
+                   help="joint angles used as theta: measured readings (the paper), commanded, or auto (default): "
+                        "readings, except that a still joint whose readings are quantised and whose command lies "
+                        "inside its reading's quantisation cell uses the command")
     p.add_argument("--cv-folds", type=int, default=5,
                    help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
     p.set_defaults(run=run)
@@ -45,7 +49,7 @@ def run(args) -> int:
     effects = parse_effects(args.effects)
     registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
     dataset = read_dataset(args.dataset)
-    data = model_data_from_dataset(dataset)
+    data = model_data_from_dataset(dataset, angles=args.angles)
     if "time_lag" in effects and data.velocity is None:
         raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
@@ -62,8 +66,11 @@ def run(args) -> int:
         write_offsets_file(args.out, result, dataset, args.dataset)
 
     if args.json:
-        print(json.dumps(result_json(result, effects, cv_rms), indent=1))
+        report = result_json(result, effects, cv_rms)
+        report["angles"] = data.angle_choice.describe()
+        print(json.dumps(report, indent=1))
     else:
+        print(data.angle_choice.describe())
         print(format_table(result, cv_rms))
     return 0
 

@@ -1,0 +1,105 @@
+"""`naocal identify` end to end on a dataset written to disk."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from solver.dataset import write_dataset
+from solver.offsets import read_offsets
+from solver.synthetic import dataset_parts, random_truth, synthesize
+from tools.cli import main
+
+DEG = np.pi / 180
+
+
+@pytest.fixture(scope="module")
+def synthetic_dataset(tmp_path_factory):
+    rng = np.random.default_rng(21)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.1)
+    path = tmp_path_factory.mktemp("ds") / "dataset"
+    write_dataset(dataset_parts(data, pixel_noise_px=0.1), path)
+    return path, truth
+
+
+def test_json_output_and_offsets_file_with_compensation_sign(synthetic_dataset, tmp_path, capsys):
+    path, truth = synthetic_dataset
+    out = tmp_path / "offsets.json"
+    assert main(["identify", str(path), "--json", "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for key in ("rms_px", "solve_time_s", "iterations", "effects", "parameters", "cv_rms_px"):
+        assert key in report
+    assert report["effects"] == []
+    assert all(abs(r - 0.1) < 0.01 for r in report["rms_px"])
+    assert all(abs(r - 0.1) < 0.02 for r in report["cv_rms_px"])
+    assert report["parameters"]["joint_offset.LKneePitch"]["unit"] == "rad"
+
+    offsets = read_offsets(out)
+    for joint in ("LHipPitch", "RAnkleRoll", "LKneePitch"):
+        # stored c is added to commands: c = -alpha
+        assert offsets.joint_offsets_rad[joint] == pytest.approx(-truth[f"joint_offset.{joint}"], abs=0.02 * DEG)
+    assert offsets.camera_rotation_rad["bottom"]["pitch"] == pytest.approx(truth["camera.pitch"], abs=0.01 * DEG)
+    assert offsets.board_mount["L"]["trans_x_m"] == pytest.approx(truth["board.L.trans_x"], abs=3e-4)
+
+
+def test_table_output_names_the_weak_pitch_chain(synthetic_dataset, capsys):
+    path, _ = synthetic_dataset
+    assert main(["identify", str(path), "--cv-folds", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "joint_offset.LKneePitch" in text and "weakest directions" in text
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "tools", *args], capture_output=True, text=True, cwd=ROOT)
+
+
+def test_unknown_effect_is_one_clear_line(synthetic_dataset):
+    path, _ = synthetic_dataset
+    proc = run_cli("identify", str(path), "--effects", "gremlins")
+    assert proc.returncode == 2
+    assert "unknown effect 'gremlins'" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_missing_dataset_is_one_clear_line(tmp_path):
+    proc = run_cli("identify", str(tmp_path / "nothing"))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "nothing" in proc.stderr
+
+
+def test_time_lag_without_velocities_is_refused(synthetic_dataset):
+    path, _ = synthetic_dataset
+    proc = run_cli("identify", str(path), "--effects", "time_lag")
+    assert proc.returncode == 2 and "vel_" in proc.stderr
+
+
+def test_degenerate_dataset_exits_3_and_writes_nothing(tmp_path):
+    rng = np.random.default_rng(22)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=1)
+    path = tmp_path / "dataset"
+    write_dataset(dataset_parts(data), path)
+    out = tmp_path / "offsets.json"
+    proc = run_cli("identify", str(path), "--out", str(out))
+    assert proc.returncode == 3, proc.stderr
+    assert "cannot determine" in proc.stderr and not out.exists()
+
+
+def test_quantised_readings_use_the_command_inside_the_cell(tmp_path, capsys):
+    """0.1 deg encoder steps: readings alone leave the leg offsets ~0.1-0.3 deg off; auto recovers them."""
+    rng = np.random.default_rng(23)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=0.05, encoder_resolution_rad=0.1 * DEG)
+    path = tmp_path / "dataset"
+    write_dataset(dataset_parts(data), path)
+    errors = {}
+    for mode in ("measured", "auto"):
+        assert main(["identify", str(path), "--json", "--cv-folds", "0", "--angles", mode]) == 0
+        report = json.loads(capsys.readouterr().out)
+        errors[mode] = max(abs(report["parameters"][f"joint_offset.{j}"]["value"] - truth[f"joint_offset.{j}"])
+                           for j in ("LHipPitch", "LKneePitch", "LAnklePitch", "RHipPitch", "RKneePitch"))
+        if mode == "auto":
+            assert "quantised to 0.1 deg" in report["angles"]
+    assert errors["auto"] < 0.02 * DEG < errors["measured"]
