@@ -1,0 +1,656 @@
+"""A simulated NAO with hidden, known errors: the `Backend` that naocal is tested and learned on.
+
+The robot lies on its back (backends.pybullet_body); its bottom camera is rendered (backends.mock_render); time is
+simulated (`now()` and `sleep()` advance a counter, nothing waits on the wall clock). docs/MOCK.md describes the
+model; in short:
+
+Hidden truth, drawn from the seed (each part from its own random stream, so adding an effect does not change the
+others): leg encoder offsets alpha (0.2-2 deg, random sign; RHipYawPitch = LHipYawPitch, one motor), the camera's
+rotation offsets (pitch -3..-8.5 deg, roll and yaw 1-3 deg of random sign, applied as in the model:
+T_torso_cam = T_torso_cam(q) @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)), the sandals' mounting errors (rot_z
+0.2-1.2 deg, trans_x/trans_y 0.5-3 mm; p_sole = Rot_z(rot_z) @ (p + [trans_x, trans_y, 0])).
+
+Joints: each motor drives its own (biased) sensor to the command, so a still joint commanded to c reads c
+(quantised to `encoder_resolution_deg`) and truly stands at c + alpha (+ the effects below). A command moves its
+joints together along a straight line in joint space, starting `command_delay_s` after it is given, at
+`speed_fraction` of the slowest joint's maximum speed (the URDF's velocity) so that no joint exceeds its own.
+Sensors are sampled every `sensor_period_s` (100 Hz) and a reading is the sample `sensor_lag_cycles` periods old,
+stamped with its own sampling time. The single HipYawPitch motor follows LHipYawPitch when a command names it (as
+NAOqi does), else RHipYawPitch; both joints read its sensor.
+
+Camera: frames are exposed every 1/30 s (the exposure time is the middle of the frame) and arrive
+`camera_delay_s` later; `capture()` returns the newest frame that has arrived, rendered on demand (frames nobody
+asks for are never rendered) and showing the robot at its exposure time, with the boards motion-blurred over
+`exposure_s` if they move.
+
+Injectable effects (off by default; sizes in the units below; per-joint factors from the seed):
+    elasticity    rad/(N m)  compliance c_j = size * U(0.5, 1.5) on each leg joint:
+                             q_true = servo + alpha + c_j * tau_j(q_true), tau_j the gravity torque from PyBullet's
+                             inverse dynamics of the simulated masses and the sandal (fixed-point iteration)
+    backlash      rad        half play b_j = size * U(0.5, 1.5) on each leg joint: q_true = servo + alpha + b_j * dir_j,
+                             dir_j the sign of the last change of that joint's command (0 before any change)
+    link_lengths  m          thigh and tibia of each leg longer by size * U(0.5, 1) with random sign
+    head_offsets  rad        HeadYaw and HeadPitch encoder offsets of size * U(0.5, 1) with random sign
+    intrinsics    px         true fx = nominal + s * size, fy = nominal + s * size * U(0.7, 1.3), s = +-1
+    distortion    1          true radial distortion k1 = size (OpenCV model on normalised coordinates)
+    time_lag      s          image timestamps are `size` later than the true exposure
+
+Safety: `command` refuses with SafetyError a non-finite or unknown target, a speed outside (0, 1], a target outside
+the joint limits (solver.limits, HeadPitch against HeadYaw included) and a motion whose end or any of the points
+sampled along its way brings two parts of the true body, or a part and the ground, closer than `safety_margin_m`.
+Every command received is kept in `command_log`, refused or not.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.mock_render import CameraModel, SceneRenderer
+from backends.pybullet_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
+from solver.errors import NaocalError, SafetyError
+from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
+from solver.kinematics import camera_fk, leg_fk
+from solver.limits import head_pitch_limits, joint_limits, max_speeds
+from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole
+from solver.transforms import invert_transform, rot_x, rot_y, rot_z
+
+EFFECT_UNITS = {
+    "elasticity": "rad/(N m)",
+    "backlash": "rad",
+    "link_lengths": "m",
+    "head_offsets": "rad",
+    "intrinsics": "px",
+    "distortion": "1 (radial k1)",
+    "time_lag": "s",
+}
+EFFECTS = tuple(EFFECT_UNITS)
+TRUTH_SCHEMA = "naocal.truth/1"
+FRAME_PERIOD_S = 1.0 / 30.0
+FRAME_PHASE_S = 0.004  # exposure times are FRAME_PHASE_S + k * FRAME_PERIOD_S
+START_TIME_S = 10.0  # the simulated clock at start (the robot has been up for a while)
+SHARED_MOTOR = ("LHipYawPitch", "RHipYawPitch")  # one motor; its track is kept under the L name
+
+# Lying on the back, legs a little raised and apart so that the sandals clear each other, head looking down
+# towards the feet.
+DEFAULT_POSTURE = {
+    "HeadYaw": 0.0, "HeadPitch": 0.3,
+    "LHipYawPitch": 0.0, "LHipRoll": 0.3, "LHipPitch": -0.5, "LKneePitch": 0.5, "LAnklePitch": -0.3, "LAnkleRoll": 0.0,
+    "RHipYawPitch": 0.0, "RHipRoll": -0.3, "RHipPitch": -0.5, "RKneePitch": 0.5, "RAnklePitch": -0.3, "RAnkleRoll": 0.0,
+}
+
+
+def parse_effects(items) -> dict[str, float]:
+    """{name: size} from strings 'NAME=SIZE' (the `--effect` arguments); NaocalError naming the bad one."""
+    effects = {}
+    for item in items or ():
+        name, sep, size_text = str(item).partition("=")
+        name = name.strip()
+        if not sep:
+            raise NaocalError(f"effect {item!r}: expected NAME=SIZE, e.g. elasticity=0.02")
+        try:
+            size = float(size_text)
+        except ValueError:
+            raise NaocalError(f"effect {item!r}: size {size_text!r} is not a number") from None
+        effects[name] = size
+    return check_effects(effects)
+
+
+def check_effects(effects) -> dict[str, float]:
+    """A validated copy of {name: size}: known names, finite sizes."""
+    checked = {}
+    for name, size in dict(effects or {}).items():
+        if name not in EFFECT_UNITS:
+            raise NaocalError(f"unknown effect {name!r}: expected one of {', '.join(EFFECTS)}")
+        size = float(size)
+        if not math.isfinite(size):
+            raise NaocalError(f"effect {name!r}: size must be finite, got {size}")
+        checked[name] = size
+    return checked
+
+
+@dataclass(frozen=True)
+class MockTruth:
+    """Everything hidden in a mock. Angles in rad, lengths in m; per-joint dicts use solver.joints names."""
+
+    seed: int
+    alpha_rad: dict  # 14 joints: encoder offsets (head joints: the head_offsets effect, else 0)
+    camera_rotation_rad: dict  # roll, pitch, yaw
+    board_mount: dict  # leg -> BoardMount
+    effects: dict  # name -> size
+    compliance_rad_per_nm: dict  # leg joints (0 without elasticity)
+    backlash_rad: dict  # leg joints (0 without backlash)
+    thigh_delta_m: dict  # leg -> m
+    tibia_delta_m: dict  # leg -> m
+    camera: CameraModel  # the true intrinsics and distortion
+    time_lag_s: float
+
+    def geometry(self) -> BodyGeometry:
+        return BodyGeometry(thigh_delta_m=dict(self.thigh_delta_m), tibia_delta_m=dict(self.tibia_delta_m),
+                            board_mount=dict(self.board_mount))
+
+    def R_cam_offset(self) -> np.ndarray:
+        """Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw), the camera's rotation error (Eq. 3)."""
+        r = self.camera_rotation_rad
+        return rot_y(r["pitch"]) @ rot_x(r["roll"]) @ rot_z(r["yaw"])
+
+
+def _signed(rng, low, high, size=None):
+    return rng.choice([-1.0, 1.0], size=size) * rng.uniform(low, high, size=size)
+
+
+def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None) -> MockTruth:
+    """The hidden truth of a mock with this seed and these effects (see the module docstring)."""
+    effects = check_effects(effects)
+    nominal = nominal or default_intrinsics()
+    streams = {name: np.random.default_rng([int(seed), k]) for k, name in enumerate(("base",) + EFFECTS)}
+    rng = streams["base"]
+    alpha = {j: 0.0 for j in JOINTS}
+    for joint in LEG_JOINTS:
+        alpha[joint] = float(np.deg2rad(_signed(rng, 0.2, 2.0)))
+    alpha["RHipYawPitch"] = alpha["LHipYawPitch"]
+    camera_rotation = {"roll": float(np.deg2rad(_signed(rng, 1.0, 3.0))),
+                       "pitch": float(np.deg2rad(-rng.uniform(3.0, 8.5))),
+                       "yaw": float(np.deg2rad(_signed(rng, 1.0, 3.0)))}
+    mounts = {leg: BoardMount(rot_z_rad=float(np.deg2rad(_signed(rng, 0.2, 1.2))),
+                              trans_x_m=float(_signed(rng, 0.0005, 0.003)),
+                              trans_y_m=float(_signed(rng, 0.0005, 0.003))) for leg in LEGS}
+
+    def per_leg_joint(name, low, high):
+        size = effects.get(name, 0.0)
+        factors = streams[name].uniform(low, high, len(LEG_JOINTS))
+        return {j: float(size * f) for j, f in zip(LEG_JOINTS, factors)}
+
+    lengths = _signed(streams["link_lengths"], 0.5, 1.0, size=4) * effects.get("link_lengths", 0.0)
+    head = _signed(streams["head_offsets"], 0.5, 1.0, size=2) * effects.get("head_offsets", 0.0)
+    alpha["HeadYaw"], alpha["HeadPitch"] = float(head[0]), float(head[1])
+    focal_sign = streams["intrinsics"].choice([-1.0, 1.0])
+    focal_ratio = streams["intrinsics"].uniform(0.7, 1.3)
+    focal = effects.get("intrinsics", 0.0)
+    camera = CameraModel(width_px=nominal.width_px, height_px=nominal.height_px,
+                         fx_px=nominal.fx_px + focal_sign * focal,
+                         fy_px=nominal.fy_px + focal_sign * focal * focal_ratio,
+                         cx_px=nominal.cx_px, cy_px=nominal.cy_px, k1=effects.get("distortion", 0.0))
+    return MockTruth(
+        seed=int(seed), alpha_rad=alpha, camera_rotation_rad=camera_rotation, board_mount=mounts,
+        effects=dict(effects), compliance_rad_per_nm=per_leg_joint("elasticity", 0.5, 1.5),
+        backlash_rad=per_leg_joint("backlash", 0.5, 1.5),
+        thigh_delta_m={"L": float(lengths[0]), "R": float(lengths[1])},
+        tibia_delta_m={"L": float(lengths[2]), "R": float(lengths[3])},
+        camera=camera, time_lag_s=effects.get("time_lag", 0.0))
+
+
+def default_intrinsics() -> CameraIntrinsics:
+    return CameraIntrinsics(width_px=640, height_px=480, fx_px=600.0, fy_px=600.0, cx_px=320.0, cy_px=240.0)
+
+
+@dataclass(frozen=True)
+class CommandRecord:
+    """One command as the mock received it (robot clock), and whether it was carried out."""
+
+    t_s: float
+    targets_rad: dict
+    speed_fraction: float
+    accepted: bool
+    reason: str = ""
+
+
+@dataclass
+class _Track:
+    """The servo (command-space) position of one motor over time: straight segments toward targets."""
+
+    t0: list = field(default_factory=list)  # segment start times, increasing
+    q0: list = field(default_factory=list)
+    target: list = field(default_factory=list)
+    duration: list = field(default_factory=list)
+    dir_t: list = field(default_factory=list)  # times at which the commanded direction changed
+    dirs: list = field(default_factory=list)
+
+    def at(self, t: float) -> float:
+        i = bisect.bisect_right(self.t0, t) - 1
+        if i < 0:
+            i = 0
+        if self.duration[i] <= 0.0 or t >= self.t0[i] + self.duration[i]:
+            return self.target[i]
+        return self.q0[i] + (self.target[i] - self.q0[i]) * max(t - self.t0[i], 0.0) / self.duration[i]
+
+    def end_time(self) -> float:
+        return self.t0[-1] + self.duration[-1]
+
+    def direction(self, t: float) -> float:
+        i = bisect.bisect_right(self.dir_t, t) - 1
+        return self.dirs[i] if i >= 0 else 0.0
+
+
+class _LazyImage(CameraImage):
+    """A CameraImage whose pixels are rendered when first read: a frame nobody looks at costs nothing (an agent
+    polling `capture()` until a new enough frame arrives only reads `t_exposure_s` of the others)."""
+
+    def __init__(self, render, t_exposure_s: float, camera: str = "bottom"):
+        object.__setattr__(self, "_render", render)
+        object.__setattr__(self, "_pixels", None)
+        object.__setattr__(self, "t_exposure_s", t_exposure_s)
+        object.__setattr__(self, "camera", camera)
+
+    @property
+    def pixels(self) -> np.ndarray:
+        if self._pixels is None:
+            object.__setattr__(self, "_pixels", self._render())
+        return self._pixels
+
+    def __reduce__(self):  # pickles as a plain CameraImage
+        return CameraImage, (self.pixels, self.t_exposure_s, self.camera)
+
+
+@dataclass
+class _Frame:
+    index: int
+    t_true_s: float  # true exposure time (middle of the frame)
+    image: CameraImage | None = None
+    seg: np.ndarray | None = None  # segmentation mask, once rendered
+    q_true: np.ndarray | None = None  # true angles at the exposure, once rendered
+
+
+class MockBackend(Backend):
+    """A simulated NAO (PyBullet, simulated clock) with hidden truth `truth` / `truth_dict()`.
+
+    Parameters
+    ----------
+    seed : draws the hidden truth (and the image noise).
+    effects : {name: size} of injected physical effects (see the module docstring for names and units).
+    encoder_resolution_deg : joint readings are quantised to this step.
+    image_noise_std : Gaussian noise on the images, grey levels (0-255).
+    camera_delay_s : an image arrives this long after its exposure.
+    exposure_s : exposure duration (motion blur of moving boards).
+    sensor_period_s, sensor_lag_cycles : joint sampling period and how many samples old a reading is.
+    command_delay_s : a command starts moving the joints this long after it is given.
+    safety_margin_m : parts of the true body (and the ground) closer than this make a motion unsafe.
+    supersample : anti-aliasing of the boards (sub-pixels per pixel and axis).
+    nominal_intrinsics : the camera's prior intrinsics (default fx = fy = 600, cx, cy = 320, 240).
+    posture : starting joint angles (command space) replacing those of DEFAULT_POSTURE.
+    """
+
+    name = "mock"
+
+    def __init__(self, seed: int = 0, effects=None, *, encoder_resolution_deg: float = 0.1,
+                 image_noise_std: float = 1.0, camera_delay_s: float = 0.1, exposure_s: float = 0.015,
+                 sensor_period_s: float = 0.01, sensor_lag_cycles: int = 3, command_delay_s: float = 0.01,
+                 safety_margin_m: float = 0.003, supersample: int = 4,
+                 nominal_intrinsics: CameraIntrinsics | None = None, posture: dict | None = None):
+        self.seed = int(seed)
+        self._nominal = nominal_intrinsics or default_intrinsics()
+        self.truth = draw_truth(self.seed, effects, self._nominal)
+        if self.truth.time_lag_s >= camera_delay_s:
+            raise NaocalError(f"time_lag {self.truth.time_lag_s} s must stay below camera_delay_s {camera_delay_s} s: "
+                              "an image cannot be stamped later than it arrives")
+        self.encoder_resolution_rad = math.radians(encoder_resolution_deg)
+        self.image_noise_std = float(image_noise_std)
+        self.camera_delay_s = float(camera_delay_s)
+        self.exposure_s = float(exposure_s)
+        self.sensor_period_s = float(sensor_period_s)
+        self.sensor_lag_s = int(sensor_lag_cycles) * self.sensor_period_s
+        self.command_delay_s = float(command_delay_s)
+        self._limits = {j: joint_limits()[j] for j in JOINTS}
+        self._speeds = {j: max_speeds()[j] for j in JOINTS}
+        self._stiffness = {j: 1.0 for j in JOINTS}
+        self.command_log: list[CommandRecord] = []
+        self._t = START_TIME_S
+        self._frames: dict[int, _Frame] = {}
+        self.frames_rendered = 0  # how many frames were rendered (only those whose pixels someone read)
+        self._closed = False
+        self.body = NaoBody(self.truth.geometry())
+        self.checker = CollisionChecker(self.body, margin_m=safety_margin_m, ground_margin_m=safety_margin_m)
+        self.renderer = SceneRenderer(self.body, self.truth.camera, supersample=supersample)
+        self._vertices_board = board_vertices_sole() - np.array([BOARD_CENTER_X_M, 0.0, 0.0])
+        self._T_sole_board = {leg: T_sole_board(self.truth.board_mount[leg]) for leg in LEGS}
+        start = {**DEFAULT_POSTURE, **(posture or {})}
+        for joint in JOINTS:
+            lower, upper = self._limits[joint]
+            if not lower <= start[joint] <= upper:
+                raise SafetyError(f"mock starting posture: {joint} = {start[joint]} rad outside its limits")
+        self._tracks = {j: _Track([-math.inf], [start[j]], [start[j]], [0.0]) for j in JOINTS if j != SHARED_MOTOR[1]}
+        problem = self._unsafe_reason(self._stance_now(), [])
+        if problem:
+            self.close()
+            raise SafetyError(f"mock starting posture is unsafe: {problem}")
+
+    # --- Backend --------------------------------------------------------------------------------------------------
+    def robot_identity(self) -> dict:
+        return {"id": f"mock-{self.seed}", "model": "NAO H25 V5 (naocal PyBullet mock)",
+                "body_id": f"mock-body-{self.seed}", "head_id": f"mock-head-{self.seed}"}
+
+    def joint_names(self) -> tuple[str, ...]:
+        return JOINTS
+
+    def joint_limits(self) -> dict[str, tuple[float, float]]:
+        return dict(self._limits)
+
+    def max_speeds(self) -> dict[str, float]:
+        return dict(self._speeds)
+
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._nominal
+
+    def now(self) -> float:
+        return self._t
+
+    def sleep(self, duration_s: float) -> None:
+        duration_s = float(duration_s)
+        if not math.isfinite(duration_s) or duration_s < 0:
+            raise NaocalError(f"sleep: duration must be finite and >= 0, got {duration_s}")
+        self._t += duration_s
+
+    def set_stiffness(self, names, stiffness: float) -> None:
+        """Stiffness 0 leaves a joint where it is: it ignores commands (it does not fall; a simplification)."""
+        self._check_open()
+        names = [names] if isinstance(names, str) else list(names)
+        stiffness = float(stiffness)
+        if not 0.0 <= stiffness <= 1.0:
+            raise NaocalError(f"stiffness must be within 0..1, got {stiffness}")
+        for name in names:
+            if name not in self._stiffness:
+                raise NaocalError(f"set_stiffness: unknown joint {name!r}")
+            self._stiffness[name] = stiffness
+
+    def read_joints(self) -> JointReading:
+        self._check_open()
+        period = self.sensor_period_s
+        t_sample = math.floor((self._t - self.sensor_lag_s) / period + 1e-9) * period
+        step = self.encoder_resolution_rad
+        angles = {}
+        for joint in JOINTS:
+            servo = self._track(joint).at(t_sample)
+            angles[joint] = round(servo / step) * step if step > 0 else servo
+        return JointReading(angles_rad=angles, t_s=t_sample)
+
+    def command(self, targets_rad: dict, speed_fraction: float) -> None:
+        self._check_open()
+        record = dict(targets_rad) if isinstance(targets_rad, dict) else targets_rad
+        try:
+            targets, speed = self._validate(targets_rad, speed_fraction)
+            start = self._t + self.command_delay_s
+            plan = self._plan(targets, speed, start)
+            problem = self._unsafe_reason(plan[-1][1], plan)
+            if problem:
+                raise SafetyError(f"refused: {problem}")
+        except SafetyError as err:
+            self.command_log.append(CommandRecord(self._t, record, _as_float(speed_fraction), False, str(err)))
+            raise
+        self.command_log.append(CommandRecord(self._t, record, speed, True))
+        self._apply(targets, speed, start)
+
+    def capture(self) -> CameraImage | None:
+        self._check_open()
+        k = math.floor((self._t - self.camera_delay_s - FRAME_PHASE_S) / FRAME_PERIOD_S + 1e-9)
+        if k * FRAME_PERIOD_S + FRAME_PHASE_S < START_TIME_S - 1.0:
+            return None  # nothing exposed yet since the camera started
+        return self._frame(k).image
+
+    def close(self) -> None:
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        self._frames.clear()
+        self.body.close()
+
+    # --- Truth, for tests -------------------------------------------------------------------------------------------
+    def truth_dict(self) -> dict:
+        """The hidden truth in the `naocal.truth/1` format."""
+        t = self.truth
+        return {
+            "schema": TRUTH_SCHEMA,
+            "alpha_rad": {j: float(t.alpha_rad[j]) for j in JOINTS},
+            "camera_rotation_rad": {k: float(t.camera_rotation_rad[k]) for k in ("roll", "pitch", "yaw")},
+            "board_mount": {leg: {"rot_z_rad": float(m.rot_z_rad), "trans_x_m": float(m.trans_x_m),
+                                  "trans_y_m": float(m.trans_y_m)} for leg, m in t.board_mount.items()},
+            "effects": {name: float(size) for name, size in t.effects.items()},
+        }
+
+    def true_angles(self, t_s: float | None = None) -> dict[str, float]:
+        """The true joint angles (rad) at robot time t_s (default now)."""
+        q = self._true_q(self._t if t_s is None else float(t_s))
+        return {j: float(q[i]) for i, j in enumerate(JOINTS)}
+
+    def servo_angles(self, t_s: float | None = None) -> dict[str, float]:
+        """The motors' own (unquantised) sensor positions at robot time t_s (default now)."""
+        t = self._t if t_s is None else float(t_s)
+        return {j: self._track(j).at(t) for j in JOINTS}
+
+    def exposure_time(self, image: CameraImage) -> float:
+        """The true exposure time of an image this mock returned (its stamp minus the time_lag effect)."""
+        return image.t_exposure_s - self.truth.time_lag_s
+
+    def vertex_pixels_at(self, t_s: float) -> dict:
+        """{leg: (24, 2)} where the true camera sees both boards' vertices with the robot as it truly is at robot
+        time t_s (whether or not they are visible)."""
+        return {leg: uv for leg, (uv, _) in self._vertex_pixels(self._true_q(float(t_s))).items()}
+
+    def true_vertex_pixels(self, image: CameraImage, *, clearance_px: float = 4.0) -> dict:
+        """Exact pixel positions of both boards' vertices in an image this mock returned.
+
+        Returns {leg: (pixels (24, 2), visible (24,) bool)}: the true kinematics at the image's true exposure
+        time (the middle of the exposure), the true camera (rotation, intrinsics, distortion). A vertex is visible
+        when it lies inside the image, its board faces the camera and no other part of the robot covers any pixel
+        within `clearance_px` of it in the image's segmentation mask.
+        """
+        frame = self._frame(self._frame_index(image))
+        if frame.seg is None:
+            frame.image.pixels  # renders it
+        out = {}
+        for leg, (uv, facing) in self._vertex_pixels(frame.q_true).items():
+            cam = self.truth.camera
+            visible = np.zeros(N_VERTICES, dtype=bool)
+            if facing:
+                covered = self.renderer.occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
+                r = int(math.ceil(clearance_px))
+                for i, (u, v) in enumerate(uv):
+                    if not (0 <= u <= cam.width_px - 1 and 0 <= v <= cam.height_px - 1):
+                        continue
+                    u0, v0 = int(round(u)), int(round(v))
+                    visible[i] = not covered[max(v0 - r, 0):v0 + r + 1, max(u0 - r, 0):u0 + r + 1].any()
+            out[leg] = (uv, visible)
+        return out
+
+    def _vertex_pixels(self, q_true: np.ndarray) -> dict:
+        """{leg: (pixels (24, 2) through the true camera, whether the board faces the camera)}."""
+        T_cam_world = invert_transform(self._T_world_cam(q_true))
+        out = {}
+        for leg in LEGS:
+            T_cam_board = T_cam_world @ self._T_world_board(q_true, leg)
+            p_cam = self._vertices_board @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+            in_front = bool(np.all(p_cam[:, 0] > 1e-3))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = self.truth.camera.project(p_cam)
+            facing = in_front and T_cam_board[:3, 2] @ T_cam_board[:3, 3] < 0
+            out[leg] = (uv, facing)
+        return out
+
+    # --- Internals ------------------------------------------------------------------------------------------------
+    def _check_open(self):
+        if self._closed:
+            raise NaocalError("the mock robot is closed")
+
+    def _track(self, joint: str) -> _Track:
+        return self._tracks[SHARED_MOTOR[0] if joint == SHARED_MOTOR[1] else joint]
+
+    def _validate(self, targets_rad, speed_fraction) -> tuple[dict, float]:
+        if not isinstance(targets_rad, dict) or not targets_rad:
+            raise SafetyError("targets must be a non-empty {joint: angle} dict")
+        speed = _as_float(speed_fraction)
+        if not (math.isfinite(speed) and 0.0 < speed <= 1.0):
+            raise SafetyError(f"speed_fraction must be within (0, 1], got {speed_fraction!r}")
+        targets = {}
+        for joint, value in targets_rad.items():
+            if joint not in self._limits:
+                raise SafetyError(f"unknown joint {joint!r}")
+            value = _as_float(value)
+            if not math.isfinite(value):
+                raise SafetyError(f"{joint}: target {targets_rad[joint]!r} is not a finite angle")
+            lower, upper = self._limits[joint]
+            if not lower <= value <= upper:
+                raise SafetyError(f"{joint}: target {value:.4f} rad outside its limits [{lower:.4f}, {upper:.4f}]")
+            targets[joint] = value
+        # One motor drives both HipYawPitch joints; as in NAOqi the left one's command wins.
+        if SHARED_MOTOR[0] in targets:
+            targets.pop(SHARED_MOTOR[1], None)
+        elif SHARED_MOTOR[1] in targets:
+            targets[SHARED_MOTOR[0]] = targets.pop(SHARED_MOTOR[1])
+        return {j: v for j, v in targets.items() if self._stiffness[j] > 0.0}, speed
+
+    def _durations(self, targets: dict, speed: float, start: float) -> tuple[dict, float]:
+        starts = {j: self._tracks[j].at(start) for j in targets}
+        duration = max((abs(targets[j] - starts[j]) / (speed * self._speeds[j]) for j in targets), default=0.0)
+        return starts, duration
+
+    def _plan(self, targets: dict, speed: float, start: float) -> list[tuple[float, np.ndarray]]:
+        """(time, servo stance (14,)) points along the motion this command would cause, ending at rest."""
+        starts, duration = self._durations(targets, speed, start)
+        end = max([start + duration] + [self._tracks[j].end_time() for j in self._tracks if j not in targets])
+        end = max(end, start)
+        servo_now = np.array([self._track(j).at(start) for j in JOINTS])
+        final = servo_now.copy()
+        for joint in JOINTS:
+            motor = SHARED_MOTOR[0] if joint == SHARED_MOTOR[1] else joint
+            final[JOINT_INDEX[joint]] = targets[motor] if motor in targets else self._tracks[motor].target[-1]
+        n = int(np.clip(np.ceil(np.max(np.abs(final - servo_now)) / 0.05), 1, 40))
+        points = []
+        for t in np.linspace(start, end, n + 1)[1:]:
+            stance = np.empty(len(JOINTS))
+            for i, joint in enumerate(JOINTS):
+                motor = SHARED_MOTOR[0] if joint == SHARED_MOTOR[1] else joint
+                if motor in targets:
+                    frac = 1.0 if duration <= 0 else min(max((t - start) / duration, 0.0), 1.0)
+                    stance[i] = starts[motor] + (targets[motor] - starts[motor]) * frac
+                else:
+                    stance[i] = self._tracks[motor].at(t)
+            points.append((float(t), stance))
+        return points
+
+    def _stance_now(self) -> np.ndarray:
+        return np.array([self._track(j).at(self._t) for j in JOINTS])
+
+    def _unsafe_reason(self, final_servo: np.ndarray, path) -> str:
+        """Why a motion through `path` [(t, servo stance)] to `final_servo` is unsafe, or '' if it is safe."""
+        for _, servo in list(path) + [(None, final_servo)]:
+            yaw, pitch = servo[JOINT_INDEX["HeadYaw"]], servo[JOINT_INDEX["HeadPitch"]]
+            lower, upper = head_pitch_limits(yaw)
+            if not lower - 1e-9 <= pitch <= upper + 1e-9:
+                return (f"HeadPitch {pitch:.4f} rad outside [{lower:.3f}, {upper:.3f}] allowed at HeadYaw "
+                        f"{yaw:.3f} rad")
+            q_true = self._true_static(servo)
+            if not self.checker.is_safe(q_true):  # stops at the first contact; name it only then
+                c = self.checker.contacts(q_true)[0]
+                return f"{c.link_a} and {c.link_b} would come within {c.distance_m * 1000:.1f} mm"
+        return ""
+
+    def _true_static(self, servo: np.ndarray, directions: np.ndarray | None = None) -> np.ndarray:
+        """True angles (14,) of a still robot whose motors stand at `servo` (command space)."""
+        t = self.truth
+        q = servo + np.array([t.alpha_rad[j] for j in JOINTS])
+        if directions is not None:
+            q = q + np.array([t.backlash_rad.get(j, 0.0) for j in JOINTS]) * directions
+        compliance = np.array([t.compliance_rad_per_nm.get(j, 0.0) for j in JOINTS])
+        if np.any(compliance):
+            base = q.copy()
+            for _ in range(50):  # q = base + c * tau(q): a contraction, c * dtau/dq << 1
+                updated = base + compliance * self.body.gravity_torques(q)
+                if np.max(np.abs(updated - q)) < 1e-13:
+                    q = updated
+                    break
+                q = updated
+        return q
+
+    def _true_q(self, t: float) -> np.ndarray:
+        servo = np.array([self._track(j).at(t) for j in JOINTS])
+        directions = np.array([self._track(j).direction(t) for j in JOINTS])
+        return self._true_static(servo, directions)
+
+    def _apply(self, targets: dict, speed: float, start: float) -> None:
+        starts, duration = self._durations(targets, speed, start)
+        for joint, target in targets.items():
+            track = self._tracks[joint]
+            previous = track.target[-1]
+            if target != previous:
+                track.dir_t.append(start)
+                track.dirs.append(1.0 if target > previous else -1.0)
+            track.t0.append(start)
+            track.q0.append(starts[joint])
+            track.target.append(target)
+            track.duration.append(duration)
+
+    def _T_world_cam(self, q_true: np.ndarray) -> np.ndarray:
+        head = q_true[[JOINT_INDEX[j] for j in HEAD_JOINTS]]
+        T_torso_cam = camera_fk(head[None])[0].copy()
+        T_torso_cam[:3, :3] = T_torso_cam[:3, :3] @ self.truth.R_cam_offset()
+        return T_WORLD_TORSO @ T_torso_cam
+
+    def _T_world_board(self, q_true: np.ndarray, leg: str) -> np.ndarray:
+        q_leg = q_true[[JOINT_INDEX[j] for j in leg_joints(leg)]]
+        T_torso_sole = leg_fk(q_leg[None], leg, thigh_delta_m=self.truth.thigh_delta_m[leg],
+                              tibia_delta_m=self.truth.tibia_delta_m[leg])[0]
+        return T_WORLD_TORSO @ T_torso_sole @ self._T_sole_board[leg]
+
+    def _frame_index(self, image: CameraImage) -> int:
+        for k, frame in self._frames.items():
+            if frame.image is image:
+                return k
+        return int(round((self.exposure_time(image) - FRAME_PHASE_S) / FRAME_PERIOD_S))
+
+    def _frame(self, k: int) -> _Frame:
+        """Frame k (exposed at FRAME_PHASE_S + k / 30 s), its image not yet rendered."""
+        if k in self._frames:
+            return self._frames[k]
+        frame = _Frame(k, FRAME_PHASE_S + k * FRAME_PERIOD_S)
+        frame.image = _LazyImage(lambda: self._render(frame), frame.t_true_s + self.truth.time_lag_s)
+        self._frames[k] = frame
+        while len(self._frames) > 8:
+            del self._frames[min(self._frames)]
+        return frame
+
+    def _render(self, frame: _Frame) -> np.ndarray:
+        """Render a frame: (h, w, 3) uint8 BGR (grey) pixels; keeps its mask and true angles for the truth."""
+        self._check_open()
+        k, t_true = frame.index, frame.t_true_s
+        q_true = self._true_q(t_true)
+        boards = {self.body.link_index[f"{leg}Sandal"]: self._blurred_board_poses(t_true, leg) for leg in LEGS}
+        grey, seg = self.renderer.render(q_true, self._T_world_cam(q_true), boards)
+        rng = np.random.default_rng([self.seed, 7919, k])
+        pixels = grey * 255.0
+        if self.image_noise_std > 0:
+            pixels = pixels + rng.standard_normal(pixels.shape, dtype=np.float32) * self.image_noise_std
+        grey_u8 = np.clip(np.rint(pixels), 0, 255).astype(np.uint8)
+        frame.seg, frame.q_true = seg, q_true
+        self.frames_rendered += 1
+        return np.repeat(grey_u8[:, :, None], 3, axis=2)
+
+    def _blurred_board_poses(self, t_mid: float, leg: str) -> list[np.ndarray]:
+        """Board poses spread over the exposure, as seen from the camera (head motion included) but expressed
+        in the world through the camera's pose at mid-exposure; a single pose if the board's image moves by
+        less than 0.3 px during the exposure."""
+        half = self.exposure_s / 2
+
+        def seen(t):
+            q = self._true_q(t)
+            return invert_transform(self._T_world_cam(q)) @ self._T_world_board(q, leg)
+
+        first, last = seen(t_mid - half), seen(t_mid + half)
+        corners = self._vertices_board[[0, 5, 18, 23]]
+        uv = [self.truth.camera.project(corners @ T[:3, :3].T + T[:3, 3]) for T in (first, last)]
+        moved_px = float(np.nan_to_num(np.max(np.linalg.norm(uv[0] - uv[1], axis=1)), nan=0.0))
+        steps = int(np.clip(np.ceil(moved_px / 0.3), 1, 16))
+        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid))
+        if steps == 1:
+            return [self._T_world_board(self._true_q(t_mid), leg)]
+        times = t_mid - half + (np.arange(steps) + 0.5) * self.exposure_s / steps
+        return [T_world_cam_mid @ seen(float(t)) for t in times]
+
+
+def _as_float(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")

@@ -1,0 +1,254 @@
+"""Rendering the mock's bottom camera: the body by PyBullet's TinyRenderer, the sandals from their exact homography.
+
+The robot's body (primitive shapes, greys) and a segmentation mask come from TinyRenderer. Each printed board is
+then drawn over it from its exact homography with area sampling: a high-resolution board texture is warped
+(`cv2.warpPerspective`, bilinear) into a canvas `supersample` times finer than the image, restricted to the board's
+bounding box, and averaged down (`cv2.resize`, INTER_AREA). Pixels where the mask shows another part of the robot
+in front of the board keep the body (the foot or the other leg hides the board there).
+
+Pixel convention (OpenCV, as the NAO camera model in docs/CONVENTIONS.md): pixel (0, 0) is the centre of the
+top-left pixel, u = cx - fx * y / x, v = cy - fy * z / x in the NAO camera frame (x optical axis, y left, z up).
+TinyRenderer samples each pixel at integer window coordinates and flips the rows, so with a projection matrix built
+from (fx, fy, cx, cy) column k samples u = k but row r samples v = r + 1; the projection is therefore built with
+cy + 1 (measured in tests/test_mock_render.py with the edge of a box).
+
+Lens distortion (radial k1 on the normalised coordinates, OpenCV's model) is rendered by remapping: the body image
+through the exact undistortion map, the boards by sampling the texture at the undistorted position of every
+sub-pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pybullet
+
+from backends.pybullet_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
+from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
+from solver.transforms import invert_transform
+
+BLACK = 0.08  # reflectance of the printed squares, 0..1
+WHITE = 0.90
+BACKGROUND = 0.55  # the room behind the robot (TinyRenderer leaves it white)
+NEAR_M, FAR_M = 0.01, 6.0
+R_CAM_GL = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # GL camera axes in the NAO camera frame
+TEXTURE_PX_PER_SQUARE = 100
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A pinhole camera with radial distortion k1 (OpenCV model), NAO camera frame."""
+
+    width_px: int = 640
+    height_px: int = 480
+    fx_px: float = 600.0
+    fy_px: float = 600.0
+    cx_px: float = 320.0
+    cy_px: float = 240.0
+    k1: float = 0.0
+
+    def project(self, p_cam: np.ndarray) -> np.ndarray:
+        """Pixel positions (..., 2) of points (..., 3) in the camera frame (x > 0 in front of the camera)."""
+        p_cam = np.asarray(p_cam, dtype=float)
+        a = -p_cam[..., 1] / p_cam[..., 0]
+        b = -p_cam[..., 2] / p_cam[..., 0]
+        factor = 1.0 + self.k1 * (a * a + b * b)
+        return np.stack([self.cx_px + self.fx_px * a * factor, self.cy_px + self.fy_px * b * factor], axis=-1)
+
+    def undistort_px(self, uv: np.ndarray, iterations: int = 50) -> np.ndarray:
+        """Undistorted pixel positions (..., 2) of distorted ones (fixed-point iteration, exact to ~1e-12 px for
+        the distortions the mock uses)."""
+        uv = np.asarray(uv, dtype=float)
+        a_d = (uv[..., 0] - self.cx_px) / self.fx_px
+        b_d = (uv[..., 1] - self.cy_px) / self.fy_px
+        a, b = a_d.copy(), b_d.copy()
+        if self.k1 != 0.0:
+            for _ in range(iterations):
+                factor = 1.0 + self.k1 * (a * a + b * b)
+                a, b = a_d / factor, b_d / factor
+        return np.stack([self.cx_px + self.fx_px * a, self.cy_px + self.fy_px * b], axis=-1)
+
+
+def projection_matrix_gl(camera: CameraModel) -> np.ndarray:
+    """OpenGL projection (4, 4) for TinyRenderer such that its pixel (row r, column k) samples (u, v) = (k, r)."""
+    w, h = camera.width_px, camera.height_px
+    cy_gl = camera.cy_px + 1.0  # TinyRenderer's row flip: see the module docstring
+    return np.array([
+        [2 * camera.fx_px / w, 0.0, 1.0 - 2 * camera.cx_px / w, 0.0],
+        [0.0, 2 * camera.fy_px / h, 2 * cy_gl / h - 1.0, 0.0],
+        [0.0, 0.0, -(FAR_M + NEAR_M) / (FAR_M - NEAR_M), -2 * FAR_M * NEAR_M / (FAR_M - NEAR_M)],
+        [0.0, 0.0, -1.0, 0.0],
+    ])
+
+
+def view_matrix_gl(T_world_cam: np.ndarray) -> np.ndarray:
+    """OpenGL view matrix (4, 4) (world -> GL camera) of a NAO camera at T_world_cam."""
+    T_world_gl = T_world_cam.copy()
+    T_world_gl[:3, :3] = T_world_cam[:3, :3] @ R_CAM_GL
+    return invert_transform(T_world_gl)
+
+
+def board_texture(px_per_square: int = TEXTURE_PX_PER_SQUARE) -> tuple[np.ndarray, np.ndarray]:
+    """The printed board as a premultiplied (reflectance, coverage) float32 texture (h, w, 2), and the matrix
+    A (3, 3) taking texel coordinates (column, row; integer = texel centre) to board-frame metres (x, y)."""
+    texel = BOARD_SQUARE_M / px_per_square
+    border = int(round(BOARD_BORDER_M / texel))
+    w = BOARD_COLUMNS * px_per_square + 2 * border
+    h = BOARD_ROWS * px_per_square + 2 * border
+    cols = (np.arange(w) - border) // px_per_square
+    rows = (np.arange(h) - border) // px_per_square
+    inside = ((rows[:, None] >= 0) & (rows[:, None] < BOARD_ROWS) & (cols[None, :] >= 0)
+              & (cols[None, :] < BOARD_COLUMNS))
+    black = inside & ((rows[:, None] + cols[None, :]) % 2 == 0)  # the four corner squares are black
+    texture = np.empty((h, w, 2), dtype=np.float32)
+    texture[..., 0] = np.where(black, BLACK, WHITE)
+    texture[..., 1] = 1.0
+    A = np.array([[texel, 0.0, -BOARD_HALF_X_M + 0.5 * texel],
+                  [0.0, texel, -BOARD_HALF_Y_M + 0.5 * texel],
+                  [0.0, 0.0, 1.0]])
+    return texture, A
+
+
+def board_homography(camera: CameraModel, T_cam_board: np.ndarray) -> np.ndarray:
+    """H (3, 3): board-frame metres (x, y, 1) on the printed plane z = 0 -> undistorted pixels (u, v, 1)."""
+    K_nao = np.array([[camera.cx_px, -camera.fx_px, 0.0], [camera.cy_px, 0.0, -camera.fy_px], [1.0, 0.0, 0.0]])
+    return K_nao @ np.column_stack([T_cam_board[:3, 0], T_cam_board[:3, 1], T_cam_board[:3, 3]])
+
+
+def board_outline_board_m(n_per_side: int = 8) -> np.ndarray:
+    """Points (k, 3) along the printed region's outline in the board frame (for bounding boxes)."""
+    s = np.linspace(-1.0, 1.0, n_per_side)
+    one = np.ones_like(s)
+    x = np.concatenate([s, one, -s, -one]) * BOARD_HALF_X_M
+    y = np.concatenate([-one, s, one, -s]) * BOARD_HALF_Y_M
+    return np.column_stack([x, y, np.zeros_like(x)])
+
+
+@dataclass
+class BoardView:
+    """One sandal as the camera sees it during the exposure: its poses at sub-exposure times (motion blur)."""
+
+    link_index: int  # the sandal's PyBullet link (its own plate never hides its print)
+    T_cam_board: list  # [(4, 4)], one or more poses averaged over the exposure
+
+
+class SceneRenderer:
+    """Renders the bottom camera's view of a `NaoBody` with exact boards. Grey float image in 0..1."""
+
+    def __init__(self, body: NaoBody, camera: CameraModel, *, supersample: int = 4,
+                 px_per_square: int = TEXTURE_PX_PER_SQUARE):
+        self.body = body
+        self.camera = camera
+        self.supersample = int(supersample)
+        self.texture, self.A_board_texel = board_texture(px_per_square)
+        self._projection = projection_matrix_gl(camera).T.ravel().tolist()
+        self._undistort_map = None
+        if camera.k1 != 0.0:
+            v, u = np.mgrid[0:camera.height_px, 0:camera.width_px].astype(float)
+            self._undistort_map = camera.undistort_px(np.stack([u, v], axis=-1)).astype(np.float32)
+
+    # --- The body -----------------------------------------------------------------------------------------------
+    def render_body(self, q_true, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grey body image (h, w) float32 in 0..1 and segmentation mask (h, w) int32 (PyBullet's object + link
+        encoding, -1 = nothing), both through the lens distortion."""
+        cam = self.camera
+        self.body.set_angles(q_true)
+        _, _, rgba, _, seg = pybullet.getCameraImage(
+            cam.width_px, cam.height_px, view_matrix_gl(T_world_cam).T.ravel().tolist(), self._projection,
+            renderer=pybullet.ER_TINY_RENDERER, shadow=0, lightDirection=[0.3, -0.2, 1.0],
+            lightColor=[1.0, 1.0, 1.0], lightAmbientCoeff=0.65, lightDiffuseCoeff=0.35, lightSpecularCoeff=0.0,
+            flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX, physicsClientId=self.body.client)
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(cam.height_px, cam.width_px, 4)
+        grey = rgba[..., 1].astype(np.float32) * (1.0 / 255.0)  # the scene is grey: any channel will do
+        seg = np.asarray(seg, dtype=np.int32).reshape(cam.height_px, cam.width_px)
+        grey[seg < 0] = BACKGROUND
+        if self._undistort_map is not None:
+            mu, mv = self._undistort_map[..., 0], self._undistort_map[..., 1]
+            grey = cv2.remap(grey, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            seg = cv2.remap(seg.astype(np.float32), mu, mv, cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_REPLICATE).astype(np.int32)
+        return grey, seg
+
+    def occluders(self, seg: np.ndarray, board_link: int) -> np.ndarray:
+        """(h, w) bool: pixels where a part of the robot other than this sandal is the nearest surface."""
+        robot = self.body.robot
+        obj = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
+        link = np.where(seg >= 0, (seg >> 24) - 1, -2)
+        return (obj == robot) & (link != board_link)
+
+    # --- The boards ---------------------------------------------------------------------------------------------
+    def _bbox(self, T_cam_boards) -> tuple[int, int, int, int] | None:
+        """Inclusive pixel bounding box (u0, v0, u1, v1) of the printed region over all poses, clipped to the
+        image; None if it is not in front of the camera and facing it."""
+        cam = self.camera
+        outline = board_outline_board_m()
+        uv_all = []
+        for T in T_cam_boards:
+            p = outline @ T[:3, :3].T + T[:3, 3]
+            if np.any(p[:, 0] < 0.02):
+                return None  # partly behind the camera: not drawn (the plate still renders)
+            if T[:3, 2] @ T[:3, 3] >= 0.0:
+                return None  # the camera looks at the plate's underside
+            uv_all.append(cam.project(p))
+        uv = np.concatenate(uv_all)
+        u0, v0 = np.floor(uv.min(axis=0)).astype(int) - 1
+        u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        u0, v0 = max(u0, 0), max(v0, 0)
+        u1, v1 = min(u1, cam.width_px - 1), min(v1, cam.height_px - 1)
+        if u1 < u0 or v1 < v0:
+            return None
+        return int(u0), int(v0), int(u1), int(v1)
+
+    def _warp_board(self, T_cam_board: np.ndarray, bbox) -> np.ndarray:
+        """Premultiplied (reflectance, coverage) of one board pose over the bbox, area-sampled, (bh, bw, 2)."""
+        u0, v0, u1, v1 = bbox
+        s = self.supersample
+        bw, bh = u1 - u0 + 1, v1 - v0 + 1
+        H = board_homography(self.camera, T_cam_board)  # board m -> undistorted px
+        if self._undistort_map is None:
+            # canvas sub-pixel (a, b) -> image u = u0 - 0.5 + (a + 0.5) / s
+            S = np.array([[1.0 / s, 0.0, u0 - 0.5 + 0.5 / s], [0.0, 1.0 / s, v0 - 0.5 + 0.5 / s], [0, 0, 1.0]])
+            M_canvas_to_texel = np.linalg.inv(self.A_board_texel) @ np.linalg.inv(H) @ S
+            canvas = cv2.warpPerspective(self.texture, M_canvas_to_texel, (bw * s, bh * s),
+                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        else:
+            # The undistorted position of every canvas sub-pixel, interpolated from the exact per-pixel map
+            # (cv2.resize's sub-pixel centres are the canvas's), then board -> texel.
+            crop = self._undistort_map[v0:v1 + 1, u0:u1 + 1].astype(np.float64)
+            uv = cv2.resize(crop, (bw * s, bh * s), interpolation=cv2.INTER_LINEAR)
+            M = np.linalg.inv(self.A_board_texel) @ np.linalg.inv(H)
+            x = M[0, 0] * uv[..., 0] + M[0, 1] * uv[..., 1] + M[0, 2]
+            y = M[1, 0] * uv[..., 0] + M[1, 1] * uv[..., 1] + M[1, 2]
+            w = M[2, 0] * uv[..., 0] + M[2, 1] * uv[..., 1] + M[2, 2]
+            canvas = cv2.remap(self.texture, (x / w).astype(np.float32), (y / w).astype(np.float32),
+                               cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return cv2.resize(canvas, (bw, bh), interpolation=cv2.INTER_AREA)
+
+    def draw_boards(self, grey: np.ndarray, seg: np.ndarray, boards: list[BoardView]) -> np.ndarray:
+        """The body image with every visible board's print drawn over it (a new array)."""
+        out = grey.copy()
+        for board in boards:
+            bbox = self._bbox(board.T_cam_board)
+            if bbox is None:
+                continue
+            u0, v0, u1, v1 = bbox
+            premult = sum(self._warp_board(T, bbox) for T in board.T_cam_board) / len(board.T_cam_board)
+            region = out[v0:v1 + 1, u0:u1 + 1]
+            hidden = self.occluders(seg[v0:v1 + 1, u0:u1 + 1], board.link_index)
+            drawn = premult[..., 0] + (1.0 - premult[..., 1]) * region
+            out[v0:v1 + 1, u0:u1 + 1] = np.where(hidden, region, drawn)
+        return out
+
+    def render(self, q_true, T_world_cam: np.ndarray, T_world_boards: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Grey image (h, w) in 0..1 and segmentation mask of the robot at q_true, with the boards' prints.
+
+        T_world_boards: {link_index: [T_world_board (4, 4), ...]} poses of each board over the exposure (one pose
+        for a still robot; several for motion blur); the body itself is rendered at q_true.
+        """
+        grey, seg = self.render_body(q_true, T_world_cam)
+        T_cam_world = invert_transform(T_world_cam)
+        boards = [BoardView(link, [T_cam_world @ T for T in poses]) for link, poses in T_world_boards.items()]
+        return self.draw_boards(grey, seg, boards), seg
