@@ -1,0 +1,134 @@
+"""The noise floor: what a correct model leaves of the residuals.
+
+Detector noise (stated by the dataset, or estimated from what no rigid board motion and no camera term can
+explain) combined with the error of quantised joint readings, which moves whole boards and so hides from the
+non-rigid estimate. `RigidSplit` also serves the diagnostics' rigid / non-rigid view of every image.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from solver.joints import JOINTS
+from solver.model import Model
+from solver.registry import Registry
+from solver.scoretest import _orthonormal_basis, _project_off
+
+
+class RigidSplit:
+    """Splits every image's residual into the best rigid motion of its board and a non-rigid remainder.
+
+    The rigid part is the least-squares projection of the image's residual on the six columns of its
+    board-twist Jacobian (Model.board_twist_jacobian) at the fitted values; the rest is non-rigid.
+    """
+
+    def __init__(self, model: Model, values):
+        data = model.data
+        L = model.board_twist_jacobian(values)
+        starts = np.searchsorted(data.image_of_row, np.arange(data.n_images + 1))
+        self.slices = [slice(a, b) for a, b in zip(starts[:-1], starts[1:])]
+        self.twist_columns = L  # (N, 2, 6)
+        self._pinv = []
+        for rows in self.slices:
+            A = L[rows].reshape(-1, 6)
+            scale = np.linalg.norm(A, axis=0)
+            scale[scale == 0] = 1.0  # translations (m) and rotations (rad) differ by orders of magnitude
+            self._pinv.append(np.linalg.pinv(A / scale, rcond=1e-10) / scale[:, None])
+
+    def twists(self, residuals) -> np.ndarray:
+        """(M, 6) best rigid board twist (v in m, w in rad, camera frame) explaining each image's residual."""
+        return np.stack([P @ residuals[rows].reshape(-1) for P, rows in zip(self._pinv, self.slices)])
+
+    def __call__(self, residuals) -> tuple[np.ndarray, np.ndarray]:
+        """(rigid, nonrigid), both (N, 2) px, from residuals (N, 2)."""
+        rigid = np.empty_like(residuals)
+        for P, rows in zip(self._pinv, self.slices):
+            rigid[rows] = (self.twist_columns[rows].reshape(-1, 6) @ (P @ residuals[rows].reshape(-1))).reshape(-1, 2)
+        return rigid, residuals - rigid
+
+
+def noise_floor_estimate(model: Model, values, residuals, n_nonrigid_parameters: int = 0,
+                         split: RigidSplit | None = None) -> float:
+    """Detector noise estimated from the residuals: what no rigid board motion and no camera term can explain.
+
+    Every kinematic error (offsets, play, elasticity, link lengths, head offsets, time lag) moves each board
+    rigidly, so removing each image's best rigid 6-DOF motion leaves detector noise plus intrinsics and
+    distortion errors; those are removed too (fx, fy, cx, cy, k1, k2 fitted to the remainder). Then
+    s = sqrt(RSS_rest / (n - 6 M - 6 - n_nonrigid_parameters)), n the number of residual coordinates.
+    Without the camera step this is the plain s = sqrt(RSS_nonrigid / (n - 6 M)) of the method notes; the
+    camera step keeps a wrong focal length or distortion from passing for noise.
+    """
+    data = model.data
+    split = split or RigidSplit(model, values)
+    nonrigid = split(residuals)[1]
+    camera = Registry(tuple(dict.fromkeys(model.registry.effects + ("intrinsics", "distortion"))))
+    J = Model(data, camera).evaluate(camera.from_dict(model.registry.as_dict(values)))[1]
+    columns = [split(J[:, :, camera.index[n]])[1].reshape(-1)
+               for n in camera.names if n.startswith(("intrinsics.", "distortion."))]
+    Q = _orthonormal_basis(np.stack(columns, axis=1))
+    rest = _project_off(Q, nonrigid.reshape(-1))
+    counts = np.bincount(data.image_of_row, minlength=data.n_images)
+    dof = int(np.sum(np.maximum(2 * counts - 6, 0))) - Q.shape[1] - n_nonrigid_parameters
+    return float(np.sqrt(rest @ rest / dof)) if dof > 0 else float("nan")
+
+
+def _float_gcd(values, tolerance: float) -> float:
+    """Greatest common divisor of positive floats, to `tolerance` (Euclid with a tolerant remainder)."""
+    step = min(values)
+    for d in values:
+        a, b = max(d, step), min(d, step)
+        while b > tolerance:
+            a, b = b, math.fmod(a, b)
+            if abs(b - a) < tolerance:  # a remainder next to the divisor: it divides
+                b = 0.0
+        step = a
+    return float(step)
+
+
+def reading_resolution(theta: np.ndarray, tolerance_rad: float = 1e-7, smallest_rad: float = 1e-5,
+                       min_values: int = 8) -> np.ndarray:
+    """(14,) quantisation step of each joint's readings in rad (0: not quantised, or not known).
+
+    Encoders report multiples of their resolution (the mock and the NAO: about 0.1 deg): the step is the greatest
+    common divisor of the differences between distinct readings, found on the joints with at least `min_values`
+    distinct readings (fewer could share a larger divisor by chance); a joint with fewer readings is taken to
+    have that step if its readings lie on the grid. Pass the readings of still captures only.
+    """
+    theta = np.atleast_2d(np.asarray(theta, dtype=float))
+    diffs = []
+    for column in theta.T:
+        d = np.diff(np.unique(column))
+        diffs.append(d[d > tolerance_rad])
+    steps = [_float_gcd(d, tolerance_rad) for d in diffs if len(d) + 1 >= min_values]
+    steps = [x for x in steps if x >= smallest_rad]
+    out = np.zeros(theta.shape[1])
+    if not steps:
+        return out
+    step = float(np.median(steps))
+    for j, d in enumerate(diffs):
+        ratio = d / step
+        if len(d) == 0 or np.all(np.abs(ratio - np.round(ratio)) < tolerance_rad / step * 10):
+            out[j] = step
+    return out
+
+
+def encoder_noise_px(model: Model, values, resolution_rad) -> np.ndarray:
+    """(x, y) RMS pixel error that joint readings quantised to `resolution_rad` ((14,) or one step) cause.
+
+    Quantisation leaves each reading off by a uniform error of standard deviation resolution / sqrt(12),
+    independent between joints; it moves the board by d r / d theta_j per joint (the joint-offset columns).
+    """
+    resolution = np.broadcast_to(np.asarray(resolution_rad, dtype=float), (len(JOINTS),))
+    if not np.any(resolution > 0):
+        return np.zeros(2)
+    # Only the full Jacobian is needed: ties and fixed parameters do not matter here.
+    registry = Registry(tuple(dict.fromkeys(model.registry.effects + ("head_offsets",))))
+    J = Model(model.data, registry).evaluate(registry.from_dict(model.registry.as_dict(values)))[1]
+    variance = np.zeros(2)
+    for p in registry.parameters:
+        if p.effect in ("joint_offsets", "head_offsets"):
+            sigma = resolution[JOINTS.index(p.joint)] / math.sqrt(12.0)
+            variance += sigma ** 2 * np.mean(J[:, :, registry.index[p.name]] ** 2, axis=0)
+    return np.sqrt(variance)

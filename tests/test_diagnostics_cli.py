@@ -1,0 +1,139 @@
+"""`naocal diagnose` end to end on datasets written to disk: JSON, text, report, bad input."""
+
+import json
+import shutil
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+
+from solver.dataset import write_dataset
+from solver.synthetic import dataset_parts, random_truth, synthesize
+from tools.cli import main
+
+NOISE_PX = 0.1
+
+
+def write_synthetic(path, seed, effects=(), values=None, *, with_velocity=False, noise_in_meta=True):
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    truth.update(values or {})
+    velocity = None
+    if with_velocity:
+        velocity = np.zeros((144, 14))
+        velocity[::4] = rng.uniform(-0.4, 0.4, (36, 14))
+    data = synthesize(rng, truth, effects=effects, pixel_noise_px=NOISE_PX, velocity=velocity)
+    write_dataset(dataset_parts(data, pixel_noise_px=NOISE_PX if noise_in_meta else None), path)
+    return data
+
+
+@pytest.fixture(scope="module")
+def elastic_dataset(tmp_path_factory):
+    """A robot whose leg joints give under gravity (0.03 rad/(N m)), with captured images."""
+    path = tmp_path_factory.mktemp("diag") / "elastic"
+    values = {f"elasticity.{j}": 0.03 for j in
+              ("LHipYawPitch", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch", "LAnkleRoll",
+               "RHipYawPitch", "RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll")}
+    data = write_synthetic(path, 4, ("elasticity",), values, with_velocity=True)
+    (path / "images").mkdir()
+    for m in range(data.n_images):  # stand-ins for the captured images: a dot at every detected vertex
+        picture = np.full((480, 640), 80, np.uint8)
+        for u, v in data.uv_px[data.image_of_row == m]:
+            cv2.circle(picture, (int(round(u)), int(round(v))), 3, 220, -1)
+        cv2.imwrite(str(path / "images" / f"{data.image_id[m]:06d}.png"), picture)
+    return path
+
+
+def diagnose_json(capsys, *args):
+    assert main(["diagnose", *map(str, args), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_json_names_the_hidden_effect_and_it_goes_quiet_once_added(elastic_dataset, capsys):
+    out = diagnose_json(capsys, elastic_dataset)
+    assert len(out["rms_px"]) == 2 and min(out["rms_px"]) > 10 * NOISE_PX
+    assert out["noise_px"] == NOISE_PX
+    top = out["candidates"][0]
+    assert top["effect"] == "elasticity" and top["significant"] is True
+    assert 0 < top["uniqueness"] <= 1 and 0 <= top["p_value"] < 1e-6
+    assert top["predicted_rms_px"] < 0.2 * min(out["rms_px"])
+    ranked = [c["excess_rss_px2"] for c in out["candidates"] if c["testable"]]
+    assert ranked == sorted(ranked, reverse=True)
+    assert {c["effect"] for c in out["candidates"]} == {"elasticity", "backlash", "link_lengths", "head_offsets",
+                                                        "intrinsics", "distortion", "time_lag"}
+
+    after = diagnose_json(capsys, elastic_dataset, "--effects", "elasticity")
+    assert max(after["rms_px"]) < 1.2 * NOISE_PX
+    assert not any(c["significant"] for c in after["candidates"])
+    assert "elasticity" not in {c["effect"] for c in after["candidates"]}
+
+
+def test_text_output_has_the_three_sections(elastic_dataset, capsys):
+    assert main(["diagnose", str(elastic_dataset)]) == 0
+    text = capsys.readouterr().out
+    for word in ("COMPARE", "LOCATE", "NAMES", "noise floor", "rigid", "gravity torque", "verdict: add elasticity"):
+        assert word in text, word
+
+
+def test_dataset_without_noise_or_velocities(tmp_path, capsys):
+    """Any valid dataset: the noise floor is estimated, time_lag is listed as not testable."""
+    write_synthetic(tmp_path / "plain", 5, noise_in_meta=False)
+    out = diagnose_json(capsys, tmp_path / "plain")
+    assert out["noise_source"] == "estimated"
+    assert out["noise_px"] == pytest.approx(NOISE_PX, rel=0.1)
+    lag = next(c for c in out["candidates"] if c["effect"] == "time_lag")
+    assert lag["testable"] is False and "vel_" in lag["reason"] and lag["p_value"] is None
+    assert out["candidates"][-1]["effect"] == "time_lag"
+    assert not any(c["significant"] for c in out["candidates"])
+
+
+@pytest.mark.parametrize("args, message", [
+    (["{missing}"], "missing"),
+    (["{plain}", "--effects", "springs"], "unknown effect 'springs'"),
+    (["{plain}", "--effects", "joint_offsets"], "part of the base model"),
+    (["{plain}", "--effects", "time_lag"], "vel_"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, message):
+    write_synthetic(tmp_path / "plain", 6)
+    argv = [a.format(missing=tmp_path / "missing", plain=tmp_path / "plain") for a in args]
+    assert main(["diagnose", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("naocal diagnose: error:") and message in err
+
+
+def test_broken_csv_names_the_file(tmp_path, capsys):
+    write_synthetic(tmp_path / "ds", 6)
+    csv = tmp_path / "ds" / "observations.csv"
+    lines = csv.read_text().splitlines()
+    lines[5] = lines[5].replace(",", ",abc,", 1)
+    csv.write_text("\n".join(lines) + "\n")
+    assert main(["diagnose", str(tmp_path / "ds")]) == 2
+    assert "observations.csv" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_report_renders_in_a_headless_browser(elastic_dataset, tmp_path, capsys):
+    report = tmp_path / "report"
+    out = diagnose_json(capsys, elastic_dataset, "--report", report)
+    assert out["report"] == str(report / "index.html")
+    html = (report / "index.html").read_text()
+    for name in ("scatter.png", "vectors.png", "stances.png", "regressors_1.png", "correlation.png"):
+        assert (report / name).stat().st_size > 5000, name
+        assert f"src='{name}'" in html
+    overlays = sorted(report.glob("image_*.png"))
+    assert len(overlays) == 3  # the worst three images, drawn on the captured pictures
+    assert "Add <b>elasticity</b>" in html and "not testable" not in html
+
+    browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    if browser is None:
+        pytest.skip("no chromium on this machine: the report was written but not rendered in a browser")
+    shot = tmp_path / "shot.png"
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                    "--window-size=1200,2400", f"--screenshot={shot}", (report / "index.html").as_uri()],
+                   capture_output=True, timeout=120, check=False)
+    picture = cv2.imread(str(shot))
+    assert picture is not None and picture.shape[:2] == (2400, 1200)
+    # A rendered page: mostly white, with text and plots (not a blank or an error page).
+    assert 0.5 < np.mean(picture > 240) < 0.98
+    assert np.std(picture) > 30

@@ -1,0 +1,207 @@
+"""`naocal diagnose DATASET`: compare the model with the measurements, locate where it fails, name what is missing."""
+
+import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
+
+EPILOG = """\
+Sections of the output:
+  compare  RMS overall, per leg, per head posture and the worst stances, against the noise floor: detector noise
+           (the dataset's pixel_noise_px, else estimated from what no rigid board motion and no camera term can
+           explain) combined with the error of quantised joint readings (step found in the data).
+  locate   worst images; the rigid (kinematic) and non-rigid (camera, board) parts of the residuals; left against
+           right board; the regressors (joint angles, gravity torques, approach directions, velocities, capture
+           time, image position) a board motion proportional to which would explain most of the misfit.
+  names    every effect not yet in the model (score test), ranked by the misfit it would explain beyond what its
+           parameters would fit of pure noise, with the RMS predicted after adding it, a significance test
+           clustered by stance (images of one stance share their errors; Bonferroni over the candidates,
+           family-wise level 0.001) and its uniqueness (share of its signature the model cannot already produce;
+           near 0: these data can hardly tell it apart, whatever its p-value).
+Add the top significant candidate with `naocal identify DATASET --effects NAME` (its cv_rms_px shows the error on
+stances the fit did not see), then diagnose again with --effects NAME.
+Exit 0 on success, 2 on bad input, 3 if the fit fails.
+"""
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "diagnose",
+        help="compare the fitted model with the measurements and rank the missing physical effects",
+        description=(
+            "Fit the model (the paper's 21 parameters plus --effects) to a naocal.dataset/1 directory, then\n"
+            "compare it with the measurements, locate where it fails and rank every candidate effect not yet in\n"
+            "the model by how much of the misfit it would explain."
+        ),
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("--effects", default="", metavar="E1,E2",
+                   help="extra model terms already in the model: elasticity, backlash, link_lengths, head_offsets, "
+                        "intrinsics, distortion, time_lag")
+    p.add_argument("--json", action="store_true",
+                   help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
+    p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    import json
+
+    from solver.dataset import read_dataset
+    from solver.diagnostics import diagnose_result
+    from solver.errors import NaocalError, SolveError
+    from solver.identify import identify
+    from solver.model import model_data_from_dataset
+    from solver.registry import Registry, parse_effects
+
+    effects = parse_effects(args.effects)
+    dataset = read_dataset(args.dataset)
+    data = model_data_from_dataset(dataset)
+    if "time_lag" in effects and data.velocity is None:
+        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+    result = identify(data, Registry(effects))
+    if not result.success:
+        raise SolveError(f"the fit did not converge ({result.message})")
+    noise = dataset.meta.get("pixel_noise_px")
+    diagnosis = diagnose_result(result, pixel_noise_px=noise, capture_time_s=capture_times(dataset, result))
+    report_path = None
+    if args.report:
+        from tools.report import write_report
+
+        report_path = write_report(args.report, diagnosis, dataset_path=args.dataset)
+    if args.json:
+        out = diagnosis.as_dict()
+        out["report"] = None if report_path is None else str(report_path)
+        print(json.dumps(json_safe(out), indent=1))
+    else:
+        print(format_text(diagnosis))
+        if report_path is not None:
+            print(f"\nreport: {report_path}")
+    return 0
+
+
+def capture_times(dataset, result):
+    """(M,) t_image_s of each image of the fitted model's data, or None if the column is missing."""
+    import numpy as np
+
+    cols = dataset.columns
+    if "t_image_s" not in cols:
+        return None
+    ids, first = np.unique(np.asarray(cols["image"]), return_index=True)
+    t = dict(zip(ids.tolist(), np.asarray(cols["t_image_s"], dtype=float)[first].tolist()))
+    return np.array([t[int(i)] for i in result.model.data.image_id])
+
+
+def json_safe(obj):
+    """NaN and infinity become null (JSON has neither); numpy scalars become Python numbers."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+def format_text(diagnosis) -> str:
+    """The human-readable report: compare, locate, names."""
+    import math
+
+    from solver.diagnostics import LOW_UNIQUENESS
+
+    c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
+    data = res.model.data
+    extra = [e for e in res.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")]
+    lines = [f"model: base{''.join(' + ' + e for e in extra)}; {data.n_rows} vertices in {data.n_images} images",
+             "", "COMPARE",
+             f"  RMS {c.rms_px[0]:.3f} px (x), {c.rms_px[1]:.3f} px (y); {c.rms_total_px:.3f} px overall",
+             f"  noise floor {c.noise_px:.3f} px: detector {c.detector_noise_px:.3f} px ("
+             + ("stated by the dataset" if c.noise_source == "dataset" else "estimated from the non-rigid residual")
+             + (f"), joint readings quantised to {math.degrees(c.encoder_resolution_rad):.3g} deg "
+                f"{c.encoder_noise_px:.3f} px" if c.encoder_resolution_rad > 0 else "); joint readings not quantised"),
+             f"  the fit is {c.ratio_to_noise:.2f} x the noise floor"
+             + (": at the noise level" if c.ratio_to_noise < 1.2 else "")]
+    lines.append("  per leg:          " + ", ".join(
+        f"{leg} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for leg, v in c.per_leg.items()))
+    lines.append("  per head posture: " + ", ".join(
+        f"{p}: {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for p, v in c.per_head_posture.items()))
+    lines.append("  worst stances:    " + ", ".join(
+        f"{s['leg']}{s['stance']} {s['rms_total_px']:.3f} px" for s in loc.worst_stances[:5]))
+    lines += ["", "LOCATE",
+              "  worst images:     " + ", ".join(
+                  f"{e['image']} ({e['leg']}{e['stance']}/{e['head_posture']}) {e['rms_total_px']:.3f} px"
+                  for e in loc.worst_images[:5]),
+              f"  rigid board motion {loc.rigid_rms_px:.3f} px, non-rigid {loc.nonrigid_rms_px:.3f} px "
+              f"({100 * loc.rigid_share:.1f} % of the misfit is rigid: "
+              + ("kinematic chain" if loc.rigid_share > 0.5 else "camera model or board") + ")",
+              f"  boards: {loc.board_summary}",
+              "  misfit explained by a board motion proportional to:"]
+    for e in loc.regressors[:6]:
+        lines.append(f"    {e['regressor']:32s} {100 * e['explained_share']:5.1f} %  (p {e['p_value']:.1e})")
+    lines += ["", "NAMES (candidate effects, best first; significant: p < "
+              f"{diagnosis.threshold:.1e}, i.e. 0.001 over {sum(1 for x in diagnosis.candidates if x.testable)} tests)",
+              "  (explains: share of the misfit it would remove beyond what its parameters fit of pure noise)",
+              f"  {'effect':13s} {'explains':>8s} {'predicted RMS':>13s} {'p-value':>9s}  {'signif.':7s} "
+              f"{'uniqueness':>10s}  note"]
+    rss = c.rms_total_px ** 2 * 2 * data.n_rows
+    for cand in diagnosis.candidates:
+        if not cand.testable:
+            lines.append(f"  {cand.effect:13s} {'-':>8s} {'-':>13s} {'-':>9s}  {'-':7s} {'-':>10s}  "
+                         f"not testable: {cand.reason}")
+            continue
+        notes = []
+        if cand.inside_model:
+            notes.append("indistinguishable from the model: " + ", ".join(cand.inside_model[:2]))
+        if cand.implausible:
+            notes.append("implausible size: " + ", ".join(cand.implausible[:2]))
+        if cand.uniqueness < LOW_UNIQUENESS:
+            notes.append("its values would correlate with the model's" if cand.significant
+                         else "hard to tell apart from the model")
+        if cand.significant and not notes:
+            notes.append(_top_values(cand))
+        share = 100 * max(cand.excess_rss_px2, 0.0) / rss if rss > 0 else 0.0
+        lines.append(f"  {cand.effect:13s} {share:6.1f} % {cand.predicted_rms_px:10.3f} px {cand.p_value:9.1e}  "
+                     f"{'yes' if cand.significant else 'no':7s} {cand.uniqueness:10.3f}  {'; '.join(notes)}")
+    best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
+    lines.append("")
+    if best is None:
+        lines.append("verdict: no candidate effect is significant; the model explains the data"
+                     + (" to the noise level." if c.ratio_to_noise < 1.5 else
+                        " as far as these candidates go (the remaining misfit is something else)."))
+    else:
+        fixes = "".join(f" --fix {name}" for name in best.inside_model)
+        lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): "
+                     f"naocal identify DATASET --effects {','.join(extra + [best.effect])}{fixes}")
+    for warning in res.warnings:
+        lines.append(f"warning: {warning}")
+    return "\n".join(lines)
+
+
+def _top_values(candidate, count=3) -> str:
+    import math
+
+    items = sorted(candidate.predicted_values.items(), key=lambda kv: -abs(kv[1]))[:count]
+    parts = []
+    for name, value in items:
+        unit = ""
+        if name.startswith(("backlash.", "head_offset.")):
+            value, unit = math.degrees(value), " deg"
+        elif name.startswith("link_length."):
+            value, unit = value * 1e3, " mm"
+        elif name.startswith("elasticity."):
+            value, unit = math.degrees(value), " deg/(N m)"
+        elif name.startswith("time_lag."):
+            value, unit = value * 1e3, " ms"
+        elif name.startswith("intrinsics."):
+            unit = " px"
+        parts.append(f"{name.split('.', 1)[1]} {value:+.3g}{unit}")
+    return "predicted " + ", ".join(parts)
