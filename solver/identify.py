@@ -144,10 +144,10 @@ def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, dof):
     s2 = float(r @ r) / dof
     covariance_iid = bread * s2 * np.outer(scales, scales)
     Js = J_free * scales
-    n_images = int(image_of_row.max()) + 1 if len(image_of_row) else 0
-    rows = np.repeat(image_of_row, 2)
-    scores = np.zeros((n_images, Js.shape[1]))
-    np.add.at(scores, rows, Js * r[:, None])
+    rows = np.repeat(image_of_row, 2)  # grouped by image (Model sorts its data so)
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    scores = np.add.reduceat(Js * r[:, None], starts, axis=0) if len(rows) else np.zeros((0, Js.shape[1]))
+    n_images = len(starts)
     n, p = len(r), Js.shape[1]
     small_sample = n_images / max(n_images - 1, 1) * (n - 1) / max(n - p, 1)
     covariance = bread @ (scores.T @ scores) @ bread * small_sample * np.outer(scales, scales)
