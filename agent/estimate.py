@@ -1,0 +1,121 @@
+"""The agent's running estimate of the robot, used while measuring: where will the board appear in the image?
+
+The detector needs the predicted projection to find the right board and to order its vertices, and the agent
+needs it to keep boards inside the image. The nominal model can be off by tens of pixels (real heads' cameras are
+rotated by degrees), so every few captures the estimate is refitted to the captures so far: all 21 parameters
+when the data determine them, else the camera rotation alone.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from solver.errors import SolveError
+from solver.identify import identify
+from solver.joints import JOINTS
+from solver.model import Model
+from solver.registry import Registry
+from solver.synthetic import make_model_data
+
+log = logging.getLogger(__name__)
+
+FULL = Registry()
+CAMERA_ONLY = Registry(fixed=("joint_offsets", "board_mount"))
+
+
+class RunningEstimate:
+    """Parameter values (the paper's 21, registry `FULL`) refitted as captures come in.
+
+    intrinsics : the camera's prior intrinsics dict (fx_px, fy_px, cx_px, cy_px, width_px, height_px).
+    camera_prior : {"roll", "pitch", "yaw"} rad to start from (the planner's prior camera rotation).
+    """
+
+    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 12, camera_prior=None):
+        self.intrinsics = dict(intrinsics)
+        self.intrinsics.setdefault("distortion", [0.0] * 5)
+        self.values = FULL.zeros()
+        for angle, value in (camera_prior or {}).items():  # a real head's typical camera rotation
+            self.values[FULL.index[f"camera.{angle}"]] = float(value)
+        self.refit_every = refit_every
+        self.min_full_fit = min_full_fit
+        self.n_fitted = 0  # captures the current values were fitted to (0: nominal model)
+        self.scope = "nominal"
+        self._theta, self._leg, self._uv = [], [], []
+
+    @property
+    def fitted(self) -> bool:
+        return self.n_fitted > 0
+
+    def knows(self, leg: str) -> bool:
+        """Whether the current values were fitted to captures of this leg."""
+        return leg in self._leg[:self.n_fitted]
+
+    def set_values(self, values: np.ndarray, scope: str = "given") -> None:
+        self.values = np.asarray(values, dtype=float).copy()
+        self.n_fitted = max(self.n_fitted, 1)
+        self.scope = scope
+
+    def joint_alpha(self) -> np.ndarray:
+        """(14,) estimated true-minus-measured angle of each joint (solver.joints.JOINTS order, rad); zero until
+        all 21 parameters have been fitted."""
+        alpha = np.zeros(len(JOINTS))
+        if self.scope == "all 21 parameters":
+            for k, joint in enumerate(JOINTS):
+                name = f"joint_offset.{joint}"
+                if name in FULL.index:
+                    alpha[k] = self.values[FULL.index[name]]
+        return alpha
+
+    def board_mounts(self) -> dict:
+        """{leg: (rot_z rad, trans_x m, trans_y m)} as estimated; zero until all 21 parameters have been fitted."""
+        full = self.scope == "all 21 parameters"
+        return {leg: tuple(float(self.values[FULL.index[f"board.{leg}.{k}"]]) if full else 0.0
+                           for k in ("rot_z", "trans_x", "trans_y")) for leg in ("L", "R")}
+
+    def predict(self, leg: str, theta14) -> np.ndarray:
+        """Predicted pixel positions (24, 2) of `leg`'s board vertices at measured angles theta14 (rad)."""
+        data = make_model_data(np.asarray(theta14, dtype=float)[None], np.array([leg]), np.array([0]),
+                               np.array([0]), intrinsics=self.intrinsics)
+        return Model(data, FULL).residuals(self.values)  # detections are zero: residual = prediction
+
+    def preload(self, leg: str, theta14, uv_px) -> None:
+        """Record a capture made earlier (a resumed run) without refitting; call refit() after the last."""
+        self._theta.append(np.asarray(theta14, dtype=float))
+        self._leg.append(leg)
+        self._uv.append(np.asarray(uv_px, dtype=float))
+
+    def add(self, leg: str, theta14, uv_px) -> None:
+        """Record a still capture (measured angles, detected vertices (24, 2)) and refit when due."""
+        self._theta.append(np.asarray(theta14, dtype=float))
+        self._leg.append(leg)
+        self._uv.append(np.asarray(uv_px, dtype=float))
+        if (len(self._theta) - self.n_fitted >= self.refit_every or not self.fitted
+                or not self.knows(leg)):  # the first capture of a leg: refit at once
+            self.refit()
+
+    def refit(self) -> None:
+        n = len(self._theta)
+        if n == 0:
+            return
+        data = make_model_data(np.array(self._theta), np.array(self._leg), np.arange(n), np.zeros(n, dtype=int),
+                               intrinsics=self.intrinsics)
+        data.uv_px = np.concatenate(self._uv)
+        for registry, scope in ((FULL, "all 21 parameters"), (CAMERA_ONLY, "camera rotation")):
+            if registry is FULL and n < self.min_full_fit:
+                continue  # a handful of stances trade joint offsets against the board mount wildly
+            try:
+                result = identify(data, registry)
+            except SolveError:
+                continue
+            joints = [result.value(n) for n in result.registry.names if n.startswith("joint_offset.")]
+            plausible = bool(np.all(np.abs(joints) < np.radians(10.0)))
+            if result.success and max(result.rms_px) < 20.0 and plausible:
+                self.values = FULL.from_dict({name: result.value(name) for name in result.registry.names})
+                self.n_fitted = n
+                self.scope = scope
+                log.info("running estimate refitted to %d captures (%s): RMS %.2f / %.2f px", n, scope,
+                         *result.rms_px)
+                return
+        self.n_fitted = n  # nothing better: keep the old values, try again later

@@ -1,0 +1,324 @@
+"""Measurement: execute a plan on the robot, capture, detect, and save every capture at once.
+
+A still capture: command the stance (checked), wait until the joints are still, take the first image exposed after
+that (images arrive later than joint readings: wait it out), read the joints, detect the board with the running
+estimate's predicted projection, and append the capture to the dataset (fsync) with its image. A missed detection
+is retried with a small head move; after `detection_tries` the capture is skipped with a logged reason.
+
+A sweep (the lag probe): from rest at its start, move slowly to its end while sampling the joints at their full
+rate and taking images on the way; each image's joint angles are interpolated to its exposure time and its joint
+velocities recorded (vel_<Joint> columns), so that a lag between the image and joint clocks becomes measurable.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from agent.corners import detect_board_vertices
+from agent.estimate import RunningEstimate
+from agent.plan import Plan, Still, Sweep
+from agent.progress import ProgressBar
+from agent.record import CaptureRecord, CaptureStore
+from agent.robot import Robot
+from agent.visibility import view_margin_px
+from solver.errors import SafetyError
+from solver.joints import JOINTS
+from solver.limits import head_pitch_limits
+from solver.model import HEAD_COLUMNS
+
+log = logging.getLogger(__name__)
+
+# detector(image, predicted_px (24, 2), leg, search_margin_px) -> object with .ok, .vertices_px, .reason, .detail
+Detector = Callable
+
+
+def opencv_detector(image, predicted_px, leg, search_margin_px):
+    """agent.corners' guided detection; if the prediction's shape is too far off for it (a leg whose offsets the
+    estimate does not know yet, an effect the model lacks), OpenCV's whole-board detector finds the board, and the
+    guided detection runs again from what it found (so its checks - hidden vertices, square pattern - still apply)."""
+    first = detect_board_vertices(image.pixels, predicted_px, search_margin_px=search_margin_px)
+    if first.ok or first.reason == "cut_off":
+        return first
+    rough = detect_board_vertices(image.pixels, predicted_px, search_margin_px=search_margin_px, method="sb")
+    if not rough.ok:
+        return first
+    again = detect_board_vertices(image.pixels, rough.vertices_px, search_margin_px=10.0)
+    return again if again.ok else first
+
+
+@dataclass(frozen=True)
+class MeasureSettings:
+    detection_tries: int = 3
+    retry_head_step_rad: float = 0.04
+    aim_margin_px: float = 15.0  # re-aim the head before a capture whose board the estimate puts this near the edge
+    search_margin_px_nominal: float = 120.0  # before the first fit the camera may be off by degrees
+    search_margin_px_fitted: float = 40.0
+    wait_for_still_image: bool = True  # False pairs still joints with an older image: only to show the error
+    sweep_fit_halfwidth_s: float = 0.05  # joint samples within this of an exposure give its angle and velocity
+
+
+class Measurement:
+    """Runs the plan's steps that are not done yet (resume: those in the dataset or skipped are done)."""
+
+    def __init__(self, robot: Robot, plan: Plan, store: CaptureStore, estimate: RunningEstimate,
+                 detector: Detector = opencv_detector, settings: MeasureSettings = MeasureSettings(),
+                 progress: ProgressBar | None = None):
+        self.robot = robot
+        self.plan = plan
+        self.store = store
+        self.estimate = estimate
+        self.detector = detector
+        self.settings = settings
+        self.progress = progress
+        self.intrinsics = estimate.intrinsics
+        self.session_start_s = robot.now()
+        self.n_saved = 0
+        self.n_skipped = 0
+
+    # --- bookkeeping -------------------------------------------------------------------------------------------
+    def session_time_s(self) -> float:
+        return self.robot.now() - self.session_start_s
+
+    def robot_time_s(self) -> float:
+        """Robot time spent measuring, over all sessions of this run."""
+        return self.store.robot_time_s(self.session_time_s())
+
+    def _done(self) -> int:
+        return len(self.store.done_images() & set(self.plan.image_indices()))
+
+    def _tick(self) -> None:
+        if self.progress:
+            self.progress.update(self._done(), f"robot time {self.robot_time_s():6.1f} s, skipped "
+                                               f"{len(self.store.skipped_images())}")
+
+    def _save(self, record: CaptureRecord, pixels) -> None:
+        self.store.save(record, pixels, self.session_time_s())
+        self.n_saved += 1
+
+    def _skip(self, image: int, reason: str) -> None:
+        self.store.skip(image, reason, self.session_time_s())
+        self.n_skipped += 1
+
+    # --- the run -----------------------------------------------------------------------------------------------
+    def _update_guard(self) -> None:
+        """Let the safety check use what the estimate knows: joints truly stand at command + alpha, sandals sit
+        where they are mounted."""
+        self.robot.guard.set_true_offset(self.estimate.joint_alpha())
+        if self.robot.guard.set_board_mounts(self.estimate.board_mounts()):
+            log.info("safety check updated with the estimated sandal mounts")
+
+    def run(self) -> None:
+        self._update_guard()
+        done = self.store.done_images()
+        if done:
+            log.info("resuming: %d of %d captures already done", len(done & set(self.plan.image_indices())),
+                     self.plan.n_images())
+        self._tick()
+        for step in self.plan.steps:
+            if all(i in done for i in step.images):
+                continue
+            if isinstance(step, Still):
+                self.still(step)
+            else:
+                self.sweep(step, done)
+            done = self.store.done_images()
+            self._tick()
+        try:
+            self.robot.move(self.robot.parked)  # leave the robot in a safe posture
+        except SafetyError as err:
+            log.warning("could not park the robot after measuring: %s", err)
+        if self.progress:
+            self.progress.finish(f"robot time {self.robot_time_s():6.1f} s")
+
+    def _search_margin(self, leg: str, attempt: int = 0) -> float:
+        """How far the board may lie from the prediction: wide until the estimate has seen this leg, and wider
+        with every retry."""
+        s = self.settings
+        base = s.search_margin_px_fitted if self.estimate.knows(leg) else s.search_margin_px_nominal
+        return min(base * (1 + attempt), s.search_margin_px_nominal)
+
+    def _detect(self, image, leg, theta14, attempt: int = 0):
+        predicted = self.estimate.predict(leg, theta14)
+        return self.detector(image, predicted, leg, self._search_margin(leg, attempt)), predicted
+
+    # --- still captures ----------------------------------------------------------------------------------------
+    def still(self, step: Still) -> None:
+        target = self.aim(step.angles(), step.leg)
+        reasons = []
+        for attempt in range(self.settings.detection_tries):
+            try:
+                rest = self.robot.move(target)
+            except SafetyError as err:
+                reasons.append(str(err))
+                break
+            if self.settings.wait_for_still_image:
+                image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s)
+            else:
+                image = self.robot.newest_image()
+            t_joints, theta = self.robot.read()
+            detection, _ = self._detect(image, step.leg, theta, attempt)
+            if detection.ok:
+                record = CaptureRecord(step.image, step.leg, step.stance, step.head_posture,
+                                       np.asarray(detection.vertices_px, dtype=float), theta, self.robot.commanded.copy(),
+                                       self.robot.direction.copy(), np.zeros(len(JOINTS)), float(image.t_exposure_s),
+                                       float(t_joints))
+                self._save(record, image.pixels)
+                self.estimate.add(step.leg, theta, record.vertices_px)
+                self._update_guard()
+                return
+            reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
+            log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
+                     detection.reason, detection.detail)
+            target = self.retry_target(target, step.leg, attempt)
+            if target is None:
+                reasons.append("no safe head move left to retry with")
+                break
+        self._skip(step.image, "; ".join(reasons))
+
+    def _head_ok(self, q14) -> bool:
+        return self.robot.guard.problem(q14) is None
+
+    def feasible_head(self, q14) -> np.ndarray | None:
+        """q14 with the head moved to the nearest posture the guard accepts (HeadYaw within +-0.6 rad, HeadPitch
+        inside the HeadYaw table, raised in small steps if the head comes too near the ground), or None."""
+        q = np.array(q14, dtype=float)
+        yaw_col, pitch_col = HEAD_COLUMNS
+        q[yaw_col] = np.clip(q[yaw_col], -0.6, 0.6)
+        lo, hi = head_pitch_limits(q[yaw_col])
+        m = self.robot.guard.head_pitch_margin_rad + 0.005
+        q[pitch_col] = np.clip(q[pitch_col], lo + m, hi - m)
+        while q[pitch_col] <= hi - m + 1e-12:
+            if self._head_ok(q):
+                return q
+            q[pitch_col] += 0.02
+        return None
+
+    def recentred(self, target14, leg) -> np.ndarray:
+        """target14 with the head turned so that the estimate puts the board's centre at the image centre
+        (at most 0.15 rad of head motion)."""
+        def centre(q):
+            return self.estimate.predict(leg, q).mean(axis=0)
+
+        c0 = centre(target14)
+        goal = np.array([self.intrinsics["cx_px"], self.intrinsics["cy_px"]])
+        J = np.empty((2, 2))
+        for k, col in enumerate(HEAD_COLUMNS):
+            q = target14.copy()
+            q[col] += 1e-3
+            J[:, k] = (centre(q) - c0) / 1e-3
+        step = -np.linalg.lstsq(J, c0 - goal, rcond=None)[0]
+        norm = np.linalg.norm(step)
+        if norm > 0.15:
+            step *= 0.15 / norm
+        out = target14.copy()
+        out[HEAD_COLUMNS] += step
+        return out
+
+    def aim(self, target14, leg) -> np.ndarray:
+        """The planned posture, or with the head re-aimed if the estimate puts the board near the image edge."""
+        predicted = self.estimate.predict(leg, target14)
+        margin = view_margin_px(predicted[None], self.intrinsics["width_px"], self.intrinsics["height_px"])[0]
+        if margin >= self.settings.aim_margin_px:
+            return target14
+        moved = self.feasible_head(self.recentred(target14, leg))
+        if moved is None:
+            return target14
+        new_margin = view_margin_px(self.estimate.predict(leg, moved)[None], self.intrinsics["width_px"],
+                                    self.intrinsics["height_px"])[0]
+        if new_margin <= margin:
+            return target14
+        log.info("re-aiming the head: the estimate puts the board %.0f px from the image edge (%.0f px after)",
+                 margin, new_margin)
+        return moved
+
+    def retry_target(self, target14, leg, attempt) -> np.ndarray | None:
+        """A small head move for another try: re-centre the board, then a step in one of four directions."""
+        s = self.settings.retry_head_step_rad
+        pattern = [(s, 0.0), (-s, 0.0), (0.0, -s), (0.0, s)]
+        base = self.recentred(target14, leg)
+        for k in range(len(pattern)):
+            dyaw, dpitch = pattern[(attempt + k) % len(pattern)]
+            q = base.copy()
+            q[HEAD_COLUMNS] += (dyaw, dpitch)
+            q = self.feasible_head(q)
+            if q is not None and np.max(np.abs(q - target14)) > 1e-3:
+                return q
+        return None
+
+    # --- the lag probe -----------------------------------------------------------------------------------------
+    def sweep(self, step: Sweep, done: set) -> None:
+        wanted = [k for k, i in enumerate(step.images) if i not in done]
+        start, end = step.start(), step.end()
+        for shrink in (1.0, 0.5):  # the true robot may sit closer to itself than planned: then a shorter sweep
+            middle = (start + end) / 2.0
+            a, b = middle + shrink * (start - middle), middle + shrink * (end - middle)
+            try:
+                self.robot.guard.check(b)
+                if not self.robot.guard.path_clear(a, b, step.speed_fraction):
+                    raise SafetyError("the sweep's way is not clear")
+                self.robot.move(a)
+                break
+            except SafetyError as err:
+                reason = err
+                log.info("lag probe of leg %s at %.0f %% length refused: %s", step.leg, 100 * shrink, err)
+        else:
+            for k in wanted:
+                self._skip(step.images[k], f"lag probe: {reason}")
+            return
+        end = b
+        samples = []  # (t, angles14)
+        t_command = self.robot.now()
+        duration = self.robot.command(end, step.speed_fraction)
+        exposures = [t_command + f * duration for f in step.exposure_fractions]
+        images = {}
+        frame_s = 1.0 / 30.0
+        tm = self.robot.timing
+        k = 0
+        while self.robot.now() < t_command + duration:  # a deadline: the robot clock always advances
+            t, q = self.robot.read()
+            if not samples or t > samples[-1][0]:
+                samples.append((t, q))
+            if k < len(exposures) and self.robot.now() >= exposures[k] + self.robot.image_delay_s:
+                image = self.robot.backend.capture()
+                if image is not None and image.t_exposure_s >= exposures[k] - frame_s / 2:
+                    images[k] = image
+                    k += 1
+            self.robot.backend.sleep(tm.sample_period_s)
+        self.robot.wait_still(end, 0.0, self.robot.now())
+        times = np.array([s[0] for s in samples])
+        angles = np.array([s[1] for s in samples])
+        for k in wanted:
+            index = step.images[k]
+            image = images.get(k)
+            if image is None:
+                self._skip(index, "lag probe: no image arrived during the sweep")
+                continue
+            fit = self._angles_at(times, angles, image.t_exposure_s)
+            if fit is None:
+                self._skip(index, "lag probe: too few joint samples around the exposure")
+                continue
+            theta, velocity = fit
+            detection, _ = self._detect(image, step.leg, theta)
+            if not detection.ok:
+                self._skip(index, f"lag probe: {detection.reason} ({detection.detail})")
+                continue
+            record = CaptureRecord(index, step.leg, step.stance, 0, np.asarray(detection.vertices_px, dtype=float),
+                                   theta, end, self.robot.direction.copy(), velocity,
+                                   float(image.t_exposure_s), float(image.t_exposure_s))
+            self._save(record, image.pixels)
+
+    def _angles_at(self, times, angles, t):
+        """Angles (14,) and velocities (14,) at time t from a local straight-line fit to the joint samples within
+        sweep_fit_halfwidth_s of t (both sides needed); None if the samples do not surround t."""
+        h = self.settings.sweep_fit_halfwidth_s
+        near = np.abs(times - t) <= h
+        if near.sum() < 4 or not (times[near].min() < t < times[near].max()):
+            return None
+        dt = times[near] - t
+        A = np.column_stack([np.ones_like(dt), dt])
+        coef, *_ = np.linalg.lstsq(A, angles[near], rcond=None)
+        return coef[0], coef[1]

@@ -1,0 +1,123 @@
+"""Saving captures as they are made: the dataset (fsync'd appends), the images, and the run's progress.
+
+Order of writes per capture: the image file (atomic), then the observations (one fsync'd append), then the
+progress file (atomic). A crash between them leaves at worst an image without observations, which a resumed run
+overwrites; a capture is in the dataset completely or not at all (solver.dataset.DatasetAppender).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from solver.dataset import IMAGES_DIR, DatasetAppender, parse_json_text, read_text
+from solver.errors import DataError
+from solver.fileio import atomic_write_bytes, atomic_write_text
+from solver.joints import JOINTS
+from solver.nao_model import board_vertices_sole
+
+log = logging.getLogger(__name__)
+
+PROGRESS_SCHEMA = "naocal.progress/1"
+
+
+@dataclass
+class CaptureRecord:
+    """One capture, ready to be saved. Angles (14,) in solver.joints.JOINTS order, rad; velocities rad/s."""
+
+    image: int
+    leg: str
+    stance: int
+    head_posture: int
+    vertices_px: np.ndarray  # (24, 2), naocal vertex order
+    measured_rad: np.ndarray
+    commanded_rad: np.ndarray
+    direction: np.ndarray  # -1/0/1
+    velocity_rad_s: np.ndarray
+    t_image_s: float
+    t_joints_s: float
+
+    def rows(self) -> dict:
+        """The observations.csv columns of this capture (24 rows)."""
+        V = board_vertices_sole()
+        n = len(V)
+        cols = {
+            "image": [self.image] * n, "leg": [self.leg] * n, "stance": [self.stance] * n,
+            "head_posture": [self.head_posture] * n, "vertex": list(range(n)),
+            "u_px": self.vertices_px[:, 0], "v_px": self.vertices_px[:, 1],
+            "x_sole_m": V[:, 0], "y_sole_m": V[:, 1], "z_sole_m": V[:, 2],
+            "t_image_s": [self.t_image_s] * n, "t_joints_s": [self.t_joints_s] * n,
+        }
+        for k, joint in enumerate(JOINTS):
+            cols[joint] = [float(self.measured_rad[k])] * n
+            cols["cmd_" + joint] = [float(self.commanded_rad[k])] * n
+            cols["dir_" + joint] = [int(self.direction[k])] * n
+            cols["vel_" + joint] = [float(self.velocity_rad_s[k])] * n
+        return cols
+
+
+class CaptureStore:
+    """The dataset directory being filled, plus the progress file (skipped captures, robot time).
+
+    dataset_dir : the naocal.dataset/1 directory (created if absent).
+    meta : its dataset.json contents (must match an existing one).
+    progress_path : where to keep progress (None: in memory only, e.g. for `naocal simulate`).
+    """
+
+    def __init__(self, dataset_dir, meta: dict, *, progress_path=None, save_images: bool = True):
+        self.dataset_dir = Path(dataset_dir)
+        self.appender = DatasetAppender(self.dataset_dir, meta)
+        self.save_images = save_images
+        self.progress_path = Path(progress_path) if progress_path else None
+        self.progress = {"schema": PROGRESS_SCHEMA, "robot_time_s": 0.0, "skipped": {}, "sessions": 0}
+        if self.progress_path and self.progress_path.exists():
+            doc = parse_json_text(read_text(self.progress_path), self.progress_path)
+            if not isinstance(doc, dict) or doc.get("schema") != PROGRESS_SCHEMA:
+                raise DataError(self.progress_path, f"expected schema {PROGRESS_SCHEMA!r}", field="schema")
+            self.progress.update(doc)
+        self.progress["sessions"] = int(self.progress["sessions"]) + 1
+        self._robot_time_before = float(self.progress["robot_time_s"])
+
+    @property
+    def repair(self) -> str | None:
+        """What the appender cut off a torn file on opening, if anything."""
+        return self.appender.repair
+
+    def saved_images(self) -> set[int]:
+        return self.appender.captured_images()
+
+    def skipped_images(self) -> dict[int, str]:
+        return {int(k): v for k, v in self.progress["skipped"].items()}
+
+    def done_images(self) -> set[int]:
+        return self.saved_images() | set(self.skipped_images())
+
+    def save(self, record: CaptureRecord, pixels: np.ndarray | None, robot_time_s: float) -> None:
+        if self.save_images and pixels is not None:
+            if pixels.ndim == 3 and np.array_equal(pixels[..., 0], pixels[..., 1]) and np.array_equal(
+                    pixels[..., 0], pixels[..., 2]):
+                pixels = pixels[..., 0]  # a grey image (the mock's): one channel is a third of the work
+            ok, png = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, 1])  # fast; lossless anyway
+            if ok:
+                atomic_write_bytes(self.dataset_dir / IMAGES_DIR / f"{record.image:06d}.png", png.tobytes())
+        self.appender.append(record.rows())
+        self._write_progress(robot_time_s)
+
+    def skip(self, image: int, reason: str, robot_time_s: float) -> None:
+        log.warning("capture %d skipped: %s", image, reason)
+        self.progress["skipped"][str(image)] = reason
+        self._write_progress(robot_time_s)
+
+    def robot_time_s(self, session_time_s: float) -> float:
+        """Robot time of the measurement over all sessions, given this session's so far."""
+        return self._robot_time_before + session_time_s
+
+    def _write_progress(self, session_time_s: float) -> None:
+        self.progress["robot_time_s"] = self.robot_time_s(session_time_s)
+        if self.progress_path:
+            atomic_write_text(self.progress_path, json.dumps(self.progress, indent=1) + "\n")

@@ -1,0 +1,131 @@
+"""summary.txt: what a calibration run did and found, readable by a person."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from solver.joints import LEG_JOINTS, LEGS
+
+PAPER_ROBOT_TIME_S = 590.0  # Kastner, Roefer, Laue: the real robot's measurement phase
+
+
+def _deg(x) -> float:
+    return math.degrees(float(x))
+
+
+def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) -> str:
+    lines = [f"naocal calibrate: {result.final}" + (f" - {result.reason}" if result.reason else ""), ""]
+    meta = ctx.meta or {}
+    robot = meta.get("robot", {})
+    lines.append(f"robot: {robot.get('id', '?')} ({robot.get('model', '?')}), backend {backend_label}")
+    if ctx.plan is not None:
+        st = ctx.plan.stats
+        n_st = st.get("n_stances", {})
+        lines.append(f"plan: {ctx.plan.kind}, seed {ctx.plan.seed}: {ctx.plan.n_images()} images "
+                     f"({st.get('n_still_images', '?')} still, {st.get('n_probe_images', 0)} in the lag probe), "
+                     f"stances L {n_st.get('L', '?')}, R {n_st.get('R', '?')}")
+        design = st.get("design")
+        if design:
+            lines.append(f"  D-optimal: {design['selected_stances']} stances reach the precision of the paper plan's "
+                         f"{design['paper_stances']} (from a pool of {design['pool_stances']})")
+    m = ctx.measurement
+    if m:
+        lines.append(f"measurement: {m['n_saved']} of {m['n_planned']} images saved, {m['n_skipped']} skipped, "
+                     f"robot time {m['robot_time_s']:.1f} s (the paper's robot: {PAPER_ROBOT_TIME_S:.0f} s), "
+                     f"{m['sessions']} session(s)")
+        for image, reason in sorted(m["skipped"].items()):
+            lines.append(f"  skipped image {image}: {reason}")
+    res = ctx.identification
+    if res is not None:
+        lines += ["", f"fit: RMS {res.rms_px[0]:.3f} px (x), {res.rms_px[1]:.3f} px (y) over {res.model.data.n_rows} "
+                      f"vertices in {res.model.data.n_images} still images; {res.iterations} iterations, "
+                      f"{res.solve_time_s * 1e3:.0f} ms; condition number {res.condition_number:.3g}"]
+        choice = getattr(ctx, "angle_choice", None)
+        if choice is not None:
+            lines.append(f"  {choice.describe()}")
+        std = {n: float(s) for n, s in zip(res.registry.names, res.std)}
+        lines.append("joint offsets c (stored; ADDED to commands, SUBTRACTED from readings; c = -alpha):")
+        for j in LEG_JOINTS:
+            name = f"joint_offset.{j}"
+            lines.append(f"  {j:14s} c = {-_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
+        lines.append("camera rotation (alpha of Eq. 3):")
+        for a in ("roll", "pitch", "yaw"):
+            name = f"camera.{a}"
+            lines.append(f"  {a:14s} {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
+        lines.append("board mount (alpha of Eq. 4):")
+        for leg in LEGS:
+            rz, x, y = (f"board.{leg}.{k}" for k in ("rot_z", "trans_x", "trans_y"))
+            lines.append(f"  {leg}: rot_z {_deg(res.value(rz)):+.3f} deg (std {_deg(std[rz]):.3f}), "
+                         f"x {res.value(x) * 1e3:+.2f} mm (std {std[x] * 1e3:.2f}), "
+                         f"y {res.value(y) * 1e3:+.2f} mm (std {std[y] * 1e3:.2f})")
+        weakest = min(res.weak_directions, key=lambda w: w.singular_value) if res.weak_directions else None
+        if weakest is not None:
+            lines.append(f"weakest direction (relative singular value {weakest.singular_value:.2e}): "
+                         f"{weakest.describe()}")
+        for warning in res.warnings:
+            lines.append(f"warning: {warning}")
+    v = ctx.verification
+    if v is not None:
+        lines += ["", "verification on held-out stances (RMS px of detected vertices vs the identified camera and "
+                      "boards with nominal joints):"]
+        for leg, entry in v.per_leg.items():
+            b, a = entry["before"], entry["after"]
+            n = entry["n_stances"]
+            lines.append(f"  leg {leg} ({n} stance{'s' if n != 1 else ''}): at the joint readings "
+                         f"{b['reading_rms_px']:.2f} -> {a['reading_rms_px']:.2f} px; at the commanded angles "
+                         f"{b['command_rms_px']:.2f} -> {a['command_rms_px']:.2f} px (before -> after compensation)")
+        for s in v.skipped:
+            lines.append(f"  skipped {s['leg']} stance {s['stance']} ({s['phase']}): {s['reason']}")
+    if truth and res is not None:
+        lines += ["", "against the mock's hidden truth (truth.json):"]
+        lines += truth_comparison(res, truth)
+    if result.history:
+        lines += ["", "states: " + ", ".join(f"{h.state} {h.outcome} ({h.wall_s:.1f} s wall"
+                                             + (f", {h.robot_s:.1f} s robot" if np.isfinite(h.robot_s) else "") + ")"
+                                             for h in result.history)]
+    return "\n".join(lines) + "\n"
+
+
+def truth_errors(result, truth: dict) -> dict:
+    """Identified minus true model values: {"joint_offset_deg": {joint: e}, "camera_deg": {a: e},
+    "board": {leg: {"rot_z_deg", "trans_x_mm", "trans_y_mm"}}}."""
+    alpha = truth.get("alpha_rad", {})
+    out = {"joint_offset_deg": {}, "camera_deg": {}, "board": {}}
+    for j in LEG_JOINTS:
+        if j in alpha:
+            out["joint_offset_deg"][j] = _deg(result.value(f"joint_offset.{j}") - alpha[j])
+    cam = truth.get("camera_rotation_rad", {})
+    for a in ("roll", "pitch", "yaw"):
+        if a in cam:
+            out["camera_deg"][a] = _deg(result.value(f"camera.{a}") - cam[a])
+    for leg in LEGS:
+        mount = truth.get("board_mount", {}).get(leg)
+        if mount:
+            out["board"][leg] = {
+                "rot_z_deg": _deg(result.value(f"board.{leg}.rot_z") - mount["rot_z_rad"]),
+                "trans_x_mm": (result.value(f"board.{leg}.trans_x") - mount["trans_x_m"]) * 1e3,
+                "trans_y_mm": (result.value(f"board.{leg}.trans_y") - mount["trans_y_m"]) * 1e3,
+            }
+    return out
+
+
+def truth_comparison(result, truth: dict) -> list[str]:
+    err = truth_errors(result, truth)
+    lines = []
+    joints = err["joint_offset_deg"]
+    if joints:
+        worst = max(joints, key=lambda j: abs(joints[j]))
+        lines.append(f"  joint offsets: largest error {joints[worst]:+.4f} deg ({worst}), RMS "
+                     f"{math.sqrt(np.mean(np.square(list(joints.values())))):.4f} deg")
+    if err["camera_deg"]:
+        lines.append("  camera rotation error: " + ", ".join(f"{a} {e:+.4f} deg" for a, e in err["camera_deg"].items()))
+    for leg, e in err["board"].items():
+        lines.append(f"  board {leg} error: rot_z {e['rot_z_deg']:+.3f} deg, x {e['trans_x_mm']:+.3f} mm, "
+                     f"y {e['trans_y_mm']:+.3f} mm")
+    effects = truth.get("effects") or {}
+    if effects:
+        lines.append("  injected effects (not in the paper's model): "
+                     + ", ".join(f"{k}={v}" for k, v in effects.items()))
+    return lines

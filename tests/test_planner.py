@@ -1,0 +1,232 @@
+"""The planner: every capture of the paper plan meets the rules, plans are deterministic, the design maths is right,
+and the D-optimal plan reaches the paper plan's precision with fewer stances."""
+
+import json
+
+import numpy as np
+import pytest
+
+from agent.design import _gls_information, greedy_d_optimal, log_det, stance_information
+from agent.plan import Still, Sweep, read_plan, write_plan
+from agent.planner import PlanSettings, Planner, make_plan, parked_posture
+from agent.safety import SafetyGuard
+from agent.visibility import OcclusionChecker, views_ok
+from backends.pybullet_body import CollisionChecker, NaoBody
+from solver.errors import DataError, SafetyError
+from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
+from solver.kinematics import camera_fk, leg_fk
+from solver.limits import head_pitch_limits, joint_limits
+from solver.model import HEAD_COLUMNS, LEG_COLUMNS
+from solver.synthetic import DEFAULT_INTRINSICS
+
+
+@pytest.fixture(scope="module")
+def paper_plan():
+    return make_plan(0)
+
+
+@pytest.fixture(scope="module")
+def body():
+    b = NaoBody()
+    yield b
+    b.close()
+
+
+def test_paper_plan_has_24_stances_per_leg_times_3_head_postures_and_a_lag_probe(paper_plan):
+    stills = paper_plan.stills()
+    assert len(stills) == 2 * 24 * 3
+    for leg in LEGS:
+        mine = [s for s in stills if s.leg == leg]
+        assert sorted({s.stance for s in mine}) == list(range(24))
+        for stance in range(24):
+            shots = [s for s in mine if s.stance == stance]
+            assert sorted(s.head_posture for s in shots) == [0, 1, 2]
+            legs = np.array([s.angles()[LEG_COLUMNS[leg]] for s in shots])
+            assert np.all(legs == legs[0]), "the leg stays put while the head changes posture"
+            heads = np.array([s.angles()[HEAD_COLUMNS] for s in shots])
+            assert np.min(np.linalg.norm(heads[:, None] - heads[None], axis=2) + np.eye(3)) >= PlanSettings().min_head_spread_rad
+    sweeps = paper_plan.sweeps()
+    assert [s.leg for s in sweeps] == ["L", "R"]
+    assert paper_plan.image_indices() == list(range(paper_plan.n_images()))
+
+
+def test_every_capture_meets_the_rules_on_the_nominal_model(paper_plan, body):
+    s = PlanSettings()
+    limits = joint_limits()
+    collisions = CollisionChecker(body, margin_m=s.collision_margin_m, ground_margin_m=s.ground_margin_m)
+    occlusion = OcclusionChecker(body)
+    for still in paper_plan.stills():
+        q = still.angles()
+        for j, name in enumerate(JOINTS):
+            lo, hi = limits[name]
+            assert lo + s.joint_margin_rad <= q[j] <= hi - s.joint_margin_rad, (still.image, name)
+        lo, hi = head_pitch_limits(q[JOINT_INDEX["HeadYaw"]])
+        assert lo + s.head_pitch_margin_rad <= q[JOINT_INDEX["HeadPitch"]] <= hi - s.head_pitch_margin_rad
+        assert q[JOINT_INDEX["LHipYawPitch"]] == q[JOINT_INDEX["RHipYawPitch"]], "one motor drives both"
+        assert collisions.is_safe(q), still.image
+        assert occlusion.is_visible(q, still.leg), still.image
+        T_cam = camera_fk(q[HEAD_COLUMNS][None])
+        T_sole = leg_fk(q[LEG_COLUMNS[still.leg]][None], still.leg)
+        assert views_ok(T_cam, T_sole, DEFAULT_INTRINSICS, s.view_rules(), s.camera_offset())[0], still.image
+
+
+def test_views_ok_rejects_a_board_outside_the_image_or_seen_from_behind(paper_plan):
+    q = paper_plan.stills()[0].angles()
+    leg = paper_plan.stills()[0].leg
+    T_cam = camera_fk(q[HEAD_COLUMNS][None])
+    T_cam[0, :3, :3] = T_cam[0, :3, :3] @ PlanSettings().camera_offset()  # the prior camera rotation
+    T_sole = leg_fk(q[LEG_COLUMNS[leg]][None], leg)
+    assert views_ok(T_cam, T_sole, DEFAULT_INTRINSICS)[0]
+    turned = T_cam.copy()
+    turned[0, :3, :3] = turned[0, :3, :3] @ np.diag([-1.0, -1.0, 1.0])  # camera looking the other way
+    assert not views_ok(turned, T_sole, DEFAULT_INTRINSICS)[0]
+    flipped = T_sole.copy()
+    flipped[0, :3, :3] = flipped[0, :3, :3] @ np.diag([1.0, -1.0, -1.0])  # printed face turned away
+    assert not views_ok(T_cam, flipped, DEFAULT_INTRINSICS)[0]
+
+
+def test_the_lag_probe_keeps_the_board_in_view_along_the_whole_sweep(paper_plan, body):
+    s = PlanSettings()
+    occlusion = OcclusionChecker(body)
+    for sweep in paper_plan.sweeps():
+        assert len(sweep.images) == s.probe_images_per_leg
+        delta = sweep.end() - sweep.start()
+        moving = np.abs(delta[LEG_COLUMNS[sweep.leg]])
+        assert np.all(moving > 0.05), "every leg joint moves, so the lag shows in all of them"
+        for t in np.linspace(0.0, 1.0, 7):
+            q = sweep.start() + t * delta
+            T_cam = camera_fk(q[HEAD_COLUMNS][None])
+            T_sole = leg_fk(q[LEG_COLUMNS[sweep.leg]][None], sweep.leg)
+            assert views_ok(T_cam, T_sole, DEFAULT_INTRINSICS, s.view_rules(), s.camera_offset())[0]
+            assert occlusion.is_visible(q, sweep.leg)
+
+
+def test_approach_directions_are_balanced_and_gravity_torques_vary(paper_plan):
+    stats = paper_plan.stats
+    assert set(stats["approach_direction_mean"]) == set(LEG_JOINTS)
+    for joint, mean in stats["approach_direction_mean"].items():
+        assert abs(mean) <= 0.5, f"{joint} is approached from one side {mean:+.2f} of the time"
+    for joint in ("LHipPitch", "RHipPitch", "LKneePitch", "RKneePitch"):
+        lo, hi = stats["gravity_torque_range_nm"][joint]
+        assert hi - lo > 0.2, joint
+
+
+def test_same_seed_same_plan_other_seed_other_plan(paper_plan):
+    again = make_plan(0)
+    assert json.dumps(again.to_dict()) == json.dumps(paper_plan.to_dict())
+    other = make_plan(1, PlanSettings(stances_per_leg=4, probe=False))
+    assert other.stills()[0].angles_rad != paper_plan.stills()[0].angles_rad
+
+
+def test_plan_file_round_trip_and_bad_files(tmp_path, paper_plan):
+    path = tmp_path / "plan.json"
+    write_plan(paper_plan, path)
+    back = read_plan(path)
+    assert back.to_dict() == paper_plan.to_dict()
+    assert isinstance(back.steps[-1], Sweep) and isinstance(back.steps[0], Still)
+    doc = json.loads(path.read_text())
+    doc["schema"] = "naocal.plan/0"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="schema"):
+        read_plan(path)
+    doc["schema"] = "naocal.plan/1"
+    doc["steps"][3]["angles_rad"] = [0.0] * 13
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match=r"steps\[3\]"):
+        read_plan(path)
+    path.write_text(path.read_text()[:100])
+    with pytest.raises(DataError, match="truncated"):
+        read_plan(path)
+
+
+def test_information_by_woodbury_equals_the_dense_inverse():
+    rng = np.random.default_rng(3)
+    J, G = rng.normal(size=(40, 5)), rng.normal(size=(40, 3))
+    sigma_px, sigma_q = 0.1, 0.02
+    S = sigma_px ** 2 * np.eye(40) + sigma_q ** 2 * G @ G.T
+    np.testing.assert_allclose(_gls_information(J, G, sigma_px, sigma_q), J.T @ np.linalg.solve(S, J), rtol=1e-9)
+
+
+def test_shared_leg_reading_error_limits_what_more_head_postures_add(paper_plan):
+    """Three head postures of one stance share the leg's reading error: they add less than three separate stances
+    would, and the design must know it."""
+    stills = paper_plan.stills()[:6]  # two stances of the left leg, three postures each
+    theta = np.array([s.angles() for s in stills])
+    leg = np.array([s.leg for s in stills])
+    shared = stance_information(theta, leg, np.array([s.stance for s in stills]))
+    separate = stance_information(theta, leg, np.arange(6))
+    assert log_det(separate.sum(axis=0) + 1e-9 * np.eye(21)) > log_det(shared.sum(axis=0) + 1e-9 * np.eye(21))
+    exact = stance_information(theta, leg, np.array([s.stance for s in stills]), encoder_resolution_rad=0.0)
+    assert np.trace(exact.sum(axis=0)) > np.trace(shared.sum(axis=0))
+
+
+def test_greedy_d_optimal_takes_the_most_informative_first():
+    rng = np.random.default_rng(0)
+    infos = np.array([np.diag(rng.uniform(0.1, 1.0, 4)) for _ in range(6)])
+    infos[4] = 5.0 * np.eye(4)
+    order = greedy_d_optimal(infos, 3)
+    assert order[0] == 4 and len(set(order)) == 3
+
+
+@pytest.mark.slow
+def test_d_optimal_plan_reaches_the_paper_precision_with_fewer_stances():
+    plan = make_plan(0, PlanSettings(kind="optimal", pool_per_leg=80, probe=False))
+    design = plan.stats["design"]
+    assert design["selected_stances"] < design["paper_stances"]
+    assert design["selected_log_det"] >= design["paper_log_det"]
+    paper_worst = max(design["paper_predicted_std"][f"joint_offset.{j}"] for j in LEG_JOINTS)
+    assert np.radians(plan.stats["predicted_worst_joint_offset_std_deg"]) <= paper_worst + 1e-12
+    assert plan.n_images() == 3 * design["selected_stances"]
+
+
+def test_safety_guard_refuses_limits_head_table_and_collisions(body):
+    limits = joint_limits()
+    speeds = {j: 5.0 for j in JOINTS}
+    guard = SafetyGuard(limits, CollisionChecker(body, margin_m=0.015, ground_margin_m=0.012), speeds)
+    parked = parked_posture()
+    guard.check(parked)
+    too_far = parked.copy()
+    too_far[JOINT_INDEX["LKneePitch"]] = limits["LKneePitch"][1] - 0.001
+    with pytest.raises(SafetyError, match="LKneePitch"):
+        guard.check(too_far)
+    head = parked.copy()
+    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 1.2, 0.45
+    with pytest.raises(SafetyError, match="HeadPitch"):
+        guard.check(head)
+    crossed = parked.copy()
+    crossed[JOINT_INDEX["LHipRoll"]], crossed[JOINT_INDEX["RHipRoll"]] = -0.3, 0.3  # legs into each other
+    with pytest.raises(SafetyError, match="collision"):
+        guard.check(crossed)
+    nan = parked.copy()
+    nan[0] = np.nan
+    with pytest.raises(SafetyError):
+        guard.check(nan)
+
+
+def test_safety_guard_detours_around_a_blocked_path(paper_plan, body):
+    """Find a transition between plan stances whose direct path is blocked; the guard's way round is clear."""
+    guard = SafetyGuard(joint_limits(), CollisionChecker(body, margin_m=0.015, ground_margin_m=0.012),
+                        {j: 5.0 for j in JOINTS})
+    stills = [s for s in paper_plan.stills() if s.head_posture == 0]
+    found = 0
+    for a in stills[:24]:
+        for b in stills[24:]:
+            if guard.path_clear(a.angles(), b.angles(), 0.4):
+                continue
+            way = guard.waypoints(a.angles(), b.angles(), 0.4, parked_posture())
+            assert len(way) >= 2 and np.array_equal(way[-1], b.angles())
+            legs = [a.angles()] + way
+            assert all(guard.path_clear(p, q, 0.4) for p, q in zip(legs, legs[1:]))
+            found += 1
+            if found == 3:
+                return
+    pytest.skip("no blocked transition among the sampled pairs")
+
+
+def test_planner_rejects_unknown_plan_kind():
+    planner = Planner(PlanSettings(kind="best"))
+    try:
+        with pytest.raises(ValueError, match="plan kind"):
+            planner.make_plan(0)
+    finally:
+        planner.close()

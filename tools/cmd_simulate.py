@@ -1,0 +1,70 @@
+"""`naocal simulate`: record a dataset of the simulated NAO, with its hidden truth beside it.
+
+    naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...]
+
+Runs the agent's modelling and measurement (the standard plan: 24 stances per leg x 3 head postures, plus the lag
+probe) on the PyBullet mock and writes the naocal.dataset/1 directory DIR (dataset.json, observations.csv,
+images/) and DIR/truth.json (naocal.truth/1: the mock's alpha, camera rotation, board mounts and effects).
+Exit 0 on success, 2 on bad input, 3 if the measurement failed.
+"""
+
+import argparse
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "simulate", help="record a dataset of the simulated NAO (with its hidden truth in truth.json)",
+        description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, metavar="DIR", help="the dataset directory to create")
+    p.add_argument("--seed", type=int, default=0, help="seed of the mock's hidden truth and of the plan (default 0)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
+                   help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
+                        "intrinsics, distortion, time_lag")
+    p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
+    p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
+    p.add_argument("--no-probe", action="store_true", help="leave out the lag probe")
+    p.add_argument("--speed", type=float, default=0.4, metavar="F", help="speed fraction of moves (default 0.4)")
+    p.add_argument("--no-images", action="store_true", help="do not keep the rendered images")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    import json
+    import logging
+    import sys
+    from pathlib import Path
+
+    from solver.errors import NaocalError
+    from tools.cmd_calibrate import check_common, settings_from_args
+
+    check_common(args)
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
+    if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
+        console = logging.StreamHandler(sys.stderr)
+        console.setLevel(logging.INFO if args.verbose else logging.WARNING)
+        console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
+        logging.getLogger().addHandler(console)
+
+    from agent.calibrate import simulate
+    from backends.mock import MockBackend, parse_effects
+    from solver.fileio import atomic_write_text
+
+    effects = parse_effects(args.effect)
+    settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
+    backend = MockBackend(args.seed, effects=effects)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
+        result, ctx = simulate(backend, out, settings)
+    finally:
+        backend.close()
+    if not result.ok:
+        print(f"naocal simulate: failed: {result.reason}", file=sys.stderr)
+        return 3
+    m = ctx.measurement
+    print(f"naocal simulate: wrote {out}: {m['n_saved']} of {m['n_planned']} images "
+          f"({m['n_skipped']} skipped), {m['robot_time_s']:.1f} s of robot time; hidden truth in {out / 'truth.json'}")
+    return 0
