@@ -380,8 +380,8 @@ def encoder_resolution(readings: np.ndarray, *, tolerance=1e-9) -> float | None:
     step = float(gaps[gaps > tolerance].min()) if np.any(gaps > tolerance) else 0.0
     if step <= 0:
         return None
-    # the smallest gap may be a multiple of the true step; try its integer fractions
-    for divisor in range(1, 6):
+    # the smallest gap may be a multiple of the true step (a few stances leave wide gaps); try its integer fractions
+    for divisor in range(1, 101):
         candidate = step / divisor
         multiples = values / candidate
         if np.all(np.abs(multiples - np.round(multiples)) < 1e-6):
@@ -427,7 +427,7 @@ def choose_angles(measured, commanded, velocity, mode="auto", *, still_rad_per_s
     still = np.ones(measured.shape, dtype=bool) if velocity is None else np.abs(velocity) < still_rad_per_s
     resolutions, replaced = {}, 0
     for c, joint in enumerate(JOINTS):
-        step = encoder_resolution(measured[:, c])
+        step = encoder_resolution(measured[still[:, c], c])  # moving joints' readings may be interpolated
         if step is None:
             continue
         resolutions[joint] = step
