@@ -57,7 +57,6 @@ def test_bridge_serve_mock_answers_ping_and_stops_on_sigint():
     import signal
     import subprocess
     import sys
-    import time
 
     from tests.bridge_fakes import CLI, ROOT
 
