@@ -79,25 +79,39 @@ def joint_axes_and_origins(T_torso_joint, chain: Chain):
 
 
 def gravity_torques(q_leg, leg: str, gravity_torso_mps2=(-9.81, 0.0, 0.0), *,
-                    sandal_mass_kg=SANDAL_MASS_KG, sandal_com_sole_m=(BOARD_CENTER_X_M, 0.0, 0.0)):
-    """Static torque (N m) that gravity exerts about each leg joint's axis, (N, 6).
+                    sandal_mass_kg=SANDAL_MASS_KG, sandal_com_sole_m=(BOARD_CENTER_X_M, 0.0, 0.0), jacobian=False):
+    """Static torque (N m) that gravity exerts about each leg joint's axis, (N, 6); with `jacobian`, also
+    d tau / d q (N, 6, 6), [n, j, i] = d tau_j / d q_i.
 
-    Sums, for joint j, every link distal to j (the link j moves and all after it) plus the sandal (a point mass at
-    the board centre): tau_j = z_j . sum_l m_l (c_l - o_j) x g. Positive tau_j turns the leg in +q_j.
+    Joint j carries every link distal to it (the link j moves and all after it) plus the sandal (a point mass at
+    the board centre). With P_j = sum_l m_l (c_l - o_j) the first mass moment of that load about the joint,
+    tau_j = z_j . (P_j x g). Positive tau_j turns the leg in +q_j.
     """
     chain = leg_chain(leg)
     frames, T_torso_sole = chain_frames(chain, q_leg)
-    axes, origins = joint_axes_and_origins(frames, chain)
+    z, origins = joint_axes_and_origins(frames, chain)
     g = np.asarray(gravity_torso_mps2, dtype=float)
     coms = np.einsum("nkij,kj->nki", frames[..., :3, :3], chain.link_com) + frames[..., :3, 3]
     sandal = T_torso_sole[:, :3, :3] @ np.asarray(sandal_com_sole_m, dtype=float) + T_torso_sole[:, :3, 3]
     masses = np.concatenate([chain.link_mass, [sandal_mass_kg]])
     points = np.concatenate([coms, sandal[:, None, :]], axis=1)  # (N, 7, 3)
-    weights = masses[None, :, None] * g  # (1, 7, 3) force of each mass
-    k = len(chain.joint_names)
-    tau = np.empty(origins.shape[:2])
-    for j in range(k):
-        lever = points[:, j:] - origins[:, j : j + 1]
-        moment = np.cross(lever, weights[:, j:]).sum(axis=1)
-        tau[:, j] = np.einsum("ni,ni->n", moment, axes[:, j])
-    return tau
+    # Loads distal to each joint: mass W_j and mass-weighted position sum, by a reverse cumulative sum.
+    W = np.cumsum(masses[::-1])[::-1][:-1]  # (6,)
+    weighted = np.cumsum((masses[:, None] * points)[:, ::-1], axis=1)[:, ::-1][:, :-1]  # (N, 6, 3)
+    P = weighted - W[:, None] * origins  # (N, 6, 3)
+    moment = np.cross(P, g)  # (N, 6, 3)
+    tau = np.einsum("nji,nji->nj", z, moment)
+    if not jacobian:
+        return tau
+    # Turning joint i by dq about z_i (through o_i) moves everything distal to i rigidly. For i <= j the load, o_j
+    # and z_j all turn: d tau_j = (z_i x z_j).(P_j x g) + (z_j.P_j)(z_i.g) - (z_j.z_i)(P_j.g). For i > j only the
+    # part of the load beyond i moves, about o_i: d tau_j = (z_j.P_i)(z_i.g) - (z_j.z_i)(P_i.g).
+    zz = np.einsum("nja,nia->nji", z, z)
+    zg = z @ g  # (N, 6)
+    Pg = P @ g
+    zP = np.einsum("nja,nia->nji", z, P)  # [j, i] = z_j . P_i
+    turn = np.einsum("nija,nja->nji", np.cross(z[:, :, None, :], z[:, None, :, :]), moment)  # (z_i x z_j).(P_j x g)
+    lower = turn + np.diagonal(zP, axis1=1, axis2=2)[:, :, None] * zg[:, None, :] - zz * Pg[:, :, None]
+    upper = zP * zg[:, None, :] - zz * Pg[:, None, :]
+    dtau = np.where(np.tril(np.ones((6, 6), dtype=bool))[None], lower, upper)
+    return tau, dtau

@@ -116,10 +116,11 @@ class _Terms:
     regressor: np.ndarray  # (M, K) multiplier of the parameter's value for each image
     index: dict  # parameter name -> full index
     uses_head: bool  # some term acts on a head joint
+    elastic: np.ndarray  # (K,) bool: the entry is a compliance (its regressor is tau at the model's own angles)
 
 
 def _terms(data: ModelData, registry: Registry) -> _Terms:
-    params, cols, regs = [], [], []
+    params, cols, regs, elastic = [], [], [], []
     M = data.n_images
     for i, p in enumerate(registry.parameters):
         effect = p.effect
@@ -127,7 +128,7 @@ def _terms(data: ModelData, registry: Registry) -> _Terms:
             if data.velocity is None:
                 raise ValueError("the time_lag effect needs joint velocities (vel_<Joint> columns) in the dataset")
             for c in range(len(JOINTS)):
-                params.append(i), cols.append(c), regs.append(data.velocity[:, c])
+                params.append(i), cols.append(c), regs.append(data.velocity[:, c]), elastic.append(False)
             continue
         if p.joint is None:
             continue
@@ -135,16 +136,17 @@ def _terms(data: ModelData, registry: Registry) -> _Terms:
         if effect in ("joint_offsets", "head_offsets"):
             reg = np.ones(M)
         elif effect == "elasticity":
-            reg = data.tau[:, c]
+            reg = data.tau[:, c]  # replaced by tau at the model's angles in Model.joint_state
         elif effect == "backlash":
             reg = data.direction[:, c]
         else:
             raise AssertionError(effect)
-        params.append(i), cols.append(c), regs.append(reg)
+        params.append(i), cols.append(c), regs.append(reg), elastic.append(effect == "elasticity")
     regressor = np.stack(regs, axis=1) if regs else np.zeros((M, 0))
     cols = np.array(cols, dtype=int)
     uses_head = bool(np.isin(cols, HEAD_COLUMNS).any())
-    return _Terms(np.array(params, dtype=int), cols, regressor, registry.index, uses_head)
+    return _Terms(np.array(params, dtype=int), cols, regressor, registry.index, uses_head,
+                  np.array(elastic, dtype=bool))
 
 
 def _get(values, terms, name, default=0.0):
@@ -173,6 +175,26 @@ def _cross(a, b):
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _yield_to_gravity(q0, compliance, leg, gravity_torso_mps2, *, tolerance_rad=1e-13, max_iterations=20):
+    """Solve q = q0 + C tau(q) for one leg's angles (m, 6) by Newton's method.
+
+    Returns q (m, 6), tau(q) (m, 6) and A = I - C dtau/dq (m, 6, 6), the matrix the implicit derivative needs.
+    """
+    q = q0.copy()
+    eye = np.eye(q0.shape[1])
+    for _ in range(max_iterations):
+        tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
+        A = eye - compliance[:, None] * dtau
+        step = np.linalg.solve(A, (q0 + compliance * tau - q)[..., None])[..., 0]
+        q = q + step
+        if not np.all(np.isfinite(q)):
+            raise FloatingPointError(f"elasticity: no equilibrium for compliances {compliance} rad/(N m)")
+        if np.max(np.abs(step), initial=0.0) < tolerance_rad:
+            break
+    tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
+    return q, tau, eye - compliance[:, None] * dtau
 
 
 class Model:
@@ -207,8 +229,42 @@ class Model:
 
     def joint_angles(self, values) -> np.ndarray:
         """q (M, 14): measured angles plus every joint-level term."""
-        t = self.terms
-        return self.data.theta + (t.regressor * np.asarray(values)[t.joint_param]) @ self._entry_to_joint
+        return self.joint_state(values)[0]
+
+    def joint_state(self, values, *, jacobian=False):
+        """q (M, 14), the regressors (M, K) at q, and with `jacobian` dq/dvalues (M, 14, P) (else None).
+
+        Elasticity makes q implicit: a joint yields to the gravity torque at the angle it actually has,
+        q = q0 + C tau(q) with q0 = theta + the other terms and C the compliances. We solve it per leg by Newton's
+        method and differentiate it by the implicit function theorem: dq/dp = (I - C dtau/dq)^-1 d(q0 + C tau)/dp.
+        """
+        t, values = self.terms, np.asarray(values, dtype=float)
+        steady = ~t.elastic
+        q = self.data.theta + (t.regressor[:, steady] * values[t.joint_param[steady]]) @ self._entry_to_joint[steady]
+        regressor, yield_matrix = t.regressor, {}
+        if t.elastic.any():
+            regressor = t.regressor.copy()
+            compliance = values[t.joint_param[t.elastic]] @ self._entry_to_joint[t.elastic]  # (14,)
+            for leg in LEGS:
+                images, cols = self.image_slices[leg], LEG_COLUMNS[leg]
+                if images.start == images.stop:
+                    continue
+                q_leg, tau, A = _yield_to_gravity(q[images][:, cols], compliance[cols], leg,
+                                                  self.data.gravity_torso_mps2)
+                q[images, cols[0]:cols[-1] + 1] = q_leg
+                regressor[images, np.flatnonzero(t.elastic)] = 0.0  # this leg's images: only its own joints yield
+                on_leg = t.elastic & np.isin(t.joint_col, cols)
+                regressor[images, np.flatnonzero(on_leg)] = tau[:, np.searchsorted(cols, t.joint_col[on_leg])]
+                yield_matrix[leg] = A
+        if not jacobian:
+            return q, regressor, None
+        M, P = self.data.n_images, len(values)
+        dq = np.zeros((M, len(JOINTS), P))
+        dq[:, t.joint_col, t.joint_param] = regressor
+        for leg, A in yield_matrix.items():
+            images, cols = self.image_slices[leg], LEG_COLUMNS[leg]
+            dq[images, cols[0]:cols[-1] + 1] = np.linalg.solve(A, dq[images, cols[0]:cols[-1] + 1])
+        return q, regressor, dq
 
     def residuals(self, values) -> np.ndarray:
         """Predicted minus detected pixel positions, (N, 2), rows as in `self.data`."""
@@ -228,7 +284,8 @@ class Model:
         values = np.asarray(values, dtype=float)
         img = data.image_of_row
         N, M = data.n_rows, data.n_images
-        q = self.joint_angles(values)
+        elastic = bool(t.elastic.any()) and jacobian and not _twist_only
+        q, regressor, dq_dvalues = self.joint_state(values, jacobian=elastic)
 
         # Legs (Eq. 2): sole poses, and for the Jacobian the joint axes, origins and link directions.
         R_ts, t_ts = np.empty((M, 3, 3)), np.empty((M, 3))
@@ -338,8 +395,10 @@ class Model:
             # The camera turns about the head joint: the point moves the opposite way.
             joint_twists[:, :3, HEAD_COLUMNS] = -np.swapaxes(_cross(o_c, z_c), 1, 2)
             joint_twists[:, 3:, HEAD_COLUMNS] = -np.swapaxes(z_c, 1, 2)
-        if len(t.joint_param):
-            entries = joint_twists[:, :, t.joint_col] * t.regressor[:, None, :]  # (M, 6, K)
+        if elastic:
+            twists += joint_twists @ dq_dvalues
+        elif len(t.joint_param):
+            entries = joint_twists[:, :, t.joint_col] * regressor[:, None, :]  # (M, 6, K)
             twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
         if "camera.pitch" in t.index:
             # p_cam = R_off^T p_cam0, so dp = dR^T R_off p_cam: a rotation with w = vee(dR^T R_off).

@@ -127,6 +127,23 @@ def test_gravity_torque_is_minus_gradient_of_potential(leg):
             assert tau[i, j] == pytest.approx(-grad, abs=1e-8)
 
 
+@pytest.mark.parametrize("leg", ["L", "R"])
+def test_gravity_torque_jacobian_matches_finite_differences(leg):
+    """d tau / d q drives the implicit elasticity model (q = q0 + C tau(q)); it must be exact."""
+    rng = np.random.default_rng(3)
+    g = np.array([-9.81, 0.3, -0.5])
+    q = random_angles(rng, leg_joints(leg), 20)
+    tau, dtau = kinematics.gravity_torques(q, leg, g, jacobian=True)
+    assert np.allclose(tau, kinematics.gravity_torques(q, leg, g))
+    h = 1e-6
+    for i in range(6):
+        dq = np.zeros(6)
+        dq[i] = h
+        fd = (kinematics.gravity_torques(q + dq, leg, g) - kinematics.gravity_torques(q - dq, leg, g)) / (2 * h)
+        assert np.abs(dtau[:, :, i] - fd).max() < 1e-7, i
+    assert np.abs(dtau).max() > 0.1  # the test has something to check
+
+
 def test_board_vertices_span_documented_area():
     v = board_vertices_sole()
     assert v.shape == (24, 3)
