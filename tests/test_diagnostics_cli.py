@@ -137,3 +137,6 @@ def test_report_renders_in_a_headless_browser(elastic_dataset, tmp_path, capsys)
     # A rendered page: mostly white, with text and plots (not a blank or an error page).
     assert 0.5 < np.mean(picture > 240) < 0.98
     assert np.std(picture) > 30
+    # The plots were loaded and drawn: coloured pixels (text and tables alone are black on white).
+    saturation = cv2.cvtColor(picture, cv2.COLOR_BGR2HSV)[..., 1]
+    assert np.mean(saturation > 80) > 0.005
