@@ -195,6 +195,7 @@ def _regressor_view(fit, effect):
     """
     from solver.diagnostics import apparent_errors, partial_residuals
     from solver.joints import JOINT_INDEX
+    from solver.model import compute_gravity_torques
 
     data = fit.model.data
     value = fit.value
@@ -212,8 +213,10 @@ def _regressor_view(fit, effect):
         if effect == "head_offsets":
             joints = ["HeadYaw", "HeadPitch"]
         else:
+            # the fitted model's own gravity torques: its joints sag, so they differ from those at the readings
+            tau = compute_gravity_torques(fit.model.joint_angles(fit.values), data.leg, data.gravity_torso_mps2)
             size = {j: abs(value(f"{effect}.{j}")) * np.ptp(
-                (data.tau if effect == "elasticity" else data.direction)[:, JOINT_INDEX[j]]) for j in LEG_JOINTS}
+                (tau if effect == "elasticity" else data.direction)[:, JOINT_INDEX[j]]) for j in LEG_JOINTS}
             joints = sorted(size, key=lambda j: -size[j])[:3]
         for k, joint in enumerate(joints):
             c = JOINT_INDEX[joint]
@@ -225,7 +228,7 @@ def _regressor_view(fit, effect):
             # the regressor, its label, and the fitted term as slope * regressor + const
             slope, const = (0.0, value(term)) if effect == "head_offsets" else (value(term), 0.0)
             if effect == "elasticity":
-                x, label = data.tau[:, c], f"gravity torque on {joint} (N m)"
+                x, label = tau[:, c], f"gravity torque on {joint} (N m)"
             elif effect == "backlash":
                 x, label = data.direction[:, c], f"approach direction of {joint}"
             else:
