@@ -408,7 +408,23 @@ class MockBackend(Backend):
             "board_mount": {leg: {"rot_z_rad": float(m.rot_z_rad), "trans_x_m": float(m.trans_x_m),
                                   "trans_y_m": float(m.trans_y_m)} for leg, m in t.board_mount.items()},
             "effects": {name: float(size) for name, size in t.effects.items()},
+            "effect_values": self._effect_values(),
         }
+
+    def _effect_values(self) -> dict:
+        """What each injected effect drew from the seed, per joint or per leg (only the effects present)."""
+        t, legs = self.truth, tuple(LEGS)
+        values = {
+            "elasticity": {"compliance_rad_per_nm": {j: float(t.compliance_rad_per_nm[j]) for j in LEG_JOINTS}},
+            "backlash": {"half_play_rad": {j: float(t.backlash_rad[j]) for j in LEG_JOINTS}},
+            "link_lengths": {"thigh_delta_m": {g: float(t.thigh_delta_m[g]) for g in legs},
+                             "tibia_delta_m": {g: float(t.tibia_delta_m[g]) for g in legs}},
+            "head_offsets": {"alpha_rad": {j: float(t.alpha_rad[j]) for j in HEAD_JOINTS}},
+            "intrinsics": {k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px")},
+            "distortion": {"k1": float(t.camera.k1)},
+            "time_lag": {"image_stamp_late_s": float(t.time_lag_s)},
+        }
+        return {name: values[name] for name in t.effects}
 
     def true_angles(self, t_s: float | None = None) -> dict[str, float]:
         """The true joint angles (rad) at robot time t_s (default now)."""
