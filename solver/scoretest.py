@@ -96,13 +96,25 @@ def image_clusters(data: ModelData) -> list[np.ndarray]:
     return np.split(order, starts[1:])
 
 
+def effective_clusters(Z: np.ndarray, clusters: list) -> float:
+    """How many clusters the block Z (n, q), orthonormal columns, really draws on: (sum w_c)^2 / sum w_c^2 with
+    w_c = |Z_c|_F^2 its energy in cluster c (Satterthwaite). All G when it is spread evenly; 6 when it lives in 6
+    images (a regressor seen only by a few moving captures): the clustered variance then rests on those few and
+    the F reference must say so, or a handful of images yields p-values of 1e-11.
+    """
+    weights = np.array([float(np.sum(Z[rows] ** 2)) for rows in clusters])
+    total = weights.sum()
+    return float(total ** 2 / np.sum(weights ** 2)) if total > 0 else 0.0
+
+
 @dataclass
 class ScoreTest:
     """Score test of adding the columns of a (projected) Jacobian block to a fitted least-squares model.
 
     dof: rank of the block after projection. delta_rss: predicted drop of the residual sum of squares, px^2.
     step: (d,) predicted change of the block's parameters (in the units of the block's columns).
-    statistic: Hotelling's T^2 of the cluster-robust test; p_value from F(dof, G - dof), G clusters.
+    statistic: Hotelling's T^2 of the cluster-robust test; p_value from F(dof, G - dof), G the effective number
+    of clusters (`effective_clusters`).
     noise_rss: what the block would remove from pure noise on average, trace of the score's variance, px^2;
     delta_rss - noise_rss estimates, without bias, the drop it owes to a real effect.
     """
@@ -145,7 +157,8 @@ def score_test(J_tilde: np.ndarray, r: np.ndarray, clusters: list, Q: np.ndarray
     h_c = Z_c^T e_c the score of cluster c, computed with e = r - Z g, the residual after adding the block (a
     strong real effect then does not inflate its own noise estimate), leverage-corrected when Q (the fitted
     model's orthonormal basis) is given. T^2 = (G - 1) / G g^T V^-1 g and (G - d) / (d (G - 1)) T^2 ~ F(d, G - d)
-    when the effect is absent (the Hotelling form of the cluster-robust Wald test, G clusters).
+    when the effect is absent (the Hotelling form of the cluster-robust Wald test, G the effective number of
+    clusters).
 
     Parameters
     ----------
@@ -168,7 +181,8 @@ def score_test(J_tilde: np.ndarray, r: np.ndarray, clusters: list, Q: np.ndarray
     Z = Jn @ to_z
     g = Z.T @ r
     step = -(to_z @ g) / scale  # least-squares change of the block's parameters
-    q, G = Z.shape[1], len(clusters)
+    q = Z.shape[1]
+    G = min(len(clusters), effective_clusters(Z, clusters))
     if G <= q + 1:
         return ScoreTest(q, float(g @ g), step, float("nan"), float("nan"))
     e = r - Z @ g

@@ -146,7 +146,8 @@ def format_text(diagnosis) -> str:
               f"  boards: {loc.board_summary}",
               "  misfit explained by a board motion proportional to:"]
     for e in loc.regressors[:6]:
-        lines.append(f"    {e['regressor']:32s} {100 * e['explained_share']:5.1f} %  (p {e['p_value']:.1e})")
+        p = f"p {e['p_value']:.1e}" if math.isfinite(e["p_value"]) else "not testable: too few images carry it"
+        lines.append(f"    {e['regressor']:32s} {100 * e['explained_share']:5.1f} %  ({p})")
     lines += ["", "NAMES (candidate effects, best first; significant: p < "
               f"{diagnosis.threshold:.1e}, i.e. 0.001 over {sum(1 for x in diagnosis.candidates if x.testable)} tests)",
               "  (explains: share of the misfit it would remove beyond what its parameters fit of pure noise)",

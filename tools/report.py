@@ -436,7 +436,8 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
                  "<th>share</th><th>p-value</th></tr>")
     for r in loc.regressors[:10]:
         parts.append(f"<tr><td>{e(r['regressor'])}</td><td class=n>{100 * r['explained_share']:.1f} %</td>"
-                     f"<td class=n>{r['p_value']:.1e}</td></tr>")
+                     f"<td class=n>{r['p_value']:.1e}</td></tr>" if np.isfinite(r["p_value"]) else
+                     "<td>not testable (too few images)</td></tr>")
     parts.append("</table><img src='vectors.png' alt='residual vectors over the image'>")
     for name in sorted(n for n in figures if n.startswith("regressors_")):
         parts.append(f"<img src='{name}' alt='residual against regressor'>")
