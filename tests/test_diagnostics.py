@@ -17,7 +17,7 @@ from solver.diagnostics import (
     rank_candidates,
 )
 from solver.noisefloor import RigidSplit, noise_floor_estimate, reading_resolution
-from solver.scoretest import score_test, stance_clusters
+from solver.scoretest import effective_clusters, score_test, stance_clusters
 from solver.identify import identify
 from solver.joints import HEAD_JOINTS, LEG_JOINTS
 from solver.model import Model
@@ -152,6 +152,27 @@ def test_stance_clustering_is_needed_with_quantised_encoders():
     classic = test.delta_rss / NOISE_PX ** 2  # chi-square(12) if the pixels were independent with sigma 0.1
     assert classic > 100  # hopelessly "significant"
     assert test.p_value > 1e-3
+
+
+def test_a_regressor_carried_by_few_clusters_is_not_overconfident():
+    """Pure noise, a candidate that lives in 6 of 72 clusters: its p-values must stay uniform (no 1e-11)."""
+    rng = np.random.default_rng(31)
+    rows_per_cluster, n_clusters = 48, 72
+    clusters = list(np.arange(rows_per_cluster * n_clusters).reshape(n_clusters, rows_per_cluster))
+    carried = np.zeros(rows_per_cluster * n_clusters)
+    carried[: 6 * rows_per_cluster] = rng.normal(size=6 * rows_per_cluster)
+    assert effective_clusters(carried[:, None] / np.linalg.norm(carried), clusters) < 6.5
+    block6 = np.zeros((len(carried), 6))
+    for c in range(6):  # six directions, each in its own cluster: untestable
+        block6[clusters[c], c] = 1.0
+    assert np.isnan(score_test(block6, rng.normal(size=len(carried)), clusters).p_value)
+    p_values = []
+    for _ in range(1000):
+        cluster_shift = np.repeat(rng.normal(0, 0.5, n_clusters), rows_per_cluster)  # errors shared in a cluster
+        p_values.append(score_test(carried[:, None], cluster_shift + rng.normal(size=len(carried)), clusters).p_value)
+    p_values = np.array(p_values)
+    # Counting all 72 clusters gave 12 % below 0.05, 5 % below 0.01 and a minimum of 5e-13 on these data.
+    assert np.mean(p_values < 0.05) < 0.08 and np.mean(p_values < 0.01) < 0.02 and np.min(p_values) > 1e-5
 
 
 @pytest.mark.parametrize("pair, seed", [(("elasticity", "backlash"), 21), (("link_lengths", "distortion"), 21),
