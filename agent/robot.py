@@ -29,7 +29,8 @@ class TimingSettings:
     still_tolerance_rad: float = 0.003  # ... each moving less than this (encoder resolution ~0.0017 rad)
     reach_tolerance_rad: float = 0.05  # and within this of the command (a stuck joint is not "there")
     settle_deadline_s: float = 5.0  # beyond the expected motion time
-    exposure_guard_s: float = 0.025  # the mid-exposure time must be this much after the robot was still
+    exposure_guard_s: float = 0.1  # the mid-exposure time must be this much after the robot was still (and a
+    # clock lag between image and joint stamps shorter than this cannot pair a moving robot with a still reading)
     image_poll_s: float = 0.02
     image_deadline_s: float = 2.0
 
