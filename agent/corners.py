@@ -13,9 +13,11 @@
 On the sandal the foot covers most of the first column of squares (the toe ends 7.5 mm before the first vertex
 column), so detectors that need the whole pattern (findChessboardCornersSB, findChessboardCorners) often fail on
 real views. With a prediction the default method is therefore `find_grid_near`: X-corners (saddle points) are
-matched to the predicted vertices under the shift that explains most of them, the black/white pattern is checked,
-and every vertex is refined with cornerSubPix in a window small enough to keep the toe out. Everything but the
-predicted board and its surroundings is painted over first, so that the other sandal is not found instead.
+matched to the predicted vertices under a shift, then through an affine correction of the prediction (its turn
+and scale may be off by degrees and per cent) to the placement that explains most of them, the black/white
+pattern is checked, and every vertex is refined with cornerSubPix in a window small enough to keep the toe out.
+Everything but the predicted board and its surroundings is painted over first, so that the other sandal is not
+found instead.
 
 Vertex order: a 7 x 5 board looks the same turned by 180 degrees. With `find_grid_near` each vertex is matched to
 its predicted position, so the order is the prediction's (a wrong turn would need a prediction off by half the
@@ -47,6 +49,8 @@ CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 BEST_MATCH_MAX_SQUARES = 0.5  # the chosen labelling must fit the prediction this well (RMS, after the shift)
 SEPARATION_SQUARES = 0.5  # and every other labelling must miss by more than twice as much plus this
 MAX_ASYMMETRY = 0.06  # a clean X-corner looks the same turned by 180 deg about itself (see corner_asymmetry)
+MIN_SEED_MATCHES = 6  # vertices a shift must explain before find_grid_near follows it to a placement
+MAX_PLACEMENT_TRIES = 60  # shifts (the best first) find_grid_near follows
 
 
 @dataclass(frozen=True)
@@ -165,6 +169,45 @@ def _parity_contrast(grey: np.ndarray, H_grid_px: np.ndarray) -> float:
     return float(values[~black].mean() - values[black].mean())
 
 
+def _placement(predicted_px: np.ndarray, candidates: np.ndarray, start_px: np.ndarray, radius: float):
+    """Where a first match leads: the vertices matched within `radius` of `start_px` (the prediction under one
+    shift) give an affine map from the predicted to the found positions; every vertex is matched again through
+    it, and so on until the matches stop changing. The prediction's perspective stays in the map; what the
+    affine part absorbs is the prediction's error in turn, scale and shear, which a shift alone leaves at the
+    board's far end. Returns (matched count, homography from the vertex grid to the image, its (24, 2) grid,
+    each vertex's candidate index or -1 (24,)) or None when the matches do not span the grid (fewer than
+    MIN_SEED_MATCHES, or all on one line)."""
+    design = np.column_stack([predicted_px, np.ones(len(predicted_px))])
+    mapped, seen = start_px, set()
+    for _ in range(10):
+        d = np.linalg.norm(mapped[:, None] - candidates[None], axis=-1)
+        index = d.argmin(axis=1)
+        matched = d[np.arange(len(index)), index] < radius
+        taken, times = np.unique(index[matched], return_counts=True)
+        for c in taken[times > 1]:  # a candidate explains one vertex at most: the nearest
+            claim = np.flatnonzero(matched & (index == c))
+            matched[claim[d[claim, c] > d[claim, c].min()]] = False
+        if matched.sum() < MIN_SEED_MATCHES or _collinear(GRID_XY[matched]):
+            return None
+        key = np.where(matched, index, -1).tobytes()
+        if key in seen:
+            break
+        seen.add(key)
+        A, *_ = np.linalg.lstsq(design[matched], candidates[index[matched]], rcond=None)
+        mapped = design @ A
+    H, _ = cv2.findHomography(GRID_XY[matched].astype(np.float64), candidates[index[matched]], 0)
+    if H is None:
+        return None
+    return (int(matched.sum()), H, cv2.perspectiveTransform(GRID_XY[None].astype(np.float64), H)[0],
+            np.where(matched, index, -1))
+
+
+def _collinear(grid_xy: np.ndarray) -> bool:
+    """Whether vertex grid coordinates (k, 2) all lie on one line (no affine map follows from them)."""
+    d = grid_xy[1:] - grid_xy[0]
+    return not np.any(d[:, 0] * d[0:1, 1] - d[:, 1] * d[0:1, 0]) if len(d) else True
+
+
 def edge_width_px(grey: np.ndarray, grid_px: np.ndarray) -> float:
     """10 %-90 % rise distance (px) of the board's edges between the grid's vertices (24, 2), averaged over the
     edges of each of the two families (OpenCV's estimateChessboardSharpness), the worse family: about 1.5-2 px
@@ -179,9 +222,13 @@ def find_grid_near(grey: np.ndarray, predicted_px: np.ndarray, search_margin_px:
                    max_edge_width_px: float = 3.0):
     """Locate the 24 vertices near their predicted positions (naocal order), robust to a partly hidden board.
 
-    Saddle points of the image are matched to the prediction under the common shift that explains most of
-    them (a vote over the shifts within the search margin), a homography from the vertex grid to the image is
-    fitted, the black/white pattern is checked (a grid off by one square inverts it), and every vertex is refined
+    Saddle points of the image are matched to the prediction under a common shift (a vote over the shifts
+    within the search margin); the best shifts' matches are each followed to the placement of the grid they lead
+    to (`_placement`: an affine correction of the prediction, so that a prediction turned by several degrees or
+    scaled by a few per cent - a leg the estimate has not fitted yet - still matches at the board's far end).
+    The placement explaining most corners (at least 20) wins, unless another placement a square or more away
+    explains nearly as many with the right pattern (`ambiguous`). A homography from the vertex grid to the image
+    is fitted, the black/white pattern is checked (a grid off by one square inverts it), and every vertex is refined
     with cornerSubPix in a window of 0.15 squares, small enough to keep out the toe in front of the first vertex
     column (7.5 mm away on the sandal) unless the toe's edge comes closer in perspective; then that vertex's
     window shrinks until its neighbourhood is a clean X-corner (`_refine_clean`), or the board is reported
@@ -198,32 +245,53 @@ def find_grid_near(grey: np.ndarray, predicted_px: np.ndarray, search_margin_px:
     if len(shifts) == 0:
         return None, "missing", "no corner-like point within the search margin", nan
     moved = predicted_px[None, :, None, :] + shifts[:, None, None, :]  # (m, 24, 1, 2)
-    nearest = np.min(np.linalg.norm(moved - candidates[None, None], axis=-1), axis=-1)  # (m, 24)
-    counts = (nearest < radius).sum(axis=1)
+    distance = np.linalg.norm(moved - candidates[None, None], axis=-1)  # (m, 24, candidates)
+    pairing = np.where(distance.min(axis=-1) < radius, distance.argmin(axis=-1), -1)  # (m, 24) candidate or -1
+    counts = (pairing >= 0).sum(axis=1)
     order = np.lexsort((np.linalg.norm(shifts, axis=1), -counts))
-    best = order[0]
-    if counts[best] < N_VERTICES - 4:
-        return None, "missing", f"only {counts[best]} of {N_VERTICES} vertices found near the prediction", nan
-
-    def fit(shift):
-        d = np.linalg.norm(predicted_px[:, None] + shift - candidates[None], axis=-1)
-        matched = d.min(axis=1) < radius
-        H, _ = cv2.findHomography(GRID_XY[matched].astype(np.float64), candidates[d.argmin(axis=1)[matched]], 0)
-        return H
-
-    H = fit(shifts[best])
-    if H is None:
-        return None, "missing", "the matched corners do not form a grid", nan
-    contrast = _parity_contrast(grey, H)
-    # Another shift, at least half a square away, that explains nearly as many corners with the right pattern
-    # would make the choice a guess.
-    far = np.linalg.norm(shifts[order] - shifts[best], axis=1) > 0.5 * square
-    for rival in order[far][:8]:
-        if counts[rival] < counts[best] - 2:
+    _, first = np.unique(pairing[order], axis=0, return_index=True)
+    distinct = order[np.sort(first)]  # the best shift of each different pairing, best first
+    # Follow these shifts' matches to the placements they lead to (the prediction's shape may be off by more
+    # than `radius` at the board's far end: a few degrees of in-image rotation, a few per cent of scale).
+    placements = []  # (matched count, homography, (24, 2) grid, distance of its mean from the prediction's, pairing)
+    for k in distinct[:MAX_PLACEMENT_TRIES]:
+        if counts[k] < MIN_SEED_MATCHES:
             break
-        H_rival = fit(shifts[rival])
-        if H_rival is not None and _parity_contrast(grey, H_rival) > 0.5 * abs(contrast):
-            return None, "ambiguous", (f"two placements of the grid explain {counts[best]} and {counts[rival]} "
+        seed = pairing[k] >= 0
+        if any(np.array_equal(pairing[k][seed], p[4][seed]) for p in placements):
+            continue  # these matches are part of a placement already followed
+        placement = _placement(predicted_px, candidates, predicted_px + shifts[k], radius)
+        if placement is None:
+            continue
+        count, H, grid, matches = placement
+        offset = float(np.linalg.norm((grid - predicted_px).mean(axis=0)))
+        if offset > search_margin_px + 0.5 * square:
+            continue  # the board may lie only so far from the prediction
+        misfit = grid - predicted_px - (grid - predicted_px).mean(axis=0)
+        if np.sqrt(np.mean(np.sum(misfit ** 2, axis=1))) > BEST_MATCH_MAX_SQUARES * square:
+            continue  # and its shape must be the prediction's, as for order_like_prediction
+        same = [i for i, p in enumerate(placements) if np.max(np.linalg.norm(p[2] - grid, axis=1)) < 0.5 * square]
+        if same:
+            i = same[0]
+            if (count, -offset) > (placements[i][0], -placements[i][3]):
+                placements[i] = (count, H, grid, offset, matches)
+            continue
+        placements.append((count, H, grid, offset, matches))
+    if not placements:
+        best_count = int(counts[order[0]])
+        return None, "missing", f"only {best_count} of {N_VERTICES} vertices found near the prediction", nan
+    placements.sort(key=lambda p: (-p[0], p[3]))
+    best_count, H = placements[0][:2]
+    if best_count < N_VERTICES - 4:
+        return None, "missing", f"only {best_count} of {N_VERTICES} vertices found near the prediction", nan
+    contrast = _parity_contrast(grey, H)
+    # Another placement of the grid (a square or more away) that explains nearly as many corners with the right
+    # pattern would make the choice a guess.
+    for rival_count, H_rival, *_ in placements[1:]:
+        if rival_count < best_count - 2:
+            break
+        if _parity_contrast(grey, H_rival) > 0.5 * abs(contrast):
+            return None, "ambiguous", (f"two placements of the grid explain {best_count} and {rival_count} "
                                        "corners"), nan
     if contrast <= 0:
         return None, "missing", "the black and white squares do not match the board (grid off by a square?)", nan
@@ -241,7 +309,7 @@ def find_grid_near(grey: np.ndarray, predicted_px: np.ndarray, search_margin_px:
     refined, problem = _refine_clean(grey, start, _refine_window_px(square))
     if refined is None:
         return None, "missing", problem, width
-    return refined, None, f"{counts[best]} of {N_VERTICES} corners matched, pattern contrast {contrast:.0f}", width
+    return refined, None, f"{best_count} of {N_VERTICES} corners matched, pattern contrast {contrast:.0f}", width
 
 
 def _subpix(grey: np.ndarray, start: np.ndarray, half: int) -> np.ndarray:

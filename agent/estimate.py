@@ -3,7 +3,9 @@
 The detector needs the predicted projection to find the right board and to order its vertices, and the agent
 needs it to keep boards inside the image. The nominal model can be off by tens of pixels (real heads' cameras are
 rotated by degrees), so every few captures the estimate is refitted to the captures so far: all 21 parameters
-when the data determine them, else the camera rotation alone.
+when the data determine them, else the camera rotation alone. A leg with too few captures to determine its six
+offsets and its sandal mount keeps those at their current values (zero: unknown) while the rest is fitted, so
+starting the second leg does not throw away what the first taught.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 
 from solver.errors import SolveError
 from solver.identify import identify
-from solver.joints import JOINTS
+from solver.joints import JOINTS, LEGS, leg_joints
 from solver.model import Model
 from solver.registry import Registry
 from solver.synthetic import make_model_data
@@ -32,7 +34,8 @@ class RunningEstimate:
     camera_prior : {"roll", "pitch", "yaw"} rad to start from (the planner's prior camera rotation).
     """
 
-    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 12, camera_prior=None):
+    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 12, min_leg_fit: int = 6,
+                 camera_prior=None):
         self.intrinsics = dict(intrinsics)
         self.intrinsics.setdefault("distortion", [0.0] * 5)
         self.values = FULL.zeros()
@@ -40,6 +43,8 @@ class RunningEstimate:
             self.values[FULL.index[f"camera.{angle}"]] = float(value)
         self.refit_every = refit_every
         self.min_full_fit = min_full_fit
+        self.min_leg_fit = min_leg_fit  # captures of a leg before its offsets and sandal mount are fitted
+        self.known_legs: frozenset = frozenset()  # legs whose offsets and mount the current values have fitted
         self.n_fitted = 0  # captures the current values were fitted to (0: nominal model)
         self.scope = "nominal"
         self._theta, self._leg, self._uv = [], [], []
@@ -57,22 +62,23 @@ class RunningEstimate:
         self.n_fitted = max(self.n_fitted, 1)
         self.scope = scope
 
+    def offsets_known(self) -> bool:
+        """Whether the joint offsets of both legs have been fitted (until then a leg's true angles are unknown)."""
+        return self.known_legs == frozenset(LEGS)
+
     def joint_alpha(self) -> np.ndarray:
-        """(14,) estimated true-minus-measured angle of each joint (solver.joints.JOINTS order, rad); zero until
-        all 21 parameters have been fitted."""
+        """(14,) estimated true-minus-measured angle of each joint (solver.joints.JOINTS order, rad); zero for the
+        joints of a leg not fitted yet."""
         alpha = np.zeros(len(JOINTS))
-        if self.scope == "all 21 parameters":
-            for k, joint in enumerate(JOINTS):
-                name = f"joint_offset.{joint}"
-                if name in FULL.index:
-                    alpha[k] = self.values[FULL.index[name]]
+        for leg in self.known_legs:
+            for joint in leg_joints(leg):
+                alpha[JOINTS.index(joint)] = self.values[FULL.index[f"joint_offset.{joint}"]]
         return alpha
 
     def board_mounts(self) -> dict:
-        """{leg: (rot_z rad, trans_x m, trans_y m)} as estimated; zero until all 21 parameters have been fitted."""
-        full = self.scope == "all 21 parameters"
-        return {leg: tuple(float(self.values[FULL.index[f"board.{leg}.{k}"]]) if full else 0.0
-                           for k in ("rot_z", "trans_x", "trans_y")) for leg in ("L", "R")}
+        """{leg: (rot_z rad, trans_x m, trans_y m)} as estimated; zero for a leg not fitted yet."""
+        return {leg: tuple(float(self.values[FULL.index[f"board.{leg}.{k}"]]) if leg in self.known_legs else 0.0
+                           for k in ("rot_z", "trans_x", "trans_y")) for leg in LEGS}
 
     def predict(self, leg: str, theta14) -> np.ndarray:
         """Predicted pixel positions (24, 2) of `leg`'s board vertices at measured angles theta14 (rad)."""
@@ -102,11 +108,17 @@ class RunningEstimate:
         data = make_model_data(np.array(self._theta), np.array(self._leg), np.arange(n), np.zeros(n, dtype=int),
                                intrinsics=self.intrinsics)
         data.uv_px = np.concatenate(self._uv)
-        for registry, scope in ((FULL, "all 21 parameters"), (CAMERA_ONLY, "camera rotation")):
-            if registry is FULL and n < self.min_full_fit:
+        counts = {leg: self._leg.count(leg) for leg in LEGS}
+        learning = [leg for leg in LEGS if counts[leg] < self.min_leg_fit]  # held at their current values
+        held = [f"{p}.{leg}.{k}" for leg in learning for p, k in (("board", "rot_z"), ("board", "trans_x"),
+                                                                   ("board", "trans_y"))]
+        held += [f"joint_offset.{j}" for leg in learning for j in leg_joints(leg)]
+        full = FULL.with_fixed(held) if held else FULL
+        for registry, scope in ((full, "all 21 parameters"), (CAMERA_ONLY, "camera rotation")):
+            if registry is full and (n < self.min_full_fit or len(learning) == len(LEGS)):
                 continue  # a handful of stances trade joint offsets against the board mount wildly
             try:
-                result = identify(data, registry)
+                result = identify(data, registry, x0=self.values if registry is full else None)
             except SolveError:
                 continue
             joints = [result.value(n) for n in result.registry.names if n.startswith("joint_offset.")]
@@ -115,6 +127,7 @@ class RunningEstimate:
                 self.values = FULL.from_dict({name: result.value(name) for name in result.registry.names})
                 self.n_fitted = n
                 self.scope = scope
+                self.known_legs = frozenset(leg for leg in LEGS if leg not in learning and registry is full)
                 log.info("running estimate refitted to %d captures (%s): RMS %.2f / %.2f px", n, scope,
                          *result.rms_px)
                 return

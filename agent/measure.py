@@ -107,7 +107,7 @@ class Measurement:
     def _update_guard(self) -> None:
         """Let the safety check use what the estimate knows: joints truly stand at command + alpha, sandals sit
         where they are mounted."""
-        self.robot.guard.set_true_offset(self.estimate.joint_alpha())
+        self.robot.guard.set_true_offset(self.estimate.joint_alpha(), known=self.estimate.offsets_known())
         if self.robot.guard.set_board_mounts(self.estimate.board_mounts()):
             log.info("safety check updated with the estimated sandal mounts")
 

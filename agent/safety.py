@@ -41,12 +41,13 @@ class SafetyGuard:
         self.known_offset_margin_m = known_offset_margin_m
         self.random_detours = random_detours
 
-    def set_true_offset(self, alpha14) -> None:
+    def set_true_offset(self, alpha14, *, known: bool | None = None) -> None:
         """Check collisions where the joints truly go: commanded + alpha14 (rad). While the offsets are unknown
-        (all zero) the checker keeps its wide margins; once they are estimated, the smaller known_offset_margin_m
-        suffices (the mock itself refuses at 3 mm)."""
+        the checker keeps its wide margins; once every leg's are estimated (`known`; by default: alpha14 is not
+        all zero), the smaller known_offset_margin_m suffices (the mock itself refuses at 3 mm). One leg's
+        offsets do not make the other leg's position known: it may stand degrees away from its command."""
         self.true_offset = np.asarray(alpha14, dtype=float).copy()
-        known = bool(np.any(self.true_offset))
+        known = bool(np.any(self.true_offset)) if known is None else bool(known)
         margin = self.known_offset_margin_m
         self.checker.margin_m, self.checker.ground_margin_m = (
             (min(margin, self._margins_unknown[0]), min(margin, self._margins_unknown[1])) if known
