@@ -54,7 +54,11 @@ class RunningEstimate:
         return self.n_fitted > 0
 
     def knows(self, leg: str) -> bool:
-        """Whether the current values were fitted to captures of this leg."""
+        """Whether the current values include this leg's fitted offsets and sandal mount."""
+        return leg in self.known_legs
+
+    def _seen(self, leg: str) -> bool:
+        """Whether the last refit had captures of this leg."""
         return leg in self._leg[:self.n_fitted]
 
     def set_values(self, values: np.ndarray, scope: str = "given") -> None:
@@ -98,25 +102,29 @@ class RunningEstimate:
         self._leg.append(leg)
         self._uv.append(np.asarray(uv_px, dtype=float))
         if (len(self._theta) - self.n_fitted >= self.refit_every or not self.fitted
-                or not self.knows(leg)):  # the first capture of a leg: refit at once
+                or not self._seen(leg)):  # the first capture of a leg: refit at once
             self.refit()
 
     def refit(self) -> None:
         n = len(self._theta)
         if n == 0:
             return
-        data = make_model_data(np.array(self._theta), np.array(self._leg), np.arange(n), np.zeros(n, dtype=int),
-                               intrinsics=self.intrinsics)
-        data.uv_px = np.concatenate(self._uv)
-        counts = {leg: self._leg.count(leg) for leg in LEGS}
-        learning = [leg for leg in LEGS if counts[leg] < self.min_leg_fit]  # held at their current values
-        held = [f"{p}.{leg}.{k}" for leg in learning for p, k in (("board", "rot_z"), ("board", "trans_x"),
-                                                                   ("board", "trans_y"))]
+        legs = np.array(self._leg)
+        counts = {leg: int(np.sum(legs == leg)) for leg in LEGS}
+        # A leg with few captures would trade its unknown offsets against the camera: it joins the full fit (its
+        # offsets and sandal mount freed) from min_leg_fit captures on; until then only the camera fit sees it.
+        learning = [leg for leg in LEGS if counts[leg] < self.min_leg_fit]
+        held = [f"board.{leg}.{k}" for leg in learning for k in ("rot_z", "trans_x", "trans_y")]
         held += [f"joint_offset.{j}" for leg in learning for j in leg_joints(leg)]
         full = FULL.with_fixed(held) if held else FULL
+        fitted = np.flatnonzero(~np.isin(legs, learning))
         for registry, scope in ((full, "all 21 parameters"), (CAMERA_ONLY, "camera rotation")):
-            if registry is full and (n < self.min_full_fit or len(learning) == len(LEGS)):
+            images = fitted if registry is full else np.arange(n)
+            if registry is full and (len(images) < self.min_full_fit or len(learning) == len(LEGS)):
                 continue  # a handful of stances trade joint offsets against the board mount wildly
+            data = make_model_data(np.array(self._theta)[images], legs[images], np.arange(len(images)),
+                                   np.zeros(len(images), dtype=int), intrinsics=self.intrinsics)
+            data.uv_px = np.concatenate([self._uv[m] for m in images])
             try:
                 result = identify(data, registry, x0=self.values if registry is full else None)
             except SolveError:
@@ -128,7 +136,7 @@ class RunningEstimate:
                 self.n_fitted = n
                 self.scope = scope
                 self.known_legs = frozenset(leg for leg in LEGS if leg not in learning and registry is full)
-                log.info("running estimate refitted to %d captures (%s): RMS %.2f / %.2f px", n, scope,
-                         *result.rms_px)
+                log.info("running estimate refitted to %d of %d captures (%s): RMS %.2f / %.2f px", len(images),
+                         n, scope, *result.rms_px)
                 return
         self.n_fitted = n  # nothing better: keep the old values, try again later

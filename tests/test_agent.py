@@ -330,3 +330,44 @@ def test_bad_settings_and_bad_resume_state_are_naocal_errors(tmp_path):
     fake = FakeBackend(0)
     result, _ = calibrate(fake, tmp_path, small_settings(resume=True), detector=fake.detector)
     assert result.final == FAILED and "plan.json" in result.reason
+
+
+def test_running_estimate_keeps_the_first_leg_when_the_second_begins():
+    """The second leg's first capture must not throw away the first leg's offsets (nor make the guard believe the
+    second leg's are known)."""
+    from agent.estimate import RunningEstimate
+    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+
+    rng = np.random.default_rng(40)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, n_stances_per_leg=18, n_head_postures=1, pixel_noise_px=0.05)
+    estimate = RunningEstimate(DEFAULT_INTRINSICS)
+    for m in np.flatnonzero(data.leg == "L"):
+        estimate.add("L", data.theta[m], data.uv_px[data.image_of_row == m])
+    learned = estimate.joint_alpha()
+    first_right = int(np.flatnonzero(data.leg == "R")[0])
+    estimate.add("R", data.theta[first_right], data.uv_px[data.image_of_row == first_right])
+    assert estimate.known_legs == frozenset({"L"}) and not estimate.offsets_known()
+    assert estimate.knows("L") and not estimate.knows("R")  # the right board is searched with the wide margin
+    alpha = estimate.joint_alpha()
+    left = [JOINTS.index(j) for j in LEG_JOINTS if j.startswith("L")]
+    right = [JOINTS.index(j) for j in LEG_JOINTS if j.startswith("R")]
+    assert np.all(learned[left] != 0.0) and np.all(alpha[right] == 0.0)
+    assert np.abs(alpha[left] - learned[left]).max() < np.radians(0.05)  # kept, refined at most
+    # and it predicts the right board from the left leg's camera at least as well as the nominal model does
+    nominal = RunningEstimate(DEFAULT_INTRINSICS)
+    second_right = int(np.flatnonzero(data.leg == "R")[1])
+    detected = data.uv_px[data.image_of_row == second_right]
+    error = lambda e: np.sqrt(np.mean((e.predict("R", data.theta[second_right]) - detected) ** 2))  # noqa: E731
+    assert error(estimate) < error(nominal)
+    guard_body = NaoBody()
+    try:
+        guard = SafetyGuard({j: (-3.0, 3.0) for j in JOINTS}, CollisionChecker(guard_body, margin_m=0.015,
+                                                                               ground_margin_m=0.012),
+                            {j: 5.0 for j in JOINTS})
+        guard.set_true_offset(alpha, known=estimate.offsets_known())
+        assert (guard.checker.margin_m, guard.checker.ground_margin_m) == (0.015, 0.012)  # still the wide margins
+        guard.set_true_offset(alpha, known=True)
+        assert guard.checker.margin_m == pytest.approx(0.008)
+    finally:
+        guard_body.close()
