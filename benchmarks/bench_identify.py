@@ -4,11 +4,18 @@ Dataset: the paper's size, 24 stances per leg x 3 head postures = 144 images, 34
 Straightforward: the 21-parameter model evaluated by a Python loop over images (per-image forward kinematics
 and projection), finite-difference Jacobian, scipy.optimize.least_squares(method='lm').
 
-    python benchmarks/bench_identify.py [--repeats 15]
+    python benchmarks/bench_identify.py [--repeats 15] [--busy]
+
+BLAS threads: as the environment says (numpy's default: one per core); `naocal` itself uses one
+(OPENBLAS_NUM_THREADS=1, see tools/cli.py). `--busy` keeps the other core busy with a spinning process while the
+naocal solves are timed, as NAOqi does on a robot: compare `python benchmarks/bench_identify.py --busy` with
+`OPENBLAS_NUM_THREADS=1 python benchmarks/bench_identify.py --busy`.
 """
 
 import argparse
+import os
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -54,7 +61,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--straightforward-repeats", type=int, default=3)
+    parser.add_argument("--busy", action="store_true", help="a spinning process on the other core while timing")
     args = parser.parse_args()
+    print(f"BLAS threads: OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset (one per core)')}"
+          + ("; the other core kept busy" if args.busy else ""))
 
     rng = np.random.default_rng(0)
     truth = random_truth(rng)
@@ -63,9 +73,15 @@ def main():
     print(f"dataset: {data.n_images} images, {data.n_rows} vertices, {len(registry)} parameters")
 
     identify(data, registry)  # warm-up (imports, caches)
-    fast = [identify(data, registry).solve_time_s for _ in range(args.repeats)]
-    result = identify(data, registry)
-    minpack = [identify(data, registry, solver="minpack").solve_time_s for _ in range(args.repeats)]
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if args.busy else None
+    try:
+        fast = [identify(data, registry).solve_time_s for _ in range(args.repeats)]
+        result = identify(data, registry)
+        minpack = [identify(data, registry, solver="minpack").solve_time_s for _ in range(args.repeats)]
+    finally:
+        if spinner is not None:
+            spinner.kill()
+            spinner.wait()
 
     slow, slow_x = [], None
     for _ in range(args.straightforward_repeats):

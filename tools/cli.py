@@ -7,7 +7,15 @@ and `run(args) -> int` does the work, importing numpy, scipy, pybullet ... insid
 
 import argparse
 import importlib
+import os
 import sys
+
+# One BLAS thread unless the user says otherwise. naocal's matrices are small (3456 x 21): threads gain
+# nothing on an idle 2-core machine (identify 12.4 ms with 2, 13.0 ms with 1) and lose badly when the other core
+# is busy, as it is on a robot running NAOqi (see benchmarks/bench_identify.py --busy).
+# Set before numpy is first imported, which happens only after argument parsing.
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
 VERB_MODULES = (
     "tools.cmd_calibrate",
