@@ -63,3 +63,60 @@ def test_calibrating_over_the_bridge_gives_the_same_offsets_as_the_direct_mock(t
                                    str(tmp_path / "direct")), cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert direct.returncode == 0, direct.stderr
     assert offsets(tmp_path / "bridge") == offsets(tmp_path / "direct")
+
+
+@pytest.mark.slow
+def test_a_server_restarted_in_the_middle_of_a_calibration_fails_cleanly_and_resume_completes(tmp_path):
+    """The robot-side server dies mid-measurement and comes back on the same endpoint (a fresh mock: same seed,
+    same hidden truth, new state). The agent must not take it for the robot it was talking to: it stops with a
+    clear reason, nothing saved is lost, and `--resume` finishes with every capture exactly once."""
+    from backends.mock import draw_truth
+    from solver.dataset import read_dataset
+    from solver.joints import LEG_JOINTS
+
+    out = tmp_path / "run"
+    server, endpoint = start_server(SEED)
+    try:
+        agent = subprocess.Popen(naocal("calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out),
+                                        "--no-progress"), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True)
+        deadline = time.monotonic() + 300.0
+        observations = out / "dataset" / "observations.csv"
+        while not (observations.exists() and observations.read_text().count("\n") > 24 * 30):
+            assert agent.poll() is None and time.monotonic() < deadline, "the calibration did not get going"
+            time.sleep(0.2)
+        server.kill()  # the robot-side server dies mid-measurement ...
+        server.wait(timeout=30)
+        server, endpoint_again = start_server_at(SEED, endpoint)  # ... and is started again
+        stdout, stderr = agent.communicate(timeout=600)
+        assert agent.returncode == 3, stderr
+        assert "--resume" in stdout + stderr and "Traceback" not in stderr
+        saved = len(set(read_dataset(out / "dataset").columns["image"]))
+        assert saved >= 30
+        resumed = subprocess.run(naocal("calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out),
+                                        "--resume", "--no-progress"), cwd=ROOT, capture_output=True, text=True,
+                                 timeout=900)
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=60)
+    assert resumed.returncode == 0, resumed.stderr
+    columns = read_dataset(out / "dataset").columns
+    images = list(columns["image"])
+    assert len(images) == 24 * len(set(images)) >= 24 * 140  # every capture once, none lost
+    truth = draw_truth(SEED).alpha_rad
+    stored = json.loads((out / "offsets.json").read_text())["joint_offsets_rad"]
+    for joint in LEG_JOINTS:
+        assert abs(-stored[joint] - truth[joint]) < 0.0017, joint  # c = -alpha, within 0.1 deg
+
+
+def start_server_at(seed, endpoint):
+    """The mock server again on the endpoint it had (the port may take a moment to be free)."""
+    for _ in range(50):
+        server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--seed", str(seed), "--bind",
+                                         endpoint), cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        line = server.stdout.readline()
+        if line.startswith("naocal bridge: serving"):
+            return server, endpoint
+        server.wait(timeout=30)
+        time.sleep(0.2)
+    pytest.fail(f"could not restart the mock server on {endpoint}")
