@@ -73,6 +73,14 @@ def stance_clusters(data: ModelData) -> list[np.ndarray]:
     agent's lag probe) joins its stance only if its leg readings are those of the stance; captures along a sweep
     each have their own angles and errors, and are clusters of their own.
     """
+    element_cluster = np.repeat(stance_cluster_of_image(data)[data.image_of_row], 2)
+    order = np.argsort(element_cluster, kind="stable")
+    _, starts = np.unique(element_cluster[order], return_index=True)
+    return np.split(order, starts[1:])
+
+
+def stance_cluster_of_image(data: ModelData) -> np.ndarray:
+    """(M,) cluster number of each image, as `stance_clusters` explains: its stance, or itself along a sweep."""
     moving = np.zeros(data.n_images, bool) if data.velocity is None else np.any(data.velocity != 0, axis=1)
     legs = np.array([np.round(row * 1e6).astype(np.int64).tobytes() for row in data.theta[:, 2:]])  # leg readings
     still_keys = {(data.leg[m], data.stance[m], legs[m]) for m in np.flatnonzero(~moving)}
@@ -82,10 +90,7 @@ def stance_clusters(data: ModelData) -> list[np.ndarray]:
         if moving[m] and (data.leg[m], data.stance[m], legs[m]) not in still_keys:
             key += (legs[m],)
         keys.append(repr(key))
-    element_keys = np.repeat(np.array(keys)[data.image_of_row], 2)
-    order = np.argsort(element_keys, kind="stable")
-    _, starts = np.unique(element_keys[order], return_index=True)
-    return np.split(order, starts[1:])
+    return np.unique(np.array(keys), return_inverse=True)[1].reshape(-1)
 
 
 def image_clusters(data: ModelData) -> list[np.ndarray]:
