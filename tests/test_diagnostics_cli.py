@@ -140,3 +140,19 @@ def test_report_renders_in_a_headless_browser(elastic_dataset, tmp_path, capsys)
     # The plots were loaded and drawn: coloured pixels (text and tables alone are black on white).
     saturation = cv2.cvtColor(picture, cv2.COLOR_BGR2HSV)[..., 1]
     assert np.mean(saturation > 80) > 0.005
+
+
+def test_angles_option_reads_the_dataset_as_identify_does(tmp_path, capsys):
+    """--angles measured keeps the quantised readings (their error joins the floor); commanded uses the commands."""
+    rng = np.random.default_rng(12)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=NOISE_PX, encoder_resolution_rad=np.radians(0.1))
+    meta, columns = dataset_parts(data, pixel_noise_px=NOISE_PX)
+    path = tmp_path / "quantised"
+    write_dataset((meta, columns), path)
+    measured = diagnose_json(capsys, path, "--angles", "measured")
+    assert measured["encoder_resolution_rad"] == pytest.approx(np.radians(0.1), rel=1e-6)
+    assert measured["encoder_noise_px"] > NOISE_PX
+    assert measured["noise_px"] > measured["detector_noise_px"]
+    with pytest.raises(SystemExit) as exit_info:
+        main(["diagnose", str(path), "--angles", "sideways"])
+    assert exit_info.value.code == 2

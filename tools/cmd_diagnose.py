@@ -2,6 +2,8 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
+from tools.cmd_identify import add_angles_option
+
 EPILOG = """\
 Sections of the output:
   compare  RMS overall, per leg, per head posture and the worst stances, against the noise floor: detector noise
@@ -40,6 +42,7 @@ def register(subparsers):
     p.add_argument("--json", action="store_true",
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
+    add_angles_option(p)
     p.set_defaults(run=run)
 
 
@@ -55,7 +58,7 @@ def run(args) -> int:
 
     effects = parse_effects(args.effects)
     dataset = read_dataset(args.dataset)
-    data = model_data_from_dataset(dataset)
+    data = model_data_from_dataset(dataset, angles=args.angles)
     if "time_lag" in effects and data.velocity is None:
         raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
     result = identify(data, Registry(effects))

@@ -26,13 +26,18 @@ def register(subparsers):
     p.add_argument("--loss-scale-px", type=float, default=1.0, help="residual where the robust loss bends (px)")
     p.add_argument("--solver", default="lm", choices=("lm", "minpack"),
                    help="lm: naocal's Levenberg-Marquardt (fast); minpack: scipy.optimize.least_squares(method='lm')")
-    p.add_argument("--angles", default="auto", choices=("auto", "measured", "commanded"),
-                   help="joint angles used as theta: measured readings (the paper), commanded, or auto (default): "
-                        "readings, except that a still joint whose readings are quantised and whose command lies "
-                        "inside its reading's quantisation cell uses the command")
+    add_angles_option(p)
     p.add_argument("--cv-folds", type=int, default=5,
                    help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
     p.set_defaults(run=run)
+
+
+def add_angles_option(parser) -> None:
+    """--angles, shared by identify and diagnose (both must read a dataset the same way)."""
+    parser.add_argument("--angles", default="auto", choices=("auto", "measured", "commanded"),
+                        help="joint angles used as theta: measured readings (the paper), commanded, or auto "
+                             "(default): readings, except that a still joint whose readings are quantised and whose "
+                             "command lies inside its reading's quantisation cell uses the command")
 
 
 def run(args) -> int:
