@@ -177,24 +177,28 @@ def _cross(a, b):
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def _yield_to_gravity(q0, compliance, leg, gravity_torso_mps2, *, tolerance_rad=1e-13, max_iterations=20):
-    """Solve q = q0 + C tau(q) for one leg's angles (m, 6) by Newton's method.
+def _yield_to_gravity(q0, compliance, leg, gravity_torso_mps2, *, sag_guess=None, tolerance_rad=1e-13,
+                      max_iterations=20):
+    """Solve q = q0 + C tau(q) for one leg's angles (m, 6) by Newton's method, from q0 + sag_guess (m, 6).
 
     Returns q (m, 6), tau(q) (m, 6) and A = I - C dtau/dq (m, 6, 6), the matrix the implicit derivative needs.
     """
-    q = q0.copy()
+    q = q0.copy() if sag_guess is None else q0 + sag_guess
     eye = np.eye(q0.shape[1])
     for _ in range(max_iterations):
         tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
         A = eye - compliance[:, None] * dtau
-        step = np.linalg.solve(A, (q0 + compliance * tau - q)[..., None])[..., 0]
-        q = q + step
-        if not np.all(np.isfinite(q)):
-            raise FloatingPointError(f"elasticity: no equilibrium for compliances {compliance} rad/(N m)")
-        if np.max(np.abs(step), initial=0.0) < tolerance_rad:
+        misfit = q0 + compliance * tau - q
+        if np.max(np.abs(misfit), initial=0.0) < tolerance_rad:
             break
-    tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
-    return q, tau, eye - compliance[:, None] * dtau
+        step = np.linalg.solve(A, misfit[..., None])[..., 0]
+        if not np.all(np.isfinite(step)):
+            raise FloatingPointError(f"elasticity: no equilibrium for compliances {compliance} rad/(N m)")
+        q = q + step
+    else:  # rounding can keep the misfit just above the tolerance: the last iterate is as good as it gets
+        tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
+        A = eye - compliance[:, None] * dtau
+    return q, tau, A
 
 
 class Model:
@@ -219,6 +223,7 @@ class Model:
         counts = np.bincount(data.image_of_row, minlength=data.n_images)
         self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
         self._head_cache = None
+        self._sag = {}  # leg -> last solved elastic sag (m, 6): where Newton starts next time, not a result
 
     def _head_fk(self, q_head):
         """Head chain FK, cached: without head terms the head angles never change during a fit."""
@@ -249,8 +254,10 @@ class Model:
                 images, cols = self.image_slices[leg], LEG_COLUMNS[leg]
                 if images.start == images.stop:
                     continue
-                q_leg, tau, A = _yield_to_gravity(q[images][:, cols], compliance[cols], leg,
-                                                  self.data.gravity_torso_mps2)
+                q0_leg = q[images][:, cols]
+                q_leg, tau, A = _yield_to_gravity(q0_leg, compliance[cols], leg, self.data.gravity_torso_mps2,
+                                                  sag_guess=self._sag.get(leg))
+                self._sag[leg] = q_leg - q0_leg  # the next evaluation (a nearby step) starts from this sag
                 q[images, cols[0]:cols[-1] + 1] = q_leg
                 regressor[images, np.flatnonzero(t.elastic)] = 0.0  # this leg's images: only its own joints yield
                 on_leg = t.elastic & np.isin(t.joint_col, cols)
