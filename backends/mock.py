@@ -70,6 +70,7 @@ EFFECT_UNITS = {
 }
 EFFECTS = tuple(EFFECT_UNITS)
 TRUTH_SCHEMA = "naocal.truth/1"
+TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"
 FRAME_PERIOD_S = 1.0 / 30.0
 FRAME_PHASE_S = 0.004  # exposure times are FRAME_PHASE_S + k * FRAME_PERIOD_S
 START_TIME_S = 10.0  # the simulated clock at start (the robot has been up for a while)
@@ -408,11 +409,11 @@ class MockBackend(Backend):
             "board_mount": {leg: {"rot_z_rad": float(m.rot_z_rad), "trans_x_m": float(m.trans_x_m),
                                   "trans_y_m": float(m.trans_y_m)} for leg, m in t.board_mount.items()},
             "effects": {name: float(size) for name, size in t.effects.items()},
-            "effect_values": self._effect_values(),
         }
 
-    def _effect_values(self) -> dict:
-        """What each injected effect drew from the seed, per joint or per leg (only the effects present)."""
+    def effect_values_dict(self) -> dict:
+        """What each injected effect drew from the seed, per joint or per leg (only the effects present), in the
+        `naocal.truth_effects/1` format (truth_effects.json beside truth.json, whose format stays as specified)."""
         t, legs = self.truth, tuple(LEGS)
         values = {
             "elasticity": {"compliance_rad_per_nm": {j: float(t.compliance_rad_per_nm[j]) for j in LEG_JOINTS}},
@@ -424,7 +425,7 @@ class MockBackend(Backend):
             "distortion": {"k1": float(t.camera.k1)},
             "time_lag": {"image_stamp_late_s": float(t.time_lag_s)},
         }
-        return {name: values[name] for name in t.effects}
+        return {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
 
     def true_angles(self, t_s: float | None = None) -> dict[str, float]:
         """The true joint angles (rad) at robot time t_s (default now)."""

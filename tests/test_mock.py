@@ -29,26 +29,27 @@ def test_backend_contract():
 
 def test_truth_has_the_naocal_truth_format():
     truth = MockBackend(seed=3).truth_dict()
-    assert set(truth) == {"schema", "alpha_rad", "camera_rotation_rad", "board_mount", "effects", "effect_values"}
+    assert set(truth) == {"schema", "alpha_rad", "camera_rotation_rad", "board_mount", "effects"}
     assert truth["schema"] == "naocal.truth/1"
     assert set(truth["alpha_rad"]) == set(JOINTS)
     assert set(truth["camera_rotation_rad"]) == {"roll", "pitch", "yaw"}
     assert set(truth["board_mount"]) == {"L", "R"}
     for mount in truth["board_mount"].values():
         assert set(mount) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
-    assert truth["effects"] == {} and truth["effect_values"] == {}
+    assert truth["effects"] == {}
+    assert MockBackend(seed=3).effect_values_dict() == {"schema": "naocal.truth_effects/1", "effects": {}}
     assert json.loads(json.dumps(truth)) == truth  # plain JSON types
 
 
 def test_truth_holds_each_injected_effects_drawn_values():
     mock = MockBackend(seed=3, effects={"elasticity": 0.03, "time_lag": 0.04})
-    truth = mock.truth_dict()
-    assert set(truth["effect_values"]) == {"elasticity", "time_lag"}
-    compliance = truth["effect_values"]["elasticity"]["compliance_rad_per_nm"]
+    values = mock.effect_values_dict()["effects"]
+    assert set(values) == {"elasticity", "time_lag"}
+    compliance = values["elasticity"]["compliance_rad_per_nm"]
     assert compliance == mock.truth.compliance_rad_per_nm
     assert all(0.015 <= c <= 0.045 for c in compliance.values())  # size x U(0.5, 1.5)
-    assert truth["effect_values"]["time_lag"] == {"image_stamp_late_s": 0.04}
-    assert json.loads(json.dumps(truth)) == truth
+    assert values["time_lag"] == {"image_stamp_late_s": 0.04}
+    assert json.loads(json.dumps(values)) == values
 
 
 def test_truth_sizes_are_those_of_a_real_robot():

@@ -119,6 +119,7 @@ def run(args) -> int:
         truth = backend.truth_dict()
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")
+        atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
     else:
         from backends.bridge import BridgeBackend
 
