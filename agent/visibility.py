@@ -13,7 +13,7 @@ import numpy as np
 import pybullet
 
 from backends.pybullet_body import T_WORLD_TORSO, NaoBody
-from solver.kinematics import camera_fk, leg_fk
+from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole
 from solver.transforms import transform_points
 
@@ -49,28 +49,6 @@ def board_probe_points_sole(pad_squares: float = 0.25) -> np.ndarray:
     return np.stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)], axis=-1)
 
 
-def project_points(T_torso_cam, T_torso_sole, points_sole, intrinsics):
-    """Pixel positions and depths of sole-frame points, for N views.
-
-    Parameters
-    ----------
-    T_torso_cam, T_torso_sole : (N, 4, 4) poses in the torso frame.
-    points_sole : (K, 3) points in the sole frame, m.
-    intrinsics : dict with fx_px, fy_px, cx_px, cy_px.
-
-    Returns
-    -------
-    uv_px : (N, K, 2), depth_m : (N, K) along the optical axis (NAO camera x).
-    """
-    p_torso = np.einsum("nij,kj->nki", T_torso_sole[:, :3, :3], points_sole) + T_torso_sole[:, None, :3, 3]
-    p_cam = np.einsum("nji,nkj->nki", T_torso_cam[:, :3, :3], p_torso - T_torso_cam[:, None, :3, 3])
-    depth = p_cam[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = intrinsics["cx_px"] - intrinsics["fx_px"] * p_cam[..., 1] / depth
-        v = intrinsics["cy_px"] - intrinsics["fy_px"] * p_cam[..., 2] / depth
-    return np.stack([u, v], axis=-1), depth
-
-
 def view_margin_px(uv_px, width_px, height_px) -> np.ndarray:
     """(N,) smallest distance (px) of any point to the image border; negative when a point is outside."""
     u, v = uv_px[..., 0], uv_px[..., 1]
@@ -104,7 +82,7 @@ def views_ok(T_torso_cam, T_torso_sole, intrinsics, rules: ViewRules = ViewRules
     if camera_offset is not None:
         T_torso_cam = T_torso_cam.copy()
         T_torso_cam[:, :3, :3] = T_torso_cam[:, :3, :3] @ camera_offset
-    uv, depth = project_points(T_torso_cam, T_torso_sole, board_vertices_sole(), intrinsics)
+    uv, depth = project_sole_points(T_torso_cam, T_torso_sole, board_vertices_sole(), intrinsics)
     centre, normal = _board_centre_and_normal(T_torso_sole)
     sight = centre - T_torso_cam[:, :3, 3]
     cos_tilt = -np.einsum("ni,ni->n", normal, sight) / np.linalg.norm(sight, axis=1)

@@ -1,4 +1,5 @@
-"""Forward kinematics and static gravity torques of the NAO: pure functions, vectorised over configurations.
+"""Forward kinematics, the pinhole projection of sole points and static gravity torques of the NAO: pure functions,
+vectorised over configurations.
 
 Shapes: N configurations. Leg angles (N, 6) in hip-to-ankle order (solver.joints.leg_joints), head angles
 (N, 2) as (HeadYaw, HeadPitch). Every pose is T_torso_<frame> (N, 4, 4), every point in m.
@@ -70,6 +71,28 @@ def leg_fk(q_leg, leg: str, *, thigh_delta_m=0.0, tibia_delta_m=0.0):
 def camera_fk(q_head, camera: str = "bottom"):
     """T_torso_camera (N, 4, 4) for head angles (N, 2) = (HeadYaw, HeadPitch). NAO camera frame."""
     return chain_frames(head_chain(camera), q_head)[1]
+
+
+def project_sole_points(T_torso_cam, T_torso_sole, points_sole, intrinsics):
+    """Pixel positions and depths of sole-frame points, for N views.
+
+    Parameters
+    ----------
+    T_torso_cam, T_torso_sole : (N, 4, 4) poses in the torso frame.
+    points_sole : (K, 3) points in the sole frame, m.
+    intrinsics : dict with fx_px, fy_px, cx_px, cy_px.
+
+    Returns
+    -------
+    uv_px : (N, K, 2), depth_m : (N, K) along the optical axis (NAO camera x).
+    """
+    p_torso = np.einsum("nij,kj->nki", T_torso_sole[:, :3, :3], points_sole) + T_torso_sole[:, None, :3, 3]
+    p_cam = np.einsum("nji,nkj->nki", T_torso_cam[:, :3, :3], p_torso - T_torso_cam[:, None, :3, 3])
+    depth = p_cam[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = intrinsics["cx_px"] - intrinsics["fx_px"] * p_cam[..., 1] / depth
+        v = intrinsics["cy_px"] - intrinsics["fy_px"] * p_cam[..., 2] / depth
+    return np.stack([u, v], axis=-1), depth
 
 
 def joint_axes_and_origins(T_torso_joint, chain: Chain):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver.joints import JOINTS, LEGS, leg_joints
-from solver.kinematics import camera_fk, leg_fk
+from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS, Model, ModelData, compute_gravity_torques
 from solver.nao_model import board_vertices_sole
 from solver.registry import Registry
@@ -22,12 +22,8 @@ DEFAULT_INTRINSICS = {"fx_px": 600.0, "fy_px": 600.0, "cx_px": 320.0, "cy_px": 2
 def board_in_view(T_torso_cam, T_torso_sole, intrinsics=DEFAULT_INTRINSICS, margin_px=20.0):
     """(N,) True where all vertices project inside the image with a margin and the board faces the camera."""
     V = board_vertices_sole()
-    p = np.einsum("nij,kj->nki", T_torso_sole[:, :3, :3], V) + T_torso_sole[:, None, :3, 3]
-    pc = np.einsum("nji,nkj->nki", T_torso_cam[:, :3, :3], p - T_torso_cam[:, None, :3, 3])
-    x = pc[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = intrinsics["cx_px"] - intrinsics["fx_px"] * pc[..., 1] / x
-        v = intrinsics["cy_px"] - intrinsics["fy_px"] * pc[..., 2] / x
+    uv, x = project_sole_points(T_torso_cam, T_torso_sole, V, intrinsics)
+    u, v = uv[..., 0], uv[..., 1]
     inside = ((x > 0.05) & (u > margin_px) & (u < intrinsics["width_px"] - 1 - margin_px)
               & (v > margin_px) & (v < intrinsics["height_px"] - 1 - margin_px)).all(axis=1)
     centre = T_torso_sole[:, :3, 3] + T_torso_sole[:, :3, 0] * V[:, 0].mean() - T_torso_cam[:, :3, 3]

@@ -151,3 +151,21 @@ def test_board_vertices_span_documented_area():
     np.testing.assert_allclose([v[:, 1].min(), v[:, 1].max()], [-0.0375, 0.0375])
     np.testing.assert_allclose(v[0], [0.1075, -0.0375, 0.0])
     np.testing.assert_allclose(v[1], [0.1325, -0.0375, 0.0])
+
+
+def test_projection_of_sole_points_equals_the_models_prediction():
+    """The planner's and the agent's projection (no distortion) is the identification model's at zero offsets."""
+    from solver.model import HEAD_COLUMNS, LEG_COLUMNS, Model
+    from solver.registry import Registry
+    from solver.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
+
+    rng = np.random.default_rng(5)
+    theta, leg, stance, posture = random_plan(rng, 4, 2)
+    data = make_model_data(theta, leg, stance, posture)
+    predicted = Model(data, Registry()).residuals(Registry().zeros()) + data.uv_px  # detections are zero
+    for m in range(len(theta)):
+        T_cam = kinematics.camera_fk(theta[m:m + 1, HEAD_COLUMNS])
+        T_sole = kinematics.leg_fk(theta[m:m + 1, LEG_COLUMNS[leg[m]]], leg[m])
+        uv, depth = kinematics.project_sole_points(T_cam, T_sole, board_vertices_sole(), DEFAULT_INTRINSICS)
+        assert np.all(depth > 0)
+        assert np.abs(uv[0] - predicted[data.image_of_row == m]).max() < 1e-9
