@@ -131,14 +131,14 @@ def check_identifiable(J_free: np.ndarray, registry: Registry):
         )
 
 
-def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, dof, cluster_of_image=None):
+def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, cluster_of_image, dof):
     """Covariance of the free parameters: cluster-robust (sandwich), and the classic s^2 (J^T J)^-1.
 
     The 24 vertices of one image share its errors (a board that flexes, a detection bias), and the images of one
     stance share the leg's (encoder quantisation, play, whatever the model lacks about that posture), so the
     classic estimate, which treats every pixel as independent, is too optimistic; the sandwich
     (J^T J)^-1 (sum_c g_c g_c^T) (J^T J)^-1 with g_c = J_c^T r_c the score of cluster c is not. Clusters:
-    `cluster_of_image` (M,) (solver.scoretest.stance_cluster_of_image), default one per image. Both are in the
+    `cluster_of_image` (M,) (solver.scoretest.stance_cluster_of_image). Both are in the
     unscaled parameter units. Unidentifiable directions (singular value below UNIDENTIFIABLE_RATIO) are left out.
     """
     usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
@@ -149,11 +149,9 @@ def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, dof, cluster_o
     Js = J_free * scales
     rows = np.repeat(image_of_row, 2)  # grouped by image (Model sorts its data so)
     starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
-    scores = np.add.reduceat(Js * r[:, None], starts, axis=0) if len(rows) else np.zeros((0, Js.shape[1]))
-    if cluster_of_image is not None:
-        per_cluster = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, Js.shape[1]))
-        np.add.at(per_cluster, np.asarray(cluster_of_image)[rows[starts]], scores)
-        scores = per_cluster
+    per_image = np.add.reduceat(Js * r[:, None], starts, axis=0) if len(rows) else np.zeros((0, Js.shape[1]))
+    scores = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, Js.shape[1]))
+    np.add.at(scores, np.asarray(cluster_of_image)[rows[starts]], per_image)
     n_clusters = len(scores)
     n, p = len(r), Js.shape[1]
     small_sample = n_clusters / max(n_clusters - 1, 1) * (n - 1) / max(n - p, 1)
@@ -297,8 +295,8 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
 
     cond, sv, Vt = identifiability(J_free, registry)
     covariance, covariance_iid = parameter_covariance(J_free, r * np.sqrt(weights.repeat(2)), sv, Vt, scales,
-                                                      model.data.image_of_row, dof,
-                                                      stance_cluster_of_image(model.data))
+                                                      model.data.image_of_row,
+                                                      stance_cluster_of_image(model.data), dof)
     std_free = np.sqrt(np.diag(covariance))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)
