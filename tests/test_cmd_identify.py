@@ -103,3 +103,17 @@ def test_quantised_readings_use_the_command_inside_the_cell(tmp_path, capsys):
         if mode == "auto":
             assert "quantised to 0.1 deg" in report["angles"]
     assert errors["auto"] < 0.02 * DEG < errors["measured"]
+
+
+@pytest.mark.parametrize("preset, expected", [(None, "1"), ("2", "2")])
+def test_the_command_line_uses_one_blas_thread_unless_told(preset, expected):
+    """Small matrices: threads only hurt when NAOqi keeps the other core busy. A user's setting wins."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                            "MKL_NUM_THREADS")}
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    code = "import os, tools.cli, numpy; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.strip() == expected, proc.stderr
