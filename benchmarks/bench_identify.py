@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from solver.identify import identify  # noqa: E402
 from solver.kinematics import camera_fk, leg_fk  # noqa: E402
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS  # noqa: E402
+from solver.joints import LEG_JOINTS  # noqa: E402
 from solver.registry import Registry  # noqa: E402
 from solver.synthetic import random_truth, synthesize  # noqa: E402
 from solver.transforms import rot_x, rot_y, rot_z  # noqa: E402
@@ -100,6 +101,15 @@ def main():
     print(f"speed-up: {slow_ms / fast_ms:.0f}x (naocal LM), {slow_ms / minpack_ms:.0f}x (naocal model + MINPACK)")
     print(f"solutions agree to {agreement:.2g} standard deviations; RMS {result.rms_px[0]:.3f}, "
           f"{result.rms_px[1]:.3f} px")
+
+    # The extended model's costliest term: elasticity makes the joint angles implicit (Newton per evaluation).
+    elastic_registry = Registry(("elasticity",))
+    truth.update({f"elasticity.{j}": 0.03 for j in LEG_JOINTS})
+    elastic = synthesize(np.random.default_rng(1), truth, effects=("elasticity",), pixel_noise_px=0.1)
+    identify(elastic, elastic_registry)
+    times = [identify(elastic, elastic_registry).solve_time_s for _ in range(args.repeats)]
+    print(f"naocal identify with elasticity ({len(elastic_registry)} parameters): median "
+          f"{statistics.median(times) * 1e3:8.2f} ms")
 
 
 if __name__ == "__main__":
