@@ -54,3 +54,54 @@ def test_validate_verb_says_which_field_in_one_line(tmp_path, capsys):
     code = tools.cli.main(["offsets", "validate", str(path)])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "robot.id" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------------------------------------ writers
+
+
+def unchecked_offsets(**robot):
+    """An Offsets built without the reader (as a future caller might): the writers must still refuse bad ids."""
+    offsets = make_offsets(head=True)
+    offsets.robot.update(robot)
+    return offsets
+
+
+@pytest.mark.parametrize("key", ["id", "body_id", "head_id"])
+def test_every_writer_refuses_an_unsafe_id(key):
+    from solver.errors import NaocalError
+    from tools.export.bhuman import export_bhuman
+    from tools.export.common import calibrated
+    from tools.export.hulks import export_hulks
+    from tools.export.naodevils import export_naodevils
+    from tools.export.urdf import export_urdf
+
+    offsets = unchecked_offsets(**{key: BAD_IDS["newline"]})
+    cal = calibrated(offsets)
+    head, body = cal.robot["head_id"], cal.robot["body_id"]
+    writers = [lambda: export_bhuman(cal, "f.json", head=head, body=body),
+               lambda: export_naodevils(cal, "f.json", head=head, body=body),
+               lambda: export_urdf(offsets)]
+    if key != "id":  # HULKs writes no comment, only file names
+        writers.append(lambda: export_hulks(cal, head=head, body=body))
+    for write in writers:
+        with pytest.raises(NaocalError, match="not a valid id"):
+            write()
+
+
+def test_a_file_name_with_a_newline_stays_inside_the_comment(tmp_path, capsys):
+    from tests.cfg_reader import parse_cfg
+
+    path = tmp_path / "nao-17\noffsets = { lHipPitch = 90deg; };\n--> <x/>.json"
+    write_offsets(make_offsets(head=True), path)
+    for fmt in ("bhuman", "naodevils", "urdf"):
+        assert tools.cli.main(["offsets", "export", str(path), "--format", fmt]) == 0
+        out = capsys.readouterr().out
+        assert "\noffsets = { lHipPitch = 90deg; };" not in out and "--> <x/>" not in out
+        if fmt == "bhuman":
+            joint_file = out.split("// ---- ")[1].split("\n", 1)[1]
+            assert list(parse_cfg(joint_file)) == ["offsets"]
+            assert parse_cfg(joint_file)["offsets"]["lHipPitch"] != "90deg"
+        if fmt == "urdf":
+            import xml.etree.ElementTree as ET
+
+            ET.fromstring(out.split("\n", 1)[1])  # still well-formed XML
