@@ -47,7 +47,9 @@ each camera it calibrates. Team formats, fresh (no --merge-from): B-Human and Na
 so what naocal did not calibrate (arms, waistYaw, an uncalibrated camera, body rotation) is written as 0 (nominal)
 and said so; HULKs files are sparse, so it is left out. With --merge-from DIR the files the team's code reads now
 for this head and body are edited value by value: everything else (other values, comments, layout) is kept byte
-for byte; a file found only in a default directory is written to the robot's own directory.
+for byte; a file found only in a default directory is written to the robot's own directory. A file an export
+replaces is kept as NAME.bak. B-Human and Nao Devils name robot directories by robot names: give yours with
+--head-id and --body-id (default: the offsets file's head and body ids).
 Examples:
   naocal offsets export runs/nao-17/offsets.json --format bhuman --bhuman-release 2025 \\
       --merge-from ~/BHuman/Config --out ~/BHuman/Config --head-id Dante --body-id Dante

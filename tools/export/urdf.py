@@ -13,7 +13,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from solver.errors import DataError
+from solver.errors import DataError, NaocalError
 from solver.offsets import Offsets, format_offsets
 from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 from tools.export.common import calibrated, provenance
@@ -78,6 +78,9 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
         mimic.set("offset", repr(offsets.joint_offset("LHipYawPitch") - offsets.joint_offset("RHipYawPitch")))
 
     for camera in offsets.camera_rotation_rad:
+        if camera not in CAMERA_URDF_JOINTS:
+            raise NaocalError(f"camera {camera!r} has no joint in the NAO URDF "
+                              f"(known: {', '.join(CAMERA_URDF_JOINTS)})")
         joint = joints.get(CAMERA_URDF_JOINTS[camera])
         if joint is None:
             raise DataError(nominal_urdf, f"no joint {CAMERA_URDF_JOINTS[camera]!r} in the nominal URDF")
