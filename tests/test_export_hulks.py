@@ -150,6 +150,21 @@ def test_merge_keeps_every_other_field_and_its_text(capsys, tmp_path, team_param
     assert (team_parameters / f"head.{HEAD}.json.bak").read_text() == head_before
 
 
+def test_merge_into_files_that_nest_everything_in_parameters(capsys, tmp_path, team_parameters):
+    """HULKs' newer files (e.g. etc/parameters/go25/) wrap their values in a top-level "parameters" object."""
+    path, joints, bottom, _ = offsets_file(tmp_path, robot=ROBOT)
+    for name in (f"body.{BODY}.json", f"head.{HEAD}.json"):
+        doc = json.loads((team_parameters / name).read_text())
+        (team_parameters / name).write_text(json.dumps({"parameters": doc}, indent=2) + "\n")
+    assert export(capsys, path, "--merge-from", team_parameters, "--out", team_parameters)[0] == 0
+    body = json.loads((team_parameters / f"body.{BODY}.json").read_text())
+    assert list(body) == ["parameters"] and "step_planner" in body["parameters"]
+    assert body["parameters"]["joint_calibration_offsets"]["right_leg"]["hip_roll"] == -joints["RHipRoll"]
+    head = json.loads((team_parameters / f"head.{HEAD}.json").read_text())
+    correction = head["parameters"]["camera_matrix_parameters"]["calibration"]["correction_in_camera_bottom"]
+    assert list(head) == ["parameters"] and naocal_camera_rpy(correction) == pytest.approx(bottom, abs=1e-12)
+
+
 def test_merge_without_a_team_file_writes_a_sparse_one(capsys, tmp_path):
     path, *_ = offsets_file(tmp_path, robot=ROBOT)
     (tmp_path / "parameters").mkdir()

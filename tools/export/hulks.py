@@ -74,6 +74,10 @@ def _file(merge_from: Path | None, name: str, values: dict, what: str) -> Export
         return ExportFile(name, json.dumps(_nest(values), indent=2) + "\n",
                           [f"new file{where} with naocal's {what} only: HULKs overlays it on default.json, so every "
                            "other value keeps its default"])
+    _, doc = jsontext.parse_json(text, merge_from / name)
+    top_keys = {keys[0] for keys in values}
+    if isinstance(doc.get("parameters"), dict) and not top_keys & set(doc):  # newer files nest all in "parameters"
+        values = {("parameters",) + keys: value for keys, value in values.items()}
     return ExportFile(name, jsontext.set_values(text, values, merge_from / name),
                       [f"merged into {merge_from / name}: naocal's {what} set, every other value kept as it was"])
 
