@@ -2,7 +2,8 @@
 
 - jointCalibration.cfg: one top-level record per value of their Joints enum (B-Human's 26 names, in its order),
   `lHipPitch = { offset = 0deg; minAngle = -88deg; maxAngle = 27.73deg; };` (JointCalibration::serialize).
-  NaoProviderV6 adds `offset` to joint requests: the sign of naocal's c.
+  Their NaoProvider sends request + offset and reads sensor - offset: the sign of naocal's c (their public V6
+  provider does not apply it at all: docs/EXPORTS.md).
 - cameraCalibration.cfg: `lowerCameraRotationCorrection = {x; y; z};`, `upperCameraRotationCorrection = {...};`,
   `bodyRotationCorrection = {x; y};`, applied like B-Human's (rotateY(tilt + y) * rotateX(x) * rotateZ(z)).
 - Search path (File::getFullNames): Robots/<robot>/<body>/, Robots/<robot>/Head/, Robots/<body>/Body/,
