@@ -240,3 +240,18 @@ def test_values_written_to_a_millionth_of_a_degree(capsys, tmp_path):
         literal = offsets[key_of(joint)]
         assert len(literal[:-3].partition(".")[2]) <= 6 and "e" not in literal[:-3], literal
         assert abs(math.degrees(rad(literal) + alpha)) <= 5e-7
+
+
+def test_unknown_ids_ask_for_the_option(capsys, tmp_path):
+    path, *_ = offsets_file(tmp_path, robot={"id": "nao-17", "body_id": None, "head_id": "Dante"})
+    code, _, err = export(capsys, path, "--out", tmp_path / "Config")
+    assert code == 2 and err.count("\n") == 1 and "robot.body_id is unknown" in err and "--body-id" in err
+    assert export(capsys, path, "--out", tmp_path / "Config", "--body-id", "Otto")[0] == 0
+    assert (tmp_path / "Config/Robots/Otto/Body/jointCalibration.cfg").exists()
+
+
+def test_team_options_are_refused_for_other_formats(capsys, tmp_path):
+    path, *_ = offsets_file(tmp_path)
+    code = tools.cli.main(["offsets", "export", str(path), "--format", "urdf", "--merge-from", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--merge-from applies to the team formats" in err
