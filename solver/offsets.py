@@ -56,6 +56,10 @@ _SIMPLE_GROUPS = {
 }
 _BOARD_MEMBERS = {"rot_z": "rad", "trans_x": "m", "trans_y": "m"}
 _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+# Robot, body and head ids end up in other programs' config files and in file names (B-Human's
+# Robots/<head>/<body>/, HULKs' body.<BodyId>.json): letters, digits, '.', '_', '-', starting with a letter or digit.
+ROBOT_ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+ROBOT_ID_RULE = "letters, digits, '.', '_' or '-', starting with a letter or digit, at most 64 characters"
 
 
 def parameter_unit(name: str) -> str:
@@ -219,6 +223,8 @@ def _validated_fields(doc, path) -> dict:
     for key in ROBOT_KEYS:
         if robot[key] is not None and not isinstance(robot[key], str):
             _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
+        if isinstance(robot[key], str) and not ROBOT_ID_PATTERN.fullmatch(robot[key]):
+            _fail(path, f"not a valid id {json.dumps(robot[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
 
     joints = _object(doc["joint_offsets_rad"], path, "joint_offsets_rad")
     for joint in joints:

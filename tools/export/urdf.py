@@ -1,13 +1,4 @@
-"""Exports of a naocal.offsets/1 file for other robot software: B-Human config files, a calibrated URDF, JSON.
-
-B-Human
--------
-`jointCalibration.cfg` (`offsets = { headYaw = 0deg; ... rAnkleRoll = 0deg; };`, all 26 keys in B-Human's order):
-B-Human adds these offsets to every joint request (actuator = request + offset), the same sign as naocal's c.
-`cameraCalibration.cfg` (`cameraRotationCorrections = { lower = {x; y; z}; upper = {...}; };`): B-Human builds the
-camera pose as ... translate(neck to camera) * rotateY(tilt + y) * rotateX(x) * rotateZ(z) in a camera frame with
-x forward, y left, z up: exactly naocal's T_head_cam = T_head_cam_nominal @ Rot_y(alpha_pitch) @ Rot_x(alpha_roll)
-@ Rot_z(alpha_yaw). So x = alpha_roll, y = alpha_pitch, z = alpha_yaw, same signs, lower = bottom camera.
+"""Exports for robot models and tools: a calibrated URDF, and the offsets file itself in canonical form.
 
 URDF
 ----
@@ -19,73 +10,16 @@ one motor: q_true_R = q_true_L + alpha_R - alpha_L), and the camera joint origin
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from solver.errors import DataError
+from solver.errors import DataError, NaocalError
 from solver.offsets import Offsets, format_offsets
 from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
+from tools.export.common import calibrated, provenance
 
-NOMINAL_URDF = Path(__file__).resolve().parents[1] / "solver" / "data" / "nao_v50.urdf"
+NOMINAL_URDF = Path(__file__).resolve().parents[2] / "solver" / "data" / "nao_v50.urdf"
 CAMERA_URDF_JOINTS = {"bottom": "CameraBottom_sensor_fixedjoint", "top": "CameraTop_sensor_fixedjoint"}
-
-# B-Human's joint keys in the order of its jointCalibration.cfg.
-BHUMAN_JOINT_KEYS = (
-    "headYaw", "headPitch",
-    "lShoulderPitch", "lShoulderRoll", "lElbowYaw", "lElbowRoll", "lWristYaw", "lHand",
-    "rShoulderPitch", "rShoulderRoll", "rElbowYaw", "rElbowRoll", "rWristYaw", "rHand",
-    "lHipYawPitch", "lHipRoll", "lHipPitch", "lKneePitch", "lAnklePitch", "lAnkleRoll",
-    "rHipYawPitch", "rHipRoll", "rHipPitch", "rKneePitch", "rAnklePitch", "rAnkleRoll",
-)
-BHUMAN_CAMERAS = (("lower", "bottom"), ("upper", "top"))
-JOINT_CALIBRATION_CFG = "jointCalibration.cfg"
-CAMERA_CALIBRATION_CFG = "cameraCalibration.cfg"
-
-
-def bhuman_key(joint: str) -> str:
-    """NAOqi joint name -> B-Human key: LHipPitch -> lHipPitch, HeadYaw -> headYaw."""
-    return joint[0].lower() + joint[1:]
-
-
-def naoqi_joint(key: str) -> str:
-    return key[0].upper() + key[1:]
-
-
-def deg_literal(angle_rad: float) -> str:
-    """B-Human angle literal, e.g. 0.62deg (1e-6 deg resolution, far below any joint's repeatability)."""
-    text = f"{math.degrees(angle_rad):.6f}".rstrip("0").rstrip(".")
-    return ("0" if text in ("-0", "") else text) + "deg"
-
-
-def _provenance(offsets: Offsets, source_name: str) -> str:
-    robot = offsets.robot
-    return (f"// Written by naocal from {source_name}: robot {robot.get('id')}, body {robot.get('body_id')}, "
-            f"head {robot.get('head_id')}, calibrated {offsets.created}.\n")
-
-
-def export_bhuman(offsets: Offsets, source_name: str = "an offsets file") -> dict[str, str]:
-    """{file name: text} for B-Human's jointCalibration.cfg and cameraCalibration.cfg."""
-    header = _provenance(offsets, source_name)
-    lines = [header.rstrip("\n"), "// offset is added to every joint request (naocal's c).", "offsets = {"]
-    for key in BHUMAN_JOINT_KEYS:
-        lines.append(f"  {key} = {deg_literal(offsets.joint_offset(naoqi_joint(key)))};")
-    lines.append("};")
-    joint_cfg = "\n".join(lines) + "\n"
-
-    lines = [header.rstrip("\n"), "// x = roll, y = pitch (tilt), z = yaw (pan) about the camera frame "
-                                  "(x forward, y left, z up), applied after the nominal tilt.",
-             "cameraRotationCorrections = {"]
-    for bhuman_name, camera in BHUMAN_CAMERAS:
-        roll, pitch, yaw = offsets.camera_rpy(camera)
-        if camera not in offsets.camera_rotation_rad:
-            lines.append(f"  // {bhuman_name}: not calibrated in this file (0 = nominal); keep your own value.")
-        lines += [f"  {bhuman_name} = {{", f"    x = {deg_literal(roll)};", f"    y = {deg_literal(pitch)};",
-                  f"    z = {deg_literal(yaw)};", "  };"]
-    lines += ["};", "// not estimated by naocal: keep your own value if you have one.",
-              "bodyRotationCorrection = {", "  x = 0deg;", "  y = 0deg;", "};"]
-    camera_cfg = "\n".join(lines) + "\n"
-    return {JOINT_CALIBRATION_CFG: joint_cfg, CAMERA_CALIBRATION_CFG: camera_cfg}
 
 
 def export_json(offsets: Offsets) -> str:
@@ -144,6 +78,9 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
         mimic.set("offset", repr(offsets.joint_offset("LHipYawPitch") - offsets.joint_offset("RHipYawPitch")))
 
     for camera in offsets.camera_rotation_rad:
+        if camera not in CAMERA_URDF_JOINTS:
+            raise NaocalError(f"camera {camera!r} has no joint in the NAO URDF "
+                              f"(known: {', '.join(CAMERA_URDF_JOINTS)})")
         joint = joints.get(CAMERA_URDF_JOINTS[camera])
         if joint is None:
             raise DataError(nominal_urdf, f"no joint {CAMERA_URDF_JOINTS[camera]!r} in the nominal URDF")
@@ -155,9 +92,9 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
 
     if strip_meshes:
         _strip_meshes(root)
-    note = (f" Calibrated by naocal from {source_name}: robot {offsets.robot.get('id')}, body "
-            f"{offsets.robot.get('body_id')}, head {offsets.robot.get('head_id')}, calibrated {offsets.created}. "
+    # Every string in the comment is checked or escaped (comment_text): nothing can end the comment early.
+    note = (f" {provenance(calibrated(offsets), source_name)} "
             "calibration rising = c: command = requested + c, reading = raw - c. ")
-    root.insert(0, ET.Comment(note.replace("--", "-")))
+    root.insert(0, ET.Comment(note))
     ET.indent(root, space="  ")
     return '<?xml version="1.0" ?>\n' + ET.tostring(root, encoding="unicode") + "\n"
