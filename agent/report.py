@@ -15,8 +15,17 @@ def _deg(x) -> float:
     return math.degrees(float(x))
 
 
+def resumable(result) -> bool:
+    """Would `--resume` get further? Yes after an error or Ctrl-C in any state (captures are kept, the rest is
+    redone); not after an implausible identification (the same data give the same fit)."""
+    return not result.ok and bool(result.history) and result.history[-1].outcome in ("error", "interrupted")
+
+
 def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) -> str:
     lines = [f"naocal calibrate: {result.final}" + (f" - {result.reason}" if result.reason else ""), ""]
+    if resumable(result):
+        how = ctx.settings.resume_command or "the same command with --resume"
+        lines += [f"to continue (captures already saved are kept, not repeated): {how}", ""]
     meta = ctx.meta or {}
     robot = meta.get("robot", {})
     lines.append(f"robot: {robot.get('id', '?')} ({robot.get('model', '?')}), backend {backend_label}")
@@ -37,6 +46,11 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
                      f"{m['sessions']} session(s)")
         for image, reason in sorted(m["skipped"].items()):
             lines.append(f"  skipped image {image}: {reason}")
+    elif getattr(ctx, "store", None) is not None and ctx.plan is not None:  # stopped during the measurement
+        store = ctx.store
+        saved = store.saved_images() & set(ctx.plan.image_indices())
+        lines.append(f"measurement (not finished): {len(saved)} of {ctx.plan.n_images()} images saved in "
+                     f"{ctx.dataset_dir}, {len(store.skipped_images())} skipped")
     res = ctx.identification
     if res is not None:
         lines += ["", f"fit: RMS {res.rms_px[0]:.3f} px (x), {res.rms_px[1]:.3f} px (y) over {res.model.data.n_rows} "
