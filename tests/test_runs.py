@@ -337,3 +337,19 @@ def test_an_older_offsets_file_with_one_seed_still_reads(tmp_path, capsys):
     assert read_offsets(path).source == source
     assert cli.main(["offsets", "show", str(path)]) == 0
     assert "seed: 0" in capsys.readouterr().out
+
+
+def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path):
+    from solver.errors import DataError
+
+    fake = FakeBackend(3)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False)
+    calibrate(fake, tmp_path, settings, detector=fake.detector)
+    before = snapshot(tmp_path)
+    other = FakeBackend(3)
+    other.robot_identity = lambda: {"id": "another", "model": "NAO H25 V5 (fake)", "body_id": "b2", "head_id": "h2"}
+    settings.resume = True
+    with pytest.raises(DataError) as info:
+        calibrate(other, tmp_path, settings, detector=other.detector)
+    assert "dataset.json" in str(info.value) and "another" in str(info.value) and "nothing was changed" in str(info.value)
+    assert snapshot(tmp_path) == before
