@@ -15,6 +15,14 @@ def _deg(x) -> float:
     return math.degrees(float(x))
 
 
+def describe_direction(direction, top=4) -> str:
+    """A weak direction in the words of the tables: offsets as c (their coefficients' signs flipped)."""
+    from solver.offsets import shown_name, shown_sign
+
+    terms = sorted(direction.coefficients.items(), key=lambda kv: -abs(kv[1]))[:top]
+    return " ".join(f"{shown_sign(n) * c:+.2f} {shown_name(n)}" for n, c in terms)
+
+
 def resumable(result) -> bool:
     """Would `--resume` get further? Yes after an error or Ctrl-C in any state (captures are kept, the rest is
     redone); not after an implausible identification (the same data give the same fit)."""
@@ -77,7 +85,7 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         weakest = min(res.weak_directions, key=lambda w: w.singular_value) if res.weak_directions else None
         if weakest is not None:
             lines.append(f"weakest direction (relative singular value {weakest.singular_value:.2e}): "
-                         f"{weakest.describe()}")
+                         f"{describe_direction(weakest)}")
         for warning in res.warnings:
             lines.append(f"warning: {warning}")
     v = ctx.verification
