@@ -12,7 +12,8 @@ def register(subparsers):
             "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
         ),
     )
-    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="naocal.dataset/1 directory, or a naocal calibrate --out directory (uses its dataset/)")
     p.add_argument("--effects", default="", help="extra model terms, comma separated: elasticity, backlash, "
                    "link_lengths, head_offsets, intrinsics, distortion, time_lag")
     p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/1 file (atomic, old one kept as .bak)")
@@ -43,6 +44,7 @@ def add_angles_option(parser) -> None:
 def run(args) -> int:
     import json
 
+    from agent.rundir import find_dataset
     from solver.dataset import read_dataset
     from solver.errors import NaocalError, SolveError
     from solver.identify import identify
@@ -53,10 +55,11 @@ def run(args) -> int:
         raise NaocalError("--loss-scale-px must be positive")
     effects = parse_effects(args.effects)
     registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
-    dataset = read_dataset(args.dataset)
+    dataset_path = find_dataset(args.dataset)
+    dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)
     if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+        raise NaocalError(f"{dataset_path}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
@@ -68,7 +71,7 @@ def run(args) -> int:
         cv_rms = grouped_cv_rms(data, result.registry, n_folds=args.cv_folds)
 
     if args.out:
-        write_offsets_file(args.out, result, dataset, args.dataset)
+        write_offsets_file(args.out, result, dataset, dataset_path)
 
     if args.json:
         report = result_json(result, effects, cv_rms)
