@@ -317,11 +317,13 @@ def test_offsets_record_the_mock_seed_and_the_plan_seed_by_name(tmp_path):
     assert result.ok, result.reason
     source = json.loads((tmp_path / "mock" / "offsets.json").read_text())["source"]
     assert source["mock_seed"] == 7 and source["plan_seed"] == 1 and "seed" not in source
-    robot = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=6), progress_bar=False)  # no mock: no mock seed
-    fake = FakeBackend(3, resolution_rad=0.0)
-    assert calibrate(fake, tmp_path / "robot", robot, detector=fake.detector)[0].ok
-    source = json.loads((tmp_path / "robot" / "offsets.json").read_text())["source"]
-    assert source["plan_seed"] == 1 and "mock_seed" not in source and "seed" not in source
+    from types import SimpleNamespace
+
+    from agent.states import offsets_source
+
+    robot = SimpleNamespace(settings=AgentSettings(seed=1), dataset_dir=tmp_path, plan=None)  # no mock: no mock seed
+    assert offsets_source(robot) == {"tool": "naocal calibrate", "dataset": str(tmp_path), "plan_seed": 1,
+                                     "plan": None}
 
 
 def test_an_older_offsets_file_with_one_seed_still_reads(tmp_path, capsys):
