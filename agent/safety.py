@@ -99,7 +99,11 @@ class SafetyGuard:
         contacts = self.checker.contacts(true14)
         if contacts:
             c = min(contacts, key=lambda c: c.distance_m)
-            return f"collision: {c.link_a} and {c.link_b} {c.distance_m * 1000:.1f} mm apart"
+            if c.distance_m < 0:
+                return f"collision: {c.link_a} and {c.link_b} overlap by {-c.distance_m * 1000:.1f} mm"
+            margin = self.checker.ground_margin_m if c.link_b == "ground" else self.checker.margin_m
+            return (f"{c.link_a} and {c.link_b} closer than the {margin * 1000:g} mm margin "
+                    f"({c.distance_m * 1000:.1f} mm)")
         return None
 
     def check(self, q14) -> None:

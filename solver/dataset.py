@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.errors import DataError
-from solver.fileio import atomic_write_text, fsync_directory
+from solver.fileio import atomic_write_text, disk_full_as_error, fsync_directory
 from solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
@@ -727,17 +727,30 @@ class DatasetAppender:
         flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
         if new_file:
             flags |= os.O_TRUNC  # an empty or torn-away file is rewritten from its header
-        fd = os.open(self.obs_path, flags, 0o644)
-        try:
-            view = memoryview(data)
-            while view:  # one write for a regular file; loop only in case of a short write
-                written = os.write(fd, view)
-                view = view[written:]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        with disk_full_as_error(self.obs_path):
+            fd = os.open(self.obs_path, flags, 0o644)
+            size_before = os.fstat(fd).st_size
+            try:
+                view = memoryview(data)
+                while view:  # one write for a regular file; loop only in case of a short write
+                    written = os.write(fd, view)
+                    view = view[written:]
+                os.fsync(fd)
+            except OSError:
+                _truncate_quietly(fd, size_before)  # no half capture left behind (a disk full mid-write)
+                raise
+            finally:
+                os.close(fd)
         if new_file:
             fsync_directory(self.path)
+
+
+def _truncate_quietly(fd: int, size: int) -> None:
+    try:
+        os.ftruncate(fd, size)
+        os.fsync(fd)
+    except OSError:
+        pass  # the next open cuts a torn capture off anyway
 
 
 def _append_and_sync(path: Path, data: bytes) -> None:

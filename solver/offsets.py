@@ -430,3 +430,17 @@ def alpha_from_offsets(offsets: Offsets) -> dict:
         "camera": offsets.camera_rpy("bottom"),
         "board": {leg: tuple(offsets.board_mount[leg][k] for k in BOARD_KEYS) for leg in LEGS},
     }
+
+
+COMPENSATED_PREFIXES = ("joint_offset.", "head_offset.")  # model alphas that files store as c = -alpha
+
+
+def shown_name(name: str) -> str:
+    """How people see a model parameter: joint_offset.<J> and head_offset.<J> (alpha) as 'c <J>', the stored offset
+    (shown_sign flips the value); every other parameter under its own name, as the model's value."""
+    return "c " + name.split(".", 1)[1] if name.startswith(COMPENSATED_PREFIXES) else name
+
+
+def shown_sign(name: str) -> float:
+    """-1 for the joint and head offsets (c = -alpha), +1 for every other parameter."""
+    return -1.0 if name.startswith(COMPENSATED_PREFIXES) else 1.0
