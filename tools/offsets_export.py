@@ -24,6 +24,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from solver.errors import DataError
+from solver.fileio import read_bytes
 from solver.offsets import Offsets, format_offsets
 from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 
@@ -123,7 +124,7 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
     nominal_urdf = Path(nominal_urdf)
     try:
         parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
-        root = ET.parse(nominal_urdf, parser=parser).getroot()
+        root = ET.fromstring(read_bytes(nominal_urdf), parser=parser)  # a regular file: a FIFO cannot hang us
     except FileNotFoundError:
         raise DataError(nominal_urdf, "nominal URDF not found") from None
     except ET.ParseError as err:
