@@ -44,8 +44,8 @@ def main():
                             lambda d, out: fz.offsets_verbs(d / fz.OFFSETS, valid_offsets / "reference.json")),
             }
             for kind, (cases, valid, verbs) in groups.items():
-                runs, failures = fz.run_cases(cases, valid, work / f"{kind}-{seed}", verbs, every_verb=not args.one_verb,
-                                              deadline_s=args.deadline)
+                runs, failures = fz.run_cases(cases, valid, work / f"{kind}-{seed}", verbs,
+                                              every_verb=not args.one_verb, deadline_s=args.deadline)
                 failed_cases = {f.case for f in failures}
                 t = totals.setdefault(kind, [0, 0, 0, 0])
                 for i, n in enumerate((len(cases), runs, len(failed_cases), len(failures))):

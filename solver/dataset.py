@@ -291,7 +291,8 @@ def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
         bad = ~np.isin(leg, LEGS)
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"unknown leg {_short(str(leg[i]))}, expected 'L' or 'R'", line=line_numbers[i], field=name)
+            raise DataError(path, f"unknown leg {_short(str(leg[i]))}, expected 'L' or 'R'", line=line_numbers[i],
+                            field=name)
         return leg
     values = _to_float(strings, path, name, line_numbers)
     bad = ~np.isfinite(values)

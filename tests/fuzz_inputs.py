@@ -400,12 +400,18 @@ def _remove(path: Path):
 # ----------------------------------------------------------------------------------------------- running
 
 
+def _address_space_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+
+
 def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
-               memory_limit_bytes: int = 3 * 1024 ** 3) -> Outcome:
+               memory_headroom_bytes: int = 2 * 1024 ** 3) -> Outcome:
     """Run `tools.cli.main(argv)` in a forked child as the `naocal` command would run it; kill it at the deadline.
 
     The child has its stdout/stderr in temporary files, the default warning filters and no logging handlers (as
-    in a fresh interpreter), an address-space limit, and, with `as_nobody`, root's rights dropped.
+    in a fresh interpreter), `memory_headroom_bytes` of address space beyond what it inherits (so that reading
+    /dev/zero ends in MemoryError, not in the machine's swap), and, with `as_nobody`, root's rights dropped.
     """
     from tools.cli import main
 
@@ -427,8 +433,10 @@ def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
                 warnings.simplefilter("default")
                 logging.getLogger().handlers.clear()
                 signal.signal(signal.SIGINT, signal.default_int_handler)
-                soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-                resource.setrlimit(resource.RLIMIT_AS, (memory_limit_bytes, hard))
+                _, hard = resource.getrlimit(resource.RLIMIT_AS)
+                limit = _address_space_bytes() + memory_headroom_bytes
+                resource.setrlimit(resource.RLIMIT_AS, (limit if hard == resource.RLIM_INFINITY else min(limit, hard),
+                                                        hard))
                 if as_nobody and os.geteuid() == 0:
                     os.setgid(NOBODY_UID)
                     os.setuid(NOBODY_UID)
