@@ -122,6 +122,8 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
     """Text of the calibrated URDF. `strip_meshes` drops mesh visuals/collisions (whose files naocal does not ship),
     e.g. to load the model in PyBullet."""
     nominal_urdf = Path(nominal_urdf)
+    if not nominal_urdf.exists():
+        raise DataError(nominal_urdf, "nominal URDF not found")
     try:
         parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
         root = ET.fromstring(read_bytes(nominal_urdf), parser=parser)  # a regular file: a FIFO cannot hang us
