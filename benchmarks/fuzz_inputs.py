@@ -7,7 +7,6 @@ Exit 1 if any run failed (a hang, a traceback, a wrong exit code, or not one lin
 
 import argparse
 import os
-import shutil
 import sys
 import tempfile
 import time

@@ -18,7 +18,6 @@ import random
 import resource
 import shutil
 import signal
-import stat
 import sys
 import tempfile
 import time
@@ -51,7 +50,7 @@ NASTY_CELLS = (
     "4294967296", "1.0000000000000002", "\u00a0", "\t",
 )
 
-# Columns of observations.csv and where a damaged value shows.
+# The observations.csv columns the fuzzer damages: indices, leg, pixels, sole points, times, angles, a direction.
 CSV_COLUMNS = ("image", "leg", "stance", "head_posture", "vertex", "u_px", "v_px", "x_sole_m", "y_sole_m",
                "z_sole_m", "t_image_s", "t_joints_s", "LHipPitch", "cmd_LKneePitch", "dir_RAnkleRoll", "HeadPitch",
                "cmd_HeadYaw", "RHipYawPitch")
@@ -517,12 +516,6 @@ def describe(outcome: Outcome) -> str:
     return f"exit {outcome.returncode}, {outcome.seconds:.2f} s, stderr {len(outcome.stderr.splitlines())} " \
            f"line(s), last: {tail[0][:200]!r}"
 
-
-def is_special(path: Path) -> bool:
-    try:
-        return not stat.S_ISREG(os.stat(path).st_mode)
-    except OSError:
-        return True
 
 
 # ------------------------------------------------------------------------------------------------- verbs
