@@ -145,7 +145,7 @@ class _JsonRefusal(Exception):
 def _json_int(text: str) -> int:
     digits = len(text.lstrip("-"))
     if digits > MAX_JSON_INT_DIGITS:
-        raise _JsonRefusal(f"integer of {digits} digits (at most {MAX_JSON_INT_DIGITS})", token=text)
+        raise _JsonRefusal(f"integer of {digits} digits, at most {MAX_JSON_INT_DIGITS} expected", token=text)
     return int(text)
 
 
