@@ -237,10 +237,11 @@ def find_dataset(path) -> Path:
     """The dataset directory `path` means: `path` itself (dataset.json inside, e.g. from `naocal simulate`) or
     `path`/dataset (a `naocal calibrate --out` directory). NaocalError naming both places looked at."""
     path = Path(path)
-    if (path / "dataset.json").is_file() or not path.is_dir():
+    # lexists, not is_file: a dataset.json that is a FIFO or a directory is read_dataset's to refuse by name
+    if os.path.lexists(path / "dataset.json") or not path.is_dir():
         return path  # read_dataset names what is wrong with it
     inner = path / DATASET_SUBDIR
-    if (inner / "dataset.json").is_file():
+    if os.path.lexists(inner / "dataset.json"):
         return inner
     raise NaocalError(f"{path}: no dataset here: looked for {path / 'dataset.json'} (a dataset directory) and "
                       f"{inner / 'dataset.json'} (a naocal calibrate run)")

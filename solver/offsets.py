@@ -19,9 +19,9 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from solver.dataset import find_non_finite, parse_json_text, read_text
+from solver.dataset import find_non_finite
 from solver.errors import DataError
-from solver.fileio import atomic_write_text
+from solver.fileio import atomic_write_text, read_json
 from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
 
 SCHEMA = "naocal.offsets/1"
@@ -32,6 +32,46 @@ MAX_JOINT_OFFSET_RAD = math.radians(10.0)
 MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
 MAX_BOARD_TRANS_M = 0.03
 MAX_BOARD_ROT_Z_RAD = math.radians(15.0)
+
+# model.parameters values by unit: beyond these no NAO parameter can be (a half turn, a metre, ...).
+MAX_PARAMETER_SIZE = {"rad": math.pi, "m": 1.0, "px": 1e5, "s": 10.0, "rad/(N m)": 10.0, "1": 100.0}
+
+
+
+def implausible_parameter(name: str, value: float, std: float, unit: str) -> str | None:
+    """Why a fitted model parameter (registry name, model value) is beyond any NAO's, or None.
+
+    The limits are the ones the file enforces (a result the file could not hold is no calibration); terms the file
+    keeps only in model.parameters are bounded by MAX_PARAMETER_SIZE of their unit.
+    """
+    group, _, member = name.partition(".")
+    if group in ("joint_offset", "head_offset"):
+        limit = MAX_JOINT_OFFSET_RAD
+    elif group == "camera":
+        limit = MAX_CAMERA_ROTATION_RAD
+    elif group == "board":
+        limit = MAX_BOARD_ROT_Z_RAD if member.endswith("rot_z") else MAX_BOARD_TRANS_M
+    else:
+        limit = MAX_PARAMETER_SIZE.get(unit, math.inf)
+    if not math.isfinite(value):
+        return f"{name} is not a finite number"
+    if not math.isfinite(std):
+        return f"{name} is not determined by the data (its standard deviation is not finite)"
+    if abs(value) > limit:
+        if unit == "rad":
+            return f"{name} = {math.degrees(value):.4g} deg is beyond any NAO's (at most {math.degrees(limit):g} deg)"
+        return f"{name} = {value:.4g} {unit} is beyond any NAO's (at most {limit:g} {unit})"
+    return None
+
+
+def implausible_parameters(parameters: dict) -> str | None:
+    """The first implausible entry of {name: {"value", "std", "unit"}} (see implausible_parameter), or None."""
+    for name, entry in parameters.items():
+        why = implausible_parameter(name, float(entry["value"]), float(entry["std"]), entry["unit"])
+        if why:
+            return why
+    return None
+
 
 OFFSET_JOINTS = LEG_JOINTS + HEAD_JOINTS  # the order joint_offsets_rad is written in; the 12 leg joints are required
 CAMERA_ANGLES = ("roll", "pitch", "yaw")
@@ -182,7 +222,9 @@ def _number(value, path, where, *, limit=None, unit="rad", non_negative=False) -
         if unit == "rad":
             _fail(path, f"implausible size {math.degrees(value):.3f} deg (limit +-{math.degrees(limit):g} deg); "
                         "is it in degrees instead of radians?", where)
-        _fail(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?", where)
+        if unit == "m":
+            _fail(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?", where)
+        _fail(path, f"implausible size {value:g} {unit} (limit +-{limit:g} {unit})", where)
     return value
 
 
@@ -292,7 +334,8 @@ def _validated_model(model, path) -> dict:
                   f"{where}.unit")
         if unit != expected_unit:
             _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value"),
+        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
+                                          unit=unit),
                          "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
                          "unit": unit}
     return {"effects": list(effects), "parameters": checked}
@@ -322,7 +365,7 @@ def validate(doc, path="<offsets>") -> None:
 
 def read_offsets(path) -> Offsets:
     """Read and validate a `naocal.offsets/1` file."""
-    return Offsets.from_dict(parse_json_text(read_text(path), path), path)
+    return Offsets.from_dict(read_json(path), path)
 
 
 def format_offsets(offsets: Offsets) -> str:

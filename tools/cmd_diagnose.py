@@ -58,12 +58,15 @@ def run(args) -> int:
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
     from solver.errors import NaocalError, SolveError
+    from solver.fileio import check_output_directory
     from solver.identify import identify
     from solver.model import model_data_from_dataset
     from solver.registry import Registry, parse_effects
 
     effects = parse_effects(args.effects)
     registry = Registry(effects, fixed=args.fix)
+    if args.report:
+        check_output_directory(args.report)
     dataset_path = find_dataset(args.dataset)
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)

@@ -47,14 +47,18 @@ def run(args) -> int:
     from agent.rundir import find_dataset
     from solver.dataset import read_dataset
     from solver.errors import NaocalError, SolveError
+    from solver.fileio import check_output_file
     from solver.identify import identify
     from solver.model import model_data_from_dataset
+    from solver.offsets import implausible_parameters
     from solver.registry import Registry, parse_effects
 
-    if args.loss_scale_px <= 0:
-        raise NaocalError("--loss-scale-px must be positive")
+    if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
+        raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
     effects = parse_effects(args.effects)
     registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
+    if args.out:
+        check_output_file(args.out)
     dataset_path = find_dataset(args.dataset)
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)
@@ -63,6 +67,9 @@ def run(args) -> int:
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
+    why = implausible_parameters(result.parameters_dict())
+    if why:
+        raise SolveError(f"implausible result: {why}; nothing written")
 
     cv_rms = None
     if args.cv_folds and args.cv_folds > 1:

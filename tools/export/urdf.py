@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from solver.errors import DataError, NaocalError
+from solver.fileio import read_bytes
 from solver.offsets import Offsets, format_offsets
 from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 from tools.export.common import calibrated, provenance
@@ -55,9 +56,11 @@ def export_urdf(offsets: Offsets, nominal_urdf=NOMINAL_URDF, *, strip_meshes: bo
     """Text of the calibrated URDF. `strip_meshes` drops mesh visuals/collisions (whose files naocal does not ship),
     e.g. to load the model in PyBullet."""
     nominal_urdf = Path(nominal_urdf)
+    if not nominal_urdf.exists():
+        raise DataError(nominal_urdf, "nominal URDF not found")
     try:
         parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
-        root = ET.parse(nominal_urdf, parser=parser).getroot()
+        root = ET.fromstring(read_bytes(nominal_urdf), parser=parser)  # a regular file: a FIFO cannot hang us
     except FileNotFoundError:
         raise DataError(nominal_urdf, "nominal URDF not found") from None
     except ET.ParseError as err:
