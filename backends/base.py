@@ -117,6 +117,25 @@ class Backend(abc.ABC):
         """Gravity in the torso frame (m/s^2). A robot lying on its back: (-9.81, 0, 0)."""
         return np.array([-9.81, 0.0, 0.0])
 
+    def release_control(self) -> None:
+        """The client that controlled motion let go: it released the robot or went silent past its lease.
+
+        A driver that holds joints stiff makes the robot safe here (the LoLA driver: hold, then a slow stiffness
+        ramp; docs/DEPLOY.md). Default: nothing (the mock; NAOqi keeps its last targets).
+        """
+
+    def status(self) -> dict:
+        """Everything the robot reports, for `naocal bridge status`: {"robot": {...}, "joints": {name: {"raw_rad",
+        "stiffness", "temperature_c", "status"}}, "t_s"}; values a backend cannot read are None."""
+        reading = self.read_joints()
+        identity = {str(k): str(v) for k, v in self.robot_identity().items()}
+        return {
+            "robot": identity,
+            "joints": {name: {"raw_rad": float(angle), "stiffness": None, "temperature_c": None, "status": None}
+                       for name, angle in reading.angles_rad.items()},
+            "t_s": float(reading.t_s),
+        }
+
     def close(self) -> None:
         """Release the robot (idempotent)."""
 
