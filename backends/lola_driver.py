@@ -225,12 +225,17 @@ class JointControl:
             return self.setpoint[i], self.setpoint[i], 0.0, 0.0
 
         tracks = [track(yaw_i), track(pitch_i)]
-        horizon = max(d - e for _, _, d, e in tracks)
-        for t in np.linspace(0.0, max(horizon, 0.0), samples + 1):
-            yaw, pitch = (s + (g - s) * (1.0 if d <= 0 else min(1.0, (e + t) / d)) for s, g, d, e in tracks)
-            problem = limits.head_pitch_problem(yaw, pitch, margin_rad=-1e-9)
-            if problem:
-                raise SafetyError(f"the head's way to its target leaves the table: {problem}")
+        horizon = max(max(d - e for _, _, d, e in tracks), 0.0)
+        t = np.linspace(0.0, horizon, samples + 1)
+        yaw, pitch = (s + (g - s) * (np.ones_like(t) if d <= 0 else np.minimum(1.0, (e + t) / d))
+                      for s, g, d, e in tracks)
+        table = limits.HEAD_PITCH_VS_YAW_TABLE  # vectorised here: this runs while LoLA waits for its answer
+        lower = np.interp(np.abs(yaw), table[:, 0], table[:, 1])
+        upper = np.interp(np.abs(yaw), table[:, 0], table[:, 2])
+        outside = np.flatnonzero((pitch < lower - 1e-9) | (pitch > upper + 1e-9))
+        if len(outside):
+            problem = limits.head_pitch_problem(yaw[outside[0]], pitch[outside[0]], margin_rad=-1e-9)
+            raise SafetyError(f"the head's way to its target leaves the table: {problem}")
 
     def release(self) -> None:
         """Control ended: stop where the joints are commanded now, hold, then ramp stiffness down."""

@@ -266,14 +266,17 @@ class V4L2Camera:
                 self.frames_dropped["failed"] += 1
                 if not self._reopen("no frame (grab failed)"):
                     return
+                stalled = corrupted = 0
                 continue
             stamp_s = float(self._cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
             self.frames_grabbed += 1
             if stamp_s <= self._last_stamp_s:
                 stalled += 1
                 self.frames_dropped["stalled"] += 1
-                if stalled >= STALLED_FRAMES and not self._reopen(f"timestamp stalled at {stamp_s:.3f} s"):
-                    return
+                if stalled >= STALLED_FRAMES:
+                    if not self._reopen(f"timestamp stalled at {stamp_s:.3f} s"):
+                        return
+                    stalled = corrupted = 0
                 continue
             stalled = 0
             self._last_stamp_s = stamp_s
@@ -287,8 +290,10 @@ class V4L2Camera:
                 corrupted += 1
                 self.frames_dropped["corrupted"] += 1
                 log.info("%s camera: dropped a corrupted frame: %s", self.name, problem)
-                if corrupted >= CORRUPT_FRAMES and not self._reopen(f"{corrupted} corrupted frames ({problem})"):
-                    return
+                if corrupted >= CORRUPT_FRAMES:
+                    if not self._reopen(f"{corrupted} corrupted frames ({problem})"):
+                        return
+                    stalled = corrupted = 0
                 continue
             corrupted = 0
             raw_bytes = np.ascontiguousarray(raw).tobytes()
@@ -296,6 +301,7 @@ class V4L2Camera:
                 self.frames_dropped["frozen"] += 1
                 if not self._reopen("frozen: two frames with identical pixels"):
                     return
+                stalled = corrupted = 0
                 continue
             self._previous_raw = raw_bytes
             image = self._image(raw, stamp_s)

@@ -262,10 +262,10 @@ class FakeLola:
                 self.physics.advance(now)
                 position = self.physics.positions()
                 stiffness = self._last_answer[1] if self._last_answer is not None else np.zeros(N_LOLA)
+                every = [[[float(p) for p in pos], [float(s) for s in stiff]] for pos, stiff in answers]
                 record = {"t": now, "k": k, "sent": [float(p) for p in position], "n_answers": len(answers),
-                          "position": None if not answers else [float(p) for p in answers[-1][0]],
-                          "stiffness": None if not answers else [float(s) for s in answers[-1][1]],
-                          "client": self._client is not None}
+                          "answers": every, "position": every[-1][0] if every else None,
+                          "stiffness": every[-1][1] if every else None, "client": self._client is not None}
                 self.records.append(record)
                 if self._record_file is not None:
                     self._record_file.write(msgpack.packb(record))
@@ -336,6 +336,16 @@ class _Closed:
         pass
 
 
+def answer_series(records, since_t=-math.inf):
+    """(times, positions (n, 25), stiffnesses (n, 25)) of every answer in `records` received after `since_t`, in
+    order (an answer is timed by the cycle that received it; two may arrive in one cycle on a busy machine)."""
+    rows = [(r["t"], pos, stiff) for r in records if r["t"] >= since_t for pos, stiff in r.get("answers", ())]
+    if not rows:
+        return np.zeros(0), np.zeros((0, N_LOLA)), np.zeros((0, N_LOLA))
+    t, position, stiffness = zip(*rows)
+    return np.array(t), np.array(position), np.array(stiffness)
+
+
 def read_records(path) -> tuple[list, list]:
     """(cycle records, events) from a record file written by FakeLola(record_path=...)."""
     records, events = [], []
@@ -351,13 +361,16 @@ def read_records(path) -> tuple[list, list]:
 
 # ---------------------------------------------------------------------------------------------- cameras
 def bgr_to_yuyv(bgr: np.ndarray) -> np.ndarray:
-    """(h, w, 3) BGR -> (h, w, 2) YUYV as a V4L2 buffer holds it: [Y0 U0 Y1 V0] per pixel pair."""
-    yuv = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV)
+    """(h, w, 3) BGR -> (h, w, 2) YUYV as a V4L2 buffer holds it ([Y0 U0 Y1 V0] per pixel pair): the inverse of
+    OpenCV's COLOR_YUV2BGR_YUYV, which reads BT.601 video range (Y 16..235)."""
+    b, g, r = (bgr[..., k].astype(float) for k in range(3))
+    y = 16.0 + 0.257 * r + 0.504 * g + 0.098 * b
+    u = 128.0 - 0.148 * r - 0.291 * g + 0.439 * b
+    v = 128.0 + 0.439 * r - 0.368 * g - 0.071 * b
     out = np.empty(bgr.shape[:2] + (2,), dtype=np.uint8)
-    out[..., 0] = yuv[..., 0]
-    u = ((yuv[:, 0::2, 1].astype(np.uint16) + yuv[:, 1::2, 1]) // 2).astype(np.uint8)
-    v = ((yuv[:, 0::2, 2].astype(np.uint16) + yuv[:, 1::2, 2]) // 2).astype(np.uint8)
-    out[:, 0::2, 1], out[:, 1::2, 1] = u, v
+    out[..., 0] = np.clip(np.rint(y), 0, 255)
+    out[:, 0::2, 1] = np.clip(np.rint((u[:, 0::2] + u[:, 1::2]) / 2), 0, 255)
+    out[:, 1::2, 1] = np.clip(np.rint((v[:, 0::2] + v[:, 1::2]) / 2), 0, 255)
     return out
 
 
@@ -416,7 +429,7 @@ class SyntheticCapture:
             k = self._k + 1
             time.sleep(max(0.0, k * self.period_s - now))  # block until the next frame, as V4L2 does
         self._k = k
-        if not self._fault("stall_frames"):
+        if not (self._stamp_ms and self._fault("stall_frames")):  # a stalled stamp repeats the last one
             self._stamp_ms = (k * self.period_s - self.stamp_lag_s) * 1000.0
         return True
 
