@@ -8,6 +8,7 @@ Implementations: `backends.mock.MockBackend` (PyBullet, simulated clock), `backe
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,15 @@ class CameraIntrinsics:
             "cy_px": float(self.cy_px),
             "distortion": [float(d) for d in self.distortion],
         }
+
+
+def nominal_intrinsics(width_px: int = 640, height_px: int = 480) -> CameraIntrinsics:
+    """A NAO camera's intrinsics from the OV5640's nominal field of view, 56.3 x 43.7 deg
+    (../shared/reference/NAO.md), at this resolution: fx about 598 px at 640 x 480 (teams calibrate about 618)."""
+    return CameraIntrinsics(width_px=width_px, height_px=height_px,
+                            fx_px=(width_px / 2) / math.tan(math.radians(56.3) / 2),
+                            fy_px=(height_px / 2) / math.tan(math.radians(43.7) / 2),
+                            cx_px=width_px / 2, cy_px=height_px / 2)
 
 
 class Backend(abc.ABC):

@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, nominal_intrinsics
 from solver import limits
 from solver.errors import NaocalError, RobotTimeout, SafetyError
 from solver.joints import HEAD_JOINTS, JOINTS
@@ -46,15 +46,7 @@ BOTTOM_CAMERA, VGA, BGR_COLORSPACE, FPS = 1, 2, 13, 30
 FRAME_PERIOD_S = 1.0 / FPS
 DCM_CYCLE_S = 0.010
 MAX_IMAGE_AGE_S = 2.0
-# OV5640 nominal field of view 56.3 x 43.7 deg at 640 x 480 (../shared/reference/NAO.md).
-NOMINAL_INTRINSICS = CameraIntrinsics(
-    width_px=640,
-    height_px=480,
-    fx_px=320.0 / math.tan(math.radians(56.3) / 2),
-    fy_px=240.0 / math.tan(math.radians(43.7) / 2),
-    cx_px=320.0,
-    cy_px=240.0,
-)
+NOMINAL_INTRINSICS = nominal_intrinsics(640, 480)
 IMAGE_CLOCKS = ("auto", "dcm", "monotonic", "realtime")
 
 # qi 3.1.5 sometimes aborts the interpreter at exit ("terminate called without an active exception") if a

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backends.base import CameraImage, CameraIntrinsics
+from backends.base import CameraImage, CameraIntrinsics, nominal_intrinsics
 from solver.errors import NaocalError, RobotTimeout
 
 log = logging.getLogger("naocal.v4l2")
@@ -74,14 +74,6 @@ REOPEN_ATTEMPTS = 5
 def open_v4l2(device: str):
     """The capture object for `device` (tests replace this factory: there is no V4L2 device to open there)."""
     return cv2.VideoCapture(device, cv2.CAP_V4L2)
-
-
-def nominal_intrinsics(width_px: int = 640, height_px: int = 480) -> CameraIntrinsics:
-    """OV5640 nominal field of view 56.3 x 43.7 deg (../shared/reference/NAO.md), at this resolution."""
-    return CameraIntrinsics(width_px=width_px, height_px=height_px,
-                            fx_px=(width_px / 2) / math.tan(math.radians(56.3) / 2),
-                            fy_px=(height_px / 2) / math.tan(math.radians(43.7) / 2),
-                            cx_px=width_px / 2, cy_px=height_px / 2)
 
 
 def read_intrinsics(path) -> CameraIntrinsics:

@@ -5,7 +5,6 @@ import socket
 import threading
 import time
 
-import msgpack
 import numpy as np
 import pytest
 

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from backends.lola_driver import CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_JOINTS
+from backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS
 from solver import limits
 from tests.lola_fakes import BODY_ID, HEAD_ID, FakeLola, SimpleServos, answer_series
 

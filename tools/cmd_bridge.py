@@ -149,7 +149,8 @@ def _open_backend(args):
 def _open_lola(args):
     """The LoLA driver with the bottom camera (opened on first capture) for `serve --driver lola`."""
     from backends.lola_driver import LolaBackend
-    from backends.v4l2_camera import V4L2Camera, nominal_intrinsics, read_intrinsics
+    from backends.base import nominal_intrinsics
+    from backends.v4l2_camera import V4L2Camera, read_intrinsics
     from solver.errors import NaocalError
 
     if not 0.0 <= args.hold_s <= 600.0 or not 0.0 < args.ramp_s <= 60.0:
