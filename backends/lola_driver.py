@@ -321,7 +321,7 @@ class LolaBackend(Backend):
 
     def __init__(self, socket_path: str = DEFAULT_SOCKET, *, camera=None, intrinsics: CameraIntrinsics | None = None,
                  hold_s: float = DEFAULT_HOLD_S, ramp_s: float = DEFAULT_RAMP_S, stiffen_s: float = DEFAULT_STIFFEN_S,
-                 first_message_timeout_s: float = 1.0, silence_timeout_s: float = 1.0):
+                 first_message_timeout_s: float = 2.0, silence_timeout_s: float = 1.0):
         self.socket_path = os.fspath(socket_path)
         self.silence_timeout_s = float(silence_timeout_s)
         self._camera = camera
