@@ -384,7 +384,10 @@ class BridgeServer:
             log.warning("client %s silent for %.1f s: its motion lease expired", self._controller,
                         time.monotonic() - self._controller_seen_s)
             self._controller = None
-            self.backend.release_control()
+            try:
+                self.backend.release_control()
+            except Exception:  # the server must keep serving whatever the driver does
+                log.exception("the driver failed to make the robot safe after the lease expired")
 
     def _take_lease(self, client: str) -> None:
         now = time.monotonic()
