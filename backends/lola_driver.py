@@ -267,8 +267,6 @@ class JointControl:
         if self.mode == "holding" and (self.cycles - self._released_cycle) * self.cycle_s >= self.hold_s - 1e-9:
             self.mode = "ramping"
             self.stiffness_target[:] = 0.0
-        if self.mode == "ramping" and not np.any(self.stiffness > 0):
-            self.mode = "limp"
 
         # Temperature: pause all motion while a calibrated joint is hot.
         hot = [i for i in CALIBRATED_MOTORS if status[i] >= HOT_STATUS]
@@ -301,6 +299,8 @@ class JointControl:
         up, down = self.cycle_s / self.stiffen_s, self.cycle_s / self.ramp_s
         self.stiffness = np.clip(target, self.stiffness - down, self.stiffness + up)
         self.stiffness[self.stiffness < 1e-9] = 0.0
+        if self.mode == "ramping" and not np.any(self.stiffness > 0):
+            self.mode = "limp"
 
         # A joint without stiffness follows its measurement, so that stiffening it never jumps.
         limp = self.stiffness <= 0.0
