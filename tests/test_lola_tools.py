@@ -26,12 +26,19 @@ def naocal(*argv, timeout=60):
                           timeout=timeout)
 
 
+class StuckServos(SimpleServos):
+    """A robot whose joints do not follow their commands (a blocked leg, a cut motor)."""
+
+    def advance(self, now_s):
+        pass
+
+
 @pytest.fixture
-def robot(tmp_path):
+def robot(tmp_path, request):
     """(fake LoLA, endpoint) with `naocal bridge serve --driver lola` running against it."""
     path = str(tmp_path / "robocup")
     distinct = {name: 0.01 * (i + 1) * (-1) ** i for i, name in enumerate(LOLA_JOINTS)}
-    servos = SimpleServos()
+    servos = getattr(request, "param", SimpleServos)()
     for name, angle in distinct.items():
         servos.q[LOLA_INDEX[name]] = angle
     with FakeLola(path, servos) as fake:
@@ -154,3 +161,26 @@ def test_bad_tool_and_serve_arguments_are_one_line_errors(robot, tmp_path):
         assert result.returncode == 2, argv
         assert match in result.stderr and "Traceback" not in result.stderr and \
             len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+@pytest.mark.parametrize("robot", [StuckServos], indirect=True)
+def test_move_gives_up_at_its_deadline_when_a_joint_does_not_follow(robot):
+    fake, endpoint = robot
+    t0 = time.monotonic()
+    result = naocal("bridge", "move", "--endpoint", endpoint, "--timeout-s", "0.5", "HeadYaw=5")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "not there within" in result.stderr and "HeadYaw reads" in result.stderr
+    assert time.monotonic() - t0 < 20.0
+    assert fake.wait_for(lambda f: max(answer_series(f.records[-5:])[2][-1:].ravel(), default=1.0) == 0.0,
+                         timeout_s=10.0)  # released all the same: held, then ramped to 0
+
+
+def test_move_does_not_release_before_the_motion_has_reached_its_target(robot):
+    """A joint reads within --tolerance-deg before the driver's interpolation ends; releasing then would freeze
+    it short of the target (release holds where the joints are commanded at that moment)."""
+    fake, endpoint = robot
+    result = naocal("bridge", "move", "--endpoint", endpoint, "--tolerance-deg", "5", "HeadYaw=20")
+    assert result.returncode == 0, result.stderr
+    with fake.lock:
+        _, position, _ = answer_series(fake.records)
+    assert position[:, LOLA_INDEX["HeadYaw"]].max() == pytest.approx(math.radians(20.0), abs=1e-6)

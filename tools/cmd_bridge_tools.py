@@ -12,7 +12,7 @@ the robot does not report it), and the key "robot" with body_id, head_id, their 
 target + c, so the joint truly stands at the target), at a safe default speed (10 % of each joint's maximum),
 after checking every target against the robot's limits and the HeadPitch-vs-HeadYaw table (an unsafe target
 exits with code 2 before anything moves). It stiffens only the named joints, waits until they read their
-targets (deadline: the motion time plus --timeout-s), then releases control: the LoLA driver then holds the
+targets (deadline: three times the motion time plus --timeout-s), then releases control: the LoLA driver then holds the
 joints for its hold time and ramps their stiffness to 0 (docs/DEPLOY.md). It has no collision model: move one
 joint at a time, in small steps, with the robot where it cannot hurt itself.
 """
@@ -34,7 +34,7 @@ def register(actions) -> None:
     move.add_argument("--speed", type=float, default=DEFAULT_MOVE_SPEED, metavar="F",
                       help=f"fraction of each joint's maximum speed, in (0, 0.5] (default {DEFAULT_MOVE_SPEED})")
     move.add_argument("--timeout-s", type=float, default=5.0,
-                      help="how long past the expected motion time to wait for the joints (default 5)")
+                      help="wait for the joints three times the expected motion time plus this (default 5)")
     move.add_argument("--tolerance-deg", type=float, default=1.0,
                       help="a joint has arrived when it reads within this of its target (default 1)")
     move.add_argument("angles", nargs="+", metavar="JOINT=DEG", help="e.g. HeadYaw=20 LKneePitch=45.5")
@@ -134,15 +134,18 @@ def run_move(args) -> int:
         expected_s = max(abs(targets[j] - start[j]) / (args.speed * speeds[j]) for j in targets)
         robot.set_stiffness(list(targets), 1.0)
         robot.command(targets, args.speed)
-        deadline = time.monotonic() + expected_s + args.timeout_s
+        done_s = time.monotonic() + expected_s  # releasing earlier would stop the motion short of its target
+        # The driver moves one step per LoLA message: allow for a robot slower than its nominal cycle.
+        allowed_s = 3.0 * expected_s + args.timeout_s
+        deadline = time.monotonic() + allowed_s
         tolerance = math.radians(args.tolerance_deg)
         while True:
             reading = robot.read_joints().angles_rad
             away = {j: reading[j] for j in targets if abs(reading[j] - targets[j]) > tolerance}
-            if not away:
+            if not away and time.monotonic() >= done_s:
                 break
             if time.monotonic() > deadline:
-                raise RobotTimeout("not there within {:.1f} s: ".format(expected_s + args.timeout_s) + ", ".join(
+                raise RobotTimeout(f"not there within {allowed_s:.1f} s: " + ", ".join(
                     f"{j} reads {math.degrees(a):.2f} deg, target {math.degrees(targets[j]):.2f} deg"
                     for j, a in away.items()))
             time.sleep(0.05)
