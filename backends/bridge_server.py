@@ -263,6 +263,7 @@ class BridgeServer:
             self.start()
         try:
             while not self._stop.is_set():
+                self._expire_idle_lease()
                 if not self._socket.poll(POLL_INTERVAL_S * 1000, zmq.POLLIN):
                     continue
                 frames = self._socket.recv_multipart(zmq.NOBLOCK)
@@ -376,6 +377,18 @@ class BridgeServer:
             reply = protocol.error_reply(request_id, "InternalError", f"{type(err).__name__}: {err}")
         return protocol.pack(reply)
 
+    def _expire_idle_lease(self) -> None:
+        """A controlling client silent past its lease has let go: the backend makes the robot safe (the LoLA
+        driver holds, then ramps stiffness down) without waiting for another client to take over."""
+        if self._controller is not None and time.monotonic() - self._controller_seen_s >= self.lease_timeout_s:
+            log.warning("client %s silent for %.1f s: its motion lease expired", self._controller,
+                        time.monotonic() - self._controller_seen_s)
+            self._controller = None
+            try:
+                self.backend.release_control()
+            except Exception:  # the server must keep serving whatever the driver does
+                log.exception("the driver failed to make the robot safe after the lease expired")
+
     def _take_lease(self, client: str) -> None:
         now = time.monotonic()
         holder = self._controller
@@ -424,6 +437,8 @@ class BridgeServer:
             return protocol.image_to_wire(backend.capture())
         if cmd == "now":
             return float(backend.now())
+        if cmd == "status":
+            return backend.status()
         if cmd == "command":
             backend.command(args["targets_rad"], args["speed_fraction"])
             return None
@@ -440,6 +455,7 @@ class BridgeServer:
             if self._controller == client:
                 log.info("client %s released motion", client)
                 self._controller = None
+                backend.release_control()
             return None
         raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this table disagree
 
