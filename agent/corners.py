@@ -126,6 +126,8 @@ def _search_region(grey: np.ndarray, predicted: np.ndarray, search_margin_px: fl
     crop = grey[v0:v1 + 1, u0:u1 + 1].copy()
     mask = np.zeros_like(crop)
     cv2.fillConvexPoly(mask, np.round(grown - [u0, v0]).astype(np.int32), 255)
+    if not mask.any():  # the grown board's box reaches into the image, the board itself does not
+        return None
     if np.any(mask == 0):
         crop[mask == 0] = np.uint8(np.percentile(crop[mask > 0], 95))
     return crop, (u0, v0)

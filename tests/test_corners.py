@@ -190,3 +190,13 @@ def test_bad_arguments():
         detect_board_vertices(np.zeros((480, 640, 4), np.uint8))
     with pytest.raises(ValueError):
         detect_board_vertices(image, method="guided")
+
+
+def test_a_prediction_far_outside_the_image_is_cut_off(captures):
+    """A board predicted wholly outside the image, whose searched region's bounding box still reaches into it
+    (it used to raise IndexError on the empty region), is `cut_off`."""
+    pixels, _, truth, _, _ = captures[0]
+    for scale, centre in ((1.0, [-300.0, 560.0]), (2.0, [-450.0, 700.0])):  # left of and below the 640 x 480 image
+        predicted = (truth - truth.mean(axis=0)) * scale + centre
+        found = detect_board_vertices(pixels, predicted, search_margin_px=120.0)
+        assert not found.ok and found.reason == "cut_off", (found.reason, found.detail)
