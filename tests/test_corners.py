@@ -72,7 +72,7 @@ def test_without_a_prediction_the_order_is_not_guessed(captures):
     pixels, _, truth, _, _ = captures[0]
     found = detect_board_vertices(pixels)
     assert not found.ok and found.reason == "ambiguous" and found.vertices_px is None
-    grid = found.unordered_px.reshape(4, 6, 2)
+    grid = found.image_order_px.reshape(4, 6, 2)
     labellings = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
     assert min(np.abs(g.reshape(-1, 2) - truth).max() for g in labellings) < 0.5
 
