@@ -853,9 +853,15 @@ def _in_channel(image: np.ndarray, channel: str, board: BoardSpec) -> _ChannelRe
         (passed if result.grid is not None else failed).append(result)
     if not passed:
         return failed[0]
-    best = passed[0]
+    best = max(passed, key=lambda r: _area_px(r.grid))  # the nearest board, when there are several
     best.others = len(passed) - 1
     return best
+
+
+def _area_px(grid: np.ndarray) -> float:
+    """Area (px^2) of the quadrilateral of a (h, w, 2) grid's outer corners."""
+    a, b, c, d = grid[0, 0], grid[0, -1], grid[-1, -1], grid[-1, 0]
+    return 0.5 * abs((c[0] - a[0]) * (d[1] - b[1]) - (d[0] - b[0]) * (c[1] - a[1]))
 
 
 def _verify(img: np.ndarray, channel: str, board: BoardSpec, place: _Placement) -> _ChannelResult:
@@ -897,8 +903,8 @@ def detect_board(image: np.ndarray, board: BoardSpec, *, channel: str = "auto",
     max_edge_width_px : edges wider than this make the board `blurred`; None: no limit (the width is reported).
 
     Returns a BoardDetection: `ok` with the corners in board order when the board and its orientation are
-    found; `ambiguous` with `image_order_px` when the board is found but its orientation cannot be told (or two
-    boards are in view); `missing`, `cut_off` or `blurred` otherwise.
+    found; `ambiguous` with `image_order_px` when the board is found but its orientation cannot be told, or when
+    several boards are in view (then the largest's corners); `missing`, `cut_off` or `blurred` otherwise.
     """
     results = [_in_channel(image, c, board) for c in channels_to_try(image, board, channel)]
     good = [r for r in results if r.grid is not None]
@@ -916,7 +922,8 @@ def detect_board(image: np.ndarray, board: BoardSpec, *, channel: str = "auto",
     if max_edge_width_px is not None and width > max_edge_width_px:
         return failure("blurred", f"edges {width:.2f} px wide (limit {max_edge_width_px})", **common)
     if best.others:
-        return failure("ambiguous", f"{best.others + 1} boards of {board} squares in view; " + summary, **common)
+        return failure("ambiguous", f"{best.others + 1} boards of {board} squares in view (corners of the largest "
+                                    "in image_order_px); " + summary, **common)
     options = _board_labellings(best.grid, best.cells, board, best.brighter_even, polarity(board, best.channel))
     if len(options) != 1:
         why = ("its colours' polarity in this channel is unknown" if polarity(board, best.channel) == 0 and

@@ -153,12 +153,14 @@ def test_a_board_cut_off_by_the_image_edge():
     assert found.reason == "cut_off", found.detail
 
 
-def test_two_boards_in_view_are_ambiguous():
+def test_two_boards_in_view_are_ambiguous_and_the_largest_is_given():
     left = _scene(6, 5, square_px=20.0, shift_px=(-150.0, 0.0))
-    right = _scene(6, 5, square_px=20.0, shift_px=(150.0, 0.0))
+    right = _scene(6, 5, square_px=24.0, shift_px=(150.0, 0.0))
     both = np.where(np.arange(640)[None, :, None] < 320, left.image, right.image).astype(np.uint8)
     found = detect_board(both, BoardSpec(6, 5))
     assert found.reason == "ambiguous" and "2 boards" in found.detail, found.detail
+    error = _as_labelled(found, right.corners_px) - right.corners_px
+    assert np.abs(error).max() < 0.12
 
 
 def test_blur_limit_and_quality_numbers():

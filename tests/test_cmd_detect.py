@@ -130,3 +130,18 @@ def test_no_traceback_from_the_installed_command(tmp_path):
     run = subprocess.run([sys.executable, "-m", "tools", "detect", str(bad)], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 2 and "Traceback" not in run.stderr and run.stdout == ""
+
+
+def test_two_boards_in_view_report_the_largest(tmp_path, capsys):
+    """Both sandals in one image: the board is found (exit 0), the largest one's corners are given, and the line
+    says there are two."""
+    small = render(7, 5, board_homography(7, 5, square_px=18.0, shift_px=(-160.0, 0.0)), margin_squares=0.5)
+    large = render(7, 5, board_homography(7, 5, square_px=24.0, shift_px=(150.0, 0.0)), margin_squares=0.5)
+    path = tmp_path / "two.png"
+    cv2.imwrite(str(path), np.where(np.arange(640)[None, :, None] < 300, small.image, large.image).astype(np.uint8))
+    assert main(["detect", str(path)]) == 0
+    line = capsys.readouterr().out
+    assert "found 24 corners" in line and "2 boards of 7 x 5 squares in view: the largest reported" in line
+    assert main(["detect", str(path), "--json"]) == 0
+    corners = np.array(json.loads(capsys.readouterr().out)["images"][0]["corners_px"])
+    assert corners[..., 0].min() > 300  # the right-hand, larger board

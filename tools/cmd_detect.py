@@ -15,7 +15,8 @@ Corner order (plain and --json): row by row, each row holding COLS - 1 corners. 
 and mirror images) the one whose rows run most nearly left to right and follow each other most nearly downwards:
 for a board seen roughly upright, row 0 is the row nearest the top of the image and each row runs left to right.
 That is an order in the image, not on the board: a board that looks the same turned (7 x 5, 4 x 4) cannot show
-which of its corners is which, and the detail says so.
+which of its corners is which, and the detail says so. With several boards of the size in view (both sandals),
+the largest in the image is reported and the detail says how many there are.
 
 Output: one line per image (found or not, with the reason; the corner count; the refinement quality: how far the
 corners lie from straight lines through each row and column, RMS, and the edge width); --json prints one
@@ -130,7 +131,7 @@ def detect_one(path: str, image, board, channel: str) -> dict:
 
     found = detect_board(image, board, channel=channel)
     corners = found.image_order_px
-    located = corners is not None and found.reason in (None, "ambiguous") and "boards" not in found.detail
+    located = corners is not None and found.reason in (None, "ambiguous")
     rows, columns = board.shape
     return {
         "path": path,
@@ -158,6 +159,8 @@ def _line(report: dict) -> str:
     rows, columns = len(report["corners_px"]), len(report["corners_px"][0])
     text = (f"{report['path']}: found {rows * columns} corners ({rows} rows of {columns}) in {report['channel']}, "
             f"line fit {report['line_rms_px']:.2f} px RMS, edges {report['edge_width_px']:.1f} px wide")
+    if "boards" in report["detail"]:
+        text += "; " + report["detail"].split(" (")[0] + ": the largest reported"
     if "orientation cannot be told" in report["detail"]:
         text += "; the board looks the same turned: corners in image order"
     return text
