@@ -124,6 +124,15 @@ def test_unreadable_or_missing_images_detect_nothing(tmp_path, capsys):
         assert out.err.startswith(f"naocal detect: error: {bad}: ") and len(out.err.strip().splitlines()) == 1
 
 
+def test_a_chroma_channel_of_a_grey_image_is_bad_input(tmp_path, capsys):
+    grey = tmp_path / "grey.png"
+    cv2.imwrite(str(grey), cv2.cvtColor(cv2.imread(REAL[0]), cv2.COLOR_BGR2GRAY))
+    assert main(["detect", REAL[0], str(grey), "--board", "4x4", "--channel", "cr"]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.strip() == (f"naocal detect: error: {grey}: a grey image has no cr channel "
+                                                 "(use --channel auto or grey)")
+
+
 def test_no_traceback_from_the_installed_command(tmp_path):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"\x89PNG garbage")

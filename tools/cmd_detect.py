@@ -54,34 +54,34 @@ def register(subparsers):
 def run(args) -> int:
     import json
     import sys
-    from pathlib import Path
-
-    from solver.errors import NaocalError
 
     from agent.board_detect import parse_board
+    from solver.errors import DataError, NaocalError
 
     try:
         board = parse_board(args.board)
     except ValueError as err:
         raise NaocalError(f"--board: {err}") from None
     overlay = _overlay_paths(args.overlay, args.images) if args.overlay else None
-    images = [read_image(path) for path in args.images]  # all read first: bad input detects nothing
+    for path in args.images:  # every image checked first (and let go: memory): bad input detects nothing
+        if read_image(path).ndim == 2 and args.channel in ("cr", "cb"):
+            raise DataError(path, f"a grey image has no {args.channel} channel (use --channel auto or grey)")
 
     reports, missing = [], []
-    for path, image in zip(args.images, images):
+    for path in args.images:
+        image = read_image(path)
         report = detect_one(path, image, board, args.channel)
         reports.append(report)
         if not report["found"]:
             missing.append(path)
         if overlay:
             _write_overlay(overlay[path], image, report)
+        if not args.json:
+            print(_line(report), flush=True)
     if args.json:
         print(json.dumps({"board": {"columns": board.columns, "rows": board.rows}, "images": reports}))
-    else:
-        for report in reports:
-            print(_line(report))
     if missing:
-        print(f"naocal detect: no {board} board found in {len(missing)} of {len(images)} images: "
+        print(f"naocal detect: no {board} board found in {len(missing)} of {len(args.images)} images: "
               + ", ".join(missing), file=sys.stderr)
         return 1
     return 0
