@@ -5,20 +5,25 @@ A board is described by a `BoardSpec` (squares per row and column, square size, 
 
 1. Channels: grey (the Y of YCrCb) separates black from white; the chroma channels Cr and Cb separate colours of
    similar brightness (an orange/blue board on green carpet is nearly flat in grey). With known colours only the
-   channels in which they differ are tried; otherwise all three, and the detection whose corners are best
-   supported wins (the most corners, then the cleanest X-corners: `corner_asymmetry`).
-2. Candidates: local maxima of the scale-normalised saddle response -det(Hessian) at a few scales. An ideal
-   X-corner looks the same at every scale below its square, either polarity, so no square size is assumed.
-   At a saddle the Hessian's quadratic form vanishes along the two edges through it: that gives each candidate
-   its two edge directions, under perspective too.
-3. Lattices: from each strong candidate, its nearest neighbours along its edges form a first square; a homography
-   from lattice to image (fitted locally, so mild lens distortion does no harm) predicts the next corners, which
-   must be candidates whose edges run along the lattice's lines. The lattice grows until nothing more fits.
-4. The board: a complete (columns - 1) x (rows - 1) lattice. A lattice with a further complete line of corners
-   is a bigger board (refused, never cut down to size); a smaller one is `cut_off` when the board's missing
-   corners would lie outside the image, else `missing`. Two complete boards make the result `ambiguous`.
-5. Refinement and checks: cornerSubPix in a window of 0.3 squares; every refined corner must be a clean X-corner
-   (point symmetric) and the inner squares must alternate in the channel.
+   channels in which they differ are tried; otherwise all three, and the board whose squares differ most for the
+   noise within them wins (corner precision goes with that contrast to noise).
+2. Candidates: local maxima of the scale-normalised saddle response -sigma^4 det(Hessian) at scales from 1 px up
+   (coarse ones on pyramid levels). An ideal X-corner looks the same at every scale below its square, in either
+   polarity, so no square size is assumed. Kept: those point symmetric about their refined position and as strong
+   for their contrast as an X-corner is (an L-corner at a board's border is neither). At a saddle the Hessian's
+   quadratic form vanishes along the two edges through it: that gives each candidate its edge directions, under
+   perspective too.
+3. Lattices: a candidate's nearest neighbours along its edges make a first square; if the squares around it
+   alternate, the lattice grows: the homography of the lattice (plus its local misfit: lens distortion) predicts
+   the next corners, which must be candidates whose edges run along the lattice's lines. A lattice whose squares
+   do not alternate in both directions at MIN_SQUARE_CNR times their noise is dropped (stripes, texture, noise).
+4. The board: a complete (columns - 1) x (rows - 1) window of a lattice, in either orientation. A further complete
+   line of corners makes it a bigger board (refused, never cut down to size). Up to a quarter of the corners may
+   be missing inside the image (predicted, and they must prove clean X-corners); missing beyond the image edge
+   make it `cut_off`; otherwise `missing`, saying what was found. Several boards in view: `ambiguous`, the largest
+   given.
+5. Refinement and checks: cornerSubPix in a window of 0.3 squares, shrunk for corners whose neighbourhood is not
+   point symmetric (`refine_clean`); the squares must alternate.
 
 Order. Corners are always available in the *image order* (`image_order`): rows of (columns - 1) corners; of the
 grid's labellings (turns and mirror images) the one whose rows run most nearly left to right and whose rows
@@ -61,8 +66,8 @@ MAX_SEEDS = 400
 EDGE_ANGLE_DEG = 20.0  # a neighbour lies along an edge, and a grown corner's edges along the lattice, this closely
 MATCH_RADIUS = 0.3  # a predicted corner matches a candidate this close (in local squares)
 REFINE_WINDOW = 0.3  # cornerSubPix half window (in local squares)
-MAX_ASYMMETRY = 0.25  # a refined corner must be at least this point-symmetric (see corner_asymmetry)
-MAX_CANDIDATE_ASYMMETRY = 0.25
+MAX_ASYMMETRY = 0.25  # the most refine_clean's limit for a clean corner can be (see corner_asymmetry)
+MAX_CANDIDATE_ASYMMETRY = 0.25  # candidates more asymmetric than this are no X-corners (an L-corner scores 0.5)
 MIN_RELATIVE_STRENGTH = 0.02  # saddle strength over contrast^2: about 0.08 for X-corners, 0.02 for L-corners
 MIN_CONTRAST = 6.0  # grey levels (p95 - p5) around an X-corner candidate, and between a board's two colours
 MIN_SQUARE_CNR = 2.5  # the two colours differ by this many times the spread within a square (real boards: 6-40)
@@ -84,6 +89,8 @@ class BoardSpec:
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or not 3 <= value <= 40:
                 raise ValueError(f"board {name} must be a whole number of squares from 3 to 40, got {value!r}")
+        if not (np.isnan(self.square_m) or self.square_m > 0):
+            raise ValueError(f"board square_m must be positive (or nan when unknown), got {self.square_m!r}")
         if self.colours is not None:
             if len(self.colours) != 2 or self.colours[0] == self.colours[1]:
                 raise ValueError(f"board colours must be two different names, got {self.colours!r}")

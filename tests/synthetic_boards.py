@@ -74,7 +74,11 @@ def render(columns: int, rows: int, H: np.ndarray, *, size=(640, 480), colours=(
     if noise:
         image = image + np.random.default_rng(seed).normal(0, noise, image.shape)
     image = np.clip(np.round(image), 0, 255).astype(np.uint8)
+    return Scene(image, inner_corners(columns, rows, H), H)
+
+
+def inner_corners(columns: int, rows: int, H: np.ndarray) -> np.ndarray:
+    """The board's exact inner corners through H: (rows - 1, columns - 1, 2) in board order."""
     cols, rws = np.meshgrid(np.arange(1, columns), np.arange(1, rows))
     grid = np.stack([cols, rws], axis=-1).reshape(-1, 2).astype(np.float64)
-    corners = cv2.perspectiveTransform(grid[None], H)[0].reshape(rows - 1, columns - 1, 2)
-    return Scene(image, corners, H)
+    return cv2.perspectiveTransform(grid[None], H)[0].reshape(rows - 1, columns - 1, 2)

@@ -6,7 +6,7 @@ import pytest
 
 from agent.board_detect import (SANDAL, BoardSpec, channels_to_try, detect_board, image_order, labellings,
                                 line_rms_px, parse_board, polarity)
-from tests.synthetic_boards import board_homography, render
+from tests.synthetic_boards import board_homography, inner_corners, render
 
 
 def _scene(columns, rows, colours=("black", "white"), **pose):
@@ -87,8 +87,7 @@ def test_image_order_runs_left_to_right_and_top_to_bottom():
     """Whatever labelling a grid comes in, image_order returns the same one: row 0 at the top, each row left to
     right, for a board seen upright and for one turned by 30 deg."""
     for turn in (0.0, 0.5, -0.5, np.pi):
-        scene = _scene(7, 5, tilt_x=0.3, turn=turn)
-        truth = scene.corners_px
+        truth = inner_corners(7, 5, board_homography(7, 5, tilt_x=0.3, turn=turn))
         orders = [image_order(g, (4, 6)) for _, g in labellings(truth) if g.shape == truth.shape]
         for order in orders:
             np.testing.assert_array_equal(order, orders[0])

@@ -77,6 +77,21 @@ def test_without_a_prediction_the_order_is_not_guessed(captures):
     assert min(np.abs(g.reshape(-1, 2) - truth).max() for g in labellings) < 0.5
 
 
+def test_rendered_boards_are_found_without_a_prediction(captures):
+    """agent.board_detect on the mock's images: every board whose vertices are all in sight, in image order, on
+    its true vertices (in one of the sandal's two orientations: it looks the same turned)."""
+    for pixels, _, truth, visible, (other, other_visible) in captures:
+        if not visible.all():
+            continue
+        found = detect_board_vertices(pixels)
+        assert found.reason == "ambiguous" and found.image_order_px is not None, found.detail
+        grid = found.image_order_px.reshape(4, 6, 2)
+        boards = [truth] + ([other] if "2 boards" in found.detail else [])  # then the larger one is given
+        error = min(np.abs(g - board.reshape(4, 6, 2)).max() for board in boards
+                    for g in (grid, grid[::-1, ::-1], grid[::-1], grid[:, ::-1]))
+        assert error < 0.15
+
+
 def test_the_prediction_resolves_the_180_degree_turn(captures):
     pixels, _, truth, _, _ = captures[1]
     found = detect_board_vertices(pixels, truth + [6.0, -4.0])
