@@ -49,6 +49,7 @@ import numpy as np
 from agent.board_detect import (REASONS, SANDAL, BoardDetection, BoardSpec, channel_image, channels_to_try,
                                  corner_asymmetry, detect_board, failure, image_order, polarity, refine_clean)
 from agent.board_detect import edge_width_px as _grid_edge_width_px
+from agent.xcorners import inside as _inside
 
 __all__ = ["REASONS", "SANDAL", "BoardDetection", "BoardSpec", "corner_asymmetry", "detect_board_vertices",
            "edge_width_px", "find_grid", "find_grid_near", "grid_xy", "order_like_prediction"]
@@ -80,12 +81,6 @@ def _square_px(grid_px: np.ndarray, board: BoardSpec = SANDAL) -> float:
     g = grid_px.reshape(*board.shape, 2)
     steps = np.concatenate([np.diff(g, axis=0).reshape(-1, 2), np.diff(g, axis=1).reshape(-1, 2)])
     return float(np.median(np.linalg.norm(steps, axis=1)))
-
-
-def _inside(points: np.ndarray, shape, margin: float) -> np.ndarray:
-    h, w = shape[:2]
-    return ((points[:, 0] >= margin) & (points[:, 0] <= w - 1 - margin)
-            & (points[:, 1] >= margin) & (points[:, 1] <= h - 1 - margin))
 
 
 def _edge_width_without_corners(grey: np.ndarray) -> float:
