@@ -24,6 +24,7 @@ VERB_MODULES = (
     "tools.cmd_diagnose",
     "tools.cmd_offsets",
     "tools.cmd_bridge",
+    "tools.cmd_detect",
 )
 
 
