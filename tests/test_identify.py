@@ -206,3 +206,24 @@ def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
     theta, choice = choose_angles(measured, commanded, velocity, "auto")
     assert set(choice.resolution_rad) == set(JOINTS)  # the interpolated readings do not hide the grid
     assert np.array_equal(theta[:-4], commanded[:-4]) and np.array_equal(theta[-4:], measured[-4:])
+
+
+def test_status_codes_mean_the_same_for_both_solvers():
+    """naocal's LM reports why it stopped with scipy.optimize.least_squares's codes (2: ftol, 3: xtol) and the
+    message of one table, as the MINPACK path does."""
+    from solver.identify import TERMINATION_MESSAGES, levenberg_marquardt
+
+    rng = np.random.default_rng(3)
+    A, b = rng.normal(size=(30, 3)), rng.normal(size=30)
+    problem = lambda x: (A @ x - b, A)  # noqa: E731
+    stop = {name: levenberg_marquardt(problem, np.zeros(3), np.ones(3), **tolerances)[3:5]
+            for name, tolerances in (("xtol", dict(ftol=0.0, gtol=0.0, xtol=1e-3)),
+                                     ("ftol", dict(ftol=0.5, gtol=0.0, xtol=0.0)),
+                                     ("gtol", dict(ftol=0.0, gtol=1e3, xtol=0.0)))}
+    assert stop == {"xtol": (3, TERMINATION_MESSAGES[3]), "ftol": (2, TERMINATION_MESSAGES[2]),
+                    "gtol": (1, TERMINATION_MESSAGES[1])}
+    assert levenberg_marquardt(problem, np.zeros(3), np.ones(3), max_iterations=0)[3:5] == (0, TERMINATION_MESSAGES[0])
+    data = synthesize(np.random.default_rng(4), random_truth(np.random.default_rng(4)), n_stances_per_leg=6)
+    for solver in ("lm", "minpack"):
+        result = identify(data, Registry(), solver=solver)
+        assert result.success and result.message == TERMINATION_MESSAGES[result.status], (solver, result.message)
