@@ -14,7 +14,7 @@ from pathlib import Path
 
 from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
-from agent.report import summary_text
+from agent.summary import summary_text
 from agent.states import AgentSettings, Context, calibrate_states, simulate_states
 from solver.fileio import atomic_write_text
 
