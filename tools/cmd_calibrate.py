@@ -110,9 +110,9 @@ def run(args) -> int:
     settings = settings_from_args(args, seed=args.plan_seed, source=f"naocal calibrate --backend {args.backend}")
     truth = None
     if args.backend == "mock":
-        from backends.mock import MockBackend, parse_effects
+        from backends.mock import MockBackend, parse_effect_sizes
 
-        effects = parse_effects(args.effect)
+        effects = parse_effect_sizes(args.effect)
         backend = MockBackend(args.seed, effects=effects)
         label = f"mock (seed {args.seed}" + (", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items())
                                              if effects else "") + ")"

@@ -49,10 +49,10 @@ def run(args) -> int:
         logging.getLogger().addHandler(console)
 
     from agent.calibrate import simulate
-    from backends.mock import MockBackend, parse_effects
+    from backends.mock import MockBackend, parse_effect_sizes
     from solver.fileio import atomic_write_text
 
-    effects = parse_effects(args.effect)
+    effects = parse_effect_sizes(args.effect)
     settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
     backend = MockBackend(args.seed, effects=effects)
     try:
