@@ -2,7 +2,7 @@
 
     result, ctx = calibrate(backend, out_dir, AgentSettings(seed=0))
 
-Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/1, images/), progress.json, offsets.json
+Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/2, images/), progress.json, offsets.json
 (+ offsets.json.bak), verification/, verification.json, summary.txt, calibrate.log.
 """
 

@@ -21,7 +21,7 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.diagnostics import extended_registry, rank_candidates  # noqa: E402
+from solver.diagnostics import rank_candidates  # noqa: E402
 from solver.identify import identify  # noqa: E402
 from solver.joints import LEG_JOINTS  # noqa: E402
 from solver.model import Model  # noqa: E402
@@ -33,7 +33,7 @@ def refit_every_candidate(result, candidates):
     """{effect: RMS over both coordinates after refitting the model with it}, finite differences throughout."""
     out = {}
     for effect in candidates:
-        registry = extended_registry(result.registry, (effect,))
+        registry = result.registry.extended((effect,))
         model = Model(result.model.data, registry)
         x0 = registry.from_dict(result.registry.as_dict(result.values))
         scales = registry.scales

@@ -67,6 +67,21 @@ def test_round_trip_with_two_cameras_two_targets_a_joint_subset_and_gravity(tmp_
     assert read.as_v2() is read
 
 
+def test_the_model_sees_both_cameras_the_targets_and_per_image_gravity(tmp_path):
+    from solver.adapter import model_data_from_dataset
+
+    write_dataset((make_meta(), make_columns(gravity=True)), tmp_path / "ds")
+    data = model_data_from_dataset(read_dataset(tmp_path / "ds"))
+    assert list(data.target) == ["R", "R", "floor", "floor"]  # the description's target order
+    assert list(data.camera) == ["bottom", "top", "bottom", "top"]
+    assert data.setup.cameras == ("bottom", "top") and data.setup.targets == ("R", "floor")
+    assert data.cameras["top"]["width_px"] == 1280 and data.cameras["top"]["distortion"][0] == 0.01
+    assert data.gravity_mps2.shape == (4, 3) and len({tuple(g) for g in data.gravity_mps2}) == 4
+    assert data.loads["R"][0] == 0.1 and data.loads["floor"][0] == 0.0
+    assert np.all(data.tau[data.target == "floor"] == 0.0)  # a supporting chain: no hanging load modelled
+    assert np.any(data.tau[data.target == "R"] != 0.0)
+
+
 def corrupt_meta(tmp_path, change):
     meta = make_meta()
     change(meta)

@@ -6,7 +6,8 @@ import pytest
 from solver.errors import SolveError
 from solver.identify import identify
 from solver.model import Model
-from solver.registry import EXTRA_EFFECTS, LEG_JOINTS, Registry
+from solver.joints import LEG_JOINTS
+from solver.registry import EXTRA_EFFECTS, Registry
 from solver.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
@@ -27,7 +28,7 @@ def test_recovers_truth_from_noisy_pixels(seed):
     for joint in LEG_JOINTS:
         assert abs(err[f"joint_offset.{joint}"]) < 0.02 * DEG, joint
     for angle in ("roll", "pitch", "yaw"):
-        assert abs(err[f"camera.{angle}"]) < 0.01 * DEG, angle
+        assert abs(err[f"camera.bottom.{angle}"]) < 0.01 * DEG, angle
     assert all(abs(r - 0.1) < 0.01 for r in result.rms_px), result.rms_px
 
 
@@ -105,8 +106,8 @@ def test_jacobian_matches_finite_differences(effects):
     registry = Registry(effects)
     model = Model(data, registry)
     x = registry.from_dict(random_truth(rng, effects))
-    if "distortion.k1" in registry.index:
-        x[registry.index["distortion.k1"]] = 0.05
+    if "distortion.bottom.k1" in registry.index:
+        x[registry.index["distortion.bottom.k1"]] = 0.05
     _, J = model.evaluate(x)
     h = 1e-6
     for i, name in enumerate(registry.names):
@@ -167,7 +168,7 @@ def test_two_vertices_per_image_warns_and_stays_honest():
     data = synthesize(rng, truth, pixel_noise_px=0.1)
     keep = np.flatnonzero(np.isin(data.vertex, [0, 1]))  # two neighbouring vertices: the board's roll is lost
     thin = data.subset(np.arange(data.n_images))
-    for name in ("vertex", "uv_px", "p_sole", "image_of_row"):
+    for name in ("vertex", "uv_px", "p_mount", "image_of_row"):
         setattr(thin, name, getattr(data, name)[keep])
     result = identify(thin, Registry())
     assert any("fewer than 4 vertices" in w for w in result.warnings), result.warnings
@@ -227,3 +228,22 @@ def test_status_codes_mean_the_same_for_both_solvers():
     for solver in ("lm", "minpack"):
         result = identify(data, Registry(), solver=solver)
         assert result.success and result.message == TERMINATION_MESSAGES[result.status], (solver, result.message)
+
+
+def test_one_encoder_step_for_every_joint_of_one_kind_of_encoder():
+    """A joint that visits only 0 and +-0.3 deg must not claim a 0.3 deg encoder (and then take commands 0.15 deg
+    away as its reading): all joints share the step the joints with many readings show, 0.1 deg."""
+    from solver.adapter import choose_angles
+    from solver.joints import JOINTS
+    from solver.quantisation import reading_resolution
+
+    step = 0.1 * DEG
+    rng = np.random.default_rng(5)
+    commanded = rng.uniform(-0.5, 0.5, (40, len(JOINTS)))
+    commanded[:, 0] = rng.choice([-3, 0, 3], 40) * step  # HeadYaw: three values, 0.3 deg apart
+    measured = np.round(commanded / step) * step
+    commanded[0, 0] = measured[0, 0] + 1.2 * step  # a command outside the reading's 0.1 deg cell
+    theta, choice = choose_angles(measured, commanded, None, "auto")
+    assert choice.resolution_rad["HeadYaw"] == pytest.approx(step)
+    assert theta[0, 0] == measured[0, 0]  # the reading stands: its command is not inside its cell
+    assert np.allclose(reading_resolution(measured), step)  # the noise floor's step: the same function
