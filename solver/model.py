@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver import camera as camera_model
-from solver.effect import Setup
+from solver.effect import CameraTerm, Setup
 from solver.effects import EFFECTS
 from solver.errors import NaocalError
 from solver.joints import HEAD_COLUMNS, LEG_COLUMNS  # noqa: F401 (the NAO's column layout, for old imports)
@@ -302,15 +302,26 @@ class _Terms:
         chain = [t for e in effects for t in e.chain_terms(layout, values)]
         camera = {}
         for term in (t for e in effects for t in e.camera_terms(layout, values)):
-            if term.camera in camera:
-                raise ValueError(f"two effects change camera {term.camera!r}'s pose: compose them in one term")
-            camera[term.camera] = term
+            camera[term.camera] = _combined(camera.get(term.camera), term)
         shifts = {}
         for term in chain:
             frame_shifts = shifts.setdefault(term.frame, {})
             frame_shifts[term.joint] = frame_shifts.get(term.joint, 0.0) + term.delta * term.direction
         return cls(chain, camera, [t for e in effects for t in e.target_terms(layout, values)],
                    [t for e in effects for t in e.projection_terms(layout, values)], shifts)
+
+
+def _combined(a: CameraTerm | None, b: CameraTerm) -> CameraTerm:
+    """One camera's terms of two effects as one: translations add; one rotation (the rotation generators are the
+    camera frame's, which another rotation would turn)."""
+    if a is None:
+        return b
+    if a.rotation is not None and b.rotation is not None:
+        raise ValueError(f"two effects rotate camera {a.camera!r}: one effect owns a camera's rotation")
+    translation = a.translation if b.translation is None else (
+        b.translation if a.translation is None else a.translation + b.translation)
+    return CameraTerm(a.camera, a.rotation if a.rotation is not None else b.rotation,
+                      a.rotation_params + b.rotation_params, translation, a.translation_params + b.translation_params)
 
 
 @dataclass

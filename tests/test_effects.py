@@ -176,3 +176,45 @@ def test_elasticity_follows_the_datasets_board_mass_and_per_image_gravity():
         hanging = np.isin(changed.target, ("L", "R"))
         assert np.abs(q - q0)[hanging].max() > 1e-4
         assert np.abs(q - q0)[~hanging].max() == 0.0  # the floor board's leg carries the body: not modelled
+
+
+class _Shift(Effect):
+    """A test effect: a camera moved along its parent link's x axis (a camera term beside camera_rotation's)."""
+
+    name, order = "test_shift", 999
+    summary = "test"
+
+    def parameters(self, setup):
+        from solver.effect import Parameter
+
+        return [Parameter(f"shift.{c}", self.name, "m", 0.002, camera=c) for c in setup.cameras]
+
+    def camera_terms(self, layout, values):
+        from solver.effect import CameraTerm
+
+        return [CameraTerm(p.camera, translation=np.array([values[i], 0.0, 0.0]),
+                           translation_params=[(i, np.array([1.0, 0.0, 0.0]))])
+                for i, p in layout.params(self.name) if p.camera in layout.cameras]
+
+
+def test_camera_terms_of_two_effects_combine(monkeypatch):
+    """A second effect may move a camera that camera_rotation turns: the translation and the rotation compose, and
+    the Jacobian stays exact."""
+    import solver.effects
+
+    monkeypatch.setitem(solver.effects.EFFECTS, "test_shift", _Shift())
+    data = wide_data(velocity=0.0)
+    registry = Registry(("test_shift",), setup=WIDE)
+    model = Model(data, registry)
+    x = registry.scales * np.random.default_rng(3).uniform(-1, 1, len(registry))
+    _, J = model.evaluate(x)
+    for name in ("shift.bottom", "shift.top", "camera.top.pitch"):
+        i = registry.index[name]
+        step = np.zeros(len(x))
+        step[i] = 1e-7
+        fd = (model.residuals(x + step) - model.residuals(x - step)) / 2e-7
+        assert np.abs(fd - J[:, :, i]).max() < 1e-5 * np.abs(J[:, :, i]).max(), name
+    moved = x.copy()
+    moved[registry.index["shift.bottom"]] += 0.005
+    changed = np.abs(model.residuals(moved) - model.residuals(x)).max(axis=1) > 0
+    assert np.array_equal(changed, (model.data.camera == "bottom")[model.data.image_of_row])
