@@ -73,14 +73,14 @@ def main():
     refit = refit_every_candidate(result, [c.effect for c in ranking if c.testable])
     slow = time.perf_counter() - start
 
-    print(f"\n{'candidate':13s} {'predicted RMS':>14s} {'refit RMS':>10s} {'p-value':>9s} {'uniqueness':>10s}")
+    print(f"\n{'candidate':18s} {'predicted RMS':>14s} {'refit RMS':>10s} {'p-value':>9s} {'uniqueness':>10s}")
     for c in ranking:
-        print(f"{c.effect:13s} {c.predicted_rms_px:11.3f} px {refit[c.effect]:7.3f} px {c.p_value:9.1e} "
+        print(f"{c.effect:18s} {c.predicted_rms_px:11.3f} px {refit[c.effect]:7.3f} px {c.p_value:9.1e} "
               f"{c.uniqueness:10.3f}")
     order_fast = [c.effect for c in ranking]
     order_slow = sorted(refit, key=refit.get)
     print(f"\nbest candidate: score test {order_fast[0]}, refitting {order_slow[0]}")
-    print(f"naocal rank_candidates (7 candidates): median {fast * 1e3:.1f} ms over {args.repeats} runs "
+    print(f"naocal rank_candidates ({len(ranking)} candidates): median {fast * 1e3:.1f} ms over {args.repeats} runs "
           f"(target < 1000 ms)")
     print(f"straightforward (refit each, finite differences): {slow:.2f} s")
     print(f"speed-up: {slow / fast:.0f}x")

@@ -165,8 +165,13 @@ class Offsets:
         entry = self.parameter(name)
         return None if entry is None else float(entry["std"])
 
-    def camera_rpy(self, camera: str = "bottom") -> tuple[float, float, float]:
-        """(roll, pitch, yaw) correction of the camera, rad (zeros if absent)."""
+    def camera_rpy(self, camera: str | None = None) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) correction of the camera (default: the robot description's first default camera, the
+        NAO's bottom camera), rad (zeros if absent)."""
+        if camera is None:
+            from solver.robot import load_robot
+
+            camera = load_robot(self.robot.get("description") or "nao").default_cameras[0]
         angles = self.camera_rotation_rad.get(camera, {})
         return tuple(float(angles.get(a, 0.0)) for a in CAMERA_ANGLES)
 

@@ -153,15 +153,16 @@ def format_text(diagnosis) -> str:
     for e in loc.regressors[:6]:
         p = f"p {e['p_value']:.1e}" if math.isfinite(e["p_value"]) else "not testable: too few images carry it"
         lines.append(f"    {e['regressor']:32s} {100 * e['explained_share']:5.1f} %  ({p})")
+    w = max([13] + [len(x.effect) for x in diagnosis.candidates])  # the effect column: its longest name
     lines += ["", "NAMES (candidate effects, best first; significant: p < "
               f"{diagnosis.threshold:.1e}, i.e. 0.001 over {sum(1 for x in diagnosis.candidates if x.testable)} tests)",
               "  (explains: share of the misfit it would remove beyond what its parameters fit of pure noise)",
-              f"  {'effect':13s} {'explains':>8s} {'predicted RMS':>13s} {'p-value':>9s}  {'signif.':7s} "
+              f"  {'effect':{w}s} {'explains':>8s} {'predicted RMS':>13s} {'p-value':>9s}  {'signif.':7s} "
               f"{'uniqueness':>10s}  note"]
     rss = c.rms_total_px ** 2 * 2 * data.n_rows
     for cand in diagnosis.candidates:
         if not cand.testable:
-            lines.append(f"  {cand.effect:13s} {'-':>8s} {'-':>13s} {'-':>9s}  {'-':7s} {'-':>10s}  "
+            lines.append(f"  {cand.effect:{w}s} {'-':>8s} {'-':>13s} {'-':>9s}  {'-':7s} {'-':>10s}  "
                          f"not testable: {cand.reason}")
             continue
         notes = []
@@ -175,7 +176,7 @@ def format_text(diagnosis) -> str:
         if cand.significant and not notes:
             notes.append(_top_values(cand, res.registry))
         share = 100 * max(cand.excess_rss_px2, 0.0) / rss if rss > 0 else 0.0
-        lines.append(f"  {cand.effect:13s} {share:6.1f} % {cand.predicted_rms_px:10.3f} px {cand.p_value:9.1e}  "
+        lines.append(f"  {cand.effect:{w}s} {share:6.1f} % {cand.predicted_rms_px:10.3f} px {cand.p_value:9.1e}  "
                      f"{'yes' if cand.significant else 'no':7s} {cand.uniqueness:10.3f}  {'; '.join(notes)}")
     best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
     lines.append("")
