@@ -218,3 +218,19 @@ def test_camera_terms_of_two_effects_combine(monkeypatch):
     moved[registry.index["shift.bottom"]] += 0.005
     changed = np.abs(model.residuals(moved) - model.residuals(x)).max(axis=1) > 0
     assert np.array_equal(changed, (model.data.camera == "bottom")[model.data.image_of_row])
+
+
+@pytest.mark.parametrize("name", EXTRA_EFFECTS)
+def test_each_effects_report_picture_is_well_formed(name):
+    """partial_residual_panels of a fit with the effect: points and the fitted line, finite, one group per point."""
+    from solver.synthetic import synthesize
+
+    rng = np.random.default_rng(6)
+    velocity = np.zeros((48, 14))
+    velocity[::4] = rng.uniform(-0.4, 0.4, (12, 14))
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=8, velocity=velocity)
+    fit = identify(data, Registry((name,)))
+    for x, y, xlabel, ylabel, groups, (line_x, line_y) in EFFECTS[name].partial_residual_panels(fit):
+        assert len(x) == len(y) == len(groups) > 0 and len(line_x) == len(line_y)
+        assert np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(line_y))
+        assert xlabel and ylabel and set(groups) <= {"L", "R"}

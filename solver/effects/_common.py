@@ -52,15 +52,15 @@ def _unknown(path, where, what, known):
     return DataError(path, f"unknown {what} (allowed: {', '.join(known)})", field=where)
 
 
-def apparent_offset_panels(fit, effect_name: str, joints, regressor, xlabel, *, jitter=0.0, slope_from_value=True):
-    """Panels of the apparent per-image offset of each joint (the fitted term plus what remains) against a
-    per-image regressor (M,) of that joint: `regressor(column)`, labelled `xlabel(joint)`."""
+def apparent_offset_panels(fit, prefix: str, joints, regressor, xlabel, *, jitter=0.0, slope_from_value=True):
+    """Panels of the apparent per-image error of each joint (the fitted term `<prefix>.<joint>` plus what remains)
+    against a per-image regressor (M,) of that joint: `regressor(column)`, labelled `xlabel(joint)`."""
     from solver.diagnostics import apparent_errors, partial_residuals
 
     data = fit.model.data
     panels = []
     for k, joint in enumerate(joints):
-        term = f"{_prefix(effect_name)}.{joint}"
+        term = f"{prefix}.{joint}"
         offset = _offset_name(fit, joint)
         # the apparent c of the joint: the fitted term is -dq, so q_true = theta - c_apparent
         c_apparent = apparent_errors(fit, [offset], partial_residuals(fit, [term]))[:, 0]
@@ -74,10 +74,6 @@ def apparent_offset_panels(fit, effect_name: str, joints, regressor, xlabel, *, 
         panels.append((x[ok] + shake, np.degrees(-c_apparent[ok]), xlabel(joint), f"apparent {joint} error (deg)",
                        data.target[ok], (xs, np.degrees(const + slope * xs) * (1 if slope_from_value else -1))))
     return panels
-
-
-def _prefix(effect_name):
-    return {"elasticity": "elasticity", "backlash": "backlash", "head_offsets": "head_offset"}[effect_name]
 
 
 def _offset_name(fit, joint):

@@ -35,7 +35,7 @@ class Backlash(Effect):
         size = {p.joint: abs(fit.value(p.name)) * np.ptp(data.direction[:, data.column(p.joint)])
                 for p in fit.registry.parameters if p.effect == self.name}
         joints = sorted(size, key=lambda j: -size[j])[:3]
-        return apparent_offset_panels(fit, self.name, joints, lambda c: data.direction[:, c],
+        return apparent_offset_panels(fit, "backlash", joints, lambda c: data.direction[:, c],
                                       lambda j: f"approach direction of {j}", jitter=0.08)
 
     def write_offsets(self, values, setup):

@@ -47,7 +47,7 @@ class Elasticity(Effect):
         size = {p.joint: abs(fit.value(p.name)) * np.ptp(tau[:, data.column(p.joint)])
                 for p in fit.registry.parameters if p.effect == self.name}
         joints = sorted(size, key=lambda j: -size[j])[:3]
-        return apparent_offset_panels(fit, self.name, joints, lambda c: tau[:, c],
+        return apparent_offset_panels(fit, "elasticity", joints, lambda c: tau[:, c],
                                       lambda j: f"gravity torque on {j} (N m)")
 
     def display(self, parameter, value):

@@ -37,7 +37,7 @@ class HeadOffsets(Effect):
     def partial_residual_panels(self, fit):
         data = fit.model.data
         joints = [p.joint for p in self.parameters(fit.registry.setup)]
-        return apparent_offset_panels(fit, self.name, joints, lambda c: data.theta[:, c],
+        return apparent_offset_panels(fit, "head_offset", joints, lambda c: data.theta[:, c],
                                       lambda j: f"{j} angle (rad)", slope_from_value=False)
 
     def write_offsets(self, values, setup):
