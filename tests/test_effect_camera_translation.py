@@ -83,3 +83,20 @@ def test_identify_writes_it_to_the_heads_section(tmp_path, capsys):
     with pytest.raises(DataError, match="mm instead of m") as info:
         read_offsets(out)
     assert info.value.field == "head.camera_translation_m.bottom.trans_z"
+
+
+def test_offsets_show_lists_it(tmp_path, capsys):
+    """`naocal offsets show` shows every fitted parameter that has no table of its own (the camera's rotation has)."""
+    from solver.offsets import offsets_from_parameters, write_offsets
+
+    params = {f"camera.bottom.{a}": {"value": -0.05, "std": 1e-4, "unit": "rad"} for a in ("roll", "pitch", "yaw")}
+    params.update({f"camera.bottom.trans_{a}": {"value": v, "std": 1e-5, "unit": "m"}
+                   for a, v in (("x", 0.001), ("y", -0.002), ("z", 0.0042))})
+    write_offsets(offsets_from_parameters(params, robot={"id": "nao"}, fit={"rms_px": [0.1, 0.1], "n_vertices": 1,
+                                                                             "n_images": 1},
+                                          effects=["camera_translation"]), tmp_path / "o.json")
+    assert tools.cli.main(["offsets", "show", str(tmp_path / "o.json")]) == 0
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if "camera.bottom.trans_z" in line)
+    assert "4.20000" in line and "mm" in line
+    assert not any("camera.bottom.pitch" in line for line in out.splitlines())  # in the rotation table instead

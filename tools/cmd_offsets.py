@@ -92,7 +92,13 @@ def run(args) -> int:
 # ----------------------------------------------------------------------------------------------- display
 
 # Display units: angles in deg, lengths in mm, time in ms.
-_SHOWN_ELSEWHERE = ("joint_offset.", "head_offset.", "camera.", "board.")  # model names with their own table
+_SHOWN_ELSEWHERE = ("joint_offset.", "head_offset.", "board.")  # model names with their own table
+
+
+def _shown_elsewhere(name: str) -> bool:
+    """Whether a model parameter has its own table (joint offsets, camera rotations, board mounts)."""
+    parts = name.split(".")
+    return name.startswith(_SHOWN_ELSEWHERE) or (parts[0] == "camera" and parts[-1] in ("roll", "pitch", "yaw"))
 _BOARD_ROWS = (("rot_z_rad", "rot_z", "rad"), ("trans_x_m", "trans_x", "m"), ("trans_y_m", "trans_y", "m"))
 
 
@@ -136,7 +142,7 @@ def parameter_rows(offsets) -> list:
         rows += [(f"board.{leg}.{short}", unit, mount[key], offsets.std(f"board.{leg}.{short}"))
                  for key, short, unit in _BOARD_ROWS]
     for name, entry in offsets.model["parameters"].items():
-        if not name.startswith(_SHOWN_ELSEWHERE):
+        if not _shown_elsewhere(name):
             rows.append((name, entry["unit"], entry["value"], entry["std"]))
     return rows
 
@@ -175,8 +181,7 @@ def format_show(offsets, name: str) -> str:
                                                   in zip(stds, _BOARD_ROWS, (12, 14, 14))))
     effects = offsets.model["effects"]
     out += ["", "model effects: " + (", ".join(effects) if effects else "-")]
-    extra = [r for r in parameter_rows(offsets) if r[0] in offsets.model["parameters"]
-             and not r[0].startswith(_SHOWN_ELSEWHERE)]
+    extra = [r for r in parameter_rows(offsets) if r[0] in offsets.model["parameters"] and not _shown_elsewhere(r[0])]
     if extra:
         out.append(f"  {'parameter':<28}{'value':>12}{'std':>12}  unit")
         for label, unit, value, std in extra:
