@@ -2,7 +2,7 @@
 
     result, ctx = calibrate(backend, out_dir, AgentSettings(seed=0))
 
-Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/1, images/), progress.json, offsets.json
+Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/2, images/), progress.json, offsets.json
 (+ offsets.json.bak), verification/, verification.json, summary.txt, calibrate.log. summary.txt is written however
 the run ends (done, failed, Ctrl-C), unless the disk is full: then its text stays in ctx.summary.
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
-from agent.report import summary_text
 from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, simulate_states
+from agent.summary import summary_text
 from solver.dataset import _COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
 from solver.errors import DataError, DiskFullError
 from solver.fileio import atomic_write_text, disk_full_as_error

@@ -40,7 +40,7 @@ class RunningEstimate:
         self.intrinsics.setdefault("distortion", [0.0] * 5)
         self.values = FULL.zeros()
         for angle, value in (camera_prior or {}).items():  # a real head's typical camera rotation
-            self.values[FULL.index[f"camera.{angle}"]] = float(value)
+            self.values[FULL.index[f"camera.{FULL.setup.cameras[0]}.{angle}"]] = float(value)
         self.refit_every = refit_every
         self.min_full_fit = min_full_fit
         self.min_leg_fit = min_leg_fit  # captures of a leg before its offsets and sandal mount are fitted
@@ -76,7 +76,7 @@ class RunningEstimate:
         alpha = np.zeros(len(JOINTS))
         for leg in self.known_legs:
             for joint in leg_joints(leg):
-                alpha[JOINTS.index(joint)] = self.values[FULL.index[f"joint_offset.{joint}"]]
+                alpha[JOINTS.index(joint)] = -self.values[FULL.index[f"joint_offset.{joint}"]]  # alpha = -c
         return alpha
 
     def board_mounts(self) -> dict:

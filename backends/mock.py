@@ -85,8 +85,9 @@ DEFAULT_POSTURE = {
 }
 
 
-def parse_effects(items) -> dict[str, float]:
-    """{name: size} from strings 'NAME=SIZE' (the `--effect` arguments); NaocalError naming the bad one."""
+def parse_effect_sizes(items) -> dict[str, float]:
+    """{name: size} from strings 'NAME=SIZE' (the `--effect` arguments of the mock); NaocalError naming the bad one.
+    (solver.effects.parse_effect_names parses the other format: the names of model terms, 'E1,E2'.)"""
     effects = {}
     for item in items or ():
         name, sep, size_text = str(item).partition("=")
@@ -186,7 +187,12 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None)
 
 
 def default_intrinsics() -> CameraIntrinsics:
-    return CameraIntrinsics(width_px=640, height_px=480, fx_px=600.0, fy_px=600.0, cx_px=320.0, cy_px=240.0)
+    """The bottom camera's prior intrinsics (the robot description's, solver/data/nao.json)."""
+    from solver.camera import default_intrinsics as prior
+
+    d = prior("bottom")
+    return CameraIntrinsics(width_px=d["width_px"], height_px=d["height_px"], fx_px=d["fx_px"], fy_px=d["fy_px"],
+                            cx_px=d["cx_px"], cy_px=d["cy_px"])
 
 
 @dataclass(frozen=True)

@@ -51,9 +51,10 @@ NASTY_CELLS = (
 )
 
 # The observations.csv columns the fuzzer damages: indices, leg, pixels, sole points, times, angles, a direction.
-CSV_COLUMNS = ("image", "leg", "stance", "head_posture", "vertex", "u_px", "v_px", "x_sole_m", "y_sole_m",
-               "z_sole_m", "t_image_s", "t_joints_s", "LHipPitch", "cmd_LKneePitch", "dir_RAnkleRoll", "HeadPitch",
-               "cmd_HeadYaw", "RHipYawPitch")
+# the columns damaged (those of the file's version: 2 has camera, target and x_mount_m; 1 has leg and x_sole_m)
+CSV_COLUMNS = ("image", "camera", "target", "leg", "stance", "head_posture", "vertex", "u_px", "v_px", "x_mount_m",
+               "y_mount_m", "z_mount_m", "x_sole_m", "y_sole_m", "z_sole_m", "t_image_s", "t_joints_s", "LHipPitch",
+               "cmd_LKneePitch", "dir_RAnkleRoll", "HeadPitch", "cmd_HeadYaw", "RHipYawPitch")
 
 
 @dataclass
@@ -239,9 +240,10 @@ def csv_damages(rng: random.Random, text: str, n: int) -> list[tuple[str, Callab
     lines = text.split("\n")
     header = lines[0].split(",")
     rows = [i for i in range(1, len(lines)) if lines[i]]
+    columns = [name for name in CSV_COLUMNS if name in header]
     out = []
     for _ in range(n):
-        column = rng.choice(CSV_COLUMNS)
+        column = rng.choice(columns)
         j = header.index(column)
         value = rng.choice(NASTY_CELLS)
         kind = rng.random()
@@ -289,7 +291,7 @@ def make_valid_inputs(directory: Path, seed: int = 3) -> tuple[Path, Path]:
 
     from solver.dataset import read_dataset, write_dataset
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
+    from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
     from solver.synthetic import dataset_parts, random_truth, synthesize
     from tools.cmd_identify import write_offsets_file

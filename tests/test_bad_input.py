@@ -48,6 +48,14 @@ def dataset(valid, work):
 
 
 @pytest.fixture
+def dataset_v1(tmp_path):
+    """A copy of a naocal.dataset/1 directory of that time (tests/data/v1): version 1 is checked as strictly."""
+    path = tmp_path / "ds_v1"
+    shutil.copytree(Path(__file__).parent / "data" / "v1" / "synthetic_dataset", path)
+    return path
+
+
+@pytest.fixture
 def offsets(valid, tmp_path):
     path = tmp_path / "offsets.json"
     shutil.copy(valid[1] / fz.OFFSETS, path)
@@ -222,7 +230,23 @@ def test_non_utf8_names_the_line(dataset):
 # ---------------------------------------------------------------------------------- plausible numbers
 
 
-@pytest.mark.parametrize("field, value, problem", [
+IMPLAUSIBLE_META_V2 = [
+    ("targets.L.rows", 1e308, "implausible size"),
+    ("targets.L.columns", 1000, "implausible size"),
+    ("targets.R.square_m", 2.5, "implausible size"),
+    ("targets.L.centre_m", [-70.0, 0.0, 0.0], "implausible size"),
+    ("targets.R.mass_kg", 1e6, "implausible size"),
+    ("cameras.bottom.width_px", 10 ** 9, "implausible size"),
+    ("cameras.bottom.fx_px", 1e12, "implausible size"),
+    ("cameras.bottom.cx_px", 1e19, "principal point outside"),
+    ("cameras.bottom.cy_px", -3.0, "principal point outside"),
+    ("cameras.bottom.distortion", [1e308, 0, 0, 0, 0], "implausible size"),
+    ("pixel_noise_px", 1e200, "implausible size"),
+    ("gravity_mps2", [-1e308, 0, 0], "implausible size"),
+    ("gravity_mps2", [0.0, 0.0, 0.0], "implausible gravity"),
+    ("gravity_mps2", [-98.1, 0.0, 0.0], "implausible size"),
+]
+IMPLAUSIBLE_META_V1 = [
     ("board.rows", 1e308, "implausible size"),
     ("board.columns", 1000, "implausible size"),
     ("board.square_m", 2.5, "implausible size"),
@@ -237,8 +261,10 @@ def test_non_utf8_names_the_line(dataset):
     ("gravity_torso_mps2", [-1e308, 0, 0], "implausible size"),
     ("gravity_torso_mps2", [0.0, 0.0, 0.0], "implausible gravity"),
     ("gravity_torso_mps2", [-98.1, 0.0, 0.0], "implausible size"),
-])
-def test_implausible_meta_names_the_field(dataset, field, value, problem):
+]
+
+
+def check_implausible_meta(dataset, field, value, problem):
     def edit(meta):
         parent = meta
         *path, last = field.split(".")
@@ -251,12 +277,29 @@ def test_implausible_meta_names_the_field(dataset, field, value, problem):
     assert err.value.field is not None and err.value.field.startswith(field)
 
 
-@pytest.mark.parametrize("column, value, problem", [
+@pytest.mark.parametrize("field, value, problem", IMPLAUSIBLE_META_V2)
+def test_implausible_meta_names_the_field(dataset, field, value, problem):
+    check_implausible_meta(dataset, field, value, problem)
+
+
+@pytest.mark.parametrize("field, value, problem", IMPLAUSIBLE_META_V1)
+def test_implausible_version_1_meta_names_the_field(dataset_v1, field, value, problem):
+    check_implausible_meta(dataset_v1, field, value, problem)
+
+
+def check_implausible_observation(dataset, column, value, problem):
+    set_cells(dataset, column, value, lines=[40])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy cast warning used to come first
+        with pytest.raises(DataError, match=problem) as err:
+            read_dataset(dataset)
+    assert (err.value.line, err.value.field) == (40, column)
+
+
+IMPLAUSIBLE_CELLS = [
     ("u_px", "1e19", "implausible value"),
     ("v_px", "-1e19", "implausible value"),
     ("u_px", "1300", "implausible value"),
-    ("x_sole_m", "1e308", "implausible value"),
-    ("z_sole_m", "-2", "implausible value"),
     ("LHipPitch", "3.2", "the joint's limits"),
     ("cmd_RKneePitch", "-0.5", "the joint's limits"),
     ("HeadYaw", "1e300", "the joint's limits"),
@@ -264,14 +307,23 @@ def test_implausible_meta_names_the_field(dataset, field, value, problem):
     ("head_posture", "9223372036854775808", "integer out of range"),
     ("stance", "-1e308", "integer out of range"),
     ("image", "1e19", "integer out of range"),
+]
+
+
+@pytest.mark.parametrize("column, value, problem", IMPLAUSIBLE_CELLS + [
+    ("x_mount_m", "1e308", "implausible value"),
+    ("z_mount_m", "-20", "implausible value"),
 ])
 def test_implausible_observation_names_line_and_column(dataset, column, value, problem):
-    set_cells(dataset, column, value, lines=[40])
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # a numpy cast warning used to come first
-        with pytest.raises(DataError, match=problem) as err:
-            read_dataset(dataset)
-    assert (err.value.line, err.value.field) == (40, column)
+    check_implausible_observation(dataset, column, value, problem)
+
+
+@pytest.mark.parametrize("column, value, problem", IMPLAUSIBLE_CELLS + [
+    ("x_sole_m", "1e308", "implausible value"),
+    ("z_sole_m", "-2", "implausible value"),
+])
+def test_implausible_version_1_observation_names_line_and_column(dataset_v1, column, value, problem):
+    check_implausible_observation(dataset_v1, column, value, problem)
 
 
 def test_values_just_outside_the_image_are_kept(dataset):
@@ -304,7 +356,10 @@ def test_absurd_result_is_a_failed_identification(dataset, tmp_path):
     out = tmp_path / "offsets.json"
     outcome = fz.run_forked(["identify", str(dataset), "--cv-folds", "0", "--out", str(out)], deadline_s=30)
     line = one_line_error(outcome, "identify", exit_code=3)
-    assert "implausible result: joint_offset." in line and "deg" in line and "nothing written" in line
+    # the generic solver (issue 13) stops at its iteration limit on these data; a fit that did converge would be
+    # refused as implausible (solver.offsets.implausible_parameter, tests/test_offsets.py)
+    assert ("implausible result: joint_offset." in line and "deg" in line) or "did not converge" in line, line
+    assert "nothing written" in line
     assert not out.exists()
 
 

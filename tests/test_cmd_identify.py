@@ -37,15 +37,17 @@ def test_json_output_and_offsets_file_with_compensation_sign(synthetic_dataset, 
     assert all(abs(r - 0.1) < 0.01 for r in report["rms_px"])
     assert all(abs(r - 0.1) < 0.02 for r in report["cv_rms_px"])
     assert report["model_parameters"]["joint_offset.LKneePitch"]["unit"] == "rad"
-    assert "alpha" in report["model_parameters_note"]
-    for joint, entry in report["joint_offsets_c"].items():  # c, as offsets.json stores it
-        assert entry["c_rad"] == -report["model_parameters"][f"joint_offset.{joint}"]["value"]
+    assert "stored offset c" in report["model_parameters_note"]
+    for joint, entry in report["joint_offsets_c"].items():  # c, as offsets.json stores it: the parameter itself
+        assert entry["c_rad"] == report["model_parameters"][f"joint_offset.{joint}"]["value"]
 
     offsets = read_offsets(out)
     for joint in ("LHipPitch", "RAnkleRoll", "LKneePitch"):
-        # stored c is added to commands: c = -alpha
-        assert offsets.joint_offsets_rad[joint] == pytest.approx(-truth[f"joint_offset.{joint}"], abs=0.02 * DEG)
-    assert offsets.camera_rotation_rad["bottom"]["pitch"] == pytest.approx(truth["camera.pitch"], abs=0.01 * DEG)
+        # the parameter joint_offset.<J> is the stored c (added to commands)
+        assert offsets.joint_offsets_rad[joint] == pytest.approx(truth[f"joint_offset.{joint}"], abs=0.02 * DEG)
+        assert offsets.joint_offsets_rad[joint] == report["joint_offsets_c"][joint]["c_rad"]
+    assert offsets.camera_rotation_rad["bottom"]["pitch"] == pytest.approx(truth["camera.bottom.pitch"],
+                                                                           abs=0.01 * DEG)
     assert offsets.board_mount["L"]["trans_x_m"] == pytest.approx(truth["board.L.trans_x"], abs=3e-4)
 
 

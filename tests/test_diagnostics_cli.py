@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from solver.dataset import write_dataset
+from solver.effects import EXTRA_EFFECTS
 from solver.synthetic import dataset_parts, random_truth, synthesize
 from tools.cli import build_parser, main
 
@@ -62,8 +63,7 @@ def test_json_names_the_hidden_effect_and_it_goes_quiet_once_added(elastic_datas
     assert top["predicted_rms_px"] < 0.2 * min(out["rms_px"])
     ranked = [c["excess_rss_px2"] for c in out["candidates"] if c["testable"]]
     assert ranked == sorted(ranked, reverse=True)
-    assert {c["effect"] for c in out["candidates"]} == {"elasticity", "backlash", "link_lengths", "head_offsets",
-                                                        "intrinsics", "distortion", "time_lag"}
+    assert {c["effect"] for c in out["candidates"]} == set(EXTRA_EFFECTS)  # every candidate effect
 
     after = diagnose_json(capsys, elastic_dataset, "--effects", "elasticity")
     assert max(after["rms_px"]) < 1.2 * NOISE_PX
@@ -202,23 +202,24 @@ def test_the_verdict_fixes_what_the_data_cannot_tell_and_diagnose_accepts_it(ela
     diagnosis = diagnose_result(identify(data, Registry()), pixel_noise_px=NOISE_PX)
     best = next(c for c in diagnosis.candidates if c.significant and c.plausible)
     best.inside_model = ["elasticity.LAnkleRoll"]  # as if these data could not tell it from the model
-    text = format_text(diagnosis, dataset_path=elastic_dataset, fixed=["camera.yaw"])
+    text = format_text(diagnosis, dataset_path=elastic_dataset, fixed=["camera.bottom.yaw"])
     identify_command, diagnose_command = verdict_commands(text)
     for command in (identify_command, diagnose_command):
-        assert command.endswith("--effects elasticity --fix camera.yaw --fix elasticity.LAnkleRoll")
+        assert command.endswith("--effects elasticity --fix camera.bottom.yaw --fix elasticity.LAnkleRoll")
     fitted = run_as_pasted(identify_command + " --cv-folds 0", capsys)  # as pasted, minus cross-validation
-    assert re.search(r"camera\.yaw +0\.0000 +0\.0000  deg  \(fixed\)", fitted)
+    assert re.search(r"camera\.bottom\.yaw +0\.0000 +0\.0000  deg  \(fixed\)", fitted)
     assert re.search(r"elasticity\.LAnkleRoll +0\.0000 +0\.0000  deg/\(N m\)  \(fixed\)", fitted)
     args = build_parser().parse_args(shlex.split(diagnose_command)[1:])  # diagnose takes what it advises
-    assert args.fix == ["camera.yaw", "elasticity.LAnkleRoll"] and args.effects == "elasticity"
+    assert args.fix == ["camera.bottom.yaw", "elasticity.LAnkleRoll"] and args.effects == "elasticity"
 
 
 def test_a_calibration_run_directory_is_read_as_its_dataset(elastic_dataset, tmp_path, capsys):
     run = tmp_path / "run"
     shutil.copytree(elastic_dataset, run / "dataset")
     (run / "summary.txt").write_text("naocal calibrate: done\n")
-    out = diagnose_json(capsys, run, "--fix", "camera.yaw")
-    assert out["candidates"][0]["effect"] == "elasticity" and out["model_parameters"]["camera.yaw"]["value"] == 0.0
+    out = diagnose_json(capsys, run, "--fix", "camera.bottom.yaw")
+    assert out["candidates"][0]["effect"] == "elasticity"
+    assert out["model_parameters"]["camera.bottom.yaw"]["value"] == 0.0
     assert main(["identify", str(run), "--cv-folds", "0", "--out", str(tmp_path / "offsets.json")]) == 0
     capsys.readouterr()
     assert json.loads((tmp_path / "offsets.json").read_text())["source"]["dataset"] == str(run / "dataset")

@@ -119,10 +119,11 @@ def test_calibrating_through_lola_and_v4l2_recovers_the_mock_truth_and_a_killed_
         stored = json.loads((tmp_path / "run" / "offsets.json").read_text())
         truth = draw_truth(SEED)
         for joint in LEG_JOINTS:
-            error_deg = np.degrees(-stored["joint_offsets_rad"][joint] - truth.alpha_rad[joint])  # c = -alpha
+            error_deg = np.degrees(-stored["body"]["joint_offsets_rad"][joint] - truth.alpha_rad[joint])  # c = -alpha
             assert abs(error_deg) < 0.1, (joint, error_deg)
         for angle in ("roll", "pitch", "yaw"):
-            error_deg = np.degrees(stored["camera_rotation_rad"]["bottom"][angle] - truth.camera_rotation_rad[angle])
+            camera = stored["head"]["camera_rotation_rad"]["bottom"]
+            error_deg = np.degrees(camera[angle] - truth.camera_rotation_rad[angle])
             assert abs(error_deg) < 0.1, (angle, error_deg)
         assert stored["robot"]["body_id"] == "P0000074A05S94700111"
 

@@ -142,9 +142,9 @@ def run(args) -> int:
         raise NaocalError("--endpoint is for --backend bridge")
     effects = {}
     if args.backend == "mock":
-        from backends.mock import parse_effects
+        from backends.mock import parse_effect_sizes
 
-        effects = parse_effects(args.effect)
+        effects = parse_effect_sizes(args.effect)
     record = calibrate_record(backend=args.backend, mock_seed=args.seed if args.backend == "mock" else None,
                               effects=effects, plan=args.plan, plan_seed=args.plan_seed,
                               stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
@@ -174,7 +174,7 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
 
     from agent.calibrate import calibrate
     from agent.machine import INTERRUPTED
-    from agent.report import resumable
+    from agent.summary import resumable
     from solver.fileio import atomic_write_text
 
     settings = settings_from_args(args, seed=args.plan_seed, source=f"naocal calibrate --backend {args.backend}")

@@ -7,16 +7,15 @@ def register(subparsers):
         help="identify joint offsets, camera rotation and board mounts from a dataset",
         description=(
             "Fit the paper's 21-parameter model (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per "
-            "leg), plus any --effects, to a naocal.dataset/1 directory by Levenberg-Marquardt on the pixel error of "
-            "the board vertices. Prints a table (or --json); --out writes a naocal.offsets/1 file. Exit 0 on "
+            "leg), plus any --effects, to a naocal.dataset/2 (or /1) directory by Levenberg-Marquardt on the pixel "
+            "error of the board vertices. Prints a table (or --json); --out writes a naocal.offsets/2 file. Exit 0 on "
             "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
         ),
     )
     p.add_argument("dataset", metavar="DATASET",
-                   help="naocal.dataset/1 directory, or a naocal calibrate --out directory (uses its dataset/)")
-    p.add_argument("--effects", default="", help="extra model terms, comma separated: elasticity, backlash, "
-                   "link_lengths, head_offsets, intrinsics, distortion, time_lag")
-    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/1 file (atomic, old one kept as .bak)")
+                   help="naocal.dataset/2 (or /1) directory, or a naocal calibrate --out directory (uses its dataset/)")
+    p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
+    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/2 file (atomic, old one kept as .bak)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--tie-hip-yaw-pitch", action="store_true",
                    help="RHipYawPitch takes LHipYawPitch's offset (one motor on the robot)")
@@ -31,6 +30,13 @@ def register(subparsers):
     p.add_argument("--cv-folds", type=int, default=5,
                    help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
     p.set_defaults(run=run)
+
+
+def effect_names() -> str:
+    """The candidate effects, for --help (solver/effects/, one module each)."""
+    from solver.effects import EXTRA_EFFECTS
+
+    return ", ".join(EXTRA_EFFECTS)
 
 
 def add_angles_option(parser) -> None:
@@ -49,21 +55,24 @@ def run(args) -> int:
     from solver.errors import NaocalError, SolveError
     from solver.fileio import check_output_file
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
+    from solver.adapter import model_data_from_dataset
+    from solver.effects import EFFECTS, parse_effect_names
     from solver.offsets import implausible_parameters
-    from solver.registry import Registry, parse_effects
+    from solver.registry import Registry
 
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
         raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
-    effects = parse_effects(args.effects)
-    registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
+    effects = parse_effect_names(args.effects)
     if args.out:
         check_output_file(args.out)
     dataset_path = find_dataset(args.dataset)
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)
-    if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{dataset_path}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+    registry = Registry.for_data(data, effects, tie_shared_motors=args.tie_hip_yaw_pitch, fixed=args.fix)
+    for name in effects:
+        reason = EFFECTS[name].untestable_reason(data)
+        if reason:
+            raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
@@ -118,29 +127,29 @@ def result_json(result, effects, cv_rms) -> dict:
     }
 
 
-MODEL_PARAMETERS_NOTE = ("model values: joint_offset.<J> and head_offset.<J> are alpha (q_true = theta + alpha); "
-                         "the stored offset is c = -alpha (joint_offsets_c)")
+MODEL_PARAMETERS_NOTE = ("model values: joint_offset.<J> and head_offset.<J> are the stored offset c "
+                         "(q_true = theta - c), as in joint_offsets_c")
 
 
 def joint_offsets_c(result) -> dict:
-    """{joint: {"c_rad", "std_rad", "fixed"}}: the compensation offsets c = -alpha, as offsets.json stores them."""
+    """{joint: {"c_rad", "std_rad", "fixed"}}: the compensation offsets c, as offsets.json stores them (the
+    parameters joint_offset.<J> and head_offset.<J> are c)."""
     from solver.offsets import COMPENSATED_PREFIXES
 
     out = {}
     for name, entry in result.parameters_dict().items():
         if name.startswith(COMPENSATED_PREFIXES):
-            out[name.split(".", 1)[1]] = {"c_rad": -entry["value"], "std_rad": entry["std"],
+            out[name.split(".", 1)[1]] = {"c_rad": entry["value"], "std_rad": entry["std"],
                                           "fixed": name in result.registry.fixed}
     return out
-
-
 
 
 def format_offsets_c(result) -> list[str]:
     """The joint offsets as the table every naocal command prints: c, labelled, in degrees."""
     import math
 
-    lines = ["joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings; c = -alpha):"]
+    lines = ["joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings; "
+             "q_true = theta - c):"]
     for joint, entry in joint_offsets_c(result).items():
         fixed = "  (fixed)" if entry["fixed"] else ""
         lines.append(f"  {joint:14s} c = {math.degrees(entry['c_rad']):+8.4f} deg   "
@@ -149,10 +158,8 @@ def format_offsets_c(result) -> list[str]:
 
 
 def format_table(result, cv_rms) -> str:
-    import numpy as np
-
-    from agent.report import describe_direction
-    from solver.offsets import shown_sign
+    from agent.summary import describe_direction
+    from solver.offsets import COMPENSATED_PREFIXES
 
     lines = [
         f"fit: RMS {result.rms_px[0]:.3f} px (x), {result.rms_px[1]:.3f} px (y) over "
@@ -164,18 +171,13 @@ def format_table(result, cv_rms) -> str:
     lines.append("")
     lines += format_offsets_c(result)
     lines.append("")
-    lines.append("other parameters (model values: camera rotation and board mount alphas of Eq. 3-4, effects):")
+    lines.append("other parameters (model values: camera rotation and board mount corrections of Eq. 3-4, effects):")
     lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
     for name, entry in result.parameters_dict().items():
-        if shown_sign(name) < 0:  # an offset: in the c table above
+        if name.startswith(COMPENSATED_PREFIXES):  # an offset: in the c table above
             continue
-        value, std, unit = entry["value"], entry["std"], entry["unit"]
-        if unit == "rad":
-            value, std, unit = np.degrees(value), np.degrees(std), "deg"
-        elif unit == "m":
-            value, std, unit = value * 1e3, std * 1e3, "mm"
-        elif unit == "rad/(N m)":
-            value, std, unit = np.degrees(value), np.degrees(std), "deg/(N m)"
+        value, unit = result.registry.display(name, entry["value"])
+        std, _ = result.registry.display(name, entry["std"])
         fixed = "  (fixed)" if name in result.registry.fixed else ""
         lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}")
     lines.append("")
@@ -195,34 +197,23 @@ def format_table(result, cv_rms) -> str:
 
 
 def strongest_correlations(result, count=5, threshold=0.8):
-    """The strongest correlations between free parameters, offsets as c (as the tables show them)."""
+    """The strongest correlations between free parameters, offsets named as c (as the tables show them)."""
     import numpy as np
 
-    from solver.offsets import shown_name, shown_sign
+    from solver.offsets import shown_name
 
-    names = result.registry.free_names
-    sign = np.array([shown_sign(n) for n in names])
-    C = np.nan_to_num(result.correlation) * sign[:, None] * sign[None, :]
-    names = [shown_name(n) for n in names]
+    C = np.nan_to_num(result.correlation)
+    names = [shown_name(n) for n in result.registry.free_names]
     pairs = [(abs(C[i, j]), names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i)]
     pairs.sort(reverse=True)
     return [(a, b, c) for m, a, b, c in pairs[:count] if m >= threshold]
 
 
 def write_offsets_file(path, result, dataset, dataset_path):
-    from solver.offsets import offsets_from_parameters, write_offsets
+    from solver.offsets import offsets_from_result, write_offsets
 
     robot_meta = dataset.meta.get("robot", {})
-    robot = {
-        "id": str(robot_meta.get("id", "unknown")),
-        "body_id": str(robot_meta.get("body_id", robot_meta.get("id", "unknown"))),
-        "head_id": str(robot_meta.get("head_id", robot_meta.get("id", "unknown"))),
-    }
-    fit = {"rms_px": list(result.rms_px), "n_vertices": int(result.model.data.n_rows),
-           "n_images": int(result.model.data.n_images)}
-    offsets = offsets_from_parameters(
-        result.parameters_dict(), robot=robot, fit=fit,
-        effects=[e for e in result.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")],
-        source={"tool": "naocal identify", "dataset": str(dataset_path), "dataset_source": dataset.meta.get("source")},
-    )
+    robot = {key: str(robot_meta.get(key, robot_meta.get("id", "unknown"))) for key in ("id", "body_id", "head_id")}
+    offsets = offsets_from_result(result, robot=robot, source={
+        "tool": "naocal identify", "dataset": str(dataset_path), "dataset_source": dataset.meta.get("source")})
     write_offsets(offsets, path)

@@ -3,7 +3,7 @@
     naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...]
 
 Runs the agent's modelling and measurement (the standard plan: 24 stances per leg x 3 head postures, plus the lag
-probe) on the PyBullet mock and writes the naocal.dataset/1 directory DIR (dataset.json, observations.csv,
+probe) on the PyBullet mock and writes the naocal.dataset/2 directory DIR (dataset.json, observations.csv,
 images/) and DIR/truth.json (naocal.truth/1: the mock's alpha, camera rotation, board mounts and effects).
 Exit 0 on success, 2 on bad input, 3 if the measurement failed.
 """
@@ -44,9 +44,9 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
-    from backends.mock import MockBackend, parse_effects
+    from backends.mock import MockBackend, parse_effect_sizes
 
-    effects = parse_effects(args.effect)
+    effects = parse_effect_sizes(args.effect)
     command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
                          + [f"--effect={k}={v!r}" for k, v in effects.items()])
     with RunLock(out, command):

@@ -24,7 +24,7 @@ CAMERA_URDF_JOINTS = {"bottom": "CameraBottom_sensor_fixedjoint", "top": "Camera
 
 
 def export_json(offsets: Offsets) -> str:
-    """The file itself, validated and in canonical form (naocal.offsets/1)."""
+    """The file itself, validated and in canonical form (naocal.offsets/2; a version 1 file is upgraded)."""
     return format_offsets(offsets)
 
 
