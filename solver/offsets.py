@@ -502,7 +502,8 @@ def _validated_model_v2(model, path, robot) -> dict:
                   f"{where}.unit")
         if unit != units[name]:
             _fail(path, f"wrong unit {unit!r}, {name} is in {units[name]!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value"),
+        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
+                                          unit=unit),
                          "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
                          "unit": unit}
     return {"effects": list(effects), "parameters": checked}

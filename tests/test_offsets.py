@@ -239,6 +239,11 @@ def delete_path(doc, path):
     ("created", "yesterday", "created", "ISO-8601"),
     ("created", "2024-06-01T14:00:00+02:00", "created", "UTC"),
     ("robot/id", 17, "robot.id", "expected a string"),
+    ("robot/head_id", "../../etc/passwd", "robot.head_id", "not a valid id"),  # becomes a file name in exports
+    ("robot/body_id", "a\nb", "robot.body_id", "not a valid id"),
+    ("model/parameters/camera.bottom.roll/value", 1e300, "model.parameters.camera.bottom.roll.value",
+     "implausible size"),
+    ("model/parameters/board.L.trans_x/value", 2.0, "model.parameters.board.L.trans_x.value", "mm instead of m"),
     ("robot/description", "../../etc/passwd", "robot.description", "robot description"),
     ("robot/description", "pepper", "robot.description", "unknown robot description"),
     ("extra", 1, "extra", "unknown field"),
