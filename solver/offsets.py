@@ -38,6 +38,7 @@ BACKUP_SUFFIX = ".bak"
 # Plausible sizes: anything beyond is a damaged file, a unit mix-up (degrees written as radians) or a broken robot.
 MAX_JOINT_OFFSET_RAD = math.radians(10.0)
 MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
+MAX_CAMERA_TRANSLATION_M = 0.03  # solver/effects/camera_translation.py's offsets_limit
 MAX_BOARD_TRANS_M = 0.03
 MAX_BOARD_ROT_Z_RAD = math.radians(15.0)
 
@@ -55,8 +56,10 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
     group, _, member = name.partition(".")
     if group in ("joint_offset", "head_offset"):
         limit = MAX_JOINT_OFFSET_RAD
-    elif group == "camera":
+    elif group == "camera" and unit == "rad":
         limit = MAX_CAMERA_ROTATION_RAD
+    elif group == "camera":  # camera.<name>.trans_<axis>: the camera_translation effect's file limit
+        limit = MAX_CAMERA_TRANSLATION_M
     elif group == "board":
         limit = MAX_BOARD_ROT_Z_RAD if member.endswith("rot_z") else MAX_BOARD_TRANS_M
     else:

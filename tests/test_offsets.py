@@ -326,3 +326,18 @@ def test_every_registry_parameter_is_accepted_with_its_unit():
         assert effect.offsets_key in doc[effect.offsets_section], effect.name
     assert set(doc["head"]["camera_rotation_rad"]) == {"bottom", "top"}
     assert set(doc["targets"]["board_mount"]) == {"L", "R", "floor"}
+
+
+def test_a_fit_the_file_could_not_hold_is_implausible():
+    """identify refuses, before writing, what the offsets file would refuse: each term at its own file limit (a
+    camera translation is in m, not under the camera rotation's limit in rad)."""
+    from solver.effects import EFFECTS
+    from solver.offsets import MAX_CAMERA_TRANSLATION_M, implausible_parameter
+
+    assert MAX_CAMERA_TRANSLATION_M == EFFECTS["camera_translation"].offsets_limit
+    assert "camera.bottom.trans_z" in implausible_parameter("camera.bottom.trans_z", 0.05, 1e-4, "m")
+    assert implausible_parameter("camera.bottom.trans_z", 0.02, 1e-4, "m") is None
+    assert "deg" in implausible_parameter("camera.bottom.pitch", MAX_CAMERA_ROTATION_RAD * 1.01, 1e-4, "rad")
+    assert implausible_parameter("camera.top.yaw", MAX_CAMERA_ROTATION_RAD * 0.99, 1e-4, "rad") is None
+    assert "joint_offset.LHipPitch" in implausible_parameter("joint_offset.LHipPitch", MAX_JOINT_OFFSET_RAD * 1.5,
+                                                             1e-4, "rad")
