@@ -64,3 +64,39 @@ def test_damaged_offsets_files_fail_cleanly(valid, work):
     assert runs == len(cases)
     assert not failures, report(runs, failures)
 
+
+
+V1 = Path(__file__).parent / "data" / "v1"  # files of naocal.dataset/1 and naocal.offsets/1 (still read)
+
+
+@pytest.fixture(scope="module")
+def valid_v1(work):
+    import shutil
+
+    dataset, offsets = work / "valid_v1" / "dataset", work / "valid_v1" / "offsets"
+    shutil.copytree(V1 / "synthetic_dataset", dataset)
+    (dataset / "truth.json").unlink()
+    offsets.mkdir()
+    shutil.copy(V1 / "offsets_base.json", offsets / fz.OFFSETS)
+    shutil.copy(V1 / "offsets_base.json", offsets / "reference.json")
+    for path in (work / "valid_v1", dataset, offsets):
+        os.chmod(path, 0o755)
+    for path in list(dataset.iterdir()) + list(offsets.iterdir()):
+        os.chmod(path, 0o644)
+    return dataset, offsets
+
+
+def test_damaged_version_1_files_fail_cleanly(valid_v1, work):
+    """A version 1 seed too: its own reader's checks (a few seeded mutations of each file; the file-level damages
+    are the same code path as version 2's)."""
+    dataset, offsets = valid_v1
+    cases = fz.dataset_cases(dataset, seed=1, n_json=6, n_csv=10)[-16:]
+    runs, failures = fz.run_cases(cases, dataset, work / "datasets_v1", fz.dataset_verbs, every_verb=False,
+                                  deadline_s=DEADLINE_S)
+    assert not failures, report(runs, failures)
+    reference = offsets / "reference.json"
+    cases = fz.offsets_cases(offsets / fz.OFFSETS, seed=1, n_json=10)[-10:]
+    runs, failures = fz.run_cases(cases, offsets, work / "offsets_v1",
+                                  lambda d, out: fz.offsets_verbs(d / fz.OFFSETS, reference), every_verb=False,
+                                  deadline_s=DEADLINE_S)
+    assert runs == len(cases) and not failures, report(runs, failures)
