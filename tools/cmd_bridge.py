@@ -64,6 +64,7 @@ def _serve(args) -> int:
     import logging
     import signal
 
+    from backends.bridge_guard import raise_fd_limit
     from backends.bridge_server import BridgeServer, check_bind_address, keep_large_buffers_in_heap
     from solver.errors import NaocalError
 
@@ -73,6 +74,7 @@ def _serve(args) -> int:
         raise NaocalError("--curve-clients needs --curve-secret-key")
     check_bind_address(args.bind, args.allow_remote)  # before anything touches the robot
     keep_large_buffers_in_heap()  # 5x faster image replies
+    raise_fd_limit()  # room for a flood of connections (backends/bridge_guard.py)
     backend, clock, state_persists = _open_backend(args)
     try:
         server = BridgeServer(
@@ -87,7 +89,7 @@ def _serve(args) -> int:
 
         signal.signal(signal.SIGINT, request_stop)
         signal.signal(signal.SIGTERM, request_stop)
-        print(f"naocal bridge: serving {args.driver} on {server.endpoint}", flush=True)
+        print(f"naocal bridge: serving {args.driver} ({server.security_summary()}) on {server.endpoint}", flush=True)
         server.serve_forever()
     finally:
         backend.close()
@@ -143,5 +145,7 @@ def _keygen(args) -> int:
     from backends.bridge_server import write_curve_keys
 
     public_path, secret_path = write_curve_keys(args.out, args.name)
-    print(f"public key (give to clients): {public_path}\nsecret key (keep on the server): {secret_path}")
+    print(f"public key: {public_path}\n  give it to the other side: a server's key to its clients "
+          "(--curve-server-key or $NAOCAL_CURVE_SERVER_KEY), a client's key into the server's --curve-clients DIR\n"
+          f"secret key: {secret_path}\n  keep it on the machine that uses it (mode 0600) and copy it nowhere else")
     return 0
