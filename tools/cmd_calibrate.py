@@ -93,6 +93,9 @@ def run(args) -> int:
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
+        from backends.bridge_endpoint import check_client_endpoint
+
+        check_client_endpoint(args.endpoint)
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
     elif args.endpoint:
@@ -123,7 +126,8 @@ def run(args) -> int:
     else:
         from backends.bridge import BridgeBackend
 
-        backend = BridgeBackend(args.endpoint)
+        # The lease token stays with the run, so `--resume` after a crash takes the robot back at once.
+        backend = BridgeBackend(args.endpoint, lease_file=out / "bridge.token")
         label = f"bridge {args.endpoint}"
     try:
         result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth)
