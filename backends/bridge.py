@@ -23,6 +23,7 @@ import logging
 import math
 import os
 import secrets
+import stat
 import time
 
 import numpy as np
@@ -298,7 +299,10 @@ class BridgeBackend(Backend):
         if not self.lease_file:
             return None
         try:
-            text = open(self.lease_file, encoding="ascii").read().strip()
+            if not stat.S_ISREG(os.stat(self.lease_file).st_mode):
+                raise OSError("not a regular file")
+            with open(self.lease_file, encoding="ascii") as file:
+                text = file.read(256).strip()
         except FileNotFoundError:
             return None
         except (OSError, UnicodeError) as err:
@@ -408,22 +412,17 @@ class BridgeBackend(Backend):
 
 def _load_client_curve(server_key_file, client_key_file):
     """(server public, client public, client secret) from key files written by `naocal bridge keygen`."""
-    import zmq.auth
+    from backends.bridge_keys import load_key_file, warn_if_others_can_read
 
     try:
-        server_public, _ = zmq.auth.load_certificate(os.fspath(server_key_file))
-    except (OSError, ValueError) as err:
-        raise BridgeError(f"{server_key_file}: cannot read the server's CURVE public key: {err}") from None
-    if client_key_file is None:
-        client_public, client_secret = zmq.curve_keypair()
-        return server_public, client_public, client_secret
-    try:
-        client_public, client_secret = zmq.auth.load_certificate(os.fspath(client_key_file))
-    except (OSError, ValueError) as err:
-        raise BridgeError(f"{client_key_file}: cannot read the client's CURVE key: {err}") from None
+        server_public, _ = load_key_file(server_key_file, "the server's CURVE public key")
+        if client_key_file is None:
+            client_public, client_secret = zmq.curve_keypair()
+            return server_public, client_public, client_secret
+        client_public, client_secret = load_key_file(client_key_file, "the client's CURVE key")
+    except NaocalError as err:
+        raise BridgeError(str(err)) from None
     if client_secret is None:
         raise BridgeError(f"{client_key_file}: holds no secret key (give the *.key_secret file)")
-    from backends.bridge_keys import warn_if_others_can_read
-
     warn_if_others_can_read(client_key_file)
     return server_public, client_public, client_secret

@@ -14,6 +14,27 @@ from solver.errors import NaocalError
 log = logging.getLogger("naocal.bridge")
 
 
+MAX_KEY_FILE_BYTES = 64 << 10
+
+
+def load_key_file(path, what: str) -> tuple[bytes | None, bytes | None]:
+    """(public, secret) from a ZeroMQ certificate file; NaocalError naming the file if it is not a regular file of
+    sensible size (a FIFO would hang the reader) or holds no key."""
+    import zmq.auth
+
+    path = os.fspath(path)
+    try:
+        info = os.stat(path)
+    except OSError as err:
+        raise NaocalError(f"{path}: cannot read {what}: {err.strerror}") from None
+    if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_KEY_FILE_BYTES:
+        raise NaocalError(f"{path}: not {what} (not a regular file of at most {MAX_KEY_FILE_BYTES >> 10} KiB)")
+    try:
+        return zmq.auth.load_certificate(path)
+    except (OSError, ValueError, UnicodeError) as err:
+        raise NaocalError(f"{path}: cannot read {what}: {err}") from None
+
+
 def is_curve_key(key) -> bool:
     """A Z85-encoded 32-byte CURVE key."""
     try:
@@ -40,17 +61,12 @@ def load_client_keys(directory) -> list[bytes]:
 
     libzmq's authenticator would skip or choke on a bad file and admit nobody, silently.
     """
-    import zmq.auth
-
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
         raise NaocalError(f"{directory}: not a directory of client public keys (*.key)")
     keys = []
     for path in sorted(glob.glob(os.path.join(directory, "*.key"))):
-        try:
-            public, _ = zmq.auth.load_certificate(path)
-        except (OSError, ValueError, UnicodeError) as err:
-            raise NaocalError(f"{path}: cannot read it as a CURVE public key: {err}") from None
+        public, _ = load_key_file(path, "a CURVE public key")
         if not is_curve_key(public):
             raise NaocalError(f"{path}: not a CURVE public key (expected a NAME.key written by naocal bridge keygen)")
         keys.append(public)

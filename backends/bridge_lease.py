@@ -21,6 +21,7 @@ import hmac
 import logging
 import os
 import shutil
+import stat
 import time
 
 import msgpack
@@ -121,8 +122,14 @@ class LeaseJournal:
         return lease
 
     def _read(self, replies_kept: int) -> MotionLease | None:
-        if not os.path.exists(self.path):
+        try:
+            info = os.stat(self.path)
+        except FileNotFoundError:
             return None
+        except OSError as err:
+            raise NaocalError(f"journal {self.path}: {err.strerror}") from None
+        if not stat.S_ISREG(info.st_mode):  # a FIFO would hang the reader, a device never end
+            raise NaocalError(f"journal {self.path}: not a regular file")
         lease, skipped = None, 0
         with open(self.path, "rb") as file:
             unpacker = msgpack.Unpacker(file, raw=False, strict_map_key=True, max_buffer_size=64 << 20)
@@ -136,8 +143,8 @@ class LeaseJournal:
                         lease = None
                     elif lease is None or lease.token_digest != token_digest:
                         lease = MotionLease(token_digest, replies_kept=replies_kept)
-                    if lease is not None and {"client", "seq", "reply"} <= record.keys():
-                        lease.store(str(record["client"]), int(record["seq"]), bytes(record["reply"]))
+                    if lease is not None and _reply_record(record):
+                        lease.store(record["client"], record["seq"], record["reply"])
             except Exception:  # torn or corrupt tail: keep what was read
                 log.warning("journal %s: ignoring a damaged tail", self.path)
         if skipped:
@@ -182,6 +189,11 @@ class LeaseJournal:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+def _reply_record(record: dict) -> bool:
+    return (isinstance(record.get("client"), str) and type(record.get("seq")) is int
+            and isinstance(record.get("reply"), bytes))
 
 
 def write_all(fd: int, data: bytes) -> None:

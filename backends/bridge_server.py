@@ -35,7 +35,7 @@ from backends.base import Backend
 from backends.bridge_endpoint import (check_bind_address, check_bound_endpoint, is_local_endpoint, split_endpoint,
                                       tcp_listen_hosts)
 from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
-from backends.bridge_keys import is_curve_key, load_client_keys, warn_if_others_can_read
+from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
 from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
 from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
@@ -172,13 +172,8 @@ class BridgeServer:
         return "CURVE: encrypted, any client key"
 
     def _configure_curve(self, socket) -> None:
-        import zmq.auth
-
         key_file = os.fspath(self._curve_secret_key_file)
-        try:
-            public, secret = zmq.auth.load_certificate(key_file)
-        except (OSError, ValueError) as err:
-            raise NaocalError(f"{key_file}: cannot read the CURVE key: {err}") from None
+        public, secret = load_key_file(key_file, "the server's CURVE key")
         if secret is None:
             raise NaocalError(f"{key_file}: holds no secret key (give the *.key_secret file)")
         if not (is_curve_key(public) and is_curve_key(secret)):

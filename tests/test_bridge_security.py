@@ -421,3 +421,79 @@ def test_a_restarted_server_keeps_the_lease_of_its_journal(tmp_path):
     finally:
         second.stop()
     assert sent_targets(fake) == TARGETS[:2]
+
+
+# ---------------------------------------------------------------------------------------------- files that are not files
+def returns_within(timeout_s, function, *args, **kwargs):
+    """Run `function` in a thread; its result or exception, or fail if it is still running after `timeout_s`."""
+    import threading
+
+    outcome = {}
+
+    def run():
+        try:
+            outcome["value"] = function(*args, **kwargs)
+        except BaseException as err:  # handed to the test
+            outcome["error"] = err
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    return thread.is_alive(), outcome
+
+
+def unblock_fifo(path):
+    """Open a FIFO for writing and close it, so a reader stuck in open() returns (end of file)."""
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+    except OSError:
+        pass
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_journal_key_or_token_that_is_not_a_regular_file_is_refused_without_hanging(tmp_path, caplog):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    try:
+        hung, outcome = returns_within(5.0, BridgeServer, FakeBackend(), "tcp://127.0.0.1:0", journal_path=fifo)
+        assert not hung, "reading a FIFO as the journal hangs"
+        assert isinstance(outcome.get("error"), NaocalError) and "not a regular file" in str(outcome["error"])
+        with pytest.raises(NaocalError, match=f"journal {tmp_path}: "):
+            BridgeServer(FakeBackend(), "tcp://127.0.0.1:0", journal_path=tmp_path)  # a directory
+
+        _, server_secret = write_curve_keys(tmp_path / "server", "server")
+        clients = tmp_path / "clients"
+        write_curve_keys(clients, "agent")
+        os.mkfifo(clients / "laptop.key")
+        server = BridgeServer(FakeBackend(), "tcp://127.0.0.1:0", curve_secret_key_file=server_secret,
+                              curve_clients_dir=clients)
+        hung, outcome = returns_within(5.0, server.start)
+        assert not hung, "reading a FIFO as a client key hangs"
+        assert isinstance(outcome.get("error"), NaocalError) and "laptop.key: not a CURVE public key" in str(
+            outcome["error"])
+        unblock_fifo(clients / "laptop.key")
+
+        caplog.set_level(logging.WARNING)
+        with serving(FakeBackend()) as server:
+            agent = BridgeBackend(server.endpoint, timeout_s=1.0, lease_file=fifo)
+            hung, outcome = returns_within(5.0, agent.command, TARGETS[0], 0.2)
+            assert not hung and "error" not in outcome, "reading a FIFO as the lease token hangs"
+        assert any(str(fifo) in r.getMessage() and "asking for a new lease" in r.getMessage() for r in caplog.records)
+    finally:
+        unblock_fifo(fifo)
+
+
+def test_journal_records_of_the_wrong_types_are_ignored(tmp_path):
+    import msgpack
+
+    from backends.bridge_lease import LeaseJournal, digest
+
+    lease = digest("T" * 43)
+    good = protocol.pack(protocol.ok_reply("agent:1", None))
+    records = [{"lease": lease}, {"lease": lease, "client": "agent", "seq": 1, "reply": good},
+               {"lease": lease, "client": "agent", "seq": 2, "reply": 10 ** 9},  # bytes(10**9) would be 1 GB
+               {"lease": lease, "client": "agent", "seq": "3", "reply": good}, ["old", 1, good]]
+    path = tmp_path / "j"
+    path.write_bytes(b"".join(msgpack.packb(r, use_bin_type=True) for r in records))
+    restored = LeaseJournal(path).load(replies_kept=32)
+    assert restored.held_by("T" * 43) and list(restored.records()) == [("agent", 1, good)]
