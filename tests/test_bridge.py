@@ -204,9 +204,9 @@ def test_curve_encrypts_and_authenticates(tmp_path):
     with serving(FakeBackend(), curve_secret_key_file=server_secret) as server:
         assert BridgeBackend(server.endpoint, timeout_s=1.0, curve_server_key=server_public).now() == 0.0
         with pytest.raises(BridgeError, match="the server requires CURVE keys"):
-            BridgeBackend(server.endpoint, timeout_s=0.2, retries=0).now()  # plain text: refused
+            BridgeBackend(server.endpoint, timeout_s=2.0, retries=0).now()  # plain text: refused
         with pytest.raises(BridgeError, match="CURVE handshake failed: is .*server.key the public key"):
-            BridgeBackend(server.endpoint, timeout_s=0.2, retries=0, curve_server_key=other_public).now()
+            BridgeBackend(server.endpoint, timeout_s=2.0, retries=0, curve_server_key=other_public).now()
 
 
 def test_curve_can_admit_known_clients_only(tmp_path):
@@ -217,7 +217,7 @@ def test_curve_can_admit_known_clients_only(tmp_path):
         known = BridgeBackend(server.endpoint, timeout_s=1.0, curve_server_key=server_public,
                               curve_client_key=client_secret)
         assert known.now() == 0.0
-        stranger = BridgeBackend(server.endpoint, timeout_s=0.3, retries=0, curve_server_key=server_public,
+        stranger = BridgeBackend(server.endpoint, timeout_s=2.0, retries=0, curve_server_key=server_public,
                                  curve_client_key=stranger_secret)
         with pytest.raises(BridgeError, match="does not admit this client's CURVE key"):
             stranger.now()
