@@ -77,8 +77,10 @@ class BridgeBackend(Backend):
         context: zmq.Context | None = None,
     ):
         check_client_endpoint(endpoint)
-        if not (timeout_s > 0 and retries >= 0):
-            raise ValueError("timeout_s must be > 0 and retries >= 0")
+        if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s < math.inf):  # every wait has a deadline
+            raise BridgeError(f"bridge timeout (--timeout-s) must be a finite number of seconds > 0, got {timeout_s}")
+        if not retries >= 0:
+            raise ValueError("retries must be >= 0")
         self.endpoint = endpoint
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import math
 import os
 import secrets
 import threading
@@ -45,6 +46,15 @@ log = logging.getLogger("naocal.bridge.server")
 
 DEFAULT_BIND = "tcp://127.0.0.1:7790"
 POLL_INTERVAL_S = 0.1  # how often the loop looks at its stop flag
+
+
+def check_lease_timeout(lease_timeout_s) -> float:
+    """A finite number of seconds > 0 (NaN would make every lease look expired: anyone could take the robot)."""
+    value = float(lease_timeout_s)
+    if not 0 < value < math.inf:
+        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a finite number of seconds > 0, got "
+                          f"{lease_timeout_s}")
+    return value
 
 
 class FaultInjector:
@@ -103,7 +113,7 @@ class BridgeServer:
         self.driver = driver
         self.clock = clock
         self.state_persists = bool(state_persists)
-        self.lease_timeout_s = float(lease_timeout_s)
+        self.lease_timeout_s = check_lease_timeout(lease_timeout_s)
         self.faults = faults
         self.server_id = secrets.token_hex(8)
         self.endpoint = None  # the bound address, with the real port, after start()

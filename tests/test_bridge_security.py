@@ -423,7 +423,7 @@ def test_a_restarted_server_keeps_the_lease_of_its_journal(tmp_path):
     assert sent_targets(fake) == TARGETS[:2]
 
 
-# ---------------------------------------------------------------------------------------------- files that are not files
+# ------------------------------------------------------------------------------------------ files that are not files
 def returns_within(timeout_s, function, *args, **kwargs):
     """Run `function` in a thread; its result or exception, or fail if it is still running after `timeout_s`."""
     import threading
@@ -497,3 +497,23 @@ def test_journal_records_of_the_wrong_types_are_ignored(tmp_path):
     path.write_bytes(b"".join(msgpack.packb(r, use_bin_type=True) for r in records))
     restored = LeaseJournal(path).load(replies_kept=32)
     assert restored.held_by("T" * 43) and list(restored.records()) == [("agent", 1, good)]
+
+
+# ---------------------------------------------------------------------------------------------- bad numbers
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_a_lease_timeout_or_client_timeout_that_is_not_a_positive_finite_number_is_one_line(value):
+    # NaN as the lease timeout would make every lease look expired, so anyone could take the robot.
+    result = run_cli("bridge", "serve", "--driver", "naoqi", "--naoqi", "tcp://127.0.0.1:1", "--lease-timeout-s",
+                     value)
+    one_line_error(result, "--lease-timeout-s", value)
+    result = run_cli("bridge", "ping", "--endpoint", "tcp://127.0.0.1:1", "--timeout-s", value)
+    one_line_error(result, "--timeout-s", value)
+
+
+def test_serve_raises_its_file_descriptor_limit_to_the_hard_limit():
+    script = ("import resource, sys; sys.path.insert(0, sys.argv[1]); soft, hard = resource.getrlimit("
+              "resource.RLIMIT_NOFILE); resource.setrlimit(resource.RLIMIT_NOFILE, (64, hard)); "
+              "from backends.bridge_guard import raise_fd_limit; print(*raise_fd_limit(), hard)")
+    soft, hard, original_hard = map(int, subprocess.run([sys.executable, "-c", script, ROOT], capture_output=True,
+                                                        text=True, timeout=60, check=True).stdout.split())
+    assert soft == hard == original_hard

@@ -65,7 +65,7 @@ def _serve(args) -> int:
     import signal
 
     from backends.bridge_guard import raise_fd_limit
-    from backends.bridge_server import BridgeServer, check_bind_address, keep_large_buffers_in_heap
+    from backends.bridge_server import BridgeServer, check_bind_address, check_lease_timeout, keep_large_buffers_in_heap
     from solver.errors import NaocalError
 
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
@@ -73,6 +73,7 @@ def _serve(args) -> int:
     if args.curve_clients and not args.curve_secret_key:
         raise NaocalError("--curve-clients needs --curve-secret-key")
     check_bind_address(args.bind, args.allow_remote)  # before anything touches the robot
+    check_lease_timeout(args.lease_timeout_s)
     keep_large_buffers_in_heap()  # 5x faster image replies
     raise_fd_limit()  # room for a flood of connections (backends/bridge_guard.py)
     backend, clock, state_persists = _open_backend(args)
