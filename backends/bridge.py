@@ -116,7 +116,13 @@ class BridgeBackend(Backend):
             socket.curve_publickey = client_public
             socket.curve_secretkey = client_secret
         # Handshake failures (a CURVE key missing, wrong or not admitted) are otherwise silence until the timeout.
-        self._monitor = socket.get_monitor_socket(HANDSHAKE_FAILURES)
+        # A fresh inproc name per socket: pyzmq's default names the socket's fd, which a socket closed a moment ago
+        # may still own, and its old monitor would take the events.
+        address = f"inproc://naocal-client-monitor-{secrets.token_hex(8)}"
+        socket.monitor(address, HANDSHAKE_FAILURES)
+        self._monitor = self._context.socket(zmq.PAIR)
+        self._monitor.setsockopt(zmq.LINGER, 0)
+        self._monitor.connect(address)
         socket.connect(self.endpoint)
         return socket
 
@@ -152,7 +158,11 @@ class BridgeBackend(Backend):
             if self._socket is None:
                 self._socket = self._connect()
                 reconnected = True
-            reply = self._attempt(payload, request_id, cmd, timeout_s)
+            try:
+                reply = self._attempt(payload, request_id, cmd, timeout_s)
+            except BridgeError:
+                self._drop_socket()
+                raise
             if reply is not None:
                 if reconnected and cmd != "hello":
                     self._check_same_server(cmd)
@@ -169,14 +179,13 @@ class BridgeBackend(Backend):
     def _attempt(self, payload: bytes, request_id: str, cmd: str, timeout_s: float):
         """Send once and wait until the deadline for the matching reply; None on timeout."""
         deadline = time.monotonic() + timeout_s
+        poller = zmq.Poller()
+        poller.register(self._monitor, zmq.POLLIN)
         try:
             self._socket.send_multipart([b"", payload], zmq.NOBLOCK)
-        except zmq.Again:
-            time.sleep(max(0.0, min(timeout_s, deadline - time.monotonic())))
-            return None
-        poller = zmq.Poller()
-        poller.register(self._socket, zmq.POLLIN)
-        poller.register(self._monitor, zmq.POLLIN)
+            poller.register(self._socket, zmq.POLLIN)
+        except zmq.Again:  # no connection to queue on (it may have failed its handshake already): wait and see
+            pass
         while True:
             remaining_s = deadline - time.monotonic()
             ready = dict(poller.poll(remaining_s * 1000)) if remaining_s > 0 else {}
