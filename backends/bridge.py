@@ -122,6 +122,7 @@ class BridgeBackend(Backend):
         socket.monitor(address, HANDSHAKE_FAILURES)
         self._monitor = self._context.socket(zmq.PAIR)
         self._monitor.setsockopt(zmq.LINGER, 0)
+        self._monitor.setsockopt(zmq.RCVHWM, 0)  # libzmq's sends to it block; disable_monitor() holds the GIL
         self._monitor.connect(address)
         socket.connect(self.endpoint)
         return socket

@@ -93,12 +93,14 @@ class ConnectionGuard:
         self._srcfd_known = True
         self._last_warning_s = -1e9
         self._stop = threading.Event()
-        # libzmq sends events on the monitor socket with blocking sends: its peer must be connected before the
-        # first event and drained until the monitor is switched off (stop()).
+        # libzmq sends events on the monitor socket with blocking sends, from its I/O thread: the peer must be
+        # connected before the first event, never refuse one (no high-water mark: disable_monitor() holds the GIL,
+        # so a full queue at stop() would deadlock with this thread) and be drained until the monitor is off.
         address = f"inproc://naocal-guard-{secrets.token_hex(8)}"
         socket.monitor(address, self.EVENTS)
         self._events = socket.context.socket(zmq.PAIR)
         self._events.setsockopt(zmq.LINGER, 0)
+        self._events.setsockopt(zmq.RCVHWM, 0)
         self._events.connect(address)
         self._thread = threading.Thread(target=self._run, name="naocal-bridge-guard", daemon=True)
         self._thread.start()
@@ -132,26 +134,32 @@ class ConnectionGuard:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                if not self._events.poll(100):
-                    continue
-                must_shed, accept_failed = False, False
-                while True:  # everything pending first, so the picture of open connections is current
-                    try:
-                        frames = self._events.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    event, value = struct.unpack("=Hi", frames[0][:6])
-                    if event == zmq.EVENT_ACCEPTED:
-                        self._accepted[value] = time.monotonic()
-                        must_shed |= len(self._accepted) > self.budget
-                    elif event in (zmq.EVENT_DISCONNECTED, zmq.EVENT_CLOSED):
-                        self._forget(value)
-                    elif event == zmq.EVENT_ACCEPT_FAILED:
-                        must_shed = accept_failed = True
-                if must_shed:
-                    self._shed(accept_failed)
+                try:
+                    self._drain_and_shed()
+                except Exception:  # this thread must outlive any bug: libzmq would block on its events
+                    log.exception("connection guard")
         finally:
             self._events.close(linger=0)
+
+    def _drain_and_shed(self) -> None:
+        if not self._events.poll(100):
+            return
+        must_shed, accept_failed = False, False
+        while True:  # everything pending first, so the picture of open connections is current
+            try:
+                frames = self._events.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            event, value = struct.unpack("=Hi", frames[0][:6])
+            if event == zmq.EVENT_ACCEPTED:
+                self._accepted[value] = time.monotonic()
+                must_shed |= len(self._accepted) > self.budget
+            elif event in (zmq.EVENT_DISCONNECTED, zmq.EVENT_CLOSED):
+                self._forget(value)
+            elif event == zmq.EVENT_ACCEPT_FAILED:
+                must_shed = accept_failed = True
+        if must_shed:
+            self._shed(accept_failed)
 
     def _forget(self, fd: int) -> None:
         self._accepted.pop(fd, None)
