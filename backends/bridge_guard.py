@@ -19,6 +19,7 @@ cannot tell a local attacker from the agent.
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import secrets
@@ -34,6 +35,7 @@ log = logging.getLogger("naocal.bridge.server")
 HANDSHAKE_TIMEOUT_S = 5.0  # a naocal client's handshake takes milliseconds, CURVE included
 RESERVED_FDS = 64  # left for the robot driver, the journal, logging ...
 LOW_WATER = 0.75  # shedding brings the connections down to this fraction of the budget
+EVENTS_PER_ROUND = 2000  # libzmq's accept spin makes ACCEPT_FAILED events without end: act between batches
 
 
 def raise_fd_limit() -> tuple[int, int]:
@@ -115,6 +117,9 @@ class ConnectionGuard:
 
     def note_request(self, fd, *, controller: bool) -> None:
         if fd is None:
+            if self._srcfd_known and self._local_name is not None:
+                log.warning("libzmq does not say which connection a request came from (ZMQ_SRCFD): idle connections "
+                            "are left to the handshake timeout, not shed")
             self._srcfd_known = False
             return
         with self._lock:
@@ -145,7 +150,7 @@ class ConnectionGuard:
         if not self._events.poll(100):
             return
         must_shed, accept_failed = False, False
-        while True:  # everything pending first, so the picture of open connections is current
+        for _ in range(EVENTS_PER_ROUND):  # what is pending first, so the picture of open connections is current
             try:
                 frames = self._events.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
@@ -157,8 +162,9 @@ class ConnectionGuard:
             elif event in (zmq.EVENT_DISCONNECTED, zmq.EVENT_CLOSED):
                 self._forget(value)
             elif event == zmq.EVENT_ACCEPT_FAILED:
-                must_shed = accept_failed = True
-        if must_shed:
+                accept_failed = True
+        accept_failed = accept_failed and _descriptors_exhausted()  # not an old event from before the last shed
+        if must_shed or accept_failed:
             self._shed(accept_failed)
 
     def _forget(self, fd: int) -> None:
@@ -212,3 +218,13 @@ class ConnectionGuard:
             return False
         finally:
             sock.detach()
+
+
+def _descriptors_exhausted() -> bool:
+    """True if this process cannot open another file descriptor right now."""
+    try:
+        fd = os.open(os.devnull, os.O_RDONLY)
+    except OSError as err:
+        return err.errno in (errno.EMFILE, errno.ENFILE)
+    os.close(fd)
+    return False

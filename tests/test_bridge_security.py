@@ -517,3 +517,9 @@ def test_serve_raises_its_file_descriptor_limit_to_the_hard_limit():
     soft, hard, original_hard = map(int, subprocess.run([sys.executable, "-c", script, ROOT], capture_output=True,
                                                         text=True, timeout=60, check=True).stdout.split())
     assert soft == hard == original_hard
+
+
+def test_keygen_into_a_place_it_cannot_write_is_one_line(tmp_path):
+    (tmp_path / "file").write_text("")
+    result = run_cli("bridge", "keygen", "--out", str(tmp_path / "file" / "keys"))
+    one_line_error(result, str(tmp_path / "file"))
