@@ -174,12 +174,12 @@ class BridgeServer:
         return self
 
     def security_summary(self) -> str:
-        """One phrase for the start line: is CURVE on, and whom does it admit."""
+        """One phrase for the start lines: is CURVE on, and whom does it admit."""
         if not self._curve_secret_key_file:
             return "CURVE off: unencrypted, any client"
         if self._client_keys:
-            return f"CURVE: encrypted, {self._client_keys} admitted client key(s)"
-        return "CURVE: encrypted, any client key"
+            return f"CURVE on: encrypted, {self._client_keys} admitted client key(s)"
+        return "CURVE on: encrypted, any client key"
 
     def _configure_curve(self, socket) -> None:
         key_file = os.fspath(self._curve_secret_key_file)

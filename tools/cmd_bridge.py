@@ -90,7 +90,10 @@ def _serve(args) -> int:
 
         signal.signal(signal.SIGINT, request_stop)
         signal.signal(signal.SIGTERM, request_stop)
-        print(f"naocal bridge: serving {args.driver} ({server.security_summary()}) on {server.endpoint}", flush=True)
+        # The first line stays "serving DRIVER on ENDPOINT" (scripts read the endpoint after " on "); the next
+        # says whether CURVE is on.
+        print(f"naocal bridge: serving {args.driver} on {server.endpoint}\n"
+              f"naocal bridge: {server.security_summary()}", flush=True)
         server.serve_forever()
     finally:
         backend.close()
