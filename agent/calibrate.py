@@ -3,7 +3,8 @@
     result, ctx = calibrate(backend, out_dir, AgentSettings(seed=0))
 
 Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/1, images/), progress.json, offsets.json
-(+ offsets.json.bak), verification/, verification.json, summary.txt, calibrate.log.
+(+ offsets.json.bak), verification/, verification.json, summary.txt, calibrate.log. summary.txt is written however
+the run ends (done, failed, Ctrl-C), unless the disk is full: then its text stays in ctx.summary.
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from pathlib import Path
 from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
 from agent.report import summary_text
-from agent.states import AgentSettings, Context, calibrate_states, simulate_states
-from solver.fileio import atomic_write_text
+from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, simulate_states
+from solver.dataset import _COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
+from solver.errors import DataError, DiskFullError
+from solver.fileio import atomic_write_text, disk_full_as_error
 
 log = logging.getLogger(__name__)
 
@@ -24,8 +27,9 @@ log = logging.getLogger(__name__)
 @contextlib.contextmanager
 def log_to_file(path: Path, level=logging.INFO):
     """Send the log of everything (agent, solver, backends) to `path` while the block runs."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(path, encoding="utf-8")
+    with disk_full_as_error(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handler = _QuietFileHandler(path, encoding="utf-8")
     handler.setLevel(level)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
@@ -41,18 +45,44 @@ def log_to_file(path: Path, level=logging.INFO):
         handler.close()
 
 
+class _QuietFileHandler(logging.FileHandler):
+    """A log file that stops, silently, when it cannot be written (a full disk): logging's own answer is a
+    traceback on stderr per message, while the run's next data write reports the full disk in one line."""
+
+    def handleError(self, record) -> None:
+        self.setLevel(logging.CRITICAL + 1)
+
+
+def check_same_setup(backend, dataset_dir: Path, source: str) -> None:
+    """On --resume: the robot, camera and boards must be the ones the stored dataset was measured with. Checked
+    before anything is written (the dataset's appender checks the same when it opens, but later)."""
+    meta_path = dataset_dir / META_FILE
+    if not meta_path.exists():
+        return
+    stored = validate_meta(parse_json_text(read_text(meta_path), meta_path), meta_path)
+    now = validate_meta(dataset_meta(backend, source), "<this robot>")
+    for key in _COMPARED_META_KEYS:
+        if stored.get(key) != now.get(key):
+            raise DataError(meta_path, f"this run measured another set-up ({key} {stored.get(key)!r}, now "
+                                       f"{now.get(key)!r}): resume it with the same robot (nothing was changed)",
+                            field=key)
+
+
 def calibrate(backend, out_dir, settings: AgentSettings = AgentSettings(), *, detector=None,
               backend_label: str | None = None, truth: dict | None = None) -> tuple[RunResult, Context]:
     """Run modelling -> measurement -> identification -> compensation -> verification on `backend`.
 
-    Writes summary.txt even when the run fails. `truth` (mock only) adds a comparison to the summary; the agent
-    itself never sees it.
+    Writes summary.txt even when the run fails or is interrupted (result.final INTERRUPTED). `truth` (mock only)
+    adds a comparison to the summary; the agent itself never sees it. On resume, a robot other than the stored
+    dataset's is refused (DataError) before anything is written.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     ctx = Context(backend=backend, settings=settings, out_dir=out_dir, dataset_dir=out_dir / "dataset",
                   progress_path=out_dir / "progress.json", plan_path=out_dir / "plan.json",
                   detector=detector or opencv_detector)
+    if settings.resume:
+        check_same_setup(backend, ctx.dataset_dir, settings.source)
     with log_to_file(out_dir / "calibrate.log"):
         log.info("naocal calibrate: backend %s, seed %d, output %s%s", backend_label or backend.name, settings.seed,
                  out_dir, " (resume)" if settings.resume else "")
@@ -60,8 +90,12 @@ def calibrate(backend, out_dir, settings: AgentSettings = AgentSettings(), *, de
             result = Machine(calibrate_states()).run(ctx, clock=backend.now)
         finally:
             ctx.close()
-        text = summary_text(ctx, result, backend_label=backend_label or backend.name, truth=truth)
-        atomic_write_text(out_dir / "summary.txt", text)
+        ctx.summary = summary_text(ctx, result, backend_label=backend_label or backend.name, truth=truth)
+        try:
+            atomic_write_text(out_dir / "summary.txt", ctx.summary)
+        except DiskFullError as err:
+            ctx.summary_error = str(err)
+            log.error("%s", err)
         log.info("run ended: %s%s", result.final, f" ({result.reason})" if result.reason else "")
     return result, ctx
 

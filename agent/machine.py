@@ -3,7 +3,8 @@
 Each state declares the context fields it `needs` and the ones it `produces`; the machine checks both, so a state
 can never run on missing inputs or silently leave out its result. A state returns an outcome name; a NaocalError
 raised inside it (a timeout, a refused command, a bad file, an implausible fit) ends the run in `failed` with the
-error as the reason. Anything else is a bug: it is logged with its traceback and raised.
+error as the reason. Ctrl-C (KeyboardInterrupt) inside a state ends the run in `interrupted`, so that the caller can
+still say what was done and how to continue. Anything else is a bug: it is logged with its traceback and raised.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from solver.errors import NaocalError
 
 log = logging.getLogger(__name__)
 
-DONE, FAILED = "done", "failed"
+DONE, FAILED, INTERRUPTED = "done", "failed", "interrupted"
 
 # (state, outcome) -> next state. The whole control flow of the agent.
 TRANSITIONS = {
@@ -49,7 +50,7 @@ class Step:
 
 @dataclass
 class RunResult:
-    final: str  # DONE or FAILED
+    final: str  # DONE, FAILED or INTERRUPTED
     reason: str
     history: list = field(default_factory=list)
 
@@ -92,6 +93,11 @@ class Machine:
                 outcome = state.run(ctx)
             except NaocalError as err:
                 outcome = Outcome("error", f"{current}: {err}")
+            except KeyboardInterrupt:
+                history.append(Step(current, "interrupted", "Ctrl-C", time.perf_counter() - wall0,
+                                    _safe_clock(clock) - robot0))
+                log.info("state %s: interrupted (Ctrl-C)", current)  # the caller says it, once
+                return RunResult(INTERRUPTED, f"{current}: interrupted (Ctrl-C)", history)
             except Exception:
                 log.exception("state %s: unexpected error (a bug)", current)
                 raise

@@ -32,7 +32,6 @@ import logging
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import pybullet
 
 from agent.design import (BASE_REGISTRY, greedy_d_optimal, log_det, matching_count, predicted_std,
                           stance_information)
@@ -40,6 +39,7 @@ from agent.plan import Plan, Still, Sweep
 from agent.safety import SafetyGuard
 from agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
 from backends.pybullet_body import CollisionChecker, NaoBody
+from backends.pybullet_quiet import pybullet
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
 from solver.errors import SafetyError

@@ -15,8 +15,25 @@ def _deg(x) -> float:
     return math.degrees(float(x))
 
 
+def describe_direction(direction, top=4) -> str:
+    """A weak direction in the words of the tables: offsets as c (their coefficients' signs flipped)."""
+    from solver.offsets import shown_name, shown_sign
+
+    terms = sorted(direction.coefficients.items(), key=lambda kv: -abs(kv[1]))[:top]
+    return " ".join(f"{shown_sign(n) * c:+.2f} {shown_name(n)}" for n, c in terms)
+
+
+def resumable(result) -> bool:
+    """Would `--resume` get further? Yes after an error or Ctrl-C in any state (captures are kept, the rest is
+    redone); not after an implausible identification (the same data give the same fit)."""
+    return not result.ok and bool(result.history) and result.history[-1].outcome in ("error", "interrupted")
+
+
 def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) -> str:
     lines = [f"naocal calibrate: {result.final}" + (f" - {result.reason}" if result.reason else ""), ""]
+    if resumable(result):
+        how = ctx.settings.resume_command or "the same command with --resume"
+        lines += [f"to continue (captures already saved are kept, not repeated): {how}", ""]
     meta = ctx.meta or {}
     robot = meta.get("robot", {})
     lines.append(f"robot: {robot.get('id', '?')} ({robot.get('model', '?')}), backend {backend_label}")
@@ -37,6 +54,11 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
                      f"{m['sessions']} session(s)")
         for image, reason in sorted(m["skipped"].items()):
             lines.append(f"  skipped image {image}: {reason}")
+    elif getattr(ctx, "store", None) is not None and ctx.plan is not None:  # stopped during the measurement
+        store = ctx.store
+        saved = store.saved_images() & set(ctx.plan.image_indices())
+        lines.append(f"measurement (not finished): {len(saved)} of {ctx.plan.n_images()} images saved in "
+                     f"{ctx.dataset_dir}, {len(store.skipped_images())} skipped")
     res = ctx.identification
     if res is not None:
         lines += ["", f"fit: RMS {res.rms_px[0]:.3f} px (x), {res.rms_px[1]:.3f} px (y) over {res.model.data.n_rows} "
@@ -63,7 +85,7 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         weakest = min(res.weak_directions, key=lambda w: w.singular_value) if res.weak_directions else None
         if weakest is not None:
             lines.append(f"weakest direction (relative singular value {weakest.singular_value:.2e}): "
-                         f"{weakest.describe()}")
+                         f"{describe_direction(weakest)}")
         for warning in res.warnings:
             lines.append(f"warning: {warning}")
     v = ctx.verification

@@ -13,7 +13,7 @@ import numpy as np
 from backends.pybullet_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
 from solver.errors import SafetyError
 from solver.joints import JOINT_INDEX, JOINTS
-from solver.limits import head_pitch_limits
+from solver.limits import head_pitch_problem
 
 
 class SafetyGuard:
@@ -88,18 +88,21 @@ class SafetyGuard:
             j = outside[0]
             return (f"{JOINTS[j]} = {q14[j]:.4f} rad is outside its limits with margin "
                     f"[{self.lower[j]:.4f}, {self.upper[j]:.4f}]")
-        yaw, pitch = q14[JOINT_INDEX["HeadYaw"]], q14[JOINT_INDEX["HeadPitch"]]
-        lo, hi = head_pitch_limits(yaw)
-        m = self.head_pitch_margin_rad
-        if not lo + m <= pitch <= hi - m:
-            return f"HeadPitch = {pitch:.4f} rad is outside [{lo + m:.4f}, {hi - m:.4f}] allowed at HeadYaw = {yaw:.4f}"
+        head = head_pitch_problem(q14[JOINT_INDEX["HeadYaw"]], q14[JOINT_INDEX["HeadPitch"]],
+                                  margin_rad=self.head_pitch_margin_rad)
+        if head is not None:
+            return f"{head} with margin"
         true14 = q14 + self.true_offset  # where the joints will truly stand, as far as the agent knows
         if self.checker.is_safe(true14):
             return None
         contacts = self.checker.contacts(true14)
         if contacts:
             c = min(contacts, key=lambda c: c.distance_m)
-            return f"collision: {c.link_a} and {c.link_b} {c.distance_m * 1000:.1f} mm apart"
+            if c.distance_m < 0:
+                return f"collision: {c.link_a} and {c.link_b} overlap by {-c.distance_m * 1000:.1f} mm"
+            margin = self.checker.ground_margin_m if c.link_b == "ground" else self.checker.margin_m
+            return (f"{c.link_a} and {c.link_b} closer than the {margin * 1000:g} mm margin "
+                    f"({c.distance_m * 1000:.1f} mm)")
         return None
 
     def check(self, q14) -> None:

@@ -72,6 +72,8 @@ class AgentSettings:
     progress_bar: bool = True
     tie_hip_yaw_pitch: bool = True  # one motor, one sensor on the robot: one offset
     source: str = "naocal calibrate"
+    mock_seed: int | None = None  # the mock's hidden truth (recorded in offsets.json), None for a real robot
+    resume_command: str | None = None  # the command that continues this run (for summary.txt)
 
 
 @dataclass
@@ -96,6 +98,9 @@ class Context:
     offsets: object = None
     compensated: CompensatedBackend | None = None
     verification: object = None
+    store: CaptureStore | None = None  # the captures being saved (what an interrupted measurement got)
+    summary: str | None = None  # summary.txt's text (set by agent.calibrate.calibrate)
+    summary_error: str | None = None  # why summary.txt could not be written (a full disk)
     # owned resources (closed by close())
     _bodies: list = field(default_factory=list)
     _guards: list = field(default_factory=list)
@@ -192,6 +197,7 @@ class Measure(State):
     def run(self, ctx: Context) -> Outcome:
         s = ctx.settings
         store = CaptureStore(ctx.dataset_dir, ctx.meta, progress_path=ctx.progress_path, save_images=s.save_images)
+        ctx.store = store
         if store.repair:
             log.warning(store.repair)
         self._warm_start(ctx, store)
@@ -304,12 +310,21 @@ class Compensation(State):
         offsets = offsets_from_parameters(
             result.parameters_dict(), robot={"id": robot["id"], "body_id": robot.get("body_id"),
                                              "head_id": robot.get("head_id")},
-            fit=fit, source={"tool": ctx.settings.source, "dataset": str(ctx.dataset_dir), "seed": ctx.settings.seed,
-                             "plan": ctx.plan.kind if ctx.plan else None})
+            fit=fit, source=offsets_source(ctx))
         write_offsets(offsets, ctx.out_dir / "offsets.json")
         ctx.offsets = offsets
         ctx.compensated = CompensatedBackend(ctx.backend, offsets)
         return Outcome("ok")
+
+
+def offsets_source(ctx: Context) -> dict:
+    """offsets.json's `source`: the tool, the dataset and both seeds, named (the mock's, if any, and the plan's)."""
+    s = ctx.settings
+    source = {"tool": s.source, "dataset": str(ctx.dataset_dir)}
+    if s.mock_seed is not None:
+        source["mock_seed"] = s.mock_seed
+    source.update(plan_seed=s.seed, plan=ctx.plan.kind if ctx.plan else None)
+    return source
 
 
 class Verification(State):

@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
 
 from backends.pybullet_body import T_WORLD_TORSO, NaoBody
+from backends.pybullet_quiet import pybullet
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole
 from solver.transforms import transform_points

@@ -8,6 +8,7 @@ Implementations: `backends.mock.MockBackend` (PyBullet, simulated clock), `backe
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,15 @@ class CameraIntrinsics:
             "cy_px": float(self.cy_px),
             "distortion": [float(d) for d in self.distortion],
         }
+
+
+def nominal_intrinsics(width_px: int = 640, height_px: int = 480) -> CameraIntrinsics:
+    """A NAO camera's intrinsics from the OV5640's nominal field of view, 56.3 x 43.7 deg
+    (../shared/reference/NAO.md), at this resolution: fx about 598 px at 640 x 480 (teams calibrate about 618)."""
+    return CameraIntrinsics(width_px=width_px, height_px=height_px,
+                            fx_px=(width_px / 2) / math.tan(math.radians(56.3) / 2),
+                            fy_px=(height_px / 2) / math.tan(math.radians(43.7) / 2),
+                            cx_px=width_px / 2, cy_px=height_px / 2)
 
 
 class Backend(abc.ABC):
@@ -116,6 +126,25 @@ class Backend(abc.ABC):
     def gravity_torso_mps2(self) -> np.ndarray:
         """Gravity in the torso frame (m/s^2). A robot lying on its back: (-9.81, 0, 0)."""
         return np.array([-9.81, 0.0, 0.0])
+
+    def release_control(self) -> None:
+        """The client that controlled motion let go: it released the robot or went silent past its lease.
+
+        A driver that holds joints stiff makes the robot safe here (the LoLA driver: hold, then a slow stiffness
+        ramp; docs/DEPLOY.md). Default: nothing (the mock; NAOqi keeps its last targets).
+        """
+
+    def status(self) -> dict:
+        """Everything the robot reports, for `naocal bridge status`: {"robot": {...}, "joints": {name: {"raw_rad",
+        "stiffness", "temperature_c", "status"}}, "t_s"}; values a backend cannot read are None."""
+        reading = self.read_joints()
+        identity = {str(k): str(v) for k, v in self.robot_identity().items()}
+        return {
+            "robot": identity,
+            "joints": {name: {"raw_rad": float(angle), "stiffness": None, "temperature_c": None, "status": None}
+                       for name, angle in reading.angles_rad.items()},
+            "t_s": float(reading.t_s),
+        }
 
     def close(self) -> None:
         """Release the robot (idempotent)."""

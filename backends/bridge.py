@@ -400,6 +400,10 @@ class BridgeBackend(Backend):
             if remaining_s < 1e-9:
                 break
 
+    def status(self) -> dict:
+        """Everything the robot reports (Backend.status): {"robot": {...}, "joints": {name: {...}}, "t_s"}."""
+        return self._call("status")
+
     def release(self) -> None:
         """Give up control of motion so another client may command."""
         if self._token is not None:

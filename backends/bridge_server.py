@@ -206,6 +206,7 @@ class BridgeServer:
             self.start()
         try:
             while not self._stop.is_set():
+                self._expire_idle_lease()
                 if not self._socket.poll(POLL_INTERVAL_S * 1000, zmq.POLLIN):
                     continue
                 frames = self._socket.recv_multipart(zmq.NOBLOCK, copy=False)
@@ -273,7 +274,7 @@ class BridgeServer:
         lease = self._lease
         controller = lease is not None and lease.held_by(token)
         if controller:
-            lease.seen_s = time.monotonic()
+            lease.touch()
         if self._guard is not None:
             self._guard.note_request(source_fd, controller=controller)
 
@@ -370,7 +371,7 @@ class BridgeServer:
         lease = self._lease
         if lease is not None:
             if lease.held_by(token) or lease.created_by(nonce):
-                lease.seen_s = time.monotonic()
+                lease.touch()
                 if lease.token is None:
                     lease.token = token
                     log.info("the controller reclaimed its motion lease")
@@ -384,6 +385,23 @@ class BridgeServer:
         self._journal_event("granted", self._lease)
         log.info("a client now controls motion")
         return {"token": token, "lease_timeout_s": self.lease_timeout_s}
+
+    def _expire_idle_lease(self) -> None:
+        """A controller silent past its lease has let go: the backend makes the robot safe (the LoLA driver holds,
+        then ramps stiffness down) without waiting for another client to take over. The lease object stays until
+        another client acquires: its holder may still come back with its token, and its replies are kept."""
+        lease = self._lease
+        if lease is None or lease.control_released or lease.idle_s() < self.lease_timeout_s:
+            return
+        log.warning("the controlling client has been silent for %.1f s: its motion lease expired", lease.idle_s())
+        lease.control_released = True
+        self._release_control()
+
+    def _release_control(self) -> None:
+        try:
+            self.backend.release_control()
+        except Exception:  # the server must keep serving whatever the driver does
+            log.exception("the driver failed to make the robot safe after control ended")
 
     def _journal_event(self, event: str, lease: MotionLease) -> None:
         if self._journal is None:
@@ -427,6 +445,8 @@ class BridgeServer:
             return protocol.image_to_wire(backend.capture())
         if cmd == "now":
             return float(backend.now())
+        if cmd == "status":
+            return backend.status()
         if cmd == "command":
             backend.command(args["targets_rad"], args["speed_fraction"])
             return None
@@ -447,6 +467,7 @@ class BridgeServer:
                 log.info("the controller released motion")
                 self._lease = None
                 self._journal_event("released", lease)
+                self._release_control()
             return None
         raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this table disagree
 

@@ -55,7 +55,7 @@ from backends.pybullet_body import T_WORLD_TORSO, BodyGeometry, BoardMount, Coll
 from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, leg_fk
-from solver.limits import head_pitch_limits, joint_limits, max_speeds
+from solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds
 from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole
 from solver.transforms import invert_transform, rot_x, rot_y, rot_z
 
@@ -497,20 +497,10 @@ class MockBackend(Backend):
     def _validate(self, targets_rad, speed_fraction) -> tuple[dict, float]:
         if not isinstance(targets_rad, dict) or not targets_rad:
             raise SafetyError("targets must be a non-empty {joint: angle} dict")
-        speed = _as_float(speed_fraction)
-        if not (math.isfinite(speed) and 0.0 < speed <= 1.0):
-            raise SafetyError(f"speed_fraction must be within (0, 1], got {speed_fraction!r}")
-        targets = {}
-        for joint, value in targets_rad.items():
-            if joint not in self._limits:
-                raise SafetyError(f"unknown joint {joint!r}")
-            value = _as_float(value)
-            if not math.isfinite(value):
-                raise SafetyError(f"{joint}: target {targets_rad[joint]!r} is not a finite angle")
-            lower, upper = self._limits[joint]
-            if not lower <= value <= upper:
-                raise SafetyError(f"{joint}: target {value:.4f} rad outside its limits [{lower:.4f}, {upper:.4f}]")
-            targets[joint] = value
+        speed = check_speed_fraction(speed_fraction)
+        # The head's path is checked against the HeadPitch table point by point in _unsafe_reason.
+        head_now = {j: [self._track(j).at(self._t), self._track(j).target[-1]] for j in HEAD_JOINTS}
+        targets = check_targets(targets_rad, self._limits, head_angles=head_now)
         # One motor drives both HipYawPitch joints; as in NAOqi the left one's command wins.
         if SHARED_MOTOR[0] in targets:
             targets.pop(SHARED_MOTOR[1], None)
@@ -553,11 +543,10 @@ class MockBackend(Backend):
     def _unsafe_reason(self, final_servo: np.ndarray, path) -> str:
         """Why a motion through `path` [(t, servo stance)] to `final_servo` is unsafe, or '' if it is safe."""
         for _, servo in list(path) + [(None, final_servo)]:
-            yaw, pitch = servo[JOINT_INDEX["HeadYaw"]], servo[JOINT_INDEX["HeadPitch"]]
-            lower, upper = head_pitch_limits(yaw)
-            if not lower - 1e-9 <= pitch <= upper + 1e-9:
-                return (f"HeadPitch {pitch:.4f} rad outside [{lower:.3f}, {upper:.3f}] allowed at HeadYaw "
-                        f"{yaw:.3f} rad")
+            problem = head_pitch_problem(servo[JOINT_INDEX["HeadYaw"]], servo[JOINT_INDEX["HeadPitch"]],
+                                         margin_rad=-1e-9)
+            if problem:
+                return problem
             q_true = self._true_static(servo)
             if not self.checker.is_safe(q_true):  # stops at the first contact; name it only then
                 c = self.checker.contacts(q_true)[0]

@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, nominal_intrinsics
 from solver import limits
 from solver.errors import NaocalError, RobotTimeout, SafetyError
 from solver.joints import HEAD_JOINTS, JOINTS
@@ -46,15 +46,7 @@ BOTTOM_CAMERA, VGA, BGR_COLORSPACE, FPS = 1, 2, 13, 30
 FRAME_PERIOD_S = 1.0 / FPS
 DCM_CYCLE_S = 0.010
 MAX_IMAGE_AGE_S = 2.0
-# OV5640 nominal field of view 56.3 x 43.7 deg at 640 x 480 (../shared/reference/NAO.md).
-NOMINAL_INTRINSICS = CameraIntrinsics(
-    width_px=640,
-    height_px=480,
-    fx_px=320.0 / math.tan(math.radians(56.3) / 2),
-    fy_px=240.0 / math.tan(math.radians(43.7) / 2),
-    cx_px=320.0,
-    cy_px=240.0,
-)
+NOMINAL_INTRINSICS = nominal_intrinsics(640, 480)
 IMAGE_CLOCKS = ("auto", "dcm", "monotonic", "realtime")
 
 # qi 3.1.5 sometimes aborts the interpreter at exit ("terminate called without an active exception") if a
@@ -185,39 +177,17 @@ class NaoqiBackend(Backend):
         return dict(self._speeds)
 
     def command(self, targets_rad: dict[str, float], speed_fraction: float) -> None:
-        speed_fraction = float(speed_fraction)
-        if not 0.0 < speed_fraction <= 1.0:  # also refuses NaN
-            raise SafetyError(f"speed_fraction must be in (0, 1], got {speed_fraction}")
-        targets = {}
-        for name, angle in targets_rad.items():
-            if name not in self._limits:
-                raise SafetyError(f"unknown joint {name!r}: naocal commands only {', '.join(JOINTS)}")
-            angle = float(angle)
-            lower, upper = self._limits[name]
-            if not lower <= angle <= upper:  # also refuses NaN
-                raise SafetyError(f"{name} target {angle:.4f} rad outside its limits [{lower:.4f}, {upper:.4f}] rad")
-            targets[name] = angle
-        if "HeadYaw" in targets or "HeadPitch" in targets:
-            self._check_head(targets)
+        speed_fraction = limits.check_speed_fraction(speed_fraction)
+        head_angles = None
+        if len(set(HEAD_JOINTS) & set(targets_rad)) == 1:
+            # The head joint not commanded now may stand where it reads or still be on its way to its last target.
+            current = self.read_joints().angles_rad
+            head_angles = {name: [current[name]] + ([self._head_targets[name]] if name in self._head_targets else [])
+                           for name in HEAD_JOINTS}
+        targets = limits.check_targets(targets_rad, self._limits, head_angles=head_angles)
         if targets:
             self._call(self._motion, "setAngles", list(targets), list(targets.values()), speed_fraction)
             self._head_targets.update({name: targets[name] for name in HEAD_JOINTS if name in targets})
-
-    def _check_head(self, targets: dict[str, float]) -> None:
-        """HeadPitch inside the table for every HeadYaw the head may have: the joint not commanded now may be
-        where it is read or still on its way to its last target, so both are checked."""
-        options = {name: [targets[name]] for name in HEAD_JOINTS if name in targets}
-        if len(options) < 2:
-            current = self.read_joints().angles_rad
-            for name in HEAD_JOINTS:
-                if name not in options:
-                    options[name] = [current[name]] + ([self._head_targets[name]] if name in self._head_targets else [])
-        for yaw in options["HeadYaw"]:
-            lower, upper = limits.head_pitch_limits(yaw)
-            for pitch in options["HeadPitch"]:
-                if not lower <= pitch <= upper:
-                    raise SafetyError(f"HeadPitch {pitch:.4f} rad outside [{lower:.4f}, {upper:.4f}] rad allowed at "
-                                      f"HeadYaw {yaw:.4f} rad (HeadPitch-vs-HeadYaw table)")
 
     def read_joints(self) -> JointReading:
         dcm_s = self._dcm_time_s()

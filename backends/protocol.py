@@ -106,6 +106,7 @@ COMMANDS = {
     "read_joints": ({}, False),
     "capture": ({}, False),
     "now": ({}, False),
+    "status": ({}, False),
     "command": ({"targets_rad": _float_map, "speed_fraction": _finite_or_nan_float}, True),
     "set_stiffness": ({"names": _str_list, "stiffness": _finite_or_nan_float}, True),
     "sleep": ({"duration_s": _finite_or_nan_float}, True),

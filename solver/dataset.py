@@ -26,7 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from solver.errors import DataError
-from solver.fileio import atomic_write_text, fsync_directory
+from solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
+    atomic_write_text, decode_text, disk_full_as_error, fsync_directory, parse_json_text, read_bytes, read_json,
+    read_text,
+)
 from solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
@@ -36,6 +39,21 @@ META_FILE = "dataset.json"
 OBSERVATIONS_FILE = "observations.csv"
 IMAGES_DIR = "images"
 DEFAULT_GRAVITY_TORSO_MPS2 = (-9.81, 0.0, 0.0)  # a robot lying on its back
+
+# Plausible sizes, generous: a number beyond is damage or a unit mix-up (and would overflow the maths downstream).
+MAX_IMAGE_SIDE_PX = 10_000
+MAX_FOCAL_LENGTH_PX = 100_000.0
+MAX_DISTORTION = 100.0  # OpenCV coefficients; a NAO lens needs |k| < 1
+MAX_BOARD_SQUARES = 100
+MAX_LENGTH_M = 1.0  # board square, board centre, sole coordinates: the NAO's foot is 0.16 m long
+MAX_SANDAL_MASS_KG = 10.0
+MAX_PIXEL_NOISE_PX = 100.0
+GRAVITY_MPS2 = (7.0, 13.0)  # size of gravity_torso_mps2: 9.81 on Earth, an accelerometer's reading within a few %
+PIXEL_MARGIN_IMAGES = 1.0  # detections may lie up to one image width/height outside the image
+ANGLE_MARGIN_RAD = math.radians(10.0)  # angles (measured, commanded) may pass the joint limits by this much
+MAX_JOINT_SPEED_RAD_S = 50.0  # vel_ columns: the NAO's fastest joint turns at about 8 rad/s
+MAX_TIME_S = 1e10  # t_image_s, t_joints_s: robot clocks, possibly Unix time (1.7e9 s)
+MAX_INDEX = 2 ** 53  # integer columns: exactly representable as float64, far inside int64
 
 INT_COLUMNS = ("image", "stance", "head_posture", "vertex")
 FLOAT_COLUMNS = ("u_px", "v_px", "x_sole_m", "y_sole_m", "z_sole_m", "t_image_s", "t_joints_s")
@@ -125,13 +143,13 @@ def _check_object(value, path, field) -> dict:
 
 def _check_string(value, path, field) -> str:
     if not isinstance(value, str):
-        raise DataError(path, f"expected a string, got {value!r}", field=field)
+        raise DataError(path, f"expected a string, got {_short(value)}", field=field)
     return value
 
 
-def _check_number(value, path, field, *, positive=False, non_negative=False, integer=False):
+def _check_number(value, path, field, *, positive=False, non_negative=False, integer=False, at_most=None):
     if not _is_number(value):
-        raise DataError(path, f"expected a number, got {value!r}", field=field)
+        raise DataError(path, f"expected a number, got {_short(value)}", field=field)
     if not math.isfinite(value):
         raise DataError(path, f"non-finite value {value!r}", field=field)
     if integer and value != int(value):
@@ -140,14 +158,21 @@ def _check_number(value, path, field, *, positive=False, non_negative=False, int
         raise DataError(path, f"must be positive, got {value!r}", field=field)
     if non_negative and value < 0:
         raise DataError(path, f"must not be negative, got {value!r}", field=field)
+    if at_most is not None and abs(value) > at_most:
+        raise DataError(path, f"implausible size {value!r} (at most {at_most:g} in absolute value)", field=field)
     return value
 
 
-def _check_vector(value, n, path, field):
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _check_vector(value, n, path, field, *, at_most=None):
     if not isinstance(value, list) or len(value) != n:
-        raise DataError(path, f"expected a list of {n} numbers, got {value!r}", field=field)
+        raise DataError(path, f"expected a list of {n} numbers, got {_short(value)}", field=field)
     for i, v in enumerate(value):
-        _check_number(v, path, f"{field}[{i}]")
+        _check_number(v, path, f"{field}[{i}]", at_most=at_most)
     return value
 
 
@@ -166,32 +191,6 @@ def find_non_finite(obj, where=""):
             if hit:
                 return hit
     return None
-
-
-def parse_json_text(text: str, path):
-    """json.loads with a DataError naming the file, line and column (and saying 'truncated' at the end)."""
-    if not text.strip():
-        raise DataError(path, "empty file: expected a JSON object")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as err:
-        truncated = err.pos >= len(text.rstrip()) or err.msg.startswith("Unterminated string")
-        kind = "truncated JSON" if truncated else "invalid JSON"
-        raise DataError(path, f"{kind}: {err.msg} (column {err.colno})", line=err.lineno) from None
-
-
-def read_text(path) -> str:
-    """The UTF-8 text of `path`, with OS errors as DataError."""
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataError(path, "file not found") from None
-    except IsADirectoryError:
-        raise DataError(path, "is a directory, expected a file") from None
-    except UnicodeDecodeError as err:
-        raise DataError(path, f"not UTF-8 text ({err.reason} at byte {err.start})") from None
-    except OSError as err:
-        raise DataError(path, err.strerror or str(err)) from None
 
 
 def validate_meta(meta, path) -> dict:
@@ -213,29 +212,41 @@ def validate_meta(meta, path) -> dict:
     if name != "bottom":
         raise DataError(path, f"camera {name!r} is not supported, expected 'bottom'", field="camera.name")
     for key in ("width_px", "height_px"):
-        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True, integer=True)
+        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True, integer=True,
+                      at_most=MAX_IMAGE_SIDE_PX)
     for key in ("fx_px", "fy_px"):
-        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True)
-    for key in ("cx_px", "cy_px"):
-        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}")
+        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True,
+                      at_most=MAX_FOCAL_LENGTH_PX)
+    for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
+        centre = _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}")
+        if not 0 <= centre <= camera[side]:
+            raise DataError(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} image, "
+                                  f"got {centre!r}", field=f"camera.{key}")
     if "distortion" in camera:
-        _check_vector(camera["distortion"], 5, path, "camera.distortion")
+        _check_vector(camera["distortion"], 5, path, "camera.distortion", at_most=MAX_DISTORTION)
 
     board = _check_object(_require(meta, "board", path, ""), path, "board")
     for key in ("columns", "rows"):
-        n = _check_number(_require(board, key, path, "board."), path, f"board.{key}", positive=True, integer=True)
+        n = _check_number(_require(board, key, path, "board."), path, f"board.{key}", positive=True, integer=True,
+                          at_most=MAX_BOARD_SQUARES)
         if n < 2:
             raise DataError(path, f"a board needs at least 2 squares, got {n}", field=f"board.{key}")
-    _check_number(_require(board, "square_m", path, "board."), path, "board.square_m", positive=True)
-    _check_number(_require(board, "center_x_m", path, "board."), path, "board.center_x_m")
-    _check_number(_require(board, "mass_kg", path, "board."), path, "board.mass_kg", non_negative=True)
+    _check_number(_require(board, "square_m", path, "board."), path, "board.square_m", positive=True,
+                  at_most=MAX_LENGTH_M)
+    _check_number(_require(board, "center_x_m", path, "board."), path, "board.center_x_m", at_most=MAX_LENGTH_M)
+    _check_number(_require(board, "mass_kg", path, "board."), path, "board.mass_kg", non_negative=True,
+                  at_most=MAX_SANDAL_MASS_KG)
 
     _check_string(_require(meta, "source", path, ""), path, "source")
     if "pixel_noise_px" in meta:
-        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True)
+        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True, at_most=MAX_PIXEL_NOISE_PX)
     meta = copy.deepcopy(meta)
     if "gravity_torso_mps2" in meta:
-        _check_vector(meta["gravity_torso_mps2"], 3, path, "gravity_torso_mps2")
+        gravity = _check_vector(meta["gravity_torso_mps2"], 3, path, "gravity_torso_mps2", at_most=GRAVITY_MPS2[1])
+        size = math.hypot(*gravity)
+        if not GRAVITY_MPS2[0] <= size <= GRAVITY_MPS2[1]:
+            raise DataError(path, f"implausible gravity of {size:.4g} m/s^2 (expected {GRAVITY_MPS2[0]:g} to "
+                                  f"{GRAVITY_MPS2[1]:g}: 9.81 on Earth)", field="gravity_torso_mps2")
     else:
         meta["gravity_torso_mps2"] = list(DEFAULT_GRAVITY_TORSO_MPS2)
     return meta
@@ -263,7 +274,7 @@ def _to_float(values, path, name: str, line_numbers) -> np.ndarray:
         try:
             float(text)
         except ValueError:
-            raise DataError(path, f"not a number: {text!r}", line=line_numbers[i], field=name) from None
+            raise DataError(path, f"not a number: {_short(text)}", line=line_numbers[i], field=name) from None
     raise AssertionError("unreachable: numpy refused a column that float() accepts")  # pragma: no cover
 
 
@@ -281,24 +292,30 @@ def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
         bad = ~np.isin(leg, LEGS)
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"unknown leg {leg[i]!r}, expected 'L' or 'R'", line=line_numbers[i], field=name)
+            raise DataError(path, f"unknown leg {_short(str(leg[i]))}, expected 'L' or 'R'", line=line_numbers[i],
+                            field=name)
         return leg
     values = _to_float(strings, path, name, line_numbers)
     bad = ~np.isfinite(values)
     if bad.any():
         i = _first_bad(bad)
-        raise DataError(path, f"non-finite value {strings[i]!r}", line=line_numbers[i], field=name)
+        raise DataError(path, f"non-finite value {_short(strings[i])}", line=line_numbers[i], field=name)
     if name in INT_COLUMNS:
         bad = values != np.round(values)
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"expected an integer, got {strings[i]!r}", line=line_numbers[i], field=name)
+            raise DataError(path, f"expected an integer, got {_short(strings[i])}", line=line_numbers[i], field=name)
+        bad = np.abs(values) > MAX_INDEX
+        if bad.any():  # before the cast: beyond int64 it would wrap (and warn)
+            i = _first_bad(bad)
+            raise DataError(path, f"integer out of range (at most 2^53 in absolute value), got {_short(strings[i])}",
+                            line=line_numbers[i], field=name)
         values = values.astype(np.int64)
     if name in DIRECTION_COLUMNS:
         bad = ~np.isin(values, (-1.0, 0.0, 1.0))
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"direction must be -1, 0 or 1, got {strings[i]!r}", line=line_numbers[i],
+            raise DataError(path, f"direction must be -1, 0 or 1, got {_short(strings[i])}", line=line_numbers[i],
                             field=name)
     return values
 
@@ -405,6 +422,7 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
     for name in per_row:
         columns[name] = _parse_column(name, raw[name], line_numbers, path)
 
+    _check_plausible(columns, raw, line_numbers, path, meta)
     n_vertices = n_board_vertices(meta)
     checks = (
         ("image", columns["image"] < 0, "image index must not be negative"),
@@ -414,7 +432,7 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
     for name, bad, problem in checks:
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"{problem}, got {raw[name][i]!r}", line=line_numbers[i], field=name)
+            raise DataError(path, f"{problem}, got {_short(raw[name][i])}", line=line_numbers[i], field=name)
     if n_rows:
         _check_unique_vertices(columns, path, line_numbers, n_vertices)
         if check_per_image:
@@ -425,6 +443,48 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
             values = _try_float(raw[name]) if n_rows else np.array([], dtype=np.float64)
             columns[name] = values if values is not None else np.array(raw[name], dtype=str)
     return {name: columns[name] for name in header}, header
+
+
+def plausible_ranges(meta: dict) -> dict:
+    """{column: (lower, upper, unit)}: where the values of the model's columns can physically lie (generously)."""
+    from solver.limits import joint_limits
+
+    camera = meta["camera"]
+    width, height = camera["width_px"], camera["height_px"]
+    ranges = {
+        "u_px": (-PIXEL_MARGIN_IMAGES * width, (1 + PIXEL_MARGIN_IMAGES) * width, "px"),
+        "v_px": (-PIXEL_MARGIN_IMAGES * height, (1 + PIXEL_MARGIN_IMAGES) * height, "px"),
+        "t_image_s": (-MAX_TIME_S, MAX_TIME_S, "s"),
+        "t_joints_s": (-MAX_TIME_S, MAX_TIME_S, "s"),
+    }
+    for name in ("x_sole_m", "y_sole_m", "z_sole_m"):
+        ranges[name] = (-MAX_LENGTH_M, MAX_LENGTH_M, "m")
+    limits = joint_limits()
+    for joint in JOINTS:
+        lower, upper = limits[joint]
+        for prefix in ("", "cmd_"):
+            ranges[prefix + joint] = (lower - ANGLE_MARGIN_RAD, upper + ANGLE_MARGIN_RAD, "rad")
+        ranges["vel_" + joint] = (-MAX_JOINT_SPEED_RAD_S, MAX_JOINT_SPEED_RAD_S, "rad/s")
+    return ranges
+
+
+def _check_plausible(columns, raw, line_numbers, path, meta):
+    for name, (lower, upper, unit) in plausible_ranges(meta).items():
+        if name not in columns:
+            continue
+        values = columns[name]
+        bad = (values < lower) | (values > upper)
+        if bad.any():
+            i = _first_bad(bad)
+            if unit == "rad":
+                where = f"{lower:.4f}..{upper:.4f} rad: the joint's limits and {math.degrees(ANGLE_MARGIN_RAD):g} deg"
+            elif name in ("u_px", "v_px"):
+                where = (f"{lower:g}..{upper:g} px, the {meta['camera']['width_px']} x "
+                         f"{meta['camera']['height_px']} image with a margin")
+            else:
+                where = f"{lower:g}..{upper:g} {unit}"
+            raise DataError(path, f"implausible value {_short(raw[name][i])} (expected {where})",
+                            line=line_numbers[i], field=name)
 
 
 def _constant_within_images(raw: dict, names, first_row) -> bool:
@@ -458,8 +518,8 @@ def _check_per_image(columns, path, line_numbers, velocity_columns):
         bad = values != values[first_row]
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"differs within image {columns['image'][i]}: {values[i]!r} here, "
-                                  f"{values[first_row[i]]!r} on line {line_numbers[first_row[i]]}",
+            raise DataError(path, f"differs within image {columns['image'][i]}: {_short(values[i].item())} here, "
+                                  f"{_short(values[first_row[i]].item())} on line {line_numbers[first_row[i]]}",
                             line=line_numbers[i], field=name)
 
 
@@ -477,7 +537,7 @@ def read_dataset(path) -> Dataset:
     if images.exists() and not images.is_dir():
         raise DataError(images, "expected a directory of images")
     meta_path = path / META_FILE
-    meta = validate_meta(parse_json_text(read_text(meta_path), meta_path), meta_path)
+    meta = validate_meta(read_json(meta_path), meta_path)
     obs_path = path / OBSERVATIONS_FILE
     columns, _ = parse_observations(read_text(obs_path), obs_path, meta)
     return Dataset(meta=meta, columns=columns, path=path)
@@ -617,7 +677,7 @@ class DatasetAppender:
             self.path.mkdir(parents=True, exist_ok=True)
             atomic_write_text(self.meta_path, format_meta(meta))
             return meta
-        existing = validate_meta(parse_json_text(read_text(self.meta_path), self.meta_path), self.meta_path)
+        existing = validate_meta(read_json(self.meta_path), self.meta_path)
         for key in _COMPARED_META_KEYS:
             if existing.get(key) != meta.get(key):
                 raise DataError(self.meta_path, f"existing dataset has a different {key!r} "
@@ -628,7 +688,7 @@ class DatasetAppender:
     def _open_observations(self) -> None:
         if not self.obs_path.exists():
             return
-        data = self.obs_path.read_bytes()
+        data = read_bytes(self.obs_path)
         keep = self._complete_prefix_length(data)
         if keep < len(data) and data[:keep].count(b"\n") <= 1:
             keep = 0  # only the header of the torn first capture is left: the next capture writes its own
@@ -637,7 +697,8 @@ class DatasetAppender:
             data = data[:keep]
         if not data:
             return
-        columns, header = parse_observations(data.decode("utf-8"), self.obs_path, self.meta, allow_empty=True)
+        columns, header = parse_observations(decode_text(data, self.obs_path), self.obs_path, self.meta,
+                                             allow_empty=True)
         self._header = header
         self._images = set(int(i) for i in columns["image"])
 
@@ -727,17 +788,30 @@ class DatasetAppender:
         flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
         if new_file:
             flags |= os.O_TRUNC  # an empty or torn-away file is rewritten from its header
-        fd = os.open(self.obs_path, flags, 0o644)
-        try:
-            view = memoryview(data)
-            while view:  # one write for a regular file; loop only in case of a short write
-                written = os.write(fd, view)
-                view = view[written:]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        with disk_full_as_error(self.obs_path):
+            fd = os.open(self.obs_path, flags, 0o644)
+            size_before = os.fstat(fd).st_size
+            try:
+                view = memoryview(data)
+                while view:  # one write for a regular file; loop only in case of a short write
+                    written = os.write(fd, view)
+                    view = view[written:]
+                os.fsync(fd)
+            except OSError:
+                _truncate_quietly(fd, size_before)  # no half capture left behind (a disk full mid-write)
+                raise
+            finally:
+                os.close(fd)
         if new_file:
             fsync_directory(self.path)
+
+
+def _truncate_quietly(fd: int, size: int) -> None:
+    try:
+        os.ftruncate(fd, size)
+        os.fsync(fd)
+    except OSError:
+        pass  # the next open cuts a torn capture off anyway
 
 
 def _append_and_sync(path: Path, data: bytes) -> None:

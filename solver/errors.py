@@ -43,3 +43,16 @@ class RobotTimeout(NaocalError):
 
 class BridgeError(NaocalError):
     """The network bridge failed after its retries, or the server answered with an error."""
+
+
+class DiskFullError(NaocalError):
+    """A write failed for want of space (ENOSPC) or quota (EDQUOT). Names the file and the free space; what was
+    saved before stays intact (writes are atomic or appended whole)."""
+
+    exit_code = 3
+
+    def __init__(self, path, free_bytes: int | None, reason: str = "no space left on the device"):
+        self.path = str(path)
+        self.free_bytes = free_bytes
+        free = "free space unknown" if free_bytes is None else f"{free_bytes} bytes free"
+        super().__init__(f"cannot write {self.path}: {reason} ({free})")

@@ -1,8 +1,45 @@
-"""Atomic file writes: a reader sees either the old file or the complete new one, never a torn file."""
+"""Atomic file writes: a reader sees either the old file or the complete new one, never a torn file.
 
+Safe reads: only regular files of bounded size, JSON of bounded nesting and number size (errors name the file).
+A write that fails for want of space or quota raises solver.errors.DiskFullError (naming the file and the free
+bytes; exit code 3), so every writer reports a full disk in one line.
+"""
+
+import contextlib
+import errno
+import json
 import os
+import re
+import shutil
+import stat
 import tempfile
 from pathlib import Path
+
+from solver.errors import DataError, DiskFullError
+
+DISK_FULL_ERRNOS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded"}
+
+
+def free_bytes(path) -> int | None:
+    """Free bytes on the file system holding `path` (or its nearest existing parent), None if unknown."""
+    path = Path(path).absolute()
+    for candidate in (path, *path.parents):
+        try:
+            return shutil.disk_usage(candidate).free
+        except OSError:
+            continue
+    return None
+
+
+@contextlib.contextmanager
+def disk_full_as_error(path):
+    """Turn an OSError ENOSPC/EDQUOT raised inside the block into DiskFullError naming `path`."""
+    try:
+        yield
+    except OSError as err:
+        if err.errno not in DISK_FULL_ERRNOS:
+            raise
+        raise DiskFullError(path, free_bytes(path), DISK_FULL_ERRNOS[err.errno]) from err
 
 
 def atomic_write_bytes(path, data: bytes, *, backup_suffix: str | None = None) -> Path:
@@ -12,6 +49,12 @@ def atomic_write_bytes(path, data: bytes, *, backup_suffix: str | None = None) -
     (by hard link, so it is never missing even if we crash between the steps).
     """
     path = Path(path)
+    with disk_full_as_error(path):
+        _atomic_write(path, data, backup_suffix)
+    return path
+
+
+def _atomic_write(path: Path, data: bytes, backup_suffix: str | None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -32,7 +75,6 @@ def atomic_write_bytes(path, data: bytes, *, backup_suffix: str | None = None) -
             os.unlink(tmp_name)
         raise
     fsync_directory(path.parent)
-    return path
 
 
 def atomic_write_text(path, text: str, **kwargs) -> Path:
@@ -51,3 +93,233 @@ def fsync_directory(directory) -> None:
         pass
     finally:
         os.close(fd)
+
+
+# ------------------------------------------------------------------------------------------------- reading
+# Every input file goes through read_bytes: a FIFO, a device, a socket or a directory in place of a file is refused
+# before anything is read (opened with O_NONBLOCK, so not even the open can block), and size is capped, so no
+# input can hang naocal or exhaust its memory.
+
+MAX_TEXT_BYTES = 64 * 1024 ** 2  # observations.csv of ~2700 captures; a real calibration has ~150 (3.6 MB)
+MAX_JSON_BYTES = 4 * 1024 ** 2  # naocal's JSON files hold kilobytes (a 500-stance plan: about 0.3 MB)
+MAX_JSON_DEPTH = 32  # naocal's documents nest at most 5 deep; CPython's parser recurses (RecursionError at ~1000)
+MAX_JSON_INT_DIGITS = 20  # int64 needs 19; Python refuses to parse more than 4300 (ValueError) and float() of
+# a 400-digit integer overflows
+
+_FILE_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
+
+
+def _os_problem(err: OSError) -> str:
+    if isinstance(err, FileNotFoundError):
+        return "file not found"
+    if isinstance(err, PermissionError):
+        return "permission denied"
+    return (err.strerror or str(err)).lower()
+
+
+def read_bytes(path, *, max_bytes: int = MAX_TEXT_BYTES) -> bytes:
+    """The bytes of the regular file `path` (symlinks followed), or DataError naming it and what is wrong."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as err:
+        raise DataError(path, _os_problem(err)) from None
+    if not stat.S_ISREG(mode):
+        raise DataError(path, f"is {_kind(mode)}, expected a regular file")
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
+    except OSError as err:
+        raise DataError(path, _os_problem(err)) from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):  # replaced between the stat and the open
+            raise DataError(path, f"is {_kind(info.st_mode)}, expected a regular file")
+        if info.st_size > max_bytes:
+            raise DataError(path, f"too large: {info.st_size} bytes (at most {max_bytes} expected)")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, min(max_bytes + 1 - total, 1 << 20) or 1)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > max_bytes:  # it grew while we read
+                raise DataError(path, f"too large: more than {max_bytes} bytes")
+        return b"".join(chunks)
+    except OSError as err:
+        raise DataError(path, _os_problem(err)) from None
+    finally:
+        os.close(fd)
+
+
+def read_text(path, *, max_bytes: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of the regular file `path` (a leading byte order mark dropped); DataError otherwise."""
+    return decode_text(read_bytes(path, max_bytes=max_bytes), path)
+
+
+def decode_text(data: bytes, path) -> str:
+    """UTF-8 `data` read from `path` as text (a leading byte order mark dropped), or DataError naming the line."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        line = data.count(b"\n", 0, err.start) + 1
+        raise DataError(path, f"not UTF-8 text ({err.reason} at byte {err.start})", line=line) from None
+
+
+class _JsonRefusal(Exception):
+    def __init__(self, problem, *, token=None, field=None):
+        super().__init__(problem)
+        self.problem, self.token, self.field = problem, token, field
+
+
+def _json_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_JSON_INT_DIGITS:
+        raise _JsonRefusal(f"integer of {digits} digits, at most {MAX_JSON_INT_DIGITS} expected", token=text)
+    return int(text)
+
+
+def _json_object(pairs) -> dict:
+    obj = {}
+    for key, value in pairs:
+        if key in obj:
+            raise _JsonRefusal("the same key twice in one object", field=key)
+        obj[key] = value
+    return obj
+
+
+_JSON_NESTING = re.compile(r'"(?:[^"\\]++|\\.)*+"|[\[\]{}]')
+
+
+def _too_deep(text: str, max_depth: int) -> int | None:
+    """Offset of the first bracket nested deeper than `max_depth` (brackets inside strings ignored), or None."""
+    depth = 0
+    for match in _JSON_NESTING.finditer(text):
+        char = match.group()
+        if char in "[{":
+            depth += 1
+            if depth > max_depth:
+                return match.start()
+        elif char in "]}":
+            depth -= 1
+    return None
+
+
+def _line_column(text: str, offset: int) -> tuple[int, int]:
+    line = text.count("\n", 0, offset) + 1
+    return line, offset - (text.rfind("\n", 0, offset) + 1) + 1
+
+
+def _bad_string(obj, where=""):
+    """Field path of the first string (or key) holding a lone surrogate (not Unicode: cannot be printed)."""
+    if isinstance(obj, str):
+        try:
+            obj.encode("utf-8")
+        except UnicodeEncodeError:
+            return where or "(top level)"
+    elif isinstance(obj, dict):
+        for key, value in obj.items():
+            hit = _bad_string(key, where or "(top level)") or _bad_string(value, f"{where}.{key}" if where else key)
+            if hit:
+                return hit
+    elif isinstance(obj, list):
+        for i, value in enumerate(obj):
+            hit = _bad_string(value, f"{where}[{i}]")
+            if hit:
+                return hit
+    return None
+
+
+def parse_json_text(text: str, path):
+    """A JSON document from `text`, or DataError naming `path`, the line and column (or field) of the problem.
+
+    Refused besides invalid JSON: nesting deeper than MAX_JSON_DEPTH, integers of more than MAX_JSON_INT_DIGITS
+    digits, a key twice in one object, strings that are not Unicode (lone surrogates). NaN and Infinity are
+    parsed (the format's validator names their field).
+    """
+    if not text.strip():
+        raise DataError(path, "empty file: expected a JSON object")
+    offset = _too_deep(text, MAX_JSON_DEPTH)
+    if offset is not None:
+        line, column = _line_column(text, offset)
+        raise DataError(path, f"nested deeper than {MAX_JSON_DEPTH} levels (column {column})", line=line)
+    try:
+        doc = json.loads(text, parse_int=_json_int, object_pairs_hook=_json_object)
+    except json.JSONDecodeError as err:
+        truncated = err.pos >= len(text.rstrip()) or err.msg.startswith("Unterminated string")
+        kind = "truncated JSON" if truncated else "invalid JSON"
+        raise DataError(path, f"{kind}: {err.msg} (column {err.colno})", line=err.lineno) from None
+    except _JsonRefusal as err:
+        line = None
+        if err.token is not None:
+            found = re.search(r"(?<![\w.+-])" + re.escape(err.token) + r"(?![\w.])", text)
+            if found:
+                line, column = _line_column(text, found.start())
+                err.problem += f" (column {column})"
+        raise DataError(path, err.problem, line=line, field=err.field) from None
+    except (RecursionError, ValueError) as err:  # defence in depth: the checks above should have caught it
+        raise DataError(path, f"cannot parse JSON: {err}") from None
+    bad = _bad_string(doc)
+    if bad:
+        raise DataError(path, "text that is not valid Unicode (a lone surrogate escape)", field=bad)
+    return doc
+
+
+def read_json(path, *, max_bytes: int = MAX_JSON_BYTES):
+    """The JSON document in the regular file `path` (see read_bytes and parse_json_text)."""
+    return parse_json_text(read_text(path, max_bytes=max_bytes), path)
+
+
+# ------------------------------------------------------------------------------------------ output paths
+# Checked before any work, so that a run does not compute for a minute and then fail to save, and so that
+# nothing that is not ours (a directory, a FIFO, a device) is replaced.
+
+
+def _existing_ancestor(path: Path) -> Path:
+    while not os.path.lexists(path) and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _check_can_create_in(path: Path) -> None:
+    """`path` (absent) can be created: its nearest existing ancestor is a writable directory."""
+    ancestor = _existing_ancestor(path.parent)
+    if not ancestor.is_dir():
+        raise DataError(path, f"cannot be created: {ancestor} is not a directory")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise DataError(path, f"cannot be created: no permission to write in {ancestor}")
+
+
+def check_output_file(path) -> Path:
+    """Raise DataError unless `path` can be written as a file (replacing an existing regular file only)."""
+    path = Path(path)
+    if os.path.lexists(path):
+        try:
+            mode = os.stat(path).st_mode
+        except OSError as err:
+            raise DataError(path, _os_problem(err)) from None
+        if not stat.S_ISREG(mode):
+            raise DataError(path, f"is {_kind(mode)}; expected a file name (an existing file is replaced)")
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise DataError(path, f"cannot be replaced: no permission to write in {path.parent}")
+        return path
+    _check_can_create_in(path)
+    return path
+
+
+def check_output_directory(path) -> Path:
+    """Raise DataError unless `path` is, or can be created as, a directory we may write in."""
+    path = Path(path)
+    if os.path.lexists(path):
+        if not path.is_dir():
+            raise DataError(path, "exists and is not a directory; expected a directory for the output")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise DataError(path, "no permission to write in this directory")
+        return path
+    _check_can_create_in(path)
+    return path

@@ -1,16 +1,21 @@
 """NAO joint limits: the URDF's box limits, the documented RKneePitch range, and the HeadPitch-vs-HeadYaw table.
 
-Every backend that can move a real joint checks its targets against these before sending anything. The URDF is
-`solver/data/nao_v50.urdf` (the nominal model, see ../shared/reference/NAO.md); it is parsed once.
+Every backend that can move a real joint checks its targets against these before sending anything, with the one
+implementation here: `check_targets` (known joint, finite, inside its box, HeadPitch inside the table for every
+HeadYaw the head may have) and `check_speed_fraction`. The agent's own guard uses `limit_problem` and
+`head_pitch_problem` with its margins. The URDF is `solver/data/nao_v50.urdf` (the nominal model, see
+../shared/reference/NAO.md); it is parsed once.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 
-from solver.errors import DataError
+from solver.errors import DataError, SafetyError
 from solver.urdf import NOMINAL_URDF, nominal_urdf, parse_urdf
 
 URDF_PATH = NOMINAL_URDF
@@ -75,3 +80,80 @@ def joint_limits(urdf_path=URDF_PATH) -> dict[str, tuple[float, float]]:
 def max_speeds(urdf_path=URDF_PATH) -> dict[str, float]:
     """Maximum joint speed in rad/s for every revolute joint (the URDF's `velocity`)."""
     return {name: speed for name, (_, _, speed) in _urdf_joint_table(str(urdf_path)).items()}
+
+
+# ---------------------------------------------------------------------------------------------- checks
+def _as_angle(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def limit_problem(joint: str, angle_rad, limits: Mapping, *, margin_rad: float = 0.0) -> str | None:
+    """Why `angle_rad` is not a safe target for `joint` under `limits` ({joint: (lower, upper)} rad, shrunk by
+    `margin_rad` on both sides), or None: unknown joint, not a finite number, outside the box."""
+    if joint not in limits:
+        return f"unknown joint {joint!r}: this robot commands only {', '.join(limits)}"
+    angle = _as_angle(angle_rad)
+    if not math.isfinite(angle):
+        return f"{joint} target {angle_rad!r} is not a finite angle"
+    lower, upper = (float(v) for v in limits[joint])
+    lower, upper = lower + margin_rad, upper - margin_rad
+    if not lower <= angle <= upper:
+        return f"{joint} target {angle:.4f} rad outside its limits [{lower:.4f}, {upper:.4f}] rad"
+    return None
+
+
+def head_pitch_problem(head_yaw_rad: float, head_pitch_rad: float, *, margin_rad: float = 0.0) -> str | None:
+    """Why HeadPitch `head_pitch_rad` is not allowed at HeadYaw `head_yaw_rad` by the HeadPitch-vs-HeadYaw table
+    (narrowed by `margin_rad`; a small negative margin is a tolerance), or None."""
+    lower, upper = head_pitch_limits(head_yaw_rad)
+    lower, upper = lower + margin_rad, upper - margin_rad
+    if not lower <= float(head_pitch_rad) <= upper:  # also refuses NaN
+        return (f"HeadPitch {float(head_pitch_rad):.4f} rad outside [{lower:.4f}, {upper:.4f}] rad allowed at "
+                f"HeadYaw {float(head_yaw_rad):.4f} rad (HeadPitch-vs-HeadYaw table)")
+    return None
+
+
+def check_speed_fraction(speed_fraction) -> float:
+    """`speed_fraction` as a float in (0, 1]; SafetyError otherwise (NaN included)."""
+    speed = _as_angle(speed_fraction)
+    if not 0.0 < speed <= 1.0:
+        raise SafetyError(f"speed_fraction must be in (0, 1], got {speed_fraction!r}")
+    return speed
+
+
+def check_targets(targets_rad: Mapping, limits: Mapping, *,
+                  head_angles: Mapping[str, Iterable[float]] | None = None) -> dict[str, float]:
+    """The one limit check every driver applies to a command before sending anything.
+
+    targets_rad : {joint: angle rad} to command.
+    limits : {joint: (lower, upper)} rad the driver enforces (its joints; anything else is unknown).
+    head_angles : for a head joint NOT in this command, every angle it may have while this command runs (where it
+        reads now, and the target it may still be moving to). Required when the command names one head joint only.
+
+    Returns {joint: float}; raises SafetyError naming the first problem (unknown joint, non-finite, outside the
+    box, HeadPitch outside the HeadPitch-vs-HeadYaw table for some HeadYaw the head may have).
+    """
+    if not isinstance(targets_rad, Mapping):
+        raise SafetyError("targets must be a {joint: angle} mapping")
+    checked = {}
+    for joint, angle in targets_rad.items():
+        why = limit_problem(joint, angle, limits)
+        if why is not None:
+            raise SafetyError(why)
+        checked[joint] = float(angle)
+    if "HeadYaw" in checked or "HeadPitch" in checked:
+        options = {name: [checked[name]] for name in ("HeadYaw", "HeadPitch") if name in checked}
+        for name in ("HeadYaw", "HeadPitch"):
+            if name not in options:
+                options[name] = [float(a) for a in (head_angles or {}).get(name, ())]
+                if not options[name]:
+                    raise ValueError(f"check_targets: a command of one head joint needs head_angles[{name!r}]")
+        for yaw in options["HeadYaw"]:
+            for pitch in options["HeadPitch"]:
+                why = head_pitch_problem(yaw, pitch)
+                if why is not None:
+                    raise SafetyError(why)
+    return checked

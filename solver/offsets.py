@@ -19,9 +19,9 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from solver.dataset import find_non_finite, parse_json_text, read_text
+from solver.dataset import find_non_finite
 from solver.errors import DataError
-from solver.fileio import atomic_write_text
+from solver.fileio import atomic_write_text, read_json
 from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
 
 SCHEMA = "naocal.offsets/1"
@@ -32,6 +32,46 @@ MAX_JOINT_OFFSET_RAD = math.radians(10.0)
 MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
 MAX_BOARD_TRANS_M = 0.03
 MAX_BOARD_ROT_Z_RAD = math.radians(15.0)
+
+# model.parameters values by unit: beyond these no NAO parameter can be (a half turn, a metre, ...).
+MAX_PARAMETER_SIZE = {"rad": math.pi, "m": 1.0, "px": 1e5, "s": 10.0, "rad/(N m)": 10.0, "1": 100.0}
+
+
+
+def implausible_parameter(name: str, value: float, std: float, unit: str) -> str | None:
+    """Why a fitted model parameter (registry name, model value) is beyond any NAO's, or None.
+
+    The limits are the ones the file enforces (a result the file could not hold is no calibration); terms the file
+    keeps only in model.parameters are bounded by MAX_PARAMETER_SIZE of their unit.
+    """
+    group, _, member = name.partition(".")
+    if group in ("joint_offset", "head_offset"):
+        limit = MAX_JOINT_OFFSET_RAD
+    elif group == "camera":
+        limit = MAX_CAMERA_ROTATION_RAD
+    elif group == "board":
+        limit = MAX_BOARD_ROT_Z_RAD if member.endswith("rot_z") else MAX_BOARD_TRANS_M
+    else:
+        limit = MAX_PARAMETER_SIZE.get(unit, math.inf)
+    if not math.isfinite(value):
+        return f"{name} is not a finite number"
+    if not math.isfinite(std):
+        return f"{name} is not determined by the data (its standard deviation is not finite)"
+    if abs(value) > limit:
+        if unit == "rad":
+            return f"{name} = {math.degrees(value):.4g} deg is beyond any NAO's (at most {math.degrees(limit):g} deg)"
+        return f"{name} = {value:.4g} {unit} is beyond any NAO's (at most {limit:g} {unit})"
+    return None
+
+
+def implausible_parameters(parameters: dict) -> str | None:
+    """The first implausible entry of {name: {"value", "std", "unit"}} (see implausible_parameter), or None."""
+    for name, entry in parameters.items():
+        why = implausible_parameter(name, float(entry["value"]), float(entry["std"]), entry["unit"])
+        if why:
+            return why
+    return None
+
 
 OFFSET_JOINTS = LEG_JOINTS + HEAD_JOINTS  # the order joint_offsets_rad is written in; the 12 leg joints are required
 CAMERA_ANGLES = ("roll", "pitch", "yaw")
@@ -56,6 +96,10 @@ _SIMPLE_GROUPS = {
 }
 _BOARD_MEMBERS = {"rot_z": "rad", "trans_x": "m", "trans_y": "m"}
 _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+# Robot, body and head ids end up in other programs' config files and in file names (B-Human's
+# Robots/<head>/<body>/, HULKs' body.<BodyId>.json): letters, digits, '.', '_', '-', starting with a letter or digit.
+ROBOT_ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+ROBOT_ID_RULE = "letters, digits, '.', '_' or '-', starting with a letter or digit, at most 64 characters"
 
 
 def parameter_unit(name: str) -> str:
@@ -178,7 +222,9 @@ def _number(value, path, where, *, limit=None, unit="rad", non_negative=False) -
         if unit == "rad":
             _fail(path, f"implausible size {math.degrees(value):.3f} deg (limit +-{math.degrees(limit):g} deg); "
                         "is it in degrees instead of radians?", where)
-        _fail(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?", where)
+        if unit == "m":
+            _fail(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?", where)
+        _fail(path, f"implausible size {value:g} {unit} (limit +-{limit:g} {unit})", where)
     return value
 
 
@@ -219,6 +265,8 @@ def _validated_fields(doc, path) -> dict:
     for key in ROBOT_KEYS:
         if robot[key] is not None and not isinstance(robot[key], str):
             _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
+        if isinstance(robot[key], str) and not ROBOT_ID_PATTERN.fullmatch(robot[key]):
+            _fail(path, f"not a valid id {json.dumps(robot[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
 
     joints = _object(doc["joint_offsets_rad"], path, "joint_offsets_rad")
     for joint in joints:
@@ -286,7 +334,8 @@ def _validated_model(model, path) -> dict:
                   f"{where}.unit")
         if unit != expected_unit:
             _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value"),
+        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
+                                          unit=unit),
                          "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
                          "unit": unit}
     return {"effects": list(effects), "parameters": checked}
@@ -316,7 +365,7 @@ def validate(doc, path="<offsets>") -> None:
 
 def read_offsets(path) -> Offsets:
     """Read and validate a `naocal.offsets/1` file."""
-    return Offsets.from_dict(parse_json_text(read_text(path), path), path)
+    return Offsets.from_dict(read_json(path), path)
 
 
 def format_offsets(offsets: Offsets) -> str:
@@ -424,3 +473,17 @@ def alpha_from_offsets(offsets: Offsets) -> dict:
         "camera": offsets.camera_rpy("bottom"),
         "board": {leg: tuple(offsets.board_mount[leg][k] for k in BOARD_KEYS) for leg in LEGS},
     }
+
+
+COMPENSATED_PREFIXES = ("joint_offset.", "head_offset.")  # model alphas that files store as c = -alpha
+
+
+def shown_name(name: str) -> str:
+    """How people see a model parameter: joint_offset.<J> and head_offset.<J> (alpha) as 'c <J>', the stored offset
+    (shown_sign flips the value); every other parameter under its own name, as the model's value."""
+    return "c " + name.split(".", 1)[1] if name.startswith(COMPENSATED_PREFIXES) else name
+
+
+def shown_sign(name: str) -> float:
+    """-1 for the joint and head offsets (c = -alpha), +1 for every other parameter."""
+    return -1.0 if name.startswith(COMPENSATED_PREFIXES) else 1.0

@@ -31,12 +31,15 @@ def test_json_output_and_offsets_file_with_compensation_sign(synthetic_dataset, 
     out = tmp_path / "offsets.json"
     assert main(["identify", str(path), "--json", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
-    for key in ("rms_px", "solve_time_s", "iterations", "effects", "parameters", "cv_rms_px"):
+    for key in ("rms_px", "solve_time_s", "iterations", "effects", "model_parameters", "cv_rms_px"):
         assert key in report
     assert report["effects"] == []
     assert all(abs(r - 0.1) < 0.01 for r in report["rms_px"])
     assert all(abs(r - 0.1) < 0.02 for r in report["cv_rms_px"])
-    assert report["parameters"]["joint_offset.LKneePitch"]["unit"] == "rad"
+    assert report["model_parameters"]["joint_offset.LKneePitch"]["unit"] == "rad"
+    assert "alpha" in report["model_parameters_note"]
+    for joint, entry in report["joint_offsets_c"].items():  # c, as offsets.json stores it
+        assert entry["c_rad"] == -report["model_parameters"][f"joint_offset.{joint}"]["value"]
 
     offsets = read_offsets(out)
     for joint in ("LHipPitch", "RAnkleRoll", "LKneePitch"):
@@ -50,7 +53,23 @@ def test_table_output_names_the_weak_pitch_chain(synthetic_dataset, capsys):
     path, _ = synthetic_dataset
     assert main(["identify", str(path), "--cv-folds", "0"]) == 0
     text = capsys.readouterr().out
-    assert "joint_offset.LKneePitch" in text and "weakest directions" in text
+    assert "c LKneePitch" in text and "weakest directions" in text
+
+
+def test_the_table_prints_the_stored_offset_c_labelled_as_everywhere(synthetic_dataset, tmp_path, capsys):
+    """One vocabulary: the table shows c = -alpha as offsets.json stores it (and offsets show prints it)."""
+    path, truth = synthetic_dataset
+    out = tmp_path / "offsets.json"
+    assert main(["identify", str(path), "--cv-folds", "0", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings" in text
+    assert "joint_offset." not in text  # the model's alpha names stay inside the model (and --json)
+    stored = read_offsets(out).joint_offsets_rad
+    for joint, c in stored.items():
+        assert f"  {joint:14s} c = {np.degrees(c):+8.4f} deg" in text, joint
+    assert main(["offsets", "show", str(out)]) == 0
+    shown = capsys.readouterr().out
+    assert f"  {'LHipPitch':<16}{np.degrees(stored['LHipPitch']):>10.4f}" in shown
 
 
 def run_cli(*args):
@@ -98,7 +117,7 @@ def test_quantised_readings_use_the_command_inside_the_cell(tmp_path, capsys):
     for mode in ("measured", "auto"):
         assert main(["identify", str(path), "--json", "--cv-folds", "0", "--angles", mode]) == 0
         report = json.loads(capsys.readouterr().out)
-        errors[mode] = max(abs(report["parameters"][f"joint_offset.{j}"]["value"] - truth[f"joint_offset.{j}"])
+        errors[mode] = max(abs(report["model_parameters"][f"joint_offset.{j}"]["value"] - truth[f"joint_offset.{j}"])
                            for j in ("LHipPitch", "LKneePitch", "LAnklePitch", "RHipPitch", "RKneePitch"))
         if mode == "auto":
             assert "quantised to 0.1 deg" in report["angles"]

@@ -7,7 +7,6 @@ exported XML, and against naocal's own kinematic model with the same alphas (the
 import importlib.util
 import json
 import math
-import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -19,7 +18,9 @@ import tools.cli
 from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, leg_joints
 from solver.offsets import read_offsets, write_offsets
 from tests.test_offsets import make_offsets
-from tools.offsets_export import BHUMAN_JOINT_KEYS, export_urdf
+from tests.cfg_reader import parse_cfg
+from tools.export.bhuman import joint_keys
+from tools.export.urdf import export_urdf
 
 ROOT = tools.cli.__file__.rsplit("/tools/", 1)[0]
 ALL_VERB_MODULES = tools.cli.VERB_MODULES
@@ -162,34 +163,6 @@ def test_export_json_round_trips(capsys, tmp_path, offsets_file):
     assert read_offsets(tmp_path / "copy.json") == read_offsets(offsets_file)
 
 
-def parse_bhuman_cfg(text: str) -> dict:
-    """A small parser of B-Human's config syntax (records `key = value;` and `key = { ... };`, // and /* */)."""
-    text = re.sub(r"//[^\n]*|/\*.*?\*/", " ", text, flags=re.S)
-    tokens = re.findall(r"[{}=;]|[^\s{}=;]+", text)
-    position = 0
-
-    def record(closing):
-        nonlocal position
-        fields = {}
-        while tokens[position] != closing:
-            key, equals = tokens[position], tokens[position + 1]
-            assert equals == "=" and key not in fields, (key, equals)
-            position += 2
-            if tokens[position] == "{":
-                position += 1
-                fields[key] = record("}")  # consumes the closing brace
-            else:
-                fields[key] = tokens[position]
-                position += 1
-            assert tokens[position] == ";", tokens[position]
-            position += 1
-        position += 1
-        return fields
-
-    tokens.append("<end>")
-    return record("<end>")
-
-
 def deg(literal: str) -> float:
     assert literal.endswith("deg"), literal
     return float(literal[:-3])
@@ -199,15 +172,15 @@ def test_export_bhuman_parses_back_to_the_same_numbers(capsys, tmp_path, offsets
     offsets = read_offsets(offsets_file)
     code, _, _ = naocal(capsys, "export", offsets_file, "--format", "bhuman", "--out", tmp_path / "bh")
     assert code == 0
-    joints = parse_bhuman_cfg((tmp_path / "bh" / "jointCalibration.cfg").read_text())
-    assert list(joints) == ["offsets"] and tuple(joints["offsets"]) == BHUMAN_JOINT_KEYS
+    joints = parse_cfg((tmp_path / "bh/Robots/AL-B-17/Body/jointCalibration.cfg").read_text())
+    assert list(joints) == ["offsets"] and tuple(joints["offsets"]) == joint_keys(2025)
     for key, literal in joints["offsets"].items():
         joint = key[0].upper() + key[1:]
         expected = math.degrees(offsets.joint_offsets_rad.get(joint, 0.0))  # same sign: added to requests
         assert deg(literal) == pytest.approx(expected, abs=5e-7), key
     assert deg(joints["offsets"]["lHipPitch"]) != 0 and deg(joints["offsets"]["headYaw"]) != 0
 
-    camera = parse_bhuman_cfg((tmp_path / "bh" / "cameraCalibration.cfg").read_text())
+    camera = parse_cfg((tmp_path / "bh/Robots/AL-H-04/AL-B-17/cameraCalibration.cfg").read_text())
     roll, pitch, yaw = offsets.camera_rpy("bottom")
     lower = camera["cameraRotationCorrections"]["lower"]
     assert [deg(lower[k]) for k in "xyz"] == pytest.approx([math.degrees(a) for a in (roll, pitch, yaw)], abs=5e-7)
@@ -423,4 +396,6 @@ def test_help_documents_the_verbs(capsys):
     with pytest.raises(SystemExit):
         tools.cli.main(["offsets", "export", "--help"])
     out = capsys.readouterr().out
-    assert "x = roll" in out and "calibration rising" in out
+    for text in ("x = roll", "calibration rising", "hulks", "naodevils", "--merge-from", "--bhuman-release",
+                 "--head-id", "waistYaw", "correction_in_camera_bottom", "docs/EXPORTS.md"):
+        assert text in out, text

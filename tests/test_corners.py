@@ -72,9 +72,24 @@ def test_without_a_prediction_the_order_is_not_guessed(captures):
     pixels, _, truth, _, _ = captures[0]
     found = detect_board_vertices(pixels)
     assert not found.ok and found.reason == "ambiguous" and found.vertices_px is None
-    grid = found.unordered_px.reshape(4, 6, 2)
+    grid = found.image_order_px.reshape(4, 6, 2)
     labellings = [grid, grid[::-1], grid[:, ::-1], grid[::-1, ::-1]]
     assert min(np.abs(g.reshape(-1, 2) - truth).max() for g in labellings) < 0.5
+
+
+def test_rendered_boards_are_found_without_a_prediction(captures):
+    """agent.board_detect on the mock's images: every board whose vertices are all in sight, in image order, on
+    its true vertices (in one of the sandal's two orientations: it looks the same turned)."""
+    for pixels, _, truth, visible, (other, other_visible) in captures:
+        if not visible.all():
+            continue
+        found = detect_board_vertices(pixels)
+        assert found.reason == "ambiguous" and found.image_order_px is not None, found.detail
+        grid = found.image_order_px.reshape(4, 6, 2)
+        boards = [truth] + ([other] if "2 boards" in found.detail else [])  # then the larger one is given
+        error = min(np.abs(g - board.reshape(4, 6, 2)).max() for board in boards
+                    for g in (grid, grid[::-1, ::-1], grid[::-1], grid[:, ::-1]))
+        assert error < 0.15
 
 
 def test_the_prediction_resolves_the_180_degree_turn(captures):
@@ -190,3 +205,13 @@ def test_bad_arguments():
         detect_board_vertices(np.zeros((480, 640, 4), np.uint8))
     with pytest.raises(ValueError):
         detect_board_vertices(image, method="guided")
+
+
+def test_a_prediction_far_outside_the_image_is_cut_off(captures):
+    """A board predicted wholly outside the image, whose searched region's bounding box still reaches into it
+    (it used to raise IndexError on the empty region), is `cut_off`."""
+    pixels, _, truth, _, _ = captures[0]
+    for scale, centre in ((1.0, [-300.0, 560.0]), (2.0, [-450.0, 700.0])):  # left of and below the 640 x 480 image
+        predicted = (truth - truth.mean(axis=0)) * scale + centre
+        found = detect_board_vertices(pixels, predicted, search_margin_px=120.0)
+        assert not found.ok and found.reason == "cut_off", (found.reason, found.detail)

@@ -13,6 +13,7 @@ from solver.dataset import (
 )
 from solver.errors import DataError
 from solver.joints import JOINTS
+from solver.limits import joint_limits
 
 
 def make_meta(**changes):
@@ -43,8 +44,9 @@ def make_columns(n_images=6, n_vertices=24, seed=0, velocities=False):
     for name in FLOAT_COLUMNS:
         columns[name] = rng.normal(size=image.size) * 0.1
     columns["t_image_s"] = per_image(np.arange(n_images) * 2.0 + rng.random(n_images))
+    lower, upper = np.array([joint_limits()[j] for j in JOINTS]).T
     for prefix in ("", "cmd_"):
-        angles = rng.uniform(-1, 1, size=(n_images, 14))
+        angles = rng.uniform(lower, upper, size=(n_images, 14))  # the reader refuses angles far beyond the limits
         for j, joint in enumerate(JOINTS):
             columns[prefix + joint] = angles[image, j]
     directions = rng.integers(-1, 2, size=(n_images, 14)).astype(float)

@@ -1,6 +1,8 @@
 """`naocal diagnose` end to end on datasets written to disk: JSON, text, report, bad input."""
 
 import json
+import re
+import shlex
 import shutil
 import subprocess
 
@@ -10,7 +12,7 @@ import pytest
 
 from solver.dataset import write_dataset
 from solver.synthetic import dataset_parts, random_truth, synthesize
-from tools.cli import main
+from tools.cli import build_parser, main
 
 NOISE_PX = 0.1
 
@@ -156,3 +158,100 @@ def test_angles_option_reads_the_dataset_as_identify_does(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["diagnose", str(path), "--angles", "sideways"])
     assert exit_info.value.code == 2
+
+
+def verdict_commands(text):
+    """The identify and diagnose commands the verdict prints."""
+    lines = text.splitlines()
+    verdict = next(i for i, line in enumerate(lines) if line.startswith("verdict: add "))
+    identify_command = lines[verdict].split(" px): ", 1)[1]
+    assert lines[verdict + 1].startswith("  then diagnose again: ")
+    return identify_command, lines[verdict + 1].split("then diagnose again: ", 1)[1]
+
+
+def run_as_pasted(command, capsys):
+    argv = shlex.split(command)
+    assert argv[0] == "naocal"
+    code = main(argv[1:])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    return captured.out
+
+
+def test_the_verdict_prints_commands_that_run_as_pasted(elastic_dataset, tmp_path, capsys):
+    awkward = tmp_path / "robot's data (run 1)"  # a path a shell would split or choke on
+    shutil.copytree(elastic_dataset, awkward)
+    assert main(["diagnose", str(awkward), "--angles", "measured"]) == 0
+    identify_command, diagnose_command = verdict_commands(capsys.readouterr().out)
+    assert "DATASET" not in identify_command and "--angles measured" in identify_command
+    assert shlex.split(identify_command)[2] == str(awkward)
+    assert "c LHipPitch" in run_as_pasted(identify_command, capsys)
+    after = run_as_pasted(diagnose_command, capsys)
+    assert "model: base + elasticity" in after and "no candidate effect is significant" in after
+
+
+def test_the_verdict_fixes_what_the_data_cannot_tell_and_diagnose_accepts_it(elastic_dataset, capsys):
+    from solver.dataset import read_dataset
+    from solver.diagnostics import diagnose_result
+    from solver.identify import identify
+    from solver.model import model_data_from_dataset
+    from solver.registry import Registry
+    from tools.cmd_diagnose import format_text
+
+    data = model_data_from_dataset(read_dataset(elastic_dataset))
+    diagnosis = diagnose_result(identify(data, Registry()), pixel_noise_px=NOISE_PX)
+    best = next(c for c in diagnosis.candidates if c.significant and c.plausible)
+    best.inside_model = ["elasticity.LAnkleRoll"]  # as if these data could not tell it from the model
+    text = format_text(diagnosis, dataset_path=elastic_dataset, fixed=["camera.yaw"])
+    identify_command, diagnose_command = verdict_commands(text)
+    for command in (identify_command, diagnose_command):
+        assert command.endswith("--effects elasticity --fix camera.yaw --fix elasticity.LAnkleRoll")
+    fitted = run_as_pasted(identify_command + " --cv-folds 0", capsys)  # as pasted, minus cross-validation
+    assert re.search(r"camera\.yaw +0\.0000 +0\.0000  deg  \(fixed\)", fitted)
+    assert re.search(r"elasticity\.LAnkleRoll +0\.0000 +0\.0000  deg/\(N m\)  \(fixed\)", fitted)
+    args = build_parser().parse_args(shlex.split(diagnose_command)[1:])  # diagnose takes what it advises
+    assert args.fix == ["camera.yaw", "elasticity.LAnkleRoll"] and args.effects == "elasticity"
+
+
+def test_a_calibration_run_directory_is_read_as_its_dataset(elastic_dataset, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(elastic_dataset, run / "dataset")
+    (run / "summary.txt").write_text("naocal calibrate: done\n")
+    out = diagnose_json(capsys, run, "--fix", "camera.yaw")
+    assert out["candidates"][0]["effect"] == "elasticity" and out["model_parameters"]["camera.yaw"]["value"] == 0.0
+    assert main(["identify", str(run), "--cv-folds", "0", "--out", str(tmp_path / "offsets.json")]) == 0
+    capsys.readouterr()
+    assert json.loads((tmp_path / "offsets.json").read_text())["source"]["dataset"] == str(run / "dataset")
+    (tmp_path / "empty").mkdir()
+    for verb in ("identify", "diagnose"):
+        assert main([verb, str(tmp_path / "empty")]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1
+        assert str(tmp_path / "empty" / "dataset.json") in err and str(tmp_path / "empty" / "dataset" / "dataset.json") in err
+
+
+def test_the_report_without_an_after_has_no_after_and_keeps_untestable_regressors(tmp_path):
+    """No significant candidate: no before/after wording; a regressor too few images carry keeps its row."""
+    import html as html_lib
+
+    from solver.dataset import read_dataset
+    from solver.diagnostics import diagnose_result
+    from solver.identify import identify
+    from solver.model import model_data_from_dataset
+    from solver.registry import Registry
+    from tools.report import write_report
+
+    write_synthetic(tmp_path / "plain", 5)
+    diagnosis = diagnose_result(identify(model_data_from_dataset(read_dataset(tmp_path / "plain")), Registry()),
+                                pixel_noise_px=NOISE_PX)
+    assert not any(c.significant for c in diagnosis.candidates)
+    untestable = diagnosis.location.regressors[1]
+    untestable["p_value"] = float("nan")  # as for a regressor only a few images carry
+    page = write_report(tmp_path / "report", diagnosis, top_count=0).read_text()
+    assert "before and after" not in page and "after adding" not in page and "cyan" not in page
+    assert "of the current model" in page
+    row = next(r for r in page.split("<tr>") if "not testable (too few images" in r)
+    assert row.startswith(f"<td>{html_lib.escape(untestable['regressor'])}</td>"
+                          f"<td class=n>{100 * untestable['explained_share']:.1f} %</td>")
+    assert "joint_offset." not in page.split("<h2>Parameters</h2>", 1)[1].split("</table>", 1)[0]
+    assert "<td>c LHipPitch</td>" in page

@@ -1,4 +1,9 @@
-"""Forward kinematics and gravity torques against independent computations."""
+"""Forward kinematics and gravity torques against independent computations.
+
+The nominal model is the project's own copy of the ros-naoqi URDF (solver/data/nao_v50.urdf, licence beside it).
+Two independent checks: `XmlChain` walks that file's raw XML with scipy rotations (no code shared with solver/),
+and the file itself is checked against numbers typed from Aldebaran's documentation of the NAO H25 V5.
+"""
 
 import xml.etree.ElementTree as ET
 
@@ -6,13 +11,25 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import SHARED
+from conftest import ROOT
 from solver import kinematics
 from solver.joints import HEAD_JOINTS, leg_joints
 from solver.nao_model import SANDAL_MASS_KG, board_vertices_sole, leg_chain
 from solver.urdf import nominal_urdf
 
-URDF = SHARED / "reference" / "nao_v50.urdf"
+URDF = ROOT / "solver" / "data" / "nao_v50.urdf"
+
+# Typed from Aldebaran's NAO H25 V5 documentation (doc.aldebaran.com/2-1/family/nao_h25/links_h25.html,
+# masses_h25.html, and family/robots/video_robot.html), metres, kg, rad:
+NECK_OFFSET_Z = 0.1265
+HIP_OFFSET_Y, HIP_OFFSET_Z = 0.050, 0.085
+THIGH_LENGTH, TIBIA_LENGTH = 0.100, 0.1029
+FOOT_HEIGHT = 0.04511  # the URDF's; the links page says 0.04519
+CAMERA_BOTTOM_XYZ, CAMERA_BOTTOM_PITCH = (0.05071, 0.0, 0.01774), np.radians(39.7)  # in the head frame
+CAMERA_TOP_XYZ, CAMERA_TOP_PITCH = (0.05871, 0.0, 0.06364), np.radians(1.2)
+LEG_MASSES = {"Pelvis": 0.06981, "Hip": 0.14053, "Thigh": 0.38968, "Tibia": 0.30142, "AnklePitch": 0.13416,
+              "ankle": 0.17184}
+TOTAL_MASS = 5.305
 
 
 class XmlChain:
@@ -169,3 +186,28 @@ def test_projection_of_sole_points_equals_the_models_prediction():
         uv, depth = kinematics.project_sole_points(T_cam, T_sole, board_vertices_sole(), DEFAULT_INTRINSICS)
         assert np.all(depth > 0)
         assert np.abs(uv[0] - predicted[data.image_of_row == m]).max() < 1e-9
+
+
+def test_the_urdf_holds_the_documented_geometry_and_masses(xml_chain):
+    zero = {j: 0.0 for j in (*HEAD_JOINTS, *leg_joints("L"), *leg_joints("R"))}
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        R, t = xml_chain.pose(f"{side}_sole", zero)
+        np.testing.assert_allclose(t, [0.0, sign * HIP_OFFSET_Y,
+                                       -(HIP_OFFSET_Z + THIGH_LENGTH + TIBIA_LENGTH + FOOT_HEIGHT)], atol=1e-9)
+        np.testing.assert_allclose(R, np.eye(3), atol=1e-9)
+    for link, xyz, pitch in (("CameraBottom_frame", CAMERA_BOTTOM_XYZ, CAMERA_BOTTOM_PITCH),
+                             ("CameraTop_frame", CAMERA_TOP_XYZ, CAMERA_TOP_PITCH)):
+        R, t = xml_chain.pose(link, zero)
+        np.testing.assert_allclose(t, np.add(xyz, [0.0, 0.0, NECK_OFFSET_Z]), atol=1e-9)
+        np.testing.assert_allclose(Rotation.from_matrix(R).as_rotvec(), [0.0, pitch, 0.0], atol=1e-3)
+    axes = {joint["name"]: joint["axis"] for joint in xml_chain.by_child.values()}
+    np.testing.assert_allclose(axes["LHipYawPitch"], [0.0, 0.7071, -0.7071], atol=1e-4)
+    np.testing.assert_allclose(axes["RHipYawPitch"], [0.0, 0.7071, 0.7071], atol=1e-4)
+    root = ET.parse(URDF).getroot()
+    masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
+              for link in root.findall("link") if link.find("inertial/mass") is not None}
+    for side, sole in (("L", "l"), ("R", "r")):
+        for part, mass in LEG_MASSES.items():
+            name = f"{sole}_ankle" if part == "ankle" else f"{side}{part}"
+            assert masses[name] == pytest.approx(mass, abs=1e-5), name
+    assert sum(masses.values()) == pytest.approx(TOTAL_MASS, abs=1e-3)

@@ -50,3 +50,48 @@ def test_a_broken_urdf_is_reported_with_its_path(tmp_path):
     bad.write_text('<robot><joint name="J" type="revolute"><limit lower="x" upper="1" velocity="1"/></joint></robot>')
     with pytest.raises(DataError, match="bad.urdf.*J"):
         limits.joint_limits(bad)
+
+
+# ---------------------------------------------------------------------------------------------- shared checks
+from solver.errors import SafetyError  # noqa: E402
+
+
+@pytest.mark.parametrize("targets, problem", [
+    ({"LKneePitch": 2.5}, "LKneePitch target 2.5000 rad outside its limits"),
+    ({"RKneePitch": -0.11}, "RKneePitch target -0.1100 rad outside"),  # the documented right knee, not the URDF's
+    ({"LKneePitch": math.nan}, "not a finite angle"),
+    ({"LKneePitch": "1"}, None),  # a numeric string is a number
+    ({"LKneePitch": None}, "not a finite angle"),
+    ({"LShoulderPitch": 0.0}, "unknown joint 'LShoulderPitch'"),
+    ({"HeadYaw": 1.5, "HeadPitch": 0.4}, "HeadPitch 0.4000 rad outside"),  # in the box, outside the table
+])
+def test_check_targets_refuses_each_kind_of_unsafe_target(targets, problem):
+    box = {j: limits.joint_limits()[j] for j in JOINTS}
+    if problem is None:
+        assert limits.check_targets(targets, box) == {"LKneePitch": 1.0}
+        return
+    with pytest.raises(SafetyError, match=problem):
+        limits.check_targets(targets, box)
+
+
+def test_a_single_head_joint_is_checked_against_every_angle_the_other_may_have():
+    box = {j: limits.joint_limits()[j] for j in JOINTS}
+    # HeadPitch reads 0 but is on its way to 0.45: yaw 1.5 is fine for the first, not for the second.
+    with pytest.raises(SafetyError, match="HeadPitch 0.4500 rad outside .* HeadYaw 1.5000"):
+        limits.check_targets({"HeadYaw": 1.5}, box, head_angles={"HeadPitch": [0.0, 0.45]})
+    assert limits.check_targets({"HeadYaw": 1.5}, box, head_angles={"HeadPitch": [0.0, 0.1]}) == {"HeadYaw": 1.5}
+    with pytest.raises(ValueError, match="head_angles"):
+        limits.check_targets({"HeadYaw": 1.5}, box)  # the other head joint unknown: a programming error
+
+
+def test_speed_fraction_and_margins():
+    assert limits.check_speed_fraction(1) == 1.0
+    for bad in (0.0, -0.1, 1.01, math.nan, "fast"):
+        with pytest.raises(SafetyError, match="speed_fraction"):
+            limits.check_speed_fraction(bad)
+    box = {"HeadYaw": (-2.0, 2.0)}
+    assert limits.limit_problem("HeadYaw", 1.95, box) is None
+    assert "outside its limits [-1.9000, 1.9000]" in limits.limit_problem("HeadYaw", 1.95, box, margin_rad=0.1)
+    assert limits.head_pitch_problem(0.0, 0.515) is None
+    assert limits.head_pitch_problem(0.0, 0.515, margin_rad=0.01) is not None
+    assert limits.head_pitch_problem(0.0, 0.515 + 5e-10, margin_rad=-1e-9) is None  # a tolerance

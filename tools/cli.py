@@ -24,6 +24,7 @@ VERB_MODULES = (
     "tools.cmd_diagnose",
     "tools.cmd_offsets",
     "tools.cmd_bridge",
+    "tools.cmd_detect",
 )
 
 
@@ -50,13 +51,31 @@ def main(argv=None) -> int:
     except NaocalError as err:
         if args.verbose:
             raise
-        print(f"naocal {args.verb}: error: {err}", file=sys.stderr)
-        return err.exit_code
+        return _error(args.verb, str(err), err.exit_code)
+    except BrokenPipeError:
+        return 0
+    # Last resorts: the readers and writers turn these into NaocalErrors naming the file; should one slip
+    # through, the user still gets one line (with -v, the traceback), never a traceback.
+    except OSError as err:
+        if args.verbose:
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        return _error(args.verb, f"{where}{(err.strerror or str(err)).lower()}", 2)
+    except (MemoryError, RecursionError) as err:
+        if args.verbose:
+            raise
+        what = "out of memory" if isinstance(err, MemoryError) else "input nested too deeply"
+        return _error(args.verb, f"{what} (is an input file damaged or far too large?)", 2)
     except KeyboardInterrupt:
         print(f"naocal {args.verb}: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        return 0
+
+
+def _error(verb: str, message: str, exit_code: int) -> int:
+    """Print one line (line breaks in the message flattened) and return the exit code."""
+    one_line = message.replace("\r\n", " ").replace("\n", " ").replace("\r", " ")
+    print(f"naocal {verb}: error: {one_line}", file=sys.stderr)
+    return exit_code
 
 
 if __name__ == "__main__":

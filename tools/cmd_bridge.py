@@ -1,9 +1,11 @@
-"""`naocal bridge`: serve a robot over the network, check a server, make CURVE keys.
+"""`naocal bridge`: serve a robot over the network, check a server, make CURVE keys, check a calibration.
 
-  naocal bridge serve --driver mock|naoqi [--seed N] [--naoqi URL] --bind URL [--allow-remote]
-                      [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
+  naocal bridge serve --driver mock|naoqi|lola [--seed N] [--naoqi URL] [--lola-socket PATH] --bind URL
+                      [--allow-remote] [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
   naocal bridge ping --endpoint URL [--timeout-s S] [--curve-server-key FILE]
   naocal bridge keygen --out DIR [--name NAME]
+  naocal bridge status --endpoint URL [--offsets FILE] [--json]
+  naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
 
 `serve` runs until SIGINT or SIGTERM. It binds 127.0.0.1 unless --allow-remote is given. The agent connects
 with `naocal calibrate --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL.md; deployment: docs/DEPLOY.md.
@@ -11,24 +13,48 @@ with `naocal calibrate --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL
 
 import argparse
 
+from tools import cmd_bridge_tools
+
 DEFAULT_BIND = "tcp://127.0.0.1:7790"  # keep in step with backends.bridge_server.DEFAULT_BIND
 
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "bridge", help="serve a robot (mock or NAOqi) over the network, or check a server",
+        "bridge", help="serve a robot (mock, NAOqi or LoLA) over the network, check a server or a calibration",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     actions = parser.add_subparsers(dest="bridge_action", metavar="ACTION")
     actions.required = True
 
     serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM")
-    serve.add_argument("--driver", choices=("mock", "naoqi"), required=True, help="the robot to serve")
+    serve.add_argument("--driver", choices=("mock", "naoqi", "lola"), required=True,
+                       help="the robot to serve: the simulated NAO, NAOqi (stock image), LoLA (team images, V6)")
     serve.add_argument("--seed", type=int, default=0, help="mock: seed of the hidden truth (default 0)")
     serve.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                        help="mock: inject a physical effect (repeatable), as in `naocal simulate`")
     serve.add_argument("--naoqi", default="tcp://127.0.0.1:9559", metavar="URL",
                        help="naoqi: NAOqi's address (default tcp://127.0.0.1:9559, i.e. on the robot)")
+    lola = serve.add_argument_group("--driver lola (docs/DEPLOY.md)")
+    lola.add_argument("--lola-socket", default="/tmp/robocup", metavar="PATH",
+                      help="LoLA's Unix socket (default /tmp/robocup)")
+    lola.add_argument("--lola-timeout-s", type=float, default=1.0, metavar="S",
+                      help="LoLA silent this long is a fault: motion refused from then on (default 1)")
+    lola.add_argument("--hold-s", type=float, default=5.0, metavar="S",
+                      help="when control ends, hold the joints this long ... (default 5)")
+    lola.add_argument("--ramp-s", type=float, default=5.0, metavar="S",
+                      help="... then ramp their stiffness to 0 over this long (default 5)")
+    lola.add_argument("--camera-device", default="/dev/video-bottom", metavar="PATH",
+                      help="the bottom camera's V4L2 device (default /dev/video-bottom)")
+    lola.add_argument("--camera-resolution", default="640x480", choices=("640x480", "1280x960"),
+                      help="YUYV frame size (default 640x480)")
+    lola.add_argument("--camera-exposure", default="100", metavar="N|auto",
+                      help="V4L2 exposure_absolute in 100 us units with auto exposure off (default 100 = 10 ms), "
+                           "or 'auto' to leave the camera's setting")
+    lola.add_argument("--camera-gain", type=int, metavar="N", help="V4L2 gain (default: leave it)")
+    lola.add_argument("--intrinsics", metavar="FILE",
+                      help="the bottom camera's prior intrinsics, JSON {width_px, height_px, fx_px, fy_px, cx_px, "
+                           "cy_px[, distortion]} (default: nominal field of view)")
+    lola.add_argument("--no-camera", action="store_true", help="serve the joints only")
     serve.add_argument("--bind", default=DEFAULT_BIND, metavar="URL",
                        help=f"address to serve on (default {DEFAULT_BIND})")
     serve.add_argument("--allow-remote", action="store_true",
@@ -53,11 +79,13 @@ def register(subparsers) -> None:
     keygen.add_argument("--out", required=True, metavar="DIR", help="directory for the key files")
     keygen.add_argument("--name", default="server", help="file name stem (default 'server')")
 
+    cmd_bridge_tools.register(actions)
     parser.set_defaults(run=run)
 
 
 def run(args) -> int:
-    return {"serve": _serve, "ping": _ping, "keygen": _keygen}[args.bridge_action](args)
+    return {"serve": _serve, "ping": _ping, "keygen": _keygen, "status": cmd_bridge_tools.run_status,
+            "move": cmd_bridge_tools.run_move}[args.bridge_action](args)
 
 
 def _serve(args) -> int:
@@ -114,12 +142,43 @@ def _open_backend(args):
         if args.effect:
             kwargs["effects"] = parse_effects(args.effect)
         return MockBackend(**kwargs), "simulated", False
+    if args.driver == "lola":
+        return _open_lola(args), "wall", True
     try:
         from backends.naoqi_driver import NaoqiBackend
 
         return NaoqiBackend(args.naoqi), "wall", True
     except ImportError as err:
         raise NaocalError(f"--driver naoqi needs libqi-python (pip install qi): {err}") from None
+
+
+def _open_lola(args):
+    """The LoLA driver with the bottom camera (opened on first capture) for `serve --driver lola`."""
+    from backends.lola_driver import LolaBackend
+    from backends.base import nominal_intrinsics
+    from backends.v4l2_camera import V4L2Camera, read_intrinsics
+    from solver.errors import NaocalError
+
+    if not 0.0 <= args.hold_s <= 600.0 or not 0.0 < args.ramp_s <= 60.0:
+        raise NaocalError(f"--hold-s must be within [0, 600] and --ramp-s within (0, 60], got {args.hold_s}, "
+                          f"{args.ramp_s}")
+    if not 0.05 <= args.lola_timeout_s <= 60.0:
+        raise NaocalError(f"--lola-timeout-s must be within [0.05, 60], got {args.lola_timeout_s}")
+    width, height = (int(n) for n in args.camera_resolution.split("x"))
+    intrinsics = read_intrinsics(args.intrinsics) if args.intrinsics else nominal_intrinsics(width, height)
+    camera = None
+    if not args.no_camera:
+        if args.camera_exposure == "auto":
+            exposure = None
+        elif args.camera_exposure.isdigit() and 1 <= int(args.camera_exposure) <= 10000:
+            exposure = int(args.camera_exposure)
+        else:
+            raise NaocalError(f"--camera-exposure must be 1..10000 (100 us units) or 'auto', got "
+                              f"{args.camera_exposure!r}")
+        camera = V4L2Camera("bottom", device=args.camera_device, width=width, height=height, exposure=exposure,
+                            gain=args.camera_gain, intrinsics=intrinsics)
+    return LolaBackend(args.lola_socket, camera=camera, intrinsics=intrinsics, hold_s=args.hold_s,
+                       ramp_s=args.ramp_s, silence_timeout_s=args.lola_timeout_s)
 
 
 def _ping(args) -> int:

@@ -3,9 +3,11 @@
     naocal calibrate --backend mock|bridge [--endpoint URL] [--seed N] --out DIR [--resume] [--effect NAME=SIZE ...]
 
 Modelling (plan) -> measurement (DIR/dataset) -> identification -> compensation (DIR/offsets.json) ->
-verification; DIR/summary.txt says what happened, DIR/calibrate.log how. With the mock, DIR/truth.json holds its
-hidden truth. Exit 0 when calibrated, 2 on bad input, 3 when the calibration failed (the reason is printed; what
-was measured stays in DIR/dataset and a run that stopped during measurement continues with --resume).
+verification; DIR/summary.txt says what happened, DIR/calibrate.log how, DIR/run.json with which options. With the
+mock, DIR/truth.json holds its hidden truth. One run at a time per DIR; --resume must repeat the run's options.
+Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration failed or the disk is full, 130
+after Ctrl-C (the reason is printed; what was measured stays in DIR/dataset, and the last line printed is the
+command that continues the run).
 """
 
 import argparse
@@ -63,29 +65,70 @@ def settings_from_args(args, *, seed: int, source: str):
                          save_images=not args.no_images, progress_bar=not args.no_progress, source=source)
 
 
-def check_out_dir(out, *, resume: bool, plan_seed: int) -> None:
-    """Refuse to overwrite a run's data; on --resume, the stored plan must have this seed."""
-    from agent.plan import read_plan
+def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, no_images: bool = False,
+                      no_progress: bool = False, resume: bool = True) -> str:
+    """The shell command (quoted) that runs, or with `resume` continues, the run `record` describes in `out`."""
+    import shlex
+
+    parts = ["naocal", "calibrate", "--backend", record["backend"]]
+    if endpoint:
+        parts += ["--endpoint", endpoint]
+    if record["backend"] == "mock":
+        parts += ["--seed", str(record["mock_seed"])]
+    for name, size in record["effects"].items():
+        parts += ["--effect", f"{name}={size!r}"]
+    if record["plan"] != "paper":
+        parts += ["--plan", record["plan"]]
+    if record["plan_seed"]:
+        parts += ["--plan-seed", str(record["plan_seed"])]
+    if record["stances_per_leg"] != 24:
+        parts += ["--stances-per-leg", str(record["stances_per_leg"])]
+    if not record["probe"]:
+        parts.append("--no-probe")
+    if speed != 0.4:
+        parts += ["--speed", repr(speed)]
+    if no_images:
+        parts.append("--no-images")
+    if no_progress:
+        parts.append("--no-progress")
+    parts += ["--out", str(out)] + (["--resume"] if resume else [])
+    return shlex.join(parts)
+
+
+def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
+    """Refuse, before anything is written, a directory that is not this run's to write: a dataset (naocal
+    simulate's), another run without --resume, foreign files, or a run started with other options.
+    `command(record)` is the command line that resumes the run `record` describes."""
+    from agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
     from solver.errors import NaocalError
 
-    if out.exists() and not out.is_dir():
-        raise NaocalError(f"{out}: exists and is not a directory")
-    if (out / "dataset" / "observations.csv").exists() and not resume:
-        raise NaocalError(f"{out} already holds a calibration run: continue it with --resume, or choose another "
-                          "--out (nothing was changed)")
-    plan_path = out / "plan.json"
-    if resume and plan_path.exists():
-        plan = read_plan(plan_path)
-        if plan.seed != plan_seed:
-            raise NaocalError(f"{plan_path}: the run was planned with --plan-seed {plan.seed}; resume with it")
+    names = entries(out)
+    if not names:
+        return  # new or empty: a new run
+    if "dataset.json" in names or "observations.csv" in names:
+        raise NaocalError(f"{out} holds a dataset ({out / 'dataset.json'}, e.g. from naocal simulate); calibrate "
+                          "writes a run directory of its own: choose another --out (nothing was changed)")
+    if not resume:
+        if any(n in CALIBRATE_ENTRIES for n in names):
+            raise NaocalError(f"{out} already holds a calibration run: continue it with --resume, or choose another "
+                              "--out (nothing was changed)")
+        raise NaocalError(f"{out} is not empty (it holds {names[0]}): choose a new or empty directory for --out "
+                          "(nothing was changed)")
+    foreign = [n for n in names if n not in CALIBRATE_ENTRIES and not (n.startswith(".") and n.endswith(".tmp"))]
+    if foreign:
+        raise NaocalError(f"{out} holds {foreign[0]}, which a calibration run does not write: is it the right "
+                          "directory? (nothing was changed)")
+    recorded, source = recorded_run(out)
+    differ = mismatches(recorded, record)
+    if differ:
+        raise NaocalError(f"{source}: this run was started with other options: {'; '.join(differ)}. Resume it with "
+                          f"the same options (nothing was changed): {command({**record, **recorded})}")
 
 
 def run(args) -> int:
-    import json
-    import logging
-    import sys
     from pathlib import Path
 
+    from agent.rundir import RunLock, calibrate_record
     from solver.errors import NaocalError
 
     check_common(args)
@@ -100,7 +143,32 @@ def run(args) -> int:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
     elif args.endpoint:
         raise NaocalError("--endpoint is for --backend bridge")
-    check_out_dir(out, resume=args.resume, plan_seed=args.plan_seed)
+    effects = {}
+    if args.backend == "mock":
+        from backends.mock import parse_effects
+
+        effects = parse_effects(args.effect)
+    record = calibrate_record(backend=args.backend, mock_seed=args.seed if args.backend == "mock" else None,
+                              effects=effects, plan=args.plan, plan_seed=args.plan_seed,
+                              stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
+
+    def command(the_record, resume=True):
+        return calibrate_command(the_record, out, endpoint=args.endpoint, speed=args.speed,
+                                 no_images=args.no_images, no_progress=args.no_progress, resume=resume)
+
+    with RunLock(out, command(record, args.resume)):
+        check_out_dir(out, resume=args.resume, record=record, command=command)
+        return _calibrate(args, out, record, effects, resume_hint=command(record))
+
+
+def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
+    """The run itself, in a checked and locked DIR."""
+    import json
+    import logging
+    import sys
+
+    from agent.rundir import RECORD_NAME, write_record
+
     if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
         console = logging.StreamHandler(sys.stderr)
         console.setLevel(logging.INFO if args.verbose else logging.WARNING)
@@ -108,21 +176,21 @@ def run(args) -> int:
         logging.getLogger().addHandler(console)
 
     from agent.calibrate import calibrate
+    from agent.machine import INTERRUPTED
+    from agent.report import resumable
     from solver.fileio import atomic_write_text
 
     settings = settings_from_args(args, seed=args.plan_seed, source=f"naocal calibrate --backend {args.backend}")
+    settings.mock_seed = record["mock_seed"]
+    settings.resume_command = resume_hint
     truth = None
     if args.backend == "mock":
-        from backends.mock import MockBackend, parse_effects
+        from backends.mock import MockBackend
 
-        effects = parse_effects(args.effect)
         backend = MockBackend(args.seed, effects=effects)
         label = f"mock (seed {args.seed}" + (", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items())
                                              if effects else "") + ")"
         truth = backend.truth_dict()
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")
-        atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
     else:
         from backends.bridge import BridgeBackend
 
@@ -130,13 +198,26 @@ def run(args) -> int:
         backend = BridgeBackend(args.endpoint, lease_file=out / "bridge.token")
         label = f"bridge {args.endpoint}"
     try:
+        if not (out / RECORD_NAME).exists():
+            write_record(out, record)
+        if truth is not None and not (out / "truth.json").exists():  # on --resume: the same truth, kept as it is
+            atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")
+            atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
         result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth)
     finally:
         backend.close()
-    summary = (out / "summary.txt").read_text(encoding="utf-8")
-    if not result.ok:
-        print(summary, end="")
-        print(f"naocal calibrate: failed: {result.reason}", file=sys.stderr)
-        return 3
-    print(summary, end="")
-    return 0
+    print(ctx.summary, end="")
+    if result.ok:
+        return 0
+    unsaved = f"; {ctx.summary_error} (the summary is printed above)" if ctx.summary_error else ""
+    if result.final == INTERRUPTED:
+        saved = ""
+        if ctx.store is not None and ctx.plan is not None:
+            n_saved = len(ctx.store.saved_images() & set(ctx.plan.image_indices()))
+            saved = f" ({n_saved} of {ctx.plan.n_images()} images saved)"
+        print(f"naocal calibrate: interrupted during {result.history[-1].state}{saved}{unsaved}; continue with: "
+              f"{resume_hint}", file=sys.stderr)
+        return 130
+    continue_hint = f"; continue with: {resume_hint}" if resumable(result) else ""
+    print(f"naocal calibrate: failed: {result.reason}{unsaved}{continue_hint}", file=sys.stderr)
+    return 3

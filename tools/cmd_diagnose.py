@@ -18,7 +18,9 @@ Sections of the output:
            family-wise level 0.001) and its uniqueness (share of its signature the model cannot already produce;
            near 0: these data can hardly tell it apart, whatever its p-value).
 Add the top significant candidate with `naocal identify DATASET --effects NAME` (its cv_rms_px shows the error on
-stances the fit did not see), then diagnose again with --effects NAME.
+stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both commands, ready to
+paste (with --fix for the candidate's parameters these data cannot tell from the model).
+DATASET is a dataset directory or a `naocal calibrate --out` directory (its dataset/ is used).
 Exit 0 on success, 2 on bad input, 3 if the fit fails.
 """
 
@@ -35,10 +37,13 @@ def register(subparsers):
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="naocal.dataset/1 directory, or a naocal calibrate --out directory (uses its dataset/)")
     p.add_argument("--effects", default="", metavar="E1,E2",
                    help="extra model terms already in the model: elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME",
+                   help="keep a parameter or a whole effect at zero (repeatable), as naocal identify --fix does")
     p.add_argument("--json", action="store_true",
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
@@ -49,19 +54,25 @@ def register(subparsers):
 def run(args) -> int:
     import json
 
+    from agent.rundir import find_dataset
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
     from solver.errors import NaocalError, SolveError
+    from solver.fileio import check_output_directory
     from solver.identify import identify
     from solver.model import model_data_from_dataset
     from solver.registry import Registry, parse_effects
 
     effects = parse_effects(args.effects)
-    dataset = read_dataset(args.dataset)
+    registry = Registry(effects, fixed=args.fix)
+    if args.report:
+        check_output_directory(args.report)
+    dataset_path = find_dataset(args.dataset)
+    dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)
     if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
-    result = identify(data, Registry(effects))
+        raise NaocalError(f"{dataset_path}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+    result = identify(data, registry)
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
@@ -70,13 +81,18 @@ def run(args) -> int:
     if args.report:
         from tools.report import write_report
 
-        report_path = write_report(args.report, diagnosis, dataset_path=args.dataset)
+        report_path = write_report(args.report, diagnosis, dataset_path=dataset_path)
     if args.json:
+        from tools.cmd_identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
+
         out = diagnosis.as_dict()
+        out["joint_offsets_c"] = joint_offsets_c(result)
+        out["model_parameters_note"] = MODEL_PARAMETERS_NOTE
+        out["model_parameters"] = out.pop("parameters")
         out["report"] = None if report_path is None else str(report_path)
         print(json.dumps(json_safe(out), indent=1))
     else:
-        print(format_text(diagnosis))
+        print(format_text(diagnosis, dataset_path=dataset_path, fixed=args.fix, angles=args.angles))
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
@@ -115,8 +131,25 @@ def json_safe(obj):
     return obj
 
 
-def format_text(diagnosis) -> str:
-    """The human-readable report: compare, locate, names."""
+def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto") -> tuple[str, str]:
+    """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model:
+    its effects plus the candidate, its fixed parameters plus the candidate's that these data cannot tell from
+    the model, the same --angles."""
+    import shlex
+
+    res = diagnosis.result
+    extra = [e for e in res.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")]
+    options = ["--effects", ",".join(extra + [candidate.effect])]
+    for name in list(fixed) + [n for n in candidate.inside_model if n not in fixed]:
+        options += ["--fix", name]
+    if angles != "auto":
+        options += ["--angles", angles]
+    return tuple(shlex.join(["naocal", verb, str(dataset_path), *options]) for verb in ("identify", "diagnose"))
+
+
+def format_text(diagnosis, *, dataset_path="DATASET", fixed=(), angles="auto") -> str:
+    """The human-readable report: compare, locate, names. `dataset_path`, `fixed` and `angles` are the run's, for
+    the commands the verdict prints."""
     import math
 
     from solver.diagnostics import LOW_UNIQUENESS
@@ -182,9 +215,10 @@ def format_text(diagnosis) -> str:
                      + (" to the noise level." if c.ratio_to_noise < 1.5 else
                         " as far as these candidates go (the remaining misfit is something else)."))
     else:
-        fixes = "".join(f" --fix {name}" for name in best.inside_model)
-        lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): "
-                     f"naocal identify DATASET --effects {','.join(extra + [best.effect])}{fixes}")
+        identify_command, diagnose_command = next_commands(diagnosis, best, dataset_path=dataset_path, fixed=fixed,
+                                                           angles=angles)
+        lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): {identify_command}")
+        lines.append(f"  then diagnose again: {diagnose_command}")
     for warning in res.warnings:
         lines.append(f"warning: {warning}")
     return "\n".join(lines)
@@ -207,5 +241,8 @@ def _top_values(candidate, count=3) -> str:
             value, unit = value * 1e3, " ms"
         elif name.startswith("intrinsics."):
             unit = " px"
+        if name.startswith("head_offset."):  # shown as the stored offset, as every table shows offsets
+            parts.append(f"c {name.split('.', 1)[1]} {-value:+.3g}{unit}")
+            continue
         parts.append(f"{name.split('.', 1)[1]} {value:+.3g}{unit}")
     return "predicted " + ", ".join(parts)

@@ -12,7 +12,8 @@ def register(subparsers):
             "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
         ),
     )
-    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="naocal.dataset/1 directory, or a naocal calibrate --out directory (uses its dataset/)")
     p.add_argument("--effects", default="", help="extra model terms, comma separated: elasticity, backlash, "
                    "link_lengths, head_offsets, intrinsics, distortion, time_lag")
     p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/1 file (atomic, old one kept as .bak)")
@@ -43,23 +44,32 @@ def add_angles_option(parser) -> None:
 def run(args) -> int:
     import json
 
+    from agent.rundir import find_dataset
     from solver.dataset import read_dataset
     from solver.errors import NaocalError, SolveError
+    from solver.fileio import check_output_file
     from solver.identify import identify
     from solver.model import model_data_from_dataset
+    from solver.offsets import implausible_parameters
     from solver.registry import Registry, parse_effects
 
-    if args.loss_scale_px <= 0:
-        raise NaocalError("--loss-scale-px must be positive")
+    if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
+        raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
     effects = parse_effects(args.effects)
     registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
-    dataset = read_dataset(args.dataset)
+    if args.out:
+        check_output_file(args.out)
+    dataset_path = find_dataset(args.dataset)
+    dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset, angles=args.angles)
     if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+        raise NaocalError(f"{dataset_path}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
+    why = implausible_parameters(result.parameters_dict())
+    if why:
+        raise SolveError(f"implausible result: {why}; nothing written")
 
     cv_rms = None
     if args.cv_folds and args.cv_folds > 1:
@@ -68,7 +78,7 @@ def run(args) -> int:
         cv_rms = grouped_cv_rms(data, result.registry, n_folds=args.cv_folds)
 
     if args.out:
-        write_offsets_file(args.out, result, dataset, args.dataset)
+        write_offsets_file(args.out, result, dataset, dataset_path)
 
     if args.json:
         report = result_json(result, effects, cv_rms)
@@ -95,7 +105,9 @@ def result_json(result, effects, cv_rms) -> dict:
         "effects": list(effects),
         "n_vertices": int(result.model.data.n_rows),
         "n_images": int(result.model.data.n_images),
-        "parameters": result.parameters_dict(),
+        "joint_offsets_c": joint_offsets_c(result),
+        "model_parameters_note": MODEL_PARAMETERS_NOTE,
+        "model_parameters": result.parameters_dict(),
         "condition_number": result.condition_number,
         "weak_directions": [
             {"singular_value": w.singular_value, "coefficients": w.coefficients} for w in result.weak_directions
@@ -106,8 +118,41 @@ def result_json(result, effects, cv_rms) -> dict:
     }
 
 
+MODEL_PARAMETERS_NOTE = ("model values: joint_offset.<J> and head_offset.<J> are alpha (q_true = theta + alpha); "
+                         "the stored offset is c = -alpha (joint_offsets_c)")
+
+
+def joint_offsets_c(result) -> dict:
+    """{joint: {"c_rad", "std_rad", "fixed"}}: the compensation offsets c = -alpha, as offsets.json stores them."""
+    from solver.offsets import COMPENSATED_PREFIXES
+
+    out = {}
+    for name, entry in result.parameters_dict().items():
+        if name.startswith(COMPENSATED_PREFIXES):
+            out[name.split(".", 1)[1]] = {"c_rad": -entry["value"], "std_rad": entry["std"],
+                                          "fixed": name in result.registry.fixed}
+    return out
+
+
+
+
+def format_offsets_c(result) -> list[str]:
+    """The joint offsets as the table every naocal command prints: c, labelled, in degrees."""
+    import math
+
+    lines = ["joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings; c = -alpha):"]
+    for joint, entry in joint_offsets_c(result).items():
+        fixed = "  (fixed)" if entry["fixed"] else ""
+        lines.append(f"  {joint:14s} c = {math.degrees(entry['c_rad']):+8.4f} deg   "
+                     f"std {math.degrees(entry['std_rad']):.4f} deg{fixed}")
+    return lines
+
+
 def format_table(result, cv_rms) -> str:
     import numpy as np
+
+    from agent.report import describe_direction
+    from solver.offsets import shown_sign
 
     lines = [
         f"fit: RMS {result.rms_px[0]:.3f} px (x), {result.rms_px[1]:.3f} px (y) over "
@@ -117,8 +162,13 @@ def format_table(result, cv_rms) -> str:
     if cv_rms is not None:
         lines.append(f"cross-validated (whole stances held out): RMS {cv_rms[0]:.3f} px (x), {cv_rms[1]:.3f} px (y)")
     lines.append("")
+    lines += format_offsets_c(result)
+    lines.append("")
+    lines.append("other parameters (model values: camera rotation and board mount alphas of Eq. 3-4, effects):")
     lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
     for name, entry in result.parameters_dict().items():
+        if shown_sign(name) < 0:  # an offset: in the c table above
+            continue
         value, std, unit = entry["value"], entry["std"], entry["unit"]
         if unit == "rad":
             value, std, unit = np.degrees(value), np.degrees(std), "deg"
@@ -132,7 +182,7 @@ def format_table(result, cv_rms) -> str:
     lines.append(f"condition number (scaled Jacobian): {result.condition_number:.3g}")
     lines.append("weakest directions (what the data determine least; why repeated runs can differ):")
     for w in result.weak_directions:
-        lines.append(f"  relative singular value {w.singular_value:.2e}: {w.describe()}")
+        lines.append(f"  relative singular value {w.singular_value:.2e}: {describe_direction(w)}")
     strong = strongest_correlations(result)
     if strong:
         lines.append("strongest correlations:")
@@ -145,10 +195,15 @@ def format_table(result, cv_rms) -> str:
 
 
 def strongest_correlations(result, count=5, threshold=0.8):
+    """The strongest correlations between free parameters, offsets as c (as the tables show them)."""
     import numpy as np
 
+    from solver.offsets import shown_name, shown_sign
+
     names = result.registry.free_names
-    C = np.nan_to_num(result.correlation)
+    sign = np.array([shown_sign(n) for n in names])
+    C = np.nan_to_num(result.correlation) * sign[:, None] * sign[None, :]
+    names = [shown_name(n) for n in names]
     pairs = [(abs(C[i, j]), names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i)]
     pairs.sort(reverse=True)
     return [(a, b, c) for m, a, b, c in pairs[:count] if m >= threshold]

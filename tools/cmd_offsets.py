@@ -13,11 +13,55 @@ COMMANDS_HELP = """commands:
   diff A B                        per-parameter differences; '*' marks |B - A| > sqrt(std_A^2 + std_B^2)
   validate FILE                   schema, names, units, finite values, plausible sizes: prints 'ok' (exit 0)
                                   or one line with the reason (exit 2)
-  export FILE --format FORMAT     bhuman | urdf | json, to stdout or --out (written atomically: a failed export
-                                  never replaces an existing file)
+  export FILE --format FORMAT     bhuman | hulks | naodevils | urdf | json, to stdout or --out; team formats
+                                  merge into the team's files with --merge-from (written atomically: a failed
+                                  export never replaces an existing file, a replaced one is kept as NAME.bak)
   apply FILE --command|--reading JOINT=ANGLE ...
                                   compensated command = requested + c, corrected reading = measured - c
 """
+
+
+EXPORT_HELP = """Formats (values, frames, signs and sources: docs/EXPORTS.md):
+  bhuman     Robots/<body>/Body/jointCalibration.cfg (offsets = { headYaw = ..deg; ... };) and
+             Robots/<head>/<body>/cameraCalibration.cfg (cameraRotationCorrections = { upper = {x; y; z};
+             lower = {...}; }; bodyRotationCorrection). B-Human adds the offset to every joint request and
+             subtracts it from every reading: naocal's c, same sign. Its camera turns by rotateY(tilt + y) *
+             rotateX(x) * rotateZ(z), x forward, y left, z up: x = roll, y = pitch, z = yaw of naocal's camera
+             rotation, same signs; lower = bottom camera, upper = top. --bhuman-release picks 26 keys (2017-2024)
+             or 27 (2025+, waistYaw).
+  hulks      body.<BodyId>.json (joint_calibration_offsets: head {yaw, pitch}, left_leg/right_leg
+             {hip_yaw_pitch, ...}, rad, naocal's c) and head.<HeadId>.json
+             (camera_matrix_parameters.calibration.correction_in_camera_bottom/_top = [x, y, z] rad: Euler angles
+             of the correction in HULKs' camera frame, x right, y down, z optical axis). Only calibrated values
+             are written: HULKs overlays these files on default.json.
+  naodevils  Robots/<body>/Body/jointCalibration.cfg (<joint> = { offset; minAngle; maxAngle; }) and
+             Robots/<head>/<body>/cameraCalibration.cfg (lower/upperCameraRotationCorrection {x; y; z},
+             bodyRotationCorrection {x; y}); same signs as B-Human.
+  urdf       the nominal NAO URDF (nao_v50) with <calibration rising="c"/> in every calibrated joint, the
+             RHipYawPitch mimic offset c_L - c_R, and each calibrated camera's fixed joint turned by its
+             correction (T_head_cam = T_nominal @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)).
+  json       the file itself, validated, in canonical form.
+
+What is written: joint offsets of the joints the file calibrates (legs; head only if fitted) and the rotation of
+each camera it calibrates. Team formats, fresh (no --merge-from): B-Human and Nao Devils files need every key,
+so what naocal did not calibrate (arms, waistYaw, an uncalibrated camera, body rotation) is written as 0 (nominal)
+and said so; HULKs files are sparse, so it is left out. With --merge-from DIR the files the team's code reads now
+for this head and body are edited value by value: everything else (other values, comments, layout) is kept byte
+for byte; a file found only in a default directory is written to the robot's own directory. A file an export
+replaces is kept as NAME.bak. B-Human and Nao Devils name robot directories by robot names: give yours with
+--head-id and --body-id (default: the offsets file's head and body ids).
+Examples:
+  naocal offsets export runs/nao-17/offsets.json --format bhuman --bhuman-release 2025 \\
+      --merge-from ~/BHuman/Config --out ~/BHuman/Config --head-id Dante --body-id Dante
+  naocal offsets export runs/nao-17/offsets.json --format hulks --merge-from hulk/etc/parameters \\
+      --out hulk/etc/parameters"""
+
+
+def _release_year(text: str) -> int:
+    """--bhuman-release: a year such as 2025."""
+    if not text.isdigit() or not 2000 <= int(text) <= 2100:
+        raise argparse.ArgumentTypeError(f"expected a release year such as 2025, got {text!r}")
+    return int(text)
 
 
 def register(subparsers):
@@ -45,23 +89,23 @@ def register(subparsers):
     validate.add_argument("file", metavar="FILE")
 
     export = commands.add_parser(
-        "export", help="write the offsets for other software",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="""Formats:
-  bhuman  B-Human jointCalibration.cfg (offsets = { headYaw = ..deg; ... };, added to every joint request: the
-          same sign as naocal's c) and cameraCalibration.cfg (cameraRotationCorrections = { lower = {x; y; z};
-          upper = {...}; };). B-Human turns the camera by rotateY(tilt + y) * rotateX(x) * rotateZ(z) in a frame
-          with x forward, y left, z up, exactly naocal's Rot_y(pitch) Rot_x(roll) Rot_z(yaw): so x = roll,
-          y = pitch, z = yaw of camera_rotation_rad, same signs; lower = bottom camera. With --out, DIR gets both
-          files; without it, both are printed.
-  urdf    the nominal NAO URDF (nao_v50) with <calibration rising="c"/> in every calibrated joint, the
-          RHipYawPitch mimic offset c_L - c_R, and CameraBottom_sensor_fixedjoint's rpy turned by the camera
-          correction (T_head_cam = T_nominal @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)).
-  json    the file itself, validated, in canonical form.""")
+        "export", help="write the offsets for other software (B-Human, HULKs, Nao Devils, URDF, JSON)",
+        formatter_class=argparse.RawDescriptionHelpFormatter, description=EXPORT_HELP)
     export.add_argument("file", metavar="FILE")
-    export.add_argument("--format", required=True, choices=("bhuman", "urdf", "json"))
+    export.add_argument("--format", required=True, choices=("bhuman", "hulks", "naodevils", "urdf", "json"))
     export.add_argument("--out", metavar="PATH",
-                        help="output file (urdf, json) or directory (bhuman); default: standard output")
+                        help="output directory (bhuman, hulks, naodevils: the team layout is created below it) or "
+                             "file (urdf, json); default: standard output")
+    export.add_argument("--merge-from", metavar="DIR",
+                        help="bhuman, naodevils: the team's Config directory; hulks: its etc/parameters directory. "
+                             "Its current files are edited: only what naocal calibrated changes. May equal --out")
+    export.add_argument("--bhuman-release", metavar="YEAR", type=_release_year,
+                        help="bhuman: the release whose jointCalibration.cfg to write (2017-2024: 26 keys; 2025 "
+                             "and later: 27 with waistYaw). Default: the --merge-from file's layout, else 2025")
+    export.add_argument("--head-id", metavar="ID",
+                        help="head id or name in the team's file names (default: robot.head_id of FILE)")
+    export.add_argument("--body-id", metavar="ID",
+                        help="body id or name in the team's file names (default: robot.body_id of FILE)")
     export.add_argument("--strip-meshes", action="store_true",
                         help="urdf: drop the mesh visuals/collisions (their files are not shipped), e.g. for PyBullet")
     export.add_argument("--nominal-urdf", metavar="URDF", help="urdf: start from this URDF instead of nao_v50")
@@ -242,46 +286,9 @@ def run_validate(args, out) -> int:
 
 
 def run_export(args, out) -> int:
-    from pathlib import Path
+    from tools.export.write import run_export as export
 
-    from solver.errors import DataError
-    from solver.fileio import atomic_write_text
-    from solver.offsets import read_offsets
-    from tools import offsets_export
-
-    offsets = read_offsets(args.file)
-    source_name = Path(args.file).name
-    if args.format == "bhuman":
-        files = offsets_export.export_bhuman(offsets, source_name)
-    elif args.format == "urdf":
-        nominal = args.nominal_urdf or offsets_export.NOMINAL_URDF
-        files = {"calibrated.urdf": offsets_export.export_urdf(offsets, nominal, strip_meshes=args.strip_meshes,
-                                                               source_name=source_name)}
-    else:
-        files = {"offsets.json": offsets_export.export_json(offsets)}
-    # Everything is built before anything is written: a failed export leaves existing files untouched.
-    if args.out is None:
-        for file_name, text in files.items():
-            if len(files) > 1:
-                out.write(f"// ---- {file_name}\n")
-            out.write(text)
-        return 0
-    target = Path(args.out)
-    if args.format == "bhuman":
-        if target.exists() and not target.is_dir():
-            raise DataError(target, "--out must be a directory for the bhuman format (it gets two files)")
-        paths = {target / name: text for name, text in files.items()}
-    else:
-        if target.is_dir():
-            raise DataError(target, "--out is a directory; give a file name")
-        paths = {target: next(iter(files.values()))}
-    for path, text in paths.items():
-        try:
-            atomic_write_text(path, text)
-        except OSError as err:
-            raise DataError(path, f"cannot write: {err.strerror or err}") from None
-        print(f"wrote {path}", file=sys.stderr)
-    return 0
+    return export(args, out)
 
 
 def parse_assignment(text: str):

@@ -32,35 +32,47 @@ def register(subparsers):
 def run(args) -> int:
     import json
     import logging
+    import shlex
     import sys
     from pathlib import Path
 
+    from agent.rundir import RunLock, entries
     from solver.errors import NaocalError
     from tools.cmd_calibrate import check_common, settings_from_args
 
     check_common(args)
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
-    if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
-        console = logging.StreamHandler(sys.stderr)
-        console.setLevel(logging.INFO if args.verbose else logging.WARNING)
-        console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
-        logging.getLogger().addHandler(console)
-
-    from agent.calibrate import simulate
+    if out.exists() and not out.is_dir():
+        raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
     from backends.mock import MockBackend, parse_effects
-    from solver.fileio import atomic_write_text
 
     effects = parse_effects(args.effect)
-    settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
-    backend = MockBackend(args.seed, effects=effects)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
-        result, ctx = simulate(backend, out, settings)
-    finally:
-        backend.close()
+    command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
+                         + [f"--effect={k}={v!r}" for k, v in effects.items()])
+    with RunLock(out, command):
+        if entries(out):
+            raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
+        if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
+            console = logging.StreamHandler(sys.stderr)
+            console.setLevel(logging.INFO if args.verbose else logging.WARNING)
+            console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
+            logging.getLogger().addHandler(console)
+
+        from agent.calibrate import simulate
+        from agent.machine import INTERRUPTED
+        from solver.fileio import atomic_write_text
+
+        settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
+        backend = MockBackend(args.seed, effects=effects)
+        try:
+            atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
+            result, ctx = simulate(backend, out, settings)
+        finally:
+            backend.close()
+    if result.final == INTERRUPTED:
+        print(f"naocal simulate: interrupted; {out} holds the captures made so far (a dataset of its own; "
+              "simulate does not resume)", file=sys.stderr)
+        return 130
     if not result.ok:
         print(f"naocal simulate: failed: {result.reason}", file=sys.stderr)
         return 3

@@ -235,8 +235,9 @@ def _regressor_view(fit, effect):
                 x, label = data.theta[:, c], f"{joint} angle (rad)"
             xs = np.linspace(np.min(x[ok]), np.max(x[ok]), 2) if ok.any() else np.zeros(2)
             jitter = np.random.default_rng(k).uniform(-0.08, 0.08, ok.sum()) if effect == "backlash" else 0.0
-            panels.append((x[ok] + jitter, np.degrees(error[ok]), label, f"apparent {joint} offset (deg)",
-                           data.leg[ok], (xs, np.degrees(const + slope * xs))))
+            # shown as the offset c = -alpha each image implies, as the tables show offsets
+            panels.append((x[ok] + jitter, -np.degrees(error[ok]), label, f"apparent offset c of {joint} (deg)",
+                           data.leg[ok], (xs, -np.degrees(const + slope * xs))))
     elif effect == "link_lengths":
         names = [p.name for p in fit.registry.parameters if p.effect == effect]
         for name in names:
@@ -289,8 +290,11 @@ def _regressor_view(fit, effect):
 
 
 def _correlation(fit):
-    names = list(fit.registry.free_names)
-    C = np.nan_to_num(fit.correlation)
+    from solver.offsets import shown_name, shown_sign
+
+    sign = np.array([shown_sign(n) for n in fit.registry.free_names])  # offsets as c, as the tables show them
+    names = [shown_name(n) for n in fit.registry.free_names]
+    C = np.nan_to_num(fit.correlation) * sign[:, None] * sign[None, :]
     size = min(2.5 + 0.22 * len(names), 12)
     fig = _figure(size + 1.2, size)
     ax = fig.add_subplot(1, 1, 1)
@@ -352,16 +356,20 @@ def _display(name, value, unit):
 
 
 def _parameter_rows(fit, only_effect=None):
+    """Table rows of the fitted parameters: joint and head offsets as the stored c = -alpha ('c LHipPitch'), the
+    others as the model's values."""
+    from solver.offsets import shown_name, shown_sign
+
     rows = []
     for name, entry in fit.parameters_dict().items():
         effect = fit.registry.parameters[fit.registry.index[name]].effect
         if only_effect is not None and effect != only_effect:
             continue
-        value, unit = _display(name, entry["value"], entry["unit"])
+        value, unit = _display(name, shown_sign(name) * entry["value"], entry["unit"])
         std, _ = _display(name, entry["std"], entry["unit"])
         fixed = " (fixed)" if name in fit.registry.fixed else ""
-        rows.append(f"<tr><td>{html.escape(name)}</td><td class=n>{value:.4f}</td><td class=n>{std:.4f}</td>"
-                    f"<td>{html.escape(unit)}{fixed}</td></tr>")
+        rows.append(f"<tr><td>{html.escape(shown_name(name))}</td><td class=n>{value:+.4f}</td>"
+                    f"<td class=n>{std:.4f}</td><td>{html.escape(unit)}{fixed}</td></tr>")
     return "\n".join(rows)
 
 
@@ -377,6 +385,8 @@ img { max-width: 100%; border: 1px solid #ddd; margin: 0.3em 0; }
 
 
 def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path) -> str:
+    from agent.report import describe_direction
+
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
     data = res.model.data
     extra = [e for e in res.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")]
@@ -417,8 +427,9 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
         parts.append(f"<tr><td>head posture {p}</td><td class=n>{_fmt(v['rms_px'][0])}</td>"
                      f"<td class=n>{_fmt(v['rms_px'][1])}</td><td class=n>{v['n_images']}</td></tr>")
     parts.append("</table>")
-    parts.append("<p>Residuals of every vertex (predicted - detected), before and after adding the top candidate "
-                 "(like Fig. 4 of Kastner, R&ouml;fer and Laue):</p><img src='scatter.png' alt='residual scatter'>")
+    parts.append("<p>Residuals of every vertex (predicted - detected), "
+                 + ("before and after adding the top candidate " if after is not None else "of the current model ")
+                 + "(like Fig. 4 of Kastner, R&ouml;fer and Laue):</p><img src='scatter.png' alt='residual scatter'>")
     parts.append("<img src='stances.png' alt='error per stance and per image'>")
 
     parts.append("<h2>Locate</h2>")
@@ -435,9 +446,10 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
     parts.append("</table><table><tr><th>misfit explained by a board motion proportional to</th>"
                  "<th>share</th><th>p-value</th></tr>")
     for r in loc.regressors[:10]:
+        p_value = (f"<td class=n>{r['p_value']:.1e}</td>" if np.isfinite(r["p_value"])
+                   else "<td>not testable (too few images carry it)</td>")
         parts.append(f"<tr><td>{e(r['regressor'])}</td><td class=n>{100 * r['explained_share']:.1f} %</td>"
-                     f"<td class=n>{r['p_value']:.1e}</td></tr>" if np.isfinite(r["p_value"]) else
-                     "<td>not testable (too few images)</td></tr>")
+                     f"{p_value}</tr>")
     parts.append("</table><img src='vectors.png' alt='residual vectors over the image'>")
     for name in sorted(n for n in figures if n.startswith("regressors_")):
         parts.append(f"<img src='{name}' alt='residual against regressor'>")
@@ -466,20 +478,22 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
                      f"<td class=n>{cand.dof}</td><td>{e(note)}</td></tr>")
     parts.append("</table>")
 
-    parts.append("<h2>Parameters</h2><table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>")
+    parts.append("<h2>Parameters</h2><p>Joint offsets as stored: c (added to commands, subtracted from readings; "
+                 "c = -alpha); camera rotation, board mount and effects as the model's values.</p>"
+                 "<table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>")
     parts.append(_parameter_rows(res))
     parts.append("</table>")
     if after is not None:
         parts.append(f"<p>After adding {e(top.effect)} (all parameters refitted):</p><table><tr><th>parameter</th>"
                      "<th>value</th><th>std</th><th>unit</th></tr>" + _parameter_rows(after, top.effect) + "</table>")
-    weak = "".join(f"<li>relative singular value {w.singular_value:.1e}: {e(w.describe())}</li>"
+    weak = "".join(f"<li>relative singular value {w.singular_value:.1e}: {e(describe_direction(w))}</li>"
                    for w in (after or res).weak_directions)
     parts.append(f"<p>Weakest parameter combinations:</p><ul>{weak}</ul>")
     parts.append("<img src='correlation.png' alt='correlation matrix'>")
     if overlays:
         parts.append("<h2>Captured images</h2><p>Detected vertices (green circles) against the current model's "
-                     "prediction (red +) and the prediction with the top candidate (cyan x), worst images first "
-                     "(like Fig. 5 of the paper).</p>")
+                     "prediction (red +)" + (" and the prediction with the top candidate (cyan x)" if after is not None
+                                             else "") + ", worst images first (like Fig. 5 of the paper).</p>")
         for name, entry in overlays:
             parts.append(f"<img src='{name}' alt='image {entry['image']}'>")
     warnings = (after or res).warnings

@@ -1,0 +1,373 @@
+"""Bad input, item by item (issue 11): one line naming the file, line or field, exit 2, never a traceback or a hang.
+
+Each test here failed before the fix it checks: special files hung the readers, deep JSON and long integers
+escaped as RecursionError/ValueError/OverflowError, absurd numbers went through to the fit (`u_px = 1e19` gave a
+joint offset of 3e15 deg and exit 0), output paths that cannot be written ended in tracebacks.
+"""
+
+import json
+import os
+import shutil
+import signal
+import tempfile
+import warnings
+from pathlib import Path
+
+import pytest
+
+from solver.dataset import OBSERVATIONS_FILE, DatasetAppender, read_dataset
+from solver.errors import DataError
+from solver.offsets import read_offsets
+from tests import fuzz_inputs as fz
+from tools.cli import main
+
+
+@pytest.fixture(scope="module")
+def work():
+    path = Path(tempfile.mkdtemp(prefix="naocal-bad-input-"))
+    os.chmod(path, 0o755)  # some cases run as nobody
+    try:
+        yield path
+    finally:
+        fz.remove_tree(path)
+
+
+@pytest.fixture(scope="module")
+def valid(work):
+    return fz.make_valid_inputs(work / "valid")
+
+
+@pytest.fixture
+def dataset(valid, work):
+    """A fresh copy of the valid dataset (readable by nobody too)."""
+    parent = Path(tempfile.mkdtemp(dir=work))
+    os.chmod(parent, 0o755)
+    path = parent / "ds"
+    shutil.copytree(valid[0], path)
+    return path
+
+
+@pytest.fixture
+def offsets(valid, tmp_path):
+    path = tmp_path / "offsets.json"
+    shutil.copy(valid[1] / fz.OFFSETS, path)
+    return path
+
+
+def edit_meta(dataset: Path, edit):
+    meta = json.loads((dataset / "dataset.json").read_text())
+    edit(meta)
+    (dataset / "dataset.json").write_text(json.dumps(meta, indent=2))
+
+
+def set_cells(dataset: Path, column: str, value: str, lines=None):
+    """Set `column` to the text `value` on the given 1-based file lines (default: every data line)."""
+    path = dataset / OBSERVATIONS_FILE
+    rows = path.read_text().split("\n")
+    j = rows[0].split(",").index(column)
+    for n in lines or range(2, len(rows) + 1):
+        if n - 1 < len(rows) and rows[n - 1]:
+            fields = rows[n - 1].split(",")
+            fields[j] = value
+            rows[n - 1] = ",".join(fields)
+    path.write_text("\n".join(rows))
+
+
+def one_line_error(outcome, verb, exit_code=2):
+    assert outcome.returncode == exit_code, fz.describe(outcome)
+    lines = outcome.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"naocal {verb}: error: "), outcome.stderr
+    assert "Traceback" not in outcome.stderr
+    return lines[0]
+
+
+# ------------------------------------------------------------------------------- special and huge files
+
+
+@pytest.mark.parametrize("name", ["dataset.json", OBSERVATIONS_FILE])
+@pytest.mark.parametrize("special, kind", [("fifo", "FIFO"), ("/dev/zero", "character device"),
+                                           ("/dev/urandom", "character device"), ("dir", "directory")])
+def test_special_files_are_refused_at_once(dataset, name, special, kind):
+    path = dataset / name
+    path.unlink()
+    if special == "fifo":
+        os.mkfifo(path)
+    elif special == "dir":
+        path.mkdir()
+    else:
+        path.symlink_to(special)
+    outcome = fz.run_forked(["identify", str(dataset)], deadline_s=10)
+    line = one_line_error(outcome, "identify")
+    assert str(path) in line and kind in line and "expected a regular file" in line
+    assert outcome.seconds < 5
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+def test_offsets_as_special_file_is_refused_at_once(tmp_path, special):
+    path = tmp_path / "offsets.json"
+    os.mkfifo(path) if special == "fifo" else path.symlink_to(special)
+    outcome = fz.run_forked(["offsets", "show", str(path)], deadline_s=10)
+    assert str(path) in one_line_error(outcome, "offsets")
+
+
+def test_nominal_urdf_as_fifo_is_refused_at_once(offsets, tmp_path):
+    urdf = tmp_path / "nao.urdf"
+    os.mkfifo(urdf)
+    outcome = fz.run_forked(["offsets", "export", str(offsets), "--format", "urdf", "--nominal-urdf", str(urdf)],
+                            deadline_s=10)
+    assert f"{urdf}: is a FIFO" in one_line_error(outcome, "offsets")
+
+
+def test_appender_refuses_a_fifo_without_blocking(dataset):
+    meta = json.loads((dataset / "dataset.json").read_text())
+    (dataset / OBSERVATIONS_FILE).unlink()
+    os.mkfifo(dataset / OBSERVATIONS_FILE)
+
+    def give_up(*_):
+        raise TimeoutError("blocked on the FIFO")
+
+    previous = signal.signal(signal.SIGALRM, give_up)
+    signal.alarm(5)
+    try:
+        with pytest.raises(DataError, match="FIFO"):
+            DatasetAppender(dataset, meta)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.mark.parametrize("name", ["dataset.json", OBSERVATIONS_FILE])
+def test_huge_file_is_refused_without_reading_it(dataset, name):
+    with open(dataset / name, "r+b") as f:
+        f.truncate(8 * 1024 ** 3)  # sparse
+    outcome = fz.run_forked(["identify", str(dataset)], deadline_s=10, memory_headroom_bytes=1024 ** 3)
+    line = one_line_error(outcome, "identify")
+    assert name in line and "too large" in line
+
+
+def test_unreadable_file_as_a_user(dataset):
+    (dataset / OBSERVATIONS_FILE).chmod(0)
+    outcome = fz.run_forked(["identify", str(dataset)], deadline_s=10, as_nobody=True)
+    assert "permission denied" in one_line_error(outcome, "identify")
+
+
+# ------------------------------------------------------------------------------------------------- JSON
+
+
+def test_json_nested_1000_deep_names_the_line(dataset):
+    text = (dataset / "dataset.json").read_text()
+    (dataset / "dataset.json").write_text(text.replace('"source":', '"extra": ' + "[" * 1000 + "]" * 1000
+                                                      + ',\n  "source":'))
+    with pytest.raises(DataError, match=r"nested deeper than 32 levels") as err:
+        read_dataset(dataset)
+    assert err.value.line == text[:text.index('"source":')].count("\n") + 1
+
+
+def test_offsets_nested_100000_deep(offsets):
+    offsets.write_text('{"schema": "naocal.offsets/1", "source": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(DataError, match="nested deeper"):
+        read_offsets(offsets)
+
+
+@pytest.mark.parametrize("digits", [400, 5000])
+def test_long_integers_name_line_and_column(dataset, offsets, digits):
+    text = (dataset / "dataset.json").read_text()
+    (dataset / "dataset.json").write_text(text.replace('"rows": 5', '"rows": ' + "7" * digits))
+    with pytest.raises(DataError, match=f"integer of {digits} digits") as err:
+        read_dataset(dataset)
+    assert err.value.line == text[:text.index('"rows": 5')].count("\n") + 1
+    doc = json.loads(offsets.read_text())
+    doc["fit"]["n_images"] = "@"
+    offsets.write_text(json.dumps(doc).replace('"@"', "9" * digits))
+    with pytest.raises(DataError, match=f"integer of {digits} digits"):
+        read_offsets(offsets)
+
+
+def test_duplicate_key_is_refused(dataset):
+    text = (dataset / "dataset.json").read_text()
+    (dataset / "dataset.json").write_text(text.replace('"source":', '"source": "other",\n  "source":'))
+    with pytest.raises(DataError, match="the same key twice") as err:
+        read_dataset(dataset)
+    assert err.value.field == "source"
+
+
+def test_byte_order_mark_and_crlf_are_accepted(dataset, offsets):
+    meta = dataset / "dataset.json"
+    meta.write_bytes(b"\xef\xbb\xbf" + meta.read_bytes().replace(b"\n", b"\r\n"))
+    assert read_dataset(dataset).n_rows > 0
+    offsets.write_bytes(b"\xef\xbb\xbf" + offsets.read_bytes())
+    read_offsets(offsets)
+
+
+def test_lone_surrogate_is_refused_not_printed(offsets):
+    doc = json.loads(offsets.read_text())
+    doc["robot"]["id"] = "nao\ud800"
+    offsets.write_text(json.dumps(doc))  # json.dumps escapes it as \ud800
+    outcome = fz.run_forked(["offsets", "show", str(offsets)], deadline_s=10)
+    assert "robot.id" in one_line_error(outcome, "offsets")
+
+
+def test_non_utf8_names_the_line(dataset):
+    path = dataset / OBSERVATIONS_FILE
+    rows = path.read_bytes().split(b"\n")
+    rows[6] = rows[6][:10] + b"\xff" + rows[6][10:]
+    path.write_bytes(b"\n".join(rows))
+    with pytest.raises(DataError, match="not UTF-8") as err:
+        read_dataset(dataset)
+    assert err.value.line == 7
+    with pytest.raises(DataError, match="not UTF-8"):  # it used to escape as UnicodeDecodeError
+        DatasetAppender(dataset, json.loads((dataset / "dataset.json").read_text()))
+
+
+# ---------------------------------------------------------------------------------- plausible numbers
+
+
+@pytest.mark.parametrize("field, value, problem", [
+    ("board.rows", 1e308, "implausible size"),
+    ("board.columns", 1000, "implausible size"),
+    ("board.square_m", 2.5, "implausible size"),
+    ("board.center_x_m", -7.0, "implausible size"),
+    ("board.mass_kg", 1e6, "implausible size"),
+    ("camera.width_px", 10 ** 9, "implausible size"),
+    ("camera.fx_px", 1e12, "implausible size"),
+    ("camera.cx_px", 1e19, "principal point outside"),
+    ("camera.cy_px", -3.0, "principal point outside"),
+    ("camera.distortion", [1e308, 0, 0, 0, 0], "implausible size"),
+    ("pixel_noise_px", 1e200, "implausible size"),
+    ("gravity_torso_mps2", [-1e308, 0, 0], "implausible size"),
+    ("gravity_torso_mps2", [0.0, 0.0, 0.0], "implausible gravity"),
+    ("gravity_torso_mps2", [-98.1, 0.0, 0.0], "implausible size"),
+])
+def test_implausible_meta_names_the_field(dataset, field, value, problem):
+    def edit(meta):
+        parent = meta
+        *path, last = field.split(".")
+        for key in path:
+            parent = parent[key]
+        parent[last] = value
+    edit_meta(dataset, edit)
+    with pytest.raises(DataError, match=problem) as err:
+        read_dataset(dataset)
+    assert err.value.field is not None and err.value.field.startswith(field)
+
+
+@pytest.mark.parametrize("column, value, problem", [
+    ("u_px", "1e19", "implausible value"),
+    ("v_px", "-1e19", "implausible value"),
+    ("u_px", "1300", "implausible value"),
+    ("x_sole_m", "1e308", "implausible value"),
+    ("z_sole_m", "-2", "implausible value"),
+    ("LHipPitch", "3.2", "the joint's limits"),
+    ("cmd_RKneePitch", "-0.5", "the joint's limits"),
+    ("HeadYaw", "1e300", "the joint's limits"),
+    ("t_image_s", "1e300", "implausible value"),
+    ("head_posture", "9223372036854775808", "integer out of range"),
+    ("stance", "-1e308", "integer out of range"),
+    ("image", "1e19", "integer out of range"),
+])
+def test_implausible_observation_names_line_and_column(dataset, column, value, problem):
+    set_cells(dataset, column, value, lines=[40])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy cast warning used to come first
+        with pytest.raises(DataError, match=problem) as err:
+            read_dataset(dataset)
+    assert (err.value.line, err.value.field) == (40, column)
+
+
+def test_values_just_outside_the_image_are_kept(dataset):
+    set_cells(dataset, "u_px", "-25.5", lines=[40])
+    set_cells(dataset, "v_px", "490.25", lines=[41])
+    assert read_dataset(dataset).n_rows > 0
+
+
+def test_u_px_1e19_is_bad_input_not_a_calibration(dataset):
+    set_cells(dataset, "u_px", "1e19", lines=[30])
+    outcome = fz.run_forked(["identify", str(dataset), "--cv-folds", "0"], deadline_s=20)
+    line = one_line_error(outcome, "identify")
+    assert "line 30" in line and "'u_px'" in line
+
+
+# ------------------------------------------------------------------------------- implausible results
+
+
+def test_absurd_result_is_a_failed_identification(dataset, tmp_path):
+    """Plausible numbers, impossible data (the image mirrored): the fit must not be called a calibration."""
+    path = dataset / OBSERVATIONS_FILE
+    rows = path.read_text().split("\n")
+    j = rows[0].split(",").index("u_px")
+    for n in range(1, len(rows)):
+        if rows[n]:
+            fields = rows[n].split(",")
+            fields[j] = repr(639.0 - float(fields[j]))
+            rows[n] = ",".join(fields)
+    path.write_text("\n".join(rows))
+    out = tmp_path / "offsets.json"
+    outcome = fz.run_forked(["identify", str(dataset), "--cv-folds", "0", "--out", str(out)], deadline_s=30)
+    line = one_line_error(outcome, "identify", exit_code=3)
+    assert "implausible result: joint_offset." in line and "deg" in line and "nothing written" in line
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------------ output paths
+
+
+def test_report_onto_an_existing_file(dataset, tmp_path):
+    target = tmp_path / "notes.txt"
+    target.write_text("keep me")
+    outcome = fz.run_forked(["diagnose", str(dataset), "--report", str(target)], deadline_s=30)
+    assert str(target) in one_line_error(outcome, "diagnose")
+    assert target.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("argv_tail", [["--report", "{file}/sub"], ["--out", "{file}/x.json"]])
+def test_output_below_a_file(dataset, tmp_path, argv_tail):
+    target = tmp_path / "notes.txt"
+    target.write_text("keep me")
+    verb = "diagnose" if argv_tail[0] == "--report" else "identify"
+    tail = [argv_tail[0], argv_tail[1].format(file=target)]
+    outcome = fz.run_forked([verb, str(dataset), *tail], deadline_s=30)
+    line = one_line_error(outcome, verb)
+    assert tail[1] in line and f"{target} is not a directory" in line
+    assert target.read_text() == "keep me"
+
+
+def test_identify_out_onto_a_directory(dataset, tmp_path):
+    (tmp_path / "results").mkdir()
+    outcome = fz.run_forked(["identify", str(dataset), "--out", str(tmp_path / "results")], deadline_s=30)
+    assert "is a directory" in one_line_error(outcome, "identify")
+    assert list((tmp_path / "results").iterdir()) == [] and not (tmp_path / "results.bak").exists()
+
+
+@pytest.mark.parametrize("verb, option, name", [("identify", "--out", "x.json"), ("diagnose", "--report", "rep")])
+def test_unwritable_directory(dataset, work, verb, option, name):
+    locked = work / f"locked-{verb}"
+    locked.mkdir(exist_ok=True)
+    os.chmod(locked, 0o555)  # nobody (or, not as root, its owner) cannot write in it
+    outcome = fz.run_forked([verb, str(dataset), option, str(locked / name)], deadline_s=30, as_nobody=True)
+    line = one_line_error(outcome, verb)
+    assert str(locked / name) in line and "no permission to write" in line
+    assert list(locked.iterdir()) == []
+
+
+@pytest.mark.parametrize("scale", ["nan", "inf", "0", "-1"])
+def test_loss_scale_must_be_a_positive_number(dataset, capsys, scale):
+    assert main(["identify", str(dataset), "--loss", "huber", "--loss-scale-px", scale, "--cv-folds", "0"]) == 2
+    assert "--loss-scale-px must be a positive number" in capsys.readouterr().err
+
+
+# -------------------------------------------------------------------------------------------- last resort
+
+
+@pytest.mark.parametrize("error, words", [
+    (OSError(5, "Input/output error", "/data/observations.csv"), "/data/observations.csv: input/output error"),
+    (RecursionError("maximum recursion depth exceeded"), "input nested too deeply"),
+    (MemoryError(), "out of memory"),
+])
+def test_unexpected_errors_still_give_one_line(monkeypatch, capsys, offsets, error, words):
+    def fail(*_args, **_kwargs):
+        raise error
+
+    monkeypatch.setattr("solver.offsets.read_offsets", fail)
+    assert main(["offsets", "validate", str(offsets)]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"naocal offsets: error: {words}")

@@ -1,0 +1,73 @@
+"""Writers on a full disk: one DiskFullError naming the file and the free bytes; what was saved stays intact."""
+
+import errno
+import os
+
+import numpy as np
+import pytest
+
+from solver.dataset import DatasetAppender, read_dataset
+from solver.errors import DiskFullError, NaocalError
+from solver.fileio import atomic_write_bytes, atomic_write_text
+from solver.synthetic import dataset_parts, random_truth, synthesize
+
+
+def failing(real, code=errno.ENOSPC):
+    def call(*args, **kwargs):
+        raise OSError(code, os.strerror(code))
+
+    return call
+
+
+@pytest.mark.parametrize("target, code, words", [
+    ("fsync", errno.ENOSPC, "no space left"),
+    ("fsync", errno.EDQUOT, "quota"),
+    ("link", errno.ENOSPC, "no space left"),  # the .bak hard link
+])
+def test_atomic_write_on_a_full_disk_names_the_file_and_keeps_the_old_one(tmp_path, monkeypatch, target, code, words):
+    path = tmp_path / "offsets.json"
+    atomic_write_text(path, "old\n")
+    atomic_write_text(path, "older\n", backup_suffix=".bak")  # so that .bak exists too
+    monkeypatch.setattr(os, target, failing(getattr(os, target), code))
+    with pytest.raises(DiskFullError) as info:
+        atomic_write_text(path, "new\n", backup_suffix=".bak")
+    monkeypatch.undo()
+    err = info.value
+    assert isinstance(err, NaocalError) and err.exit_code == 3
+    assert str(path) in str(err) and words in str(err) and "bytes free" in str(err)
+    assert err.free_bytes is not None and err.free_bytes > 0
+    assert len(str(err).splitlines()) == 1
+    assert path.read_text() == "older\n" and (tmp_path / "offsets.json.bak").read_text() == "old\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["offsets.json", "offsets.json.bak"]  # no temporary left
+
+
+def test_other_os_errors_stay_what_they_are(tmp_path, monkeypatch):
+    monkeypatch.setattr(os, "fsync", failing(os.fsync, errno.EIO))
+    with pytest.raises(OSError) as info:
+        atomic_write_bytes(tmp_path / "x", b"1")
+    assert not isinstance(info.value, DiskFullError) and info.value.errno == errno.EIO
+
+
+def test_a_capture_appended_to_a_full_disk_leaves_the_dataset_as_it_was(tmp_path, monkeypatch):
+    rng = np.random.default_rng(4)
+    meta, columns = dataset_parts(synthesize(rng, random_truth(rng), pixel_noise_px=0.1))
+    images = np.asarray(columns["image"])
+    first, second = (np.flatnonzero(images == i) for i in np.unique(images)[:2])
+    appender = DatasetAppender(tmp_path / "ds", meta)
+    appender.append({k: np.asarray(v)[first] for k, v in columns.items()})
+    before = (tmp_path / "ds" / "observations.csv").read_bytes()
+
+    real_write = os.write
+
+    def half_then_full(fd, data):  # the disk fills in the middle of the capture
+        if len(data) > 100:
+            real_write(fd, bytes(data[:len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "write", half_then_full)
+    with pytest.raises(DiskFullError) as info:
+        appender.append({k: np.asarray(v)[second] for k, v in columns.items()})
+    monkeypatch.undo()
+    assert "observations.csv" in str(info.value) and "bytes free" in str(info.value)
+    assert (tmp_path / "ds" / "observations.csv").read_bytes() == before
+    assert len(np.unique(read_dataset(tmp_path / "ds").columns["image"])) == 1

@@ -1,0 +1,66 @@
+"""Fuzz: seeded damage of a valid dataset and a valid offsets file, fed to every verb that reads them.
+
+Each damaged input must end in exit 0 or 2 (3: a failed identification), and on failure in exactly one line on
+stderr, `naocal VERB: error: ...`, naming the damaged file; never a traceback, a warning, or a hang. The cases and
+the runner are in tests/fuzz_inputs.py; benchmarks/fuzz_inputs.py runs many more (every verb on every case).
+"""
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from tests import fuzz_inputs as fz
+
+DEADLINE_S = 10.0
+
+
+@pytest.fixture(scope="module")
+def work():
+    path = Path(tempfile.mkdtemp(prefix="naocal-fuzz-"))
+    os.chmod(path, 0o755)  # the permission-denied cases run as nobody, who must reach the files
+    try:
+        yield path
+    finally:
+        fz.remove_tree(path)
+
+
+@pytest.fixture(scope="module")
+def valid(work):
+    return fz.make_valid_inputs(work / "valid")
+
+
+def report(runs, failures):
+    lines = [str(f) for f in failures[:15]]
+    return f"{len(failures)} of {runs} runs failed:\n" + "\n".join(lines)
+
+
+def test_valid_inputs_pass_every_verb_silently(valid, work):
+    dataset, offsets = valid
+    argvs = fz.dataset_verbs(dataset, work) + fz.offsets_verbs(offsets / fz.OFFSETS, offsets / "reference.json")
+    for argv in argvs:
+        outcome = fz.run_forked(argv, deadline_s=DEADLINE_S)
+        assert outcome.returncode == 0, (argv, fz.describe(outcome))
+        assert not fz.problems(outcome, argv[0], "", allow_failed_fit=False), (argv, fz.describe(outcome))
+
+
+def test_damaged_datasets_fail_cleanly(valid, work):
+    dataset, _ = valid
+    cases = fz.dataset_cases(dataset, seed=0, n_json=40, n_csv=80)
+    runs, failures = fz.run_cases(cases, dataset, work / "datasets", fz.dataset_verbs, every_verb=False,
+                                  deadline_s=DEADLINE_S)
+    assert runs >= len(cases) - 3  # (permission-denied cases skip the verb that writes)
+    assert not failures, report(runs, failures)
+
+
+def test_damaged_offsets_files_fail_cleanly(valid, work):
+    _, offsets = valid
+    reference = offsets / "reference.json"
+    cases = fz.offsets_cases(offsets / fz.OFFSETS, seed=0, n_json=60)
+    runs, failures = fz.run_cases(cases, offsets, work / "offsets",
+                                  lambda d, out: fz.offsets_verbs(d / fz.OFFSETS, reference), every_verb=False,
+                                  deadline_s=DEADLINE_S)
+    assert runs == len(cases)
+    assert not failures, report(runs, failures)
+

@@ -1,0 +1,15 @@
+"""naocal's output is its own: nothing from the libraries it uses (pybullet's build-time banner)."""
+
+import subprocess
+import sys
+
+from conftest import ROOT
+
+
+def test_loading_and_connecting_pybullet_prints_nothing():
+    code = ("import agent.visibility, agent.planner, backends.mock_render\n"
+            "from backends.pybullet_body import NaoBody\n"
+            "NaoBody().close(); NaoBody().close(); print('ok')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "ok\n" and done.stderr == ""

@@ -1,0 +1,357 @@
+"""Run directories: one run per --out, no mismatched --resume, Ctrl-C, a full disk; nothing saved lost or changed."""
+
+import errno
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.calibrate import calibrate
+from agent.planner import PlanSettings
+from agent.rundir import LOCK_NAME, RunLock, RunLocked
+from agent.states import AgentSettings
+from solver.dataset import read_dataset, write_dataset
+from solver.synthetic import dataset_parts, random_truth, synthesize
+from tests.agent_fakes import FakeBackend
+from tools import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE = ["--backend", "mock", "--seed", "3", "--stances-per-leg", "5", "--no-images", "--no-progress"]
+
+
+def naocal_process(*argv, **kw):
+    return subprocess.Popen([sys.executable, "-m", "tools", *argv], cwd=ROOT, text=True, **kw)
+
+
+def snapshot(directory: Path) -> dict:
+    """Every file under `directory` with its bytes (the lock file aside: it is not saved data)."""
+    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*"))
+            if p.is_file() and p.name != LOCK_NAME}
+
+
+def captured_lines(path: Path) -> int:
+    return path.read_bytes().count(b"\n") if path.exists() else 0
+
+
+def wait_for(condition, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def path_of_fd(fd: int) -> str:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:
+        return ""
+
+
+def disk_fills(monkeypatch, full):
+    """os.fsync raises ENOSPC for the files `full(path, calls so far)` says, as on a full disk."""
+    real_fsync = os.fsync
+    calls = {}
+
+    def fsync(fd):
+        path = path_of_fd(fd)
+        calls[path] = calls.get(path, 0) + 1
+        if full(path, calls[path]):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+
+
+# --- one run per --out ----------------------------------------------------------------------------------------------
+
+def test_the_lock_refuses_a_second_holder_and_goes_with_its_holder(tmp_path):
+    first = RunLock(tmp_path / "run", "naocal calibrate --out run")
+    first.acquire()
+    holder = json.loads((tmp_path / "run" / LOCK_NAME).read_text())
+    assert holder["pid"] == os.getpid() and holder["command"] == "naocal calibrate --out run"
+    with pytest.raises(RunLocked) as info:
+        RunLock(tmp_path / "run", "another").acquire()
+    assert f"pid {os.getpid()}" in str(info.value) and "naocal calibrate --out run" in str(info.value)
+    first.release()
+    assert not (tmp_path / "run").exists()  # made for the lock, left empty: removed
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / LOCK_NAME).write_text("left by a killed run")  # a file is not a lock
+    with RunLock(tmp_path / "run", "third"):
+        assert json.loads((tmp_path / "run" / LOCK_NAME).read_text())["command"] == "third"
+    assert (tmp_path / "run").is_dir() and not (tmp_path / "run" / LOCK_NAME).exists()
+
+
+@pytest.mark.slow
+def test_a_second_run_on_the_same_out_is_refused_at_once_naming_the_holder(tmp_path):
+    out = tmp_path / "run"
+    holder = naocal_process("calibrate", *BASE, "--out", str(out), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        wait_for(lambda: '"pid"' in ((out / LOCK_NAME).read_text() if (out / LOCK_NAME).exists() else ""), 60,
+                 "the first run to take the lock")
+        for argv in (["calibrate", *BASE, "--out", str(out), "--resume"], ["calibrate", *BASE, "--out", str(out)],
+                     ["simulate", "--out", str(out), "--no-progress"]):
+            started = time.monotonic()
+            second = naocal_process(*argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            _, err = second.communicate(timeout=60)
+            assert second.returncode == 2, err
+            assert time.monotonic() - started < 20  # at once: no mock built, no plan made
+            assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+            assert f"pid {holder.pid}" in err and "in use by another run" in err and "calibrate" in err
+        assert holder.poll() is None, "the first run went on"
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    with RunLock(out, "after the holder died"):  # the OS dropped the dead holder's lock
+        pass
+
+
+# --- Ctrl-C, then resume: with other options refused, with the printed command completed --------------------------
+
+@pytest.fixture(scope="module")
+def interrupted(tmp_path_factory):
+    """A mock calibration stopped by SIGINT during its measurement: (DIR, return code, stdout, stderr)."""
+    out = tmp_path_factory.mktemp("interrupted") / "run"
+    proc = naocal_process("calibrate", *BASE, "--out", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        obs = out / "dataset" / "observations.csv"
+        wait_for(lambda: captured_lines(obs) > 1 + 24 * 8 or proc.poll() is not None, 300, "8 captures")
+        assert proc.poll() is None, "the run ended before it could be interrupted"
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return out, proc.returncode, stdout, stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_writes_the_summary_and_prints_the_resume_command(interrupted):
+    out, code, stdout, stderr = interrupted
+    assert code == 130
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
+    assert lines[0].startswith("naocal calibrate: interrupted during measurement (")
+    command = lines[0].split("continue with: ", 1)[1]
+    assert shlex.split(command) == ["naocal", "calibrate", *BASE, "--out", str(out), "--resume"]
+    summary = (out / "summary.txt").read_text()
+    assert summary.startswith("naocal calibrate: interrupted - measurement")
+    assert f"to continue (captures already saved are kept, not repeated): {command}" in summary
+    saved = len(np.unique(read_dataset(out / "dataset").columns["image"]))
+    assert f"measurement (not finished): {saved} of 36 images saved" in summary
+    assert summary in stdout
+    assert not (out / LOCK_NAME).exists()
+
+
+MISMATCHES = [
+    (["--seed", "4"], "--seed 4 (the run: 3)"),
+    (["--effect", "elasticity=0.03"], "--effect elasticity=0.03 (the run: none)"),
+    (["--plan", "optimal"], "--plan optimal (the run: paper)"),
+    (["--plan-seed", "5"], "--plan-seed 5 (the run: 0)"),
+    (["--stances-per-leg", "6"], "--stances-per-leg 6 (the run: 5)"),
+    (["--no-probe"], "--no-probe (the run: with the lag probe)"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("extra, message", MISMATCHES)
+@pytest.mark.parametrize("record", ["run.json", "older run without run.json"])
+def test_resume_with_other_options_is_refused_before_anything_is_written(interrupted, tmp_path, capsys, extra,
+                                                                         message, record):
+    out = interrupted[0]
+    if record != "run.json":
+        out = shutil.copytree(out, tmp_path / "old")
+        (out / "run.json").unlink()
+    before = snapshot(out)
+    code = cli.main(["calibrate", *BASE, "--out", str(out), "--resume", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err, err
+    assert len(err.strip().splitlines()) == 1 and "nothing was changed" in err
+    assert ("run.json" in err) == (record == "run.json")
+    assert shlex.split(err.rsplit("(nothing was changed): ", 1)[1]) == [
+        "naocal", "calibrate", *BASE, "--out", str(out), "--resume"]
+    assert snapshot(out) == before
+
+
+@pytest.mark.slow
+def test_a_run_is_not_continued_without_resume(interrupted, capsys):
+    out = interrupted[0]
+    before = snapshot(out)
+    assert cli.main(["calibrate", *BASE, "--out", str(out)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert snapshot(out) == before
+
+
+@pytest.mark.slow
+def test_the_printed_resume_command_completes_the_run_with_both_seeds_recorded(interrupted):
+    out, _, _, stderr = interrupted
+    argv = shlex.split(stderr.split("continue with: ", 1)[1])
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
+    done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == ""
+    counts = np.bincount(read_dataset(out / "dataset").columns["image"])
+    assert np.count_nonzero(counts) == 36 and np.all(counts[counts > 0] == 24), "every capture exactly once"
+    source = json.loads((out / "offsets.json").read_text())["source"]
+    assert source["mock_seed"] == 3 and source["plan_seed"] == 0 and "seed" not in source
+    assert json.loads((out / "progress.json").read_text())["sessions"] == 2
+
+
+# --- a dataset directory is not a run directory ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_calibrate_into_a_simulated_dataset_is_refused_and_changes_nothing(tmp_path, capsys, resume):
+    rng = np.random.default_rng(0)
+    write_dataset(dataset_parts(synthesize(rng, random_truth(rng), pixel_noise_px=0.1)), tmp_path / "sim")
+    (tmp_path / "sim" / "truth.json").write_text('{"schema": "naocal.truth/1"}\n')
+    before = snapshot(tmp_path / "sim")
+    code = cli.main(["calibrate", *BASE, "--out", str(tmp_path / "sim")] + (["--resume"] if resume else []))
+    err = capsys.readouterr().err
+    assert code == 2 and "holds a dataset" in err and "nothing was changed" in err
+    assert snapshot(tmp_path / "sim") == before and sorted(p.name for p in (tmp_path / "sim").iterdir()) == [
+        "dataset.json", "observations.csv", "truth.json"]
+
+
+def test_resume_into_a_foreign_directory_is_refused(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("mine")
+    assert cli.main(["calibrate", *BASE, "--out", str(tmp_path), "--resume"]) == 2
+    assert "notes.txt" in capsys.readouterr().err
+    assert cli.main(["calibrate", *BASE, "--out", str(tmp_path)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert snapshot(tmp_path) == {"notes.txt": b"mine"}
+
+
+# --- a full disk ----------------------------------------------------------------------------------------------------
+
+def one_error_line(err: str, verb: str) -> str:
+    lines = [line for line in err.strip().splitlines() if line.startswith(f"naocal {verb}: ")]
+    assert "Traceback" not in err and "Logging error" not in err, err
+    assert lines, err
+    return lines[-1]
+
+
+@pytest.mark.slow
+def test_calibrate_on_a_full_disk_ends_in_one_line_and_keeps_every_capture(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    disk_fills(monkeypatch, lambda path, n: path.endswith("observations.csv") and n > 3)
+    code = cli.main(["calibrate", *BASE, "--stances-per-leg", "2", "--out", str(out)])
+    monkeypatch.undo()
+    captured = capsys.readouterr()
+    line = one_error_line(captured.err, "calibrate")
+    assert code == 3
+    assert line.startswith("naocal calibrate: failed: measurement: cannot write ")
+    assert f"{out / 'dataset' / 'observations.csv'}: no space left on the device (" in line and "bytes free" in line
+    assert line.endswith("--out " + str(out) + " --resume")
+    assert len(np.unique(read_dataset(out / "dataset").columns["image"])) == 3  # the 4th capture was cut back
+    summary = (out / "summary.txt").read_text()
+    assert "no space left" in summary and "to continue" in summary and summary in captured.out
+    assert json.loads((out / "run.json").read_text())["mock_seed"] == 3
+
+
+def test_a_summary_the_full_disk_refuses_is_returned_and_the_failure_named(tmp_path, monkeypatch):
+    fake = FakeBackend(3)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False,
+                             resume_command="naocal calibrate ... --resume")
+    disk_fills(monkeypatch, lambda path, n: "/dataset/" in path and n > 4 or "summary.txt" in path)
+    result, ctx = calibrate(fake, tmp_path, settings, detector=fake.detector)
+    monkeypatch.undo()
+    assert not result.ok and "no space left" in result.reason and "bytes free" in result.reason
+    assert not (tmp_path / "summary.txt").exists()
+    assert "summary.txt" in ctx.summary_error and "bytes free" in ctx.summary_error
+    assert ctx.summary.startswith("naocal calibrate: failed - measurement: cannot write")
+    assert "to continue (captures already saved are kept, not repeated): naocal calibrate ... --resume" in ctx.summary
+
+
+def test_calibrate_refused_by_a_full_disk_at_its_start_leaves_nothing(tmp_path, monkeypatch, capsys):
+    disk_fills(monkeypatch, lambda path, n: True)
+    code = cli.main(["calibrate", *BASE, "--out", str(tmp_path / "run")])
+    monkeypatch.undo()
+    line = one_error_line(capsys.readouterr().err, "calibrate")
+    assert code == 3 and f"cannot write {tmp_path / 'run' / 'run.json'}: no space left" in line
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+def test_simulate_on_a_full_disk_ends_in_one_line(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "sim"
+    disk_fills(monkeypatch, lambda path, n: path.endswith("observations.csv") and n > 2)
+    code = cli.main(["simulate", "--out", str(out), "--seed", "3", "--stances-per-leg", "2", "--no-images",
+                     "--no-progress"])
+    monkeypatch.undo()
+    line = one_error_line(capsys.readouterr().err, "simulate")
+    assert code == 3 and f"cannot write {out / 'observations.csv'}: no space left" in line and "bytes free" in line
+    assert len(np.unique(read_dataset(out).columns["image"])) == 2
+
+
+def test_identify_out_on_a_full_disk_keeps_the_old_offsets(tmp_path, monkeypatch, capsys):
+    rng = np.random.default_rng(1)
+    write_dataset(dataset_parts(synthesize(rng, random_truth(rng), pixel_noise_px=0.1)), tmp_path / "ds")
+    offsets = tmp_path / "offsets.json"
+    assert cli.main(["identify", str(tmp_path / "ds"), "--out", str(offsets), "--cv-folds", "0"]) == 0
+    capsys.readouterr()
+    before = offsets.read_bytes()
+    disk_fills(monkeypatch, lambda path, n: True)
+    code = cli.main(["identify", str(tmp_path / "ds"), "--out", str(offsets), "--cv-folds", "0"])
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert code == 3 and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"naocal identify: error: cannot write {offsets}: no space left") and "bytes free" in err
+    assert offsets.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["ds", "offsets.json"]
+
+
+# --- offsets.json names both seeds ----------------------------------------------------------------------------------
+
+def test_offsets_record_the_mock_seed_and_the_plan_seed_by_name(tmp_path):
+    fake = FakeBackend(3, resolution_rad=0.0)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=6), progress_bar=False, mock_seed=7)
+    result, _ = calibrate(fake, tmp_path / "mock", settings, detector=fake.detector)
+    assert result.ok, result.reason
+    source = json.loads((tmp_path / "mock" / "offsets.json").read_text())["source"]
+    assert source["mock_seed"] == 7 and source["plan_seed"] == 1 and "seed" not in source
+    from types import SimpleNamespace
+
+    from agent.states import offsets_source
+
+    robot = SimpleNamespace(settings=AgentSettings(seed=1), dataset_dir=tmp_path, plan=None)  # no mock: no mock seed
+    assert offsets_source(robot) == {"tool": "naocal calibrate", "dataset": str(tmp_path), "plan_seed": 1,
+                                     "plan": None}
+
+
+def test_an_older_offsets_file_with_one_seed_still_reads(tmp_path, capsys):
+    from solver.joints import LEG_JOINTS
+    from solver.offsets import offsets_from_alpha, read_offsets, write_offsets
+
+    path = tmp_path / "offsets.json"
+    source = {"tool": "naocal calibrate --backend mock", "dataset": "runs/x/dataset", "seed": 0, "plan": "paper"}
+    write_offsets(offsets_from_alpha({j: 0.01 for j in LEG_JOINTS}, (0.0, -0.05, 0.0), {"L": (0, 0, 0), "R": (0, 0, 0)},
+                                     robot={"id": "mock-1"}, fit={"rms_px": [0.1, 0.1], "n_vertices": 24,
+                                                                  "n_images": 1},
+                                     source=source), path)  # as naocal wrote it before both seeds were named
+    assert read_offsets(path).source == source
+    assert cli.main(["offsets", "show", str(path)]) == 0
+    assert "seed: 0" in capsys.readouterr().out
+
+
+def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path):
+    from solver.errors import DataError
+
+    fake = FakeBackend(3)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False)
+    calibrate(fake, tmp_path, settings, detector=fake.detector)
+    before = snapshot(tmp_path)
+    other = FakeBackend(3)
+    other.robot_identity = lambda: {"id": "another", "model": "NAO H25 V5 (fake)", "body_id": "b2", "head_id": "h2"}
+    settings.resume = True
+    with pytest.raises(DataError) as info:
+        calibrate(other, tmp_path, settings, detector=other.detector)
+    assert "dataset.json" in str(info.value) and "another" in str(info.value) and "nothing was changed" in str(info.value)
+    assert snapshot(tmp_path) == before
