@@ -50,6 +50,7 @@ class MotionLease:
         self.nonce_digest = nonce_digest  # the acquire that created it: a retry of it gets the same token
         self.replies_kept = int(replies_kept)
         self.seen_s = time.monotonic()
+        self.control_released = False  # the server told the robot its controller let go (silent past the lease)
         self._clients: collections.OrderedDict[str, tuple[int, collections.OrderedDict[int, bytes]]] = (
             collections.OrderedDict())
 
@@ -58,6 +59,11 @@ class MotionLease:
 
     def created_by(self, nonce: str) -> bool:
         return self.nonce_digest is not None and hmac.compare_digest(digest(nonce), self.nonce_digest)
+
+    def touch(self) -> None:
+        """Its holder was heard from: the lease is alive again."""
+        self.seen_s = time.monotonic()
+        self.control_released = False
 
     def idle_s(self) -> float:
         return time.monotonic() - self.seen_s

@@ -192,10 +192,11 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
                                              if effects else "") + ")"
         truth = backend.truth_dict()
     else:
+        from agent.rundir import BRIDGE_TOKEN_NAME
         from backends.bridge import BridgeBackend
 
         # The lease token stays with the run, so `--resume` after a crash takes the robot back at once.
-        backend = BridgeBackend(args.endpoint, lease_file=out / "bridge.token")
+        backend = BridgeBackend(args.endpoint, lease_file=out / BRIDGE_TOKEN_NAME)
         label = f"bridge {args.endpoint}"
     try:
         if not (out / RECORD_NAME).exists():
