@@ -5,6 +5,11 @@ on timeout close the socket, open a fresh one and resend the SAME request (same 
 then raise BridgeError naming the endpoint and the command. The server deduplicates request ids, so a command
 whose reply was lost is answered from its reply cache and never executed twice.
 
+Motion needs the lease: before its first motion command the client asks for it (`acquire`) and from then on
+sends the secret token the server answered with on every request. With `lease_file` the token is also kept on
+disk (mode 0600), so the same agent, killed and resumed, takes its lease back at once instead of waiting for it
+to time out; a stranger without the file still cannot.
+
 A retry that succeeds may have reached a restarted server. The client then asks the server who it is: if the
 robot behind it keeps its state across restarts (a NAO) it carries on; if not (a mock the server created), the
 robot's state and clock are gone, and it raises BridgeError rather than go on with a different robot.
@@ -18,19 +23,24 @@ import logging
 import math
 import os
 import secrets
+import stat
 import time
 
 import numpy as np
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from backends import protocol
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.bridge_endpoint import check_client_endpoint
 from backends.protocol import ControlError, ProtocolError
-from solver.errors import BridgeError, RobotTimeout, SafetyError
+from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
 
 log = logging.getLogger("naocal.bridge.client")
 
 WALL_CLOCK_SLEEP_CHUNK_S = 1.0  # a wall-clock server blocks while it sleeps: keep each sleep short
+HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+                      | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 
 
 class BridgeBackend(Backend):
@@ -47,6 +57,8 @@ class BridgeBackend(Backend):
     curve_client_key : this client's secret key file (needed if the server only admits known clients);
         without it an ephemeral key pair is used. Default: $NAOCAL_CURVE_CLIENT_KEY, if set.
     sim_slowdown : for a server with a simulated clock, wall-clock seconds allowed per simulated second of `sleep`.
+    lease_file : where to keep the motion lease's token (an agent's run directory), so that a resumed run takes
+        its own lease back; None keeps it in memory only.
     """
 
     name = "bridge"
@@ -61,12 +73,14 @@ class BridgeBackend(Backend):
         curve_client_key=None,
         client_id: str | None = None,
         sim_slowdown: float = 20.0,
+        lease_file=None,
         context: zmq.Context | None = None,
     ):
-        if not isinstance(endpoint, str) or "://" not in endpoint:
-            raise BridgeError(f"bridge endpoint {endpoint!r}: expected a ZeroMQ address such as tcp://nao.local:7790")
-        if not (timeout_s > 0 and retries >= 0):
-            raise ValueError("timeout_s must be > 0 and retries >= 0")
+        check_client_endpoint(endpoint)
+        if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s < math.inf):  # every wait has a deadline
+            raise BridgeError(f"bridge timeout (--timeout-s) must be a finite number of seconds > 0, got {timeout_s}")
+        if not retries >= 0:
+            raise ValueError("retries must be >= 0")
         self.endpoint = endpoint
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
@@ -78,7 +92,11 @@ class BridgeBackend(Backend):
         curve_server_key = curve_server_key or os.environ.get("NAOCAL_CURVE_SERVER_KEY") or None
         curve_client_key = curve_client_key or os.environ.get("NAOCAL_CURVE_CLIENT_KEY") or None
         self._curve = _load_client_curve(curve_server_key, curve_client_key) if curve_server_key else None
+        self._curve_server_key = curve_server_key
+        self.lease_file = os.fspath(lease_file) if lease_file else None
+        self._token: str | None = None  # the motion lease's secret, once acquired
         self._socket = None
+        self._monitor = None
         self._seq = 0
         self._server: dict | None = None
         self._static: dict = {}
@@ -97,11 +115,26 @@ class BridgeBackend(Backend):
             socket.curve_serverkey = server_public
             socket.curve_publickey = client_public
             socket.curve_secretkey = client_secret
+        # Handshake failures (a CURVE key missing, wrong or not admitted) are otherwise silence until the timeout.
+        # A fresh inproc name per socket: pyzmq's default names the socket's fd, which a socket closed a moment ago
+        # may still own, and its old monitor would take the events.
+        address = f"inproc://naocal-client-monitor-{secrets.token_hex(8)}"
+        socket.monitor(address, HANDSHAKE_FAILURES)
+        self._monitor = self._context.socket(zmq.PAIR)
+        self._monitor.setsockopt(zmq.LINGER, 0)
+        self._monitor.setsockopt(zmq.RCVHWM, 0)  # libzmq's sends to it block; disable_monitor() holds the GIL
+        self._monitor.connect(address)
         socket.connect(self.endpoint)
         return socket
 
     def _drop_socket(self) -> None:
         if self._socket is not None:
+            try:
+                self._socket.disable_monitor()
+            except zmq.ZMQError:
+                pass
+            self._monitor.close(linger=0)
+            self._monitor = None
             self._socket.close(linger=0)
             self._socket = None
 
@@ -116,7 +149,7 @@ class BridgeBackend(Backend):
                 raise BridgeError(f"'{cmd}' needs the server first: {err}") from None
         self._seq += 1
         request_id = f"{self.client_id}:{self._seq}"
-        payload = protocol.pack(protocol.make_request(request_id, cmd, args))
+        payload = protocol.pack(protocol.make_request(request_id, cmd, args, token=self._token))
         if len(payload) > protocol.MAX_REQUEST_BYTES:
             raise BridgeError(f"{self.endpoint}: {cmd}: request of {len(payload)} bytes is too large")
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
@@ -126,7 +159,11 @@ class BridgeBackend(Backend):
             if self._socket is None:
                 self._socket = self._connect()
                 reconnected = True
-            reply = self._attempt(payload, request_id, cmd, timeout_s)
+            try:
+                reply = self._attempt(payload, request_id, cmd, timeout_s)
+            except BridgeError:
+                self._drop_socket()
+                raise
             if reply is not None:
                 if reconnected and cmd != "hello":
                     self._check_same_server(cmd)
@@ -143,14 +180,19 @@ class BridgeBackend(Backend):
     def _attempt(self, payload: bytes, request_id: str, cmd: str, timeout_s: float):
         """Send once and wait until the deadline for the matching reply; None on timeout."""
         deadline = time.monotonic() + timeout_s
+        poller = zmq.Poller()
+        poller.register(self._monitor, zmq.POLLIN)
         try:
             self._socket.send_multipart([b"", payload], zmq.NOBLOCK)
-        except zmq.Again:
-            time.sleep(max(0.0, min(timeout_s, deadline - time.monotonic())))
-            return None
+            poller.register(self._socket, zmq.POLLIN)
+        except zmq.Again:  # no connection to queue on (it may have failed its handshake already): wait and see
+            pass
         while True:
             remaining_s = deadline - time.monotonic()
-            if remaining_s <= 0 or not self._socket.poll(remaining_s * 1000, zmq.POLLIN):
+            ready = dict(poller.poll(remaining_s * 1000)) if remaining_s > 0 else {}
+            if self._monitor in ready:
+                self._raise_handshake_failure()
+            if self._socket not in ready:
                 return None
             frames = self._socket.recv_multipart(zmq.NOBLOCK)
             try:
@@ -168,6 +210,26 @@ class BridgeBackend(Backend):
                 return protocol.validate_reply(message, request_id)
             except ProtocolError as err:
                 raise BridgeError(f"{self.endpoint}: {cmd}: malformed reply: {err}") from None
+
+    def _raise_handshake_failure(self) -> None:
+        """The connection failed its ZeroMQ handshake: say why in words (it will not heal by retrying)."""
+        event = recv_monitor_message(self._monitor, zmq.NOBLOCK)
+        kind, value = event["event"], event["value"]
+        mismatch = kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
+        if self._curve is None:
+            # A plain client's handshake with a naocal server fails only on a security mechanism mismatch; the
+            # server may hang up before the client has read why (EPIPE, "no detail"), so this is the likely cause.
+            raise BridgeError(f"{self.endpoint}: the server requires CURVE keys (the handshake failed): give its "
+                              "public key with --curve-server-key FILE or $NAOCAL_CURVE_SERVER_KEY")
+        if mismatch:
+            raise BridgeError(f"{self.endpoint}: the server does not use CURVE, but this client was given its key "
+                              f"{self._curve_server_key}; start the server with --curve-secret-key, or drop the key")
+        if kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+            raise BridgeError(f"{self.endpoint}: the server does not admit this client's CURVE key (status {value}): "
+                              "put the client's public .key in the server's --curve-clients DIR and give its "
+                              "secret with --curve-client-key FILE or $NAOCAL_CURVE_CLIENT_KEY")
+        raise BridgeError(f"{self.endpoint}: the CURVE handshake failed: is {self._curve_server_key} the public key of "
+                          "this server (and does it use CURVE)?")
 
     def _result(self, reply: dict, cmd: str):
         if reply["ok"]:
@@ -206,8 +268,78 @@ class BridgeBackend(Backend):
         log.warning("%s: bridge server restarted; the robot kept its state, carrying on", self.endpoint)
 
     def server_info(self) -> dict:
-        """The server's hello: protocol, server_id, driver, robot_id, clock, state_persists, controller."""
+        """The server's hello: protocol, server_id, driver, robot_id, clock, state_persists, controlled."""
         return dict(self._server_info())
+
+    # ------------------------------------------------------------------------------------------ motion lease
+    def _motion_call(self, cmd: str, args: dict, *, timeout_s: float | None = None):
+        """A motion request under the lease: acquire it first; if the server refuses (ControlError: nothing was
+        executed), the lease may have lapsed (a restarted server, a timeout nobody used): ask for it once more."""
+        if self._token is None:
+            if self._server is None:
+                try:
+                    self._server_info()
+                except BridgeError as err:
+                    raise BridgeError(f"'{cmd}' needs the server first: {err}") from None
+            self._acquire_lease()
+        try:
+            return self._call(cmd, args, timeout_s=timeout_s)
+        except ControlError:
+            self._acquire_lease()
+        return self._call(cmd, args, timeout_s=timeout_s)
+
+    def _acquire_lease(self) -> None:
+        """Ask for the motion lease, showing the token we (or the run we resume) had, if any."""
+        from_file = self._token is None
+        had = self._token or self._read_lease_file()
+        self._token = had
+        try:
+            result = self._call("acquire", {"nonce": secrets.token_urlsafe(16)})
+            token = result.get("token") if isinstance(result, dict) else None
+            if not isinstance(token, str) or not protocol.SECRET_PATTERN.match(token):
+                raise BridgeError(f"{self.endpoint}: acquire: the server answered without a valid token")
+        except BridgeError:
+            self._token = None
+            raise
+        self._token = token
+        if token == had and from_file:
+            log.info("%s: took back the motion lease of an earlier run (token in %s)", self.endpoint, self.lease_file)
+        elif token != had and self.lease_file:
+            self._write_lease_file(token)
+
+    def _read_lease_file(self) -> str | None:
+        if not self.lease_file:
+            return None
+        try:
+            if not stat.S_ISREG(os.stat(self.lease_file).st_mode):
+                raise OSError("not a regular file")
+            with open(self.lease_file, encoding="ascii") as file:
+                text = file.read(256).strip()
+        except FileNotFoundError:
+            return None
+        except (OSError, UnicodeError) as err:
+            log.warning("%s: cannot read the lease token (%s); asking for a new lease", self.lease_file, err)
+            return None
+        if not protocol.SECRET_PATTERN.match(text):
+            log.warning("%s: not a lease token; asking for a new lease", self.lease_file)
+            return None
+        return text
+
+    def _write_lease_file(self, token: str) -> None:
+        from solver.fileio import atomic_write_bytes
+
+        try:
+            atomic_write_bytes(self.lease_file, f"{token}\n".encode("ascii"))  # mkstemp: mode 0600
+        except (OSError, NaocalError) as err:  # the run goes on; only a resume after a crash would wait
+            log.warning("%s: cannot keep the lease token (%s): a resumed run would wait for the lease to time out",
+                        self.lease_file, err)
+
+    def _forget_lease_file(self) -> None:
+        if self.lease_file:
+            try:
+                os.unlink(self.lease_file)
+            except OSError:
+                pass
 
     def _static_call(self, cmd: str):
         if cmd not in self._static:
@@ -235,14 +367,14 @@ class BridgeBackend(Backend):
 
     def command(self, targets_rad: dict[str, float], speed_fraction: float) -> None:
         targets = {str(name): float(angle) for name, angle in targets_rad.items()}
-        self._call("command", {"targets_rad": targets, "speed_fraction": float(speed_fraction)})
+        self._motion_call("command", {"targets_rad": targets, "speed_fraction": float(speed_fraction)})
 
     def read_joints(self) -> JointReading:
         return protocol.joint_reading_from_wire(self._call("read_joints"))
 
     def set_stiffness(self, names, stiffness: float) -> None:
         names = [names] if isinstance(names, str) else [str(name) for name in names]
-        self._call("set_stiffness", {"names": names, "stiffness": float(stiffness)})
+        self._motion_call("set_stiffness", {"names": names, "stiffness": float(stiffness)})
 
     def capture(self) -> CameraImage | None:
         return protocol.image_from_wire(self._call("capture"))
@@ -263,7 +395,7 @@ class BridgeBackend(Backend):
         remaining_s = duration_s
         while remaining_s > 0:
             step_s = min(remaining_s, chunk_s)
-            self._call("sleep", {"duration_s": step_s}, timeout_s=self.timeout_s + wall_per_robot_s * step_s)
+            self._motion_call("sleep", {"duration_s": step_s}, timeout_s=self.timeout_s + wall_per_robot_s * step_s)
             remaining_s -= step_s
             if remaining_s < 1e-9:
                 break
@@ -274,36 +406,39 @@ class BridgeBackend(Backend):
 
     def release(self) -> None:
         """Give up control of motion so another client may command."""
-        self._call("release")
+        if self._token is not None:
+            self._call("release")
+            self._token = None
+            self._forget_lease_file()
 
     def close(self) -> None:
         if self._closed:
             return
         try:
-            if self._socket is not None:
+            if self._socket is not None and self._token is not None:
                 self._call("release", timeout_s=min(self.timeout_s, 0.5), retries=0)
+                self._forget_lease_file()
         except BridgeError:
-            pass  # best effort: the lease also times out on the server
+            pass  # best effort: the lease also times out on the server (and the token file lets a resume reclaim it)
         finally:
             self._closed = True
+            self._token = None
             self._drop_socket()
 
 
 def _load_client_curve(server_key_file, client_key_file):
     """(server public, client public, client secret) from key files written by `naocal bridge keygen`."""
-    import zmq.auth
+    from backends.bridge_keys import load_key_file, warn_if_others_can_read
 
     try:
-        server_public, _ = zmq.auth.load_certificate(os.fspath(server_key_file))
-    except (OSError, ValueError) as err:
-        raise BridgeError(f"{server_key_file}: cannot read the server's CURVE public key: {err}") from None
-    if client_key_file is None:
-        client_public, client_secret = zmq.curve_keypair()
-        return server_public, client_public, client_secret
-    try:
-        client_public, client_secret = zmq.auth.load_certificate(os.fspath(client_key_file))
-    except (OSError, ValueError) as err:
-        raise BridgeError(f"{client_key_file}: cannot read the client's CURVE key: {err}") from None
+        server_public, _ = load_key_file(server_key_file, "the server's CURVE public key")
+        if client_key_file is None:
+            client_public, client_secret = zmq.curve_keypair()
+            return server_public, client_public, client_secret
+        client_public, client_secret = load_key_file(client_key_file, "the client's CURVE key")
+    except NaocalError as err:
+        raise BridgeError(str(err)) from None
     if client_secret is None:
         raise BridgeError(f"{client_key_file}: holds no secret key (give the *.key_secret file)")
+    warn_if_others_can_read(client_key_file)
     return server_public, client_public, client_secret

@@ -9,31 +9,35 @@ Both REQ clients (with their empty delimiter frame) and DEALER clients (the naoc
 Guarantees (docs/PROTOCOL.md):
 - every request gets a reply: a bad one an error reply, never a crash (up to ZMQ_MAX_INBOUND_BYTES; beyond it
   libzmq drops the connection before we see the message);
-- request ids are deduplicated: the replies of the last `replies_kept_per_client` requests of each client are
-  kept, a retried request is answered from them and NOT executed again; with `journal_path` the replies of
-  motion commands also survive a restart of the server;
-- one client at a time controls motion (`command`, `set_stiffness`, `sleep`): the first one to command holds
-  the lease until it sends `release` or stays silent for `lease_timeout_s`; the others may still read.
+- one client at a time controls motion (`command`, `set_stiffness`, `sleep`): the one `acquire` gave the lease
+  token to, until it sends `release` or stays silent for `lease_timeout_s`; the others may still read. Control is
+  bound to that secret, not to a client id anyone can copy (backends/bridge_lease.py);
+- a motion is executed once: the replies of the controller's last `replies_kept_per_client` motion requests are
+  kept under its lease, a retried one is answered from them and NOT executed again, whatever other clients send;
+  with `journal_path` they (and the lease) also survive a restart of the server;
+- a flood of idle connections neither exhausts the file descriptors nor spins the CPU (backends/bridge_guard.py).
 """
 
 from __future__ import annotations
 
-import collections
 import ctypes
-import ipaddress
 import logging
+import math
 import os
 import secrets
 import threading
 import time
-import urllib.parse
 
-import msgpack
 import numpy as np
 import zmq
 
 from backends import protocol
 from backends.base import Backend
+from backends.bridge_endpoint import (check_bind_address, check_bound_endpoint, is_local_endpoint, split_endpoint,
+                                      tcp_listen_hosts)
+from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
+from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
+from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
 from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
 from solver.fileio import atomic_write_bytes
@@ -44,23 +48,13 @@ DEFAULT_BIND = "tcp://127.0.0.1:7790"
 POLL_INTERVAL_S = 0.1  # how often the loop looks at its stop flag
 
 
-def check_bind_address(bind: str, allow_remote: bool) -> None:
-    """Refuse a non-loopback bind unless `allow_remote`. Raises NaocalError naming the address."""
-    scheme, _, rest = bind.partition("://")
-    if scheme in ("ipc", "inproc"):
-        return
-    if scheme != "tcp" or not rest:
-        raise NaocalError(f"bind address {bind!r}: expected tcp://HOST:PORT (or ipc://PATH)")
-    host = urllib.parse.urlsplit(f"//{rest}").hostname or ""
-    try:
-        loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        loopback = False  # '*', interface names, host names: may be reachable from outside
-    if not loopback and not allow_remote:
-        raise NaocalError(
-            f"bind address {bind!r} is reachable from other machines; pass --allow-remote to serve on it "
-            "(and consider --curve-secret-key)"
-        )
+def check_lease_timeout(lease_timeout_s) -> float:
+    """A finite number of seconds > 0 (NaN would make every lease look expired: anyone could take the robot)."""
+    value = float(lease_timeout_s)
+    if not 0 < value < math.inf:
+        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a finite number of seconds > 0, got "
+                          f"{lease_timeout_s}")
+    return value
 
 
 class FaultInjector:
@@ -81,80 +75,6 @@ class FaultInjector:
         if request_id in self.delay_first_reply_of:
             return float(self.delay_first_reply_of.pop(request_id))
         return None
-
-
-class ReplyCache:
-    """The last replies per client, keyed by request sequence number.
-
-    A value of None marks a read-only request whose reply was too big to keep: a retry may run it again.
-    """
-
-    KEEP_BYTES = 64 << 10  # replies larger than this (images) are not kept; only reads produce them
-    MAX_CLIENTS = 256
-
-    def __init__(self, per_client: int):
-        self.per_client = int(per_client)
-        self._clients: collections.OrderedDict[str, collections.OrderedDict[int, bytes | None]] = (
-            collections.OrderedDict()
-        )
-        self._max_seq: dict[str, int] = {}
-
-    def lookup(self, client: str, seq: int):
-        """('hit', reply) | ('rerun', None) | ('new', None) | ('stale', None)."""
-        entries = self._clients.get(client)
-        if entries is not None and seq in entries:
-            reply = entries[seq]
-            return ("rerun", None) if reply is None else ("hit", reply)
-        if seq > self._max_seq.get(client, -1):
-            return "new", None
-        return "stale", None
-
-    def store(self, client: str, seq: int, reply: bytes, *, side_effects: bool) -> None:
-        entries = self._clients.setdefault(client, collections.OrderedDict())
-        self._clients.move_to_end(client)
-        keep = side_effects or len(reply) <= self.KEEP_BYTES
-        entries[seq] = reply if keep else None
-        self._max_seq[client] = max(seq, self._max_seq.get(client, -1))
-        while len(entries) > self.per_client:
-            entries.popitem(last=False)
-        while len(self._clients) > self.MAX_CLIENTS:
-            dropped, _ = self._clients.popitem(last=False)
-            self._max_seq.pop(dropped, None)
-
-
-class ReplyJournal:
-    """Append-only file of motion replies [client, seq, reply], fsynced before the reply is sent.
-
-    A restarted server loads it, so a retried motion command whose reply was lost in the restart is answered,
-    not executed again. A torn last record (power loss while writing) is ignored.
-    """
-
-    def __init__(self, path, cache: ReplyCache):
-        self.path = os.fspath(path)
-        records = []
-        if os.path.exists(self.path):
-            with open(self.path, "rb") as file:
-                unpacker = msgpack.Unpacker(file, raw=False, strict_map_key=True, max_buffer_size=64 << 20)
-                try:
-                    for record in unpacker:
-                        if isinstance(record, list) and len(record) == 3:
-                            records.append(record)
-                except Exception:  # torn or corrupt tail: keep what was read
-                    log.warning("journal %s: ignoring a damaged tail after %d records", self.path, len(records))
-        for client, seq, reply in records:
-            cache.store(client, seq, reply, side_effects=True)
-        # Rewrite it compacted to what the cache keeps, then append.
-        kept = [[c, s, r] for c, entries in cache._clients.items() for s, r in entries.items() if r is not None]
-        atomic_write_bytes(self.path, b"".join(msgpack.packb(rec, use_bin_type=True) for rec in kept))
-        self._file = open(self.path, "ab")
-
-    def append(self, client: str, seq: int, reply: bytes) -> None:
-        self._file.write(msgpack.packb([client, seq, reply], use_bin_type=True))
-        self._file.flush()
-        os.fsync(self._file.fileno())
-
-    def close(self) -> None:
-        self._file.close()
 
 
 class BridgeServer:
@@ -193,18 +113,20 @@ class BridgeServer:
         self.driver = driver
         self.clock = clock
         self.state_persists = bool(state_persists)
-        self.lease_timeout_s = float(lease_timeout_s)
+        self.lease_timeout_s = check_lease_timeout(lease_timeout_s)
         self.faults = faults
         self.server_id = secrets.token_hex(8)
         self.endpoint = None  # the bound address, with the real port, after start()
         self._curve_secret_key_file = curve_secret_key_file
         self._curve_clients_dir = curve_clients_dir
         self._context = context or zmq.Context.instance()
-        self._cache = ReplyCache(replies_kept_per_client)
-        self._journal = ReplyJournal(journal_path, self._cache) if journal_path else None
-        self._controller: str | None = None
-        self._controller_seen_s = 0.0
+        self._replies_kept = int(replies_kept_per_client)
+        self._journal = LeaseJournal(journal_path) if journal_path else None
+        self._lease: MotionLease | None = self._journal.load(self._replies_kept) if self._journal else None
+        self._allow_remote = bool(allow_remote)
+        self._client_keys = 0  # public keys admitted by --curve-clients
         self._socket = None
+        self._guard: ConnectionGuard | None = None
         self._authenticator = None
         self._stop = threading.Event()
         self._thread = None
@@ -218,38 +140,59 @@ class BridgeServer:
         socket = self._context.socket(zmq.ROUTER)
         socket.setsockopt(zmq.LINGER, 0)
         socket.setsockopt(zmq.MAXMSGSIZE, protocol.ZMQ_MAX_INBOUND_BYTES)
+        socket.setsockopt(zmq.HANDSHAKE_IVL, int(HANDSHAKE_TIMEOUT_S * 1000))
+        scheme, address = split_endpoint(self.bind)
+        if scheme == "tcp" and any(":" in host for host in tcp_listen_hosts(address)):
+            socket.setsockopt(zmq.IPV6, 1)
         try:
             if self._curve_secret_key_file:
                 self._configure_curve(socket)
+            self._guard = ConnectionGuard(socket)
             socket.bind(self.bind)
-        except zmq.ZMQError as err:
-            self._stop_authenticator()
-            socket.close(linger=0)
-            raise NaocalError(f"cannot bind {self.bind}: {err}") from None
-        except BaseException:
-            self._stop_authenticator()
-            socket.close(linger=0)
+            self.endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
+            check_bound_endpoint(self.endpoint, self._allow_remote)  # whatever the parser above missed
+            self._guard.listening_on(self.endpoint)
+        except BaseException as err:
+            if self.endpoint:
+                try:
+                    socket.unbind(self.endpoint)
+                except zmq.ZMQError:
+                    pass  # closing it below unbinds too
+                self.endpoint = None
+            self._close_socket(socket)
+            if self._journal is not None:
+                self._journal.close()
+            if isinstance(err, zmq.ZMQError):
+                raise NaocalError(f"cannot bind {self.bind}: {err}") from None
             raise
         self._socket = socket
-        self.endpoint = socket.getsockopt_string(zmq.LAST_ENDPOINT)
-        log.info("serving %s (%s, robot %s) on %s", self.driver, self.clock, self._robot_id, self.endpoint)
+        log.info("serving %s (%s, robot %s) on %s, %s", self.driver, self.clock, self._robot_id, self.endpoint,
+                 self.security_summary())
+        if not self._client_keys and not is_local_endpoint(self.endpoint):
+            log.warning("listening beyond loopback without --curve-clients: anyone who reaches %s can read the "
+                        "robot and take control of motion whenever no client holds it", self.endpoint)
         return self
 
-    def _configure_curve(self, socket) -> None:
-        import zmq.auth
+    def security_summary(self) -> str:
+        """One phrase for the start lines: is CURVE on, and whom does it admit."""
+        if not self._curve_secret_key_file:
+            return "CURVE off: unencrypted, any client"
+        if self._client_keys:
+            return f"CURVE on: encrypted, {self._client_keys} admitted client key(s)"
+        return "CURVE on: encrypted, any client key"
 
-        try:
-            public, secret = zmq.auth.load_certificate(os.fspath(self._curve_secret_key_file))
-        except (OSError, ValueError) as err:
-            raise NaocalError(f"{self._curve_secret_key_file}: cannot read the CURVE key: {err}") from None
+    def _configure_curve(self, socket) -> None:
+        key_file = os.fspath(self._curve_secret_key_file)
+        public, secret = load_key_file(key_file, "the server's CURVE key")
         if secret is None:
-            raise NaocalError(f"{self._curve_secret_key_file}: holds no secret key (give the *.key_secret file)")
+            raise NaocalError(f"{key_file}: holds no secret key (give the *.key_secret file)")
+        if not (is_curve_key(public) and is_curve_key(secret)):
+            raise NaocalError(f"{key_file}: not a CURVE key pair (expected a file written by naocal bridge keygen)")
+        warn_if_others_can_read(key_file)
         if self._curve_clients_dir:
             from zmq.auth.thread import ThreadAuthenticator
 
-            if not os.path.isdir(self._curve_clients_dir):
-                raise NaocalError(f"{self._curve_clients_dir}: not a directory of client public keys (*.key)")
-
+            self._client_keys = len(load_client_keys(self._curve_clients_dir))
             self._authenticator = ThreadAuthenticator(self._context)
             self._authenticator.start()
             self._authenticator.configure_curve(domain="*", location=os.fspath(self._curve_clients_dir))
@@ -266,17 +209,23 @@ class BridgeServer:
                 self._expire_idle_lease()
                 if not self._socket.poll(POLL_INTERVAL_S * 1000, zmq.POLLIN):
                     continue
-                frames = self._socket.recv_multipart(zmq.NOBLOCK)
+                frames = self._socket.recv_multipart(zmq.NOBLOCK, copy=False)
                 try:
-                    self._handle(frames)
+                    self._handle([frame.bytes for frame in frames], _source_fd(frames[0]))
                 except Exception:  # a bug in handling one message must not take the robot's server down
                     log.exception("could not handle a message of %d frame(s)", len(frames))
         finally:
-            self._socket.close(linger=0)
+            self._close_socket(self._socket)
             self._socket = None
-            self._stop_authenticator()
             if self._journal is not None:
                 self._journal.close()
+
+    def _close_socket(self, socket) -> None:
+        if self._guard is not None:
+            self._guard.stop()  # before the socket closes: it switches the socket's monitor off
+            self._guard = None
+        socket.close(linger=0)
+        self._stop_authenticator()
 
     def start_thread(self) -> "BridgeServer":
         self.start()
@@ -297,8 +246,12 @@ class BridgeServer:
             self._authenticator.stop()
             self._authenticator = None
 
+    def exactly_once_entries(self) -> int:
+        """Motion replies kept for deduplication (bounded: see backends/bridge_lease.py)."""
+        return self._lease.entries() if self._lease is not None else 0
+
     # ------------------------------------------------------------------------------------------ requests
-    def _handle(self, frames: list[bytes]) -> None:
+    def _handle(self, frames: list[bytes], source_fd: int | None = None) -> None:
         routing_id, body = frames[0], frames[1:]
         envelope = [b""] if body and body[0] == b"" else []
         payload_frames = body[len(envelope):]
@@ -312,29 +265,25 @@ class BridgeServer:
             message = protocol.unpack(payload, max_bytes=protocol.MAX_REQUEST_BYTES)
             request_id = _request_id_if_valid(message)
             request_id, cmd, args = protocol.validate_request(message)
+            token = protocol.request_token(message)
         except ProtocolError as err:
             self._send(routing_id, envelope, protocol.error_reply(request_id, err.error_type, str(err)))
             return
 
         client, seq = protocol.parse_request_id(request_id)
-        if client == self._controller:
-            self._controller_seen_s = time.monotonic()
-        status, cached = self._cache.lookup(client, seq)
-        if status == "hit":
-            log.info("request %s (%s) answered from the reply cache, not executed again", request_id, cmd)
-            self._send(routing_id, envelope, cached)
-            return
-        if status == "stale":
-            self._send(routing_id, envelope, protocol.error_reply(
-                request_id, "StaleRequest", f"request {request_id} is older than the replies this server keeps; "
-                                            "not executed"))
-            return
+        lease = self._lease
+        controller = lease is not None and lease.held_by(token)
+        if controller:
+            lease.touch()
+        if self._guard is not None:
+            self._guard.note_request(source_fd, controller=controller)
 
-        reply = self._execute(request_id, client, cmd, args)
-        side_effects = cmd in MOTION_COMMANDS
-        self._cache.store(client, seq, reply, side_effects=side_effects)
-        if side_effects and self._journal is not None and cmd != "sleep":
-            self._journal.append(client, seq, reply)
+        if cmd in MOTION_COMMANDS:
+            reply = self._motion(request_id, client, seq, cmd, args, lease if controller else None)
+            if reply is None:
+                return  # answered from the lease's replies
+        else:
+            reply = self._execute(request_id, cmd, args, token)
         self.requests_served += 1
 
         action = self.faults.action(request_id) if self.faults else None
@@ -349,6 +298,47 @@ class BridgeServer:
             time.sleep(action)
         self._send(routing_id, envelope, reply)
 
+    def _motion(self, request_id: str, client: str, seq: int, cmd: str, args: dict, lease: MotionLease | None):
+        """Run a motion request of the lease holder exactly once; the encoded reply, or None if it was sent."""
+        if lease is None:
+            return protocol.pack(protocol.error_reply(request_id, "ControlError", self._not_controller()))
+        status, cached = lease.lookup(client, seq)
+        if status == "hit":
+            log.info("request %s (%s) answered from the lease's replies, not executed again", request_id, cmd)
+            return cached
+        if status == "stale":
+            return protocol.pack(protocol.error_reply(
+                request_id, "StaleRequest", f"request {request_id} is older than the replies this server keeps; "
+                                            "not executed"))
+        journaled = self._journal is not None and cmd != "sleep"
+        if journaled:
+            try:
+                self._journal.ensure_room()
+            except (NaocalError, OSError) as err:  # nothing executed, nothing kept: a retry may run it later
+                return protocol.pack(protocol.error_reply(request_id, "NaocalError", str(err)))
+        reply = self._execute(request_id, cmd, args, None)
+        if journaled:
+            try:
+                self._journal.reply(lease, client, seq, reply)
+            except NaocalError as err:
+                log.error("%s", err)
+                reply = protocol.pack(protocol.error_reply(
+                    request_id, "NaocalError", f"{err}; the {cmd} WAS executed, but a restarted server would not "
+                                               "know it: stop, free some space and resume"))
+        lease.store(client, seq, reply)
+        return reply
+
+    def _not_controller(self) -> str:
+        """Why a motion request without a valid token is refused; names nobody."""
+        lease = self._lease
+        if lease is None:
+            return "motion needs the lease: send 'acquire' first"
+        idle_s = lease.idle_s()
+        if idle_s >= self.lease_timeout_s:
+            return f"the lease is free (its holder has been idle {idle_s:.0f} s): send 'acquire'"
+        return (f"another client controls the robot (idle {idle_s:.1f} s of {self.lease_timeout_s:g} s); reads are "
+                "allowed, motion is not")
+
     def _send(self, routing_id: bytes, envelope: list[bytes], reply) -> None:
         data = reply if isinstance(reply, bytes) else protocol.pack(reply)
         try:
@@ -356,12 +346,10 @@ class BridgeServer:
         except zmq.Again:
             log.warning("reply dropped: the client's queue is full")
 
-    def _execute(self, request_id: str, client: str, cmd: str, args: dict) -> bytes:
+    def _execute(self, request_id: str, cmd: str, args: dict, token: str | None) -> bytes:
         """Run one validated request and encode its reply; every failure becomes an error reply."""
         try:
-            if cmd in MOTION_COMMANDS:
-                self._take_lease(client)
-            return protocol.pack(protocol.ok_reply(request_id, self._dispatch(client, cmd, args)))
+            return protocol.pack(protocol.ok_reply(request_id, self._dispatch(cmd, args, token)))
         except ProtocolError as err:
             reply = protocol.error_reply(request_id, err.error_type, str(err))
         except ControlError as err:
@@ -377,37 +365,56 @@ class BridgeServer:
             reply = protocol.error_reply(request_id, "InternalError", f"{type(err).__name__}: {err}")
         return protocol.pack(reply)
 
+    def _acquire(self, token: str | None, nonce: str) -> dict:
+        """Grant the lease, or give it back to its holder (a resumed agent shows its token; a retried acquire
+        whose reply was lost shows its nonce). ControlError while another client holds it."""
+        lease = self._lease
+        if lease is not None:
+            if lease.held_by(token) or lease.created_by(nonce):
+                lease.touch()
+                if lease.token is None:
+                    lease.token = token
+                    log.info("the controller reclaimed its motion lease")
+                return {"token": lease.token, "lease_timeout_s": self.lease_timeout_s}
+            if lease.idle_s() < self.lease_timeout_s:
+                raise ControlError(self._not_controller())
+            log.warning("the controlling client was idle %.1f s: its motion lease passes on", lease.idle_s())
+        token = secrets.token_urlsafe(TOKEN_BYTES)
+        self._lease = MotionLease(digest(token), token=token, nonce_digest=digest(nonce),
+                                  replies_kept=self._replies_kept)
+        self._journal_event("granted", self._lease)
+        log.info("a client now controls motion")
+        return {"token": token, "lease_timeout_s": self.lease_timeout_s}
+
     def _expire_idle_lease(self) -> None:
-        """A controlling client silent past its lease has let go: the backend makes the robot safe (the LoLA
-        driver holds, then ramps stiffness down) without waiting for another client to take over."""
-        if self._controller is not None and time.monotonic() - self._controller_seen_s >= self.lease_timeout_s:
-            log.warning("client %s silent for %.1f s: its motion lease expired", self._controller,
-                        time.monotonic() - self._controller_seen_s)
-            self._controller = None
-            try:
-                self.backend.release_control()
-            except Exception:  # the server must keep serving whatever the driver does
-                log.exception("the driver failed to make the robot safe after the lease expired")
+        """A controller silent past its lease has let go: the backend makes the robot safe (the LoLA driver holds,
+        then ramps stiffness down) without waiting for another client to take over. The lease object stays until
+        another client acquires: its holder may still come back with its token, and its replies are kept."""
+        lease = self._lease
+        if lease is None or lease.control_released or lease.idle_s() < self.lease_timeout_s:
+            return
+        log.warning("the controlling client has been silent for %.1f s: its motion lease expired", lease.idle_s())
+        lease.control_released = True
+        self._release_control()
 
-    def _take_lease(self, client: str) -> None:
-        now = time.monotonic()
-        holder = self._controller
-        if holder not in (None, client):
-            idle_s = now - self._controller_seen_s
-            if idle_s < self.lease_timeout_s:
-                raise ControlError(
-                    f"the robot is controlled by client {holder} (idle {idle_s:.1f} s of {self.lease_timeout_s:g} s); "
-                    "reads are allowed, motion is not"
-                )
-            log.warning("client %s idle for %.1f s: motion lease passes to %s", holder, idle_s, client)
-        if holder != client:
-            log.info("client %s now controls motion", client)
-        self._controller = client
-        self._controller_seen_s = now
+    def _release_control(self) -> None:
+        try:
+            self.backend.release_control()
+        except Exception:  # the server must keep serving whatever the driver does
+            log.exception("the driver failed to make the robot safe after control ended")
 
-    def _dispatch(self, client: str, cmd: str, args: dict):
+    def _journal_event(self, event: str, lease: MotionLease) -> None:
+        if self._journal is None:
+            return
+        try:
+            getattr(self._journal, event)(lease)
+        except NaocalError as err:  # the lease still works; only a restart would forget it
+            log.error("%s", err)
+
+    def _dispatch(self, cmd: str, args: dict, token: str | None):
         backend = self.backend
         if cmd == "hello":
+            lease = self._lease
             return {
                 "protocol": protocol.PROTOCOL_VERSION,
                 "server_id": self.server_id,
@@ -415,7 +422,8 @@ class BridgeServer:
                 "robot_id": self._robot_id,
                 "clock": self.clock,
                 "state_persists": self.state_persists,
-                "controller": self._controller,
+                "controlled": lease is not None and lease.idle_s() < self.lease_timeout_s,  # by whom is not said
+                "lease_timeout_s": self.lease_timeout_s,
                 "max_request_bytes": protocol.MAX_REQUEST_BYTES,
                 "max_sleep_s": protocol.MAX_SLEEP_S,
             }
@@ -451,11 +459,15 @@ class BridgeServer:
                 raise ProtocolError(f"sleep: duration_s must be in [0, {protocol.MAX_SLEEP_S:g}] s, got {duration_s}")
             backend.sleep(duration_s)
             return None
+        if cmd == "acquire":
+            return self._acquire(token, args["nonce"])
         if cmd == "release":
-            if self._controller == client:
-                log.info("client %s released motion", client)
-                self._controller = None
-                backend.release_control()
+            lease = self._lease
+            if lease is not None and lease.held_by(token):
+                log.info("the controller released motion")
+                self._lease = None
+                self._journal_event("released", lease)
+                self._release_control()
             return None
         raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this table disagree
 
@@ -492,9 +504,12 @@ def write_curve_keys(directory, name: str = "server") -> tuple[str, str]:
     public_text = f"{banner}metadata\ncurve\n    public-key = \"{public}\"\n"
     secret_text = (f"{banner}#   SECRET: keep it on the machine that uses it.\nmetadata\ncurve\n"
                    f"    public-key = \"{public}\"\n    secret-key = \"{secret}\"\n")
-    atomic_write_bytes(secret_path, secret_text.encode("ascii"))  # mkstemp: created with mode 0600
-    atomic_write_bytes(public_path, public_text.encode("ascii"))
-    os.chmod(public_path, 0o644)
+    try:
+        atomic_write_bytes(secret_path, secret_text.encode("ascii"))  # mkstemp: created with mode 0600
+        atomic_write_bytes(public_path, public_text.encode("ascii"))
+        os.chmod(public_path, 0o644)
+    except OSError as err:
+        raise NaocalError(f"{err.filename or directory}: cannot write the key files: {err.strerror}") from None
     return public_path, secret_path
 
 
@@ -507,3 +522,12 @@ def _request_id_if_valid(message):
         except ProtocolError:
             return None
     return None
+
+
+def _source_fd(frame) -> int | None:
+    """The file descriptor of the connection a message came from (ZMQ_SRCFD), or None where unknown."""
+    try:
+        fd = frame.get(zmq.SRCFD)
+    except (zmq.ZMQError, AttributeError, TypeError, ValueError):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None

@@ -1,12 +1,14 @@
 """The naocal bridge wire protocol (version 1): msgpack maps over ZeroMQ. Specified in docs/PROTOCOL.md.
 
-Request:  {"v": 1, "id": "<client_id>:<seq>", "cmd": str, "args": {...}}
+Request:  {"v": 1, "id": "<client_id>:<seq>", "cmd": str, "args": {...}[, "token": str]}
 Reply:    {"v": 1, "id": <the request's id>, "ok": true, "result": ...}
           {"v": 1, "id": <id or None>, "ok": false, "error": {"type": str, "message": str}}
 
 Only msgpack's plain types cross the wire (nil, bool, int, float, str, bin, array, map with str keys): no pickle,
 no eval, no msgpack extension types. Arrays travel as raw bytes with an explicit shape and dtype. Argument keys
 carry their unit (`targets_rad`, `duration_s`); unknown keys are refused, so a key in the wrong unit never passes.
+Motion needs the lease: `acquire` answers the controller alone with a secret token, which every later request
+carries (backends/bridge_lease.py).
 """
 
 from __future__ import annotations
@@ -28,7 +30,9 @@ MAX_REPLY_BYTES = 16 << 20  # ZMQ_MAXMSGSIZE of the client socket (a VGA BGR ima
 MAX_SLEEP_S = 60.0  # longest single `sleep` the server accepts
 
 REQUEST_KEYS = frozenset({"v", "id", "cmd", "args"})
+OPTIONAL_REQUEST_KEYS = frozenset({"token"})  # the lease token, on every request of the controller
 REQUEST_ID_PATTERN = re.compile(r"^([A-Za-z0-9_.-]{1,64}):([0-9]{1,18})$")
+SECRET_PATTERN = re.compile(r"^[A-Za-z0-9_-]{22,128}$")  # tokens and nonces: at least 128 bits in base64url
 IMAGE_DTYPES = frozenset({"uint8"})
 
 # Error types on the wire. The client re-raises SafetyError and RobotTimeout as themselves, ControlError as
@@ -39,7 +43,7 @@ ERROR_TYPES = (
     "UnknownCommand",
     "TooLarge",
     "StaleRequest",  # a request id older than the replies the server keeps: refused, not executed
-    "ControlError",  # another client holds the motion lease
+    "ControlError",  # no valid lease token: another client controls motion, or this one has not acquired it
     "SafetyError",
     "RobotTimeout",
     "NaocalError",
@@ -78,6 +82,12 @@ def _float_map(value, key):
     return out
 
 
+def _secret(value, key):
+    if not isinstance(value, str) or not SECRET_PATTERN.match(value):
+        raise ProtocolError(f"{key} must be 22-128 characters of [A-Za-z0-9_-]")
+    return value
+
+
 def _str_list(value, key):
     if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
         raise ProtocolError(f"args.{key} must be an array of strings")
@@ -100,6 +110,7 @@ COMMANDS = {
     "command": ({"targets_rad": _float_map, "speed_fraction": _finite_or_nan_float}, True),
     "set_stiffness": ({"names": _str_list, "stiffness": _finite_or_nan_float}, True),
     "sleep": ({"duration_s": _finite_or_nan_float}, True),
+    "acquire": ({"nonce": _secret}, False),  # -> {"token", "lease_timeout_s"}; ControlError if another holds it
     "release": ({}, False),
 }
 MOTION_COMMANDS = frozenset(cmd for cmd, (_, motion) in COMMANDS.items() if motion)
@@ -159,8 +170,18 @@ def parse_request_id(request_id) -> tuple[str, int]:
     return match.group(1), int(match.group(2))
 
 
-def make_request(request_id: str, cmd: str, args: dict | None = None) -> dict:
-    return {"v": PROTOCOL_VERSION, "id": request_id, "cmd": cmd, "args": dict(args or {})}
+def make_request(request_id: str, cmd: str, args: dict | None = None, token: str | None = None) -> dict:
+    request = {"v": PROTOCOL_VERSION, "id": request_id, "cmd": cmd, "args": dict(args or {})}
+    if token is not None:
+        request["token"] = token
+    return request
+
+
+def request_token(message: dict) -> str | None:
+    """The lease token a validated request carries, or None."""
+    if "token" not in message:
+        return None
+    return _secret(message["token"], "'token'")
 
 
 def validate_request(message) -> tuple[str, str, dict]:
@@ -173,10 +194,10 @@ def validate_request(message) -> tuple[str, str, dict]:
             "UnsupportedVersion",
         )
     missing = REQUEST_KEYS - message.keys()
-    extra = message.keys() - REQUEST_KEYS
+    extra = message.keys() - REQUEST_KEYS - OPTIONAL_REQUEST_KEYS
     if missing or extra:
-        raise ProtocolError(f"request keys must be {sorted(REQUEST_KEYS)}; missing {sorted(missing)}, "
-                            f"unexpected {sorted(map(str, extra))}")
+        raise ProtocolError(f"request keys must be {sorted(REQUEST_KEYS)} (and optionally 'token'); missing "
+                            f"{sorted(missing)}, unexpected {sorted(map(str, extra))}")
     request_id = message["id"]
     parse_request_id(request_id)
     cmd = message["cmd"]

@@ -121,3 +121,43 @@ def serving(backend, bind="tcp://127.0.0.1:0", **kwargs):
         yield server
     finally:
         server.stop()
+
+
+class RawClient:
+    """A bare DEALER socket that speaks the protocol by hand, as a stranger on the network (or another program)
+    would: any request id, any token, no Lazy Pirate."""
+
+    def __init__(self, endpoint: str):
+        import zmq
+
+        self._zmq = zmq
+        self.socket = zmq.Context.instance().socket(zmq.DEALER)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.connect(endpoint)
+
+    def send(self, payload: bytes, timeout_s: float = 2.0):
+        """Send one payload frame; the decoded reply, or None if none came in time."""
+        from backends import protocol
+
+        self.socket.send_multipart([b"", payload])
+        if not self.socket.poll(timeout_s * 1000):
+            return None
+        return protocol.unpack(self.socket.recv_multipart()[-1], max_bytes=protocol.MAX_REPLY_BYTES)
+
+    def request(self, request_id: str, cmd: str, args: dict | None = None, token: str | None = None, **kwargs):
+        from backends import protocol
+
+        message = protocol.make_request(request_id, cmd, args)
+        if token is not None:
+            message["token"] = token
+        return self.send(protocol.pack(message), **kwargs)
+
+    def close(self) -> None:
+        self.socket.close(linger=0)
+
+
+MOTION_ARGS = {  # one valid request of each motion command
+    "command": {"targets_rad": {"HeadYaw": 0.3}, "speed_fraction": 0.2},
+    "set_stiffness": {"names": ["HeadYaw"], "stiffness": 0.0},
+    "sleep": {"duration_s": 5.0},
+}

@@ -25,9 +25,9 @@ def naocal(*argv):
     return [sys.executable, "-m", "tools", *argv]
 
 
-def start_server(seed):
+def start_server(seed, *options):
     server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--seed", str(seed), "--bind",
-                                     "tcp://127.0.0.1:0"), cwd=ROOT, stdout=subprocess.PIPE, text=True)
+                                     "tcp://127.0.0.1:0", *options), cwd=ROOT, stdout=subprocess.PIPE, text=True)
     selector = selectors.DefaultSelector()
     selector.register(server.stdout, selectors.EVENT_READ)
     deadline = time.monotonic() + 120.0
@@ -120,3 +120,42 @@ def start_server_at(seed, endpoint):
         server.wait(timeout=30)
         time.sleep(0.2)
     pytest.fail(f"could not restart the mock server on {endpoint}")
+
+
+@pytest.mark.slow
+def test_an_agent_killed_with_sigkill_resumes_at_once_under_its_own_lease(tmp_path):
+    """SIGKILL sends no `release`: the server keeps the lease for its timeout, here an hour. The resumed run takes
+    it back with the token in DIR/bridge.token instead of failing or waiting; a stranger still cannot."""
+    from backends.bridge import BridgeBackend
+    from backends.protocol import ControlError
+    from solver.dataset import read_dataset
+
+    out = tmp_path / "run"
+    small_plan = ("--stances-per-leg", "6", "--no-probe", "--no-progress")
+    server, endpoint = start_server(SEED, "--lease-timeout-s", "3600")
+    try:
+        agent = subprocess.Popen(naocal("calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out),
+                                        *small_plan), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 300.0
+        observations = out / "dataset" / "observations.csv"
+        while not (observations.exists() and observations.read_text().count("\n") > 24 * 6):
+            assert agent.poll() is None and time.monotonic() < deadline, "the calibration did not get going"
+            time.sleep(0.2)
+        agent.send_signal(signal.SIGKILL)
+        agent.wait(timeout=30)
+        assert (out / "bridge.token").stat().st_mode & 0o777 == 0o600
+        stranger = BridgeBackend(endpoint, timeout_s=30.0)
+        with pytest.raises(ControlError, match="another client controls the robot"):
+            stranger.command({"HeadYaw": 0.0}, 0.1)
+        stranger.close()
+        resumed = subprocess.run(naocal("calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out),
+                                        "--resume", *small_plan), cwd=ROOT, capture_output=True, text=True,
+                                 timeout=900)
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=60)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "took back the motion lease" in (out / "calibrate.log").read_text()
+    images = list(read_dataset(out / "dataset").columns["image"])
+    assert len(images) == 24 * len(set(images))  # every capture once
+    assert not (out / "bridge.token").exists()  # released at the end

@@ -34,8 +34,8 @@ def sent_targets(fake):
 
 def test_a_dropped_reply_is_retried_and_the_motion_runs_once():
     fake = FakeBackend()
-    # Request ids: 'tester:1' is the client's hello, then the commands; after each lost reply the client
-    # reconnects and says hello again (to notice a restarted server), which takes one more id.
+    # Request ids: 'tester:1' is the client's hello, 'tester:2' its acquire, then the commands; after each lost
+    # reply the client reconnects and says hello again (to notice a restarted server), which takes one more id.
     faults = FaultInjector(drop_first_reply_of={"tester:3", "tester:5"})
     with serving(fake, faults=faults) as server:
         bridge = client(server.endpoint)
@@ -50,8 +50,9 @@ def test_a_slow_reply_after_the_client_timeout_is_deduplicated():
     faults = FaultInjector(delay_first_reply_of={"tester:2": 2.5 * TIMEOUT_S, "tester:4": 2.5 * TIMEOUT_S})
     with serving(fake, faults=faults) as server:
         bridge = client(server.endpoint)
-        bridge.command(TARGETS[0], 0.2)  # tester:2: answered late, retried, answered from the cache
-        bridge.command(TARGETS[1], 0.2)  # tester:4 (3 was the hello after reconnecting): the same again
+        # tester:2, the acquire, is answered late and retried: the retry gets the same token, not a ControlError.
+        bridge.command(TARGETS[0], 0.2)  # tester:4 (3 was the hello after reconnecting): late, retried, from cache
+        bridge.command(TARGETS[1], 0.2)
         bridge.set_stiffness(["HeadYaw"], 1.0)
         bridge.command(TARGETS[2], 0.2)
     assert sent_targets(fake) == TARGETS[:3]
@@ -60,10 +61,10 @@ def test_a_slow_reply_after_the_client_timeout_is_deduplicated():
 
 def test_a_slow_sleep_on_the_simulated_clock_advances_it_once():
     fake = FakeBackend()
-    with serving(fake, faults=FaultInjector(delay_first_reply_of={"tester:2": 2.5 * TIMEOUT_S})) as server:
+    with serving(fake, faults=FaultInjector(delay_first_reply_of={"tester:3": 2.5 * TIMEOUT_S})) as server:
         bridge = client(server.endpoint)
         bridge.server_info()  # tester:1
-        bridge.sleep(0.5)  # tester:2
+        bridge.sleep(0.5)  # tester:2 acquires, tester:3 sleeps
         assert bridge.now() == pytest.approx(0.5)
     assert fake.executed["sleep"] == 1
 
@@ -96,7 +97,7 @@ def test_server_restarted_in_the_middle_of_a_sequence_of_commands():
 def test_a_server_that_dies_after_executing_answers_the_retry_from_its_journal(tmp_path, with_journal):
     fake = FakeBackend()
     journal = tmp_path / "replies.journal" if with_journal else None
-    faults = FaultInjector(crash_after_executing={"tester:4"})
+    faults = FaultInjector(crash_after_executing={"tester:5"})
     first = BridgeServer(fake, "tcp://127.0.0.1:0", journal_path=journal, faults=faults).start_thread()
     endpoint = first.endpoint
     bridge = client(endpoint, retries=8)
@@ -107,7 +108,7 @@ def test_a_server_that_dies_after_executing_answers_the_retry_from_its_journal(t
         bridge.command(TARGETS[0], 0.2)
         bridge.command(TARGETS[1], 0.2)
         restart.start()
-        bridge.command(TARGETS[2], 0.2)  # tester:4 (1 is the hello): executed by the first server, which died
+        bridge.command(TARGETS[2], 0.2)  # tester:5 (1 hello, 2 acquire): executed by the first server, which died
         bridge.command(TARGETS[3], 0.2)
     finally:
         restart.join()
@@ -116,7 +117,7 @@ def test_a_server_that_dies_after_executing_answers_the_retry_from_its_journal(t
             server.stop()
     if with_journal:
         assert sent_targets(fake) == TARGETS[:4]
-    else:  # the in-memory reply cache died with the server: this is what the journal is for
+    else:  # the lease and its replies died with the server (the client acquired anew): what the journal is for
         assert sent_targets(fake) == TARGETS[:3] + [TARGETS[2], TARGETS[3]]
 
 
@@ -276,11 +277,16 @@ def test_a_very_late_duplicate_is_refused_not_executed():
         socket.setsockopt(zmq.LINGER, 0)
         socket.connect(server.endpoint)
 
-        def request(seq, targets):
-            message = protocol.make_request(f"late:{seq}", "command", {"targets_rad": targets, "speed_fraction": 0.2})
+        def send(message):
             socket.send_multipart([b"", protocol.pack(message)])
             assert socket.poll(2000)
             return protocol.unpack(socket.recv_multipart()[-1], max_bytes=1 << 20)
+
+        token = send(protocol.make_request("late:0", "acquire", {"nonce": "n" * 22}))["result"]["token"]
+
+        def request(seq, targets):
+            return send(protocol.make_request(f"late:{seq}", "command", {"targets_rad": targets, "speed_fraction": 0.2},
+                                              token=token))
 
         for seq in (1, 2, 3):
             assert request(seq, TARGETS[seq])["ok"]

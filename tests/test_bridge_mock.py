@@ -68,8 +68,10 @@ def test_bridge_serve_mock_answers_ping_and_stops_on_sigint():
         selector.register(server.stdout, selectors.EVENT_READ)
         assert selector.select(timeout=60), "the server did not start within 60 s"
         line = server.stdout.readline()
-        assert line.startswith("naocal bridge: serving mock on tcp://127.0.0.1:"), (line, server.stderr.read())
+        assert line.startswith("naocal bridge: serving mock on tcp://127.0.0.1:"), line
         endpoint = line.split(" on ")[1].strip()
+        # The next line says whether CURVE is on (here: off, traffic in clear).
+        assert server.stdout.readline() == "naocal bridge: CURVE off: unencrypted, any client\n"
         ping = subprocess.run([sys.executable, "-c", CLI, "bridge", "ping", "--endpoint", endpoint], cwd=ROOT,
                               capture_output=True, text=True, timeout=60)
         assert ping.returncode == 0, ping.stderr

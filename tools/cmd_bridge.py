@@ -92,7 +92,8 @@ def _serve(args) -> int:
     import logging
     import signal
 
-    from backends.bridge_server import BridgeServer, check_bind_address, keep_large_buffers_in_heap
+    from backends.bridge_guard import raise_fd_limit
+    from backends.bridge_server import BridgeServer, check_bind_address, check_lease_timeout, keep_large_buffers_in_heap
     from solver.errors import NaocalError
 
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
@@ -100,7 +101,9 @@ def _serve(args) -> int:
     if args.curve_clients and not args.curve_secret_key:
         raise NaocalError("--curve-clients needs --curve-secret-key")
     check_bind_address(args.bind, args.allow_remote)  # before anything touches the robot
+    check_lease_timeout(args.lease_timeout_s)
     keep_large_buffers_in_heap()  # 5x faster image replies
+    raise_fd_limit()  # room for a flood of connections (backends/bridge_guard.py)
     backend, clock, state_persists = _open_backend(args)
     try:
         server = BridgeServer(
@@ -115,7 +118,10 @@ def _serve(args) -> int:
 
         signal.signal(signal.SIGINT, request_stop)
         signal.signal(signal.SIGTERM, request_stop)
-        print(f"naocal bridge: serving {args.driver} on {server.endpoint}", flush=True)
+        # The first line stays "serving DRIVER on ENDPOINT" (scripts read the endpoint after " on "); the next
+        # says whether CURVE is on.
+        print(f"naocal bridge: serving {args.driver} on {server.endpoint}\n"
+              f"naocal bridge: {server.security_summary()}", flush=True)
         server.serve_forever()
     finally:
         backend.close()
@@ -202,5 +208,7 @@ def _keygen(args) -> int:
     from backends.bridge_server import write_curve_keys
 
     public_path, secret_path = write_curve_keys(args.out, args.name)
-    print(f"public key (give to clients): {public_path}\nsecret key (keep on the server): {secret_path}")
+    print(f"public key: {public_path}\n  give it to the other side: a server's key to its clients "
+          "(--curve-server-key or $NAOCAL_CURVE_SERVER_KEY), a client's key into the server's --curve-clients DIR\n"
+          f"secret key: {secret_path}\n  keep it on the machine that uses it (mode 0600) and copy it nowhere else")
     return 0

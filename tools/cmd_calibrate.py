@@ -136,6 +136,9 @@ def run(args) -> int:
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
+        from backends.bridge_endpoint import check_client_endpoint
+
+        check_client_endpoint(args.endpoint)
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
     elif args.endpoint:
@@ -189,9 +192,11 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
                                              if effects else "") + ")"
         truth = backend.truth_dict()
     else:
+        from agent.rundir import BRIDGE_TOKEN_NAME
         from backends.bridge import BridgeBackend
 
-        backend = BridgeBackend(args.endpoint)
+        # The lease token stays with the run, so `--resume` after a crash takes the robot back at once.
+        backend = BridgeBackend(args.endpoint, lease_file=out / BRIDGE_TOKEN_NAME)
         label = f"bridge {args.endpoint}"
     try:
         if not (out / RECORD_NAME).exists():
