@@ -34,8 +34,8 @@ class RunningEstimate:
     camera_prior : {"roll", "pitch", "yaw"} rad to start from (the planner's prior camera rotation).
     """
 
-    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 12, min_leg_fit: int = 6,
-                 camera_prior=None):
+    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 9, min_leg_fit: int = 6,
+                 camera_prior=None, max_joint_offset_rad: float = np.radians(20.0)):
         self.intrinsics = dict(intrinsics)
         self.intrinsics.setdefault("distortion", [0.0] * 5)
         self.values = FULL.zeros()
@@ -47,6 +47,9 @@ class RunningEstimate:
         self.known_legs: frozenset = frozenset()  # legs whose offsets and mount the current values have fitted
         self.n_fitted = 0  # captures the current values were fitted to (0: nominal model)
         self.scope = "nominal"
+        self.std = FULL.zeros()  # standard deviations of `values` from their fit (0: not fitted)
+        self.covariance = np.zeros((len(FULL.names), len(FULL.names)))  # ... and their covariance
+        self.max_joint_offset_rad = float(max_joint_offset_rad)  # a fit claiming more is not believed
         self._theta, self._leg, self._uv = [], [], []
 
     @property
@@ -77,7 +80,33 @@ class RunningEstimate:
         for leg in self.known_legs:
             for joint in leg_joints(leg):
                 alpha[JOINTS.index(joint)] = self.values[FULL.index[f"joint_offset.{joint}"]]
+        if len(self.known_legs) == 1:  # one HipYawPitch motor: the fitted leg's offset is the other's too
+            known = next(iter(self.known_legs))
+            alpha[[JOINTS.index(f"{leg}HipYawPitch") for leg in LEGS]] = alpha[JOINTS.index(f"{known}HipYawPitch")]
         return alpha
+
+    def joint_covariance(self, prior14, *, n_std: float = 4.0, floor_rad: float = np.radians(0.1)) -> np.ndarray:
+        """(14, 14) covariance (rad^2) of the joints' true offsets around joint_alpha(), for the safety check (which
+        keeps 3 standard deviations away): prior14 (14, 14) for the joints of a leg not fitted yet; for a fitted
+        leg the fit's covariance scaled so that 3 of the check's standard deviations are n_std of the fit's, plus
+        floor_rad (read as 3 standard deviations) for what the fit does not know. Both HipYawPitch joints are one
+        motor: once either leg is fitted, its offset and variance hold for both."""
+        C = np.asarray(prior14, dtype=float).copy()
+        known = [JOINTS.index(j) for leg in self.known_legs for j in leg_joints(leg)]
+        if not known:
+            return C
+        rows = [FULL.index[f"joint_offset.{JOINTS[k]}"] for k in known]
+        C[known, :] = 0.0
+        C[:, known] = 0.0
+        C[np.ix_(known, known)] = self.covariance[np.ix_(rows, rows)] * (n_std / 3.0) ** 2
+        C[known, known] += (floor_rad / 3.0) ** 2
+        hyp = [JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]
+        fitted = hyp[0] if "L" in self.known_legs else hyp[1]
+        other = hyp[1] if fitted == hyp[0] else hyp[0]
+        C[other, :] = C[fitted, :]  # the other HipYawPitch joint: the same motor, the same offset
+        C[:, other] = C[:, fitted]
+        C[other, other] = C[fitted, fitted]
+        return C
 
     def board_mounts(self) -> dict:
         """{leg: (rot_z rad, trans_x m, trans_y m)} as estimated; zero for a leg not fitted yet."""
@@ -130,9 +159,19 @@ class RunningEstimate:
             except SolveError:
                 continue
             joints = [result.value(n) for n in result.registry.names if n.startswith("joint_offset.")]
-            plausible = bool(np.all(np.abs(joints) < np.radians(10.0)))
+            plausible = bool(np.all(np.abs(joints) < self.max_joint_offset_rad))
             if result.success and max(result.rms_px) < 20.0 and plausible:
                 self.values = FULL.from_dict({name: result.value(name) for name in result.registry.names})
+                std = dict(zip(result.registry.names, result.std))
+                self.std = np.array([std.get(name, 0.0) for name in FULL.names])
+                expand = result.registry.expand  # free parameters -> the registry's names
+                covariance = expand @ result.covariance @ expand.T
+                where = [result.registry.names.index(name) if name in result.registry.names else -1
+                         for name in FULL.names]
+                self.covariance = np.zeros((len(FULL.names), len(FULL.names)))
+                ok = np.array([w >= 0 for w in where])
+                idx = np.array([w for w in where if w >= 0])
+                self.covariance[np.ix_(ok, ok)] = covariance[np.ix_(idx, idx)]
                 self.n_fitted = n
                 self.scope = scope
                 self.known_legs = frozenset(leg for leg in LEGS if leg not in learning and registry is full)

@@ -21,14 +21,16 @@ import numpy as np
 from agent.corners import detect_board_vertices
 from agent.estimate import RunningEstimate
 from agent.plan import Plan, Still, Sweep
+from agent.planner import PlanSettings
 from agent.progress import ProgressBar
 from agent.record import CaptureRecord, CaptureStore
 from agent.robot import Robot
-from agent.visibility import view_margin_px
+from agent.safety import prior_covariance
+from agent.visibility import OcclusionChecker, view_margin_px
 from solver.errors import SafetyError
 from solver.joints import JOINTS
 from solver.limits import head_pitch_limits
-from solver.model import HEAD_COLUMNS
+from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 
 log = logging.getLogger(__name__)
 
@@ -75,9 +77,13 @@ class Measurement:
         self.settings = settings
         self.progress = progress
         self.intrinsics = estimate.intrinsics
+        stored = PlanSettings.from_dict(plan.settings)  # the plausible offsets the plan was made for
+        self.offset_prior = prior_covariance(np.radians(stored.hip_yaw_pitch_offset_prior_deg),
+                                             np.radians(stored.leg_offset_prior_deg))
         self.session_start_s = robot.now()
         self.n_saved = 0
         self.n_skipped = 0
+        self._substitutes: dict = {}  # (leg, stance) -> leg angles (6,) replacing a stance unsafe on this robot
 
     # --- bookkeeping -------------------------------------------------------------------------------------------
     def session_time_s(self) -> float:
@@ -107,7 +113,8 @@ class Measurement:
     def _update_guard(self) -> None:
         """Let the safety check use what the estimate knows: joints truly stand at command + alpha, sandals sit
         where they are mounted."""
-        self.robot.guard.set_true_offset(self.estimate.joint_alpha(), known=self.estimate.offsets_known())
+        self.robot.guard.set_true_offset(self.estimate.joint_alpha(), known=self.estimate.offsets_known(),
+                                         covariance14=self.estimate.joint_covariance(self.offset_prior))
         if self.robot.guard.set_board_mounts(self.estimate.board_mounts()):
             log.info("safety check updated with the estimated sandal mounts")
 
@@ -118,14 +125,26 @@ class Measurement:
             log.info("resuming: %d of %d captures already done", len(done & set(self.plan.image_indices())),
                      self.plan.n_images())
         self._tick()
-        for step in self.plan.steps:
+        deferred: list[Still] = []  # refused while the leg's offsets were too uncertain: tried again later
+        steps = list(self.plan.steps)
+        for k, step in enumerate(steps):
             if all(i in done for i in step.images):
                 continue
             if isinstance(step, Still):
-                self.still(step)
+                if self.still(step, may_defer=True) == "deferred":
+                    deferred.append(step)
             else:
                 self.sweep(step, done)
             done = self.store.done_images()
+            following = steps[k + 1] if k + 1 < len(steps) else None
+            if deferred and (following is None or following.leg != step.leg or not isinstance(following, Still)):
+                self.estimate.refit()  # the leg's other stances have taught the estimate where it truly is
+                self._update_guard()
+                for again in deferred:
+                    self.still(again)
+                    done = self.store.done_images()
+                    self._tick()
+                deferred = []
             self._tick()
         try:
             self.robot.move(self.robot.parked)  # leave the robot in a safe posture
@@ -146,15 +165,34 @@ class Measurement:
         return self.detector(image, predicted, leg, self._search_margin(leg, attempt)), predicted
 
     # --- still captures ----------------------------------------------------------------------------------------
-    def still(self, step: Still) -> None:
-        target = self.aim(step.angles(), step.leg)
+    def still(self, step: Still, *, may_defer: bool = False) -> str:
+        """Capture one planned still image; 'saved', 'skipped', or 'deferred' (`may_defer`: the move was refused
+        only because the joint offsets are not known well enough yet). A stance that is unsafe on this robot (its
+        offsets move the legs by centimetres from the nominal model the plan was made on) is replaced by a nearby
+        one the estimate says is safe and sees the board (`substitute`), the same for all its head postures."""
+        planned = self._substituted(step)
+        target = self.aim(planned, step.leg)
         reasons = []
         for attempt in range(self.settings.detection_tries):
             try:
                 rest = self.robot.move(target)
             except SafetyError as err:
-                reasons.append(str(err))
-                break
+                if may_defer and attempt == 0 and self.robot.guard.uncertain():
+                    log.info("capture %d deferred until the offsets are better known: %s", step.image, err)
+                    return "deferred"
+                replacement = self.substitute(step) if attempt == 0 and step.leg in self.estimate.known_legs else None
+                if replacement is not None:
+                    log.info("capture %d: the planned stance is unsafe on this robot (%s); a nearby one instead",
+                             step.image, err)
+                    target = self.aim(replacement, step.leg)
+                    try:
+                        rest = self.robot.move(target)
+                    except SafetyError as again:
+                        reasons.append(f"{err}; the substitute too: {again}")
+                        break
+                else:
+                    reasons.append(str(err))
+                    break
             if self.settings.wait_for_still_image:
                 image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s)
             else:
@@ -169,7 +207,7 @@ class Measurement:
                 self._save(record, image.pixels)
                 self.estimate.add(step.leg, theta, record.vertices_px)
                 self._update_guard()
-                return
+                return "saved"
             reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
             log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
                      detection.reason, detection.detail)
@@ -178,6 +216,60 @@ class Measurement:
                 reasons.append("no safe head move left to retry with")
                 break
         self._skip(step.image, "; ".join(reasons))
+        return "skipped"
+
+    def _substituted(self, step: Still) -> np.ndarray:
+        """The step's posture, with its stance's substitute leg angles if it has one."""
+        q = np.asarray(step.angles(), dtype=float)
+        legs = self._substitutes.get((step.leg, step.stance))
+        if legs is not None:
+            q = q.copy()
+            q[LEG_COLUMNS[step.leg]] = legs
+            q[[JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]] = legs[0]  # one motor
+        return q
+
+    def substitute(self, step: Still, *, tries_per_scale: int = 25) -> np.ndarray | None:
+        """A posture near the step's that the guard accepts (at the estimated offsets, with their uncertainty) and
+        in which the estimate sees the whole board (all vertices 30 px inside the image, squares of 12 px, nothing
+        of the robot in between), or None. Deterministic from the image index; remembered for the whole stance."""
+        base = np.asarray(step.angles(), dtype=float)
+        cols = LEG_COLUMNS[step.leg]
+        guard = self.robot.guard
+        rng = np.random.default_rng([step.image, 6007])
+        hyp = [JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]
+        occlusion = OcclusionChecker(guard.checker.body)
+        alpha = self.estimate.joint_alpha()
+        ways_tried = 0
+        for scale in (0.08, 0.16, 0.3):
+            for _ in range(tries_per_scale):
+                if ways_tried == 4:  # finding a way is the costly part: a few candidates only
+                    return None
+                q = base.copy()
+                q[cols] = np.clip(q[cols] + rng.normal(0.0, scale, len(cols)), guard.lower[cols] + 0.03,
+                                  guard.upper[cols] - 0.03)
+                q[hyp] = q[cols[0]]
+                if not self._board_in_view(q, step.leg) or guard.problem(q) is not None:
+                    continue
+                if occlusion.hidden_points(q + alpha, step.leg):
+                    continue
+                ways_tried += 1
+                try:  # and there is a way to it
+                    guard.waypoints(self.robot.commanded, q, self.robot.speed_fraction, self.robot.parked)
+                except SafetyError:
+                    continue
+                self._substitutes[(step.leg, step.stance)] = q[cols].copy()
+                return q
+        return None
+
+    def _board_in_view(self, q14, leg, margin_px: float = 30.0, min_square_px: float = 12.0) -> bool:
+        uv = self.estimate.predict(leg, q14)
+        if not np.all(np.isfinite(uv)):
+            return False
+        if view_margin_px(uv[None], self.intrinsics["width_px"], self.intrinsics["height_px"])[0] < margin_px:
+            return False
+        grid = uv.reshape(4, 6, 2)
+        return min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+                   np.linalg.norm(np.diff(grid, axis=1), axis=-1).min()) >= min_square_px
 
     def _head_ok(self, q14) -> bool:
         return self.robot.guard.problem(q14) is None

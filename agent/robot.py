@@ -116,7 +116,9 @@ class Robot:
             t, q = self.read()
             if not window or t > window[-1][0]:
                 window.append((t, q))
-            while window and window[-1][0] - window[0][0] > tm.still_window_s + 1e-9:
+            # Keep the shortest run of samples that spans the window (sampling periods need not divide it:
+            # LoLA samples every 12 ms).
+            while len(window) > 1 and window[-1][0] - window[1][0] >= tm.still_window_s - 1e-9:
                 window.popleft()
             if window[-1][0] - window[0][0] >= tm.still_window_s - 1e-9:
                 angles = np.array([w[1] for w in window])

@@ -88,7 +88,7 @@ DEFAULT_POSTURE = {
 
 # A robot with real-size offsets (HipYawPitch up to 12 deg turns both feet) starts with its legs spread wider, so
 # that its sandals clear each other whatever its offsets.
-SPREAD_POSTURE = {**DEFAULT_POSTURE, "LHipRoll": 0.6, "RHipRoll": -0.6}
+SPREAD_POSTURE = {**DEFAULT_POSTURE, "LHipRoll": 0.6, "RHipRoll": -0.6, "LAnkleRoll": 0.2, "RAnkleRoll": -0.2}
 
 
 def parse_effects(items) -> dict[str, float]:
@@ -483,6 +483,14 @@ class MockBackend(Backend):
         self._frames.clear()
         self.body.close()
 
+    def faulty(self, detector):
+        """`detector` with this mock's corner fault model (Realism.corner_fault_rate; backends.mock_faults), or
+        `detector` itself when the rate is 0 (the ideal mock)."""
+        from backends.mock_faults import FaultyDetector
+
+        rate = self.realism.corner_fault_rate
+        return FaultyDetector(detector, rate, self.seed) if rate > 0 else detector
+
     # --- Truth, for tests -------------------------------------------------------------------------------------------
     def truth_dict(self) -> dict:
         """The hidden truth in the `naocal.truth/1` format."""
@@ -510,7 +518,12 @@ class MockBackend(Backend):
             "distortion": {"k1": float(t.camera.k1)},
             "time_lag": {"image_stamp_late_s": float(t.time_lag_s)},
         }
-        return {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
+        out = {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
+        if not self.realism.is_ideal:  # what a realistic robot has besides the effects
+            out["realism"] = {"settings": self.realism.to_dict(),
+                              "intrinsics": {k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px",
+                                                                                     "cy_px")}}
+        return out
 
     def true_angles(self, t_s: float | None = None) -> dict[str, float]:
         """The true joint angles (rad) at robot time t_s (default now)."""

@@ -322,6 +322,23 @@ def bgr_to_yuyv(bgr: np.ndarray, rng=None, *, luma_noise_std: float = 0.0, chrom
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
+def grey_to_yuyv(grey: np.ndarray, rng=None, *, luma_noise_std: float = 0.0, chroma_noise_std: float = 0.0
+                 ) -> np.ndarray:
+    """bgr_to_yuyv of a grey scene (h, w) in 0..1 (B = G = R), without building the colour image: Y = 16 + 219 grey,
+    Cb = Cr = 128, plus the same sensor noise."""
+    h, w = grey.shape
+    if w % 2:
+        raise ValueError("YUYV needs an even image width")
+    out = np.empty((h, w, 2), dtype=np.float32)
+    out[..., 0] = 16.0 + 219.0 * np.asarray(grey, dtype=np.float32)
+    out[..., 1] = 128.0
+    if rng is not None and luma_noise_std > 0:
+        out[..., 0] += rng.standard_normal((h, w), dtype=np.float32) * luma_noise_std
+    if rng is not None and chroma_noise_std > 0:
+        out[..., 1] += rng.standard_normal((h, w), dtype=np.float32) * chroma_noise_std  # Cb, Cr: half resolution
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
 def yuyv_to_bgr(yuyv: np.ndarray) -> np.ndarray:
     """BGR (h, w, 3) uint8 of a YUYV image (h, w, 2), as a V4L2 client converts it (OpenCV)."""
     return cv2.cvtColor(np.ascontiguousarray(yuyv), cv2.COLOR_YUV2BGR_YUYV)
@@ -334,8 +351,7 @@ def form_image(grey: np.ndarray, rng, *, luma_noise_std: float, chroma_noise_std
     grey = np.asarray(grey, dtype=np.float32)
     if defocus_sigma_px > 0:
         grey = cv2.GaussianBlur(grey, (0, 0), defocus_sigma_px, borderType=cv2.BORDER_REPLICATE)
-    bgr = np.repeat((grey * 255.0)[:, :, None], 3, axis=2)
     if not yuyv:
-        noisy = bgr + rng.standard_normal(grey.shape, dtype=np.float32)[:, :, None] * luma_noise_std
-        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
-    return yuyv_to_bgr(bgr_to_yuyv(bgr, rng, luma_noise_std=luma_noise_std, chroma_noise_std=chroma_noise_std))
+        noisy = grey * 255.0 + rng.standard_normal(grey.shape, dtype=np.float32) * luma_noise_std
+        return np.repeat(np.clip(np.rint(noisy), 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    return yuyv_to_bgr(grey_to_yuyv(grey, rng, luma_noise_std=luma_noise_std, chroma_noise_std=chroma_noise_std))

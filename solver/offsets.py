@@ -28,7 +28,7 @@ SCHEMA = "naocal.offsets/1"
 BACKUP_SUFFIX = ".bak"
 
 # Plausible sizes: anything beyond is a damaged file, a unit mix-up (degrees written as radians) or a broken robot.
-MAX_JOINT_OFFSET_RAD = math.radians(10.0)
+MAX_JOINT_OFFSET_RAD = math.radians(20.0)  # real robots: HipYawPitch up to 11.5 deg (HULKs body configs)
 MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
 MAX_BOARD_TRANS_M = 0.03
 MAX_BOARD_ROT_Z_RAD = math.radians(15.0)

@@ -10,7 +10,7 @@ from agent.corners import detect_board_vertices
 from backends.mock import MockBackend, draw_truth
 from backends.mock_faults import FaultyDetector, draw_faults
 from backends.mock_realism import IDEAL, REALISTIC, Realism, as_realism
-from backends.mock_render import bgr_to_yuyv, yuyv_to_bgr
+from backends.mock_render import bgr_to_yuyv, grey_to_yuyv, yuyv_to_bgr
 from backends.mock_servo import SecondOrder, rest_offset
 from solver.errors import NaocalError
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, leg_joints
@@ -272,6 +272,8 @@ def test_yuyv_round_trip_halves_the_chroma_resolution():
     assert np.max(np.abs(stripes - back)) > 60  # so the stripes' colours are lost
     with pytest.raises(ValueError):
         bgr_to_yuyv(np.zeros((4, 5, 3)))
+    scene = rng.uniform(0, 1, (8, 16)).astype(np.float32)  # the mock's grey scenes take a shortcut: the same
+    assert np.array_equal(grey_to_yuyv(scene), bgr_to_yuyv(np.repeat(scene[:, :, None] * 255.0, 3, axis=2)))
 
 
 def test_realistic_images_are_yuyv_noisy_and_slightly_defocused(realistic):

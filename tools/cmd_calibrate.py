@@ -27,6 +27,10 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
                         "head_offsets, intrinsics, distortion, time_lag")
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+                   help="mock: ideal (default: exact servos, 0.1 deg readings, small offsets) or realistic (a NAO V6 "
+                        "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "
+                        "deg, faulty corners; docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper",
                    help="paper: 24 random stances per leg x 3 head postures (default); optimal: greedy D-optimal "
                         "stances reaching the paper plan's precision")
@@ -35,6 +39,11 @@ def register(subparsers):
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe (slow sweeps; see docs/AGENT.md)")
     p.add_argument("--speed", type=float, default=0.4, metavar="F",
                    help="fraction of the joints' maximum speed for moves between stances (default 0.4)")
+    p.add_argument("--max-joint-offset-deg", type=float, default=20.0, metavar="DEG",
+                   help="refuse a calibration with a larger joint offset (default 20, the offsets file's limit; a "
+                        "warning above 8)")
+    p.add_argument("--max-camera-rotation-deg", type=float, default=15.0, metavar="DEG",
+                   help="refuse a calibration with a larger camera rotation (default 15; a warning above 7)")
     p.add_argument("--no-images", action="store_true", help="do not keep the captured images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(run=run)
@@ -52,15 +61,28 @@ def check_common(args) -> None:
         raise NaocalError(f"--stances-per-leg must be within 1..200, got {args.stances_per_leg}")
     if not 0.0 < args.speed <= 1.0:
         raise NaocalError(f"--speed must be within (0, 1], got {args.speed}")
+    for option, limit in (("max_joint_offset_deg", 20.0), ("max_camera_rotation_deg", 15.0)):
+        value = getattr(args, option, limit)
+        if not 0.0 < value <= limit:
+            raise NaocalError(f"--{option.replace('_', '-')} must be within (0, {limit:g}] (the offsets file's limit), "
+                              f"got {value}")
 
 
 def settings_from_args(args, *, seed: int, source: str):
     from agent.planner import PlanSettings
     from agent.states import AgentSettings
 
+    import math
+
+    from agent.states import Thresholds
+
     plan = PlanSettings(kind=args.plan, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
+    thresholds = Thresholds(
+        max_joint_offset_rad=math.radians(getattr(args, "max_joint_offset_deg", 20.0)),
+        max_camera_rotation_rad=math.radians(getattr(args, "max_camera_rotation_deg", 15.0)))
     return AgentSettings(seed=seed, plan=plan, speed_fraction=args.speed, resume=getattr(args, "resume", False),
-                         save_images=not args.no_images, progress_bar=not args.no_progress, source=source)
+                         save_images=not args.no_images, progress_bar=not args.no_progress, source=source,
+                         thresholds=thresholds)
 
 
 def check_out_dir(out, *, resume: bool, plan_seed: int) -> None:
@@ -95,6 +117,9 @@ def run(args) -> int:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
+        if args.mock != "ideal":
+            raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
+                              "`naocal bridge serve --driver mock --mock realistic`")
     elif args.endpoint:
         raise NaocalError("--endpoint is for --backend bridge")
     check_out_dir(out, resume=args.resume, plan_seed=args.plan_seed)
@@ -109,13 +134,16 @@ def run(args) -> int:
 
     settings = settings_from_args(args, seed=args.plan_seed, source=f"naocal calibrate --backend {args.backend}")
     truth = None
+    detector = None
     if args.backend == "mock":
+        from agent.measure import opencv_detector
         from backends.mock import MockBackend, parse_effects
 
         effects = parse_effects(args.effect)
-        backend = MockBackend(args.seed, effects=effects)
-        label = f"mock (seed {args.seed}" + (", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items())
-                                             if effects else "") + ")"
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+        detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
+        label = f"mock (seed {args.seed}, {args.mock}" + (
+            ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")
@@ -126,7 +154,7 @@ def run(args) -> int:
         backend = BridgeBackend(args.endpoint)
         label = f"bridge {args.endpoint}"
     try:
-        result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth)
+        result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth, detector=detector)
     finally:
         backend.close()
     summary = (out / "summary.txt").read_text(encoding="utf-8")

@@ -20,6 +20,8 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+                   help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe")
@@ -49,16 +51,17 @@ def run(args) -> int:
         logging.getLogger().addHandler(console)
 
     from agent.calibrate import simulate
+    from agent.measure import opencv_detector
     from backends.mock import MockBackend, parse_effects
     from solver.fileio import atomic_write_text
 
     effects = parse_effects(args.effect)
     settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
-    backend = MockBackend(args.seed, effects=effects)
+    backend = MockBackend(args.seed, effects=effects, realism=args.mock)
     try:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
-        result, ctx = simulate(backend, out, settings)
+        result, ctx = simulate(backend, out, settings, detector=backend.faulty(opencv_detector))
     finally:
         backend.close()
     if not result.ok:
