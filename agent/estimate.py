@@ -11,6 +11,7 @@ starting the second leg does not throw away what the first taught.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 
@@ -134,6 +135,20 @@ class RunningEstimate:
                 or not self._seen(leg)):  # the first capture of a leg: refit at once
             self.refit()
 
+    def _without_outliers(self, data):
+        """data without the vertices the current values miss by far more than the rest (a corner found a square
+        off or on a reflection: real detectors do that now and then), so that one bad corner cannot pull the
+        estimate the safety check and the detector rely on. Far: beyond 6 robust standard deviations and 4 px."""
+        miss = np.linalg.norm(Model(data, FULL).residuals(self.values).reshape(-1, 2), axis=1)
+        limit = max(4.0, 6.0 * 1.4826 * float(np.median(miss)))
+        keep = miss <= limit
+        if keep.all():
+            return data
+        log.info("running estimate: %d of %d vertices left out (missed by more than %.1f px)", int((~keep).sum()),
+                 len(keep), limit)
+        return replace(data, image_of_row=data.image_of_row[keep], vertex=data.vertex[keep],
+                       uv_px=data.uv_px[keep], p_sole=data.p_sole[keep])
+
     def refit(self) -> None:
         n = len(self._theta)
         if n == 0:
@@ -154,6 +169,8 @@ class RunningEstimate:
             data = make_model_data(np.array(self._theta)[images], legs[images], np.arange(len(images)),
                                    np.zeros(len(images), dtype=int), intrinsics=self.intrinsics)
             data.uv_px = np.concatenate([self._uv[m] for m in images])
+            if registry is full and self.known_legs:
+                data = self._without_outliers(data)
             try:
                 result = identify(data, registry, x0=self.values if registry is full else None)
             except SolveError:

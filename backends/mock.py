@@ -35,6 +35,14 @@ Injectable effects (off by default; sizes in the units below; per-joint factors 
     distortion    1          true radial distortion k1 = size (OpenCV model on normalised coordinates)
     time_lag      s          image timestamps are `size` later than the true exposure
 
+Realism (`realism="ideal"`, the default, is all of the above; `realism="realistic"` a NAO V6 as teams meet it,
+backends.mock_realism, docs/MOCK.md): readings in 12-bit encoder steps every 12 ms (LoLA); a servo that follows the
+interpolated command as a damped second-order system and rests somewhere in its commanded step, pulled by the
+gravity load (backends.mock_servo); a rolling-shutter camera (rows over 45 ms, boards rendered per band of rows when
+they move) stamped as B-Human relates V4L2 buffer stamps, YUYV 4:2:2 capture, noise, slight defocus, prior fx = fy =
+618 px with true intrinsics a little off; offsets as large as real robots carry; glare spots and a corner fault
+model (backends.mock_faults, applied to the agent's detector through `faulty`).
+
 Safety: `command` refuses with SafetyError a non-finite or unknown target, a speed outside (0, 1], a target outside
 the joint limits (solver.limits, HeadPitch against HeadYaw included) and a motion whose end or any of the points
 sampled along its way brings two parts of the true body, or a part and the ground, closer than `safety_margin_m`.

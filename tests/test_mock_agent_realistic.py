@@ -1,0 +1,211 @@
+"""The agent against real-size errors: waiting on LoLA's 12 ms cycle, the worst-case safety check over unknown
+offsets, plans that open each leg safely, and (slow) a whole calibration of the realistic mock."""
+
+import math
+
+import numpy as np
+import pytest
+
+from agent.planner import PARKED, PlanSettings, Planner, make_plan, parked_posture
+from agent.robot import Robot, TimingSettings
+from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
+from agent.states import Thresholds, implausible, unusual
+from backends.mock import MockBackend
+from backends.pybullet_body import CollisionChecker, NaoBody
+from solver.joints import JOINT_INDEX, JOINTS
+from solver.limits import joint_limits, max_speeds
+from tools import cli
+
+PRIOR = prior_covariance(math.radians(12.0), math.radians(3.0))  # before anything is known
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    body = NaoBody()
+    yield body
+    body.close()
+
+
+def test_the_robot_is_found_still_when_joints_are_sampled_every_12_ms():
+    """With LoLA's 12 ms cycle no run of samples spans exactly the 0.1 s still window: the wait must not time out
+    (it did, on every realistic mock)."""
+    mock = MockBackend(seed=2, realism="realistic")
+    body = NaoBody()
+    try:
+        guard = SafetyGuard(mock.joint_limits(), CollisionChecker(body, margin_m=0.015, ground_margin_m=0.012),
+                            mock.max_speeds())
+        robot = Robot(mock, guard, parked_posture(), TimingSettings())
+        target = robot.commanded.copy()
+        target[JOINT_INDEX["HeadYaw"]] += 0.2
+        still = robot.move(target)
+        assert still.t_still_s - 10.0 < 2.0
+        assert np.max(np.abs(still.reading_rad - target)) < 0.003
+    finally:
+        body.close()
+        mock.close()
+
+
+def test_distance_gradients_match_finite_differences(nominal):
+    checker = CollisionChecker(nominal, margin_m=0.01, ground_margin_m=0.01)
+    limits = joint_limits()
+    lower = np.array([limits[j][0] for j in JOINTS])
+    upper = np.array([limits[j][1] for j in JOINTS])
+    rng = np.random.default_rng(3)
+    groups = [[k] for k in range(len(JOINTS))]
+    worst = 0.0
+    for _ in range(10):
+        q = np.clip(parked_posture() + rng.normal(0.0, 0.25, len(JOINTS)), lower, upper)
+        pairs, d, grads = checker.distance_gradients(q, 0.2, groups)
+        assert len(pairs) > 5
+        for k in range(len(JOINTS)):
+            moved = q.copy()
+            moved[k] += 1e-5
+            after = checker.distances(moved, 0.3, pairs)
+            numeric = np.array([(after[p] - d0) / 1e-5 for p, d0 in zip(pairs, d)])
+            worst = max(worst, float(np.max(np.abs(numeric - grads[k]))))
+    assert worst < 1e-3  # m/rad; the gradients are up to ~0.45 m/rad
+
+
+def test_worst_case_is_three_standard_deviations_of_the_distance(nominal):
+    """Offsets drawn from the covariance: the distance falls below the worst case about as rarely as 3 sigma says
+    (first order: 0.13 %; the exact check at the worst offsets makes it no more optimistic)."""
+    checker = CollisionChecker(nominal, margin_m=0.0, ground_margin_m=0.0)
+    q = parked_posture()
+    C = prior_covariance(math.radians(6.0), math.radians(3.0))
+    worst, pair = worst_case_clearance(checker, q, C)
+    names = tuple(pair.split(" and "))
+    rng = np.random.default_rng(0)
+    draws = rng.multivariate_normal(np.zeros(len(JOINTS)), C, size=400)
+    distances = np.array([checker.distances(q + delta, 0.5, [names]).get(names, 0.5) for delta in draws])
+    assert np.mean(distances < worst) < 0.01
+    assert np.quantile(distances, 0.05) < worst + 0.02  # and not absurdly conservative
+
+
+def test_the_old_parked_posture_is_refused_for_a_plausible_hip_yaw_pitch_offset(nominal):
+    """The narrow parking of the ideal-mock days (hip roll 0.35) is safe at zero offsets but not for a HipYawPitch
+    offset of up to 12 deg (it turns both feet towards each other); the wider one is safe for all of them."""
+    old = parked_posture()
+    old[JOINT_INDEX["LHipRoll"]], old[JOINT_INDEX["RHipRoll"]] = 0.35, -0.35
+    old[JOINT_INDEX["LAnkleRoll"]] = old[JOINT_INDEX["RAnkleRoll"]] = 0.0
+    guard = SafetyGuard(joint_limits(), CollisionChecker(nominal, margin_m=0.015, ground_margin_m=0.012), max_speeds())
+    assert guard.problem(old) is None  # nothing is uncertain: fine
+    guard.set_true_offset(np.zeros(len(JOINTS)), known=False, covariance14=PRIOR)
+    assert "collision possible" in guard.problem(old)
+    assert guard.problem(parked_posture()) is None
+    assert PARKED["LHipRoll"] == -PARKED["RHipRoll"] >= 0.6
+
+
+def test_a_mock_with_a_12_deg_hip_yaw_pitch_would_hit_itself_in_the_old_parked_posture():
+    mock = MockBackend(seed=1, realism="realistic")  # HipYawPitch offset 11.2 deg
+    try:
+        old = dict(zip(JOINTS, parked_posture()))
+        old.update(LHipRoll=0.35, RHipRoll=-0.35, LAnkleRoll=0.0, RAnkleRoll=0.0)
+        assert not mock.checker.is_safe(mock._true_static(np.array([old[j] for j in JOINTS])))
+        assert mock.checker.is_safe(mock._true_static(parked_posture()))
+    finally:
+        mock.close()
+
+
+def test_plans_open_each_leg_with_stances_safe_before_any_offset_is_known():
+    settings = PlanSettings(stances_per_leg=8, probe=False)
+    plan = make_plan(3, settings)
+    planner = Planner(settings)
+    try:
+        for leg in ("L", "R"):
+            stills = [s for s in plan.stills() if s.leg == leg]
+            stances = sorted({s.stance for s in stills})[:settings.early_stances_per_leg]
+            early = planner.offset_covariance(leg, early=True)
+            for st in (s for s in stills if s.stance in stances):
+                assert planner.robust_ok([st.angles()], early), (leg, st.stance)
+            late = planner.offset_covariance(leg, early=False)
+            assert all(planner.robust_ok([s.angles()], late) for s in stills)
+    finally:
+        planner.close()
+
+
+def test_plausibility_limits_warn_before_they_refuse():
+    class Result:
+        success, message, rms_px = True, "", (0.3, 0.3)
+
+        def __init__(self, offsets_deg):
+            from solver.registry import Registry
+
+            self.registry = Registry()
+            self.values = {n: 0.0 for n in self.registry.names}
+            self.values.update({f"joint_offset.{j}": math.radians(v) for j, v in offsets_deg.items()})
+            self.std = np.full(len(self.registry.names), 1e-4)
+
+        def value(self, name):
+            return self.values[name]
+
+    t = Thresholds()
+    assert implausible(Result({"LHipYawPitch": 11.5}), t) is None
+    assert any("LHipYawPitch" in w for w in unusual(Result({"LHipYawPitch": 11.5}), t))
+    assert unusual(Result({"LHipYawPitch": 2.0}), t) == []
+    assert "implausibly large" in implausible(Result({"LHipYawPitch": 21.0}), t)
+    assert "implausibly large" in implausible(Result({"LHipYawPitch": 11.5}),
+                                             Thresholds(max_joint_offset_rad=math.radians(10.0)))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["calibrate", "--backend", "bridge", "--endpoint", "tcp://h:1", "--mock", "realistic", "--out", "X"], "--mock"),
+    (["calibrate", "--backend", "mock", "--max-joint-offset-deg", "25", "--out", "X"], "--max-joint-offset-deg"),
+    (["calibrate", "--backend", "mock", "--max-camera-rotation-deg", "0", "--out", "X"], "--max-camera-rotation"),
+    (["bridge", "serve", "--driver", "naoqi", "--mock", "realistic"], "--mock is for --driver mock"),
+])
+def test_realism_options_are_checked(argv, message, capsys):
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_the_agent_calibrates_the_realistic_mock_without_a_single_unsafe_command(tmp_path):
+    """Seed 1: HipYawPitch offset 11.2 deg, other joints up to 3 deg, rolling-shutter YUYV camera, faulty corners.
+    The agent finishes, the mock refuses nothing (no command would have collided on the true robot), nearly every
+    capture is taken, and the offsets are found to a fraction of a degree (the solver's precision on real-size
+    data is issue 12's next part)."""
+    from agent.calibrate import calibrate
+    from agent.measure import opencv_detector
+    from agent.states import AgentSettings
+    from solver.joints import LEG_JOINTS
+
+    mock = MockBackend(seed=1, realism="realistic")
+    try:
+        settings = AgentSettings(seed=0, plan=PlanSettings(stances_per_leg=12), progress_bar=False)
+        result, ctx = calibrate(mock, tmp_path, settings, detector=mock.faulty(opencv_detector),
+                                truth=mock.truth_dict())
+        assert result.ok, result.reason
+        assert all(record.accepted for record in mock.command_log), [r.reason for r in mock.command_log
+                                                                      if not r.accepted][:3]
+        assert ctx.measurement["n_saved"] >= 0.85 * ctx.measurement["n_planned"]
+        fit = ctx.identification
+        errors = [abs(fit.value(f"joint_offset.{j}") - mock.truth.alpha_rad[j]) for j in LEG_JOINTS]
+        assert math.degrees(max(errors)) < 1.0
+        assert abs(math.degrees(fit.value("joint_offset.LHipYawPitch"))) > 10.0  # the large one, found
+        assert "unusually large" in (tmp_path / "calibrate.log").read_text()  # and said so
+    finally:
+        mock.close()
+
+
+def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
+    """A detector that puts 1-2 % of the corners a square off (or on a reflection) must not drag the estimate the
+    safety check and the detector rely on: its refits leave out the vertices the current values miss by far."""
+    from agent.estimate import FULL, RunningEstimate
+    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+
+    rng = np.random.default_rng(40)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, n_stances_per_leg=12, n_head_postures=1, pixel_noise_px=0.05)
+    faulty = data.uv_px.copy()
+    hit = rng.choice(len(faulty), len(faulty) // 60, replace=False)
+    faulty[hit] += rng.choice([-25.0, 25.0], size=(len(hit), 2))  # a square off
+    errors = {}
+    for name, uv in (("clean", data.uv_px), ("faulty", faulty)):
+        estimate = RunningEstimate(DEFAULT_INTRINSICS)
+        for m in range(data.n_images):
+            estimate.add(str(data.leg[m]), data.theta[m], uv[data.image_of_row == m])
+        estimate.refit()
+        errors[name] = max(abs(estimate.values[FULL.index[f"joint_offset.{j}"]] - truth[f"joint_offset.{j}"])
+                           for j in JOINTS if f"joint_offset.{j}" in truth)
+    assert math.degrees(errors["faulty"]) < 0.02 and math.degrees(errors["clean"]) < 0.02
