@@ -480,7 +480,8 @@ class Planner:
         selected = {leg: [flat[k] for k in chosen if flat[k].leg == leg] for leg in LEGS}
         for leg in LEGS:  # each leg opens with stances that are safe before its offsets are known
             missing = s.early_stances_per_leg - sum(c.early for c in selected[leg])
-            selected[leg] += [c for c in pools[leg] if c.early and not any(c is d for d in selected[leg])][:max(missing, 0)]
+            spare = [c for c in pools[leg] if c.early and not any(c is d for d in selected[leg])]
+            selected[leg] += spare[:max(missing, 0)]
         log.info("D-optimal design: %d stances match the paper plan's %d (%s)", n, len(paper_idx), counts)
         return selected, design
 

@@ -29,8 +29,8 @@ def run(mock_kind: str, seed: int, out: Path) -> dict:
     mock = MockBackend(seed, realism=mock_kind)
     wall, cpu = time.perf_counter(), time.process_time()
     try:
-        result, ctx = calibrate(mock, out, AgentSettings(seed=0, progress_bar=False), detector=mock.faulty(opencv_detector),
-                                truth=mock.truth_dict())
+        result, ctx = calibrate(mock, out, AgentSettings(seed=0, progress_bar=False),
+                                detector=mock.faulty(opencv_detector), truth=mock.truth_dict())
     finally:
         mock.close()
     row = {"mock": mock_kind, "seed": seed, "ok": result.ok, "reason": result.reason,

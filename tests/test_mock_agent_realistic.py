@@ -209,3 +209,16 @@ def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
         errors[name] = max(abs(estimate.values[FULL.index[f"joint_offset.{j}"]] - truth[f"joint_offset.{j}"])
                            for j in JOINTS if f"joint_offset.{j}" in truth)
     assert math.degrees(errors["faulty"]) < 0.02 and math.degrees(errors["clean"]) < 0.02
+
+
+def test_the_bridge_serves_the_realistic_mock_when_asked():
+    import argparse
+
+    from tools.cmd_bridge import _open_backend
+
+    backend, clock, persists = _open_backend(argparse.Namespace(driver="mock", seed=4, effect=[], mock="realistic"))
+    try:
+        assert backend.realism.name == "realistic" and clock == "simulated" and not persists
+        assert backend.intrinsics().fx_px == 618.0
+    finally:
+        backend.close()
