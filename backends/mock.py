@@ -60,7 +60,7 @@ import numpy as np
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.mock_realism import IDEAL, Realism, as_realism
 from backends.mock_render import CameraModel, RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
-from backends.mock_servo import SecondOrder, response, rest_offset
+from backends.mock_servo import SecondOrder, rest_offset, servo_positions
 from backends.pybullet_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
 from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
@@ -722,27 +722,13 @@ class MockBackend(Backend):
 
     def _servo_q(self, t: float) -> np.ndarray:
         """Sensor-space positions (14,) at t: the reference (ideal), or its second-order response plus the
-        rest offsets in force (realistic; backends.mock_servo, whose `response` this evaluates for all joints)."""
+        rest offsets in force (realistic; backends.mock_servo)."""
         if self._exact_servo:
             return np.array([self._track(j).at(t) for j in JOINTS])
-        dyn = self._dynamics
-        k = bisect.bisect_right(self._rest_times, t)
-        offset = self._rest_offsets[k - 1] if k else np.zeros(len(JOINTS))
-        reference = np.array([self._track(j).at(t) for j in JOINTS])
-        if dyn is None:
-            return reference + offset
-        slopes = np.array([self._track(j).slope_at(t) for j in JOINTS])
-        out = reference - dyn.ramp_lag_s * slopes + offset
-        for i, joint in enumerate(JOINTS):  # the slope changes' transients that have not decayed yet
-            times, changes = self._track(joint).slope_changes()
-            lo, hi = bisect.bisect_left(times, t - dyn.horizon_s), bisect.bisect_right(times, t)
-            if hi > lo:
-                out[i] -= float(np.dot(changes[lo:hi], dyn.ramp_transient(t - np.asarray(times[lo:hi]))))
-        first = bisect.bisect_left(self._rest_times, t - dyn.horizon_s)
-        for e in range(first, k):  # and the rest offsets' steps
-            before = self._rest_offsets[e - 1] if e else 0.0
-            out -= (self._rest_offsets[e] - before) * float(dyn.step_error(t - self._rest_times[e]))
-        return out
+        tracks = [self._track(j) for j in JOINTS]
+        return servo_positions(t, [tr.at(t) for tr in tracks], [tr.slope_at(t) for tr in tracks],
+                               [tr.slope_changes() for tr in tracks], self._dynamics, self._rest_times,
+                               self._rest_offsets)
 
     def _add_rest_offsets(self, targets: dict, start: float) -> None:
         """Where each joint will stand once this command's motion ends (Realism.servo_rest, sag under the

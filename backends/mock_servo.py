@@ -16,6 +16,7 @@ Rest. Where a still joint stands inside (or off) its commanded encoder step: bac
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -76,25 +77,27 @@ class SecondOrder:
         return self.time_constant_s * math.log(1.0 / (tolerance * math.sqrt(1.0 - z * z)))
 
 
-def response(t: float, r: float, slope: float, slope_changes, dyn: SecondOrder | None, offset: float = 0.0,
-             offset_steps=()) -> float:
-    """The joint's position at t (see the module docstring).
+def servo_positions(t: float, reference, slope, slope_changes, dyn: SecondOrder | None, rest_times, rest_offsets
+                    ) -> np.ndarray:
+    """The joints' positions (J,) at t (see the module docstring).
 
-    r, slope : the reference and its slope at t; slope_changes : [(t_k, ds_k)], those with t_k <= t count (older
-    than dyn.horizon_s: decayed); offset : the rest offset in force at t; offset_steps : [(t_k, J_k)] its recent
-    changes, whose transients have not decayed yet.
+    reference, slope : (J,) the references and their slopes at t; slope_changes : per joint ([t_k], [ds_k]), t_k
+    increasing; rest_times (E,) increasing, rest_offsets [(J,)]: the rest offsets, each in force from its time on.
+    Only changes younger than dyn.horizon_s add transients (older ones have decayed).
     """
+    k = bisect.bisect_right(rest_times, t)
+    offset = rest_offsets[k - 1] if k else 0.0
     if dyn is None:
-        return r + offset
-    y = r - dyn.ramp_lag_s * slope + offset
-    horizon = dyn.horizon_s
-    for t_k, ds in slope_changes:
-        if 0.0 <= t - t_k < horizon:
-            y -= ds * float(dyn.ramp_transient(t - t_k))
-    for t_k, J in offset_steps:
-        if 0.0 <= t - t_k < horizon:
-            y -= J * float(dyn.step_error(t - t_k))
-    return y
+        return np.asarray(reference, dtype=float) + offset
+    out = np.asarray(reference, dtype=float) - dyn.ramp_lag_s * np.asarray(slope, dtype=float) + offset
+    for i, (times, changes) in enumerate(slope_changes):
+        lo, hi = bisect.bisect_left(times, t - dyn.horizon_s), bisect.bisect_right(times, t)
+        if hi > lo:
+            out[i] -= float(np.dot(changes[lo:hi], dyn.ramp_transient(t - np.asarray(times[lo:hi]))))
+    for e in range(bisect.bisect_left(rest_times, t - dyn.horizon_s), k):
+        before = rest_offsets[e - 1] if e else 0.0
+        out -= (rest_offsets[e] - before) * float(dyn.step_error(t - rest_times[e]))
+    return out
 
 
 def rest_offset(command: float, tau_nm: float, mode: str, step: float, stiffness, u: float = 0.0) -> float:

@@ -427,7 +427,6 @@ class CollisionChecker:
         """{(link_a, link_b or 'ground'): signed distance m} of every checked pair (or of `pairs`) closer than
         query_m at stance q; pairs farther apart are left out."""
         self.body.set_angles(_as_stance(q))
-        index = self.body.link_index
         out = {}
         wanted = None if pairs is None else set(pairs)
         for name, link in self._ground:

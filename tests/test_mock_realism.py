@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 from agent.corners import detect_board_vertices
 from backends.mock import MockBackend, draw_truth
 from backends.mock_faults import FaultyDetector, draw_faults
-from backends.mock_realism import IDEAL, REALISTIC, Realism, as_realism
+from backends.mock_realism import IDEAL, REALISTIC, as_realism
 from backends.mock_render import bgr_to_yuyv, grey_to_yuyv, yuyv_to_bgr
 from backends.mock_servo import SecondOrder, rest_offset
 from solver.errors import NaocalError
@@ -154,11 +154,15 @@ def test_second_order_closed_form_matches_integration_and_overshoots_a_little():
 
     times = np.linspace(0.0, 0.5, 501)
     numeric = solve_ivp(ode, (0.0, 0.5), [0.0, 0.0], t_eval=times, max_step=1e-4, rtol=1e-10, atol=1e-12).y[0]
-    from backends.mock_servo import response
+    from backends.mock_servo import servo_positions
 
-    slope_changes = [(0.05, 2.0), (0.15, -2.0)]
-    closed = [response(t, reference(t), 2.0 if 0.05 <= t < 0.15 else 0.0, slope_changes, dyn) for t in times]
+    changes = [([0.05, 0.15], [2.0, -2.0])]
+    closed = [servo_positions(t, [reference(t)], [2.0 if 0.05 <= t < 0.15 else 0.0], changes, dyn, [], [])[0]
+              for t in times]
     np.testing.assert_allclose(closed, numeric, atol=1e-6)
+    # A step of the rest offset (0.01 rad at 0.2 s) overshoots and settles as a step response does.
+    rest = [servo_positions(t, [0.0], [0.0], [([], [])], dyn, [0.2], [np.array([0.01])])[0] for t in times]
+    np.testing.assert_allclose(rest, 0.01 * dyn.step_response(times - 0.2) * (times >= 0.2), atol=1e-12)
 
 
 def test_the_mock_joint_settles_like_a_damped_servo_not_a_straight_line(realistic):
