@@ -598,11 +598,13 @@ class MockBackend(Backend):
         out = self._vertex_pixels(frame.q_true)
         h = self.truth.camera.height_px
         t0, t1 = (float(t) for t in self.row_time(frame.t_true_s, [0.0, h - 1.0]))
-        if self.realism.readout_s == 0.0 or np.array_equal(self._true_q(t0), self._true_q(t1)):
+        moving = [leg for leg in LEGS if self.realism.readout_s > 0.0 and out[leg][1]
+                  and self._board_motion_px(t0, t1, leg) > 1e-3]
+        if not moving:  # boards out of view, or still to a thousandth of a pixel
             return out
         times = np.linspace(t0, t1, 33)
         paths = [self._vertex_pixels(self._true_q(float(t))) for t in times]
-        for leg in LEGS:
+        for leg in moving:
             uv, facing = out[leg]
             track = np.array([p[leg][0] for p in paths])  # (33, 24, 2)
             for _ in range(8):
@@ -872,8 +874,10 @@ class MockBackend(Backend):
             return self._blurred_board_poses(t_mid, leg)
         h = self.truth.camera.height_px
         t_first, t_last = self.row_time(t_mid, [0.0, h - 1.0])
+        T = self._seen_board(t_mid, leg)
+        in_view = T[:3, 2] @ T[:3, 3] < 0 and np.all(board_outline_board_m() @ T[:3, 0] + T[0, 3] > 0.02)
         moved_px = self._board_motion_px(t_first - self.exposure_s / 2, t_last + self.exposure_s / 2, leg)
-        if moved_px < 0.05:  # a still board (to 0.05 px): every row shows the same pose
+        if not in_view or moved_px < 0.05:  # not drawn, or still (to 0.05 px): every row shows the same pose
             return [self._T_world_board(self._true_q(t_mid), leg)]
         n_bands = int(np.clip(np.ceil(moved_px / 0.5), 2, 48))  # rows of a band differ by < 0.5 px of motion
         edges = np.linspace(0, h, n_bands + 1).round().astype(int)
