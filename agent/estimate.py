@@ -138,11 +138,17 @@ class RunningEstimate:
     def _without_outliers(self, data):
         """data without the vertices the current values miss by far more than the rest (a corner found a square
         off or on a reflection: real detectors do that now and then), so that one bad corner cannot pull the
-        estimate the safety check and the detector rely on. Far: beyond 6 robust standard deviations and 4 px."""
+        estimate the safety check and the detector rely on. Far: beyond 6 robust standard deviations and 4 px.
+        Only the boards of legs the current values have fitted are judged (a leg joining the fit is missed by
+        its unknown offsets, not by its corners), and never more than 5 % of them: beyond that the values are
+        off, not the corners."""
         miss = np.linalg.norm(Model(data, FULL).residuals(self.values).reshape(-1, 2), axis=1)
-        limit = max(4.0, 6.0 * 1.4826 * float(np.median(miss)))
-        keep = miss <= limit
-        if keep.all():
+        judged = np.isin(data.leg[data.image_of_row], list(self.known_legs))
+        if not judged.any():
+            return data
+        limit = max(4.0, 6.0 * 1.4826 * float(np.median(miss[judged])))
+        keep = ~judged | (miss <= limit)
+        if keep.all() or (~keep).sum() > 0.05 * judged.sum():
             return data
         log.info("running estimate: %d of %d vertices left out (missed by more than %.1f px)", int((~keep).sum()),
                  len(keep), limit)

@@ -3,10 +3,11 @@
     python benchmarks/mock_realism_runs.py [--seeds 1 2 3] [--mock ideal realistic] [--out DIR]
 
 For each mock and seed, one whole calibration (default paper plan, as the README's main command): whether it
-finished, captures saved, robot time, the fit's RMS, the worst joint-offset standard deviation the fit claims, the
-worst joint-offset error against the mock's hidden truth, and the wall-clock and CPU seconds it took. The realistic
-mock's corner fault model is applied as `naocal calibrate --mock realistic` applies it. Prints a markdown table
-(docs/MOCK.md quotes it).
+finished, captures saved, the commands the mock refused (its own check on the true body: a refusal is a command
+that would have collided), robot time, the fit's RMS, the worst joint-offset standard deviation the fit claims, the
+worst joint-offset error against the mock's hidden truth, and the wall-clock and CPU seconds it took. The
+realistic mock's corner fault model is applied as `naocal calibrate --mock realistic` applies it. Prints a
+markdown table (docs/MOCK.md quotes it).
 """
 
 import argparse
@@ -34,7 +35,8 @@ def run(mock_kind: str, seed: int, out: Path) -> dict:
     finally:
         mock.close()
     row = {"mock": mock_kind, "seed": seed, "ok": result.ok, "reason": result.reason,
-           "wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu}
+           "wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu,
+           "refused": sum(not record.accepted for record in mock.command_log)}  # the mock's own collision check
     if ctx.measurement:
         row.update(saved=ctx.measurement["n_saved"], planned=ctx.measurement["n_planned"],
                    robot_s=ctx.measurement["robot_time_s"])
@@ -57,14 +59,15 @@ def main():
     parser.add_argument("--out", type=Path, help="keep the runs here (default: a temporary directory)")
     args = parser.parse_args()
     base = args.out or Path(tempfile.mkdtemp(prefix="naocal_realism_"))
-    print("| mock | seed | done | saved | robot time s | RMS px | worst std deg | worst error deg | error / std | "
-          "largest offset deg | wall s | CPU s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| mock | seed | done | saved | refused by the mock | robot time s | RMS px | worst std deg | "
+          "worst error deg | error / std | largest offset deg | wall s | CPU s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for kind in args.mock:
         for seed in args.seeds:
             r = run(kind, seed, base / f"{kind}-{seed}")
             cells = [kind, seed, "yes" if r["ok"] else f"no: {r['reason']}",
-                     f"{r.get('saved', 0)}/{r.get('planned', 0)}", f"{r.get('robot_s', float('nan')):.1f}",
+                     f"{r.get('saved', 0)}/{r.get('planned', 0)}", r["refused"],
+                     f"{r.get('robot_s', float('nan')):.1f}",
                      f"{r.get('rms_px', float('nan')):.3f}", f"{r.get('worst_std_deg', float('nan')):.4f}",
                      f"{r.get('worst_error_deg', float('nan')):.4f}", f"{r.get('worst_z', float('nan')):.1f}",
                      f"{r.get('largest_offset_deg', float('nan')):.1f}", f"{r['wall_s']:.0f}", f"{r['cpu_s']:.0f}"]

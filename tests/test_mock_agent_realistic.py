@@ -2,6 +2,7 @@
 offsets, plans that open each leg safely, and (slow) a whole calibration of the realistic mock."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -222,3 +223,31 @@ def test_the_bridge_serves_the_realistic_mock_when_asked():
         assert backend.intrinsics().fx_px == 618.0
     finally:
         backend.close()
+
+
+def test_a_leg_joining_the_running_estimate_is_not_taken_for_faulty_corners():
+    """When the second leg joins the fit, the current values miss its board by its (unknown, degrees large)
+    offsets: those misses are not faulty corners. Leaving them out would fit the new leg to whichever corners
+    happen to agree, and the safety check would trust a wrong leg (a realistic run sent the mock commands it had to
+    refuse). Only the fitted legs' corners are judged, and never more than 5 % of them."""
+    from agent.estimate import RunningEstimate
+    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+
+    rng = np.random.default_rng(7)
+    truth = random_truth(rng)
+    for joint in ("RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll"):
+        truth[f"joint_offset.{joint}"] = math.radians(rng.choice([-3.0, 3.0]))
+    data = synthesize(rng, truth, n_stances_per_leg=12, n_head_postures=2, pixel_noise_px=0.05)
+    uv = data.uv_px.copy()
+    left_rows = np.flatnonzero(data.leg[data.image_of_row] == "L")
+    faulty = rng.choice(left_rows, 8, replace=False)
+    uv[faulty] += 25.0  # a square off
+    estimate = RunningEstimate(DEFAULT_INTRINSICS)
+    for m in np.flatnonzero(data.leg == "L"):
+        estimate.add("L", data.theta[m], uv[data.image_of_row == m])
+    estimate.refit()
+    assert estimate.known_legs == frozenset({"L"})
+    judged = replace(data, uv_px=uv)
+    kept = estimate._without_outliers(judged)
+    assert kept.n_rows == data.n_rows - len(faulty)  # the left leg's faulty corners, and nothing of the right leg
+    assert np.sum(kept.leg[kept.image_of_row] == "R") == np.sum(data.leg[data.image_of_row] == "R")
