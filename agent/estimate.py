@@ -47,6 +47,7 @@ class RunningEstimate:
         self.min_leg_fit = min_leg_fit  # captures of a leg before its offsets and sandal mount are fitted
         self.known_legs: frozenset = frozenset()  # legs whose offsets and mount the current values have fitted
         self.n_fitted = 0  # captures the current values were fitted to (0: nominal model)
+        self.rms_px = (float("inf"), float("inf"))  # the current values' fit RMS (u, v)
         self.scope = "nominal"
         self.std = FULL.zeros()  # standard deviations of `values` from their fit (0: not fitted)
         self.covariance = np.zeros((len(FULL.names), len(FULL.names)))  # ... and their covariance
@@ -196,6 +197,7 @@ class RunningEstimate:
                 idx = np.array([w for w in where if w >= 0])
                 self.covariance[np.ix_(ok, ok)] = covariance[np.ix_(idx, idx)]
                 self.n_fitted = n
+                self.rms_px = tuple(result.rms_px)
                 self.scope = scope
                 self.known_legs = frozenset(leg for leg in LEGS if leg not in learning and registry is full)
                 log.info("running estimate refitted to %d of %d captures (%s): RMS %.2f / %.2f px", len(images),

@@ -59,6 +59,7 @@ class MeasureSettings:
     aim_margin_px: float = 15.0  # re-aim the head before a capture whose board the estimate puts this near the edge
     search_margin_px_nominal: float = 120.0  # before the first fit the camera may be off by degrees
     search_margin_px_fitted: float = 40.0
+    known_fit_rms_px: float = 2.0  # the estimate predicts a leg's board well enough for the narrow margin
     wait_for_still_image: bool = True  # False pairs still joints with an older image: only to show the error
     sweep_fit_halfwidth_s: float = 0.05  # joint samples within this of an exposure give its angle and velocity
 
@@ -154,11 +155,13 @@ class Measurement:
             self.progress.finish(f"robot time {self.robot_time_s():6.1f} s")
 
     def _search_margin(self, leg: str, attempt: int = 0) -> float:
-        """How far the board may lie from the prediction: wide until the estimate has seen this leg, and wider
-        with every retry."""
+        """How far the board may lie from the prediction: wide until the estimate has seen this leg and fits it
+        to a pixel or two, and wider with every retry (up to three times the wide margin while it has not: real
+        offsets move an unseen board by a hundred pixels and more)."""
         s = self.settings
-        base = s.search_margin_px_fitted if self.estimate.knows(leg) else s.search_margin_px_nominal
-        return min(base * (1 + attempt), s.search_margin_px_nominal)
+        known = self.estimate.knows(leg) and max(self.estimate.rms_px) < s.known_fit_rms_px
+        base = s.search_margin_px_fitted if known else s.search_margin_px_nominal
+        return min(base * (1 + attempt), s.search_margin_px_nominal * (1 if known else 3))
 
     def _detect(self, image, leg, theta14, attempt: int = 0):
         predicted = self.estimate.predict(leg, theta14)

@@ -251,3 +251,24 @@ def test_a_leg_joining_the_running_estimate_is_not_taken_for_faulty_corners():
     kept = estimate._without_outliers(judged)
     assert kept.n_rows == data.n_rows - len(faulty)  # the left leg's faulty corners, and nothing of the right leg
     assert np.sum(kept.leg[kept.image_of_row] == "R") == np.sum(data.leg[data.image_of_row] == "R")
+
+
+def test_the_search_stays_wide_until_the_estimate_fits_the_leg_well():
+    """Real offsets move an unseen board by a hundred pixels and more, and a first fit of a leg may still miss by
+    several pixels: the narrow margin only once the fit is good, and retries of an unseen board search wider
+    than the wide margin."""
+    from types import SimpleNamespace
+
+    from agent.measure import Measurement, MeasureSettings
+
+    settings = MeasureSettings()
+
+    def margin(knows, rms, attempt):
+        stub = SimpleNamespace(settings=settings, estimate=SimpleNamespace(knows=lambda leg: knows, rms_px=rms))
+        return Measurement._search_margin(stub, "L", attempt)
+
+    assert margin(True, (0.3, 0.4), 0) == settings.search_margin_px_fitted
+    assert margin(True, (0.3, 0.4), 5) == settings.search_margin_px_nominal
+    assert margin(True, (4.5, 2.5), 0) == settings.search_margin_px_nominal  # known, but fitted badly
+    assert margin(False, (float("inf"),) * 2, 0) == settings.search_margin_px_nominal
+    assert margin(False, (float("inf"),) * 2, 2) == 3 * settings.search_margin_px_nominal
