@@ -8,6 +8,7 @@ is retried with a small head move; after `detection_tries` the capture is skippe
 A sweep (the lag probe): from rest at its start, move slowly to its end while sampling the joints at their full
 rate and taking images on the way; each image's joint angles are interpolated to its exposure time and its joint
 velocities recorded (vel_<Joint> columns), so that a lag between the image and joint clocks becomes measurable.
+A sweep comes when every joint offset is known well enough for the plain safety check (at the end, if not before).
 """
 
 from __future__ import annotations
@@ -127,6 +128,7 @@ class Measurement:
                      self.plan.n_images())
         self._tick()
         deferred: list[Still] = []  # refused while the leg's offsets were too uncertain: tried again later
+        sweeps: list[Sweep] = []  # lag probes put off until the offsets are known
         steps = list(self.plan.steps)
         for k, step in enumerate(steps):
             if all(i in done for i in step.images):
@@ -134,6 +136,8 @@ class Measurement:
             if isinstance(step, Still):
                 if self.still(step, may_defer=True) == "deferred":
                     deferred.append(step)
+            elif self.robot.guard.uncertain():  # a slow sweep needs clear ways: once every offset is known
+                sweeps.append(step)
             else:
                 self.sweep(step, done)
             done = self.store.done_images()
@@ -146,6 +150,9 @@ class Measurement:
                     done = self.store.done_images()
                     self._tick()
                 deferred = []
+            self._tick()
+        for step in sweeps:
+            self.sweep(step, self.store.done_images())
             self._tick()
         try:
             self.robot.move(self.robot.parked)  # leave the robot in a safe posture
