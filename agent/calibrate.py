@@ -2,7 +2,7 @@
 
     result, ctx = calibrate(backend, out_dir, AgentSettings(seed=0))
 
-Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/1, images/), progress.json, offsets.json
+Files under out_dir (DIR): plan.json, dataset/ (naocal.dataset/2, images/), progress.json, offsets.json
 (+ offsets.json.bak), verification/, verification.json, summary.txt, calibrate.log.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
-from agent.report import summary_text
+from agent.summary import summary_text
 from agent.states import AgentSettings, Context, calibrate_states, simulate_states
 from solver.fileio import atomic_write_text
 

@@ -20,13 +20,14 @@ import numpy as np
 from solver.joints import LEG_JOINTS, leg_joints
 from solver.model import Model
 from solver.registry import Registry
-from solver.synthetic import DEFAULT_INTRINSICS, make_model_data
+from solver.camera import default_intrinsics
+from solver.synthetic import make_model_data
 
 BASE_REGISTRY = Registry()  # the paper's 21 parameters
 
 
 def stance_information(theta, leg, stance, *, sigma_px=0.1, encoder_resolution_rad=np.radians(0.1),
-                       intrinsics=DEFAULT_INTRINSICS, registry: Registry = BASE_REGISTRY) -> np.ndarray:
+                       intrinsics=None, registry: Registry = BASE_REGISTRY) -> np.ndarray:
     """Fisher information of each stance, (S, P, P) in scaled parameter units.
 
     Parameters
@@ -38,7 +39,8 @@ def stance_information(theta, leg, stance, *, sigma_px=0.1, encoder_resolution_r
     theta = np.asarray(theta, dtype=float)
     leg, stance = np.asarray(leg), np.asarray(stance)
     extended = Registry(tuple(registry.effects) + ("head_offsets",))
-    data = make_model_data(theta, leg, stance, np.zeros(len(theta), dtype=int), intrinsics=intrinsics)
+    data = make_model_data(theta, leg, stance, np.zeros(len(theta), dtype=int),
+                           intrinsics=intrinsics or default_intrinsics())
     model = Model(data, extended)
     # Model sorts by leg; undo it so that rows follow the given image order.
     _, J = model.evaluate(extended.zeros())

@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from solver.effects import EFFECTS
 from solver.errors import SolveError
 from solver.identify import identify
 from solver.joints import JOINTS, LEGS, leg_joints
@@ -36,12 +37,12 @@ class RunningEstimate:
     """
 
     def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 9, min_leg_fit: int = 6,
-                 camera_prior=None, max_joint_offset_rad: float = np.radians(20.0)):
+                 camera_prior=None, max_joint_offset_rad: float = EFFECTS["joint_offsets"].offsets_limit):
         self.intrinsics = dict(intrinsics)
         self.intrinsics.setdefault("distortion", [0.0] * 5)
         self.values = FULL.zeros()
         for angle, value in (camera_prior or {}).items():  # a real head's typical camera rotation
-            self.values[FULL.index[f"camera.{angle}"]] = float(value)
+            self.values[FULL.index[f"camera.{FULL.setup.cameras[0]}.{angle}"]] = float(value)
         self.refit_every = refit_every
         self.min_full_fit = min_full_fit
         self.min_leg_fit = min_leg_fit  # captures of a leg before its offsets and sandal mount are fitted
@@ -81,7 +82,7 @@ class RunningEstimate:
         alpha = np.zeros(len(JOINTS))
         for leg in self.known_legs:
             for joint in leg_joints(leg):
-                alpha[JOINTS.index(joint)] = self.values[FULL.index[f"joint_offset.{joint}"]]
+                alpha[JOINTS.index(joint)] = -self.values[FULL.index[f"joint_offset.{joint}"]]  # alpha = -c
         if len(self.known_legs) == 1:  # one HipYawPitch motor: the fitted leg's offset is the other's too
             known = next(iter(self.known_legs))
             alpha[[JOINTS.index(f"{leg}HipYawPitch") for leg in LEGS]] = alpha[JOINTS.index(f"{known}HipYawPitch")]
@@ -144,7 +145,7 @@ class RunningEstimate:
         its unknown offsets, not by its corners), and never more than 5 % of them: beyond that the values are
         off, not the corners."""
         miss = np.linalg.norm(Model(data, FULL).residuals(self.values).reshape(-1, 2), axis=1)
-        judged = np.isin(data.leg[data.image_of_row], list(self.known_legs))
+        judged = np.isin(data.target[data.image_of_row], list(self.known_legs))
         if not judged.any():
             return data
         limit = max(4.0, 6.0 * 1.4826 * float(np.median(miss[judged])))
@@ -154,7 +155,7 @@ class RunningEstimate:
         log.info("running estimate: %d of %d vertices left out (missed by more than %.1f px)", int((~keep).sum()),
                  len(keep), limit)
         return replace(data, image_of_row=data.image_of_row[keep], vertex=data.vertex[keep],
-                       uv_px=data.uv_px[keep], p_sole=data.p_sole[keep])
+                       uv_px=data.uv_px[keep], p_mount=data.p_mount[keep])
 
     def refit(self) -> None:
         n = len(self._theta)

@@ -43,9 +43,9 @@ from backends.pybullet_body import CollisionChecker, NaoBody
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
 from solver.errors import SafetyError
+from solver.camera import default_intrinsics
 from solver.limits import head_pitch_limits, joint_limits, max_speeds
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS
-from solver.synthetic import DEFAULT_INTRINSICS
 from solver.transforms import rot_x, rot_y, rot_z
 
 log = logging.getLogger(__name__)
@@ -99,7 +99,7 @@ class PlanSettings:
     speed_fraction: float = 0.4  # what the measurement will use: for ordering and the time estimate
     sigma_px: float = 0.1  # design: detector noise
     encoder_resolution_deg: float = 0.1  # design: encoder quantisation
-    intrinsics: dict = field(default_factory=lambda: dict(DEFAULT_INTRINSICS))
+    intrinsics: dict = field(default_factory=default_intrinsics)
 
     def view_rules(self) -> ViewRules:
         return ViewRules(self.view_margin_px, self.max_tilt_deg, self.min_square_px)

@@ -43,14 +43,15 @@ class CaptureRecord:
     t_joints_s: float
 
     def rows(self) -> dict:
-        """The observations.csv columns of this capture (24 rows)."""
+        """The observations.csv columns of this capture (24 rows), naocal.dataset/2: the bottom camera, the sandal
+        of `leg` (target 'L' or 'R'), its vertices' nominal positions in the sole frame."""
         V = board_vertices_sole()
         n = len(V)
         cols = {
-            "image": [self.image] * n, "leg": [self.leg] * n, "stance": [self.stance] * n,
-            "head_posture": [self.head_posture] * n, "vertex": list(range(n)),
+            "image": [self.image] * n, "camera": ["bottom"] * n, "target": [self.leg] * n,
+            "stance": [self.stance] * n, "head_posture": [self.head_posture] * n, "vertex": list(range(n)),
             "u_px": self.vertices_px[:, 0], "v_px": self.vertices_px[:, 1],
-            "x_sole_m": V[:, 0], "y_sole_m": V[:, 1], "z_sole_m": V[:, 2],
+            "x_mount_m": V[:, 0], "y_mount_m": V[:, 1], "z_mount_m": V[:, 2],
             "t_image_s": [self.t_image_s] * n, "t_joints_s": [self.t_joints_s] * n,
         }
         for k, joint in enumerate(JOINTS):
@@ -64,7 +65,7 @@ class CaptureRecord:
 class CaptureStore:
     """The dataset directory being filled, plus the progress file (skipped captures, robot time).
 
-    dataset_dir : the naocal.dataset/1 directory (created if absent).
+    dataset_dir : the naocal.dataset/2 directory (created if absent).
     meta : its dataset.json contents (must match an existing one).
     progress_path : where to keep progress (None: in memory only, e.g. for `naocal simulate`).
     """

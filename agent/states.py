@@ -30,14 +30,14 @@ from agent.safety import SafetyGuard
 from agent.verify import verify
 from backends.compensated import CompensatedBackend
 from backends.pybullet_body import CollisionChecker, NaoBody
+from solver.adapter import model_data_from_dataset
 from solver.dataset import read_dataset
 from solver.errors import NaocalError, SafetyError
 from solver.fileio import atomic_write_text
 from solver.identify import identify
-from solver.model import model_data_from_dataset
-from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG
+from solver.joints import JOINTS, LEGS
 from solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD,
-                            offsets_from_parameters, write_offsets)
+                            offsets_from_result, write_offsets)
 from solver.registry import Registry
 
 log = logging.getLogger(__name__)
@@ -115,18 +115,26 @@ class Context:
 
 
 def dataset_meta(backend, source: str) -> dict:
+    """dataset.json (naocal.dataset/2) of a run: the robot's identity, its camera's prior intrinsics, the sandals
+    as the robot description has them, its gravity."""
+    from solver.robot import nao
+
     identity = backend.robot_identity()
-    intrinsics = backend.intrinsics().to_dict()
+    camera = backend.intrinsics().to_dict()
+    name = camera.pop("name", "bottom")
+    sandals = {leg: nao().target(leg) for leg in LEGS}
     return {
-        "schema": "naocal.dataset/1",
+        "schema": "naocal.dataset/2",
         "robot": {"id": str(identity.get("id", "unknown")), "model": str(identity.get("model", "NAO")),
                   "body_id": str(identity.get("body_id", identity.get("id", "unknown"))),
-                  "head_id": str(identity.get("head_id", identity.get("id", "unknown")))},
-        "camera": intrinsics,
-        "board": {"columns": BOARD_COLUMNS, "rows": BOARD_ROWS, "square_m": BOARD_SQUARE_M,
-                  "center_x_m": BOARD_CENTER_X_M, "mass_kg": SANDAL_MASS_KG},
+                  "head_id": str(identity.get("head_id", identity.get("id", "unknown"))), "description": "nao"},
+        "cameras": {name: camera},
+        "targets": {leg: {"columns": t.board.columns, "rows": t.board.rows, "square_m": t.board.square_m,
+                          "mass_kg": t.board.mass_kg, "centre_m": [float(x) for x in t.centre]}
+                    for leg, t in sandals.items()},
+        "joints": list(JOINTS),
         "source": source,
-        "gravity_torso_mps2": [float(g) for g in backend.gravity_torso_mps2()],
+        "gravity_mps2": [float(g) for g in backend.gravity_torso_mps2()],
     }
 
 
@@ -228,7 +236,7 @@ class Measure(State):
         still = _still_images(data)
         for m in still:
             rows = data.image_of_row == m
-            if rows.sum() == 24:
+            if rows.sum() == data.robot.target(data.target[m]).board.n_vertices:  # a complete board
                 ctx.estimate.preload(str(data.leg[m]), data.theta[m], data.uv_px[rows])
         ctx.estimate.refit()
 
@@ -318,14 +326,9 @@ class Compensation(State):
 
     def run(self, ctx: Context) -> Outcome:
         result = ctx.identification
-        robot = ctx.meta["robot"]
-        fit = {"rms_px": list(result.rms_px), "n_vertices": int(result.model.data.n_rows),
-               "n_images": int(result.model.data.n_images)}
-        offsets = offsets_from_parameters(
-            result.parameters_dict(), robot={"id": robot["id"], "body_id": robot.get("body_id"),
-                                             "head_id": robot.get("head_id")},
-            fit=fit, source={"tool": ctx.settings.source, "dataset": str(ctx.dataset_dir), "seed": ctx.settings.seed,
-                             "plan": ctx.plan.kind if ctx.plan else None})
+        offsets = offsets_from_result(result, robot=ctx.meta["robot"], source={
+            "tool": ctx.settings.source, "dataset": str(ctx.dataset_dir), "seed": ctx.settings.seed,
+            "plan": ctx.plan.kind if ctx.plan else None})
         write_offsets(offsets, ctx.out_dir / "offsets.json")
         ctx.offsets = offsets
         ctx.compensated = CompensatedBackend(ctx.backend, offsets)

@@ -13,6 +13,7 @@ import numpy as np
 import pybullet
 
 from backends.pybullet_body import T_WORLD_TORSO, NaoBody
+from solver.camera import project_points
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole
 from solver.transforms import transform_points
@@ -103,10 +104,7 @@ def view_matrix(q_leg, leg, q_head, intrinsics, rules: ViewRules = ViewRules(), 
     R_cat = np.transpose(R, (1, 0, 2)).reshape(3, 3 * h)
     p_cam = (p_torso.reshape(-1, 3) @ R_cat).reshape(n, len(V), h, 3) - np.einsum("hji,hj->hi", R, t)[None, None]
     p_cam = np.transpose(p_cam, (0, 2, 1, 3))  # (n, h, 24, 3)
-    depth = p_cam[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack([intrinsics["cx_px"] - intrinsics["fx_px"] * p_cam[..., 1] / depth,
-                       intrinsics["cy_px"] - intrinsics["fy_px"] * p_cam[..., 2] / depth], axis=-1)
+    uv, depth = project_points(p_cam, intrinsics)  # solver.camera: the one projection, with distortion
     centre, normal = _board_centre_and_normal(T_sole)
     sight = centre[:, None, :] - t[None, :, :]
     cos_tilt = -np.einsum("ni,nhi->nh", normal, sight) / np.linalg.norm(sight, axis=2)

@@ -1,6 +1,6 @@
 """A Backend wrapper that applies a calibration: commands + c, readings - c.
 
-With the stored offset c = -alpha (naocal.offsets/1) and the robot's q_true = theta_measured + alpha, a command
+With the stored offset c = -alpha (naocal.offsets) and the robot's q_true = theta_measured + alpha, a command
 q_req sent as q_req + c makes the servo drive its sensor to q_req + c, so the joint truly stands at
 q_req + c + alpha = q_req; and a reading theta gives theta - c = theta + alpha = the true angle.
 Joints the offsets do not mention pass unchanged. The limits it reports are the robot's, seen from the

@@ -99,8 +99,9 @@ DEFAULT_POSTURE = {
 SPREAD_POSTURE = {**DEFAULT_POSTURE, "LHipRoll": 0.6, "RHipRoll": -0.6, "LAnkleRoll": 0.2, "RAnkleRoll": -0.2}
 
 
-def parse_effects(items) -> dict[str, float]:
-    """{name: size} from strings 'NAME=SIZE' (the `--effect` arguments); NaocalError naming the bad one."""
+def parse_effect_sizes(items) -> dict[str, float]:
+    """{name: size} from strings 'NAME=SIZE' (the `--effect` arguments of the mock); NaocalError naming the bad one.
+    (solver.effects.parse_effect_names parses the other format: the names of model terms, 'E1,E2'.)"""
     effects = {}
     for item in items or ():
         name, sep, size_text = str(item).partition("=")
@@ -225,9 +226,16 @@ def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
 
 
 def default_intrinsics(realism: Realism | str = IDEAL) -> CameraIntrinsics:
-    """The prior intrinsics the mock reports: fx = fy = 600 px (ideal) or 618 px (realistic), centre (320, 240)."""
+    """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json, a
+    real NAO head: fx = fy = 618 px, centre (320, 240)) unless the realism idealises the focal length (the ideal
+    mock: 600 px)."""
+    from solver.camera import default_intrinsics as prior
+
+    d = prior("bottom")
     f = as_realism(realism).prior_focal_px
-    return CameraIntrinsics(width_px=640, height_px=480, fx_px=f, fy_px=f, cx_px=320.0, cy_px=240.0)
+    fx, fy = (d["fx_px"], d["fy_px"]) if f is None else (f, f)
+    return CameraIntrinsics(width_px=d["width_px"], height_px=d["height_px"], fx_px=fx, fy_px=fy,
+                            cx_px=d["cx_px"], cy_px=d["cy_px"])
 
 
 @dataclass(frozen=True)
@@ -348,8 +356,8 @@ class MockBackend(Backend):
     command_delay_s : a command starts moving the joints this long after it is given.
     safety_margin_m : parts of the true body (and the ground) closer than this make a motion unsafe.
     supersample : anti-aliasing of the boards (sub-pixels per pixel and axis).
-    nominal_intrinsics : the camera's prior intrinsics (default fx = fy = 600 ideal, 618 realistic; cx, cy = 320,
-        240).
+    nominal_intrinsics : the camera's prior intrinsics (default: `default_intrinsics(realism)`, fx = fy = 600 px
+        ideal, the robot description's 618 px realistic; cx, cy = 320, 240).
     posture : starting joint angles (command space) replacing those of DEFAULT_POSTURE.
     """
 

@@ -26,6 +26,7 @@ import numpy as np
 import pybullet
 
 from backends.pybullet_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
+from solver.camera import project_points
 from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 from solver.transforms import invert_transform
 
@@ -51,11 +52,9 @@ class CameraModel:
 
     def project(self, p_cam: np.ndarray) -> np.ndarray:
         """Pixel positions (..., 2) of points (..., 3) in the camera frame (x > 0 in front of the camera)."""
-        p_cam = np.asarray(p_cam, dtype=float)
-        a = -p_cam[..., 1] / p_cam[..., 0]
-        b = -p_cam[..., 2] / p_cam[..., 0]
-        factor = 1.0 + self.k1 * (a * a + b * b)
-        return np.stack([self.cx_px + self.fx_px * a * factor, self.cy_px + self.fy_px * b * factor], axis=-1)
+        uv, _ = project_points(p_cam, {"fx_px": self.fx_px, "fy_px": self.fy_px, "cx_px": self.cx_px,
+                                       "cy_px": self.cy_px, "distortion": (self.k1, 0.0, 0.0, 0.0, 0.0)})
+        return uv  # solver.camera: the one projection
 
     def undistort_px(self, uv: np.ndarray, iterations: int = 50) -> np.ndarray:
         """Undistorted pixel positions (..., 2) of distorted ones (fixed-point iteration, exact to ~1e-12 px for

@@ -27,16 +27,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from solver.identify import identify  # noqa: E402
 from solver.kinematics import camera_fk, leg_fk  # noqa: E402
-from solver.model import HEAD_COLUMNS, LEG_COLUMNS  # noqa: E402
-from solver.joints import LEG_JOINTS  # noqa: E402
+from solver.joints import HEAD_COLUMNS, LEG_COLUMNS, LEG_JOINTS  # noqa: E402
 from solver.registry import Registry  # noqa: E402
 from solver.synthetic import random_truth, synthesize  # noqa: E402
 from solver.transforms import rot_x, rot_y, rot_z  # noqa: E402
 
 
 def straightforward_residuals(x, data):
-    """The paper's model, one image at a time."""
-    alpha = x[:12]
+    """The paper's model, one image at a time (x: the 12 joint offsets c, camera roll, pitch, yaw, the boards)."""
+    alpha = -x[:12]  # q_true = theta - c
     roll, pitch, yaw = x[12:15]
     R_off = rot_y(pitch) @ rot_x(roll) @ rot_z(yaw)
     out = []
@@ -49,7 +48,7 @@ def straightforward_residuals(x, data):
         T_cam = camera_fk(data.theta[m, HEAD_COLUMNS][None])[0]
         R_cam = T_cam[:3, :3] @ R_off
         rz, bx, by = x[15:18] if leg == "L" else x[18:21]
-        for p, uv in zip(data.p_sole[rows], data.uv_px[rows]):
+        for p, uv in zip(data.p_mount[rows], data.uv_px[rows]):
             q = rot_z(rz) @ (p + np.array([bx, by, 0.0]))
             p_torso = T_sole[:3, :3] @ q + T_sole[:3, 3]
             pc = R_cam.T @ (p_torso - T_cam[:3, 3])

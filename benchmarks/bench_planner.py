@@ -54,7 +54,7 @@ def design_part(seeds):
 
 def mock_part(seeds):
     from agent.calibrate import calibrate
-    from agent.report import truth_errors
+    from agent.summary import truth_errors
     from agent.states import AgentSettings
     from backends.mock import MockBackend
 

@@ -43,7 +43,7 @@ def run(mock_kind: str, seed: int, out: Path) -> dict:
     fit = ctx.identification
     if fit is not None:
         alpha = mock.truth.alpha_rad
-        errors = [abs(fit.value(f"joint_offset.{j}") - alpha[j]) for j in LEG_JOINTS]
+        errors = [abs(fit.value(f"joint_offset.{j}") + alpha[j]) for j in LEG_JOINTS]  # the parameter is c = -alpha
         stds = [float(fit.std[fit.registry.index[f"joint_offset.{j}"]]) for j in LEG_JOINTS]
         row.update(rms_px=max(fit.rms_px), worst_error_deg=math.degrees(max(errors)),
                    worst_std_deg=math.degrees(max(stds)),

@@ -1,2 +1,3 @@
-"""naocal's NAO model, parameter registry, identification and diagnostics. Pure computation: no robot, no I/O
-except the dataset and offsets readers and writers."""
+"""naocal's solver: the robot description, the camera model, the measurement model and its effects (one module each
+in solver/effects/), the parameter registry, identification and diagnostics. Pure computation: no robot, no I/O
+except the robot description, dataset and offsets readers and writers."""

@@ -1,7 +1,7 @@
 """Grouped cross-validation: fit on some stances, predict the stances the fit did not see.
 
 A model that only explains the noise of the data it was fitted to (too many parameters) predicts unseen stances
-worse; one that captures a real effect predicts them better. Whole stances (leg, stance) are held out, with all
+worse; one that captures a real effect predicts them better. Whole stances (target, stance) are held out, with all
 their head postures, because images of one stance share its joint errors: holding out single images would let
 the fit see the held-out stance through its siblings.
 """
@@ -17,12 +17,13 @@ from solver.registry import Registry
 
 
 def stance_folds(data: ModelData, n_folds: int = 5, seed: int = 0) -> list[np.ndarray]:
-    """Image indices (into `data`) of each fold; every stance (leg, stance) lies in exactly one fold.
+    """Image indices (into `data`) of each fold; every stance (target, stance) lies in exactly one fold.
 
-    Stances are shuffled with `seed` and dealt round-robin per leg, so every fold holds stances of both legs.
+    Stances are shuffled with `seed` and dealt round-robin per target, so every fold holds stances of every target
+    (the NAO: of both legs).
     With fewer stances than folds, every stance is its own fold (leave-one-stance-out).
     """
-    keys = [(str(leg), int(s)) for leg, s in zip(data.leg, data.stance)]
+    keys = [(str(t), int(s)) for t, s in zip(data.target, data.stance)]
     groups = list(dict.fromkeys(keys))
     if len(groups) < 2:
         raise NaocalError("cross-validation needs at least two stances")
@@ -31,10 +32,10 @@ def stance_folds(data: ModelData, n_folds: int = 5, seed: int = 0) -> list[np.nd
         raise NaocalError("cross-validation needs at least two folds")
     rng = np.random.default_rng(seed)
     fold_of_group, position = {}, 0
-    for leg in sorted({g[0] for g in groups}):
-        leg_groups = [g for g in groups if g[0] == leg]
-        for k in rng.permutation(len(leg_groups)):
-            fold_of_group[leg_groups[k]] = position % n_folds
+    for target in sorted({g[0] for g in groups}):
+        target_groups = [g for g in groups if g[0] == target]
+        for k in rng.permutation(len(target_groups)):
+            fold_of_group[target_groups[k]] = position % n_folds
             position += 1
     fold = np.array([fold_of_group[k] for k in keys])
     return [np.flatnonzero(fold == f) for f in range(n_folds)]
@@ -44,9 +45,9 @@ def grouped_cv_residuals(data: ModelData, registry: Registry, n_folds: int = 5,
                          seed: int = 0) -> tuple[ModelData, np.ndarray]:
     """Held-out residuals: every stance predicted by the model fitted to the other folds.
 
-    Returns (data sorted by leg, residuals (N, 2) px in that data's row order).
+    Returns (data sorted by target, residuals (N, 2) px in that data's row order).
     """
-    data = data.sorted_by_leg()
+    data = data.sorted_by_target(registry.setup.targets)
     residuals = np.full((data.n_rows, 2), np.nan)
     for k, held_out in enumerate(stance_folds(data, n_folds, seed)):
         train = np.setdiff1d(np.arange(data.n_images), held_out)

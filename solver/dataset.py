@@ -1,10 +1,18 @@
-"""The `naocal.dataset/1` directory format: what the agent records and the solver replays.
+"""The `naocal.dataset/2` directory format (and `naocal.dataset/1`, which still reads): what the agent records and
+the solver replays.
 
 A dataset is a directory holding
 - `dataset.json`: robot, prior camera intrinsics, board, source, optional gravity and pixel noise;
 - `observations.csv`: a header row, then one row per detected board vertex (columns below, any order,
   extra columns allowed and kept);
 - optionally `images/` with the captured images (never read here).
+
+Version 2 (docs/FORMATS.md) has a camera and a target per image (columns `camera`, `target`, names from the robot
+description `robot.description`), any joint set of that description (`joints` in dataset.json), the vertices'
+nominal positions in the frame the target is attached to (`x_mount_m`, ...) and optional per-image gravity
+(`gravity_x_mps2`, ...). Version 1 has one camera ('bottom'), the NAO's 14 joints, the sandals (`leg`) and
+sole positions (`x_sole_m`, ...). Both read as written (`Dataset.version`); `Dataset.as_v2()` gives any dataset
+in version 2's form, which is what the solver uses. naocal writes version 2.
 
 Every problem is a `DataError` naming the file, the line (1-based, the header is line 1) and the column or field.
 `DatasetAppender` lets the agent save each capture as it goes, so a crash never loses a complete capture.
@@ -20,6 +28,7 @@ import logging
 import math
 import operator
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +40,9 @@ from solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
 
-SCHEMA = "naocal.dataset/1"
+SCHEMA = SCHEMA_V1 = "naocal.dataset/1"
+SCHEMA_V2 = "naocal.dataset/2"  # what naocal writes
+SCHEMAS = (SCHEMA_V1, SCHEMA_V2)
 META_FILE = "dataset.json"
 OBSERVATIONS_FILE = "observations.csv"
 IMAGES_DIR = "images"
@@ -55,6 +66,39 @@ LEGS = ("L", "R")
 # Values that describe the robot's state when an image was taken: identical on every row of one image.
 PER_IMAGE_COLUMNS = ("leg", "stance", "head_posture") + MEASURED_COLUMNS + COMMANDED_COLUMNS + DIRECTION_COLUMNS
 
+# Version 2: the columns before the joints', in the writer's order, and the optional per-image gravity.
+V2_LEADING_COLUMNS = ("image", "camera", "target", "stance", "head_posture", "vertex", "u_px", "v_px",
+                      "x_mount_m", "y_mount_m", "z_mount_m", "t_image_s", "t_joints_s")
+GRAVITY_COLUMNS = ("gravity_x_mps2", "gravity_y_mps2", "gravity_z_mps2")  # per image, in the robot's base frame
+V1_TO_V2_COLUMNS = {"leg": "target", "x_sole_m": "x_mount_m", "y_sole_m": "y_mount_m", "z_sole_m": "z_mount_m"}
+
+
+@dataclass(frozen=True)
+class ColumnSpec:
+    """What observations.csv must hold, for one format version (and, in version 2, one dataset.json)."""
+
+    version: int
+    required: tuple  # in the writer's order
+    per_image: tuple  # identical on every row of one image
+    velocity: tuple  # vel_ columns: all or none
+    gravity: tuple  # gravity columns: all or none (version 2)
+    direction: tuple  # values -1, 0, 1
+    names: dict  # text column -> its allowed values
+
+
+V1_SPEC = ColumnSpec(1, REQUIRED_COLUMNS, PER_IMAGE_COLUMNS, VELOCITY_COLUMNS, (), DIRECTION_COLUMNS, {"leg": LEGS})
+
+
+def column_spec(meta: dict) -> ColumnSpec:
+    """The column spec of a validated dataset.json."""
+    if meta.get("schema") != SCHEMA_V2:
+        return V1_SPEC
+    joints = tuple(meta["joints"])
+    angles = joints + tuple("cmd_" + j for j in joints) + tuple("dir_" + j for j in joints)
+    return ColumnSpec(2, V2_LEADING_COLUMNS + angles, ("camera", "target", "stance", "head_posture") + angles,
+                      tuple("vel_" + j for j in joints), GRAVITY_COLUMNS, tuple("dir_" + j for j in joints),
+                      {"camera": tuple(meta["cameras"]), "target": tuple(meta["targets"])})
+
 
 @dataclass
 class Dataset:
@@ -76,16 +120,32 @@ class Dataset:
     path: Path | None = None
 
     @property
+    def version(self) -> int:
+        return 2 if self.meta.get("schema") == SCHEMA_V2 else 1
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        """The joint columns: dataset.json's `joints` (version 2), the NAO's 14 (version 1)."""
+        return tuple(self.meta["joints"]) if self.version == 2 else JOINTS
+
+    @property
     def n_rows(self) -> int:
         return len(self.columns["image"])
 
+    def as_v2(self) -> Dataset:
+        """This dataset in version 2's form (itself when it is one)."""
+        if self.version == 2:
+            return self
+        meta, columns = upgrade_v1(self.meta, self.columns)
+        return Dataset(meta, columns, self.path)
+
     def joint_matrix(self, prefix: str = "") -> np.ndarray:
-        """(N, 14) float array in solver.joints.JOINTS order.
+        """(N, J) float array in `joints` order (version 1: solver.joints.JOINTS).
 
         prefix "" gives the measured angles (rad), "cmd_" the commanded angles (rad), "dir_" the approach
         directions (-1, 0, 1), "vel_" the joint velocities (rad/s, only if the dataset has them).
         """
-        names = [prefix + j for j in JOINTS]
+        names = [prefix + j for j in self.joints]
         missing = [n for n in names if n not in self.columns]
         if missing:
             raise KeyError(f"dataset has no column {missing[0]!r}")
@@ -97,7 +157,7 @@ class Dataset:
 
     @property
     def has_velocities(self) -> bool:
-        return VELOCITY_COLUMNS[0] in self.columns
+        return "vel_" + self.joints[0] in self.columns
 
     def select(self, rows) -> Dataset:
         """A new dataset with only `rows` (boolean mask or index array); meta is copied."""
@@ -195,11 +255,13 @@ def read_text(path) -> str:
 
 
 def validate_meta(meta, path) -> dict:
-    """Check a dataset.json document and return a copy with defaults filled in."""
+    """Check a dataset.json document (version 1 or 2) and return a copy with defaults filled in."""
     meta = _check_object(meta, path, "(top level)")
     schema = _require(meta, "schema", path, "")
+    if schema == SCHEMA_V2:
+        return validate_meta_v2(meta, path)
     if schema != SCHEMA:
-        raise DataError(path, f"wrong schema {schema!r}, expected {SCHEMA!r}", field="schema")
+        raise DataError(path, f"wrong schema {schema!r}, expected {SCHEMA_V2!r} (or {SCHEMA_V1!r})", field="schema")
     bad = find_non_finite(meta)
     if bad:
         raise DataError(path, "non-finite value (NaN or infinity)", field=bad)
@@ -241,8 +303,113 @@ def validate_meta(meta, path) -> dict:
     return meta
 
 
-def n_board_vertices(meta: dict) -> int:
+_NAME = re.compile(r"^[a-z0-9_]{1,64}$")
+
+
+def validate_meta_v2(meta, path) -> dict:
+    """Check a version 2 dataset.json and return a copy with defaults filled in (robot.description 'nao', the
+    description's gravity). Names of cameras, targets and joints must be the robot description's."""
+    from solver.robot import load_robot
+
+    meta = _check_object(meta, path, "(top level)")
+    bad = find_non_finite(meta)
+    if bad:
+        raise DataError(path, "non-finite value (NaN or infinity)", field=bad)
+    meta = copy.deepcopy(meta)
+    robot_meta = _check_object(_require(meta, "robot", path, ""), path, "robot")
+    for key in ("id", "model"):
+        _check_string(_require(robot_meta, key, path, "robot."), path, f"robot.{key}")
+    description = robot_meta.setdefault("description", "nao")
+    if not isinstance(description, str) or not _NAME.match(description):
+        raise DataError(path, f"expected the name of a robot description (e.g. 'nao'), got {description!r}",
+                        field="robot.description")
+    try:
+        robot = load_robot(description)
+    except DataError:
+        raise DataError(path, f"unknown robot description {description!r}", field="robot.description") from None
+
+    cameras = _check_object(_require(meta, "cameras", path, ""), path, "cameras")
+    if not cameras:
+        raise DataError(path, "expected at least one camera", field="cameras")
+    for name, camera in cameras.items():
+        where = f"cameras.{name}"
+        if name not in robot.cameras:
+            raise DataError(path, f"camera {name!r} is not one of the robot's ({', '.join(robot.cameras)})",
+                            field=where)
+        camera = _check_object(camera, path, where)
+        for key in ("width_px", "height_px"):
+            _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
+                          integer=True)
+        for key in ("fx_px", "fy_px"):
+            _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}", positive=True)
+        for key in ("cx_px", "cy_px"):
+            _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}")
+        if "distortion" in camera:
+            _check_vector(camera["distortion"], 5, path, f"{where}.distortion")
+
+    targets = _check_object(_require(meta, "targets", path, ""), path, "targets")
+    if not targets:
+        raise DataError(path, "expected at least one target", field="targets")
+    for name, board in targets.items():
+        where = f"targets.{name}"
+        if name not in robot.targets:
+            raise DataError(path, f"target {name!r} is not one of the robot's ({', '.join(robot.targets)})",
+                            field=where)
+        board = _check_object(board, path, where)
+        for key in ("columns", "rows"):
+            n = _check_number(_require(board, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
+                              integer=True)
+            if n < 2:
+                raise DataError(path, f"a board needs at least 2 squares, got {n}", field=f"{where}.{key}")
+        _check_number(_require(board, "square_m", path, f"{where}."), path, f"{where}.square_m", positive=True)
+        _check_number(_require(board, "mass_kg", path, f"{where}."), path, f"{where}.mass_kg", non_negative=True)
+        if "centre_m" in board:
+            _check_vector(board["centre_m"], 3, path, f"{where}.centre_m")
+
+    joints = _require(meta, "joints", path, "")
+    if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
+        raise DataError(path, "expected a list of joint names", field="joints")
+    for i, joint in enumerate(joints):
+        if joint not in robot.joints:
+            raise DataError(path, f"joint {joint!r} is not one of the robot's", field=f"joints[{i}]")
+    if len(set(joints)) != len(joints):
+        raise DataError(path, "a joint is listed twice", field="joints")
+
+    _check_string(_require(meta, "source", path, ""), path, "source")
+    if "pixel_noise_px" in meta:
+        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True)
+    if "gravity_mps2" in meta:
+        _check_vector(meta["gravity_mps2"], 3, path, "gravity_mps2")
+    else:
+        meta["gravity_mps2"] = list(robot.gravity_mps2)
+    return meta
+
+
+def upgrade_v1(meta: dict, columns: dict) -> tuple[dict, dict]:
+    """(meta, columns) of a version 1 dataset in version 2's form: the NAO, its camera (dataset.json `camera`),
+    the sandals 'L' and 'R' (its `board`, mass at the board centre), its 14 joints, gravity as it was."""
+    camera = {k: v for k, v in meta["camera"].items() if k != "name"}
     board = meta["board"]
+    sandal = {"columns": board["columns"], "rows": board["rows"], "square_m": board["square_m"],
+              "mass_kg": board["mass_kg"], "centre_m": [board["center_x_m"], 0.0, 0.0]}
+    upgraded = {"schema": SCHEMA_V2, "robot": {**meta["robot"], "description": "nao"},
+                "cameras": {meta["camera"]["name"]: camera}, "targets": {leg: dict(sandal) for leg in LEGS},
+                "joints": list(JOINTS), "source": meta["source"],
+                "gravity_mps2": list(meta.get("gravity_torso_mps2", DEFAULT_GRAVITY_TORSO_MPS2))}
+    for key, value in meta.items():
+        if key not in ("schema", "robot", "camera", "board", "source", "gravity_torso_mps2"):
+            upgraded[key] = copy.deepcopy(value)
+    out = {}
+    for name, values in columns.items():
+        out[V1_TO_V2_COLUMNS.get(name, name)] = values
+        if name == "image":
+            out["camera"] = np.full(len(values), meta["camera"]["name"])
+    return upgraded, out
+
+
+def n_board_vertices(meta: dict, target: str | None = None) -> int:
+    """Inner vertices of the board (version 1) or of a target's board (version 2)."""
+    board = meta["targets"][target] if meta.get("schema") == SCHEMA_V2 else meta["board"]
     return (int(board["columns"]) - 1) * (int(board["rows"]) - 1)
 
 
@@ -274,15 +441,20 @@ def _try_float(values):
         return None
 
 
-def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
+def _parse_column(name: str, strings, line_numbers, path, spec=None) -> np.ndarray:
     """One required (or vel_) column: parse and check the values of a single column."""
-    if name == "leg":
-        leg = np.array(strings, dtype=str) if len(strings) else np.array([], dtype="<U1")
-        bad = ~np.isin(leg, LEGS)
+    spec = spec or V1_SPEC
+    if name in spec.names:
+        allowed = spec.names[name]
+        values = np.array(strings, dtype=str) if len(strings) else np.array([], dtype="<U1")
+        bad = ~np.isin(values, allowed)
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"unknown leg {leg[i]!r}, expected 'L' or 'R'", line=line_numbers[i], field=name)
-        return leg
+            what = "leg" if name == "leg" else name
+            expected = "'L' or 'R'" if name == "leg" else "one of " + ", ".join(repr(a) for a in allowed)
+            raise DataError(path, f"unknown {what} {str(values[i])!r}, expected {expected}", line=line_numbers[i],
+                            field=name)
+        return values
     values = _to_float(strings, path, name, line_numbers)
     bad = ~np.isfinite(values)
     if bad.any():
@@ -294,7 +466,7 @@ def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
             i = _first_bad(bad)
             raise DataError(path, f"expected an integer, got {strings[i]!r}", line=line_numbers[i], field=name)
         values = values.astype(np.int64)
-    if name in DIRECTION_COLUMNS:
+    if name in spec.direction:
         bad = ~np.isin(values, (-1.0, 0.0, 1.0))
         if bad.any():
             i = _first_bad(bad)
@@ -303,7 +475,7 @@ def _parse_column(name: str, strings, line_numbers, path) -> np.ndarray:
     return values
 
 
-def _read_table(text: str, path):
+def _read_table(text: str, path, spec=None):
     """(header, raw columns {name: list of str}, line numbers of the data rows) of CSV text.
 
     Blank lines are skipped; line numbers are 1-based (the header is line 1). The header is checked here.
@@ -318,7 +490,7 @@ def _read_table(text: str, path):
         header = numbered[0][1].split(",")
         data = numbered[1:]
         _check_header_position(numbered[0][0], path)
-        velocity_names = _check_header(header, path)
+        velocity_names = _check_header(header, path, spec)
         n_fields = len(header)
         for line_number, line in data:
             if line.count(",") != n_fields - 1:
@@ -340,7 +512,7 @@ def _read_table(text: str, path):
         raise DataError(path, "empty file: expected a header row and observations")
     _check_header_position(numbered[0][0], path)
     header, data = numbered[0][1], numbered[1:]
-    velocity_names = _check_header(header, path)
+    velocity_names = _check_header(header, path, spec)
     for line_number, row in data:
         if len(row) != len(header):
             raise DataError(path, f"{len(row)} fields, but the header has {len(header)}", line=line_number)
@@ -354,7 +526,9 @@ def _check_header_position(line_number, path):
         raise DataError(path, "the header must be the first line", line=1)
 
 
-def _check_header(header, path):
+def _check_header(header, path, spec=None):
+    """Check the header; return the optional all-or-none columns present (vel_, and gravity in version 2)."""
+    spec = spec or V1_SPEC
     if header[0].startswith("\ufeff"):  # byte order mark written by some spreadsheets
         header[0] = header[0][1:]
     seen = set()
@@ -364,15 +538,19 @@ def _check_header(header, path):
         if name in seen:
             raise DataError(path, "duplicate column in the header", line=1, field=name)
         seen.add(name)
-    missing = [name for name in REQUIRED_COLUMNS if name not in seen]
+    missing = [name for name in spec.required if name not in seen]
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise DataError(path, f"missing required column{more}", line=1, field=missing[0])
-    present_vel = tuple(name for name in VELOCITY_COLUMNS if name in seen)
-    if present_vel and len(present_vel) != len(VELOCITY_COLUMNS):
-        absent = next(name for name in VELOCITY_COLUMNS if name not in seen)
-        raise DataError(path, "vel_ columns must be given for all 14 joints or none", line=1, field=absent)
-    return present_vel
+    present = ()
+    for group, what in ((spec.velocity, f"vel_ columns must be given for all {len(spec.velocity)} joints or none"),
+                        (spec.gravity, "gravity_x_mps2, gravity_y_mps2, gravity_z_mps2 must be given together")):
+        given = tuple(name for name in group if name in seen)
+        if given and len(given) != len(group):
+            absent = next(name for name in group if name not in seen)
+            raise DataError(path, what, line=1, field=absent)
+        present += given
+    return present
 
 
 def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False):
@@ -380,13 +558,14 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
 
     Returns (columns, header): columns as in `Dataset.columns`, header the column names in file order.
     """
-    header, raw, line_numbers, velocity_names = _read_table(text, path)
+    spec = column_spec(meta)
+    header, raw, line_numbers, velocity_names = _read_table(text, path, spec)
     n_rows = len(line_numbers)
     if not n_rows and not allow_empty:
         raise DataError(path, "no observations: the file has only a header")
 
-    columns = {"image": _parse_column("image", raw["image"], line_numbers, path)}
-    per_image = PER_IMAGE_COLUMNS + velocity_names
+    columns = {"image": _parse_column("image", raw["image"], line_numbers, path, spec)}
+    per_image = spec.per_image + velocity_names
     _, first, inverse = np.unique(columns["image"], return_index=True, return_inverse=True)
     if n_rows and _constant_within_images(raw, per_image, first[inverse]):
         # Parse each image's values once (from its first row, in file order) and broadcast them to its rows.
@@ -395,21 +574,28 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
         first_lines = [line_numbers[i] for i in first_rows]
         for name in per_image:
             strings = [raw[name][i] for i in first_rows]
-            parsed = _parse_column(name, strings, first_lines, path)
+            parsed = _parse_column(name, strings, first_lines, path, spec)
             per_image_values = np.empty_like(parsed)
             per_image_values[order] = parsed
             columns[name] = per_image_values[inverse]
-        per_row, check_per_image = [n for n in REQUIRED_COLUMNS if n not in columns], False
+        per_row, check_per_image = [n for n in spec.required if n not in columns], False
     else:
-        per_row, check_per_image = [n for n in REQUIRED_COLUMNS + velocity_names if n != "image"], True
+        per_row, check_per_image = [n for n in spec.required + velocity_names if n != "image"], True
     for name in per_row:
-        columns[name] = _parse_column(name, raw[name], line_numbers, path)
+        columns[name] = _parse_column(name, raw[name], line_numbers, path, spec)
 
-    n_vertices = n_board_vertices(meta)
+    if spec.version == 2:  # each row's board: its target's
+        counts = {t: n_board_vertices(meta, t) for t in meta["targets"]}
+        n_vertices_of_row = np.array([counts[t] for t in columns["target"]], dtype=np.int64)
+        n_vertices = max(counts.values())
+        vertex_range = "its target's vertex range"
+    else:
+        n_vertices_of_row = n_vertices = n_board_vertices(meta)
+        vertex_range = f"0..{n_vertices - 1}"
     checks = (
         ("image", columns["image"] < 0, "image index must not be negative"),
-        ("vertex", (columns["vertex"] < 0) | (columns["vertex"] >= n_vertices),
-         f"vertex must be in 0..{n_vertices - 1}"),
+        ("vertex", (columns["vertex"] < 0) | (columns["vertex"] >= n_vertices_of_row),
+         f"vertex must be in {vertex_range}"),
     )
     for name, bad, problem in checks:
         if bad.any():
@@ -418,7 +604,7 @@ def parse_observations(text: str, path, meta: dict, *, allow_empty: bool = False
     if n_rows:
         _check_unique_vertices(columns, path, line_numbers, n_vertices)
         if check_per_image:
-            _check_per_image(columns, path, line_numbers, velocity_names)
+            _check_per_image(columns, path, line_numbers, velocity_names, spec)
 
     for name in header:
         if name not in columns:  # extra column: numbers if every value is one, else text
@@ -450,10 +636,11 @@ def _check_unique_vertices(columns, path, line_numbers, n_vertices):
                               f"{columns['image'][i]}", line=line_numbers[i], field="vertex")
 
 
-def _check_per_image(columns, path, line_numbers, velocity_columns):
+def _check_per_image(columns, path, line_numbers, velocity_columns, spec=None):
+    spec = spec or V1_SPEC
     _, first, inverse = np.unique(columns["image"], return_index=True, return_inverse=True)
     first_row = first[inverse]  # for each row, the first row of the same image
-    for name in PER_IMAGE_COLUMNS + velocity_columns:
+    for name in spec.per_image + velocity_columns:
         values = columns[name]
         bad = values != values[first_row]
         if bad.any():
@@ -467,7 +654,7 @@ def _check_per_image(columns, path, line_numbers, velocity_columns):
 
 
 def read_dataset(path) -> Dataset:
-    """Read and validate a `naocal.dataset/1` directory. Raises DataError on any problem."""
+    """Read and validate a `naocal.dataset/2` (or /1) directory. Raises DataError on any problem."""
     path = Path(path)
     if not path.exists():
         raise DataError(path, "dataset directory not found")
@@ -486,12 +673,14 @@ def read_dataset(path) -> Dataset:
 # ---------------------------------------------------------------------------------------------- writing
 
 
-def ordered_column_names(names) -> list[str]:
-    """Required columns in issue 2's order, then vel_ columns in joint order, then extras in their order."""
+def ordered_column_names(names, meta: dict | None = None) -> list[str]:
+    """Required columns in the format's order (version 1: issue 2's), then vel_ columns in joint order (and the
+    gravity columns), then extras in their order."""
+    spec = column_spec(meta) if meta is not None else V1_SPEC
     names = list(names)
-    known = set(REQUIRED_COLUMNS) | set(VELOCITY_COLUMNS)
-    ordered = [n for n in REQUIRED_COLUMNS if n in names]
-    ordered += [n for n in VELOCITY_COLUMNS if n in names]
+    known = set(spec.required) | set(spec.velocity) | set(spec.gravity)
+    ordered = [n for n in spec.required if n in names]
+    ordered += [n for n in spec.velocity + spec.gravity if n in names]
     ordered += [n for n in names if n not in known]
     return ordered
 
@@ -555,7 +744,7 @@ def write_dataset(dataset_or_parts, path) -> Dataset:
     meta, columns = _split_parts(dataset_or_parts)
     meta_path, obs_path = path / META_FILE, path / OBSERVATIONS_FILE
     meta = validate_meta(meta, meta_path)
-    names = ordered_column_names(columns)
+    names = ordered_column_names(columns, meta)
     csv_text = format_header(names) + format_rows(columns, names)
     parsed, _ = parse_observations(csv_text, obs_path, meta)  # never write what we could not read back
     path.mkdir(parents=True, exist_ok=True)
@@ -568,7 +757,8 @@ def write_dataset(dataset_or_parts, path) -> Dataset:
 
 
 ROWS_IN_IMAGE_COLUMN = "rows_in_image"  # written by the appender: lets a resume tell a complete image from a torn one
-_COMPARED_META_KEYS = ("schema", "robot", "camera", "board", "gravity_torso_mps2")
+_COMPARED_META_KEYS = ("schema", "robot", "camera", "board", "gravity_torso_mps2",  # version 1
+                       "cameras", "targets", "joints", "gravity_mps2")  # version 2
 
 
 def _rows_to_columns(rows) -> dict:
@@ -618,6 +808,10 @@ class DatasetAppender:
             atomic_write_text(self.meta_path, format_meta(meta))
             return meta
         existing = validate_meta(parse_json_text(read_text(self.meta_path), self.meta_path), self.meta_path)
+        if existing.get("schema") != meta.get("schema"):
+            raise DataError(self.meta_path, f"existing dataset is {existing.get('schema')}, this run writes "
+                                            f"{meta.get('schema')}: finish it with the naocal that began it, or "
+                                            "start a new one", field="schema")
         for key in _COMPARED_META_KEYS:
             if existing.get(key) != meta.get(key):
                 raise DataError(self.meta_path, f"existing dataset has a different {key!r} "
@@ -699,7 +893,7 @@ class DatasetAppender:
         if self._header is None or ROWS_IN_IMAGE_COLUMN in self._header:  # not in datasets other tools began
             columns[ROWS_IN_IMAGE_COLUMN] = [n] * n
         if self._header is None:
-            names = ordered_column_names(columns)
+            names = ordered_column_names(columns, self.meta)
         else:
             names = self._header
             if set(columns) != set(names):

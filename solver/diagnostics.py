@@ -21,10 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.joints import JOINTS, LEGS
+from solver.effects import EFFECTS, EXTRA_EFFECTS, owner_of
 from solver.model import Model, ModelData
-from solver.noisefloor import RigidSplit, encoder_noise_px, noise_floor_estimate, reading_resolution
-from solver.registry import EXTRA_EFFECTS, Registry
+from solver.noisefloor import RigidSplit, encoder_noise_px, noise_floor_estimate
+from solver.quantisation import reading_resolution
+from solver.registry import Registry
 from solver.scoretest import (RANK_TOLERANCE, _orthonormal_basis, _per_image_sum, _project_off, rms, score_test,
                               stance_clusters)
 
@@ -32,17 +33,9 @@ from solver.scoretest import (RANK_TOLERANCE, _orthonormal_basis, _per_image_sum
 # FAMILY_ALPHA / (number of candidates tested) (Bonferroni). 0.001: a still robot with a complete model should
 # almost never be told to add a term.
 FAMILY_ALPHA = 1e-3
-# Physically plausible size of each candidate's parameters (absolute value, SI): beyond it a significant
-# candidate is probably standing in for something else.
-PLAUSIBLE_LIMITS = {
-    "elasticity": 0.2,  # rad/(N m): 11 deg per N m; gravity torques are 0.05-0.3 N m
-    "backlash": np.radians(5.0),  # rad: B-Human warns above 5 deg
-    "link_lengths": 0.01,  # m
-    "head_offsets": np.radians(6.0),  # rad
-    "intrinsics": 60.0,  # px: 10 % of the focal length
-    "distortion": 0.5,  # 1
-    "time_lag": 0.2,  # s
-}
+# Physically plausible size of each candidate's parameters (absolute value, SI; each effect's `plausible_limit`):
+# beyond it a significant candidate is probably standing in for something else.
+PLAUSIBLE_LIMITS = {name: e.plausible_limit for name, e in EFFECTS.items() if not e.base}
 # Below this uniqueness the data can hardly tell a candidate from what the model already has.
 LOW_UNIQUENESS = 0.05
 
@@ -65,10 +58,10 @@ class Comparison:
     encoder_noise_px: float  # pixel error the quantised readings cause (`encoder_noise_px`), both coordinates
     noise_xy_px: tuple  # the floor per coordinate (x, y): quantisation moves boards more in one direction
     ratio_to_noise: float  # rms_total_px / noise_px
-    per_leg: dict  # leg -> {"rms_px": [x, y], "n_images"}
+    per_target: dict  # target -> {"rms_px": [x, y], "n_images"}
     per_head_posture: dict  # posture -> {"rms_px": [x, y], "n_images"}
-    per_stance: list  # [{"leg", "stance", "rms_px": [x, y], "n_images"}]
-    per_image: list  # [{"image", "leg", "stance", "head_posture", "rms_px": [x, y], "rms_total_px"}]
+    per_stance: list  # [{"target", "stance", "rms_px": [x, y], "n_images"}]
+    per_image: list  # [{"image", "target", "stance", "head_posture", "rms_px": [x, y], "rms_total_px"}]
 
 
 def _group_rms(residuals, image_of_row, keys):
@@ -91,7 +84,7 @@ def compare(result, *, pixel_noise_px: float | None = None, split: RigidSplit | 
     model, r = result.model, result.residuals_px
     data = model.data
     registry = result.registry
-    n_nonrigid = sum(1 for n in registry.free_names if n.startswith(("intrinsics.", "distortion.")))
+    n_nonrigid = sum(1 for n in registry.free_names if EFFECTS[registry.parameter(n).effect].non_rigid)
     estimate = noise_floor_estimate(model, result.values, r, n_nonrigid, split)
     if pixel_noise_px is not None and pixel_noise_px > 0:
         detector, source = float(pixel_noise_px), "dataset"
@@ -107,19 +100,20 @@ def compare(result, *, pixel_noise_px: float | None = None, split: RigidSplit | 
     total = rms(r)
     per_image_rms = np.sqrt(_per_image_sum(r ** 2, data.image_of_row, data.n_images)
                             / np.bincount(data.image_of_row, minlength=data.n_images)[:, None])
-    stance_keys = np.array([f"{leg}{s}" for leg, s in zip(data.leg, data.stance)])
+    stance_keys = np.array([f"{t}{s}" for t, s in zip(data.target, data.stance)])
     return Comparison(
         rms_px=tuple(float(v) for v in result.rms_px), rms_total_px=total, sigma_fit_px=result.sigma_px,
         noise_px=noise, noise_source=source, noise_estimate_px=estimate, detector_noise_px=detector,
         encoder_resolution_rad=resolution, encoder_noise_px=encoder, noise_xy_px=noise_xy,
         ratio_to_noise=total / noise if noise > 0 else float("inf"),
-        per_leg={leg: {"rms_px": [x, y], "n_images": n}
-                 for leg, (x, y, n) in _group_rms(r, data.image_of_row, data.leg).items()},
+        per_target={t: {"rms_px": [x, y], "n_images": n}
+                    for t, (x, y, n) in _group_rms(r, data.image_of_row, data.target).items()},
         per_head_posture={int(p): {"rms_px": [x, y], "n_images": n}
                           for p, (x, y, n) in sorted(_group_rms(r, data.image_of_row, data.head_posture).items())},
-        per_stance=[{"leg": key[0], "stance": int(key[1:]), "rms_px": [x, y], "n_images": n}
-                    for key, (x, y, n) in _group_rms(r, data.image_of_row, stance_keys).items()],
-        per_image=[{"image": int(data.image_id[m]), "leg": str(data.leg[m]), "stance": int(data.stance[m]),
+        per_stance=[{"target": str(data.target[m]), "stance": int(data.stance[m]), "rms_px": [x, y], "n_images": n}
+                    for key, (x, y, n) in _group_rms(r, data.image_of_row, stance_keys).items()
+                    for m in [int(np.flatnonzero(stance_keys == key)[0])]],
+        per_image=[{"image": int(data.image_id[m]), "target": str(data.target[m]), "stance": int(data.stance[m]),
                     "head_posture": int(data.head_posture[m]), "rms_px": per_image_rms[m].tolist(),
                     "rms_total_px": float(np.sqrt(np.mean(per_image_rms[m] ** 2)))} for m in range(data.n_images)],
     )
@@ -175,21 +169,14 @@ def candidate_effects(registry: Registry) -> tuple[str, ...]:
     return tuple(e for e in EXTRA_EFFECTS if e not in registry.effects)
 
 
-def _is_tied(registry: Registry) -> bool:
-    return any(p.tied_to for p in registry.parameters)
-
-
 def extended_registry(registry: Registry, effects) -> Registry:
-    """`registry` plus `effects`, keeping its ties and fixed parameters."""
-    return Registry(registry.effects + tuple(e for e in effects if e not in registry.effects),
-                    tie_hip_yaw_pitch=_is_tied(registry), fixed=sorted(registry.fixed))
+    """`registry` plus `effects`, keeping its setup, ties and fixed parameters."""
+    return registry.extended(effects)
 
 
 def untestable_reason(effect: str, data: ModelData) -> str:
-    """Why an effect cannot be tested on these data ('' if it can)."""
-    if effect == "time_lag" and data.velocity is None:
-        return "needs joint velocities (vel_<Joint> columns), which this dataset lacks"
-    return ""
+    """Why an effect cannot be tested on these data ('' if it can): the effect's own word."""
+    return EFFECTS[effect].untestable_reason(data)
 
 
 class _Extension:
@@ -274,7 +261,7 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
         candidate.statistic, candidate.p_value = test.statistic, test.p_value
         candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
         candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
-        limit = PLAUSIBLE_LIMITS.get(effect, np.inf)
+        limit = EFFECTS[effect].plausible_limit
         candidate.implausible = [nm for nm, v in candidate.predicted_values.items() if abs(v) > limit]
         candidate.plausible = not candidate.implausible
         scored.append(candidate)
@@ -286,11 +273,7 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
 
 
 def _no_signal_hint(effect: str) -> str:
-    return {
-        "time_lag": "every image was taken with the joints still: capture while moving to see a time lag",
-        "backlash": "no approach directions recorded: approach each pose from both sides",
-        "elasticity": "no gravity torque on the leg joints",
-    }.get(effect, "its parameters do not change any prediction")
+    return EFFECTS[effect].no_signal_hint
 
 
 def significance_threshold(candidates, family_alpha: float = FAMILY_ALPHA) -> float:
@@ -305,13 +288,13 @@ def significance_threshold(candidates, family_alpha: float = FAMILY_ALPHA) -> fl
 class Location:
     """Where the model fails. RMS values in px over both coordinates unless they say (x, y)."""
 
-    worst_images: list  # [{"image", "leg", "stance", "head_posture", "rms_total_px", "rigid_rms_px", ...}]
-    worst_stances: list  # [{"leg", "stance", "rms_total_px", "n_images"}]
+    worst_images: list  # [{"image", "target", "stance", "head_posture", "rms_total_px", "rigid_rms_px", ...}]
+    worst_stances: list  # [{"target", "stance", "rms_total_px", "n_images"}]
     rigid_rms_px: float  # RMS of the rigid part of all residuals
     nonrigid_rms_px: float
     rigid_share: float  # share of the residual sum of squares that is rigid board motion
     per_image_split: list  # [{"image", "rigid_rms_px", "nonrigid_rms_px"}]
-    boards: dict  # leg -> {"rms_px": [x, y], "rigid_rms_px", "nonrigid_rms_px", "mean_px": [x, y], "share"}
+    boards: dict  # target -> {"rms_px": [x, y], "rigid_rms_px", "nonrigid_rms_px", "mean_px": [x, y], "share"}
     board_summary: str
     regressors: list  # [{"regressor", "kind", "explained_share", "p_value", "dof"}], most explaining first
 
@@ -321,38 +304,49 @@ def _regressor_blocks(data: ModelData, L_flat: np.ndarray, capture_time_s=None):
 
     Per-image regressors z (joint angle, gravity torque, approach direction, velocity, capture time) enter as a
     rigid board motion proportional to z (6 columns L_m z_m): what any joint-level error driven by z would do.
-    Leg-joint regressors act only on the images of their own leg. Per-vertex regressors (image position,
-    radius) enter as a residual proportional to the position (x with u, y with v) or a radial pattern.
+    A joint on the chains to some targets acts only on the images of those targets (a leg joint on its own
+    board); a joint on a camera's chain on every image. Per-vertex regressors (image position, radius) enter as a
+    residual proportional to the position (x with u, y with v) or a radial pattern.
     """
     image = np.repeat(data.image_of_row, 2)
     blocks = []
+    robot = data.robot
+    targets_of_joint = {}
+    for t in np.unique(data.target):
+        for joint in robot.target_chain(t).joint_names:
+            targets_of_joint.setdefault(joint, set()).add(t)
+    on_cameras = {j for c in np.unique(data.camera) for j in robot.camera_chain(c).joint_names}
 
-    def per_image(name, z, own_leg=None):
+    def per_image(name, z, own=None):
         z = np.asarray(z, dtype=float).copy()
-        if own_leg is not None:
-            z[data.leg != own_leg] = 0.0
+        if own is not None:
+            z[~np.isin(data.target, list(own))] = 0.0
         if np.ptp(z) > 0:
             blocks.append((name, "image", L_flat * z[image][:, None]))
 
-    for c, joint in enumerate(JOINTS):
-        leg = joint[0] if joint[0] in LEGS else None  # leg joints act on their own board only
-        per_image(f"angle {joint}", data.theta[:, c], leg)
-        if leg is not None:
-            per_image(f"gravity torque {joint}", data.tau[:, c], leg)
-        per_image(f"approach direction {joint}", data.direction[:, c], leg)
+    for c, joint in enumerate(data.joints):
+        own = None if joint in on_cameras else targets_of_joint.get(joint)
+        if own is None and joint not in on_cameras:
+            continue  # on no chain of these data: it moves nothing
+        per_image(f"angle {joint}", data.theta[:, c], own)
+        if own is not None:
+            per_image(f"gravity torque {joint}", data.tau[:, c], own)
+        per_image(f"approach direction {joint}", data.direction[:, c], own)
         if data.velocity is not None:
-            per_image(f"velocity {joint}", data.velocity[:, c], leg)
+            per_image(f"velocity {joint}", data.velocity[:, c], own)
     times = np.asarray(capture_time_s if capture_time_s is not None else data.image_id, dtype=float)
     per_image("capture time" if capture_time_s is not None else "capture order", times - times.min())
 
-    intr = data.intrinsics
-    du = data.uv_px[:, 0] - intr["cx_px"]
-    dv = data.uv_px[:, 1] - intr["cy_px"]
+    camera_of_row = data.camera[data.image_of_row]
+    prior = {c: data.cameras[c] for c in np.unique(data.camera)}
+    of_row = lambda key: np.array([prior[c][key] for c in camera_of_row], dtype=float)  # noqa: E731
+    du = data.uv_px[:, 0] - of_row("cx_px")
+    dv = data.uv_px[:, 1] - of_row("cy_px")
     zeros = np.zeros_like(du)
     for name, d in (("image position u", du), ("image position v", dv)):
         blocks.append((name, "vertex", np.column_stack([np.column_stack([d, zeros]).reshape(-1),
                                                         np.column_stack([zeros, d]).reshape(-1)])))
-    rho2 = (du / intr["fx_px"]) ** 2 + (dv / intr["fy_px"]) ** 2
+    rho2 = (du / of_row("fx_px")) ** 2 + (dv / of_row("fy_px")) ** 2
     blocks.append(("image radius", "vertex", np.column_stack([du * rho2, dv * rho2]).reshape(-1, 1)))
     return blocks
 
@@ -372,24 +366,24 @@ def locate(result, *, capture_time_s=None, worst: int = 5, split: RigidSplit | N
     counts = np.bincount(data.image_of_row, minlength=data.n_images)
     ms = lambda a: _per_image_sum(np.sum(a ** 2, axis=1), data.image_of_row, data.n_images) / (2 * counts)  # noqa
     total_ms, rigid_ms, nonrigid_ms = ms(r), ms(rigid), ms(nonrigid)
-    per_image = [{"image": int(data.image_id[m]), "leg": str(data.leg[m]), "stance": int(data.stance[m]),
+    per_image = [{"image": int(data.image_id[m]), "target": str(data.target[m]), "stance": int(data.stance[m]),
                   "head_posture": int(data.head_posture[m]), "rms_total_px": float(np.sqrt(total_ms[m])),
                   "rigid_rms_px": float(np.sqrt(rigid_ms[m])), "nonrigid_rms_px": float(np.sqrt(nonrigid_ms[m]))}
                  for m in range(data.n_images)]
     stances = {}
     for m, entry in enumerate(per_image):
-        s = stances.setdefault((entry["leg"], entry["stance"]), [0.0, 0])
+        s = stances.setdefault((entry["target"], entry["stance"]), [0.0, 0])
         s[0] += total_ms[m] * counts[m]
         s[1] += counts[m]
-    stance_rows = [{"leg": leg, "stance": st, "rms_total_px": float(np.sqrt(a / n)),
-                    "n_images": int(sum(1 for e in per_image if (e["leg"], e["stance"]) == (leg, st)))}
-                   for (leg, st), (a, n) in stances.items()]
+    stance_rows = [{"target": t, "stance": st, "rms_total_px": float(np.sqrt(a / n)),
+                    "n_images": int(sum(1 for e in per_image if (e["target"], e["stance"]) == (t, st)))}
+                   for (t, st), (a, n) in stances.items()]
     rss = float(np.sum(r ** 2))
     boards = {}
-    for leg in LEGS:
-        rows = np.isin(data.image_of_row, np.flatnonzero(data.leg == leg))
+    for target in dict.fromkeys(data.target.tolist()):
+        rows = np.isin(data.image_of_row, np.flatnonzero(data.target == target))
         if rows.any():
-            boards[leg] = {"rms_px": [rms(r[rows, 0]), rms(r[rows, 1])], "rms_total_px": rms(r[rows]),
+            boards[target] = {"rms_px": [rms(r[rows, 0]), rms(r[rows, 1])], "rms_total_px": rms(r[rows]),
                            "rigid_rms_px": rms(rigid[rows]), "nonrigid_rms_px": rms(nonrigid[rows]),
                            "mean_px": r[rows].mean(axis=0).tolist(),
                            "share": float(np.sum(r[rows] ** 2) / rss) if rss > 0 else 0.0}
@@ -406,13 +400,16 @@ def locate(result, *, capture_time_s=None, worst: int = 5, split: RigidSplit | N
 
 def _board_summary(boards: dict) -> str:
     if len(boards) < 2:
-        return "only one board in the data: left and right cannot be compared"
-    (a, ea), (b, eb) = sorted(boards.items(), key=lambda kv: -kv[1]["rms_total_px"])
+        return "only one board in the data: boards cannot be compared"
+    ranked = sorted(boards.items(), key=lambda kv: -kv[1]["rms_total_px"])
+    (a, ea), (_, eb) = ranked[0], ranked[-1]
     if ea["rms_total_px"] > 1.5 * eb["rms_total_px"]:
         return (f"the {a} board fits worse ({ea['rms_total_px']:.2f} px against {eb['rms_total_px']:.2f} px): "
-                f"look at the {a} leg (its joints, play, elasticity, link lengths, board mount)")
-    return (f"both boards fit alike ({boards['L']['rms_total_px']:.2f} px L, {boards['R']['rms_total_px']:.2f} px R):"
-            " a common cause (head, camera, time lag) or an effect present in both legs")
+                f"look at the chain that carries it (its joints, play, elasticity, link lengths, board mount)")
+    listed = ", ".join(f"{e['rms_total_px']:.2f} px {t}" for t, e in boards.items())
+    alike = "both boards" if len(boards) == 2 else "the boards"
+    return (f"{alike} fit alike ({listed}): a common cause (head, camera, time lag) or an effect present on every "
+            "chain")
 
 
 def regressor_scan(result, split: RigidSplit, capture_time_s=None) -> list[dict]:
@@ -424,7 +421,7 @@ def regressor_scan(result, split: RigidSplit, capture_time_s=None) -> list[dict]
     J = registry.free_jacobian(result.model.evaluate(result.values)[1].reshape(len(r), -1))
     J = J * registry.scales[registry.free_index]
     L_flat = split.twist_columns.reshape(len(r), 6)
-    constant = [L_flat * np.repeat((data.leg == leg)[data.image_of_row], 2)[:, None] for leg in LEGS]
+    constant = [L_flat * np.repeat((data.target == t)[data.image_of_row], 2)[:, None] for t in np.unique(data.target)]
     Q = _orthonormal_basis(np.hstack([J] + constant))
     clusters = stance_clusters(data)
     out = []
@@ -441,16 +438,20 @@ def regressor_scan(result, split: RigidSplit, capture_time_s=None) -> list[dict]
 def apparent_errors(result, names, residuals=None) -> np.ndarray:
     """(M, len(names)): the value of each parameter that best explains each image's residual on its own.
 
-    `names` are parameter names of the model extended by head offsets and the candidates (e.g.
-    'joint_offset.RKneePitch', 'head_offset.HeadYaw', 'link_length.L.thigh'); residuals default to the fit's.
-    Images the parameter does not affect get NaN. Plotted against a regressor (a joint's gravity torque, approach
-    direction or velocity) the apparent joint offset shows a missing joint-level effect as a line or two clusters.
+    `names` are parameter names of the fitted model or of any effect it could add (e.g. 'joint_offset.RKneePitch',
+    'head_offset.HeadYaw', 'link_length.L.thigh'); residuals default to the fit's. Images the parameter does not
+    affect get NaN. Plotted against a regressor (a joint's gravity torque, approach direction or velocity) the
+    apparent joint offset shows a missing joint-level effect as a line or two clusters.
     """
     data = result.model.data
-    effects = {n.split(".", 1)[0] for n in names}
-    wanted = {"joint_offset": "joint_offsets", "head_offset": "head_offsets", "link_length": "link_lengths",
-              "elasticity": "elasticity", "backlash": "backlash", "time_lag": "time_lag"}
-    ext_registry = extended_registry(result.registry, tuple(wanted[e] for e in effects if e in wanted))
+    setup = result.registry.setup
+    owners = []
+    for name in names:
+        owner = owner_of(name, setup)
+        if owner is None:
+            raise ValueError(f"no effect has a parameter {name!r} for these data")
+        owners.append(owner.name)
+    ext_registry = result.registry.extended(tuple(dict.fromkeys(owners)))
     J = Model(data, ext_registry).evaluate(ext_registry.from_dict(result.registry.as_dict(result.values)))[1]
     r = result.residuals_px if residuals is None else residuals
     out = np.full((data.n_images, len(names)), np.nan)
@@ -495,7 +496,7 @@ class Diagnosis:
         return {
             "rms_px": list(c.rms_px), "noise_px": c.noise_px,
             "candidates": [cand.as_dict() for cand in self.candidates],
-            "effects": [e for e in res.registry.effects if e in EXTRA_EFFECTS],
+            "effects": list(res.registry.extra_effects()),
             "rms_total_px": c.rms_total_px, "sigma_fit_px": c.sigma_fit_px, "noise_source": c.noise_source,
             "noise_estimate_px": c.noise_estimate_px, "detector_noise_px": c.detector_noise_px,
             "encoder_resolution_rad": c.encoder_resolution_rad, "encoder_noise_px": c.encoder_noise_px,
@@ -503,7 +504,8 @@ class Diagnosis:
             "ratio_to_noise": c.ratio_to_noise,
             "significance_threshold": self.threshold, "n_vertices": int(res.model.data.n_rows),
             "n_images": int(res.model.data.n_images),
-            "compare": {"per_leg": c.per_leg, "per_head_posture": {str(k): v for k, v in c.per_head_posture.items()},
+            "compare": {"per_target": c.per_target,
+                        "per_head_posture": {str(k): v for k, v in c.per_head_posture.items()},
                         "per_stance": c.per_stance, "per_image": c.per_image},
             "locate": {"worst_images": loc.worst_images, "worst_stances": loc.worst_stances,
                        "rigid_rms_px": loc.rigid_rms_px, "nonrigid_rms_px": loc.nonrigid_rms_px,
@@ -549,7 +551,7 @@ def forward_selection(data: ModelData, registry: Registry | None = None, *, max_
     from solver.crossval import grouped_cv_rms
     from solver.identify import identify
 
-    registry = registry or Registry()
+    registry = registry or Registry.for_data(data)
     given = _extra(registry)
     cv = (lambda reg: grouped_cv_rms(data, reg, cv_folds, seed)) if cv_folds and cv_folds > 1 else (lambda reg: None)
     result = identify(data, registry)
@@ -589,20 +591,17 @@ def forward_selection(data: ModelData, registry: Registry | None = None, *, max_
 
 
 def _without(registry: Registry, effect: str) -> Registry:
-    tied = _is_tied(registry)
-    kept = tuple(e for e in registry.effects if e != effect)
-    names = {p.name for p in Registry(kept, tie_hip_yaw_pitch=tied).parameters}
-    return Registry(kept, tie_hip_yaw_pitch=tied, fixed=sorted(n for n in registry.fixed if n in names))
+    return registry.without(effect)
 
 
 def registry_with(registry: Registry, candidate: Candidate) -> Registry:
     """`registry` plus the candidate's effect, its parameters that the data cannot tell from the model fixed."""
-    extended = extended_registry(registry, (candidate.effect,))
+    extended = registry.extended((candidate.effect,))
     return extended.with_fixed(candidate.inside_model) if candidate.inside_model else extended
 
 
 def _extra(registry: Registry) -> tuple:
-    return tuple(e for e in registry.effects if e in EXTRA_EFFECTS)
+    return registry.extra_effects()
 
 
 def new_parameter_notes(result, effect: str, min_ratio: float = 3.0, max_correlation: float = 0.95) -> list[str]:

@@ -25,6 +25,16 @@ UNIDENTIFIABLE_RATIO = 1e-6
 WEAK_RATIO = 1e-3
 # Robust loss: images whose mean weight falls below this are reported as down-weighted.
 DOWNWEIGHT_REPORT = 0.5
+# Why a solve stopped, for both solvers: scipy.optimize.least_squares's status codes and naocal's LM's, one meaning
+# each (its `status`; `success` is status > 0).
+TERMINATION_MESSAGES = {
+    -1: "improper input parameters",
+    0: "no convergence: the iteration limit was reached",
+    1: "gradient below gtol",
+    2: "cost reduction below ftol",
+    3: "step below xtol",
+    4: "cost reduction below ftol and step below xtol",
+}
 
 
 @dataclass
@@ -163,7 +173,8 @@ def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-
     """Levenberg-Marquardt with Nielsen's damping update, on the normal equations in scaled variables.
 
     `fun_and_jac(x)` returns (r, J). The variables are scaled by `scales` (x = scales * xs) so that parameters in
-    m, rad and px are conditioned alike. Returns (x, r, J, status, message, n_jacobians, n_functions).
+    m, rad and px are conditioned alike. Returns (x, r, J, status, message, n_jacobians, n_functions); status as
+    scipy.optimize.least_squares's (TERMINATION_MESSAGES).
     The normal equations cost O(m n^2) once per iteration with BLAS (dsyrk): for the 3456-vertex problem that
     is ~0.1 ms, where MINPACK's unblocked QR costs ~3 ms (see benchmarks/bench_identify.py).
     """
@@ -178,7 +189,7 @@ def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-
     identity = np.eye(len(x))
     for _ in range(max_iterations):
         if np.max(np.abs(g), initial=0.0) <= gtol:
-            return x, r, J, 1, "gradient below gtol", n_jac, n_fun
+            return x, r, J, 1, TERMINATION_MESSAGES[1], n_jac, n_fun
         try:
             step_s = -np.linalg.solve(A + mu * identity, g)
         except np.linalg.LinAlgError:
@@ -186,10 +197,10 @@ def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-
             continue
         xs = x / scales
         if np.linalg.norm(step_s) <= xtol * (np.linalg.norm(xs) + xtol):
-            return x, r, J, 2, "step below xtol", n_jac, n_fun
+            return x, r, J, 3, TERMINATION_MESSAGES[3], n_jac, n_fun
         predicted = 0.5 * float(step_s @ (mu * step_s - g))  # cost reduction the linear model promises
-        if predicted <= ftol * cost:
-            return x, r, J, 3, "predicted cost reduction below ftol", n_jac, n_fun
+        if predicted <= ftol * cost:  # the linear model promises (almost) nothing more
+            return x, r, J, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
         x_new = x + step_s * scales
         r_new, J_new = fun_and_jac(x_new)
         n_fun += 1
@@ -204,10 +215,10 @@ def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if reduction <= ftol * cost_new:
-                return x, r, J, 3, "relative cost reduction below ftol", n_jac, n_fun
+                return x, r, J, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
         else:
             mu, nu = mu * nu, nu * 2.0
-    return x, r, J, 0, f"no convergence in {max_iterations} iterations", n_jac, n_fun
+    return x, r, J, 0, TERMINATION_MESSAGES[0], n_jac, n_fun
 
 
 def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",
@@ -275,7 +286,8 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
                     x_scale=scales, loss=loss, f_scale=loss_scale_px,
                     max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
                 )
-                free, status, message = sol.x, int(sol.status), str(sol.message)
+                free, status = sol.x, int(sol.status)
+                message = TERMINATION_MESSAGES.get(status, str(sol.message))
                 n_jac, n_fun, success = int(sol.njev or 0), int(sol.nfev), bool(sol.success)
                 r, J_free = fun_and_jac(free)
         except FloatingPointError as err:

@@ -1,33 +1,38 @@
-"""Forward kinematics, the pinhole projection of sole points and static gravity torques of the NAO: pure functions,
-vectorised over configurations.
+"""Forward kinematics, the projection of sole points and static gravity torques: pure functions, vectorised over
+configurations.
 
-Shapes: N configurations. Leg angles (N, 6) in hip-to-ankle order (solver.joints.leg_joints), head angles
-(N, 2) as (HeadYaw, HeadPitch). Every pose is T_torso_<frame> (N, 4, 4), every point in m.
+Generic functions take a `Chain` (solver.robot: any serial chain of a URDF); the NAO's own helpers (leg_fk,
+camera_fk, gravity_torques of a leg) wrap them. Shapes: N configurations, k joints of the chain. Every pose is
+T_base_<frame> (N, 4, 4), every point in m.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from solver.camera import project_points, transform_to_camera
 from solver.nao_model import (
     BOARD_CENTER_X_M, SANDAL_MASS_KG, THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, Chain, head_chain, leg_chain,
 )
 from solver.transforms import rot_axis_angle
 
 
-def chain_frames(chain: Chain, q, *, length_deltas_m=None):
-    """Poses of every joint's child frame and of the end frame in the torso frame.
+def chain_frames(chain: Chain, q, *, length_deltas_m=None, origin_shifts_m=None, end_shift_m=None):
+    """Poses of every joint's child frame and of the end frame in the chain's base frame.
 
     Parameters
     ----------
     q : (N, k) joint angles, rad.
     length_deltas_m : optional dict {joint index: (N,) or scalar} lengthening the joint's origin offset
         along its direction (used for thigh and tibia length corrections), m.
+    origin_shifts_m : optional dict {joint index: (3,) or (N, 3)} added to the joint's origin translation, in the
+        frame before the joint (the previous joint's child frame), m.
+    end_shift_m : optional (3,) added to the end frame's translation in the last joint's child frame, m.
 
     Returns
     -------
-    T_torso_joint : (N, k, 4, 4) pose of joint k's child frame (after its rotation).
-    T_torso_end : (N, 4, 4).
+    T_base_joint : (N, k, 4, 4) pose of joint k's child frame (after its rotation).
+    T_base_end : (N, 4, 4).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n, k = q.shape
@@ -42,15 +47,18 @@ def chain_frames(chain: Chain, q, *, length_deltas_m=None):
         if length_deltas_m is not None and j in length_deltas_m:
             delta = np.asarray(length_deltas_m[j], dtype=float)
             offset = offset + delta[..., None] * (offset / np.linalg.norm(offset))
+        if origin_shifts_m is not None and j in origin_shifts_m:
+            offset = offset + np.asarray(origin_shifts_m[j], dtype=float)
         t = t + (R @ offset[..., None])[..., 0] if np.ndim(offset) > 1 else t + R @ offset
         R_origin = chain.T_origin[j, :3, :3]
         R_joint = rot_axis_angle(chain.axes[j], q[:, j])
         R = R @ (R_joint if np.array_equal(R_origin, np.eye(3)) else R_origin @ R_joint)
         frames[:, j, :3, :3] = R
         frames[:, j, :3, 3] = t
+    end = chain.T_end[:3, 3] if end_shift_m is None else chain.T_end[:3, 3] + np.asarray(end_shift_m, dtype=float)
     T_end = np.zeros((n, 4, 4))
     T_end[:, :3, :3] = R @ chain.T_end[:3, :3]
-    T_end[:, :3, 3] = t + R @ chain.T_end[:3, 3]
+    T_end[:, :3, 3] = t + R @ end
     T_end[:, 3, 3] = 1.0
     return frames, T_end
 
@@ -74,25 +82,20 @@ def camera_fk(q_head, camera: str = "bottom"):
 
 
 def project_sole_points(T_torso_cam, T_torso_sole, points_sole, intrinsics):
-    """Pixel positions and depths of sole-frame points, for N views.
+    """Pixel positions and depths of sole-frame points, for N views (solver.camera's projection and distortion).
 
     Parameters
     ----------
     T_torso_cam, T_torso_sole : (N, 4, 4) poses in the torso frame.
     points_sole : (K, 3) points in the sole frame, m.
-    intrinsics : dict with fx_px, fy_px, cx_px, cy_px.
+    intrinsics : dict with fx_px, fy_px, cx_px, cy_px (and optionally distortion).
 
     Returns
     -------
     uv_px : (N, K, 2), depth_m : (N, K) along the optical axis (NAO camera x).
     """
     p_torso = np.einsum("nij,kj->nki", T_torso_sole[:, :3, :3], points_sole) + T_torso_sole[:, None, :3, 3]
-    p_cam = np.einsum("nji,nkj->nki", T_torso_cam[:, :3, :3], p_torso - T_torso_cam[:, None, :3, 3])
-    depth = p_cam[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = intrinsics["cx_px"] - intrinsics["fx_px"] * p_cam[..., 1] / depth
-        v = intrinsics["cy_px"] - intrinsics["fy_px"] * p_cam[..., 2] / depth
-    return np.stack([u, v], axis=-1), depth
+    return project_points(transform_to_camera(T_torso_cam, p_torso), intrinsics)
 
 
 def joint_axes_and_origins(T_torso_joint, chain: Chain):
@@ -103,26 +106,36 @@ def joint_axes_and_origins(T_torso_joint, chain: Chain):
 
 def gravity_torques(q_leg, leg: str, gravity_torso_mps2=(-9.81, 0.0, 0.0), *,
                     sandal_mass_kg=SANDAL_MASS_KG, sandal_com_sole_m=(BOARD_CENTER_X_M, 0.0, 0.0), jacobian=False):
-    """Static torque (N m) that gravity exerts about each leg joint's axis, (N, 6); with `jacobian`, also
-    d tau / d q (N, 6, 6), [n, j, i] = d tau_j / d q_i.
+    """Static gravity torques (N m) about a NAO leg's joints, (N, 6), with a sandal: `chain_gravity_torques` of the
+    leg 'L' or 'R'."""
+    return chain_gravity_torques(leg_chain(leg), q_leg, gravity_torso_mps2, load_mass_kg=sandal_mass_kg,
+                                 load_com_m=sandal_com_sole_m, jacobian=jacobian)
 
-    Joint j carries every link distal to it (the link j moves and all after it) plus the sandal (a point mass at
-    the board centre). With P_j = sum_l m_l (c_l - o_j) the first mass moment of that load about the joint,
-    tau_j = z_j . (P_j x g). Positive tau_j turns the leg in +q_j.
+
+def chain_gravity_torques(chain: Chain, q, gravity_mps2, *, load_mass_kg=0.0, load_com_m=(0.0, 0.0, 0.0),
+                          jacobian=False):
+    """Static torque (N m) that gravity exerts about each joint's axis of a chain hanging from its base, (N, k);
+    with `jacobian`, also d tau / d q (N, k, k), [n, j, i] = d tau_j / d q_i.
+
+    gravity_mps2 : (3,) or (N, 3), in the base frame. load_mass_kg at load_com_m (in the chain's end frame): what the
+    end carries (the NAO's sandal: the board's mass at its centre).
+    Joint j carries every link distal to it (the link j moves and all after it) plus the load. With
+    P_j = sum_l m_l (c_l - o_j) the first mass moment of that load about the joint, tau_j = z_j . (P_j x g).
+    Positive tau_j turns the chain in +q_j.
     """
-    chain = leg_chain(leg)
-    frames, T_torso_sole = chain_frames(chain, q_leg)
+    frames, T_end = chain_frames(chain, q)
     z, origins = joint_axes_and_origins(frames, chain)
-    g = np.asarray(gravity_torso_mps2, dtype=float)
+    n, k = z.shape[:2]
+    g = np.broadcast_to(np.asarray(gravity_mps2, dtype=float), (n, 3))
     coms = np.einsum("nkij,kj->nki", frames[..., :3, :3], chain.link_com) + frames[..., :3, 3]
-    sandal = T_torso_sole[:, :3, :3] @ np.asarray(sandal_com_sole_m, dtype=float) + T_torso_sole[:, :3, 3]
-    masses = np.concatenate([chain.link_mass, [sandal_mass_kg]])
-    points = np.concatenate([coms, sandal[:, None, :]], axis=1)  # (N, 7, 3)
+    load = T_end[:, :3, :3] @ np.asarray(load_com_m, dtype=float) + T_end[:, :3, 3]
+    masses = np.concatenate([chain.link_mass, [load_mass_kg]])
+    points = np.concatenate([coms, load[:, None, :]], axis=1)  # (N, k + 1, 3)
     # Loads distal to each joint: mass W_j and mass-weighted position sum, by a reverse cumulative sum.
-    W = np.cumsum(masses[::-1])[::-1][:-1]  # (6,)
-    weighted = np.cumsum((masses[:, None] * points)[:, ::-1], axis=1)[:, ::-1][:, :-1]  # (N, 6, 3)
-    P = weighted - W[:, None] * origins  # (N, 6, 3)
-    moment = np.cross(P, g)  # (N, 6, 3)
+    W = np.cumsum(masses[::-1])[::-1][:-1]  # (k,)
+    weighted = np.cumsum((masses[:, None] * points)[:, ::-1], axis=1)[:, ::-1][:, :-1]  # (N, k, 3)
+    P = weighted - W[:, None] * origins  # (N, k, 3)
+    moment = np.cross(P, g[:, None, :])  # (N, k, 3)
     tau = np.einsum("nji,nji->nj", z, moment)
     if not jacobian:
         return tau
@@ -130,11 +143,11 @@ def gravity_torques(q_leg, leg: str, gravity_torso_mps2=(-9.81, 0.0, 0.0), *,
     # and z_j all turn: d tau_j = (z_i x z_j).(P_j x g) + (z_j.P_j)(z_i.g) - (z_j.z_i)(P_j.g). For i > j only the
     # part of the load beyond i moves, about o_i: d tau_j = (z_j.P_i)(z_i.g) - (z_j.z_i)(P_i.g).
     zz = np.einsum("nja,nia->nji", z, z)
-    zg = z @ g  # (N, 6)
-    Pg = P @ g
+    zg = np.einsum("nja,na->nj", z, g)  # (N, k)
+    Pg = np.einsum("nja,na->nj", P, g)
     zP = np.einsum("nja,nia->nji", z, P)  # [j, i] = z_j . P_i
     turn = np.einsum("nija,nja->nji", np.cross(z[:, :, None, :], z[:, None, :, :]), moment)  # (z_i x z_j).(P_j x g)
     lower = turn + np.diagonal(zP, axis1=1, axis2=2)[:, :, None] * zg[:, None, :] - zz * Pg[:, :, None]
     upper = zP * zg[:, None, :] - zz * Pg[:, None, :]
-    dtau = np.where(np.tril(np.ones((6, 6), dtype=bool))[None], lower, upper)
+    dtau = np.where(np.tril(np.ones((k, k), dtype=bool))[None], lower, upper)
     return tau, dtau

@@ -1,13 +1,17 @@
-"""The measurement model: predicted pixel positions of the board vertices and their exact Jacobian.
+"""The measurement model: predicted pixel positions of the target vertices and their exact Jacobian.
 
-    q            = theta + sum over joint-level terms (value * regressor)           (Eq. 2, plus effects)
-    T_torso_cam  = T_torso_cam(q_head) @ Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw)   (Eq. 3)
-    p_sole'      = Rot_z(rot_z) @ Trans_x(x) @ Trans_y(y) @ p_sole                 (Eq. 4)
-    p_cam        = T_cam_torso @ T_torso_sole(q_leg) @ p_sole'
-    (u, v)       = (cx, cy) + (fx, fy) * distort(-y/x, -z/x)                         (Eq. 1, OpenCV distortion)
+    q            = theta + sum of the effects' joint terms (value * regressor)         (Eq. 2, plus effects)
+    T_base_tip   = FK of the chain to the target's frame, with the effects' chain terms
+    T_base_cam   = FK of the chain to the camera, with the effects' camera terms        (Eq. 3)
+    p'           = the target's nominal vertex, with the effects' target terms          (Eq. 4)
+    p_cam        = T_cam_base @ T_base_tip @ p'
+    (u, v)       = solver.camera's projection, with the effects' projection terms      (Eq. 1)
     residual     = predicted - detected, px
 
-Everything here is a pure function of (ModelData, Registry, parameter vector).
+The five hook points are the effects' (solver/effect.py, solver/effects/); this module composes them and
+differentiates exactly: every kinematic parameter moves a target rigidly relative to the camera, a twist per
+image, and the camera model's interaction matrix turns twists into pixels. Everything is a pure function of
+(ModelData, Registry, parameter vector).
 """
 
 from __future__ import annotations
@@ -16,39 +20,92 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEGS, leg_joints
-from solver.kinematics import chain_frames, gravity_torques, joint_axes_and_origins, leg_length_deltas
-from solver.nao_model import THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, head_chain, leg_chain
+from solver import camera as camera_model
+from solver.effect import CameraTerm, Setup
+from solver.effects import EFFECTS
+from solver.errors import NaocalError
+from solver.joints import HEAD_COLUMNS, LEG_COLUMNS  # noqa: F401 (the NAO's column layout, for old imports)
+from solver.kinematics import chain_frames, chain_gravity_torques, joint_axes_and_origins
 from solver.registry import Registry
-from solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_x, rot_y, rot_z
-
-LEG_COLUMNS = {leg: np.array([JOINT_INDEX[j] for j in leg_joints(leg)]) for leg in LEGS}
-HEAD_COLUMNS = np.array([JOINT_INDEX[j] for j in HEAD_JOINTS])
 
 
 @dataclass
 class ModelData:
-    """What the model needs from a dataset, as arrays. M images, N vertex rows.
+    """What the model needs from a dataset, as arrays. M images, N vertex rows, J joint columns.
 
-    theta, direction, velocity, tau: (M, 14) per image, columns in solver.joints.JOINTS order.
+    theta, direction, velocity, commanded, tau: (M, J) per image, columns in `joints` order.
     """
 
     image_of_row: np.ndarray  # (N,) index 0..M-1 into the per-image arrays
     vertex: np.ndarray  # (N,) vertex index on its board
     uv_px: np.ndarray  # (N, 2) detected vertex positions
-    p_sole: np.ndarray  # (N, 3) nominal vertex positions in the sole frame, m
-    leg: np.ndarray  # (M,) 'L' or 'R'
+    p_mount: np.ndarray  # (N, 3) nominal vertex positions in the frame the image's target is attached to, m
+    target: np.ndarray  # (M,) the target each image shows (robot description names; the NAO's sandals 'L', 'R')
     image_id: np.ndarray  # (M,) the dataset's image index
     stance: np.ndarray  # (M,)
     head_posture: np.ndarray  # (M,)
-    theta: np.ndarray  # (M, 14) measured angles, rad
-    direction: np.ndarray  # (M, 14) approach direction -1/0/1
-    tau: np.ndarray  # (M, 14) static gravity torque at theta (leg joints of the image's leg), N m
-    velocity: np.ndarray | None  # (M, 14) rad/s at t_joints, or None if the dataset has none
-    intrinsics: dict  # fx_px, fy_px, cx_px, cy_px, distortion (5,)
-    gravity_torso_mps2: np.ndarray = field(default_factory=lambda: np.array([-9.81, 0.0, 0.0]))
-    angle_choice: "AngleChoice | None" = None  # how theta was taken from a dataset (None: given directly)
-    commanded: np.ndarray | None = None  # (M, 14) commanded angles, when known
+    theta: np.ndarray  # (M, J) measured angles, rad
+    direction: np.ndarray  # (M, J) approach direction -1/0/1
+    velocity: np.ndarray | None  # (M, J) rad/s at t_joints, or None if the dataset has none
+    cameras: dict  # camera name -> prior intrinsics {fx_px, fy_px, cx_px, cy_px, distortion, width_px, height_px}
+    camera: np.ndarray | None = None  # (M,) the camera of each image (default: the robot's first default camera)
+    joints: tuple | None = None  # the J joint columns (default: the robot description's joints)
+    gravity_mps2: np.ndarray | None = None  # (M, 3) or (3,) gravity in the base frame (default: the robot's)
+    robot: object = None  # solver.robot.RobotDescription (default: the NAO)
+    loads: dict = field(default_factory=dict)  # target -> (board mass kg, board centre (3,) in its frame)
+    tau: np.ndarray | None = None  # (M, J) static gravity torque at theta on hanging chains, N m (computed)
+    angle_choice: object = None  # solver.adapter.AngleChoice: how theta was taken from a dataset (None: given)
+    commanded: np.ndarray | None = None  # (M, J) commanded angles, when known
+
+    def __post_init__(self):
+        from solver.robot import nao
+
+        self.robot = self.robot or nao()
+        M = len(self.target)
+        self.target = np.asarray(self.target).astype(str)
+        if self.camera is None:
+            self.camera = np.full(M, self.robot.default_cameras[0])
+        self.camera = np.asarray(self.camera).astype(str)
+        self.joints = tuple(self.joints or self.robot.joints)
+        g = self.robot.gravity_mps2 if self.gravity_mps2 is None else self.gravity_mps2
+        self.gravity_mps2 = np.array(np.broadcast_to(np.asarray(g, dtype=float), (M, 3)))
+        for t in np.unique(self.target):
+            if t not in self.loads:
+                spec = self.robot.target(t)
+                self.loads[t] = (spec.board.mass_kg, spec.centre)
+        if "intrinsics" in self.cameras:  # a single intrinsics dict given: the default camera's
+            self.cameras = {self.robot.default_cameras[0]: self.cameras}
+        if self.tau is None:
+            self.tau = gravity_torques_of(self, self.theta)
+
+    # -- names the NAO code knows them by
+
+    @property
+    def leg(self) -> np.ndarray:
+        """The NAO's name for the target: its sandals are named after their leg ('L', 'R')."""
+        return self.target
+
+    @property
+    def intrinsics(self) -> dict:
+        """The prior intrinsics of the data's only camera (ValueError with several cameras)."""
+        used = np.unique(self.camera)
+        if len(used) != 1:
+            raise ValueError(f"the data use {len(used)} cameras ({', '.join(used)}): ask data.cameras[name]")
+        return self.cameras[used[0]]
+
+    @property
+    def setup(self) -> Setup:
+        """The robot and the cameras and targets these data use, in the description's order."""
+        cams, tgts = set(self.camera.tolist()), set(self.target.tolist())
+        return Setup(self.robot, tuple(c for c in self.robot.cameras if c in cams),
+                     tuple(t for t in self.robot.targets if t in tgts))
+
+    def column(self, joint: str) -> int:
+        try:
+            return self.joints.index(joint)
+        except ValueError:
+            raise NaocalError(f"the data have no angles of joint {joint!r} (they have {', '.join(self.joints)})") \
+                from None
 
     @property
     def n_rows(self) -> int:
@@ -56,19 +113,28 @@ class ModelData:
 
     @property
     def n_images(self) -> int:
-        return len(self.leg)
+        return len(self.target)
 
-    def is_sorted_by_leg(self) -> bool:
-        """Images of leg L before those of R, and rows in image order: the layout Model works on."""
-        leg_key = (self.leg == "R").astype(int)
-        return bool(np.all(np.diff(leg_key) >= 0) and np.all(np.diff(self.image_of_row) >= 0))
+    def is_sorted_by_target(self, order=None) -> bool:
+        """Images grouped by target in `order` (default: the description's), rows in image order: the layout Model
+        works on."""
+        key = self._target_key(order)
+        return bool(np.all(np.diff(key) >= 0) and np.all(np.diff(self.image_of_row) >= 0))
 
-    def sorted_by_leg(self) -> "ModelData":
-        """The same data with images ordered L then R (stable) and rows in image order."""
-        if self.is_sorted_by_leg():
+    def sorted_by_target(self, order=None) -> "ModelData":
+        """The same data with images grouped by target (stable) and rows in image order."""
+        if self.is_sorted_by_target(order):
             return self
-        order = np.argsort((self.leg == "R").astype(int), kind="stable")
-        return self.reordered(order)
+        return self.reordered(np.argsort(self._target_key(order), kind="stable"))
+
+    def _target_key(self, order):
+        order = list(order or self.robot.targets)
+        order += [t for t in np.unique(self.target) if t not in order]
+        return np.array([order.index(t) for t in self.target], dtype=int)
+
+    # the NAO's names
+    is_sorted_by_leg = is_sorted_by_target
+    sorted_by_leg = sorted_by_target
 
     def rows_of_images(self, images: np.ndarray) -> np.ndarray:
         return np.flatnonzero(np.isin(self.image_of_row, images))
@@ -88,86 +154,104 @@ class ModelData:
         per_image = lambda a: None if a is None else a[images]  # noqa: E731
         return ModelData(
             image_of_row=position[self.image_of_row[rows]], vertex=self.vertex[rows], uv_px=self.uv_px[rows],
-            p_sole=self.p_sole[rows], leg=self.leg[images], image_id=self.image_id[images],
+            p_mount=self.p_mount[rows], target=self.target[images], image_id=self.image_id[images],
             stance=self.stance[images], head_posture=self.head_posture[images], theta=self.theta[images],
-            direction=self.direction[images], tau=self.tau[images], velocity=per_image(self.velocity),
-            intrinsics=self.intrinsics, gravity_torso_mps2=self.gravity_torso_mps2, angle_choice=self.angle_choice,
+            direction=self.direction[images], velocity=per_image(self.velocity), cameras=self.cameras,
+            camera=self.camera[images], joints=self.joints, gravity_mps2=self.gravity_mps2[images],
+            robot=self.robot, loads=dict(self.loads), tau=self.tau[images], angle_choice=self.angle_choice,
             commanded=per_image(self.commanded),
         )
 
 
-def compute_gravity_torques(theta, leg, gravity_torso_mps2):
-    """(M, 14) gravity torque on the joints of each image's own leg (zero elsewhere)."""
-    tau = np.zeros_like(theta)
-    for name in LEGS:
-        images = np.flatnonzero(leg == name)
-        if len(images):
-            cols = LEG_COLUMNS[name]
-            tau[np.ix_(images, cols)] = gravity_torques(theta[np.ix_(images, cols)], name, gravity_torso_mps2)
+def gravity_torques_of(data: ModelData, q: np.ndarray) -> np.ndarray:
+    """(M, J) static gravity torque at the angles q (M, J) on the joints of each image's target chain, for targets
+    on chains that hang free (zero elsewhere: a supporting chain carries the body, which is not modelled)."""
+    tau = np.zeros_like(np.asarray(q, dtype=float))
+    for t in np.unique(data.target):
+        spec = data.robot.target(t)
+        if spec.load != "hanging":
+            continue
+        images = np.flatnonzero(data.target == t)
+        chain = data.robot.chain(spec.frame)
+        cols = np.array([data.column(j) for j in chain.joint_names], dtype=int)
+        mass, centre = data.loads[t]
+        tau[np.ix_(images, cols)] = chain_gravity_torques(chain, q[np.ix_(images, cols)], data.gravity_mps2[images],
+                                                          load_mass_kg=mass, load_com_m=centre)
     return tau
 
 
-@dataclass
-class _Terms:
-    """Precomputed layout of one (data, registry) pair: which entries of the parameter vector do what."""
+class Layout:
+    """Where things are in one (data, registry) pair: the images and rows of each target and camera, the chains,
+    their joint columns and each effect's parameters. What the effects' hooks look things up in."""
 
-    joint_param: np.ndarray  # (K,) parameter index of each joint-level entry
-    joint_col: np.ndarray  # (K,) joint column it acts on
-    regressor: np.ndarray  # (M, K) multiplier of the parameter's value for each image
-    index: dict  # parameter name -> full index
-    uses_head: bool  # some term acts on a head joint
-    elastic: np.ndarray  # (K,) bool: the entry is a compliance (its regressor is tau at the model's own angles)
+    def __init__(self, data: ModelData, registry: Registry):
+        setup = registry.setup
+        if data.robot is not setup.robot:
+            raise NaocalError(f"the data are of robot {data.robot.name!r} ({data.robot.path}), the registry of "
+                              f"{setup.robot.name!r} ({setup.robot.path})")
+        for kind, used, known in (("target", data.target, setup.targets), ("camera", data.camera, setup.cameras)):
+            extra = sorted(set(used.tolist()) - set(known))
+            if extra:
+                raise NaocalError(f"the data show {kind}(s) {', '.join(extra)}, which the model was not made for "
+                                  f"({', '.join(known)}): build the registry with Registry.for_data")
+        self.data, self.registry, self.robot = data, registry, setup.robot
+        self.n_images, self.n_rows = data.n_images, data.n_rows
+        self.targets = tuple(t for t in setup.targets if np.any(data.target == t))
+        self.cameras = tuple(c for c in setup.cameras if np.any(data.camera == c))
+        starts = np.searchsorted(data.image_of_row, np.arange(data.n_images + 1))
+        self.target_images, self.target_rows = {}, {}
+        for t in self.targets:
+            images = np.flatnonzero(data.target == t)
+            self.target_images[t] = slice(int(images[0]), int(images[-1]) + 1)  # contiguous: data sorted by target
+            self.target_rows[t] = slice(int(starts[images[0]]), int(starts[images[-1] + 1]))
+        single = len(self.cameras) == 1
+        self.camera_images = {c: slice(None) if single else np.flatnonzero(data.camera == c) for c in self.cameras}
+        self.camera_rows = {c: slice(None) if single else np.flatnonzero(data.camera[data.image_of_row] == c)
+                            for c in self.cameras}
+        self.chains, self.columns = {}, {}
+        for frame in [self.robot.target(t).frame for t in self.targets] + \
+                     [self.robot.camera(c).frame for c in self.cameras]:
+            chain = self.robot.chain(frame)
+            self.chains[frame] = chain
+            self.columns[frame] = np.array([data.column(j) for j in chain.joint_names], dtype=int)
+        self._params = {}
+        for i, p in enumerate(registry.parameters):
+            self._params.setdefault(p.effect, []).append((i, p))
+
+    def params(self, effect_name: str) -> list:
+        """[(index in the full vector, Parameter)] of one effect."""
+        return self._params.get(effect_name, [])
+
+    def column(self, joint: str) -> int:
+        return self.data.column(joint)
+
+    def chains_in_use(self) -> list:
+        """[(frame, Chain)] of the chains to the targets and cameras the data use."""
+        return list(self.chains.items())
+
+    def target_frame(self, target: str) -> str:
+        return self.robot.target(target).frame
+
+    def camera_frame(self, camera: str) -> str:
+        return self.robot.camera(camera).frame
 
 
-def _terms(data: ModelData, registry: Registry) -> _Terms:
-    params, cols, regs, elastic = [], [], [], []
-    M = data.n_images
-    for i, p in enumerate(registry.parameters):
-        effect = p.effect
-        if effect == "time_lag":
-            if data.velocity is None:
-                raise ValueError("the time_lag effect needs joint velocities (vel_<Joint> columns) in the dataset")
-            for c in range(len(JOINTS)):
-                params.append(i), cols.append(c), regs.append(data.velocity[:, c]), elastic.append(False)
-            continue
-        if p.joint is None:
-            continue
-        c = JOINT_INDEX[p.joint]
-        if effect in ("joint_offsets", "head_offsets"):
-            reg = np.ones(M)
-        elif effect == "elasticity":
-            reg = data.tau[:, c]  # replaced by tau at the model's angles in Model.joint_state
-        elif effect == "backlash":
-            reg = data.direction[:, c]
-        else:
-            raise AssertionError(effect)
-        params.append(i), cols.append(c), regs.append(reg), elastic.append(effect == "elasticity")
-    regressor = np.stack(regs, axis=1) if regs else np.zeros((M, 0))
-    cols = np.array(cols, dtype=int)
-    uses_head = bool(np.isin(cols, HEAD_COLUMNS).any())
-    return _Terms(np.array(params, dtype=int), cols, regressor, registry.index, uses_head,
-                  np.array(elastic, dtype=bool))
+def _index(cols: np.ndarray):
+    """A slice for contiguous columns (views, fast), else the index array."""
+    if len(cols) and np.all(np.diff(cols) == 1):
+        return slice(int(cols[0]), int(cols[-1]) + 1)
+    return cols
 
 
-def _get(values, terms, name, default=0.0):
-    i = terms.index.get(name)
-    return default if i is None else values[i]
-
-
-def _distort(xn, yn, k):
-    """OpenCV distortion of normalised coordinates and its 2x2 Jacobian (N, 2, 2)."""
-    k1, k2, p1, p2, k3 = k
-    r2 = xn * xn + yn * yn
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    g = 2.0 * k1 + r2 * (4.0 * k2 + 6.0 * k3 * r2)  # d radial / d r2, times 2
-    xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-    D = np.empty(xn.shape + (2, 2))
-    D[:, 0, 0] = radial + g * xn * xn + 2.0 * p1 * yn + 6.0 * p2 * xn
-    D[:, 0, 1] = g * xn * yn + 2.0 * p1 * xn + 2.0 * p2 * yn
-    D[:, 1, 0] = g * xn * yn + 2.0 * p1 * xn + 2.0 * p2 * yn
-    D[:, 1, 1] = radial + g * yn * yn + 6.0 * p1 * yn + 2.0 * p2 * xn
-    return xd, yd, r2, D
+def _add(joint_twists, images, cols, v, w):
+    """joint_twists[images, :3, cols] += v and [images, 3:, cols] += w, for a slice or an index array of images."""
+    if isinstance(images, slice):
+        cols = _index(cols)
+        joint_twists[images, :3, cols] += v
+        joint_twists[images, 3:, cols] += w
+    else:
+        joint_twists[np.ix_(images, np.arange(3), cols)] += v
+        joint_twists[np.ix_(images, np.arange(3, 6), cols)] += w
 
 
 def _cross(a, b):
@@ -177,16 +261,18 @@ def _cross(a, b):
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def _yield_to_gravity(q0, compliance, leg, gravity_torso_mps2, *, sag_guess=None, tolerance_rad=1e-13,
+def _yield_to_gravity(q0, compliance, chain, gravity, load, *, sag_guess=None, tolerance_rad=1e-13,
                       max_iterations=20):
-    """Solve q = q0 + C tau(q) for one leg's angles (m, 6) by Newton's method, from q0 + sag_guess (m, 6).
+    """Solve q = q0 + C tau(q) for one chain's angles (m, k) by Newton's method, from q0 + sag_guess (m, k).
 
-    Returns q (m, 6), tau(q) (m, 6) and A = I - C dtau/dq (m, 6, 6), the matrix the implicit derivative needs.
+    Returns q (m, k), tau(q) (m, k) and A = I - C dtau/dq (m, k, k), the matrix the implicit derivative needs.
     """
     q = q0.copy() if sag_guess is None else q0 + sag_guess
     eye = np.eye(q0.shape[1])
+    torques = lambda q: chain_gravity_torques(chain, q, gravity, load_mass_kg=load[0], load_com_m=load[1],  # noqa
+                                              jacobian=True)
     for _ in range(max_iterations):
-        tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
+        tau, dtau = torques(q)
         A = eye - compliance[:, None] * dtau
         misfit = q0 + compliance * tau - q
         if np.max(np.abs(misfit), initial=0.0) < tolerance_rad:
@@ -196,82 +282,143 @@ def _yield_to_gravity(q0, compliance, leg, gravity_torso_mps2, *, sag_guess=None
             raise FloatingPointError(f"elasticity: no equilibrium for compliances {compliance} rad/(N m)")
         q = q + step
     else:  # rounding can keep the misfit just above the tolerance: the last iterate is as good as it gets
-        tau, dtau = gravity_torques(q, leg, gravity_torso_mps2, jacobian=True)
+        tau, dtau = torques(q)
         A = eye - compliance[:, None] * dtau
     return q, tau, A
+
+
+@dataclass
+class _Terms:
+    """The effects' terms at one parameter vector (hooks 2-5)."""
+
+    chain: list
+    camera: dict  # camera -> CameraTerm
+    target: list
+    projection: list
+    shifts: dict  # frame -> {joint index: origin shift (3,)}, the chain terms summed
+
+    @classmethod
+    def of(cls, effects, layout, values) -> "_Terms":
+        chain = [t for e in effects for t in e.chain_terms(layout, values)]
+        camera = {}
+        for term in (t for e in effects for t in e.camera_terms(layout, values)):
+            camera[term.camera] = _combined(camera.get(term.camera), term)
+        shifts = {}
+        for term in chain:
+            frame_shifts = shifts.setdefault(term.frame, {})
+            frame_shifts[term.joint] = frame_shifts.get(term.joint, 0.0) + term.delta * term.direction
+        return cls(chain, camera, [t for e in effects for t in e.target_terms(layout, values)],
+                   [t for e in effects for t in e.projection_terms(layout, values)], shifts)
+
+
+def _combined(a: CameraTerm | None, b: CameraTerm) -> CameraTerm:
+    """One camera's terms of two effects as one: translations add; one rotation (the rotation generators are the
+    camera frame's, which another rotation would turn)."""
+    if a is None:
+        return b
+    if a.rotation is not None and b.rotation is not None:
+        raise ValueError(f"two effects rotate camera {a.camera!r}: one effect owns a camera's rotation")
+    translation = a.translation if b.translation is None else (
+        b.translation if a.translation is None else a.translation + b.translation)
+    return CameraTerm(a.camera, a.rotation if a.rotation is not None else b.rotation,
+                      a.rotation_params + b.rotation_params, translation, a.translation_params + b.translation_params)
+
+
+@dataclass
+class _Poses:
+    """Per image (M): the target's frame (R_bt, t_bt) and the camera (R_bc, t_bc) in the base frame; the target's
+    frame in the camera frame (R_ct, t_ct); the chains' joint frames for the Jacobian."""
+
+    R_bt: np.ndarray
+    t_bt: np.ndarray
+    R_bc: np.ndarray
+    t_bc: np.ndarray
+    R_cb: np.ndarray = None
+    R_ct: np.ndarray = None
+    t_ct: np.ndarray = None
+    target_frames: dict = field(default_factory=dict)
+    camera_frames: dict = field(default_factory=dict)
 
 
 class Model:
     """Residuals and exact Jacobian of one dataset under one registry.
 
-    Works on the data sorted by leg (`self.data`), so each leg's images and rows are contiguous slices.
+    Works on the data sorted by target (`self.data`), so each target's images and rows are contiguous slices.
     """
 
     def __init__(self, data: ModelData, registry: Registry):
-        self.data = data = data.sorted_by_leg()
+        self.data = data = data.sorted_by_target(registry.setup.targets)
         self.registry = registry
-        self.terms = t = _terms(data, registry)
-        n_images_L = int(np.sum(data.leg == "L"))
-        n_rows_L = int(np.searchsorted(data.image_of_row, n_images_L))
-        self.image_slices = {"L": slice(0, n_images_L), "R": slice(n_images_L, data.n_images)}
-        self.row_slices = {"L": slice(0, n_rows_L), "R": slice(n_rows_L, data.n_rows)}
-        P, K = len(registry), len(t.joint_param)
-        self._entry_to_joint = np.zeros((K, len(JOINTS)))
-        self._entry_to_joint[np.arange(K), t.joint_col] = 1.0
+        self.layout = layout = Layout(data, registry)
+        self.effects = [EFFECTS[name] for name in registry.effects]
+        terms = [t for e in self.effects for t in e.joint_terms(layout)]
+        M, J, P, K = data.n_images, len(data.joints), len(registry), len(terms)
+        self.joint_param = np.array([t.param for t in terms], dtype=int)
+        self.joint_col = np.array([t.column for t in terms], dtype=int)
+        self.regressor = np.stack([t.regressor for t in terms], axis=1) if K else np.zeros((M, 0))
+        self.gravity = np.array([t.gravity for t in terms], dtype=bool)
+        self._entry_to_joint = np.zeros((K, J))
+        self._entry_to_joint[np.arange(K), self.joint_col] = 1.0
         self._entry_to_param = np.zeros((K, P))
-        self._entry_to_param[np.arange(K), t.joint_param] = 1.0
+        self._entry_to_param[np.arange(K), self.joint_param] = 1.0
+        camera_cols = {int(c) for cam in layout.cameras for c in layout.columns[layout.camera_frame(cam)]}
+        self._moves_cameras = bool(camera_cols & set(self.joint_col.tolist()))  # joint terms on camera chains
+        self._elastic_targets = [t for t in layout.targets if self.robot.target(t).load == "hanging"]
         counts = np.bincount(data.image_of_row, minlength=data.n_images)
         self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
-        self._head_cache = None
-        self._sag = {}  # leg -> last solved elastic sag (m, 6): where Newton starts next time, not a result
+        self._camera_cache = {}
+        self._sag = {}  # target -> last solved elastic sag (m, k): where Newton starts next time, not a result
 
-    def _head_fk(self, q_head):
-        """Head chain FK, cached: without head terms the head angles never change during a fit."""
-        key = q_head.tobytes()
-        if self._head_cache is None or self._head_cache[0] != key:
-            self._head_cache = (key, *chain_frames(head_chain("bottom"), q_head))
-        return self._head_cache[1], self._head_cache[2]
+    @property
+    def robot(self):
+        return self.layout.robot
+
+    # ---------------------------------------------------------------------------------- hook 1: joint angles
 
     def joint_angles(self, values) -> np.ndarray:
-        """q (M, 14): measured angles plus every joint-level term."""
+        """q (M, J): measured angles plus every joint-level term."""
         return self.joint_state(values)[0]
 
     def joint_state(self, values, *, jacobian=False):
-        """q (M, 14), the regressors (M, K) at q, and with `jacobian` dq/dvalues (M, 14, P) (else None).
+        """q (M, J), the regressors (M, K) at q, and with `jacobian` dq/dvalues (M, J, P) (else None).
 
         Elasticity makes q implicit: a joint yields to the gravity torque at the angle it actually has,
-        q = q0 + C tau(q) with q0 = theta + the other terms and C the compliances. We solve it per leg by Newton's
-        method and differentiate it by the implicit function theorem: dq/dp = (I - C dtau/dq)^-1 d(q0 + C tau)/dp.
+        q = q0 + C tau(q) with q0 = theta + the other terms and C the compliances. We solve it per target chain by
+        Newton's method and differentiate it by the implicit function theorem: dq/dp = (I - C dtau/dq)^-1
+        d(q0 + C tau)/dp.
         """
-        t, values = self.terms, np.asarray(values, dtype=float)
-        steady = ~t.elastic
-        q = self.data.theta + (t.regressor[:, steady] * values[t.joint_param[steady]]) @ self._entry_to_joint[steady]
-        regressor, yield_matrix = t.regressor, {}
-        if t.elastic.any():
-            regressor = t.regressor.copy()
-            compliance = values[t.joint_param[t.elastic]] @ self._entry_to_joint[t.elastic]  # (14,)
-            for leg in LEGS:
-                images, cols = self.image_slices[leg], LEG_COLUMNS[leg]
-                if images.start == images.stop:
-                    continue
-                q0_leg = q[images][:, cols]
-                q_leg, tau, A = _yield_to_gravity(q0_leg, compliance[cols], leg, self.data.gravity_torso_mps2,
-                                                  sag_guess=self._sag.get(leg))
-                self._sag[leg] = q_leg - q0_leg  # the next evaluation (a nearby step) starts from this sag
-                q[images, cols[0]:cols[-1] + 1] = q_leg
-                regressor[images, np.flatnonzero(t.elastic)] = 0.0  # this leg's images: only its own joints yield
-                on_leg = t.elastic & np.isin(t.joint_col, cols)
-                regressor[images, np.flatnonzero(on_leg)] = tau[:, np.searchsorted(cols, t.joint_col[on_leg])]
-                yield_matrix[leg] = A
+        values = np.asarray(values, dtype=float)
+        data, layout = self.data, self.layout
+        steady = ~self.gravity
+        q = data.theta + (self.regressor[:, steady] * values[self.joint_param[steady]]) @ self._entry_to_joint[steady]
+        regressor, yield_matrix = self.regressor, {}
+        if self.gravity.any():
+            regressor = self.regressor.copy()
+            regressor[:, self.gravity] = 0.0  # only a hanging target's own chain yields
+            compliance = values[self.joint_param[self.gravity]] @ self._entry_to_joint[self.gravity]  # (J,)
+            for t in self._elastic_targets:
+                images, frame = layout.target_images[t], layout.target_frame(t)
+                cols = layout.columns[frame]
+                q0 = q[images][:, cols]
+                q_t, tau, A = _yield_to_gravity(q0, compliance[cols], layout.chains[frame],
+                                                data.gravity_mps2[images], data.loads[t], sag_guess=self._sag.get(t))
+                self._sag[t] = q_t - q0  # the next evaluation (a nearby step) starts from this sag
+                q[images, _index(cols)] = q_t
+                position = {int(c): k for k, c in enumerate(cols)}
+                entries = np.flatnonzero(self.gravity & np.isin(self.joint_col, cols))
+                regressor[images, entries] = tau[:, [position[int(c)] for c in self.joint_col[entries]]]
+                yield_matrix[t] = A
         if not jacobian:
             return q, regressor, None
-        M, P = self.data.n_images, len(values)
-        dq = np.zeros((M, len(JOINTS), P))
-        dq[:, t.joint_col, t.joint_param] = regressor
-        for leg, A in yield_matrix.items():
-            images, cols = self.image_slices[leg], LEG_COLUMNS[leg]
-            dq[images, cols[0]:cols[-1] + 1] = np.linalg.solve(A, dq[images, cols[0]:cols[-1] + 1])
+        M, P = data.n_images, len(values)
+        dq = np.zeros((M, len(data.joints), P))
+        dq[:, self.joint_col, self.joint_param] = regressor
+        for t, A in yield_matrix.items():
+            images, cols = layout.target_images[t], _index(layout.columns[layout.target_frame(t)])
+            dq[images, cols] = np.linalg.solve(A, dq[images, cols])
         return q, regressor, dq
+
+    # ---------------------------------------------------------------------------------- residuals
 
     def residuals(self, values) -> np.ndarray:
         """Predicted minus detected pixel positions, (N, 2), rows as in `self.data`."""
@@ -285,256 +432,172 @@ class Model:
         """
         return self.evaluate(values, jacobian=False, _twist_only=True)[1]
 
+    def _camera_fk(self, camera, q_cols, shifts, end_shift):
+        """Camera chain FK, cached: without head terms the camera's angles never change during a fit."""
+        key = (q_cols.tobytes(), repr(shifts), None if end_shift is None else end_shift.tobytes())
+        cached = self._camera_cache.get(camera)
+        if cached is None or cached[0] != key:
+            frames, T = chain_frames(self.layout.chains[self.layout.camera_frame(camera)], q_cols,
+                                     origin_shifts_m=shifts, end_shift_m=end_shift)
+            cached = self._camera_cache[camera] = (key, frames, T)
+        return cached[1], cached[2]
+
     def evaluate(self, values, *, jacobian=True, _twist_only=False):
         """Residuals (N, 2) and, if asked, the Jacobian (N, 2, P) with respect to the full parameter vector."""
-        data, t = self.data, self.terms
         values = np.asarray(values, dtype=float)
-        img = data.image_of_row
-        N, M = data.n_rows, data.n_images
-        elastic = bool(t.elastic.any()) and jacobian and not _twist_only
-        q, regressor, dq_dvalues = self.joint_state(values, jacobian=elastic)
-
-        # Legs (Eq. 2): sole poses, and for the Jacobian the joint axes, origins and link directions.
-        R_ts, t_ts = np.empty((M, 3, 3)), np.empty((M, 3))
-        leg_axes, leg_origins, link_dirs = np.zeros((M, 6, 3)), np.zeros((M, 6, 3)), np.zeros((M, 2, 3))
-        for leg in LEGS:
-            images = self.image_slices[leg]
-            if images.start == images.stop:
-                continue
-            chain = leg_chain(leg)
-            deltas = leg_length_deltas(_get(values, t, f"link_length.{leg}.thigh"),
-                                       _get(values, t, f"link_length.{leg}.tibia"))
-            frames, T_end = chain_frames(chain, q[images][:, LEG_COLUMNS[leg]], length_deltas_m=deltas)
-            R_ts[images], t_ts[images] = T_end[:, :3, :3], T_end[:, :3, 3]
-            if jacobian:
-                leg_axes[images], leg_origins[images] = joint_axes_and_origins(frames, chain)
-                for k, j in enumerate((THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX)):
-                    offset = chain.T_origin[j + 1][:3, 3]
-                    link_dirs[images, k] = frames[:, j, :3, :3] @ (offset / np.linalg.norm(offset))
-
-        # Head and camera (Eq. 3): R_tc = R_tc0 @ R_off.
-        chain = head_chain("bottom")
-        head_frames, T_torso_cam0 = self._head_fk(q[:, HEAD_COLUMNS])
-        roll, pitch, yaw = (_get(values, t, f"camera.{a}") for a in ("roll", "pitch", "yaw"))
-        Ry, Rx, Rz = rot_y(pitch), rot_x(roll), rot_z(yaw)
-        R_off = Ry @ Rx @ Rz
-        R_tc = T_torso_cam0[:, :3, :3] @ R_off
-        t_tc = T_torso_cam0[:, :3, 3]
-        R_ct = np.swapaxes(R_tc, 1, 2)
-        R_cs = R_ct @ R_ts  # pose of the sole in the camera frame, per image
-        t_cs = np.einsum("mij,mj->mi", R_ct, t_ts - t_tc)
-
-        # Board mount (Eq. 4), per leg.
-        p_board = np.empty((N, 3))
-        board_rot = {}
-        for leg in LEGS:
-            rows = self.row_slices[leg]
-            rz = _get(values, t, f"board.{leg}.rot_z")
-            c, s = np.cos(rz), np.sin(rz)
-            px = data.p_sole[rows, 0] + _get(values, t, f"board.{leg}.trans_x")
-            py = data.p_sole[rows, 1] + _get(values, t, f"board.{leg}.trans_y")
-            p_board[rows, 0], p_board[rows, 1], p_board[rows, 2] = c * px - s * py, s * px + c * py, data.p_sole[rows, 2]
-            board_rot[leg] = (c, s, px, py)
-        if self._regular:  # batched per image: (M, V, 3) @ (M, 3, 3)^T
-            V = N // M
-            p_cam = (p_board.reshape(M, V, 3) @ np.swapaxes(R_cs, 1, 2) + t_cs[:, None, :]).reshape(N, 3)
-        else:
-            p_cam = np.einsum("nij,nj->ni", R_cs[img], p_board) + t_cs[img]
-
-        # Projection (Eq. 1) with the prior distortion plus the distortion effect.
-        intr = data.intrinsics
-        fx = intr["fx_px"] + _get(values, t, "intrinsics.fx")
-        fy = intr["fy_px"] + _get(values, t, "intrinsics.fy")
-        cx = intr["cx_px"] + _get(values, t, "intrinsics.cx")
-        cy = intr["cy_px"] + _get(values, t, "intrinsics.cy")
-        k = np.array(intr.get("distortion", (0, 0, 0, 0, 0)), dtype=float).copy()
-        k[0] += _get(values, t, "distortion.k1")
-        k[1] += _get(values, t, "distortion.k2")
-        x, y, z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
-        inv_x = 1.0 / x
-        xn, yn = -y * inv_x, -z * inv_x
-        xd, yd, r2, D = _distort(xn, yn, k)
-        residual = np.stack([cx + fx * xd, cy + fy * yd], axis=1) - data.uv_px
+        elastic = bool(self.gravity.any()) and jacobian and not _twist_only
+        q, regressor, dq = self.joint_state(values, jacobian=elastic)  # hook 1: joint terms
+        terms = _Terms.of(self.effects, self.layout, values)  # hooks 2-5: chain, camera, target, projection terms
+        pose = self._poses(q, terms)
+        p_cam = self._in_camera(self._target_points(terms), pose)
+        projection = camera_model.project(p_cam, *self._intrinsics(terms.projection))
+        residual = projection.uv_px - self.data.uv_px
         if not (jacobian or _twist_only):
             return residual, None
-
-        # Every kinematic parameter moves the board rigidly relative to the camera: a twist (v, w) per image in the
-        # camera frame, dp = v + w x p. Per vertex, d(u, v)/d twist is the 2 x 6 interaction matrix L = [A, p x a_i].
-        L = np.empty((N, 2, 6))
-        for row, f, D_xn, D_yn in ((0, fx, D[:, 0, 0], D[:, 0, 1]), (1, fy, D[:, 1, 0], D[:, 1, 1])):
-            a0 = -(D_xn * xn + D_yn * yn) * f * inv_x  # d u / d p_cam (row 0) or d v / d p_cam (row 1)
-            a1 = -D_xn * f * inv_x
-            a2 = -D_yn * f * inv_x
-            L[:, row, 0], L[:, row, 1], L[:, row, 2] = a0, a1, a2
-            L[:, row, 3] = y * a2 - z * a1  # p x a
-            L[:, row, 4] = z * a0 - x * a2
-            L[:, row, 5] = x * a1 - y * a0
+        L = projection.twist_jacobian()  # (N, 2, 6): d pixel / d twist of the point relative to the camera
         if _twist_only:
             return residual, L
+        twists = self._twists(len(values), pose, terms, regressor, dq)
+        return residual, self._jacobian(L, twists, projection, terms)
 
-        P = len(values)
-        twists = np.zeros((M, 6, P))  # per image: d(v, w) / d parameter
-        joint_twists = np.zeros((M, 6, len(JOINTS)))
-        for leg in LEGS:
-            images = self.image_slices[leg]
-            if images.start == images.stop:
-                continue
-            z_c = np.einsum("mij,mkj->mki", R_ct[images], leg_axes[images])
-            o_c = np.einsum("mij,mkj->mki", R_ct[images], leg_origins[images] - t_tc[images, None, :])
-            joint_twists[images, :3, LEG_COLUMNS[leg][0]:LEG_COLUMNS[leg][-1] + 1] = np.swapaxes(_cross(o_c, z_c), 1, 2)
-            joint_twists[images, 3:, LEG_COLUMNS[leg][0]:LEG_COLUMNS[leg][-1] + 1] = np.swapaxes(z_c, 1, 2)
-            if f"board.{leg}.rot_z" in t.index:
-                c, s, _, _ = board_rot[leg]
-                w = R_cs[images, :, 2]  # the sole's z axis in the camera frame
-                i = t.index[f"board.{leg}.rot_z"]
-                twists[images, :3, i] = _cross(t_cs[images], w)
-                twists[images, 3:, i] = w
-                twists[images, :3, t.index[f"board.{leg}.trans_x"]] = R_cs[images] @ np.array([c, s, 0.0])
-                twists[images, :3, t.index[f"board.{leg}.trans_y"]] = R_cs[images] @ np.array([-s, c, 0.0])
-            if f"link_length.{leg}.thigh" in t.index:
-                dirs_c = np.einsum("mij,mkj->mik", R_ct[images], link_dirs[images])  # (m, 3, 2)
-                i = t.index[f"link_length.{leg}.thigh"]
-                twists[images, :3, i:i + 2] = dirs_c
-        if t.uses_head:
-            head_axes, head_origins = joint_axes_and_origins(head_frames, chain)
-            z_c = np.einsum("mij,mkj->mki", R_ct, head_axes)
-            o_c = np.einsum("mij,mkj->mki", R_ct, head_origins - t_tc[:, None, :])
-            # The camera turns about the head joint: the point moves the opposite way.
-            joint_twists[:, :3, HEAD_COLUMNS] = -np.swapaxes(_cross(o_c, z_c), 1, 2)
-            joint_twists[:, 3:, HEAD_COLUMNS] = -np.swapaxes(z_c, 1, 2)
-        if elastic:
-            twists += joint_twists @ dq_dvalues
-        elif len(t.joint_param):
-            entries = joint_twists[:, :, t.joint_col] * regressor[:, None, :]  # (M, 6, K)
-            twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
-        if "camera.pitch" in t.index:
-            # p_cam = R_off^T p_cam0, so dp = dR^T R_off p_cam: a rotation with w = vee(dR^T R_off).
-            for name, dR in (("camera.pitch", d_rot_y(pitch) @ Rx @ Rz), ("camera.roll", Ry @ d_rot_x(roll) @ Rz),
-                             ("camera.yaw", Ry @ Rx @ d_rot_z(yaw))):
-                G = dR.T @ R_off
-                twists[:, 3:, t.index[name]] = (G[2, 1], G[0, 2], G[1, 0])
+    def _poses(self, q, terms) -> _Poses:
+        """Every image's target frame and camera in the base frame, and the target frame in the camera frame."""
+        data, layout = self.data, self.layout
+        M = data.n_images
+        poses = _Poses(np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, 3)))
+        for t in layout.targets:  # the chains to the targets, with the chain terms
+            images, frame = layout.target_images[t], layout.target_frame(t)
+            frames, T_end = chain_frames(layout.chains[frame], q[images][:, layout.columns[frame]],
+                                         origin_shifts_m=terms.shifts.get(frame))
+            poses.R_bt[images], poses.t_bt[images] = T_end[:, :3, :3], T_end[:, :3, 3]
+            poses.target_frames[t] = frames
+        for c in layout.cameras:  # T_base_cam = T_base_parent @ Trans(translation) @ T_parent_cam0 @ rotation
+            images, frame = layout.camera_images[c], layout.camera_frame(c)
+            term = terms.camera.get(c)
+            frames, T = self._camera_fk(c, q[images][:, layout.columns[frame]], terms.shifts.get(frame),
+                                        None if term is None else term.translation)
+            poses.R_bc[images] = T[:, :3, :3] if term is None or term.rotation is None else T[:, :3, :3] @ term.rotation
+            poses.t_bc[images] = T[:, :3, 3]
+            poses.camera_frames[c] = frames
+        poses.R_cb = np.swapaxes(poses.R_bc, 1, 2)
+        poses.R_ct = poses.R_cb @ poses.R_bt
+        poses.t_ct = np.einsum("mij,mj->mi", poses.R_cb, poses.t_bt - poses.t_bc)
+        return poses
 
-        if self._regular:
+    def _target_points(self, terms) -> np.ndarray:
+        """The vertices in their targets' frames, (N, 3), with the target terms."""
+        points = self.data.p_mount
+        if terms.target:
+            points = points.copy()
+            for term in terms.target:
+                rows = self.layout.target_rows[term.target]
+                points[rows] = self.data.p_mount[rows] @ term.R.T + term.t
+        return points
+
+    def _in_camera(self, points, pose) -> np.ndarray:
+        """The vertices in their images' camera frames, (N, 3)."""
+        data = self.data
+        N, M = data.n_rows, data.n_images
+        if self._regular:  # batched per image: (M, V, 3) @ (M, 3, 3)^T
             V = N // M
-            J = np.matmul(L.reshape(M, 2 * V, 6), twists).reshape(N, 2, P)
+            return (points.reshape(M, V, 3) @ np.swapaxes(pose.R_ct, 1, 2) + pose.t_ct[:, None, :]).reshape(N, 3)
+        img = data.image_of_row
+        return np.einsum("nij,nj->ni", pose.R_ct[img], points) + pose.t_ct[img]
+
+    def _twists(self, P, pose, terms, regressor, dq) -> np.ndarray:
+        """(M, 6, P): d twist (v, w) of each image's target relative to its camera (camera frame, dp = v + w x p) /
+        d parameter. Joints and chain terms move it through the chains, camera terms move the camera, target
+        terms the board."""
+        data, layout = self.data, self.layout
+        M = data.n_images
+        twists = np.zeros((M, 6, P))
+        joint_twists = np.zeros((M, 6, len(data.joints)))
+        for t in layout.targets:
+            images, frame = layout.target_images[t], layout.target_frame(t)
+            self._chain_twists(layout.chains[frame], pose.target_frames[t], images, layout.columns[frame], pose,
+                               +1.0, joint_twists, twists, [term for term in terms.chain if term.frame == frame])
+        for c in layout.cameras:  # the camera moves: the point moves the opposite way
+            images, frame = layout.camera_images[c], layout.camera_frame(c)
+            chain, frames = layout.chains[frame], pose.camera_frames[c]
+            self._chain_twists(chain, frames, images, layout.columns[frame], pose, -1.0,
+                               joint_twists if self._moves_cameras else None, twists,
+                               [term for term in terms.chain if term.frame == frame])
+            term = terms.camera.get(c)
+            if term is not None:
+                for param, w in term.rotation_params:
+                    twists[images, 3:, param] += w
+                R_parent = frames[:, -1, :3, :3] if len(chain.joint_names) else np.eye(3)
+                for param, unit in term.translation_params:
+                    twists[images, :3, param] -= np.einsum("mij,mj->mi", pose.R_cb[images], R_parent @ unit)
+        if dq is not None:  # elastic: dq/dp from the implicit equilibrium
+            twists += joint_twists @ dq
+        elif len(self.joint_param):
+            entries = joint_twists[:, :, self.joint_col] * regressor[:, None, :]  # (M, 6, K)
+            twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
+        for term in terms.target:
+            images = layout.target_images[term.target]
+            for param, v, w in term.params:
+                w_c = pose.R_ct[images] @ w
+                twists[images, :3, param] += pose.R_ct[images] @ v + _cross(pose.t_ct[images], w_c)
+                twists[images, 3:, param] += w_c
+        return twists
+
+    def _chain_twists(self, chain, frames, images, columns, pose, sign, joint_twists, twists, chain_terms):
+        """The twists of one chain's joints (into joint_twists, unless None) and chain terms (into twists), signed
+        +1 for a target's chain, -1 for a camera's."""
+        if joint_twists is not None and len(chain.joint_names):
+            axes, origins = joint_axes_and_origins(frames, chain)
+            z_c = np.einsum("mij,mkj->mki", pose.R_cb[images], axes)
+            o_c = np.einsum("mij,mkj->mki", pose.R_cb[images], origins - pose.t_bc[images, None, :])
+            _add(joint_twists, images, columns, sign * np.swapaxes(_cross(o_c, z_c), 1, 2),
+                 sign * np.swapaxes(z_c, 1, 2))
+        for term in chain_terms:
+            twists[images, :3, term.param] += sign * np.einsum(
+                "mij,mj->mi", pose.R_cb[images], self._before(frames, term.joint) @ term.direction)
+
+    def _jacobian(self, L, twists, projection, terms) -> np.ndarray:
+        """(N, 2, P): pixels per twist times twists, plus the projection terms' own columns."""
+        data = self.data
+        N, M, P = data.n_rows, data.n_images, twists.shape[2]
+        if self._regular:
+            J = np.matmul(L.reshape(M, 2 * (N // M), 6), twists).reshape(N, 2, P)
         else:
-            J = np.einsum("nik,nkp->nip", L, twists[img])
+            J = np.einsum("nik,nkp->nip", L, twists[data.image_of_row])
+        for term in terms.projection:
+            rows = self.layout.camera_rows[term.camera]
+            J[rows, :, term.param] += projection.intrinsic_jacobian(term.component)[rows]
+        return J
 
-        # Intrinsics and distortion.
-        for name, col, axis in (("intrinsics.fx", xd, 0), ("intrinsics.fy", yd, 1),
-                                ("intrinsics.cx", 1.0, 0), ("intrinsics.cy", 1.0, 1)):
-            if name in t.index:
-                J[:, axis, t.index[name]] = col
-        for name, power in (("distortion.k1", 1), ("distortion.k2", 2)):
-            if name in t.index:
-                rp = r2 ** power
-                J[:, 0, t.index[name]] = fx * xn * rp
-                J[:, 1, t.index[name]] = fy * yn * rp
-        return residual, J
+    @staticmethod
+    def _before(frames, k):
+        """(m, 3, 3) orientation of the frame before joint k (the previous joint's child frame; the base for k=0)."""
+        return frames[:, k - 1, :3, :3] if k > 0 else np.eye(3)
 
-
-def encoder_resolution(readings: np.ndarray, *, tolerance=1e-9) -> float | None:
-    """The grid a joint's readings lie on (rad), or None if they are not quantised.
-
-    Quantised readings are integer multiples of one step; we take the smallest gap between distinct readings as
-    the candidate step and accept it only if every reading is a whole multiple of it.
-    """
-    values = np.unique(np.asarray(readings, dtype=float))
-    if len(values) < 3:
-        return None
-    gaps = np.diff(values)
-    step = float(gaps[gaps > tolerance].min()) if np.any(gaps > tolerance) else 0.0
-    if step <= 0:
-        return None
-    # the smallest gap may be a multiple of the true step (a few stances leave wide gaps); try its integer fractions
-    for divisor in range(1, 101):
-        candidate = step / divisor
-        multiples = values / candidate
-        if np.all(np.abs(multiples - np.round(multiples)) < 1e-6):
-            return candidate
-    return None
+    def _intrinsics(self, projection_terms):
+        """(fx, fy, cx, cy, k): scalars for one camera, per-row arrays for several."""
+        layout, data = self.layout, self.data
+        values = {}
+        for c in layout.cameras:
+            prior = data.cameras[c]
+            k = camera_model.distortion_of(prior)
+            values[c] = {"fx": prior["fx_px"], "fy": prior["fy_px"], "cx": prior["cx_px"], "cy": prior["cy_px"],
+                         **dict(zip(("k1", "k2", "p1", "p2", "k3"), k))}
+        for term in projection_terms:
+            values[term.camera][term.component] += term.value
+        names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+        if len(layout.cameras) == 1:
+            v = values[layout.cameras[0]]
+            return v["fx"], v["fy"], v["cx"], v["cy"], tuple(v[n] for n in names[4:])
+        index = {c: i for i, c in enumerate(layout.cameras)}
+        of_row = np.array([index[c] for c in data.camera])[data.image_of_row]
+        table = np.array([[values[c][n] for n in names] for c in layout.cameras])[of_row]  # (N, 9)
+        return table[:, 0], table[:, 1], table[:, 2], table[:, 3], tuple(table[:, 4 + i] for i in range(5))
 
 
-@dataclass
-class AngleChoice:
-    """How the joint angles theta were taken from a dataset's measured and commanded columns."""
+def __getattr__(name):
+    """The dataset adapter moved to solver.adapter; these names still import from here."""
+    if name in ("model_data_from_dataset", "choose_angles", "AngleChoice", "encoder_resolution"):
+        from solver import adapter
 
-    mode: str  # 'measured', 'commanded' or 'auto'
-    resolution_rad: dict  # joint -> detected encoder step (rad), for joints whose readings are quantised
-    n_commanded: int  # joint readings replaced by their command
-    n_total: int
-
-    def describe(self) -> str:
-        if self.mode != "auto" or not self.n_commanded:
-            return f"joint angles: {self.mode} readings"
-        steps = sorted({round(np.degrees(r), 4) for r in self.resolution_rad.values()})
-        return (f"joint angles: readings quantised to {', '.join(f'{s:g}' for s in steps)} deg; used the command for "
-                f"{self.n_commanded} of {self.n_total} still joint readings whose command lies inside the reading's "
-                "quantisation cell (the servo drives its sensor to the command; the reading only says which cell)")
-
-
-def choose_angles(measured, commanded, velocity, mode="auto", *, still_rad_per_s=1e-3):
-    """theta (M, 14) from measured and commanded angles (M, 14), per `mode`, and an AngleChoice saying what was done.
-
-    'measured' is the paper's choice. 'auto' also uses measured angles, except for joints whose readings are
-    quantised: there, for a still joint whose command lies inside its reading's quantisation cell, the command is
-    the better estimate (quantisation error up to half a step, shared by every image of a stance, otherwise
-    dominates the leg offsets). 'commanded' uses the commands throughout.
-    """
-    measured = np.asarray(measured, dtype=float)
-    commanded = np.asarray(commanded, dtype=float)
-    if mode == "measured":
-        return measured.copy(), AngleChoice(mode, {}, 0, measured.size)
-    if mode == "commanded":
-        return commanded.copy(), AngleChoice(mode, {}, measured.size, measured.size)
-    if mode != "auto":
-        raise ValueError(f"unknown angle mode {mode!r}: expected measured, commanded or auto")
-    theta = measured.copy()
-    still = np.ones(measured.shape, dtype=bool) if velocity is None else np.abs(velocity) < still_rad_per_s
-    resolutions, replaced = {}, 0
-    for c, joint in enumerate(JOINTS):
-        step = encoder_resolution(measured[still[:, c], c])  # moving joints' readings may be interpolated
-        if step is None:
-            continue
-        resolutions[joint] = step
-        inside = still[:, c] & (np.abs(commanded[:, c] - measured[:, c]) <= 0.5 * step + 1e-9)
-        theta[inside, c] = commanded[inside, c]
-        replaced += int(inside.sum())
-    return theta, AngleChoice(mode, resolutions, replaced, measured.size)
-
-
-def model_data_from_dataset(dataset, angles: str = "auto") -> ModelData:
-    """ModelData from a read `naocal.dataset/1` (solver.dataset.Dataset): per-image arrays, rows sorted by leg.
-
-    Per-image values (leg, stance, posture, angles) are taken from the first row of each image; the reader has
-    already checked that they agree within an image. `angles` chooses theta (see `choose_angles`); what was done
-    is in the returned data's `angle_choice`.
-    """
-    cols = dataset.columns
-    image = np.asarray(cols["image"], dtype=np.int64)
-    image_ids, first_row, image_of_row = np.unique(image, return_index=True, return_inverse=True)
-    velocity = dataset.joint_matrix("vel_")[first_row] if dataset.has_velocities else None
-    commanded = dataset.joint_matrix("cmd_")[first_row]
-    theta, choice = choose_angles(dataset.joint_matrix("")[first_row], commanded, velocity, angles)
-    direction = dataset.joint_matrix("dir_")[first_row]
-    leg = np.asarray(cols["leg"]).astype(str)[first_row]
-    camera = dataset.meta["camera"]
-    distortion = list(camera.get("distortion") or [0.0] * 5) + [0.0] * 5
-    intrinsics = {
-        "fx_px": float(camera["fx_px"]), "fy_px": float(camera["fy_px"]),
-        "cx_px": float(camera["cx_px"]), "cy_px": float(camera["cy_px"]),
-        "width_px": int(camera["width_px"]), "height_px": int(camera["height_px"]),
-        "distortion": [float(d) for d in distortion[:5]],
-    }
-    gravity = np.asarray(dataset.meta.get("gravity_torso_mps2", (-9.81, 0.0, 0.0)), dtype=float)
-    order = np.lexsort((np.asarray(cols["vertex"]), image_of_row))  # rows grouped by image
-    data = ModelData(
-        image_of_row=image_of_row[order], vertex=np.asarray(cols["vertex"], dtype=np.int64)[order],
-        uv_px=np.column_stack([cols["u_px"], cols["v_px"]]).astype(float)[order],
-        p_sole=np.column_stack([cols["x_sole_m"], cols["y_sole_m"], cols["z_sole_m"]]).astype(float)[order],
-        leg=leg, image_id=image_ids, stance=np.asarray(cols["stance"], dtype=np.int64)[first_row],
-        head_posture=np.asarray(cols["head_posture"], dtype=np.int64)[first_row], theta=theta,
-        direction=direction, tau=compute_gravity_torques(theta, leg, gravity), velocity=velocity,
-        intrinsics=intrinsics, gravity_torso_mps2=gravity, angle_choice=choice, commanded=commanded,
-    )
-    return data.sorted_by_leg()
+        return getattr(adapter, name)
+    raise AttributeError(f"module 'solver.model' has no attribute {name!r}")

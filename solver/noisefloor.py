@@ -11,9 +11,10 @@ import math
 
 import numpy as np
 
-from solver.joints import JOINTS
+from solver.effects import EFFECTS
 from solver.model import Model
 from solver.registry import Registry
+from solver.quantisation import reading_resolution  # noqa: F401 (its home is solver.quantisation)
 from solver.scoretest import _orthonormal_basis, _project_off
 
 
@@ -63,10 +64,11 @@ def noise_floor_estimate(model: Model, values, residuals, n_nonrigid_parameters:
     data = model.data
     split = split or RigidSplit(model, values)
     nonrigid = split(residuals)[1]
-    camera = Registry(tuple(dict.fromkeys(model.registry.effects + ("intrinsics", "distortion"))))
+    non_rigid = tuple(name for name, e in EFFECTS.items() if e.non_rigid)
+    camera = Registry(tuple(dict.fromkeys(model.registry.effects + non_rigid)), setup=model.registry.setup)
     J = Model(data, camera).evaluate(camera.from_dict(model.registry.as_dict(values)))[1]
-    columns = [split(J[:, :, camera.index[n]])[1].reshape(-1)
-               for n in camera.names if n.startswith(("intrinsics.", "distortion."))]
+    columns = [split(J[:, :, camera.index[p.name]])[1].reshape(-1)
+               for p in camera.parameters if EFFECTS[p.effect].non_rigid]
     Q = _orthonormal_basis(np.stack(columns, axis=1))
     rest = _project_off(Q, nonrigid.reshape(-1))
     counts = np.bincount(data.image_of_row, minlength=data.n_images)
@@ -74,61 +76,23 @@ def noise_floor_estimate(model: Model, values, residuals, n_nonrigid_parameters:
     return float(np.sqrt(rest @ rest / dof)) if dof > 0 else float("nan")
 
 
-def _float_gcd(values, tolerance: float) -> float:
-    """Greatest common divisor of positive floats, to `tolerance` (Euclid with a tolerant remainder)."""
-    step = min(values)
-    for d in values:
-        a, b = max(d, step), min(d, step)
-        while b > tolerance:
-            a, b = b, math.fmod(a, b)
-            if abs(b - a) < tolerance:  # a remainder next to the divisor: it divides
-                b = 0.0
-        step = a
-    return float(step)
-
-
-def reading_resolution(theta: np.ndarray, tolerance_rad: float = 1e-7, smallest_rad: float = 1e-5,
-                       min_values: int = 8) -> np.ndarray:
-    """(14,) quantisation step of each joint's readings in rad (0: not quantised, or not known).
-
-    Encoders report multiples of their resolution (the mock and the NAO: about 0.1 deg): the step is the greatest
-    common divisor of the differences between distinct readings, found on the joints with at least `min_values`
-    distinct readings (fewer could share a larger divisor by chance); a joint with fewer readings is taken to
-    have that step if its readings lie on the grid. Pass the readings of still captures only.
-    """
-    theta = np.atleast_2d(np.asarray(theta, dtype=float))
-    diffs = []
-    for column in theta.T:
-        d = np.diff(np.unique(column))
-        diffs.append(d[d > tolerance_rad])
-    steps = [_float_gcd(d, tolerance_rad) for d in diffs if len(d) + 1 >= min_values]
-    steps = [x for x in steps if x >= smallest_rad]
-    out = np.zeros(theta.shape[1])
-    if not steps:
-        return out
-    step = float(np.median(steps))
-    for j, d in enumerate(diffs):
-        ratio = d / step
-        if len(d) == 0 or np.all(np.abs(ratio - np.round(ratio)) < tolerance_rad / step * 10):
-            out[j] = step
-    return out
-
-
 def encoder_noise_px(model: Model, values, resolution_rad) -> np.ndarray:
-    """(x, y) RMS pixel error that joint readings quantised to `resolution_rad` ((14,) or one step) cause.
+    """(x, y) RMS pixel error that joint readings quantised to `resolution_rad` ((J,) or one step) cause.
 
     Quantisation leaves each reading off by a uniform error of standard deviation resolution / sqrt(12),
     independent between joints; it moves the board by d r / d theta_j per joint (the joint-offset columns).
     """
-    resolution = np.broadcast_to(np.asarray(resolution_rad, dtype=float), (len(JOINTS),))
+    data = model.data
+    resolution = np.broadcast_to(np.asarray(resolution_rad, dtype=float), (len(data.joints),))
     if not np.any(resolution > 0):
         return np.zeros(2)
     # Only the full Jacobian is needed: ties and fixed parameters do not matter here.
-    registry = Registry(tuple(dict.fromkeys(model.registry.effects + ("head_offsets",))))
-    J = Model(model.data, registry).evaluate(registry.from_dict(model.registry.as_dict(values)))[1]
+    offsets = tuple(name for name, e in EFFECTS.items() if e.reading_offsets)
+    registry = Registry(tuple(dict.fromkeys(model.registry.effects + offsets)), setup=model.registry.setup)
+    J = Model(data, registry).evaluate(registry.from_dict(model.registry.as_dict(values)))[1]
     variance = np.zeros(2)
     for p in registry.parameters:
-        if p.effect in ("joint_offsets", "head_offsets"):
-            sigma = resolution[JOINTS.index(p.joint)] / math.sqrt(12.0)
+        if EFFECTS[p.effect].reading_offsets:
+            sigma = resolution[data.column(p.joint)] / math.sqrt(12.0)
             variance += sigma ** 2 * np.mean(J[:, :, registry.index[p.name]] ** 2, axis=0)
     return np.sqrt(variance)

@@ -1,12 +1,19 @@
-"""The `naocal.offsets/1` file: a robot's calibration result, as robot code and the tools use it.
+"""The `naocal.offsets/2` file (and `naocal.offsets/1`, which still reads): a robot's calibration result, as robot
+code and the tools use it (docs/FORMATS.md).
 
 Sign convention (the one of B-Human, HULKs and the paper): a stored joint offset `c` is ADDED to every commanded
-angle and SUBTRACTED from every measured angle. The model says q_true = theta_measured + alpha, so c = -alpha.
-`camera_rotation_rad` and `board_mount` hold the model's alphas as they are (Eq. 3 and Eq. 4).
-Build files from model alphas with `offsets_from_alpha` or `offsets_from_parameters`, never by hand-negating.
+angle and SUBTRACTED from every measured angle: q_true = theta_measured - c. naocal's parameter
+`joint_offset.<J>` is this c (the paper's alpha = -c). Camera rotations and translations and board mounts are
+corrections as they are (Eq. 3 and Eq. 4).
 
-Body results (joint offsets, board mount) and head results (camera rotation) are kept apart so that they can be
-reused when heads and bodies are swapped between robots.
+Version 2 keeps body results (`body`: joint offsets and every other body effect), head results (`head`: each
+camera's rotation and translation keyed by camera name, intrinsics) and the targets (`targets`: board mounts)
+apart, so that they can be reused when heads and bodies are swapped between robots; each fitted effect writes its
+own section (solver/effects/), and `model.parameters` holds every fitted parameter with its std. Build files from
+an identification with `offsets_from_result` (or from parameters with `offsets_from_parameters`). A version 1
+file reads into the same object: its model parameters renamed (camera.pitch -> camera.bottom.pitch,
+intrinsics.fx -> intrinsics.bottom.fx, distortion.k1 -> distortion.bottom.k1) and its joint and head offset
+parameters, which were alpha, turned into c.
 """
 
 from __future__ import annotations
@@ -20,22 +27,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from solver.dataset import find_non_finite, parse_json_text, read_text
+from solver.effects import EFFECTS
 from solver.errors import DataError
 from solver.fileio import atomic_write_text
 from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
 
-SCHEMA = "naocal.offsets/1"
+SCHEMA_V1 = "naocal.offsets/1"
+SCHEMA = SCHEMA_V2 = "naocal.offsets/2"  # what naocal writes
 BACKUP_SUFFIX = ".bak"
 
 # Plausible sizes: anything beyond is a damaged file, a unit mix-up (degrees written as radians) or a broken robot.
-MAX_JOINT_OFFSET_RAD = math.radians(20.0)  # real robots: HipYawPitch up to 11.5 deg (HULKs body configs)
-MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
-MAX_BOARD_TRANS_M = 0.03
-MAX_BOARD_ROT_Z_RAD = math.radians(15.0)
+# Each effect keeps its own (solver/effects/); version 1 files are held to the same.
+MAX_JOINT_OFFSET_RAD = EFFECTS["joint_offsets"].offsets_limit  # 20 deg
+MAX_CAMERA_ROTATION_RAD = EFFECTS["camera_rotation"].offsets_limit  # 15 deg
+MAX_BOARD_TRANS_M = EFFECTS["board_mount"].limits["trans_x_m"]  # 0.03 m
+MAX_BOARD_ROT_Z_RAD = EFFECTS["board_mount"].limits["rot_z_rad"]  # 15 deg
 
-OFFSET_JOINTS = LEG_JOINTS + HEAD_JOINTS  # the order joint_offsets_rad is written in; the 12 leg joints are required
+OFFSET_JOINTS = LEG_JOINTS + HEAD_JOINTS  # version 1: its joints, in the order written; the 12 leg joints required
 CAMERA_ANGLES = ("roll", "pitch", "yaw")
-CAMERAS = ("bottom", "top")  # bottom is required; top is accepted for completeness
+CAMERAS = ("bottom", "top")  # version 1: bottom is required; top is accepted for completeness
 BOARD_KEYS = ("rot_z_rad", "trans_x_m", "trans_y_m")
 BOARD_LIMITS = {"rot_z_rad": MAX_BOARD_ROT_Z_RAD, "trans_x_m": MAX_BOARD_TRANS_M, "trans_y_m": MAX_BOARD_TRANS_M}
 TOP_LEVEL_KEYS = ("schema", "robot", "created", "joint_offsets_rad", "camera_rotation_rad", "board_mount", "model",
@@ -44,7 +54,7 @@ ROBOT_KEYS = ("id", "body_id", "head_id")
 PARAMETER_KEYS = ("value", "std", "unit")
 PARAMETER_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
 
-# Model parameter names of the registry (solver/registry.py): group -> (unit, allowed members).
+# Version 1: model parameter names of the registry of that time: group -> (unit, allowed members).
 # A member of None means "any identifier" (e.g. link_length.L.thigh).
 _JOINT_GROUPS = {"joint_offset": "rad", "elasticity": "rad/(N m)", "backlash": "rad"}
 _SIMPLE_GROUPS = {
@@ -59,7 +69,7 @@ _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 def parameter_unit(name: str) -> str:
-    """The unit a model parameter of this name must carry; ValueError for names outside the registry's scheme."""
+    """The unit a version 1 model parameter of this name must carry; ValueError for names outside its scheme."""
     parts = name.split(".")
     group = parts[0]
     if group in _JOINT_GROUPS and len(parts) == 2:
@@ -87,34 +97,52 @@ def parameter_unit(name: str) -> str:
 
 @dataclass
 class Offsets:
-    """A `naocal.offsets/1` document. Angles in rad, lengths in m.
+    """An offsets document, version 2 in memory (a version 1 file reads into it). Angles in rad, lengths in m.
 
-    joint_offsets_rad : {joint: c}, c added to commands and subtracted from readings (c = -alpha).
-    camera_rotation_rad : {"bottom": {"roll", "pitch", "yaw"}}, the model's alpha of Eq. 3.
-    board_mount : {"L"/"R": {"rot_z_rad", "trans_x_m", "trans_y_m"}}, the model's alpha of Eq. 4.
-    model : {"effects": [str], "parameters": {name: {"value", "std", "unit"}}} (values are model values: alphas).
-    fit : {"rms_px": [x, y], "n_vertices": int, "n_images": int, ...}.
+    body : {"joint_offsets_rad": {joint: c}, ...every other body effect's section} (c = the stored offset);
+    head : {"camera_rotation_rad": {camera: {"roll", "pitch", "yaw"}}, ...every other head effect's section};
+    targets : {"board_mount": {target: {"rot_z_rad", "trans_x_m", "trans_y_m"}}};
+    model : {"effects": [str], "parameters": {name: {"value", "std", "unit"}}} (registry names and values);
+    fit : {"rms_px": [x, y], "n_vertices": int, "n_images": int, ...}; robot : {"id", "body_id", "head_id",
+    "description"}; read_schema : the version it was read from (written files are always version 2).
     """
 
     robot: dict
     created: str
-    joint_offsets_rad: dict
-    camera_rotation_rad: dict
-    board_mount: dict
+    body: dict
+    head: dict
+    targets: dict
     fit: dict
     model: dict = field(default_factory=lambda: {"effects": [], "parameters": {}})
     source: dict = field(default_factory=dict)
+    read_schema: str = SCHEMA
+
+    # -- the sections robot code reads most
+
+    @property
+    def joint_offsets_rad(self) -> dict:
+        """{joint: c}: c added to commands and subtracted from readings."""
+        return self.body.setdefault("joint_offsets_rad", {})
+
+    @property
+    def camera_rotation_rad(self) -> dict:
+        """{camera: {"roll", "pitch", "yaw"}}, the corrections of Eq. 3."""
+        return self.head.setdefault("camera_rotation_rad", {})
+
+    @property
+    def board_mount(self) -> dict:
+        """{target: {"rot_z_rad", "trans_x_m", "trans_y_m"}}, the corrections of Eq. 4."""
+        return self.targets.setdefault("board_mount", {})
 
     def to_dict(self) -> dict:
-        """The JSON document, keys in their canonical order."""
+        """The version 2 JSON document, keys in their canonical order."""
         return {
             "schema": SCHEMA,
-            "robot": {k: self.robot.get(k) for k in ROBOT_KEYS},
+            "robot": {k: self.robot.get(k) for k in ROBOT_KEYS_V2},
             "created": self.created,
-            "joint_offsets_rad": {j: self.joint_offsets_rad[j] for j in OFFSET_JOINTS if j in self.joint_offsets_rad},
-            "camera_rotation_rad": {cam: {a: self.camera_rotation_rad[cam][a] for a in CAMERA_ANGLES}
-                                    for cam in CAMERAS if cam in self.camera_rotation_rad},
-            "board_mount": {leg: {k: self.board_mount[leg][k] for k in BOARD_KEYS} for leg in LEGS},
+            "body": _ordered_section("body", self.body),
+            "head": _ordered_section("head", self.head),
+            "targets": _ordered_section("targets", self.targets),
             "model": copy.deepcopy(self.model),
             "fit": copy.deepcopy(self.fit),
             "source": copy.deepcopy(self.source),
@@ -122,8 +150,10 @@ class Offsets:
 
     @classmethod
     def from_dict(cls, doc, path="<offsets>") -> Offsets:
-        """Validate a JSON document (see `validate`) and build the Offsets."""
-        return cls(**_validated_fields(doc, path))
+        """Validate a JSON document of either version (see `validate`) and build the Offsets."""
+        if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
+            return _from_v1(_validated_fields(doc, path))
+        return cls(**_validated_fields_v2(doc, path))
 
     def joint_offset(self, joint: str) -> float:
         """c of `joint`, 0.0 for a joint the file does not calibrate."""
@@ -137,10 +167,38 @@ class Offsets:
         entry = self.parameter(name)
         return None if entry is None else float(entry["std"])
 
-    def camera_rpy(self, camera: str = "bottom") -> tuple[float, float, float]:
-        """(alpha_roll, alpha_pitch, alpha_yaw) of the camera, rad (zeros if absent)."""
+    def camera_rpy(self, camera: str | None = None) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) correction of the camera (default: the robot description's first default camera, the
+        NAO's bottom camera), rad (zeros if absent)."""
+        if camera is None:
+            from solver.robot import load_robot
+
+            camera = load_robot(self.robot.get("description") or "nao").default_cameras[0]
         angles = self.camera_rotation_rad.get(camera, {})
         return tuple(float(angles.get(a, 0.0)) for a in CAMERA_ANGLES)
+
+
+
+ROBOT_KEYS_V2 = ROBOT_KEYS + ("description",)
+TOP_LEVEL_KEYS_V2 = ("schema", "robot", "created", "body", "head", "targets", "model", "fit", "source")
+
+
+def _section_keys(section: str) -> dict:
+    """{key: the effect that writes and checks it} of one section of a version 2 file, in the effects' order."""
+    from solver.effects import EFFECTS
+
+    keys = {}
+    for effect in EFFECTS.values():
+        if effect.offsets_section == section:
+            keys.setdefault(effect.offsets_key, effect)
+    return keys
+
+
+def _ordered_section(section: str, content: dict) -> dict:
+    known = _section_keys(section)
+    out = {key: copy.deepcopy(content[key]) for key in known if key in content}
+    out.update({k: copy.deepcopy(v) for k, v in content.items() if k not in known})
+    return out
 
 
 # --------------------------------------------------------------------------------------------- validation
@@ -204,11 +262,12 @@ def _created(value, path) -> str:
 
 
 def _validated_fields(doc, path) -> dict:
+    """The fields of a version 1 document (its own layout); DataError naming the file and field otherwise."""
     doc = _object(doc, path, "(top level)")
     if "schema" not in doc:
         _fail(path, "missing required field", "schema")
-    if doc["schema"] != SCHEMA:
-        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
+    if doc["schema"] != SCHEMA_V1:
+        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA_V1!r}", "schema")
     bad = find_non_finite(doc)
     if bad:
         _fail(path, "non-finite value (NaN or infinity)", bad)
@@ -307,15 +366,129 @@ def _validated_fit(fit, path) -> dict:
 
 
 def validate(doc, path="<offsets>") -> None:
-    """Raise DataError (naming the field path, e.g. joint_offsets_rad.LHipPitch) if `doc` is not a valid file."""
-    _validated_fields(doc, path)
+    """Raise DataError (naming the field path, e.g. body.joint_offsets_rad.LHipPitch) if `doc` is not a valid file
+    of either version."""
+    if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
+        _validated_fields(doc, path)
+    else:
+        _validated_fields_v2(doc, path)
+
+
+def _validated_fields_v2(doc, path) -> dict:
+    """The fields of Offsets from a version 2 document; DataError naming the file and field otherwise."""
+    from solver.robot import load_robot
+
+    doc = _object(doc, path, "(top level)")
+    if "schema" not in doc:
+        _fail(path, "missing required field", "schema")
+    if doc["schema"] != SCHEMA:
+        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r} (or {SCHEMA_V1!r})", "schema")
+    bad = find_non_finite(doc)
+    if bad:
+        _fail(path, "non-finite value (NaN or infinity)", bad)
+    _keys(doc, TOP_LEVEL_KEYS_V2, (), path, "")
+
+    robot_meta = _object(doc["robot"], path, "robot")
+    _keys(robot_meta, ROBOT_KEYS_V2, (), path, "robot")
+    for key in ROBOT_KEYS:
+        if robot_meta[key] is not None and not isinstance(robot_meta[key], str):
+            _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
+    description = robot_meta["description"]
+    if not isinstance(description, str) or not re.match(r"^[a-z0-9_]{1,64}$", description):
+        _fail(path, "expected the name of a robot description (e.g. 'nao')", "robot.description")
+    try:
+        robot = load_robot(description)
+    except DataError:
+        _fail(path, f"unknown robot description {description!r}", "robot.description")
+
+    sections = {}
+    for section in ("body", "head", "targets"):
+        content = _object(doc[section], path, section)
+        known = _section_keys(section)
+        for key, value in content.items():
+            if key not in known:
+                _fail(path, f"unknown field (allowed in {section}: {', '.join(known)})", f"{section}.{key}")
+            known[key].read_offsets(value, path, f"{section}.{key}", robot)
+        sections[section] = copy.deepcopy(content)
+    for section, key in (("body", "joint_offsets_rad"), ("head", "camera_rotation_rad")):
+        if key not in sections[section]:
+            _fail(path, "missing required field", f"{section}.{key}")
+    return {
+        "robot": dict(robot_meta),
+        "created": _created(doc["created"], path),
+        **sections,
+        "model": _validated_model_v2(doc["model"], path, robot),
+        "fit": _validated_fit(doc["fit"], path),
+        "source": copy.deepcopy(_object(doc["source"], path, "source")),
+    }
+
+
+def _validated_model_v2(model, path, robot) -> dict:
+    from solver.effect import Setup
+    from solver.effects import ALL_EFFECTS, EFFECTS
+
+    model = _object(model, path, "model")
+    _keys(model, ("effects", "parameters"), (), path, "model")
+    effects = model["effects"]
+    if not isinstance(effects, list) or not all(isinstance(e, str) and e for e in effects):
+        _fail(path, "expected a list of effect names", "model.effects")
+    for i, name in enumerate(effects):
+        if name not in ALL_EFFECTS:
+            _fail(path, f"unknown effect {name!r} (known: {', '.join(ALL_EFFECTS)})", f"model.effects[{i}]")
+    if len(set(effects)) != len(effects):
+        _fail(path, "an effect is listed twice", "model.effects")
+    setup = Setup.everything(robot)
+    units = {p.name: p.unit for e in EFFECTS.values() for p in e.parameters(setup)}
+    parameters = _object(model["parameters"], path, "model.parameters")
+    checked = {}
+    for name, entry in parameters.items():
+        where = f"model.parameters.{name}"
+        if name not in units:
+            _fail(path, f"unknown model parameter of robot {robot.name!r}", where)
+        entry = _object(entry, path, where)
+        _keys(entry, PARAMETER_KEYS, (), path, where)
+        unit = entry["unit"]
+        if unit not in PARAMETER_UNITS:
+            _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
+                  f"{where}.unit")
+        if unit != units[name]:
+            _fail(path, f"wrong unit {unit!r}, {name} is in {units[name]!r}", f"{where}.unit")
+        checked[name] = {"value": _number(entry["value"], path, f"{where}.value"),
+                         "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
+                         "unit": unit}
+    return {"effects": list(effects), "parameters": checked}
+
+
+def _v1_parameter_name(name: str) -> str:
+    """A version 1 model parameter's name in version 2 (the one camera of version 1 was the bottom camera)."""
+    group, _, rest = name.partition(".")
+    if group in ("camera", "intrinsics", "distortion"):
+        return f"{group}.bottom.{rest}"
+    return name
+
+
+def _from_v1(fields: dict) -> Offsets:
+    """The Offsets a validated version 1 file stands for (its numbers unchanged; parameters renamed, alpha -> c)."""
+    parameters = {}
+    for name, entry in fields["model"]["parameters"].items():
+        entry = dict(entry)
+        if name.startswith(("joint_offset.", "head_offset.")):
+            entry["value"] = -entry["value"]  # version 1 stored the model's alpha; the parameter is now c
+        parameters[_v1_parameter_name(name)] = entry
+    return Offsets(
+        robot={**fields["robot"], "description": "nao"}, created=fields["created"],
+        body={"joint_offsets_rad": fields["joint_offsets_rad"]},
+        head={"camera_rotation_rad": fields["camera_rotation_rad"]},
+        targets={"board_mount": fields["board_mount"]},
+        fit=fields["fit"], model={"effects": fields["model"]["effects"], "parameters": parameters},
+        source=fields["source"], read_schema=SCHEMA_V1)
 
 
 # ------------------------------------------------------------------------------------------ read / write
 
 
 def read_offsets(path) -> Offsets:
-    """Read and validate a `naocal.offsets/1` file."""
+    """Read and validate a `naocal.offsets/2` (or /1) file."""
     return Offsets.from_dict(parse_json_text(read_text(path), path), path)
 
 
@@ -353,17 +526,64 @@ def _mount_dict(mount) -> dict:
     return {"rot_z_rad": float(rot_z), "trans_x_m": float(trans_x), "trans_y_m": float(trans_y)}
 
 
+def _robot(robot: dict, description: str) -> dict:
+    return {**{k: robot.get(k) for k in ROBOT_KEYS}, "description": robot.get("description", description)}
+
+
+def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects=(), source: dict | None = None,
+                            created: str | None = None, description: str = "nao") -> Offsets:
+    """Build an Offsets from registry-named model parameters {name: {"value", "std", "unit"}}: each effect that owns
+    some of them writes its section (joint_offset.<J> and head_offset.<J> are c, stored as they are; a joint on a
+    shared motor follows its partner when only the partner is estimated). All parameters are kept in
+    model.parameters; `effects` are the extra effects of the model.
+    """
+    from solver.effect import Setup
+    from solver.effects import EFFECTS
+    from solver.robot import load_robot
+
+    setup = Setup.everything(load_robot(description))
+    values = {name: float(entry["value"]) for name, entry in parameters.items()}
+    sections = {"body": {}, "head": {}, "targets": {}}
+    for effect in EFFECTS.values():
+        if effect.offsets_section is None:
+            continue
+        content = effect.write_offsets(values, setup)
+        if content:
+            merged = sections[effect.offsets_section].setdefault(effect.offsets_key, {})
+            merged.update(content)
+    sections["body"].setdefault("joint_offsets_rad", {})
+    sections["head"].setdefault("camera_rotation_rad", {})
+    model = {"effects": list(effects),
+             "parameters": {name: {"value": float(e["value"]), "std": float(e["std"]), "unit": e["unit"]}
+                            for name, e in parameters.items()}}
+    return Offsets(robot=_robot(robot, description), created=created or utc_now_iso(), **sections,
+                   fit=copy.deepcopy(fit), model=model, source=copy.deepcopy(source) if source is not None else {})
+
+
+def offsets_from_result(result, *, robot: dict, source: dict | None = None, created: str | None = None) -> Offsets:
+    """The offsets file of a successful identification (solver.identify.IdentificationResult): the one place that
+    turns a fit into a file. robot : {"id", "body_id", "head_id"} (e.g. the dataset's `robot`)."""
+    data = result.model.data
+    fit = {"rms_px": list(result.rms_px), "n_vertices": int(data.n_rows), "n_images": int(data.n_images)}
+    ids = {"id": str(robot.get("id", "unknown"))}
+    for key in ("body_id", "head_id"):
+        ids[key] = None if robot.get(key, robot.get("id")) is None else str(robot.get(key, robot.get("id")))
+    return offsets_from_parameters(result.parameters_dict(), robot=ids, fit=fit,
+                                   effects=list(result.registry.extra_effects()), source=source, created=created,
+                                   description=result.registry.setup.robot.name)
+
+
 def offsets_from_alpha(alpha_joints: dict, camera_rpy, board_mount: dict, *, robot: dict, fit: dict,
                        model: dict | None = None, source: dict | None = None, created: str | None = None,
                        top_camera_rpy=None) -> Offsets:
-    """Build an Offsets from the model's alphas (q_true = theta + alpha), doing the sign flip c = -alpha here.
+    """Build an Offsets from the paper's alphas (q_true = theta + alpha), doing the sign flip c = -alpha here.
 
     Parameters
     ----------
     alpha_joints : {joint: alpha} in rad for all 12 leg joints (RHipYawPitch may be left out: it then follows
         LHipYawPitch, both being one motor), optionally HeadYaw and HeadPitch.
-    camera_rpy : (alpha_roll, alpha_pitch, alpha_yaw) in rad, or a dict with those keys (Eq. 3).
-    board_mount : {"L": (alpha_rotz rad, alpha_x m, alpha_y m), "R": ...} or dicts with the file's keys (Eq. 4).
+    camera_rpy : (roll, pitch, yaw) of the bottom camera in rad, or a dict with those keys (Eq. 3).
+    board_mount : {"L": (rotz rad, x m, y m), "R": ...} or dicts with the file's keys (Eq. 4).
     robot : {"id", "body_id", "head_id"}; fit : {"rms_px": [x, y], "n_vertices", "n_images"}.
     """
     alpha = dict(alpha_joints)
@@ -379,48 +599,22 @@ def offsets_from_alpha(alpha_joints: dict, camera_rpy, board_mount: dict, *, rob
     if top_camera_rpy is not None:
         cameras["top"] = _rpy_dict(top_camera_rpy)
     return Offsets(
-        robot={k: robot.get(k) for k in ROBOT_KEYS},
+        robot=_robot(robot, "nao"),
         created=created or utc_now_iso(),
-        joint_offsets_rad={j: -float(alpha[j]) for j in OFFSET_JOINTS if j in alpha},  # c = -alpha
-        camera_rotation_rad=cameras,
-        board_mount={leg: _mount_dict(board_mount[leg]) for leg in LEGS},
+        body={"joint_offsets_rad": {j: -float(alpha[j]) for j in OFFSET_JOINTS if j in alpha}},  # c = -alpha
+        head={"camera_rotation_rad": cameras},
+        targets={"board_mount": {leg: _mount_dict(board_mount[leg]) for leg in LEGS}},
         fit=copy.deepcopy(fit),
         model=copy.deepcopy(model) if model is not None else {"effects": [], "parameters": {}},
         source=copy.deepcopy(source) if source is not None else {},
     )
 
 
-def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects=(), source: dict | None = None,
-                            created: str | None = None) -> Offsets:
-    """Build an Offsets from registry-named model parameters {name: {"value", "std", "unit"}} (values = alphas).
-
-    joint_offset.<J> and head_offset.<J> give c = -value; camera.<roll|pitch|yaw> and board.<leg>.<rot_z|trans_x|
-    trans_y> are copied. Leg joints, camera angles and board terms that are not estimated stay nominal (0);
-    RHipYawPitch follows LHipYawPitch when only the latter is estimated. All parameters are kept in model.parameters.
-    """
-    value = {name: float(entry["value"]) for name, entry in parameters.items()}
-    alpha = {j: value.get(f"joint_offset.{j}", 0.0) for j in LEG_JOINTS}
-    if "joint_offset.RHipYawPitch" not in value:
-        alpha["RHipYawPitch"] = alpha["LHipYawPitch"]
-    for j in HEAD_JOINTS:
-        for name in (f"head_offset.{j}", f"joint_offset.{j}"):
-            if name in value:
-                alpha[j] = value[name]
-    camera = {a: value.get(f"camera.{a}", 0.0) for a in CAMERA_ANGLES}
-    mount = {leg: (value.get(f"board.{leg}.rot_z", 0.0), value.get(f"board.{leg}.trans_x", 0.0),
-                   value.get(f"board.{leg}.trans_y", 0.0)) for leg in LEGS}
-    model = {"effects": list(effects),
-             "parameters": {name: {"value": float(e["value"]), "std": float(e["std"]), "unit": e["unit"]}
-                            for name, e in parameters.items()}}
-    return offsets_from_alpha(alpha, camera, mount, robot=robot, fit=fit, model=model, source=source,
-                              created=created)
-
-
 def alpha_from_offsets(offsets: Offsets) -> dict:
-    """The model's alphas a file stands for: {"joints": {joint: alpha = -c}, "camera": (roll, pitch, yaw),
-    "board": {leg: (rot_z, x, y)}}, rad and m."""
+    """The paper's alphas a file stands for: {"joints": {joint: alpha = -c}, "camera": (roll, pitch, yaw),
+    "board": {target: (rot_z, x, y)}}, rad and m."""
     return {
         "joints": {j: -c for j, c in offsets.joint_offsets_rad.items()},
         "camera": offsets.camera_rpy("bottom"),
-        "board": {leg: tuple(offsets.board_mount[leg][k] for k in BOARD_KEYS) for leg in LEGS},
+        "board": {t: tuple(m[k] for k in BOARD_KEYS) for t, m in offsets.board_mount.items()},
     }

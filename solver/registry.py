@@ -1,81 +1,19 @@
 """The parameter registry: the one place that defines the solver's parameter vector.
 
-Every model term is an *effect* owning named parameters. The base model of the paper (Kastner, Roefer, Laue,
-Eq. 2-5) is `joint_offsets` + `camera_rotation` + `board_mount` (21 parameters); the other effects are the
-physical terms the diagnostics can add. Parameter values are model values (alpha, beta), never compensation
-offsets: the offsets file stores c = -alpha for joints (see docs/CONVENTIONS.md).
+Every model term is an *effect* (solver/effects/, one module each) owning named parameters for a setup (the robot
+description, the cameras and targets the data use). The base model of the paper (Kastner, Roefer, Laue, Eq. 2-5)
+is `joint_offsets` + `camera_rotation` + `board_mount` (21 parameters for the NAO with the bottom camera and two
+sandals); the other effects are the physical terms the diagnostics can add. A joint offset parameter
+`joint_offset.<J>` is the offset c robot code stores (q_true = theta - c; docs/CONVENTIONS.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from solver.effect import ALLOWED_UNITS, Parameter, Setup  # noqa: F401 (re-exported: the registry's vocabulary)
+from solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, effect, parse_effect_names  # noqa: F401
 from solver.errors import NaocalError
-from solver.joints import HEAD_JOINTS, LEG_JOINTS, LEGS
-
-BASE_EFFECTS = ("joint_offsets", "camera_rotation", "board_mount")
-EXTRA_EFFECTS = ("elasticity", "backlash", "link_lengths", "head_offsets", "intrinsics", "distortion", "time_lag")
-ALL_EFFECTS = BASE_EFFECTS + EXTRA_EFFECTS
-ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One scalar model parameter.
-
-    `scale` is its typical size (conditioning of the solver: it works on value / scale).
-    `joint` names the joint a joint-level term acts on (q = theta + ... + value * regressor).
-    `tied_to` names the parameter whose value this one always takes.
-    """
-
-    name: str
-    effect: str
-    unit: str
-    scale: float
-    joint: str | None = None
-    tied_to: str | None = None
-
-
-def _effect_parameters(effect: str) -> list[Parameter]:
-    if effect == "joint_offsets":
-        return [Parameter(f"joint_offset.{j}", effect, "rad", 0.01, joint=j) for j in LEG_JOINTS]
-    if effect == "camera_rotation":
-        return [Parameter(f"camera.{a}", effect, "rad", 0.01) for a in ("roll", "pitch", "yaw")]
-    if effect == "board_mount":
-        return [
-            Parameter(f"board.{leg}.{name}", effect, unit, scale)
-            for leg in LEGS
-            for name, unit, scale in (("rot_z", "rad", 0.01), ("trans_x", "m", 0.002), ("trans_y", "m", 0.002))
-        ]
-    if effect == "elasticity":
-        return [Parameter(f"elasticity.{j}", effect, "rad/(N m)", 0.02, joint=j) for j in LEG_JOINTS]
-    if effect == "backlash":
-        return [Parameter(f"backlash.{j}", effect, "rad", 0.01, joint=j) for j in LEG_JOINTS]
-    if effect == "link_lengths":
-        return [Parameter(f"link_length.{leg}.{link}", effect, "m", 0.002) for leg in LEGS for link in ("thigh", "tibia")]
-    if effect == "head_offsets":
-        return [Parameter(f"head_offset.{j}", effect, "rad", 0.01, joint=j) for j in HEAD_JOINTS]
-    if effect == "intrinsics":
-        return [Parameter(f"intrinsics.{k}", effect, "px", 5.0) for k in ("fx", "fy", "cx", "cy")]
-    if effect == "distortion":
-        return [Parameter(f"distortion.{k}", effect, "1", 0.05) for k in ("k1", "k2")]
-    if effect == "time_lag":
-        return [Parameter("time_lag.dt", effect, "s", 0.01)]
-    raise NaocalError(f"unknown effect '{effect}' (known: {', '.join(ALL_EFFECTS)})")
-
-
-def parse_effects(text) -> tuple[str, ...]:
-    """'elasticity,backlash' -> ('elasticity', 'backlash'), rejecting unknown and base names clearly."""
-    if text is None or text == "":
-        return ()
-    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text) if n.strip()]
-    for name in names:
-        if name not in EXTRA_EFFECTS:
-            hint = " (it is part of the base model)" if name in BASE_EFFECTS else ""
-            raise NaocalError(f"unknown effect '{name}'{hint}; known effects: {', '.join(EXTRA_EFFECTS)}")
-    return tuple(dict.fromkeys(names))
 
 
 class Registry:
@@ -83,17 +21,29 @@ class Registry:
 
     full vector: one entry per parameter in `names`, in effect order.
     free vector: the parameters the solver moves: not fixed, not tied (a tied parameter follows its source).
+
+    setup : the robot description and the cameras and targets the parameters are for (default: the NAO's bottom
+        camera and both sandals; `Registry.for_data` takes them from the data).
+    tie_shared_motors : joints on one motor (the NAO's HipYawPitch pair) take one offset.
     """
 
-    def __init__(self, effects=(), *, tie_hip_yaw_pitch=False, fixed=()):
-        self.effects = BASE_EFFECTS + tuple(e for e in effects if e not in BASE_EFFECTS)
-        params = [p for effect in self.effects for p in _effect_parameters(effect)]
-        if tie_hip_yaw_pitch:
-            params = [
-                Parameter(p.name, p.effect, p.unit, p.scale, p.joint, tied_to="joint_offset.LHipYawPitch")
-                if p.name == "joint_offset.RHipYawPitch" else p
-                for p in params
-            ]
+    def __init__(self, effects=(), *, setup: Setup | None = None, tie_shared_motors: bool = False,
+                 tie_hip_yaw_pitch: bool | None = None, fixed=()):
+        if tie_hip_yaw_pitch is not None:  # the NAO's name for tying its shared motor
+            tie_shared_motors = tie_hip_yaw_pitch
+        self.setup = setup or Setup.default()
+        for name in effects:
+            effect(name)  # NaocalError for an unknown name
+        self.effects = BASE_EFFECTS + tuple(e for e in dict.fromkeys(effects) if e not in BASE_EFFECTS)
+        self.tie_shared_motors = bool(tie_shared_motors)
+        params = [p for name in self.effects for p in EFFECTS[name].parameters(self.setup)]
+        if tie_shared_motors:
+            names = {p.name for p in params}
+            tied = []
+            for p in params:
+                source = EFFECTS[p.effect].tie(p, self.setup)
+                tied.append(_with_tie(p, source) if source in names else p)
+            params = tied
         self.parameters = tuple(params)
         self.names = tuple(p.name for p in params)
         self.index = {name: i for i, name in enumerate(self.names)}
@@ -114,14 +64,34 @@ class Registry:
                 self.expand[i, free_pos[source]] = 1.0
         self.scales = np.array([p.scale for p in params])
 
+    @classmethod
+    def for_data(cls, data, effects=(), **kwargs) -> "Registry":
+        """The registry for the cameras and targets of `data` (solver.model.ModelData)."""
+        return cls(effects, setup=data.setup, **kwargs)
+
     def __len__(self):
         return len(self.names)
 
+    def extended(self, effects) -> "Registry":
+        """A copy with more effects, the same setup, ties and fixed parameters."""
+        return Registry(self.effects + tuple(e for e in effects if e not in self.effects), setup=self.setup,
+                        tie_shared_motors=self.tie_shared_motors, fixed=sorted(self.fixed))
+
     def with_fixed(self, more) -> "Registry":
         """A copy with more parameters fixed (used to drop unidentifiable ones)."""
-        fixed = set(self.fixed) | set(more)
-        tie = any(p.tied_to for p in self.parameters)
-        return Registry(self.effects, tie_hip_yaw_pitch=tie, fixed=sorted(fixed))
+        return Registry(self.effects, setup=self.setup, tie_shared_motors=self.tie_shared_motors,
+                        fixed=sorted(set(self.fixed) | set(more)))
+
+    def without(self, effect_name: str) -> "Registry":
+        """A copy without one effect (its fixed parameters dropped with it)."""
+        kept = tuple(e for e in self.effects if e != effect_name)
+        names = {p.name for name in kept for p in EFFECTS[name].parameters(self.setup)}
+        return Registry(kept, setup=self.setup, tie_shared_motors=self.tie_shared_motors,
+                        fixed=sorted(n for n in self.fixed if n in names))
+
+    def extra_effects(self) -> tuple[str, ...]:
+        """The effects beyond the base model."""
+        return tuple(e for e in self.effects if e not in BASE_EFFECTS)
 
     def zeros(self) -> np.ndarray:
         return np.zeros(len(self.names))
@@ -152,5 +122,18 @@ class Registry:
                 full[self.index[name]] = value
         return full
 
+    def parameter(self, name: str) -> Parameter:
+        return self.parameters[self.index[name]]
+
     def unit(self, name: str) -> str:
         return self.parameters[self.index[name]].unit
+
+    def display(self, name: str, value: float) -> tuple[float, str]:
+        """(value, unit) of a parameter for people, as its effect shows it (degrees, mm, ms ...)."""
+        p = self.parameter(name)
+        return EFFECTS[p.effect].display(p, value)
+
+
+def _with_tie(p: Parameter, source: str) -> Parameter:
+    return Parameter(p.name, p.effect, p.unit, p.scale, p.joint, tied_to=source, camera=p.camera, target=p.target,
+                     component=p.component)

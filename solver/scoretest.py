@@ -82,12 +82,15 @@ def stance_clusters(data: ModelData) -> list[np.ndarray]:
 def stance_cluster_of_image(data: ModelData) -> np.ndarray:
     """(M,) cluster number of each image, as `stance_clusters` explains: its stance, or itself along a sweep."""
     moving = np.zeros(data.n_images, bool) if data.velocity is None else np.any(data.velocity != 0, axis=1)
-    legs = np.array([np.round(row * 1e6).astype(np.int64).tobytes() for row in data.theta[:, 2:]])  # leg readings
-    still_keys = {(data.leg[m], data.stance[m], legs[m]) for m in np.flatnonzero(~moving)}
+    # the stance's readings: every joint but the cameras' (a leg, for the NAO's sandals)
+    on_cameras = {j for c in np.unique(data.camera) for j in data.robot.camera_chain(c).joint_names}
+    body = [k for k, j in enumerate(data.joints) if j not in on_cameras]
+    legs = np.array([np.round(row * 1e6).astype(np.int64).tobytes() for row in data.theta[:, body]])
+    still_keys = {(data.target[m], data.stance[m], legs[m]) for m in np.flatnonzero(~moving)}
     keys = []
     for m in range(data.n_images):
-        key = (data.leg[m], int(data.stance[m]))
-        if moving[m] and (data.leg[m], data.stance[m], legs[m]) not in still_keys:
+        key = (data.target[m], int(data.stance[m]))
+        if moving[m] and (data.target[m], data.stance[m], legs[m]) not in still_keys:
             key += (legs[m],)
         keys.append(repr(key))
     return np.unique(np.array(keys), return_inverse=True)[1].reshape(-1)

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.joints import JOINTS, LEGS, leg_joints
+from solver.camera import default_intrinsics
+from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS, LEGS, leg_joints
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
-from solver.model import HEAD_COLUMNS, LEG_COLUMNS, Model, ModelData, compute_gravity_torques
+from solver.model import Model, ModelData
 from solver.nao_model import board_vertices_sole
 from solver.registry import Registry
 from solver.urdf import nominal_urdf
 
-DEFAULT_INTRINSICS = {"fx_px": 600.0, "fy_px": 600.0, "cx_px": 320.0, "cy_px": 240.0,
-                      "distortion": [0.0, 0.0, 0.0, 0.0, 0.0], "width_px": 640, "height_px": 480}
+DEFAULT_INTRINSICS = default_intrinsics()  # the NAO bottom camera's prior (solver/data/nao.json)
 
 
 def board_in_view(T_torso_cam, T_torso_sole, intrinsics=DEFAULT_INTRINSICS, margin_px=20.0):
@@ -58,18 +58,25 @@ def random_plan(rng, n_stances_per_leg=24, n_head_postures=3, intrinsics=DEFAULT
 
 def make_model_data(theta, leg, stance, head_posture, *, direction=None, velocity=None,
                     intrinsics=DEFAULT_INTRINSICS, gravity_torso_mps2=(-9.81, 0.0, 0.0)) -> ModelData:
-    """ModelData for every vertex of every image, with zero detections (fill uv_px afterwards)."""
+    """ModelData of the NAO's bottom camera for every vertex of every image of the sandals `leg` (M,), with zero
+    detections (fill uv_px afterwards). theta (M, 14) in solver.joints.JOINTS order."""
+    from solver.robot import nao
+
     M = len(theta)
-    V = board_vertices_sole()
-    g = np.asarray(gravity_torso_mps2, dtype=float)
+    robot = nao()
+    leg = np.asarray(leg).astype(str)
+    counts = {t: robot.target(t).board.n_vertices for t in np.unique(leg)}
+    n = np.array([counts[t] for t in leg], dtype=int)
+    image_of_row = np.repeat(np.arange(M), n)
+    vertex = np.concatenate([np.arange(k) for k in n]) if M else np.zeros(0, dtype=int)
+    p_mount = np.concatenate([robot.target(t).vertices() for t in leg]) if M else np.zeros((0, 3))
+    theta = np.asarray(theta, dtype=float)
     return ModelData(
-        image_of_row=np.repeat(np.arange(M), len(V)), vertex=np.tile(np.arange(len(V)), M),
-        uv_px=np.zeros((M * len(V), 2)), p_sole=np.tile(V, (M, 1)), leg=np.asarray(leg),
-        image_id=np.arange(M), stance=np.asarray(stance), head_posture=np.asarray(head_posture),
-        theta=np.asarray(theta, dtype=float),
+        image_of_row=image_of_row, vertex=vertex, uv_px=np.zeros((len(vertex), 2)), p_mount=p_mount, target=leg,
+        image_id=np.arange(M), stance=np.asarray(stance), head_posture=np.asarray(head_posture), theta=theta,
         direction=np.zeros_like(theta) if direction is None else np.asarray(direction, dtype=float),
-        tau=compute_gravity_torques(np.asarray(theta, dtype=float), np.asarray(leg), g),
-        velocity=velocity, intrinsics=dict(intrinsics), gravity_torso_mps2=g,
+        velocity=velocity, cameras={robot.default_cameras[0]: dict(intrinsics)}, joints=JOINTS,
+        gravity_mps2=np.asarray(gravity_torso_mps2, dtype=float), robot=robot,
     )
 
 
@@ -95,9 +102,91 @@ def synthesize(rng, truth: dict, *, effects=(), n_stances_per_leg=24, n_head_pos
     return data
 
 
-def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, board_m=0.003, board_rad=0.02):
+def random_views(rng, setup, n_stances=12, n_postures=2, *, within_limits=True, margin_px=20.0,
+                 max_tries=20000) -> ModelData:
+    """ModelData (zero detections) of random views of every target of `setup` by every camera: for each target
+    `n_stances` random stances of its chain, each seen by each camera at `n_postures` random postures of the
+    camera's chain from which all of the board's vertices lie inside the image (`margin_px`) in front of it.
+
+    Stances are drawn within the URDF's joint limits (0.05 rad inside); camera chains too unless not
+    `within_limits` (+-pi/2 then: views a real robot may not reach, for tests of the model's mathematics).
+    """
+    from solver.camera import project_points, transform_to_camera
+    from solver.kinematics import chain_frames
+
+    robot = setup.robot
+    joints = robot.joints
+
+    def draw(chain, limited, n):
+        lower = np.array([robot.urdf.joints[j].lower for j in chain.joint_names]) + 0.05
+        upper = np.array([robot.urdf.joints[j].upper for j in chain.joint_names]) - 0.05
+        if not limited:
+            lower, upper = np.full(len(lower), -np.pi / 2), np.full(len(upper), np.pi / 2)
+        return rng.uniform(lower, upper, size=(n, len(lower)))
+
+    rows = []  # (theta, target, camera, stance, posture)
+    for target in setup.targets:
+        spec = robot.target(target)
+        t_chain = robot.chain(spec.frame)
+        V = spec.vertices()
+        for stance in range(n_stances):
+            for _ in range(max_tries):
+                q_t = draw(t_chain, True, 1)[0]
+                T_bt = chain_frames(t_chain, q_t[None])[1][0]
+                p_base = V @ T_bt[:3, :3].T + T_bt[:3, 3]
+                normal = T_bt[:3, :3] @ spec.T_frame_board[:3, 2]
+                found = []
+                for camera in setup.cameras:
+                    intr = robot.camera(camera).intrinsics()
+                    c_chain = robot.camera_chain(camera)
+                    q_c = draw(c_chain, within_limits, 256)
+                    T_bc = chain_frames(c_chain, q_c)[1]
+                    uv, depth = project_points(transform_to_camera(T_bc, p_base[None]), intr)
+                    ok = (np.all(depth > 0.05, axis=1) & np.all(uv >= margin_px, axis=(1, 2))
+                          & np.all(uv[..., 0] <= intr["width_px"] - 1 - margin_px, axis=1)
+                          & np.all(uv[..., 1] <= intr["height_px"] - 1 - margin_px, axis=1)
+                          & ((p_base.mean(axis=0) - T_bc[:, :3, 3]) @ normal < 0))
+                    found += [(camera, c_chain, q_c[k]) for k in np.flatnonzero(ok)[:n_postures]]
+                if len(found) == n_postures * len(setup.cameras):
+                    break
+            else:
+                raise RuntimeError(f"no view of target {target} found in {max_tries} tries")
+            for posture, (camera, c_chain, q_c) in enumerate(found):
+                theta = np.zeros(len(joints))
+                for chain, q in ((t_chain, q_t), (c_chain, q_c)):
+                    for j, value in zip(chain.joint_names, q):
+                        theta[joints.index(j)] = value
+                rows.append((theta, target, camera, stance, posture))
+    M = len(rows)
+    counts = [robot.target(r[1]).board.n_vertices for r in rows]
+    cameras = {c: robot.camera(c).intrinsics() for c in setup.cameras}
+    return ModelData(
+        image_of_row=np.repeat(np.arange(M), counts), vertex=np.concatenate([np.arange(n) for n in counts]),
+        uv_px=np.zeros((sum(counts), 2)), p_mount=np.concatenate([robot.target(r[1]).vertices() for r in rows]),
+        target=np.array([r[1] for r in rows]), image_id=np.arange(M), stance=np.array([r[3] for r in rows]),
+        head_posture=np.array([r[4] for r in rows]), theta=np.array([r[0] for r in rows]),
+        direction=rng.choice([-1.0, 1.0], size=(M, len(joints))), velocity=None, cameras=cameras,
+        camera=np.array([r[2] for r in rows]), joints=joints, robot=robot,
+    ).sorted_by_target(setup.targets)
+
+
+def synthesize_views(rng, truth: dict, setup, *, effects=(), n_stances=12, n_postures=2, pixel_noise_px=0.1,
+                     velocity_rad_s=0.0, within_limits=True) -> ModelData:
+    """`random_views` whose detections are the model's predictions at `truth` plus noise (any setup: cameras,
+    targets); with `velocity_rad_s`, every image moves at random joint velocities of that size."""
+    data = random_views(rng, setup, n_stances, n_postures, within_limits=within_limits)
+    if velocity_rad_s:
+        data.velocity = rng.choice([-1.0, 1.0], size=data.theta.shape) * velocity_rad_s
+    registry = Registry(effects, setup=setup)
+    data.uv_px = Model(data, registry).residuals(registry.from_dict(truth)) + rng.normal(
+        0.0, pixel_noise_px, size=data.uv_px.shape)
+    return data
+
+
+def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, board_m=0.003, board_rad=0.02,
+                 setup=None):
     """Parameter values of realistic size for the base model and the given effects."""
-    registry = Registry(effects)
+    registry = Registry(effects, setup=setup)
     truth = {}
     for p in registry.parameters:
         if p.effect == "joint_offsets":
@@ -112,36 +201,46 @@ def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, boa
 
 
 def dataset_parts(data: ModelData, *, robot_id="synthetic", pixel_noise_px=None, source="naocal synthetic"):
-    """(meta, columns) of a naocal.dataset/1 holding `data`; commanded angles default to the measured ones."""
-    from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG
-
-    intr = data.intrinsics
+    """(meta, columns) of a naocal.dataset/2 holding `data`; commanded angles default to the measured ones. Gravity
+    goes to dataset.json when it is the same for every image, else to the per-image gravity columns."""
+    robot = data.robot
     meta = {
-        "schema": "naocal.dataset/1",
-        "robot": {"id": robot_id, "model": "NAO H25 V5"},
-        "camera": {"name": "bottom", "width_px": int(intr.get("width_px", 640)),
-                   "height_px": int(intr.get("height_px", 480)), "fx_px": float(intr["fx_px"]),
-                   "fy_px": float(intr["fy_px"]), "cx_px": float(intr["cx_px"]), "cy_px": float(intr["cy_px"]),
-                   "distortion": [float(d) for d in intr.get("distortion", [0.0] * 5)]},
-        "board": {"columns": BOARD_COLUMNS, "rows": BOARD_ROWS, "square_m": BOARD_SQUARE_M,
-                  "center_x_m": BOARD_CENTER_X_M, "mass_kg": SANDAL_MASS_KG},
+        "schema": "naocal.dataset/2",
+        "robot": {"id": robot_id, "model": "NAO H25 V5", "description": robot.name},
+        "cameras": {name: {"width_px": int(intr.get("width_px", 640)), "height_px": int(intr.get("height_px", 480)),
+                           "fx_px": float(intr["fx_px"]), "fy_px": float(intr["fy_px"]), "cx_px": float(intr["cx_px"]),
+                           "cy_px": float(intr["cy_px"]),
+                           "distortion": [float(d) for d in intr.get("distortion", [0.0] * 5)]}
+                    for name, intr in data.cameras.items() if name in set(data.camera.tolist())},
+        "targets": {},
+        "joints": list(data.joints),
         "source": source,
-        "gravity_torso_mps2": [float(g) for g in data.gravity_torso_mps2],
     }
+    for t in dict.fromkeys(data.target.tolist()):
+        board = robot.target(t).board
+        mass, centre = data.loads[t]
+        meta["targets"][t] = {"columns": board.columns, "rows": board.rows, "square_m": board.square_m,
+                              "mass_kg": float(mass), "centre_m": [float(c) for c in centre]}
+    uniform = bool(np.all(data.gravity_mps2 == data.gravity_mps2[:1]))
+    if uniform and data.n_images:
+        meta["gravity_mps2"] = [float(g) for g in data.gravity_mps2[0]]
     if pixel_noise_px is not None:
         meta["pixel_noise_px"] = float(pixel_noise_px)
     img = data.image_of_row
     columns = {
-        "image": data.image_id[img], "leg": data.leg[img], "stance": data.stance[img],
-        "head_posture": data.head_posture[img], "vertex": data.vertex,
+        "image": data.image_id[img], "camera": data.camera[img], "target": data.target[img],
+        "stance": data.stance[img], "head_posture": data.head_posture[img], "vertex": data.vertex,
         "u_px": data.uv_px[:, 0], "v_px": data.uv_px[:, 1],
-        "x_sole_m": data.p_sole[:, 0], "y_sole_m": data.p_sole[:, 1], "z_sole_m": data.p_sole[:, 2],
+        "x_mount_m": data.p_mount[:, 0], "y_mount_m": data.p_mount[:, 1], "z_mount_m": data.p_mount[:, 2],
         "t_image_s": data.image_id[img] * 2.0 + 1.0, "t_joints_s": data.image_id[img] * 2.0 + 1.0,
     }
-    for c, joint in enumerate(JOINTS):
+    for c, joint in enumerate(data.joints):
         columns[joint] = data.theta[img, c]
         columns["cmd_" + joint] = (data.theta if data.commanded is None else data.commanded)[img, c]
         columns["dir_" + joint] = data.direction[img, c]
         if data.velocity is not None:
             columns["vel_" + joint] = data.velocity[img, c]
+    if not uniform:
+        for k, axis in enumerate("xyz"):
+            columns[f"gravity_{axis}_mps2"] = data.gravity_mps2[img, k]
     return meta, columns

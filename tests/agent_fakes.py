@@ -44,8 +44,8 @@ def random_truth(seed: int) -> dict:
     rng = np.random.default_rng(seed)
     truth = {f"joint_offset.{j}": rng.uniform(-0.03, 0.03) for j in LEG_JOINTS}
     truth["joint_offset.RHipYawPitch"] = truth["joint_offset.LHipYawPitch"]  # one motor, as on the robot
-    truth.update({"camera.roll": rng.uniform(-0.03, 0.03), "camera.pitch": rng.uniform(-0.06, 0.0),
-                  "camera.yaw": rng.uniform(-0.03, 0.03)})
+    truth.update({"camera.bottom.roll": rng.uniform(-0.03, 0.03), "camera.bottom.pitch": rng.uniform(-0.06, 0.0),
+                  "camera.bottom.yaw": rng.uniform(-0.03, 0.03)})
     for leg in "LR":
         truth[f"board.{leg}.rot_z"] = rng.uniform(-0.02, 0.02)
         truth[f"board.{leg}.trans_x"] = rng.uniform(-0.002, 0.002)
@@ -61,7 +61,7 @@ class FakeBackend(Backend):
                  start=None):
         self.truth = random_truth(seed) if truth is None else dict(truth)
         self.values = FULL.from_dict(self.truth)
-        self.alpha = np.array([self.truth.get(f"joint_offset.{j}", 0.0) for j in JOINTS])
+        self.alpha = -np.array([self.truth.get(f"joint_offset.{j}", 0.0) for j in JOINTS])  # the truth holds c
         self.rng = np.random.default_rng(seed + 1000)
         self.t = 0.0
         self.image_delay_s = image_delay_s

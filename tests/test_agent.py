@@ -140,8 +140,8 @@ def test_offsets_are_c_minus_alpha_close_to_the_fake_truth(fake_run):
     fake, out, result, ctx = fake_run
     offsets = read_offsets(out / "offsets.json")
     for joint in LEG_JOINTS:
-        assert offsets.joint_offset(joint) == pytest.approx(-fake.truth[f"joint_offset.{joint}"], abs=np.radians(0.1))
-    assert offsets.camera_rpy()[1] == pytest.approx(fake.truth["camera.pitch"], abs=np.radians(0.05))
+        assert offsets.joint_offset(joint) == pytest.approx(fake.truth[f"joint_offset.{joint}"], abs=np.radians(0.1))
+    assert offsets.camera_rpy()[1] == pytest.approx(fake.truth["camera.bottom.pitch"], abs=np.radians(0.05))
 
 
 def test_verification_error_falls_after_compensation(fake_run):
@@ -296,7 +296,7 @@ def test_waits_end_in_robot_timeout_at_their_deadline():
 
 def test_compensated_backend_adds_c_to_commands_and_subtracts_it_from_readings():
     fake = FakeBackend(5, resolution_rad=0.0)
-    c = {j: -fake.truth[f"joint_offset.{j}"] for j in LEG_JOINTS}
+    c = {j: fake.truth[f"joint_offset.{j}"] for j in LEG_JOINTS}  # the fake's truth holds c
     comp = CompensatedBackend(fake, c)
     target = parked_posture()
     comp.command(dict(zip(JOINTS, target)), 0.4)

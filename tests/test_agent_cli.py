@@ -79,8 +79,9 @@ def image_counts(dataset: Path) -> np.ndarray:
 def offsets(directory: Path) -> tuple[dict, dict]:
     """(joint offsets c, their standard deviations) of a run."""
     doc = json.loads((directory / "offsets.json").read_text())
-    std = {j: doc["model"]["parameters"][f"joint_offset.{j}"]["std"] for j in doc["joint_offsets_rad"]}
-    return doc["joint_offsets_rad"], std
+    c = doc["body"]["joint_offsets_rad"]  # naocal.offsets/2
+    std = {j: doc["model"]["parameters"][f"joint_offset.{j}"]["std"] for j in c}
+    return c, std
 
 
 @pytest.mark.slow

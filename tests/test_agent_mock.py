@@ -120,19 +120,20 @@ def test_dataset_and_summary(mock_run):
     report = json.loads((out / "verification.json").read_text())
     for entry in report["per_leg"].values():
         assert entry["after"]["command_rms_px"] < 0.2 * entry["before"]["command_rms_px"]
-    assert json.loads((out / "offsets.json").read_text())["schema"] == "naocal.offsets/1"
+    assert json.loads((out / "offsets.json").read_text())["schema"] == "naocal.offsets/2"
 
 
 def _true_model_pixels(mock, leg, theta14):
     """Where the mock's true model puts `leg`'s vertices for joint readings theta14 (what a dataset row claims)."""
     truth = mock.truth_dict()
     registry = Registry()
-    values = {f"joint_offset.{j}": truth["alpha_rad"][j] for j in LEG_JOINTS}
-    values.update({f"camera.{k}": v for k, v in truth["camera_rotation_rad"].items()})
+    values = {f"joint_offset.{j}": -truth["alpha_rad"][j] for j in LEG_JOINTS}  # the parameter is c = -alpha
+    values.update({f"camera.bottom.{k}": v for k, v in truth["camera_rotation_rad"].items()})
     for side, mount in truth["board_mount"].items():
         values.update({f"board.{side}.rot_z": mount["rot_z_rad"], f"board.{side}.trans_x": mount["trans_x_m"],
                        f"board.{side}.trans_y": mount["trans_y_m"]})
-    data = make_model_data(np.asarray(theta14)[None], np.array([leg]), np.array([0]), np.array([0]))
+    data = make_model_data(np.asarray(theta14)[None], np.array([leg]), np.array([0]), np.array([0]),
+                           intrinsics=mock.intrinsics().to_dict())  # the ideal mock's camera, not a real head's
     return Model(data, registry).residuals(registry.from_dict(values))
 
 

@@ -40,9 +40,11 @@ def test_json_output_and_offsets_file_with_compensation_sign(synthetic_dataset, 
 
     offsets = read_offsets(out)
     for joint in ("LHipPitch", "RAnkleRoll", "LKneePitch"):
-        # stored c is added to commands: c = -alpha
-        assert offsets.joint_offsets_rad[joint] == pytest.approx(-truth[f"joint_offset.{joint}"], abs=0.02 * DEG)
-    assert offsets.camera_rotation_rad["bottom"]["pitch"] == pytest.approx(truth["camera.pitch"], abs=0.01 * DEG)
+        # the parameter joint_offset.<J> is the stored c (added to commands)
+        assert offsets.joint_offsets_rad[joint] == pytest.approx(truth[f"joint_offset.{joint}"], abs=0.02 * DEG)
+        assert offsets.joint_offsets_rad[joint] == report["parameters"][f"joint_offset.{joint}"]["value"]
+    assert offsets.camera_rotation_rad["bottom"]["pitch"] == pytest.approx(truth["camera.bottom.pitch"],
+                                                                           abs=0.01 * DEG)
     assert offsets.board_mount["L"]["trans_x_m"] == pytest.approx(truth["board.L.trans_x"], abs=3e-4)
 
 

@@ -85,11 +85,11 @@ def test_validate_ok(capsys, offsets_file):
 
 
 DAMAGES = {
-    "nan": lambda d: d["joint_offsets_rad"].update(LHipPitch=float("nan")),
+    "nan": lambda d: d["body"]["joint_offsets_rad"].update(LHipPitch=float("nan")),
     "wrong schema": lambda d: d.update(schema="naocal.offsets/0"),
-    "unknown joint": lambda d: d["joint_offsets_rad"].update(LHipPtch=0.01),
-    "wrong units": lambda d: d["model"]["parameters"]["camera.pitch"].update(unit="deg"),
-    "degrees as radians": lambda d: d["camera_rotation_rad"]["bottom"].update(pitch=-4.0),
+    "unknown joint": lambda d: d["body"]["joint_offsets_rad"].update(LHipPtch=0.01),
+    "wrong units": lambda d: d["model"]["parameters"]["camera.bottom.pitch"].update(unit="deg"),
+    "degrees as radians": lambda d: d["head"]["camera_rotation_rad"]["bottom"].update(pitch=-4.0),
 }
 
 

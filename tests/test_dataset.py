@@ -313,7 +313,7 @@ def meta_variants():
         return change
 
     return [
-        (setter("naocal.dataset/2", "schema"), "schema", "wrong schema"),
+        (setter("naocal.dataset/3", "schema"), "schema", "wrong schema"),
         (drop("schema"), "schema", "missing required key"),
         (drop("camera", "fx_px"), "camera.fx_px", "missing required key"),
         (drop("board"), "board", "missing required key"),

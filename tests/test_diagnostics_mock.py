@@ -56,8 +56,8 @@ def simulated(tmp_path_factory):
 def _images_of_leg(dataset, leg):
     from solver.dataset import read_dataset
 
-    columns = read_dataset(dataset).columns
-    return [int(i) for i, g in zip(columns["image"], columns["leg"]) if g == leg]
+    columns = read_dataset(dataset).as_v2().columns
+    return [int(i) for i, g in zip(columns["image"], columns["target"]) if g == leg]
 
 
 def total(xy):

@@ -6,7 +6,8 @@ import pytest
 from solver.errors import SolveError
 from solver.identify import identify
 from solver.model import Model
-from solver.registry import EXTRA_EFFECTS, LEG_JOINTS, Registry
+from solver.joints import LEG_JOINTS
+from solver.registry import EXTRA_EFFECTS, Registry
 from solver.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
@@ -27,7 +28,7 @@ def test_recovers_truth_from_noisy_pixels(seed):
     for joint in LEG_JOINTS:
         assert abs(err[f"joint_offset.{joint}"]) < 0.02 * DEG, joint
     for angle in ("roll", "pitch", "yaw"):
-        assert abs(err[f"camera.{angle}"]) < 0.01 * DEG, angle
+        assert abs(err[f"camera.bottom.{angle}"]) < 0.01 * DEG, angle
     assert all(abs(r - 0.1) < 0.01 for r in result.rms_px), result.rms_px
 
 
@@ -105,8 +106,8 @@ def test_jacobian_matches_finite_differences(effects):
     registry = Registry(effects)
     model = Model(data, registry)
     x = registry.from_dict(random_truth(rng, effects))
-    if "distortion.k1" in registry.index:
-        x[registry.index["distortion.k1"]] = 0.05
+    if "distortion.bottom.k1" in registry.index:
+        x[registry.index["distortion.bottom.k1"]] = 0.05
     _, J = model.evaluate(x)
     h = 1e-6
     for i, name in enumerate(registry.names):
@@ -167,7 +168,7 @@ def test_two_vertices_per_image_warns_and_stays_honest():
     data = synthesize(rng, truth, pixel_noise_px=0.1)
     keep = np.flatnonzero(np.isin(data.vertex, [0, 1]))  # two neighbouring vertices: the board's roll is lost
     thin = data.subset(np.arange(data.n_images))
-    for name in ("vertex", "uv_px", "p_sole", "image_of_row"):
+    for name in ("vertex", "uv_px", "p_mount", "image_of_row"):
         setattr(thin, name, getattr(data, name)[keep])
     result = identify(thin, Registry())
     assert any("fewer than 4 vertices" in w for w in result.warnings), result.warnings
@@ -206,3 +207,43 @@ def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
     theta, choice = choose_angles(measured, commanded, velocity, "auto")
     assert set(choice.resolution_rad) == set(JOINTS)  # the interpolated readings do not hide the grid
     assert np.array_equal(theta[:-4], commanded[:-4]) and np.array_equal(theta[-4:], measured[-4:])
+
+
+def test_status_codes_mean_the_same_for_both_solvers():
+    """naocal's LM reports why it stopped with scipy.optimize.least_squares's codes (2: ftol, 3: xtol) and the
+    message of one table, as the MINPACK path does."""
+    from solver.identify import TERMINATION_MESSAGES, levenberg_marquardt
+
+    rng = np.random.default_rng(3)
+    A, b = rng.normal(size=(30, 3)), rng.normal(size=30)
+    problem = lambda x: (A @ x - b, A)  # noqa: E731
+    stop = {name: levenberg_marquardt(problem, np.zeros(3), np.ones(3), **tolerances)[3:5]
+            for name, tolerances in (("xtol", dict(ftol=0.0, gtol=0.0, xtol=1e-3)),
+                                     ("ftol", dict(ftol=0.5, gtol=0.0, xtol=0.0)),
+                                     ("gtol", dict(ftol=0.0, gtol=1e3, xtol=0.0)))}
+    assert stop == {"xtol": (3, TERMINATION_MESSAGES[3]), "ftol": (2, TERMINATION_MESSAGES[2]),
+                    "gtol": (1, TERMINATION_MESSAGES[1])}
+    assert levenberg_marquardt(problem, np.zeros(3), np.ones(3), max_iterations=0)[3:5] == (0, TERMINATION_MESSAGES[0])
+    data = synthesize(np.random.default_rng(4), random_truth(np.random.default_rng(4)), n_stances_per_leg=6)
+    for solver in ("lm", "minpack"):
+        result = identify(data, Registry(), solver=solver)
+        assert result.success and result.message == TERMINATION_MESSAGES[result.status], (solver, result.message)
+
+
+def test_one_encoder_step_for_every_joint_of_one_kind_of_encoder():
+    """A joint that visits only 0 and +-0.3 deg must not claim a 0.3 deg encoder (and then take commands 0.15 deg
+    away as its reading): all joints share the step the joints with many readings show, 0.1 deg."""
+    from solver.adapter import choose_angles
+    from solver.joints import JOINTS
+    from solver.quantisation import reading_resolution
+
+    step = 0.1 * DEG
+    rng = np.random.default_rng(5)
+    commanded = rng.uniform(-0.5, 0.5, (40, len(JOINTS)))
+    commanded[:, 0] = rng.choice([-3, 0, 3], 40) * step  # HeadYaw: three values, 0.3 deg apart
+    measured = np.round(commanded / step) * step
+    commanded[0, 0] = measured[0, 0] + 1.2 * step  # a command outside the reading's 0.1 deg cell
+    theta, choice = choose_angles(measured, commanded, None, "auto")
+    assert choice.resolution_rad["HeadYaw"] == pytest.approx(step)
+    assert theta[0, 0] == measured[0, 0]  # the reading stands: its command is not inside its cell
+    assert np.allclose(reading_resolution(measured), step)  # the noise floor's step: the same function

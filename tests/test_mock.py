@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from backends.mock import (
-    DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effects,
+    DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effect_sizes,
 )
 from solver.errors import NaocalError, SafetyError
 from solver.joints import JOINTS, LEG_JOINTS
@@ -78,10 +78,10 @@ def test_effects_do_not_change_the_base_truth():
 
 
 def test_effect_arguments_are_checked():
-    assert parse_effects(["elasticity=0.02", "time_lag=0.03"]) == {"elasticity": 0.02, "time_lag": 0.03}
+    assert parse_effect_sizes(["elasticity=0.02", "time_lag=0.03"]) == {"elasticity": 0.02, "time_lag": 0.03}
     for bad in (["elasticity"], ["elasticity=abc"], ["gravity=1"], ["backlash=nan"]):
         with pytest.raises(NaocalError):
-            parse_effects(bad)
+            parse_effect_sizes(bad)
     with pytest.raises(NaocalError, match="unknown effect"):
         MockBackend(seed=0, effects={"wobble": 1.0})
     assert set(check_effects({name: 0.0 for name in EFFECTS})) == set(EFFECTS)

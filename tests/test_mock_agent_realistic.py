@@ -13,7 +13,7 @@ from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
 from agent.states import Thresholds, implausible, unusual
 from backends.mock import MockBackend
 from backends.pybullet_body import CollisionChecker, NaoBody
-from solver.joints import JOINT_INDEX, JOINTS
+from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS
 from solver.limits import joint_limits, max_speeds
 from tools import cli
 
@@ -169,7 +169,6 @@ def test_the_agent_calibrates_the_realistic_mock_without_a_single_unsafe_command
     from agent.calibrate import calibrate
     from agent.measure import opencv_detector
     from agent.states import AgentSettings
-    from solver.joints import LEG_JOINTS
 
     mock = MockBackend(seed=1, realism="realistic")
     try:
@@ -181,7 +180,7 @@ def test_the_agent_calibrates_the_realistic_mock_without_a_single_unsafe_command
                                                                       if not r.accepted][:3]
         assert ctx.measurement["n_saved"] >= 0.85 * ctx.measurement["n_planned"]
         fit = ctx.identification
-        errors = [abs(fit.value(f"joint_offset.{j}") - mock.truth.alpha_rad[j]) for j in LEG_JOINTS]
+        errors = [abs(fit.value(f"joint_offset.{j}") + mock.truth.alpha_rad[j]) for j in LEG_JOINTS]  # c = -alpha
         assert math.degrees(max(errors)) < 1.0
         assert abs(math.degrees(fit.value("joint_offset.LHipYawPitch"))) > 10.0  # the large one, found
         assert "unusually large" in (tmp_path / "calibrate.log").read_text()  # and said so
@@ -205,7 +204,7 @@ def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
     for name, uv in (("clean", data.uv_px), ("faulty", faulty)):
         estimate = RunningEstimate(DEFAULT_INTRINSICS)
         for m in range(data.n_images):
-            estimate.add(str(data.leg[m]), data.theta[m], uv[data.image_of_row == m])
+            estimate.add(str(data.target[m]), data.theta[m], uv[data.image_of_row == m])
         estimate.refit()
         errors[name] = max(abs(estimate.values[FULL.index[f"joint_offset.{j}"]] - truth[f"joint_offset.{j}"])
                            for j in JOINTS if f"joint_offset.{j}" in truth)
@@ -239,18 +238,18 @@ def test_a_leg_joining_the_running_estimate_is_not_taken_for_faulty_corners():
         truth[f"joint_offset.{joint}"] = math.radians(rng.choice([-3.0, 3.0]))
     data = synthesize(rng, truth, n_stances_per_leg=12, n_head_postures=2, pixel_noise_px=0.05)
     uv = data.uv_px.copy()
-    left_rows = np.flatnonzero(data.leg[data.image_of_row] == "L")
+    left_rows = np.flatnonzero(data.target[data.image_of_row] == "L")
     faulty = rng.choice(left_rows, 8, replace=False)
     uv[faulty] += 25.0  # a square off
     estimate = RunningEstimate(DEFAULT_INTRINSICS)
-    for m in np.flatnonzero(data.leg == "L"):
+    for m in np.flatnonzero(data.target == "L"):
         estimate.add("L", data.theta[m], uv[data.image_of_row == m])
     estimate.refit()
     assert estimate.known_legs == frozenset({"L"})
     judged = replace(data, uv_px=uv)
     kept = estimate._without_outliers(judged)
     assert kept.n_rows == data.n_rows - len(faulty)  # the left leg's faulty corners, and nothing of the right leg
-    assert np.sum(kept.leg[kept.image_of_row] == "R") == np.sum(data.leg[data.image_of_row] == "R")
+    assert np.sum(kept.target[kept.image_of_row] == "R") == np.sum(data.target[data.image_of_row] == "R")
 
 
 def test_the_search_stays_wide_until_the_estimate_fits_the_leg_well():
@@ -272,3 +271,61 @@ def test_the_search_stays_wide_until_the_estimate_fits_the_leg_well():
     assert margin(True, (4.5, 2.5), 0) == settings.search_margin_px_nominal  # known, but fitted badly
     assert margin(False, (float("inf"),) * 2, 0) == settings.search_margin_px_nominal
     assert margin(False, (float("inf"),) * 2, 2) == 3 * settings.search_margin_px_nominal
+
+
+def test_the_running_estimate_gives_the_safety_check_alpha_the_negative_of_the_fitted_c():
+    """joint_offset.<J> is c (q_true = theta - c); the safety check wants alpha = q_true - theta = -c. With the
+    sign wrong the guard checks the mirror image of the true stance: twice the offset off."""
+    from agent.estimate import RunningEstimate
+    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+
+    rng = np.random.default_rng(11)
+    truth = random_truth(rng, joint_offset_rad=math.radians(3.0))
+    truth["joint_offset.RHipYawPitch"] = truth["joint_offset.LHipYawPitch"]  # one motor
+    data = synthesize(rng, truth, n_stances_per_leg=12, n_head_postures=1, pixel_noise_px=0.05)
+    estimate = RunningEstimate(DEFAULT_INTRINSICS)
+    for m in range(data.n_images):
+        estimate.add(str(data.target[m]), data.theta[m], data.uv_px[data.image_of_row == m])
+    estimate.refit()
+    assert estimate.offsets_known()
+    alpha = estimate.joint_alpha()
+    c = np.array([truth[f"joint_offset.{j}"] for j in LEG_JOINTS])
+    assert np.degrees(np.abs(alpha[[JOINT_INDEX[j] for j in LEG_JOINTS]] + c)).max() < 0.05
+
+
+def test_real_size_offsets_fit_the_offsets_file_and_its_limit_is_the_effects(tmp_path):
+    """Real robots carry HipYawPitch offsets up to 11.5 deg: a version 2 file holds them; the limit (20 deg) is the
+    joint_offsets effect's, and the agent refuses by the same number."""
+    from solver.effects import EFFECTS
+    from solver.errors import DataError
+    from solver.offsets import offsets_from_parameters, read_offsets, write_offsets
+
+    limit = EFFECTS["joint_offsets"].offsets_limit
+    assert math.degrees(limit) == pytest.approx(20.0) and Thresholds().max_joint_offset_rad == limit
+
+    def written(c_deg, path):
+        params = {"joint_offset.LHipYawPitch": {"value": math.radians(c_deg), "std": 1e-3, "unit": "rad"}}
+        offsets = offsets_from_parameters(params, robot={"id": "nao"}, fit={"rms_px": [0.3, 0.3], "n_vertices": 1,
+                                                                             "n_images": 1})
+        write_offsets(offsets, path)
+        return read_offsets(path)
+
+    again = written(12.0, tmp_path / "a.json")
+    assert math.degrees(again.joint_offset("LHipYawPitch")) == pytest.approx(12.0)
+    with pytest.raises(DataError) as info:
+        written(21.0, tmp_path / "b.json")
+    assert info.value.field == "body.joint_offsets_rad.LHipYawPitch" and "implausible" in str(info.value)
+
+
+def test_the_realistic_mock_camera_prior_is_the_robot_description():
+    """A real NAO head's prior (fx = fy = 618 px) lives in the robot description; the realistic mock reports it,
+    the ideal mock keeps its idealised 600 px."""
+    from backends.mock import default_intrinsics
+    from solver.robot import nao
+
+    prior = nao().camera("bottom").intrinsics()
+    assert prior["fx_px"] == prior["fy_px"] == 618.0
+    realistic = default_intrinsics("realistic")
+    assert (realistic.fx_px, realistic.fy_px, realistic.cx_px, realistic.cy_px) == (
+        prior["fx_px"], prior["fy_px"], prior["cx_px"], prior["cy_px"])
+    assert default_intrinsics("ideal").fx_px == default_intrinsics().fy_px == 600.0

@@ -1,4 +1,5 @@
-"""naocal.offsets/1: round trips, validation of damaged files, the sign convention and the apply API."""
+"""naocal.offsets/2: round trips, validation of damaged files, the sign convention and the apply API.
+(Version 1 files: tests/test_formats_v1.py.)"""
 
 import json
 import math
@@ -20,7 +21,7 @@ FIT = {"rms_px": [0.31, 0.27], "n_vertices": 3456, "n_images": 144}
 
 
 def make_parameters(seed=0, *, head=False):
-    """Registry-named model parameters as the identification would report them (values are alphas)."""
+    """Registry-named model parameters as the identification would report them (joint offsets are c)."""
     rng = np.random.default_rng(seed)
     params = {}
     for joint in LEG_JOINTS:
@@ -30,7 +31,7 @@ def make_parameters(seed=0, *, head=False):
         for joint in HEAD_JOINTS:
             params[f"head_offset.{joint}"] = {"value": float(rng.normal(0, 0.01)), "std": 2e-3, "unit": "rad"}
     for angle in ("roll", "pitch", "yaw"):
-        params[f"camera.{angle}"] = {"value": float(rng.normal(0, 0.05)), "std": 5e-4, "unit": "rad"}
+        params[f"camera.bottom.{angle}"] = {"value": float(rng.normal(0, 0.05)), "std": 5e-4, "unit": "rad"}
     for leg in "LR":
         params[f"board.{leg}.rot_z"] = {"value": float(rng.normal(0, 0.01)), "std": 1e-3, "unit": "rad"}
         params[f"board.{leg}.trans_x"] = {"value": float(rng.normal(0, 0.002)), "std": 2e-4, "unit": "m"}
@@ -38,8 +39,8 @@ def make_parameters(seed=0, *, head=False):
     params["elasticity.LHipPitch"] = {"value": 0.021, "std": 0.004, "unit": "rad/(N m)"}
     params["backlash.LKneePitch"] = {"value": 0.017, "std": 0.002, "unit": "rad"}
     params["link_length.L.thigh"] = {"value": 0.0004, "std": 0.0001, "unit": "m"}
-    params["intrinsics.fx"] = {"value": 610.2, "std": 0.8, "unit": "px"}
-    params["distortion.k1"] = {"value": -0.06, "std": 0.01, "unit": "1"}
+    params["intrinsics.bottom.fx"] = {"value": 10.2, "std": 0.8, "unit": "px"}
+    params["distortion.bottom.k1"] = {"value": -0.06, "std": 0.01, "unit": "1"}
     params["time_lag.dt"] = {"value": 0.012, "std": 0.001, "unit": "s"}
     return params
 
@@ -70,14 +71,21 @@ def test_round_trip_is_exact(tmp_path):
     assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
 
 
-def test_written_file_has_the_issue_layout(offsets_file):
+def test_written_file_has_the_documented_layout(offsets_file):
+    """Body and head kept apart (heads and bodies get swapped), each fitted effect in its section."""
     doc = json.loads(offsets_file.read_text())
-    assert list(doc) == ["schema", "robot", "created", "joint_offsets_rad", "camera_rotation_rad", "board_mount",
-                         "model", "fit", "source"]
-    assert doc["schema"] == SCHEMA
-    assert list(doc["joint_offsets_rad"]) == list(LEG_JOINTS) + list(HEAD_JOINTS)
-    assert set(doc["camera_rotation_rad"]["bottom"]) == {"roll", "pitch", "yaw"}
-    assert set(doc["board_mount"]["L"]) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
+    assert list(doc) == ["schema", "robot", "created", "body", "head", "targets", "model", "fit", "source"]
+    assert doc["schema"] == SCHEMA == "naocal.offsets/2"
+    assert doc["robot"] == {**ROBOT, "description": "nao"}
+    assert list(doc["body"]) == ["joint_offsets_rad", "elasticity_rad_per_nm", "backlash_rad", "link_lengths_m"]
+    assert list(doc["body"]["joint_offsets_rad"]) == list(LEG_JOINTS) + list(HEAD_JOINTS)
+    assert doc["body"]["elasticity_rad_per_nm"] == {"LHipPitch": 0.021}
+    assert doc["body"]["link_lengths_m"] == {"L.thigh": 0.0004}
+    assert list(doc["head"]) == ["camera_rotation_rad", "intrinsics_correction_px", "distortion_correction",
+                                 "time_lag_s"]
+    assert set(doc["head"]["camera_rotation_rad"]["bottom"]) == {"roll", "pitch", "yaw"}
+    assert doc["head"]["intrinsics_correction_px"] == {"bottom": {"fx": 10.2}}
+    assert set(doc["targets"]["board_mount"]["L"]) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
     assert doc["model"]["parameters"]["elasticity.LHipPitch"] == {"value": 0.021, "std": 0.004, "unit": "rad/(N m)"}
 
 
@@ -94,7 +102,7 @@ def test_invalid_offsets_are_never_written(offsets_file):
     before = offsets_file.read_bytes()
     bad = make_offsets()
     bad.joint_offsets_rad["LHipPitch"] = math.radians(25.0)
-    with pytest.raises(DataError, match="joint_offsets_rad.LHipPitch"):
+    with pytest.raises(DataError, match="body.joint_offsets_rad.LHipPitch"):
         write_offsets(bad, offsets_file)
     assert offsets_file.read_bytes() == before
     assert not offsets_file.with_name(offsets_file.name + ".bak").exists()
@@ -103,18 +111,19 @@ def test_invalid_offsets_are_never_written(offsets_file):
 # -------------------------------------------------------------------------------------- sign convention
 
 
-def test_stored_offset_is_minus_alpha():
+def test_stored_offset_is_the_parameter_c():
+    """joint_offset.<J> is c, the stored offset (one name, one meaning); the paper's alpha is -c."""
     params = make_parameters(head=True)
     offsets = make_offsets(head=True)
     for joint in LEG_JOINTS:
-        name = f"joint_offset.{joint}" if joint != "RHipYawPitch" else "joint_offset.LHipYawPitch"
-        assert offsets.joint_offsets_rad[joint] == -params[name]["value"]
+        name = f"joint_offset.{joint}" if joint != "RHipYawPitch" else "joint_offset.LHipYawPitch"  # one motor
+        assert offsets.joint_offsets_rad[joint] == params[name]["value"]
     for joint in HEAD_JOINTS:
-        assert offsets.joint_offsets_rad[joint] == -params[f"head_offset.{joint}"]["value"]
-    assert offsets.camera_rpy() == tuple(params[f"camera.{a}"]["value"] for a in ("roll", "pitch", "yaw"))
-    assert offsets.board_mount["R"]["trans_y_m"] == params["board.R.trans_y"]["value"]  # alphas as they are
+        assert offsets.joint_offsets_rad[joint] == params[f"head_offset.{joint}"]["value"]
+    assert offsets.camera_rpy() == tuple(params[f"camera.bottom.{a}"]["value"] for a in ("roll", "pitch", "yaw"))
+    assert offsets.board_mount["R"]["trans_y_m"] == params["board.R.trans_y"]["value"]  # corrections as they are
     alpha = alpha_from_offsets(offsets)
-    assert alpha["joints"]["LKneePitch"] == params["joint_offset.LKneePitch"]["value"]
+    assert alpha["joints"]["LKneePitch"] == -params["joint_offset.LKneePitch"]["value"]
     assert alpha["camera"] == offsets.camera_rpy()
 
 
@@ -151,7 +160,7 @@ def test_offsets_from_alpha_needs_every_leg_joint():
         offsets_from_alpha({"LHipYawPitch": 0.0}, (0, 0, 0), {"L": (0, 0, 0), "R": (0, 0, 0)}, robot=ROBOT, fit=FIT)
 
 
-def test_parameter_names_and_units():
+def test_version_1_parameter_names_and_units():
     assert parameter_unit("joint_offset.LHipPitch") == "rad"
     assert parameter_unit("elasticity.RKneePitch") == "rad/(N m)"
     assert parameter_unit("board.L.trans_x") == "m"
@@ -192,35 +201,46 @@ def delete_path(doc, path):
 
 
 @pytest.mark.parametrize("path,value,field,problem", [
-    ("schema", "naocal.offsets/2", "schema", "wrong schema"),
+    ("schema", "naocal.offsets/3", "schema", "wrong schema"),
     ("schema", "naocal.dataset/1", "schema", "wrong schema"),
-    ("joint_offsets_rad/LHipPitch", float("nan"), "joint_offsets_rad.LHipPitch", "non-finite"),
-    ("joint_offsets_rad/RAnkleRoll", float("inf"), "joint_offsets_rad.RAnkleRoll", "non-finite"),
-    ("camera_rotation_rad/bottom/pitch", float("nan"), "camera_rotation_rad.bottom.pitch", "non-finite"),
+    ("body/joint_offsets_rad/LHipPitch", float("nan"), "body.joint_offsets_rad.LHipPitch", "non-finite"),
+    ("body/joint_offsets_rad/RAnkleRoll", float("inf"), "body.joint_offsets_rad.RAnkleRoll", "non-finite"),
+    ("head/camera_rotation_rad/bottom/pitch", float("nan"), "head.camera_rotation_rad.bottom.pitch", "non-finite"),
     ("model/parameters/time_lag.dt/std", float("nan"), "model.parameters.time_lag.dt.std", "non-finite"),
-    ("joint_offsets_rad/LHipPitch", "0.1", "joint_offsets_rad.LHipPitch", "expected a number"),
-    ("joint_offsets_rad/LHipPitch", 0.62, "joint_offsets_rad.LHipPitch", "degrees instead of radians"),
-    ("joint_offsets_rad/LHipPtch", 0.01, "joint_offsets_rad.LHipPtch", "unknown joint"),
-    ("joint_offsets_rad/LShoulderPitch", 0.01, "joint_offsets_rad.LShoulderPitch", "unknown joint"),
-    ("camera_rotation_rad/bottom/yaw", -0.3, "camera_rotation_rad.bottom.yaw", "implausible"),
-    ("camera_rotation_rad/bottom/tilt", 0.01, "camera_rotation_rad.bottom.tilt", "unknown field"),
-    ("camera_rotation_rad/middle", {"roll": 0, "pitch": 0, "yaw": 0}, "camera_rotation_rad.middle", "unknown field"),
-    ("board_mount/L/trans_x_m", 2.0, "board_mount.L.trans_x_m", "mm instead of m"),
-    ("board_mount/R/rot_z_rad", 0.5, "board_mount.R.rot_z_rad", "implausible"),
-    ("board_mount/L/trans_x_mm", 2.0, "board_mount.L.trans_x_mm", "unknown field"),
-    ("model/parameters/camera.roll/unit", "deg", "model.parameters.camera.roll.unit", "unknown unit"),
+    ("body/joint_offsets_rad/LHipPitch", "0.1", "body.joint_offsets_rad.LHipPitch", "expected a finite number"),
+    ("body/joint_offsets_rad/LHipPitch", 0.62, "body.joint_offsets_rad.LHipPitch", "degrees instead of radians"),
+    ("body/joint_offsets_rad/LHipPtch", 0.01, "body.joint_offsets_rad.LHipPtch", "unknown joint"),
+    ("body/joint_offsets_rad/LFingerX", 0.01, "body.joint_offsets_rad.LFingerX", "unknown joint"),
+    ("body/elasticity_rad_per_nm/LKneePitch", 5.0, "body.elasticity_rad_per_nm.LKneePitch", "implausible"),
+    ("body/magic", {}, "body.magic", "unknown field"),
+    ("body/camera_rotation_rad", {}, "body.camera_rotation_rad", "unknown field"),  # a head result in the body
+    ("head/camera_rotation_rad/bottom/yaw", -0.3, "head.camera_rotation_rad.bottom.yaw", "implausible"),
+    ("head/camera_rotation_rad/bottom/tilt", 0.01, "head.camera_rotation_rad.bottom.tilt", "unknown field"),
+    ("head/camera_rotation_rad/middle", {"roll": 0, "pitch": 0, "yaw": 0}, "head.camera_rotation_rad.middle",
+     "unknown name"),
+    ("targets/board_mount/L/trans_x_m", 2.0, "targets.board_mount.L.trans_x_m", "mm instead of m"),
+    ("targets/board_mount/R/rot_z_rad", 0.5, "targets.board_mount.R.rot_z_rad", "implausible"),
+    ("targets/board_mount/L/trans_x_mm", 2.0, "targets.board_mount.L.trans_x_mm", "unknown field"),
+    ("targets/board_mount/Q", {"rot_z_rad": 0, "trans_x_m": 0, "trans_y_m": 0}, "targets.board_mount.Q",
+     "unknown name"),
+    ("model/parameters/camera.bottom.roll/unit", "deg", "model.parameters.camera.bottom.roll.unit", "unknown unit"),
     ("model/parameters/board.L.trans_x/unit", "rad", "model.parameters.board.L.trans_x.unit", "wrong unit"),
     ("model/parameters/elasticity.LHipPitch/unit", "rad/Nm", "model.parameters.elasticity.LHipPitch.unit",
      "unknown unit"),
     ("model/parameters/joint_offset.LHipPtch", {"value": 0, "std": 0, "unit": "rad"},
-     "model.parameters.joint_offset.LHipPtch", "unknown joint"),
-    ("model/parameters/camera.roll/std", -1e-3, "model.parameters.camera.roll.std", "negative"),
+     "model.parameters.joint_offset.LHipPtch", "unknown model parameter"),
+    ("model/parameters/camera.roll", {"value": 0, "std": 0, "unit": "rad"},
+     "model.parameters.camera.roll", "unknown model parameter"),  # version 1's name: no camera
+    ("model/parameters/camera.bottom.roll/std", -1e-3, "model.parameters.camera.bottom.roll.std", "negative"),
     ("model/effects", "elasticity", "model.effects", "list of effect names"),
+    ("model/effects", ["elastic"], "model.effects[0]", "unknown effect"),
     ("fit/rms_px", [0.3], "fit.rms_px", "rms_x, rms_y"),
     ("fit/n_images", -3, "fit.n_images", "non-negative integer"),
     ("created", "yesterday", "created", "ISO-8601"),
     ("created", "2024-06-01T14:00:00+02:00", "created", "UTC"),
     ("robot/id", 17, "robot.id", "expected a string"),
+    ("robot/description", "../../etc/passwd", "robot.description", "robot description"),
+    ("robot/description", "pepper", "robot.description", "unknown robot description"),
     ("extra", 1, "extra", "unknown field"),
     ("robot", [], "robot", "JSON object"),
 ])
@@ -231,11 +251,13 @@ def test_damaged_fields_are_named(offsets_file, path, value, field, problem):
 
 
 @pytest.mark.parametrize("path,field", [
-    ("joint_offsets_rad/LKneePitch", "joint_offsets_rad.LKneePitch"),
-    ("camera_rotation_rad/bottom", "camera_rotation_rad.bottom"),
-    ("board_mount/R", "board_mount.R"),
+    ("body/joint_offsets_rad", "body.joint_offsets_rad"),
+    ("head/camera_rotation_rad", "head.camera_rotation_rad"),
+    ("head/camera_rotation_rad/bottom/yaw", "head.camera_rotation_rad.bottom.yaw"),
+    ("targets/board_mount/R/trans_y_m", "targets.board_mount.R.trans_y_m"),
     ("fit/n_vertices", "fit.n_vertices"),
-    ("model/parameters/camera.roll/std", "model.parameters.camera.roll.std"),
+    ("model/parameters/camera.bottom.roll/std", "model.parameters.camera.bottom.roll.std"),
+    ("robot/description", "robot.description"),
     ("schema", "schema"),
     ("source", "source"),
 ])
@@ -244,10 +266,10 @@ def test_missing_fields_are_named(offsets_file, path, field):
     assert err.field == field and "missing" in str(err)
 
 
-def test_head_offsets_are_optional(offsets_file):
+def test_head_offsets_and_joints_not_calibrated_are_optional(offsets_file):
     doc = json.loads(offsets_file.read_text())
-    for joint in HEAD_JOINTS:
-        del doc["joint_offsets_rad"][joint]
+    for joint in HEAD_JOINTS + ("LAnkleRoll",):
+        del doc["body"]["joint_offsets_rad"][joint]
     validate(doc)
 
 
@@ -262,9 +284,9 @@ def test_truncated_file(offsets_file, cut):
 
 def test_nan_literal_in_the_text(offsets_file):
     text = offsets_file.read_text()
-    value = json.loads(text)["joint_offsets_rad"]["LHipRoll"]
-    offsets_file.write_text(text.replace(f'"LHipRoll": {value!r}', '"LHipRoll": NaN'))
-    with pytest.raises(DataError, match="joint_offsets_rad.LHipRoll.*non-finite"):
+    value = json.loads(text)["body"]["joint_offsets_rad"]["LHipRoll"]
+    offsets_file.write_text(text.replace(f'"LHipRoll": {value!r}', '"LHipRoll": NaN', 1))
+    with pytest.raises(DataError, match="body.joint_offsets_rad.LHipRoll.*non-finite"):
         read_offsets(offsets_file)
 
 
@@ -283,13 +305,19 @@ def test_limits_are_the_documented_ones():
 
 
 def test_every_registry_parameter_is_accepted_with_its_unit():
-    """The offsets file must accept whatever the identification reports (solver/registry.py is the source)."""
+    """The offsets file must accept whatever the identification reports, for every camera and target of the robot
+    (the effects, solver/effects/, are the source), and write every effect's section."""
+    from solver.effect import Setup
+    from solver.effects import EFFECTS
     from solver.registry import EXTRA_EFFECTS, Registry
 
-    registry = Registry(EXTRA_EFFECTS)
+    registry = Registry(EXTRA_EFFECTS, setup=Setup.everything())
     assert len(registry.parameters) > 21
-    for parameter in registry.parameters:
-        assert parameter_unit(parameter.name) == parameter.unit, parameter.name
     params = {p.name: {"value": 0.0, "std": 0.0, "unit": p.unit} for p in registry.parameters}
-    offsets = offsets_from_parameters(params, robot=ROBOT, fit=FIT, effects=registry.effects)
-    validate(offsets.to_dict())
+    offsets = offsets_from_parameters(params, robot=ROBOT, fit=FIT, effects=registry.extra_effects())
+    doc = offsets.to_dict()
+    validate(doc)
+    for effect in EFFECTS.values():
+        assert effect.offsets_key in doc[effect.offsets_section], effect.name
+    assert set(doc["head"]["camera_rotation_rad"]) == {"bottom", "top"}
+    assert set(doc["targets"]["board_mount"]) == {"L", "R", "floor"}

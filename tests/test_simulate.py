@@ -1,4 +1,4 @@
-"""`naocal simulate`: a naocal.dataset/1 directory plus truth.json from the mock; bad input refused."""
+"""`naocal simulate`: a naocal.dataset/2 directory plus truth.json from the mock; bad input refused."""
 
 import json
 import subprocess
@@ -28,7 +28,8 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     n_images = len(np.unique(data.columns["image"]))
     assert n_images == 2 * (3 * 3 + 3)  # 3 stances x 3 head postures + 3 lag-probe images, per leg
     assert len(list((out / "images").glob("*.png"))) == n_images
-    assert set(data.columns["leg"]) == {"L", "R"}
+    assert data.meta["schema"] == "naocal.dataset/2"
+    assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom"}
     assert data.has_velocities
     truth = json.loads((out / "truth.json").read_text())
     assert truth["schema"] == "naocal.truth/1"

@@ -104,12 +104,12 @@ def _open_backend(args):
 
     if args.driver == "mock":
         try:
-            from backends.mock import MockBackend, parse_effects
+            from backends.mock import MockBackend, parse_effect_sizes
         except ImportError as err:
             raise NaocalError(f"the PyBullet mock is not available: {err}") from None
         kwargs = {"seed": args.seed, "realism": args.mock}
         if args.effect:
-            kwargs["effects"] = parse_effects(args.effect)
+            kwargs["effects"] = parse_effect_sizes(args.effect)
         return MockBackend(**kwargs), "simulated", False
     if args.mock != "ideal":
         raise NaocalError("--mock is for --driver mock")

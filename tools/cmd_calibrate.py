@@ -39,11 +39,12 @@ def register(subparsers):
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe (slow sweeps; see docs/AGENT.md)")
     p.add_argument("--speed", type=float, default=0.4, metavar="F",
                    help="fraction of the joints' maximum speed for moves between stances (default 0.4)")
-    p.add_argument("--max-joint-offset-deg", type=float, default=20.0, metavar="DEG",
-                   help="refuse a calibration with a larger joint offset (default 20, the offsets file's limit; a "
-                        "warning above 8)")
-    p.add_argument("--max-camera-rotation-deg", type=float, default=15.0, metavar="DEG",
-                   help="refuse a calibration with a larger camera rotation (default 15; a warning above 7)")
+    p.add_argument("--max-joint-offset-deg", type=float, metavar="DEG",
+                   help="refuse a calibration with a larger joint offset (default: the offsets file's limit, 20, "
+                        "solver/effects/joint_offsets.py; a warning above 8)")
+    p.add_argument("--max-camera-rotation-deg", type=float, metavar="DEG",
+                   help="refuse a calibration with a larger camera rotation (default: the offsets file's limit, 15; "
+                        "a warning above 7)")
     p.add_argument("--no-images", action="store_true", help="do not keep the captured images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(run=run)
@@ -61,11 +62,21 @@ def check_common(args) -> None:
         raise NaocalError(f"--stances-per-leg must be within 1..200, got {args.stances_per_leg}")
     if not 0.0 < args.speed <= 1.0:
         raise NaocalError(f"--speed must be within (0, 1], got {args.speed}")
-    for option, limit in (("max_joint_offset_deg", 20.0), ("max_camera_rotation_deg", 15.0)):
-        value = getattr(args, option, limit)
-        if not 0.0 < value <= limit:
+    for option, limit in _file_limits_deg().items():
+        value = getattr(args, option, None)
+        if value is not None and not 0.0 < value <= limit:
             raise NaocalError(f"--{option.replace('_', '-')} must be within (0, {limit:g}] (the offsets file's limit), "
                               f"got {value}")
+
+
+def _file_limits_deg() -> dict:
+    """{option: the largest value the offsets file holds, deg}: the effects' own limits (solver/effects/)."""
+    import math
+
+    from solver.effects import EFFECTS
+
+    return {"max_joint_offset_deg": round(math.degrees(EFFECTS["joint_offsets"].offsets_limit), 9),
+            "max_camera_rotation_deg": round(math.degrees(EFFECTS["camera_rotation"].offsets_limit), 9)}
 
 
 def settings_from_args(args, *, seed: int, source: str):
@@ -77,9 +88,8 @@ def settings_from_args(args, *, seed: int, source: str):
     from agent.states import Thresholds
 
     plan = PlanSettings(kind=args.plan, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
-    thresholds = Thresholds(
-        max_joint_offset_rad=math.radians(getattr(args, "max_joint_offset_deg", 20.0)),
-        max_camera_rotation_rad=math.radians(getattr(args, "max_camera_rotation_deg", 15.0)))
+    given = {name: getattr(args, f"{name}_deg", None) for name in ("max_joint_offset", "max_camera_rotation")}
+    thresholds = Thresholds(**{f"{name}_rad": math.radians(v) for name, v in given.items() if v is not None})
     return AgentSettings(seed=seed, plan=plan, speed_fraction=args.speed, resume=getattr(args, "resume", False),
                          save_images=not args.no_images, progress_bar=not args.no_progress, source=source,
                          thresholds=thresholds)
@@ -137,9 +147,9 @@ def run(args) -> int:
     detector = None
     if args.backend == "mock":
         from agent.measure import opencv_detector
-        from backends.mock import MockBackend, parse_effects
+        from backends.mock import MockBackend, parse_effect_sizes
 
-        effects = parse_effects(args.effect)
+        effects = parse_effect_sizes(args.effect)
         backend = MockBackend(args.seed, effects=effects, realism=args.mock)
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
         label = f"mock (seed {args.seed}, {args.mock}" + (

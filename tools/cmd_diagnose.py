@@ -2,7 +2,7 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
-from tools.cmd_identify import add_angles_option
+from tools.cmd_identify import add_angles_option, effect_names
 
 EPILOG = """\
 Sections of the output:
@@ -28,17 +28,16 @@ def register(subparsers):
         "diagnose",
         help="compare the fitted model with the measurements and rank the missing physical effects",
         description=(
-            "Fit the model (the paper's 21 parameters plus --effects) to a naocal.dataset/1 directory, then\n"
+            "Fit the model (the paper's 21 parameters plus --effects) to a naocal.dataset/2 (or /1) directory, then\n"
             "compare it with the measurements, locate where it fails and rank every candidate effect not yet in\n"
             "the model by how much of the misfit it would explain."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
+    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/2 (or /1) directory")
     p.add_argument("--effects", default="", metavar="E1,E2",
-                   help="extra model terms already in the model: elasticity, backlash, link_lengths, head_offsets, "
-                        "intrinsics, distortion, time_lag")
+                   help="extra model terms already in the model: " + effect_names())
     p.add_argument("--json", action="store_true",
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
@@ -53,15 +52,18 @@ def run(args) -> int:
     from solver.diagnostics import diagnose_result
     from solver.errors import NaocalError, SolveError
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
-    from solver.registry import Registry, parse_effects
+    from solver.adapter import model_data_from_dataset
+    from solver.effects import EFFECTS, parse_effect_names
+    from solver.registry import Registry
 
-    effects = parse_effects(args.effects)
+    effects = parse_effect_names(args.effects)
     dataset = read_dataset(args.dataset)
     data = model_data_from_dataset(dataset, angles=args.angles)
-    if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
-    result = identify(data, Registry(effects))
+    for name in effects:
+        reason = EFFECTS[name].untestable_reason(data)
+        if reason:
+            raise NaocalError(f"{args.dataset}: the {name} effect {reason}")
+    result = identify(data, Registry.for_data(data, effects))
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
@@ -123,7 +125,7 @@ def format_text(diagnosis) -> str:
 
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
     data = res.model.data
-    extra = [e for e in res.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")]
+    extra = list(res.registry.extra_effects())
     lines = [f"model: base{''.join(' + ' + e for e in extra)}; {data.n_rows} vertices in {data.n_images} images",
              "", "COMPARE",
              f"  RMS {c.rms_px[0]:.3f} px (x), {c.rms_px[1]:.3f} px (y); {c.rms_total_px:.3f} px overall",
@@ -133,15 +135,15 @@ def format_text(diagnosis) -> str:
                 f"{c.encoder_noise_px:.3f} px" if c.encoder_resolution_rad > 0 else "); joint readings not quantised"),
              f"  the fit is {c.ratio_to_noise:.2f} x the noise floor"
              + (": at the noise level" if c.ratio_to_noise < 1.2 else "")]
-    lines.append("  per leg:          " + ", ".join(
-        f"{leg} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for leg, v in c.per_leg.items()))
+    lines.append("  per target:       " + ", ".join(
+        f"{t} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for t, v in c.per_target.items()))
     lines.append("  per head posture: " + ", ".join(
         f"{p}: {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for p, v in c.per_head_posture.items()))
     lines.append("  worst stances:    " + ", ".join(
-        f"{s['leg']}{s['stance']} {s['rms_total_px']:.3f} px" for s in loc.worst_stances[:5]))
+        f"{s['target']}{s['stance']} {s['rms_total_px']:.3f} px" for s in loc.worst_stances[:5]))
     lines += ["", "LOCATE",
               "  worst images:     " + ", ".join(
-                  f"{e['image']} ({e['leg']}{e['stance']}/{e['head_posture']}) {e['rms_total_px']:.3f} px"
+                  f"{e['image']} ({e['target']}{e['stance']}/{e['head_posture']}) {e['rms_total_px']:.3f} px"
                   for e in loc.worst_images[:5]),
               f"  rigid board motion {loc.rigid_rms_px:.3f} px, non-rigid {loc.nonrigid_rms_px:.3f} px "
               f"({100 * loc.rigid_share:.1f} % of the misfit is rigid: "
@@ -151,15 +153,16 @@ def format_text(diagnosis) -> str:
     for e in loc.regressors[:6]:
         p = f"p {e['p_value']:.1e}" if math.isfinite(e["p_value"]) else "not testable: too few images carry it"
         lines.append(f"    {e['regressor']:32s} {100 * e['explained_share']:5.1f} %  ({p})")
+    w = max([13] + [len(x.effect) for x in diagnosis.candidates])  # the effect column: its longest name
     lines += ["", "NAMES (candidate effects, best first; significant: p < "
               f"{diagnosis.threshold:.1e}, i.e. 0.001 over {sum(1 for x in diagnosis.candidates if x.testable)} tests)",
               "  (explains: share of the misfit it would remove beyond what its parameters fit of pure noise)",
-              f"  {'effect':13s} {'explains':>8s} {'predicted RMS':>13s} {'p-value':>9s}  {'signif.':7s} "
+              f"  {'effect':{w}s} {'explains':>8s} {'predicted RMS':>13s} {'p-value':>9s}  {'signif.':7s} "
               f"{'uniqueness':>10s}  note"]
     rss = c.rms_total_px ** 2 * 2 * data.n_rows
     for cand in diagnosis.candidates:
         if not cand.testable:
-            lines.append(f"  {cand.effect:13s} {'-':>8s} {'-':>13s} {'-':>9s}  {'-':7s} {'-':>10s}  "
+            lines.append(f"  {cand.effect:{w}s} {'-':>8s} {'-':>13s} {'-':>9s}  {'-':7s} {'-':>10s}  "
                          f"not testable: {cand.reason}")
             continue
         notes = []
@@ -171,9 +174,9 @@ def format_text(diagnosis) -> str:
             notes.append("its values would correlate with the model's" if cand.significant
                          else "hard to tell apart from the model")
         if cand.significant and not notes:
-            notes.append(_top_values(cand))
+            notes.append(_top_values(cand, res.registry))
         share = 100 * max(cand.excess_rss_px2, 0.0) / rss if rss > 0 else 0.0
-        lines.append(f"  {cand.effect:13s} {share:6.1f} % {cand.predicted_rms_px:10.3f} px {cand.p_value:9.1e}  "
+        lines.append(f"  {cand.effect:{w}s} {share:6.1f} % {cand.predicted_rms_px:10.3f} px {cand.p_value:9.1e}  "
                      f"{'yes' if cand.significant else 'no':7s} {cand.uniqueness:10.3f}  {'; '.join(notes)}")
     best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
     lines.append("")
@@ -190,22 +193,12 @@ def format_text(diagnosis) -> str:
     return "\n".join(lines)
 
 
-def _top_values(candidate, count=3) -> str:
-    import math
-
+def _top_values(candidate, registry, count=3) -> str:
+    """The candidate's largest predicted values, as its effect shows them (degrees, mm, ms ...)."""
+    registry = registry.extended((candidate.effect,))
     items = sorted(candidate.predicted_values.items(), key=lambda kv: -abs(kv[1]))[:count]
     parts = []
     for name, value in items:
-        unit = ""
-        if name.startswith(("backlash.", "head_offset.")):
-            value, unit = math.degrees(value), " deg"
-        elif name.startswith("link_length."):
-            value, unit = value * 1e3, " mm"
-        elif name.startswith("elasticity."):
-            value, unit = math.degrees(value), " deg/(N m)"
-        elif name.startswith("time_lag."):
-            value, unit = value * 1e3, " ms"
-        elif name.startswith("intrinsics."):
-            unit = " px"
-        parts.append(f"{name.split('.', 1)[1]} {value:+.3g}{unit}")
+        value, unit = registry.display(name, value)
+        parts.append(f"{name.split('.', 1)[1]} {value:+.3g}{' ' + unit if unit else ''}")
     return "predicted " + ", ".join(parts)

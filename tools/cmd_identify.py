@@ -7,15 +7,14 @@ def register(subparsers):
         help="identify joint offsets, camera rotation and board mounts from a dataset",
         description=(
             "Fit the paper's 21-parameter model (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per "
-            "leg), plus any --effects, to a naocal.dataset/1 directory by Levenberg-Marquardt on the pixel error of "
-            "the board vertices. Prints a table (or --json); --out writes a naocal.offsets/1 file. Exit 0 on "
+            "leg), plus any --effects, to a naocal.dataset/2 (or /1) directory by Levenberg-Marquardt on the pixel "
+            "error of the board vertices. Prints a table (or --json); --out writes a naocal.offsets/2 file. Exit 0 on "
             "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
         ),
     )
-    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/1 directory")
-    p.add_argument("--effects", default="", help="extra model terms, comma separated: elasticity, backlash, "
-                   "link_lengths, head_offsets, intrinsics, distortion, time_lag")
-    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/1 file (atomic, old one kept as .bak)")
+    p.add_argument("dataset", metavar="DATASET", help="naocal.dataset/2 (or /1) directory")
+    p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
+    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/2 file (atomic, old one kept as .bak)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--tie-hip-yaw-pitch", action="store_true",
                    help="RHipYawPitch takes LHipYawPitch's offset (one motor on the robot)")
@@ -32,6 +31,13 @@ def register(subparsers):
     p.set_defaults(run=run)
 
 
+def effect_names() -> str:
+    """The candidate effects, for --help (solver/effects/, one module each)."""
+    from solver.effects import EXTRA_EFFECTS
+
+    return ", ".join(EXTRA_EFFECTS)
+
+
 def add_angles_option(parser) -> None:
     """--angles, shared by identify and diagnose (both must read a dataset the same way)."""
     parser.add_argument("--angles", default="auto", choices=("auto", "measured", "commanded"),
@@ -46,17 +52,20 @@ def run(args) -> int:
     from solver.dataset import read_dataset
     from solver.errors import NaocalError, SolveError
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
-    from solver.registry import Registry, parse_effects
+    from solver.adapter import model_data_from_dataset
+    from solver.effects import EFFECTS, parse_effect_names
+    from solver.registry import Registry
 
     if args.loss_scale_px <= 0:
         raise NaocalError("--loss-scale-px must be positive")
-    effects = parse_effects(args.effects)
-    registry = Registry(effects, tie_hip_yaw_pitch=args.tie_hip_yaw_pitch, fixed=args.fix)
+    effects = parse_effect_names(args.effects)
     dataset = read_dataset(args.dataset)
     data = model_data_from_dataset(dataset, angles=args.angles)
-    if "time_lag" in effects and data.velocity is None:
-        raise NaocalError(f"{args.dataset}: the time_lag effect needs vel_<Joint> columns, which this dataset lacks")
+    registry = Registry.for_data(data, effects, tie_shared_motors=args.tie_hip_yaw_pitch, fixed=args.fix)
+    for name in effects:
+        reason = EFFECTS[name].untestable_reason(data)
+        if reason:
+            raise NaocalError(f"{args.dataset}: the {name} effect {reason}")
     result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
@@ -107,8 +116,6 @@ def result_json(result, effects, cv_rms) -> dict:
 
 
 def format_table(result, cv_rms) -> str:
-    import numpy as np
-
     lines = [
         f"fit: RMS {result.rms_px[0]:.3f} px (x), {result.rms_px[1]:.3f} px (y) over "
         f"{result.model.data.n_rows} vertices in {result.model.data.n_images} images; "
@@ -119,13 +126,8 @@ def format_table(result, cv_rms) -> str:
     lines.append("")
     lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
     for name, entry in result.parameters_dict().items():
-        value, std, unit = entry["value"], entry["std"], entry["unit"]
-        if unit == "rad":
-            value, std, unit = np.degrees(value), np.degrees(std), "deg"
-        elif unit == "m":
-            value, std, unit = value * 1e3, std * 1e3, "mm"
-        elif unit == "rad/(N m)":
-            value, std, unit = np.degrees(value), np.degrees(std), "deg/(N m)"
+        value, unit = result.registry.display(name, entry["value"])
+        std, _ = result.registry.display(name, entry["std"])
         fixed = "  (fixed)" if name in result.registry.fixed else ""
         lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}")
     lines.append("")
@@ -155,19 +157,10 @@ def strongest_correlations(result, count=5, threshold=0.8):
 
 
 def write_offsets_file(path, result, dataset, dataset_path):
-    from solver.offsets import offsets_from_parameters, write_offsets
+    from solver.offsets import offsets_from_result, write_offsets
 
     robot_meta = dataset.meta.get("robot", {})
-    robot = {
-        "id": str(robot_meta.get("id", "unknown")),
-        "body_id": str(robot_meta.get("body_id", robot_meta.get("id", "unknown"))),
-        "head_id": str(robot_meta.get("head_id", robot_meta.get("id", "unknown"))),
-    }
-    fit = {"rms_px": list(result.rms_px), "n_vertices": int(result.model.data.n_rows),
-           "n_images": int(result.model.data.n_images)}
-    offsets = offsets_from_parameters(
-        result.parameters_dict(), robot=robot, fit=fit,
-        effects=[e for e in result.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")],
-        source={"tool": "naocal identify", "dataset": str(dataset_path), "dataset_source": dataset.meta.get("source")},
-    )
+    robot = {key: str(robot_meta.get(key, robot_meta.get("id", "unknown"))) for key in ("id", "body_id", "head_id")}
+    offsets = offsets_from_result(result, robot=robot, source={
+        "tool": "naocal identify", "dataset": str(dataset_path), "dataset_source": dataset.meta.get("source")})
     write_offsets(offsets, path)

@@ -1,4 +1,4 @@
-"""naocal offsets: inspect, compare, validate, export and apply offset files (naocal.offsets/1).
+"""naocal offsets: inspect, compare, validate, export and apply offset files (naocal.offsets/2, and /1).
 
 A stored joint offset c is ADDED to every commanded angle and SUBTRACTED from every measured angle (c = -alpha of
 the model q_true = theta + alpha). Camera rotation and board mount are the model's alphas as they are.
@@ -92,9 +92,13 @@ def run(args) -> int:
 # ----------------------------------------------------------------------------------------------- display
 
 # Display units: angles in deg, lengths in mm, time in ms.
-_DISPLAY = {"rad": (57.29577951308232, "deg"), "m": (1000.0, "mm"), "rad/(N m)": (57.29577951308232, "deg/(N m)"),
-            "s": (1000.0, "ms"), "px": (1.0, "px"), "1": (1.0, "")}
-_SHOWN_ELSEWHERE = ("joint_offset.", "head_offset.", "camera.", "board.")  # model names with their own table
+_SHOWN_ELSEWHERE = ("joint_offset.", "head_offset.", "board.")  # model names with their own table
+
+
+def _shown_elsewhere(name: str) -> bool:
+    """Whether a model parameter has its own table (joint offsets, camera rotations, board mounts)."""
+    parts = name.split(".")
+    return name.startswith(_SHOWN_ELSEWHERE) or (parts[0] == "camera" and parts[-1] in ("roll", "pitch", "yaw"))
 _BOARD_ROWS = (("rot_z_rad", "rot_z", "rad"), ("trans_x_m", "trans_x", "m"), ("trans_y_m", "trans_y", "m"))
 
 
@@ -102,9 +106,16 @@ def _num(value, width=10, digits=4) -> str:
     return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
 
 
+def _unit(unit) -> str:
+    from solver.effect import shown
+
+    return shown(0.0, unit)[1]
+
+
 def _shown(value, unit):
-    scale, _ = _DISPLAY[unit]
-    return None if value is None else value * scale
+    from solver.effect import shown
+
+    return None if value is None else shown(value, unit)[0]
 
 
 def _joint_std(offsets, joint):
@@ -125,14 +136,13 @@ def parameter_rows(offsets) -> list:
     rows = [(f"c {j}", "rad", offsets.joint_offsets_rad[j], _joint_std(offsets, j))
             for j in OFFSET_JOINTS if j in offsets.joint_offsets_rad]
     for camera, angles in offsets.camera_rotation_rad.items():
-        prefix = "camera" if camera == "bottom" else f"camera.{camera}"
-        rows += [(f"{prefix}.{a}", "rad", angles[a], offsets.std(f"camera.{a}") if camera == "bottom" else None)
+        rows += [(f"camera.{camera}.{a}", "rad", angles[a], offsets.std(f"camera.{camera}.{a}"))
                  for a in CAMERA_ANGLES]
     for leg, mount in offsets.board_mount.items():
         rows += [(f"board.{leg}.{short}", unit, mount[key], offsets.std(f"board.{leg}.{short}"))
                  for key, short, unit in _BOARD_ROWS]
     for name, entry in offsets.model["parameters"].items():
-        if not name.startswith(_SHOWN_ELSEWHERE):
+        if not _shown_elsewhere(name):
             rows.append((name, entry["unit"], entry["value"], entry["std"]))
     return rows
 
@@ -157,7 +167,7 @@ def format_show(offsets, name: str) -> str:
                     "@ Rot_x(roll) @ Rot_z(yaw))",
                 f"  {'angle':<16}{'[deg]':>10}{'std [deg]':>11}"]
         for a in CAMERA_ANGLES:
-            std = offsets.std(f"camera.{a}") if camera == "bottom" else None
+            std = offsets.std(f"camera.{camera}.{a}")
             out.append(f"  {a:<16}{_num(_shown(angles[a], 'rad'))} {_num(_shown(std, 'rad'))}")
     out += ["", "board mount (model alpha: p = Rot_z(rot_z) Trans_x(trans_x) Trans_y(trans_y) p_sole)",
             f"  {'leg':<6}{'rot_z [deg]':>12}{'trans_x [mm]':>14}{'trans_y [mm]':>14}"]
@@ -171,13 +181,12 @@ def format_show(offsets, name: str) -> str:
                                                   in zip(stds, _BOARD_ROWS, (12, 14, 14))))
     effects = offsets.model["effects"]
     out += ["", "model effects: " + (", ".join(effects) if effects else "-")]
-    extra = [r for r in parameter_rows(offsets) if r[0] in offsets.model["parameters"]
-             and not r[0].startswith(_SHOWN_ELSEWHERE)]
+    extra = [r for r in parameter_rows(offsets) if r[0] in offsets.model["parameters"] and not _shown_elsewhere(r[0])]
     if extra:
         out.append(f"  {'parameter':<28}{'value':>12}{'std':>12}  unit")
         for label, unit, value, std in extra:
             out.append(f"  {label:<28}{_num(_shown(value, unit), 12, 5)}{_num(_shown(std, unit), 12, 5)}  "
-                       f"{_DISPLAY[unit][1]}")
+                       f"{_unit(unit)}")
     rms_x, rms_y = fit["rms_px"]
     out += ["", f"fit: rms {rms_x:.3f} px (x), {rms_y:.3f} px (y) over {fit['n_vertices']} vertices "
                 f"in {fit['n_images']} images"]
@@ -210,7 +219,7 @@ def format_diff(a, b, name_a: str, name_b: str):
         else:
             mark = " (only in A)" if value_b is None else " (only in B)"
         out.append(f"  {label:<28}{_num(_shown(value_a, unit), 11)}{_num(_shown(value_b, unit), 11)}"
-                   f"{_num(_shown(delta, unit), 11)}{_num(_shown(sigma, unit), 10)}  {_DISPLAY[unit][1]}{mark}")
+                   f"{_num(_shown(delta, unit), 11)}{_num(_shown(sigma, unit), 10)}  {_unit(unit)}{mark}")
     out.append(f"{marked} of {len(labels)} parameters differ by more than their combined uncertainty (*)")
     return "\n".join(out) + "\n", marked
 

@@ -3,7 +3,7 @@
     naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...]
 
 Runs the agent's modelling and measurement (the standard plan: 24 stances per leg x 3 head postures, plus the lag
-probe) on the PyBullet mock and writes the naocal.dataset/1 directory DIR (dataset.json, observations.csv,
+probe) on the PyBullet mock and writes the naocal.dataset/2 directory DIR (dataset.json, observations.csv,
 images/) and DIR/truth.json (naocal.truth/1: the mock's alpha, camera rotation, board mounts and effects).
 Exit 0 on success, 2 on bad input, 3 if the measurement failed.
 """
@@ -52,10 +52,10 @@ def run(args) -> int:
 
     from agent.calibrate import simulate
     from agent.measure import opencv_detector
-    from backends.mock import MockBackend, parse_effects
+    from backends.mock import MockBackend, parse_effect_sizes
     from solver.fileio import atomic_write_text
 
-    effects = parse_effects(args.effect)
+    effects = parse_effect_sizes(args.effect)
     settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
     backend = MockBackend(args.seed, effects=effects, realism=args.mock)
     try:

@@ -1,4 +1,4 @@
-"""Exports of a naocal.offsets/1 file for other robot software: B-Human config files, a calibrated URDF, JSON.
+"""Exports of a naocal.offsets file for other robot software: B-Human config files, a calibrated URDF, JSON.
 
 B-Human
 -------
@@ -89,7 +89,7 @@ def export_bhuman(offsets: Offsets, source_name: str = "an offsets file") -> dic
 
 
 def export_json(offsets: Offsets) -> str:
-    """The file itself, validated and in canonical form (naocal.offsets/1)."""
+    """The file itself, validated and in canonical form (naocal.offsets/2)."""
     return format_offsets(offsets)
 
 

@@ -16,10 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from solver.fileio import atomic_write_bytes, atomic_write_text
-from solver.joints import LEG_JOINTS, leg_joints
 
 IMAGE_PATTERNS = ("{:06d}.png", "{:06d}.jpg", "{:d}.png", "{:d}.jpg", "image_{:06d}.png", "image_{:d}.png")
-LEG_COLOURS = {"L": "tab:blue", "R": "tab:orange"}
+COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown")
+
+
+def target_colours(targets) -> dict:
+    """A colour per target, in the order given (the NAO's sandals L, R: blue, orange)."""
+    return {t: COLOURS[k % len(COLOURS)] for k, t in enumerate(dict.fromkeys(targets))}
 DPI = 80
 MAX_ARROWS = 1200
 
@@ -54,7 +58,7 @@ def write_report(out_dir, diagnosis, *, dataset_path=None, top_count: int = 2) -
         if not after.success:
             after = None
     cv_before = cv_after = None
-    if len({(leg, s) for leg, s in zip(data.leg, data.stance)}) >= 2:
+    if len({(t, s) for t, s in zip(data.target, data.stance)}) >= 2:
         cv_before = grouped_cv_rms(data, result.registry)
         if after is not None:
             cv_after = grouped_cv_rms(data, after.registry)
@@ -121,10 +125,10 @@ def _scatter(result, after, top):
     for k, (title, fit) in enumerate(fits):
         ax = fig.add_subplot(1, len(fits), k + 1)
         r = fit.residuals_px
-        leg_of_row = fit.model.data.leg[fit.model.data.image_of_row]
-        for leg, colour in LEG_COLOURS.items():
-            rows = leg_of_row == leg
-            ax.scatter(r[rows, 0], r[rows, 1], s=3, alpha=0.5, color=colour, label=f"{leg} board", linewidths=0)
+        target_of_row = fit.model.data.target[fit.model.data.image_of_row]
+        for target, colour in target_colours(fit.model.data.target).items():
+            rows = target_of_row == target
+            ax.scatter(r[rows, 0], r[rows, 1], s=3, alpha=0.5, color=colour, label=f"{target} board", linewidths=0)
         ax.set_title(f"{title}\nRMS {fit.rms_px[0]:.3f} / {fit.rms_px[1]:.3f} px (x / y)", fontsize=10)
         ax.set_xlabel("residual x (px)")
         ax.set_ylabel("residual y (px)")
@@ -138,19 +142,19 @@ def _scatter(result, after, top):
 def _vectors(result, after, top):
     fits = [("current model", result)] + ([(f"after adding {top.effect}", after)] if after is not None else [])
     fig = _figure(9 if len(fits) > 1 else 5.5, 3.8)
-    intr = result.model.data.intrinsics
-    width, height = intr.get("width_px", 640), intr.get("height_px", 480)
+    cameras = result.model.data.cameras.values()
+    width, height = max(c.get("width_px", 640) for c in cameras), max(c.get("height_px", 480) for c in cameras)
     for k, (title, fit) in enumerate(fits):
         ax = fig.add_subplot(1, len(fits), k + 1)
         data, r = fit.model.data, fit.residuals_px
         shown = np.arange(0, data.n_rows, max(1, data.n_rows // MAX_ARROWS))  # keep the picture readable
         length = np.hypot(r[:, 0], r[:, 1])
         scale = 30.0 / max(float(np.percentile(length, 95)), 1e-9)  # the 95th percentile arrow is 30 px long
-        leg_of_row = data.leg[data.image_of_row]
-        for leg, colour in LEG_COLOURS.items():
-            rows = shown[leg_of_row[shown] == leg]
+        target_of_row = data.target[data.image_of_row]
+        for target, colour in target_colours(data.target).items():
+            rows = shown[target_of_row[shown] == target]
             ax.quiver(data.uv_px[rows, 0], data.uv_px[rows, 1], r[rows, 0] * scale, r[rows, 1] * scale,
-                      angles="xy", scale_units="xy", scale=1, color=colour, width=0.003, label=f"{leg} board")
+                      angles="xy", scale_units="xy", scale=1, color=colour, width=0.003, label=f"{target} board")
         ax.set_xlim(0, width)
         ax.set_ylim(height, 0)
         ax.set_aspect("equal")
@@ -164,11 +168,12 @@ def _vectors(result, after, top):
 def _stances(diagnosis):
     fig = _figure(9, 3.6)
     ax = fig.add_subplot(1, 2, 1)
-    stances = sorted(diagnosis.comparison.per_stance, key=lambda s: (s["leg"], s["stance"]))
+    stances = sorted(diagnosis.comparison.per_stance, key=lambda s: (s["target"], s["stance"]))
     values = [math.sqrt((s["rms_px"][0] ** 2 + s["rms_px"][1] ** 2) / 2) for s in stances]
-    ax.bar(np.arange(len(stances)), values, color=[LEG_COLOURS.get(s["leg"], "0.5") for s in stances])
+    colours = target_colours(diagnosis.result.model.data.target)
+    ax.bar(np.arange(len(stances)), values, color=[colours.get(s["target"], "0.5") for s in stances])
     ax.axhline(diagnosis.comparison.noise_px, color="k", ls="--", lw=1, label="noise floor")
-    ax.set_xlabel("stance (left leg, then right leg)")
+    ax.set_xlabel("stance (by target: the NAO's left leg, then right leg)")
     ax.set_ylabel("RMS (px)")
     ax.set_title("error per stance", fontsize=10)
     ax.legend(fontsize=8)
@@ -179,7 +184,7 @@ def _stances(diagnosis):
     ax.bar(np.arange(len(split)), rigid, color="tab:green", label="rigid board motion (kinematics)", width=1.0)
     ax.bar(np.arange(len(split)), nonrigid, bottom=rigid, color="tab:red", label="non-rigid (camera, board)",
            width=1.0)
-    ax.set_xlabel("image (as fitted: left leg, then right leg)")
+    ax.set_xlabel("image (as fitted: by target)")
     ax.set_ylabel("RMS (px)")
     ax.set_title("rigid and non-rigid part of each image's error", fontsize=10)
     ax.legend(fontsize=8)
@@ -190,95 +195,23 @@ def _regressor_view(fit, effect):
     """Partial residuals of `effect` in a fit that has it, against its regressor, with the fitted term as a line.
 
     Partial residual = residual of the fit with the effect switched off: the effect plus what nothing explains.
-    Joint-level effects are shown as the apparent per-image joint offset against the joint's gravity torque,
-    approach direction or velocity; link lengths as the apparent per-image length; camera terms per vertex.
+    Each effect says what to plot (solver.effect.Effect.partial_residual_panels): joint-level effects the apparent
+    per-image joint error against the joint's gravity torque, approach direction or velocity; link lengths the
+    apparent per-image length; camera terms per vertex.
     """
-    from solver.diagnostics import apparent_errors, partial_residuals
-    from solver.joints import JOINT_INDEX
-    from solver.model import compute_gravity_torques
+    from solver.effects import EFFECTS
 
-    data = fit.model.data
-    value = fit.value
-    panels = []  # (x, y, xlabel, ylabel, leg of each point, (line x, line y))
-    if effect == "time_lag":
-        # One parameter drives all 14 joints: show the lag each moving image implies on its own.
-        lag = apparent_errors(fit, ["time_lag.dt"], partial_residuals(fit, ["time_lag.dt"]))[:, 0]
-        ok = np.isfinite(lag)
-        speed = np.linalg.norm(data.velocity, axis=1)
-        if ok.any():
-            xs = np.array([speed[ok].min(), speed[ok].max()])
-            panels.append((speed[ok], lag[ok] * 1e3, "joint speed |q_dot| (rad/s)", "apparent time lag (ms)",
-                           data.leg[ok], (xs, np.full(2, value("time_lag.dt") * 1e3))))
-    elif effect in ("elasticity", "backlash", "head_offsets"):
-        if effect == "head_offsets":
-            joints = ["HeadYaw", "HeadPitch"]
-        else:
-            # the fitted model's own gravity torques: its joints sag, so they differ from those at the readings
-            tau = compute_gravity_torques(fit.model.joint_angles(fit.values), data.leg, data.gravity_torso_mps2)
-            size = {j: abs(value(f"{effect}.{j}")) * np.ptp(
-                (tau if effect == "elasticity" else data.direction)[:, JOINT_INDEX[j]]) for j in LEG_JOINTS}
-            joints = sorted(size, key=lambda j: -size[j])[:3]
-        for k, joint in enumerate(joints):
-            c = JOINT_INDEX[joint]
-            term = {"elasticity": f"elasticity.{joint}", "backlash": f"backlash.{joint}",
-                    "head_offsets": f"head_offset.{joint}"}[effect]
-            offset = ("head_offset." if joint.startswith("Head") else "joint_offset.") + joint
-            error = apparent_errors(fit, [offset], partial_residuals(fit, [term]))[:, 0]
-            ok = np.isfinite(error)
-            # the regressor, its label, and the fitted term as slope * regressor + const
-            slope, const = (0.0, value(term)) if effect == "head_offsets" else (value(term), 0.0)
-            if effect == "elasticity":
-                x, label = tau[:, c], f"gravity torque on {joint} (N m)"
-            elif effect == "backlash":
-                x, label = data.direction[:, c], f"approach direction of {joint}"
-            else:
-                x, label = data.theta[:, c], f"{joint} angle (rad)"
-            xs = np.linspace(np.min(x[ok]), np.max(x[ok]), 2) if ok.any() else np.zeros(2)
-            jitter = np.random.default_rng(k).uniform(-0.08, 0.08, ok.sum()) if effect == "backlash" else 0.0
-            panels.append((x[ok] + jitter, np.degrees(error[ok]), label, f"apparent {joint} offset (deg)",
-                           data.leg[ok], (xs, np.degrees(const + slope * xs))))
-    elif effect == "link_lengths":
-        names = [p.name for p in fit.registry.parameters if p.effect == effect]
-        for name in names:
-            error = apparent_errors(fit, [name], partial_residuals(fit, [name]))[:, 0]
-            leg = name.split(".")[1]
-            ok = np.isfinite(error)
-            knee = data.theta[:, JOINT_INDEX[leg_joints(leg)[3]]]
-            if ok.any():
-                xs = np.array([knee[ok].min(), knee[ok].max()])
-                panels.append((knee[ok], error[ok] * 1e3, f"{leg}KneePitch angle (rad)",
-                               f"apparent {name.split('.', 1)[1]} (mm)", data.leg[ok],
-                               (xs, np.full(2, value(name) * 1e3))))
-    else:
-        r_off = partial_residuals(fit, [effect])
-        intr = data.intrinsics
-        du, dv = data.uv_px[:, 0] - intr["cx_px"], data.uv_px[:, 1] - intr["cy_px"]
-        legs = data.leg[data.image_of_row]
-        get = lambda n: value(n) if n in fit.registry.index else 0.0  # noqa: E731
-        if effect == "intrinsics":
-            for d, axis, f, cname, fname in ((du, 0, intr["fx_px"], "intrinsics.cx", "intrinsics.fx"),
-                                             (dv, 1, intr["fy_px"], "intrinsics.cy", "intrinsics.fy")):
-                xs = np.array([d.min(), d.max()])
-                panels.append((d, r_off[:, axis], f"{'u - cx' if axis == 0 else 'v - cy'} (px)",
-                               f"partial residual {'x' if axis == 0 else 'y'} (px)", legs,
-                               (xs, -(get(fname) * xs / f + get(cname)))))
-        else:
-            radius = np.hypot(du, dv)
-            radial = (r_off[:, 0] * du + r_off[:, 1] * dv) / np.maximum(radius, 1e-9)
-            xs = np.linspace(0, radius.max(), 50)
-            rho2 = (xs / intr["fx_px"]) ** 2
-            line = -xs * (get("distortion.k1") * rho2 + get("distortion.k2") * rho2 ** 2)
-            panels.append((radius, radial, "distance from the principal point (px)", "radial partial residual (px)",
-                           legs, (xs, line)))
+    panels = EFFECTS[effect].partial_residual_panels(fit)
     if not panels:
         return None
+    colours = target_colours(fit.model.data.target)
     fig = _figure(max(3.2 * len(panels), 6.0), 3.3)
-    for k, (x, y, xlabel, ylabel, legs, line) in enumerate(panels):
+    for k, (x, y, xlabel, ylabel, groups, line) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), k + 1)
-        for leg, colour in LEG_COLOURS.items():
-            sel = legs == leg
+        for target, colour in colours.items():
+            sel = groups == target
             if sel.any():
-                ax.scatter(x[sel], y[sel], s=6, alpha=0.6, color=colour, label=f"{leg} leg", linewidths=0)
+                ax.scatter(x[sel], y[sel], s=6, alpha=0.6, color=colour, label=f"{target}", linewidths=0)
         ax.plot(line[0], line[1], color="k", lw=1, label="fitted term")
         ax.axhline(0, color="0.7", lw=0.5)
         ax.set_xlabel(xlabel, fontsize=9)
@@ -322,7 +255,7 @@ def _overlay(path, result, after, top, image_id):
         rows_after = after.model.data.rows_of_images([m_after])
         predicted_after = after.model.data.uv_px[rows_after] + after.residuals_px[rows_after]
         ax.plot(predicted_after[:, 0], predicted_after[:, 1], "x", color="cyan", ms=6, label=f"with {top.effect}")
-    ax.set_title(f"image {image_id} (leg {data.leg[m]}, stance {data.stance[m]}, head posture "
+    ax.set_title(f"image {image_id} (target {data.target[m]}, stance {data.stance[m]}, head posture "
                  f"{data.head_posture[m]})", fontsize=10)
     ax.legend(loc="lower right", fontsize=8)
     ax.set_axis_off()
@@ -338,27 +271,14 @@ def _fmt(value, digits=3):
     return f"{value:.{digits}f}"
 
 
-def _display(name, value, unit):
-    """Value and unit for people: degrees for angles, mm for lengths, ms for time."""
-    if unit == "rad":
-        return math.degrees(value), "deg"
-    if unit == "rad/(N m)":
-        return math.degrees(value), "deg/(N m)"
-    if unit == "m":
-        return value * 1e3, "mm"
-    if unit == "s":
-        return value * 1e3, "ms"
-    return value, unit
-
-
 def _parameter_rows(fit, only_effect=None):
     rows = []
     for name, entry in fit.parameters_dict().items():
         effect = fit.registry.parameters[fit.registry.index[name]].effect
         if only_effect is not None and effect != only_effect:
             continue
-        value, unit = _display(name, entry["value"], entry["unit"])
-        std, _ = _display(name, entry["std"], entry["unit"])
+        value, unit = fit.registry.display(name, entry["value"])  # as the effect shows it: deg, mm, ms ...
+        std, _ = fit.registry.display(name, entry["std"])
         fixed = " (fixed)" if name in fit.registry.fixed else ""
         rows.append(f"<tr><td>{html.escape(name)}</td><td class=n>{value:.4f}</td><td class=n>{std:.4f}</td>"
                     f"<td>{html.escape(unit)}{fixed}</td></tr>")
@@ -379,7 +299,7 @@ img { max-width: 100%; border: 1px solid #ddd; margin: 0.3em 0; }
 def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path) -> str:
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
     data = res.model.data
-    extra = [e for e in res.registry.effects if e not in ("joint_offsets", "camera_rotation", "board_mount")]
+    extra = list(res.registry.extra_effects())
     e = html.escape
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>naocal diagnose</title>"
              f"<style>{CSS}</style></head><body>",
@@ -410,8 +330,8 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
                  + (f"<tr><th>cross-validated RMS x / y</th><td class=n>{_fmt(cv_before[0])} / {_fmt(cv_before[1])}"
                     " px</td></tr>" if cv_before is not None else "")
                  + "</table><table><tr><th>group</th><th>RMS x (px)</th><th>RMS y (px)</th><th>images</th></tr>")
-    for leg, v in c.per_leg.items():
-        parts.append(f"<tr><td>leg {e(leg)}</td><td class=n>{_fmt(v['rms_px'][0])}</td>"
+    for target, v in c.per_target.items():
+        parts.append(f"<tr><td>target {e(target)}</td><td class=n>{_fmt(v['rms_px'][0])}</td>"
                      f"<td class=n>{_fmt(v['rms_px'][1])}</td><td class=n>{v['n_images']}</td></tr>")
     for p, v in c.per_head_posture.items():
         parts.append(f"<tr><td>head posture {p}</td><td class=n>{_fmt(v['rms_px'][0])}</td>"
@@ -426,10 +346,10 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
                  f"{_fmt(loc.nonrigid_rms_px)} px: {100 * loc.rigid_share:.1f} % of the misfit moves the boards "
                  f"rigidly (kinematic chain); the rest points at the camera model or the boards.</p>"
                  f"<p>Boards: {e(loc.board_summary)}.</p>")
-    parts.append("<table><tr><th>worst images</th><th>leg</th><th>stance</th><th>head posture</th><th>RMS (px)</th>"
+    parts.append("<table><tr><th>worst images</th><th>target</th><th>stance</th><th>head posture</th><th>RMS (px)</th>"
                  "<th>rigid</th><th>non-rigid</th></tr>")
     for w in loc.worst_images:
-        parts.append(f"<tr><td>{w['image']}</td><td>{e(w['leg'])}</td><td>{w['stance']}</td>"
+        parts.append(f"<tr><td>{w['image']}</td><td>{e(w['target'])}</td><td>{w['stance']}</td>"
                      f"<td>{w['head_posture']}</td><td class=n>{_fmt(w['rms_total_px'])}</td>"
                      f"<td class=n>{_fmt(w['rigid_rms_px'])}</td><td class=n>{_fmt(w['nonrigid_rms_px'])}</td></tr>")
     parts.append("</table><table><tr><th>misfit explained by a board motion proportional to</th>"

@@ -48,11 +48,12 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         std = {n: float(s) for n, s in zip(res.registry.names, res.std)}
         lines.append("joint offsets c (stored; ADDED to commands, SUBTRACTED from readings; c = -alpha):")
         for j in LEG_JOINTS:
-            name = f"joint_offset.{j}"
-            lines.append(f"  {j:14s} c = {-_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
-        lines.append("camera rotation (alpha of Eq. 3):")
+            name = f"joint_offset.{j}"  # the parameter is c
+            lines.append(f"  {j:14s} c = {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
+        camera = res.registry.setup.cameras[0]
+        lines.append(f"{camera} camera rotation (alpha of Eq. 3):")
         for a in ("roll", "pitch", "yaw"):
-            name = f"camera.{a}"
+            name = f"camera.{camera}.{a}"
             lines.append(f"  {a:14s} {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
         lines.append("board mount (alpha of Eq. 4):")
         for leg in LEGS:
@@ -94,12 +95,13 @@ def truth_errors(result, truth: dict) -> dict:
     alpha = truth.get("alpha_rad", {})
     out = {"joint_offset_deg": {}, "camera_deg": {}, "board": {}}
     for j in LEG_JOINTS:
-        if j in alpha:
-            out["joint_offset_deg"][j] = _deg(result.value(f"joint_offset.{j}") - alpha[j])
+        if j in alpha:  # the parameter is c = -alpha
+            out["joint_offset_deg"][j] = _deg(-result.value(f"joint_offset.{j}") - alpha[j])
     cam = truth.get("camera_rotation_rad", {})
+    camera = result.registry.setup.cameras[0]
     for a in ("roll", "pitch", "yaw"):
         if a in cam:
-            out["camera_deg"][a] = _deg(result.value(f"camera.{a}") - cam[a])
+            out["camera_deg"][a] = _deg(result.value(f"camera.{camera}.{a}") - cam[a])
     for leg in LEGS:
         mount = truth.get("board_mount", {}).get(leg)
         if mount:

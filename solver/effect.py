@@ -1,0 +1,293 @@
+"""What an effect is: one model term with everything naocal knows about it, in one module of solver/effects/.
+
+An effect owns
+- its parameters (`parameters(setup)`: names, units, scales, ties) for a setup (robot description, cameras and
+  targets in use);
+- its model term and exact Jacobian, through one or more of the model's five hook points (solver/model.py):
+    joint_terms       q = theta + value * regressor, per image and joint column (offsets, play, lag, elasticity);
+    chain_terms       a joint origin of a chain moved along a direction (link lengths);
+    camera_terms      the camera's pose in its parent link: rotation (camera frame) and translation (parent frame);
+    target_terms      the target's vertices moved in the frame the target is attached to (board mount);
+    projection_terms  a camera's intrinsic components (focal lengths, principal point, distortion);
+  each hook returns plain descriptions of the term (below); the model composes them and differentiates exactly;
+- its diagnostics: plausible size, why it cannot be tested on some data, what to do when the data do not excite it,
+  and the partial-residual view of the report (`partial_residual_panels`);
+- its display (unit shown to people) and its section of the offsets file (`offsets_section`, `offsets_key`,
+  `write_offsets`, `read_offsets`).
+Adding an effect is adding one module with an `EFFECT = SomeEffect()` in solver/effects/: it is discovered there.
+
+Mock injection still lives in backends/mock.py; `mock_truth` is the hook it moves to (see its docstring).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.errors import DataError
+
+ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
+SECTIONS = ("body", "head", "targets")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One scalar model parameter.
+
+    `scale` is its typical size (conditioning of the solver: it works on value / scale).
+    `joint`, `camera`, `target` name what the parameter belongs to (None if nothing); `component` says which of
+    its effect's quantities it is (e.g. 'pitch', 'fx', 'trans_x', 'L.thigh').
+    `tied_to` names the parameter whose value this one always takes.
+    """
+
+    name: str
+    effect: str
+    unit: str
+    scale: float
+    joint: str | None = None
+    tied_to: str | None = None
+    camera: str | None = None
+    target: str | None = None
+    component: str | None = None
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What a model is made for: a robot description and the cameras and targets the data use."""
+
+    robot: object  # solver.robot.RobotDescription
+    cameras: tuple
+    targets: tuple
+
+    @classmethod
+    def default(cls, robot=None) -> "Setup":
+        """The robot's default cameras and targets (the NAO: the bottom camera and both sandals)."""
+        from solver.robot import nao
+
+        robot = robot or nao()
+        return cls(robot, tuple(robot.default_cameras), tuple(robot.default_targets))
+
+    @classmethod
+    def everything(cls, robot=None) -> "Setup":
+        """Every camera and every target of the robot: the names any file of this robot may hold."""
+        from solver.robot import nao
+
+        robot = robot or nao()
+        return cls(robot, tuple(robot.cameras), tuple(robot.targets))
+
+    def target_joints(self) -> tuple[str, ...]:
+        """Joints of the chains to the targets, in the description's joint order, without the cameras' joints:
+        the body joints whose offsets the base model identifies (the NAO's 12 leg joints)."""
+        on_targets = {j for t in self.targets for j in self.robot.target_chain(t).joint_names}
+        return tuple(j for j in self.robot.joints if j in on_targets and j not in self.camera_joints())
+
+    def camera_joints(self) -> tuple[str, ...]:
+        """Joints of the chains to the cameras (the NAO's HeadYaw and HeadPitch), in the description's order."""
+        on_cameras = {j for c in self.cameras for j in self.robot.camera_chain(c).joint_names}
+        return tuple(j for j in self.robot.joints if j in on_cameras)
+
+    def __eq__(self, other):
+        return (isinstance(other, Setup) and self.robot is other.robot and self.cameras == other.cameras
+                and self.targets == other.targets)
+
+    def __hash__(self):
+        return hash((id(self.robot), self.cameras, self.targets))
+
+
+# ------------------------------------------------------------------------------------------- hook results
+
+
+@dataclass
+class JointTerm:
+    """q[:, column] += value(param) * regressor (M,). `gravity`: the regressor is the joint's gravity torque at the
+    model's own angles (elasticity: the model solves q = q0 + C tau(q) and differentiates it implicitly)."""
+
+    param: int
+    column: int
+    regressor: np.ndarray
+    gravity: bool = False
+
+
+@dataclass
+class ChainTerm:
+    """The origin of joint `joint` (index in the chain) of the chain to `frame` moves by `delta` along the unit
+    `direction` (in the frame before that joint), carrying everything after it."""
+
+    param: int
+    frame: str  # the chain's tip link (a target's or a camera's frame)
+    joint: int
+    delta: float
+    direction: np.ndarray
+
+
+@dataclass
+class CameraTerm:
+    """A change of one camera's pose in the link it is mounted on: T_parent_cam = Trans(translation) @
+    T_parent_cam0 @ rotation. Each rotation parameter moves points as a rotation with generator `w` (3,) in the
+    camera frame (dp_cam = w x p_cam per unit of the parameter); each translation parameter moves the camera along
+    a unit vector (3,) of the parent frame."""
+
+    camera: str
+    rotation: np.ndarray | None = None  # (3, 3)
+    rotation_params: list = field(default_factory=list)  # [(param, w (3,))]
+    translation: np.ndarray | None = None  # (3,) m, in the parent link's frame
+    translation_params: list = field(default_factory=list)  # [(param, unit (3,))]
+
+
+@dataclass
+class TargetTerm:
+    """The target's vertices p (in its frame) become R p + t. Each parameter moves them by a twist in that frame:
+    dp = v + w x p per unit of the parameter, given as (param, v (3,), w (3,))."""
+
+    target: str
+    R: np.ndarray
+    t: np.ndarray
+    params: list = field(default_factory=list)
+
+
+@dataclass
+class ProjectionTerm:
+    """value(param) added to one intrinsic component (solver.camera.COMPONENTS) of one camera."""
+
+    param: int
+    camera: str
+    component: str
+    value: float
+
+
+# ------------------------------------------------------------------------------------------- display
+
+
+# How a value in an SI unit is shown to people: (shown unit, factor).
+DISPLAY_UNITS = {
+    "rad": ("deg", math.degrees(1.0)),
+    "rad/(N m)": ("deg/(N m)", math.degrees(1.0)),
+    "m": ("mm", 1e3),
+    "s": ("ms", 1e3),
+    "px": ("px", 1.0),
+    "1": ("", 1.0),
+}
+
+
+def shown(value: float, unit: str) -> tuple[float, str]:
+    """(value, unit) for people: degrees for angles, mm for lengths, ms for times."""
+    label, factor = DISPLAY_UNITS.get(unit, (unit, 1.0))
+    return value * factor, label
+
+
+# ------------------------------------------------------------------------------------------- the effect
+
+
+class Effect:
+    """Base class: an effect that does nothing. Subclasses set the attributes and override the hooks they use."""
+
+    name: str = ""
+    order: int = 100  # position among the effects (registry order, tables)
+    base: bool = False  # part of the paper's base model
+    summary: str = ""  # one line for --help and docs
+    plausible_limit: float = math.inf  # |value| beyond it (SI) a candidate is probably standing in for something else
+    non_rigid: bool = False  # it changes the projection, not the targets' poses: the noise floor removes it
+    reading_offsets: bool = False  # its parameters are offsets of the joints' readings (d r / d theta_j = -d r / dc)
+    no_signal_hint: str = "its parameters do not change any prediction"
+    # The offsets file: the section and key its values go to (None: only in model.parameters).
+    offsets_section: str | None = None
+    offsets_key: str | None = None
+    offsets_limit: float = math.inf  # largest |value| a file may hold (SI); beyond it: damaged file or unit mix-up
+
+    # -- parameters
+
+    def parameters(self, setup: Setup) -> list[Parameter]:
+        return []
+
+    def tie(self, parameter: Parameter, setup: Setup) -> str | None:
+        """The parameter this one always takes the value of when shared motors are tied (None: not tied)."""
+        return None
+
+    # -- model hooks (layout: solver.model.Layout; values: the full parameter vector)
+
+    def joint_terms(self, layout) -> list[JointTerm]:
+        return []
+
+    def chain_terms(self, layout, values) -> list[ChainTerm]:
+        return []
+
+    def camera_terms(self, layout, values) -> list[CameraTerm]:
+        return []
+
+    def target_terms(self, layout, values) -> list[TargetTerm]:
+        return []
+
+    def projection_terms(self, layout, values) -> list[ProjectionTerm]:
+        return []
+
+    # -- diagnostics
+
+    def untestable_reason(self, data) -> str:
+        """Why the effect cannot be tested (or fitted) on these data ('' if it can)."""
+        return ""
+
+    def partial_residual_panels(self, fit) -> list:
+        """The report's picture of a fit that has this effect: [(x, y, xlabel, ylabel, group of each point,
+        (line x, line y))], the partial residuals (what the effect explains plus what nothing explains) against
+        the effect's regressor, with the fitted term as a line. [] when the effect has no such picture."""
+        return []
+
+    # -- display
+
+    def display(self, parameter: Parameter, value: float) -> tuple[float, str]:
+        """(value, unit) of a parameter value for people."""
+        return shown(value, parameter.unit)
+
+    # -- offsets file
+
+    def write_offsets(self, values: dict, setup: Setup) -> dict:
+        """The content of this effect's key in its offsets section, from {parameter name: value} of its
+        parameters (only those present). Default: {component-or-joint-or-camera: value}."""
+        return {}
+
+    def read_offsets(self, content, path, where: str, robot) -> None:
+        """Validate the content of this effect's key of a file; DataError naming the field otherwise."""
+
+    # -- the mock (not used yet)
+
+    def mock_truth(self, rng, size: float, setup: Setup) -> dict:
+        """Hidden parameter values of a simulated robot with this effect of `size` ({name: value}).
+
+        Not used yet: backends/mock.py still injects effects itself (its own physics: PyBullet masses, servo
+        tracks, a rendered camera). When that moves here, the mock draws each effect's truth from this method
+        and applies it through the effect's physical counterpart.
+        """
+        raise NotImplementedError(f"{self.name}: the mock injects this effect itself (backends/mock.py)")
+
+
+# ------------------------------------------------------------------------------------------- helpers for effects
+
+
+def check_number(value, path, where, *, limit=math.inf, unit="1") -> float:
+    """A finite number within +-limit, else DataError naming the field (saying which unit mix-up is likely)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise DataError(path, f"expected a finite number, got {str(value)[:40]}", field=where)
+    if abs(value) > limit:
+        if unit == "rad":
+            raise DataError(path, f"implausible size {math.degrees(value):.3f} deg (limit +-{math.degrees(limit):g} "
+                                  "deg); is it in degrees instead of radians?", field=where)
+        if unit == "m":
+            raise DataError(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?",
+                            field=where)
+        raise DataError(path, f"implausible size {value:g} {unit} (limit +-{limit:g})", field=where)
+    return float(value)
+
+
+def check_object(value, path, where, allowed=None, required=()) -> dict:
+    if not isinstance(value, dict):
+        raise DataError(path, f"expected a JSON object, got {str(value)[:40]}", field=where)
+    if allowed is not None:
+        for key in value:
+            if key not in allowed:
+                raise DataError(path, f"unknown field (allowed: {', '.join(allowed)})", field=f"{where}.{key}")
+    for key in required:
+        if key not in value:
+            raise DataError(path, "missing required field", field=f"{where}.{key}")
+    return value

@@ -1,0 +1,63 @@
+"""The effects: one module per model term (solver/effect.py says what a module holds), discovered here.
+
+Every module of this package whose name does not start with '_' defines `EFFECT`, an instance of a subclass of
+solver.effect.Effect. `EFFECTS` maps names to them in their `order`; the base model (the paper's) is the effects
+with `base = True`, the others are the candidates the diagnostics can add.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+from solver.errors import NaocalError
+
+
+def _discover() -> dict:
+    found = []
+    for module in pkgutil.iter_modules(__path__):
+        if module.name.startswith("_"):
+            continue
+        effect = getattr(importlib.import_module(f"{__name__}.{module.name}"), "EFFECT", None)
+        if effect is None:
+            raise ImportError(f"solver/effects/{module.name}.py defines no EFFECT")
+        found.append(effect)
+    names = [e.name for e in found]
+    if len(set(names)) != len(names):
+        raise ImportError(f"two effects share a name: {sorted(names)}")
+    return {e.name: e for e in sorted(found, key=lambda e: (e.order, e.name))}
+
+
+EFFECTS = _discover()
+BASE_EFFECTS = tuple(name for name, e in EFFECTS.items() if e.base)
+EXTRA_EFFECTS = tuple(name for name, e in EFFECTS.items() if not e.base)
+ALL_EFFECTS = BASE_EFFECTS + EXTRA_EFFECTS
+
+
+def effect(name: str):
+    """The effect called `name`; NaocalError listing the known ones otherwise."""
+    try:
+        return EFFECTS[name]
+    except KeyError:
+        raise NaocalError(f"unknown effect '{name}' (known: {', '.join(ALL_EFFECTS)})") from None
+
+
+def parse_effect_names(text) -> tuple[str, ...]:
+    """'elasticity,backlash' (or a list of names) -> ('elasticity', 'backlash'): the candidate effects to add to the
+    base model; NaocalError for unknown names and for the base model's own effects."""
+    if text is None or text == "":
+        return ()
+    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text) if n.strip()]
+    for name in names:
+        if name not in EXTRA_EFFECTS:
+            hint = " (it is part of the base model)" if name in BASE_EFFECTS else ""
+            raise NaocalError(f"unknown effect '{name}'{hint}; known effects: {', '.join(EXTRA_EFFECTS)}")
+    return tuple(dict.fromkeys(names))
+
+
+def owner_of(name: str, setup) -> object | None:
+    """The effect whose parameters for `setup` include `name` (None if none)."""
+    for e in EFFECTS.values():
+        if any(p.name == name for p in e.parameters(setup)):
+            return e
+    return None

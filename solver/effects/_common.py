@@ -1,0 +1,81 @@
+"""Pieces several effects share: per-joint parameters and file sections, and the apparent-offset picture."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solver.effect import Parameter, check_number, check_object
+
+
+def per_joint(effect, prefix: str, joints, unit: str, scale: float) -> list[Parameter]:
+    """One parameter `<prefix>.<joint>` per joint."""
+    return [Parameter(f"{prefix}.{j}", effect.name, unit, scale, joint=j) for j in joints]
+
+
+def joint_section(effect, values: dict, setup) -> dict:
+    """{joint: value} of the effect's per-joint parameters present in `values`."""
+    return {p.joint: float(values[p.name]) for p in effect.parameters(setup) if p.name in values}
+
+
+def read_joint_section(effect, content, path, where, robot, unit: str) -> None:
+    """{joint: value}: joints of the robot description, finite values within the effect's file limit."""
+    check_object(content, path, where)
+    for joint, value in content.items():
+        if joint not in robot.joints:
+            raise _unknown(path, f"{where}.{joint}", "joint", robot.joints)
+        check_number(value, path, f"{where}.{joint}", limit=effect.offsets_limit, unit=unit)
+
+
+def per_name_section(values: dict, parameters, key) -> dict:
+    """{key(p): {component: value}} of the parameters present in `values` (e.g. per camera or per target)."""
+    out = {}
+    for p in parameters:
+        if p.name in values:
+            out.setdefault(key(p), {})[p.component] = float(values[p.name])
+    return out
+
+
+def read_per_name_section(content, path, where, names, components, limits, units, *, complete=True) -> None:
+    """{name: {component: value}} with names from `names`, every component (when `complete`) within its limit."""
+    check_object(content, path, where)
+    for name, entry in content.items():
+        if name not in names:
+            raise _unknown(path, f"{where}.{name}", "name", names)
+        check_object(entry, path, f"{where}.{name}", allowed=components, required=components if complete else ())
+        for component, value in entry.items():
+            check_number(value, path, f"{where}.{name}.{component}", limit=limits[component], unit=units[component])
+
+
+def _unknown(path, where, what, known):
+    from solver.errors import DataError
+
+    return DataError(path, f"unknown {what} (allowed: {', '.join(known)})", field=where)
+
+
+def apparent_offset_panels(fit, prefix: str, joints, regressor, xlabel, *, jitter=0.0, slope_from_value=True):
+    """Panels of the apparent per-image error of each joint (the fitted term `<prefix>.<joint>` plus what remains)
+    against a per-image regressor (M,) of that joint: `regressor(column)`, labelled `xlabel(joint)`."""
+    from solver.diagnostics import apparent_errors, partial_residuals
+
+    data = fit.model.data
+    panels = []
+    for k, joint in enumerate(joints):
+        term = f"{prefix}.{joint}"
+        offset = _offset_name(fit, joint)
+        # the apparent c of the joint: the fitted term is -dq, so q_true = theta - c_apparent
+        c_apparent = apparent_errors(fit, [offset], partial_residuals(fit, [term]))[:, 0]
+        ok = np.isfinite(c_apparent)
+        x = regressor(data.column(joint))
+        value = fit.value(term)
+        slope, const = (value, 0.0) if slope_from_value else (0.0, value)
+        xs = np.linspace(np.min(x[ok]), np.max(x[ok]), 2) if ok.any() else np.zeros(2)
+        shake = np.random.default_rng(k).uniform(-jitter, jitter, ok.sum()) if jitter else 0.0
+        # shown as the apparent joint error alpha = -c: what the term adds to the joint angle
+        panels.append((x[ok] + shake, np.degrees(-c_apparent[ok]), xlabel(joint), f"apparent {joint} error (deg)",
+                       data.target[ok], (xs, np.degrees(const + slope * xs) * (1 if slope_from_value else -1))))
+    return panels
+
+
+def _offset_name(fit, joint):
+    setup = fit.registry.setup
+    return ("head_offset." if joint in setup.camera_joints() else "joint_offset.") + joint

@@ -1,0 +1,65 @@
+"""Intrinsics: corrections of each camera's focal lengths and principal point to the dataset's prior.
+
+    (u, v) = (cx + dcx + (fx + dfx) * xd, cy + dcy + (fy + dfy) * yd)
+"""
+
+import numpy as np
+
+from solver.effect import Effect, Parameter, ProjectionTerm
+from solver.effects._common import per_name_section, read_per_name_section
+
+COMPONENTS = ("fx", "fy", "cx", "cy")
+
+
+
+def _getter(fit, prefix):
+    """value(component) of the fit's parameter prefix + component, 0 when the fit has none."""
+    return lambda k: fit.value(prefix + k) if prefix + k in fit.registry.index else 0.0
+
+
+class Intrinsics(Effect):
+    name = "intrinsics"
+    order = 50
+    summary = "corrections of each camera's fx, fy, cx, cy to the prior"
+    non_rigid = True
+    plausible_limit = 60.0  # px: 10 % of the focal length
+    offsets_section, offsets_key = "head", "intrinsics_correction_px"
+    offsets_limit = 200.0
+
+    def parameters(self, setup):
+        return [Parameter(f"intrinsics.{cam}.{k}", self.name, "px", 5.0, camera=cam, component=k)
+                for cam in setup.cameras for k in COMPONENTS]
+
+    def projection_terms(self, layout, values):
+        return [ProjectionTerm(i, p.camera, p.component, float(values[i])) for i, p in layout.params(self.name)
+                if p.camera in layout.cameras]
+
+    def partial_residual_panels(self, fit):
+        from solver.diagnostics import partial_residuals
+
+        data = fit.model.data
+        r_off = partial_residuals(fit, [self.name])
+        groups = data.target[data.image_of_row]
+        panels = []
+        for cam in np.unique(data.camera):
+            rows = data.camera[data.image_of_row] == cam
+            intr = data.cameras[cam]
+            get = _getter(fit, f"intrinsics.{cam}.")
+            for axis, (f, c, fk, ck) in enumerate((("fx_px", "cx_px", "fx", "cx"), ("fy_px", "cy_px", "fy", "cy"))):
+                d = data.uv_px[rows, axis] - intr[c]
+                xs = np.array([d.min(), d.max()])
+                panels.append((d, r_off[rows, axis], f"{'u - cx' if axis == 0 else 'v - cy'} (px), {cam}",
+                               f"partial residual {'x' if axis == 0 else 'y'} (px)", groups[rows],
+                               (xs, -(get(fk) * xs / intr[f] + get(ck)))))
+        return panels
+
+    def write_offsets(self, values, setup):
+        return per_name_section(values, self.parameters(setup), lambda p: p.camera)
+
+    def read_offsets(self, content, path, where, robot):
+        read_per_name_section(content, path, where, tuple(robot.cameras), COMPONENTS,
+                              dict.fromkeys(COMPONENTS, self.offsets_limit), dict.fromkeys(COMPONENTS, "px"),
+                              complete=False)
+
+
+EFFECT = Intrinsics()

@@ -1,0 +1,68 @@
+"""Link lengths: a link longer than the URDF says, by delta along its own direction.
+
+    the origin of the joint at the link's end moves by delta along the link (its origin offset's direction)
+
+The robot description names the links (`link_lengths`: label -> the joint at the link's end): the NAO's thigh
+(hip to knee) and tibia (knee to ankle) of each leg, `link_length.L.thigh` etc.
+"""
+
+import numpy as np
+
+from solver.effect import ChainTerm, Effect, Parameter, check_number, check_object
+
+
+def _links(setup):
+    """(label, joint) of the description's links on the chains in use, in the description's order."""
+    on_chains = set(setup.target_joints()) | set(setup.camera_joints())
+    return [(label, joint) for label, joint in setup.robot.link_lengths.items() if joint in on_chains]
+
+
+class LinkLengths(Effect):
+    name = "link_lengths"
+    order = 30
+    summary = "length error of the links the robot description names (the NAO's thigh and tibia per leg)"
+    plausible_limit = 0.01  # m
+    offsets_section, offsets_key = "body", "link_lengths_m"
+    offsets_limit = 0.03
+
+    def parameters(self, setup):
+        return [Parameter(f"link_length.{label}", self.name, "m", 0.002, joint=joint, component=label)
+                for label, joint in _links(setup)]
+
+    def chain_terms(self, layout, values):
+        terms = []
+        for i, p in layout.params(self.name):
+            for frame, chain in layout.chains_in_use():
+                if p.joint in chain.joint_names:
+                    k = chain.index(p.joint)
+                    offset = chain.T_origin[k][:3, 3]
+                    terms.append(ChainTerm(i, frame, k, float(values[i]), offset / np.linalg.norm(offset)))
+        return terms
+
+    def partial_residual_panels(self, fit):
+        from solver.diagnostics import apparent_errors, partial_residuals
+
+        data = fit.model.data
+        panels = []
+        for p in fit.registry.parameters:
+            if p.effect != self.name:
+                continue
+            error = apparent_errors(fit, [p.name], partial_residuals(fit, [p.name]))[:, 0]
+            ok = np.isfinite(error)
+            angle = data.theta[:, data.column(p.joint)]
+            if ok.any():
+                xs = np.array([angle[ok].min(), angle[ok].max()])
+                panels.append((angle[ok], error[ok] * 1e3, f"{p.joint} angle (rad)", f"apparent {p.component} (mm)",
+                               data.target[ok], (xs, np.full(2, fit.value(p.name) * 1e3))))
+        return panels
+
+    def write_offsets(self, values, setup):
+        return {p.component: float(values[p.name]) for p in self.parameters(setup) if p.name in values}
+
+    def read_offsets(self, content, path, where, robot):
+        check_object(content, path, where, allowed=tuple(robot.link_lengths))
+        for label, value in content.items():
+            check_number(value, path, f"{where}.{label}", limit=self.offsets_limit, unit="m")
+
+
+EFFECT = LinkLengths()

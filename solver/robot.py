@@ -1,0 +1,402 @@
+"""The robot description: what naocal knows about a robot, from its URDF plus a small documented config.
+
+A description (`solver/data/nao.json` for the NAO; the format is docs/ROBOT.md) names
+- `joints`: the joints a dataset reads, in its column order;
+- `shared_motors`: joints driven by one motor and read by one sensor (the NAO's two HipYawPitch joints);
+- `chains`: named serial chains, each from a URDF base link to a tip link (any serial chain of the URDF works);
+- `cameras`: each camera's frame (a URDF link, NAO camera convention: x optical axis, y left, z up), prior
+  intrinsics, image size and rolling-shutter readout time (a documented prior: the model treats images as global
+  shutter, so the robot must be still while one is exposed);
+- `targets`: boards (columns x rows squares of square_m, colours, mass) attached to a URDF frame at a nominal pose,
+  with `load` saying whether the chain to that frame hangs free (its distal links and the board load its joints:
+  the robot on its back with sandals) or carries the body (a standing robot's support foot);
+- `gravity_mps2`: the default gravity in the base frame (per image in a dataset, when it says so).
+
+Everything else (joint origins, axes, masses, centres of mass) comes from the URDF. Nothing in the solver knows
+more about a NAO than this file says.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from solver.errors import DataError
+from solver.transforms import make_transform, rot_rpy
+from solver.urdf import Urdf, parse_urdf
+
+SCHEMA = "naocal.robot/1"
+DATA_DIR = Path(__file__).with_name("data")
+MOVABLE = ("revolute", "continuous")
+LOADS = ("hanging", "supporting")
+
+
+@dataclass(frozen=True)
+class Chain:
+    """Movable joints from a base link to a tip link, fixed joints folded into their neighbours.
+
+    T_origin[k] is the pose of joint k's frame in the frame before it (the previous joint's child frame, or the
+    base), before rotating about axes[k]; T_end is the tip's pose in the last joint's child frame (in the base
+    frame when the chain has no movable joint). link_mass[k] and link_com[k] (in joint k's child frame) describe
+    the URDF link joint k moves (links hanging off it through fixed joints, 2 mg sensor frames on the NAO, are
+    not counted).
+    """
+
+    base: str
+    tip: str
+    joint_names: tuple[str, ...]
+    T_origin: np.ndarray  # (k, 4, 4)
+    axes: np.ndarray  # (k, 3) unit axes in the joint frames
+    T_end: np.ndarray  # (4, 4)
+    link_mass: np.ndarray  # (k,) kg
+    link_com: np.ndarray  # (k, 3) m
+
+    def index(self, joint: str) -> int:
+        return self.joint_names.index(joint)
+
+
+@dataclass(frozen=True)
+class Board:
+    """A checkerboard: columns x rows squares of square_m; (columns - 1) x (rows - 1) inner vertices."""
+
+    columns: int
+    rows: int
+    square_m: float
+    colours: tuple[str, str] = ("black", "white")
+    mass_kg: float = 0.0
+
+    @property
+    def n_vertices(self) -> int:
+        return (self.columns - 1) * (self.rows - 1)
+
+    def vertices(self) -> np.ndarray:
+        """Inner vertices in the board frame (origin at the board centre, z = 0 on the printed face), (n, 3).
+
+        Vertex index = row * (columns - 1) + col; col counts along +x of the board, row along +y; vertex 0 has the
+        smallest x and y.
+        """
+        cols = np.arange(self.columns - 1) - (self.columns - 2) / 2.0
+        rows = np.arange(self.rows - 1) - (self.rows - 2) / 2.0
+        xx, yy = np.broadcast_arrays(cols[None, :] * self.square_m, rows[:, None] * self.square_m)
+        return np.stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)], axis=-1)
+
+
+@dataclass(frozen=True)
+class Target:
+    """A board attached to a URDF frame (`frame`) at the nominal pose T_frame_board."""
+
+    name: str
+    frame: str
+    board: Board
+    T_frame_board: np.ndarray  # (4, 4)
+    load: str = "hanging"  # "hanging": the chain to `frame` hangs free; "supporting": it carries the body
+    about: str = ""
+
+    def vertices(self) -> np.ndarray:
+        """Nominal inner vertices in the target's frame (`frame`), (n, 3), in the board's vertex order."""
+        V = self.board.vertices()
+        return V @ self.T_frame_board[:3, :3].T + self.T_frame_board[:3, 3]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The board centre in the target's frame (where its mass acts), (3,)."""
+        return self.T_frame_board[:3, 3].copy()
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A camera: its URDF frame (NAO camera convention) and its prior intrinsics."""
+
+    name: str
+    frame: str
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)  # OpenCV (k1, k2, p1, p2, k3)
+    readout_s: float = 0.0  # rolling shutter: time between the first and the last row's exposure (prior)
+
+    def intrinsics(self) -> dict:
+        """The prior intrinsics as the dict the camera model and the datasets use."""
+        return {"width_px": self.width_px, "height_px": self.height_px, "fx_px": self.fx_px, "fy_px": self.fy_px,
+                "cx_px": self.cx_px, "cy_px": self.cy_px, "distortion": [float(d) for d in self.distortion]}
+
+
+@dataclass(frozen=True, eq=False)  # compared and hashed by identity: one object per loaded file
+class RobotDescription:
+    name: str
+    path: Path
+    urdf: Urdf
+    base: str
+    joints: tuple[str, ...]
+    shared_motors: tuple[tuple[str, ...], ...]
+    chains: dict  # name -> (base link, tip link)
+    cameras: dict  # name -> Camera
+    targets: dict  # name -> Target
+    default_cameras: tuple[str, ...]
+    default_targets: tuple[str, ...]
+    gravity_mps2: tuple[float, float, float]
+    link_lengths: dict = field(default_factory=dict)  # "<chain label>.<link>" -> joint whose origin it lengthens
+
+    # -- chains
+
+    def chain(self, tip: str, base: str | None = None) -> Chain:
+        """The serial chain from `base` (default: the description's base link) to the URDF link `tip`."""
+        return _chain(self, base or self.base, tip)
+
+    def named_chain(self, name: str) -> Chain:
+        base, tip = self.chains[name]
+        return self.chain(tip, base)
+
+    def camera_chain(self, camera: str) -> Chain:
+        return self.chain(self.camera(camera).frame)
+
+    def target_chain(self, target: str) -> Chain:
+        return self.chain(self.target(target).frame)
+
+    # -- look-ups with clear errors
+
+    def camera(self, name: str) -> Camera:
+        try:
+            return self.cameras[name]
+        except KeyError:
+            raise DataError(self.path, f"unknown camera {name!r} (this robot has {', '.join(self.cameras)})",
+                            field="cameras") from None
+
+    def target(self, name: str) -> Target:
+        try:
+            return self.targets[name]
+        except KeyError:
+            raise DataError(self.path, f"unknown target {name!r} (this robot has {', '.join(self.targets)})",
+                            field="targets") from None
+
+    def joint_limits(self, joint: str) -> tuple[float, float]:
+        j = self.urdf.joints[joint]
+        return j.lower, j.upper
+
+    def motor_partner(self, joint: str) -> str | None:
+        """The first joint of `joint`'s shared motor when it is not `joint` itself (the one it follows), else None."""
+        for group in self.shared_motors:
+            if joint in group and joint != group[0]:
+                return group[0]
+        return None
+
+
+# ------------------------------------------------------------------------------------------------ chains
+
+
+def _joint_origin(joint) -> np.ndarray:
+    return make_transform(rot_rpy(*joint.rpy), joint.xyz)
+
+
+@functools.lru_cache(maxsize=None)
+def _chain(robot: RobotDescription, base: str, tip: str) -> Chain:
+    urdf = robot.urdf
+    by_child = {j.child: j for j in urdf.joints.values()}
+    path_joints = []
+    link = tip
+    while link != base:
+        joint = by_child.get(link)
+        if joint is None:
+            raise DataError(robot.path, f"no chain from {base!r} to {tip!r} in the URDF (stopped at {link!r})",
+                            field="chains")
+        if joint.kind not in MOVABLE + ("fixed",):
+            raise DataError(robot.path, f"joint {joint.name!r} is {joint.kind}: only revolute, continuous and "
+                                        "fixed joints are supported", field="chains")
+        path_joints.append(joint)
+        link = joint.parent
+    path_joints.reverse()
+    names, origins, axes, masses, coms = [], [], [], [], []
+    pending = np.eye(4)  # fixed transforms since the last movable joint
+    for joint in path_joints:
+        pending = pending @ _joint_origin(joint)
+        if joint.kind == "fixed":
+            continue
+        names.append(joint.name)
+        origins.append(pending)
+        axes.append(joint.axis)
+        child = urdf.links.get(joint.child)
+        masses.append(child.mass if child is not None else 0.0)
+        coms.append(child.com if child is not None else (0.0, 0.0, 0.0))
+        pending = np.eye(4)
+    k = len(names)
+    return Chain(base=base, tip=tip, joint_names=tuple(names),
+                 T_origin=np.stack(origins) if k else np.zeros((0, 4, 4)),
+                 axes=np.array(axes, dtype=float).reshape(k, 3), T_end=pending,
+                 link_mass=np.array(masses, dtype=float), link_com=np.array(coms, dtype=float).reshape(k, 3))
+
+
+# ------------------------------------------------------------------------------------------------ loading
+
+
+def _fail(path, problem, where):
+    raise DataError(path, problem, field=where)
+
+
+def _object(value, path, where) -> dict:
+    if not isinstance(value, dict):
+        _fail(path, "expected a JSON object", where)
+    return value
+
+
+def _number(value, path, where, *, positive=False, non_negative=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        _fail(path, f"expected a finite number, got {value!r}", where)
+    if positive and value <= 0:
+        _fail(path, f"must be positive, got {value!r}", where)
+    if non_negative and value < 0:
+        _fail(path, f"must not be negative, got {value!r}", where)
+    return float(value)
+
+
+def _vector(value, n, path, where) -> tuple:
+    if not isinstance(value, list) or len(value) != n:
+        _fail(path, f"expected a list of {n} numbers", where)
+    return tuple(_number(v, path, f"{where}[{i}]") for i, v in enumerate(value))
+
+
+def _names(value, path, where) -> tuple:
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        _fail(path, "expected a list of names", where)
+    if len(set(value)) != len(value):
+        _fail(path, "a name is listed twice", where)
+    return tuple(value)
+
+
+def _link(urdf: Urdf, name, path, where) -> str:
+    links = {j.child for j in urdf.joints.values()} | {j.parent for j in urdf.joints.values()}
+    if not isinstance(name, str) or name not in links:
+        _fail(path, f"no link {name!r} in the URDF", where)
+    return name
+
+
+def _keys(obj, required, optional, path, where):
+    for key in obj:
+        if key not in required and key not in optional:
+            _fail(path, f"unknown field (expected {', '.join(list(required) + list(optional))})", f"{where}.{key}")
+    for key in required:
+        if key not in obj:
+            _fail(path, "missing required field", f"{where}.{key}")
+
+
+def parse_robot(doc, path) -> RobotDescription:
+    """A RobotDescription from a `naocal.robot/1` document; DataError naming the file and field otherwise."""
+    doc = _object(doc, path, "(top level)")
+    _keys(doc, ("schema", "name", "urdf", "base", "joints", "cameras", "targets"),
+          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2"),
+          path, "")
+    if doc["schema"] != SCHEMA:
+        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
+    if not isinstance(doc["urdf"], str) or "/" in doc["urdf"] or doc["urdf"].startswith("."):
+        _fail(path, "expected the name of a URDF file beside this one", "urdf")
+    urdf = parse_urdf(Path(path).with_name(doc["urdf"]))
+    base = _link(urdf, doc["base"], path, "base")
+    joints = _names(doc["joints"], path, "joints")
+    for i, joint in enumerate(joints):
+        if joint not in urdf.joints or urdf.joints[joint].kind not in MOVABLE:
+            _fail(path, f"{joint!r} is not a revolute joint of the URDF", f"joints[{i}]")
+    shared = []
+    for i, group in enumerate(doc.get("shared_motors", [])):
+        group = _names(group, path, f"shared_motors[{i}]")
+        if len(group) < 2 or any(j not in joints for j in group):
+            _fail(path, "expected two or more joints of `joints`", f"shared_motors[{i}]")
+        shared.append(group)
+    chains = {}
+    for name, chain in _object(doc.get("chains", {}), path, "chains").items():
+        chain = _object(chain, path, f"chains.{name}")
+        _keys(chain, ("base", "tip"), (), path, f"chains.{name}")
+        chains[name] = (_link(urdf, chain["base"], path, f"chains.{name}.base"),
+                        _link(urdf, chain["tip"], path, f"chains.{name}.tip"))
+    link_lengths = {}
+    for name, joint in _object(doc.get("link_lengths", {}), path, "link_lengths").items():
+        if joint not in joints:
+            _fail(path, f"{joint!r} is not one of `joints`", f"link_lengths.{name}")
+        link_lengths[name] = joint
+    cameras = {}
+    for name, cam in _object(doc["cameras"], path, "cameras").items():
+        where = f"cameras.{name}"
+        cam = _object(cam, path, where)
+        _keys(cam, ("frame", "width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px"),
+              ("distortion", "readout_s"), path, where)
+        cameras[name] = Camera(
+            name=name, frame=_link(urdf, cam["frame"], path, f"{where}.frame"),
+            width_px=int(_number(cam["width_px"], path, f"{where}.width_px", positive=True)),
+            height_px=int(_number(cam["height_px"], path, f"{where}.height_px", positive=True)),
+            fx_px=_number(cam["fx_px"], path, f"{where}.fx_px", positive=True),
+            fy_px=_number(cam["fy_px"], path, f"{where}.fy_px", positive=True),
+            cx_px=_number(cam["cx_px"], path, f"{where}.cx_px"), cy_px=_number(cam["cy_px"], path, f"{where}.cy_px"),
+            distortion=_vector(cam.get("distortion", [0.0] * 5), 5, path, f"{where}.distortion"),
+            readout_s=_number(cam.get("readout_s", 0.0), path, f"{where}.readout_s", non_negative=True))
+    targets = {}
+    for name, tgt in _object(doc["targets"], path, "targets").items():
+        where = f"targets.{name}"
+        tgt = _object(tgt, path, where)
+        _keys(tgt, ("frame", "board", "pose"), ("about", "load"), path, where)
+        board = _object(tgt["board"], path, f"{where}.board")
+        _keys(board, ("columns", "rows", "square_m"), ("colours", "mass_kg"), path, f"{where}.board")
+        size = [int(_number(board[k], path, f"{where}.board.{k}", positive=True)) for k in ("columns", "rows")]
+        if min(size) < 2:
+            _fail(path, "a board needs at least 2 squares each way", f"{where}.board")
+        colours = _names(board.get("colours", ["black", "white"]), path, f"{where}.board.colours")
+        pose = _object(tgt["pose"], path, f"{where}.pose")
+        _keys(pose, ("xyz", "rpy"), (), path, f"{where}.pose")
+        load = tgt.get("load", "hanging")
+        if load not in LOADS:
+            _fail(path, f"expected one of {', '.join(LOADS)}", f"{where}.load")
+        targets[name] = Target(
+            name=name, frame=_link(urdf, tgt["frame"], path, f"{where}.frame"),
+            board=Board(size[0], size[1], _number(board["square_m"], path, f"{where}.board.square_m", positive=True),
+                        tuple(colours), _number(board.get("mass_kg", 0.0), path, f"{where}.board.mass_kg",
+                                                non_negative=True)),
+            T_frame_board=make_transform(rot_rpy(*_vector(pose["rpy"], 3, path, f"{where}.pose.rpy")),
+                                         _vector(pose["xyz"], 3, path, f"{where}.pose.xyz")),
+            load=load, about=str(tgt.get("about", "")))
+    default_cameras = _names(doc.get("default_cameras", list(cameras)[:1]), path, "default_cameras")
+    default_targets = _names(doc.get("default_targets", list(targets)), path, "default_targets")
+    for where, names, known in (("default_cameras", default_cameras, cameras),
+                                ("default_targets", default_targets, targets)):
+        for n in names:
+            if n not in known:
+                _fail(path, f"{n!r} is not defined", where)
+    robot = RobotDescription(
+        name=str(doc["name"]), path=Path(path), urdf=urdf, base=base, joints=joints, shared_motors=tuple(shared),
+        chains=chains, cameras=cameras, targets=targets, default_cameras=default_cameras,
+        default_targets=default_targets,
+        gravity_mps2=_vector(doc.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, path, "gravity_mps2"),
+        link_lengths=link_lengths)
+    for name, cam in cameras.items():  # every frame must hang off the base by a serial chain
+        robot.camera_chain(name)
+    for name in targets:
+        robot.target_chain(name)
+    return robot
+
+
+def load_robot(name_or_path) -> RobotDescription:
+    """A robot description by name ('nao': solver/data/nao.json) or by the path of its JSON file."""
+    path = DATA_DIR / f"{name_or_path}.json" if "/" not in str(name_or_path) and not str(
+        name_or_path).endswith(".json") else Path(name_or_path)
+    return _load(str(path))
+
+
+@functools.lru_cache(maxsize=8)
+def _load(path: str) -> RobotDescription:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise DataError(path, f"cannot read the robot description: {err}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise DataError(path, f"invalid JSON: {err.msg} (column {err.colno})", line=err.lineno) from None
+    return parse_robot(doc, path)
+
+
+def nao() -> RobotDescription:
+    """The NAO (solver/data/nao.json)."""
+    return load_robot("nao")

@@ -1,0 +1,102 @@
+"""camera_translation (solver/effects/camera_translation.py): recovered from synthetic data, named by the
+diagnostics when it is the hidden error, written to the head's section of the offsets file. (Its gradient, file
+section and completeness are checked with every other effect in tests/test_effects.py.)"""
+
+import functools
+import json
+
+import numpy as np
+import pytest
+
+import tools.cli
+from solver.crossval import grouped_cv_rms
+from solver.dataset import write_dataset
+from solver.diagnostics import rank_candidates
+from solver.errors import DataError
+from solver.identify import identify
+from solver.offsets import read_offsets
+from solver.registry import Registry
+from solver.synthetic import dataset_parts, random_truth, synthesize
+
+NOISE_PX = 0.1
+SHIFT = ("camera.bottom.trans_x", "camera.bottom.trans_y", "camera.bottom.trans_z")
+
+
+@functools.lru_cache(maxsize=None)
+def hidden(seed=11):
+    """A NAO whose bottom camera sits 3-5 mm off its nominal place on each axis (the paper's plan, 0.1 px)."""
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    truth.update({name: rng.choice([-1.0, 1.0]) * rng.uniform(0.003, 0.005) for name in SHIFT})
+    return synthesize(rng, truth, effects=("camera_translation",), pixel_noise_px=NOISE_PX), truth
+
+
+def test_identification_recovers_the_camera_position():
+    data, truth = hidden()
+    fit = identify(data, Registry(("camera_translation",)))
+    assert fit.success
+    for name in SHIFT:
+        std = fit.std[fit.registry.index[name]]
+        assert abs(fit.value(name) - truth[name]) < max(4 * std, 5e-5), (name, fit.value(name), truth[name], std)
+    assert max(fit.rms_px) < 1.1 * NOISE_PX
+    assert max(grouped_cv_rms(data, fit.registry)) < 1.1 * NOISE_PX  # on stances the fit did not see
+
+
+def test_diagnose_names_it_when_it_is_the_hidden_error():
+    data, _ = hidden()
+    base = identify(data, Registry())
+    assert min(base.rms_px) > 5 * NOISE_PX  # the paper's model cannot absorb it
+    ranking = rank_candidates(base)
+    top = ranking[0]
+    assert top.effect == "camera_translation" and top.significant and top.plausible, [
+        (c.effect, c.predicted_rms_px) for c in ranking]
+    assert top.predicted_rms_px < 1.1 * NOISE_PX
+    assert top.predicted_rms_px < 0.5 * min(c.predicted_rms_px for c in ranking[1:] if c.testable)
+    after = rank_candidates(identify(data, Registry(("camera_translation",))))
+    assert not any(c.significant for c in after)
+
+
+def test_not_named_when_absent():
+    rng = np.random.default_rng(5)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=NOISE_PX)
+    candidate = next(c for c in rank_candidates(identify(data, Registry())) if c.effect == "camera_translation")
+    assert not candidate.significant
+
+
+def test_identify_writes_it_to_the_heads_section(tmp_path, capsys):
+    data, truth = hidden()
+    write_dataset(dataset_parts(data, pixel_noise_px=NOISE_PX), tmp_path / "ds")
+    out = tmp_path / "offsets.json"
+    code = tools.cli.main(["identify", str(tmp_path / "ds"), "--effects", "camera_translation", "--cv-folds", "0",
+                           "--out", str(out)])
+    assert code == 0
+    assert "camera.bottom.trans_x" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    section = doc["head"]["camera_translation_m"]["bottom"]
+    for name in SHIFT:
+        assert section[name.rsplit(".", 1)[1]] == pytest.approx(truth[name], abs=1e-4)
+    assert doc["model"]["effects"] == ["camera_translation"]
+    offsets = read_offsets(out)
+    assert offsets.head["camera_translation_m"] == doc["head"]["camera_translation_m"]
+    doc["head"]["camera_translation_m"]["bottom"]["trans_z"] = 4.5  # mm written as m
+    out.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="mm instead of m") as info:
+        read_offsets(out)
+    assert info.value.field == "head.camera_translation_m.bottom.trans_z"
+
+
+def test_offsets_show_lists_it(tmp_path, capsys):
+    """`naocal offsets show` shows every fitted parameter that has no table of its own (the camera's rotation has)."""
+    from solver.offsets import offsets_from_parameters, write_offsets
+
+    params = {f"camera.bottom.{a}": {"value": -0.05, "std": 1e-4, "unit": "rad"} for a in ("roll", "pitch", "yaw")}
+    params.update({f"camera.bottom.trans_{a}": {"value": v, "std": 1e-5, "unit": "m"}
+                   for a, v in (("x", 0.001), ("y", -0.002), ("z", 0.0042))})
+    write_offsets(offsets_from_parameters(params, robot={"id": "nao"}, fit={"rms_px": [0.1, 0.1], "n_vertices": 1,
+                                                                             "n_images": 1},
+                                          effects=["camera_translation"]), tmp_path / "o.json")
+    assert tools.cli.main(["offsets", "show", str(tmp_path / "o.json")]) == 0
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if "camera.bottom.trans_z" in line)
+    assert "4.20000" in line and "mm" in line
+    assert not any("camera.bottom.pitch" in line for line in out.splitlines())  # in the rotation table instead
