@@ -226,9 +226,9 @@ def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
 
 
 def default_intrinsics(realism: Realism | str = IDEAL) -> CameraIntrinsics:
-    """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json, a
-    real NAO head: fx = fy = 618 px, centre (320, 240)) unless the realism idealises the focal length (the ideal
-    mock: 600 px)."""
+    """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json: fx =
+    fy = 600 px, centre (320, 240)) with the realism's prior focal length if it has one (realistic: a real NAO
+    head's 618 px)."""
     from solver.camera import default_intrinsics as prior
 
     d = prior("bottom")
@@ -356,8 +356,8 @@ class MockBackend(Backend):
     command_delay_s : a command starts moving the joints this long after it is given.
     safety_margin_m : parts of the true body (and the ground) closer than this make a motion unsafe.
     supersample : anti-aliasing of the boards (sub-pixels per pixel and axis).
-    nominal_intrinsics : the camera's prior intrinsics (default: `default_intrinsics(realism)`, fx = fy = 600 px
-        ideal, the robot description's 618 px realistic; cx, cy = 320, 240).
+    nominal_intrinsics : the camera's prior intrinsics (default: `default_intrinsics(realism)`, the robot
+        description's fx = fy = 600 px ideal, 618 px realistic; cx, cy = 320, 240).
     posture : starting joint angles (command space) replacing those of DEFAULT_POSTURE.
     """
 

@@ -36,7 +36,7 @@ class Realism:
             system with this decay time constant 1 / (zeta * omega_n) and damping ratio zeta (None: exactly).
     Camera
         prior_focal_px : the camera's prior fx = fy (the intrinsics the agent is given); None: the robot
-            description's (solver/data/nao.json: a real NAO head's).
+            description's (solver/data/nao.json, 600 px: the camera the solver was built on).
         focal_error_px, principal_error_px : the true fx, fy (cx, cy) differ from the prior by up to this.
         readout_s : rows are exposed one after another over this long (0: a global shutter).
         stamp_delay_s : B-Human's imageRecordingDelay d: the first row is exposed at stamp - readout - d.
@@ -62,7 +62,7 @@ class Realism:
     servo_stiffness_nm_per_rad: float | None = None
     servo_time_constant_s: float | None = None
     servo_damping: float = 0.7
-    prior_focal_px: float | None = 600.0  # the idealised camera the solver was built on
+    prior_focal_px: float | None = None
     focal_error_px: float = 0.0
     principal_error_px: float = 0.0
     readout_s: float = 0.0
@@ -143,7 +143,7 @@ REALISTIC = Realism(
     servo_stiffness_nm_per_rad=1300.0,  # not published: the largest lying-leg load (1.4 N m) pulls ~0.7 step
     servo_time_constant_s=0.025,
     servo_damping=0.7,  # 4.6 % overshoot to a step, settled (2 %) within about 0.1 s
-    prior_focal_px=None,  # the robot description's 618 px (B-Human / HULKs: fx 618.7, fy 617.2 at 640 x 480)
+    prior_focal_px=618.0,  # B-Human / HULKs: fx 618.7, fy 617.2 at 640 x 480
     focal_error_px=1.5,
     principal_error_px=2.0,
     readout_s=0.045,  # B-Human cameraTimings, lower camera: imageRecordingTime 0.045 s

@@ -132,8 +132,7 @@ def _true_model_pixels(mock, leg, theta14):
     for side, mount in truth["board_mount"].items():
         values.update({f"board.{side}.rot_z": mount["rot_z_rad"], f"board.{side}.trans_x": mount["trans_x_m"],
                        f"board.{side}.trans_y": mount["trans_y_m"]})
-    data = make_model_data(np.asarray(theta14)[None], np.array([leg]), np.array([0]), np.array([0]),
-                           intrinsics=mock.intrinsics().to_dict())  # the ideal mock's camera, not a real head's
+    data = make_model_data(np.asarray(theta14)[None], np.array([leg]), np.array([0]), np.array([0]))
     return Model(data, registry).residuals(registry.from_dict(values))
 
 

@@ -317,15 +317,15 @@ def test_real_size_offsets_fit_the_offsets_file_and_its_limit_is_the_effects(tmp
     assert info.value.field == "body.joint_offsets_rad.LHipYawPitch" and "implausible" in str(info.value)
 
 
-def test_the_realistic_mock_camera_prior_is_the_robot_description():
-    """A real NAO head's prior (fx = fy = 618 px) lives in the robot description; the realistic mock reports it,
-    the ideal mock keeps its idealised 600 px."""
+
+def test_the_mock_camera_prior_is_the_robot_description():
+    """The mock reports the robot description's prior intrinsics (one home for the camera priors); the realistic
+    mock changes only the focal length, to a real NAO head's 618 px."""
     from backends.mock import default_intrinsics
     from solver.robot import nao
 
     prior = nao().camera("bottom").intrinsics()
-    assert prior["fx_px"] == prior["fy_px"] == 618.0
-    realistic = default_intrinsics("realistic")
-    assert (realistic.fx_px, realistic.fy_px, realistic.cx_px, realistic.cy_px) == (
-        prior["fx_px"], prior["fy_px"], prior["cx_px"], prior["cy_px"])
-    assert default_intrinsics("ideal").fx_px == default_intrinsics().fy_px == 600.0
+    for realism, focal in (("ideal", prior["fx_px"]), ("realistic", 618.0)):
+        mock = default_intrinsics(realism)
+        assert (mock.width_px, mock.height_px, mock.fx_px, mock.fy_px, mock.cx_px, mock.cy_px) == (
+            prior["width_px"], prior["height_px"], focal, focal, prior["cx_px"], prior["cy_px"]), realism
