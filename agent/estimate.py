@@ -11,9 +11,11 @@ starting the second leg does not throw away what the first taught.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 
+from solver.effects import EFFECTS
 from solver.errors import SolveError
 from solver.identify import identify
 from solver.joints import JOINTS, LEGS, leg_joints
@@ -34,8 +36,8 @@ class RunningEstimate:
     camera_prior : {"roll", "pitch", "yaw"} rad to start from (the planner's prior camera rotation).
     """
 
-    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 12, min_leg_fit: int = 6,
-                 camera_prior=None):
+    def __init__(self, intrinsics: dict, *, refit_every: int = 6, min_full_fit: int = 9, min_leg_fit: int = 6,
+                 camera_prior=None, max_joint_offset_rad: float = EFFECTS["joint_offsets"].offsets_limit):
         self.intrinsics = dict(intrinsics)
         self.intrinsics.setdefault("distortion", [0.0] * 5)
         self.values = FULL.zeros()
@@ -46,7 +48,11 @@ class RunningEstimate:
         self.min_leg_fit = min_leg_fit  # captures of a leg before its offsets and sandal mount are fitted
         self.known_legs: frozenset = frozenset()  # legs whose offsets and mount the current values have fitted
         self.n_fitted = 0  # captures the current values were fitted to (0: nominal model)
+        self.rms_px = (float("inf"), float("inf"))  # the current values' fit RMS (u, v)
         self.scope = "nominal"
+        self.std = FULL.zeros()  # standard deviations of `values` from their fit (0: not fitted)
+        self.covariance = np.zeros((len(FULL.names), len(FULL.names)))  # ... and their covariance
+        self.max_joint_offset_rad = float(max_joint_offset_rad)  # a fit claiming more is not believed
         self._theta, self._leg, self._uv = [], [], []
 
     @property
@@ -77,7 +83,33 @@ class RunningEstimate:
         for leg in self.known_legs:
             for joint in leg_joints(leg):
                 alpha[JOINTS.index(joint)] = -self.values[FULL.index[f"joint_offset.{joint}"]]  # alpha = -c
+        if len(self.known_legs) == 1:  # one HipYawPitch motor: the fitted leg's offset is the other's too
+            known = next(iter(self.known_legs))
+            alpha[[JOINTS.index(f"{leg}HipYawPitch") for leg in LEGS]] = alpha[JOINTS.index(f"{known}HipYawPitch")]
         return alpha
+
+    def joint_covariance(self, prior14, *, n_std: float = 4.0, floor_rad: float = np.radians(0.1)) -> np.ndarray:
+        """(14, 14) covariance (rad^2) of the joints' true offsets around joint_alpha(), for the safety check (which
+        keeps 3 standard deviations away): prior14 (14, 14) for the joints of a leg not fitted yet; for a fitted
+        leg the fit's covariance scaled so that 3 of the check's standard deviations are n_std of the fit's, plus
+        floor_rad (read as 3 standard deviations) for what the fit does not know. Both HipYawPitch joints are one
+        motor: once either leg is fitted, its offset and variance hold for both."""
+        C = np.asarray(prior14, dtype=float).copy()
+        known = [JOINTS.index(j) for leg in self.known_legs for j in leg_joints(leg)]
+        if not known:
+            return C
+        rows = [FULL.index[f"joint_offset.{JOINTS[k]}"] for k in known]
+        C[known, :] = 0.0
+        C[:, known] = 0.0
+        C[np.ix_(known, known)] = self.covariance[np.ix_(rows, rows)] * (n_std / 3.0) ** 2
+        C[known, known] += (floor_rad / 3.0) ** 2
+        hyp = [JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]
+        fitted = hyp[0] if "L" in self.known_legs else hyp[1]
+        other = hyp[1] if fitted == hyp[0] else hyp[0]
+        C[other, :] = C[fitted, :]  # the other HipYawPitch joint: the same motor, the same offset
+        C[:, other] = C[:, fitted]
+        C[other, other] = C[fitted, fitted]
+        return C
 
     def board_mounts(self) -> dict:
         """{leg: (rot_z rad, trans_x m, trans_y m)} as estimated; zero for a leg not fitted yet."""
@@ -105,6 +137,26 @@ class RunningEstimate:
                 or not self._seen(leg)):  # the first capture of a leg: refit at once
             self.refit()
 
+    def _without_outliers(self, data):
+        """data without the vertices the current values miss by far more than the rest (a corner found a square
+        off or on a reflection: real detectors do that now and then), so that one bad corner cannot pull the
+        estimate the safety check and the detector rely on. Far: beyond 6 robust standard deviations and 4 px.
+        Only the boards of legs the current values have fitted are judged (a leg joining the fit is missed by
+        its unknown offsets, not by its corners), and never more than 5 % of them: beyond that the values are
+        off, not the corners."""
+        miss = np.linalg.norm(Model(data, FULL).residuals(self.values).reshape(-1, 2), axis=1)
+        judged = np.isin(data.target[data.image_of_row], list(self.known_legs))
+        if not judged.any():
+            return data
+        limit = max(4.0, 6.0 * 1.4826 * float(np.median(miss[judged])))
+        keep = ~judged | (miss <= limit)
+        if keep.all() or (~keep).sum() > 0.05 * judged.sum():
+            return data
+        log.info("running estimate: %d of %d vertices left out (missed by more than %.1f px)", int((~keep).sum()),
+                 len(keep), limit)
+        return replace(data, image_of_row=data.image_of_row[keep], vertex=data.vertex[keep],
+                       uv_px=data.uv_px[keep], p_mount=data.p_mount[keep])
+
     def refit(self) -> None:
         n = len(self._theta)
         if n == 0:
@@ -125,15 +177,28 @@ class RunningEstimate:
             data = make_model_data(np.array(self._theta)[images], legs[images], np.arange(len(images)),
                                    np.zeros(len(images), dtype=int), intrinsics=self.intrinsics)
             data.uv_px = np.concatenate([self._uv[m] for m in images])
+            if registry is full and self.known_legs:
+                data = self._without_outliers(data)
             try:
                 result = identify(data, registry, x0=self.values if registry is full else None)
             except SolveError:
                 continue
             joints = [result.value(n) for n in result.registry.names if n.startswith("joint_offset.")]
-            plausible = bool(np.all(np.abs(joints) < np.radians(10.0)))
+            plausible = bool(np.all(np.abs(joints) < self.max_joint_offset_rad))
             if result.success and max(result.rms_px) < 20.0 and plausible:
                 self.values = FULL.from_dict({name: result.value(name) for name in result.registry.names})
+                std = dict(zip(result.registry.names, result.std))
+                self.std = np.array([std.get(name, 0.0) for name in FULL.names])
+                expand = result.registry.expand  # free parameters -> the registry's names
+                covariance = expand @ result.covariance @ expand.T
+                where = [result.registry.names.index(name) if name in result.registry.names else -1
+                         for name in FULL.names]
+                self.covariance = np.zeros((len(FULL.names), len(FULL.names)))
+                ok = np.array([w >= 0 for w in where])
+                idx = np.array([w for w in where if w >= 0])
+                self.covariance[np.ix_(ok, ok)] = covariance[np.ix_(idx, idx)]
                 self.n_fitted = n
+                self.rms_px = tuple(result.rms_px)
                 self.scope = scope
                 self.known_legs = frozenset(leg for leg in LEGS if leg not in learning and registry is full)
                 log.info("running estimate refitted to %d of %d captures (%s): RMS %.2f / %.2f px", len(images),

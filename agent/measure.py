@@ -8,6 +8,7 @@ is retried with a small head move; after `detection_tries` the capture is skippe
 A sweep (the lag probe): from rest at its start, move slowly to its end while sampling the joints at their full
 rate and taking images on the way; each image's joint angles are interpolated to its exposure time and its joint
 velocities recorded (vel_<Joint> columns), so that a lag between the image and joint clocks becomes measurable.
+A sweep comes when every joint offset is known well enough for the plain safety check (at the end, if not before).
 """
 
 from __future__ import annotations
@@ -21,14 +22,16 @@ import numpy as np
 from agent.corners import detect_board_vertices
 from agent.estimate import RunningEstimate
 from agent.plan import Plan, Still, Sweep
+from agent.planner import PlanSettings
 from agent.progress import ProgressBar
 from agent.record import CaptureRecord, CaptureStore
 from agent.robot import Robot
-from agent.visibility import view_margin_px
+from agent.safety import prior_covariance
+from agent.visibility import OcclusionChecker, view_margin_px
 from solver.errors import SafetyError
 from solver.joints import JOINTS
 from solver.limits import head_pitch_limits
-from solver.model import HEAD_COLUMNS
+from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +60,7 @@ class MeasureSettings:
     aim_margin_px: float = 15.0  # re-aim the head before a capture whose board the estimate puts this near the edge
     search_margin_px_nominal: float = 120.0  # before the first fit the camera may be off by degrees
     search_margin_px_fitted: float = 40.0
+    known_fit_rms_px: float = 2.0  # the estimate predicts a leg's board well enough for the narrow margin
     wait_for_still_image: bool = True  # False pairs still joints with an older image: only to show the error
     sweep_fit_halfwidth_s: float = 0.05  # joint samples within this of an exposure give its angle and velocity
 
@@ -75,9 +79,13 @@ class Measurement:
         self.settings = settings
         self.progress = progress
         self.intrinsics = estimate.intrinsics
+        stored = PlanSettings.from_dict(plan.settings)  # the plausible offsets the plan was made for
+        self.offset_prior = prior_covariance(np.radians(stored.hip_yaw_pitch_offset_prior_deg),
+                                             np.radians(stored.leg_offset_prior_deg))
         self.session_start_s = robot.now()
         self.n_saved = 0
         self.n_skipped = 0
+        self._substitutes: dict = {}  # (leg, stance) -> leg angles (6,) replacing a stance unsafe on this robot
 
     # --- bookkeeping -------------------------------------------------------------------------------------------
     def session_time_s(self) -> float:
@@ -107,7 +115,8 @@ class Measurement:
     def _update_guard(self) -> None:
         """Let the safety check use what the estimate knows: joints truly stand at command + alpha, sandals sit
         where they are mounted."""
-        self.robot.guard.set_true_offset(self.estimate.joint_alpha(), known=self.estimate.offsets_known())
+        self.robot.guard.set_true_offset(self.estimate.joint_alpha(), known=self.estimate.offsets_known(),
+                                         covariance14=self.estimate.joint_covariance(self.offset_prior))
         if self.robot.guard.set_board_mounts(self.estimate.board_mounts()):
             log.info("safety check updated with the estimated sandal mounts")
 
@@ -118,14 +127,32 @@ class Measurement:
             log.info("resuming: %d of %d captures already done", len(done & set(self.plan.image_indices())),
                      self.plan.n_images())
         self._tick()
-        for step in self.plan.steps:
+        deferred: list[Still] = []  # refused while the leg's offsets were too uncertain: tried again later
+        sweeps: list[Sweep] = []  # lag probes put off until the offsets are known
+        steps = list(self.plan.steps)
+        for k, step in enumerate(steps):
             if all(i in done for i in step.images):
                 continue
             if isinstance(step, Still):
-                self.still(step)
+                if self.still(step, may_defer=True) == "deferred":
+                    deferred.append(step)
+            elif self.robot.guard.uncertain():  # a slow sweep needs clear ways: once every offset is known
+                sweeps.append(step)
             else:
                 self.sweep(step, done)
             done = self.store.done_images()
+            following = steps[k + 1] if k + 1 < len(steps) else None
+            if deferred and (following is None or following.leg != step.leg or not isinstance(following, Still)):
+                self.estimate.refit()  # the leg's other stances have taught the estimate where it truly is
+                self._update_guard()
+                for again in deferred:
+                    self.still(again)
+                    done = self.store.done_images()
+                    self._tick()
+                deferred = []
+            self._tick()
+        for step in sweeps:
+            self.sweep(step, self.store.done_images())
             self._tick()
         try:
             self.robot.move(self.robot.parked)  # leave the robot in a safe posture
@@ -135,26 +162,47 @@ class Measurement:
             self.progress.finish(f"robot time {self.robot_time_s():6.1f} s")
 
     def _search_margin(self, leg: str, attempt: int = 0) -> float:
-        """How far the board may lie from the prediction: wide until the estimate has seen this leg, and wider
-        with every retry."""
+        """How far the board may lie from the prediction: wide until the estimate has seen this leg and fits it
+        to a pixel or two, and wider with every retry (up to three times the wide margin while it has not: real
+        offsets move an unseen board by a hundred pixels and more)."""
         s = self.settings
-        base = s.search_margin_px_fitted if self.estimate.knows(leg) else s.search_margin_px_nominal
-        return min(base * (1 + attempt), s.search_margin_px_nominal)
+        known = self.estimate.knows(leg) and max(self.estimate.rms_px) < s.known_fit_rms_px
+        base = s.search_margin_px_fitted if known else s.search_margin_px_nominal
+        return min(base * (1 + attempt), s.search_margin_px_nominal * (1 if known else 3))
 
     def _detect(self, image, leg, theta14, attempt: int = 0):
         predicted = self.estimate.predict(leg, theta14)
         return self.detector(image, predicted, leg, self._search_margin(leg, attempt)), predicted
 
     # --- still captures ----------------------------------------------------------------------------------------
-    def still(self, step: Still) -> None:
-        target = self.aim(step.angles(), step.leg)
+    def still(self, step: Still, *, may_defer: bool = False) -> str:
+        """Capture one planned still image; 'saved', 'skipped', or 'deferred' (`may_defer`: the move was refused
+        only because the joint offsets are not known well enough yet). A stance that is unsafe on this robot (its
+        offsets move the legs by centimetres from the nominal model the plan was made on) is replaced by a nearby
+        one the estimate says is safe and sees the board (`substitute`), the same for all its head postures."""
+        planned = self._substituted(step)
+        target = self.aim(planned, step.leg)
         reasons = []
         for attempt in range(self.settings.detection_tries):
             try:
                 rest = self.robot.move(target)
             except SafetyError as err:
-                reasons.append(str(err))
-                break
+                if may_defer and attempt == 0 and self.robot.guard.uncertain():
+                    log.info("capture %d deferred until the offsets are better known: %s", step.image, err)
+                    return "deferred"
+                replacement = self.substitute(step) if attempt == 0 and step.leg in self.estimate.known_legs else None
+                if replacement is not None:
+                    log.info("capture %d: the planned stance is unsafe on this robot (%s); a nearby one instead",
+                             step.image, err)
+                    target = self.aim(replacement, step.leg)
+                    try:
+                        rest = self.robot.move(target)
+                    except SafetyError as again:
+                        reasons.append(f"{err}; the substitute too: {again}")
+                        break
+                else:
+                    reasons.append(str(err))
+                    break
             if self.settings.wait_for_still_image:
                 image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s)
             else:
@@ -169,7 +217,7 @@ class Measurement:
                 self._save(record, image.pixels)
                 self.estimate.add(step.leg, theta, record.vertices_px)
                 self._update_guard()
-                return
+                return "saved"
             reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
             log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
                      detection.reason, detection.detail)
@@ -178,6 +226,60 @@ class Measurement:
                 reasons.append("no safe head move left to retry with")
                 break
         self._skip(step.image, "; ".join(reasons))
+        return "skipped"
+
+    def _substituted(self, step: Still) -> np.ndarray:
+        """The step's posture, with its stance's substitute leg angles if it has one."""
+        q = np.asarray(step.angles(), dtype=float)
+        legs = self._substitutes.get((step.leg, step.stance))
+        if legs is not None:
+            q = q.copy()
+            q[LEG_COLUMNS[step.leg]] = legs
+            q[[JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]] = legs[0]  # one motor
+        return q
+
+    def substitute(self, step: Still, *, tries_per_scale: int = 25) -> np.ndarray | None:
+        """A posture near the step's that the guard accepts (at the estimated offsets, with their uncertainty) and
+        in which the estimate sees the whole board (all vertices 30 px inside the image, squares of 12 px, nothing
+        of the robot in between), or None. Deterministic from the image index; remembered for the whole stance."""
+        base = np.asarray(step.angles(), dtype=float)
+        cols = LEG_COLUMNS[step.leg]
+        guard = self.robot.guard
+        rng = np.random.default_rng([step.image, 6007])
+        hyp = [JOINTS.index("LHipYawPitch"), JOINTS.index("RHipYawPitch")]
+        occlusion = OcclusionChecker(guard.checker.body)
+        alpha = self.estimate.joint_alpha()
+        ways_tried = 0
+        for scale in (0.08, 0.16, 0.3):
+            for _ in range(tries_per_scale):
+                if ways_tried == 4:  # finding a way is the costly part: a few candidates only
+                    return None
+                q = base.copy()
+                q[cols] = np.clip(q[cols] + rng.normal(0.0, scale, len(cols)), guard.lower[cols] + 0.03,
+                                  guard.upper[cols] - 0.03)
+                q[hyp] = q[cols[0]]
+                if not self._board_in_view(q, step.leg) or guard.problem(q) is not None:
+                    continue
+                if occlusion.hidden_points(q + alpha, step.leg):
+                    continue
+                ways_tried += 1
+                try:  # and there is a way to it
+                    guard.waypoints(self.robot.commanded, q, self.robot.speed_fraction, self.robot.parked)
+                except SafetyError:
+                    continue
+                self._substitutes[(step.leg, step.stance)] = q[cols].copy()
+                return q
+        return None
+
+    def _board_in_view(self, q14, leg, margin_px: float = 30.0, min_square_px: float = 12.0) -> bool:
+        uv = self.estimate.predict(leg, q14)
+        if not np.all(np.isfinite(uv)):
+            return False
+        if view_margin_px(uv[None], self.intrinsics["width_px"], self.intrinsics["height_px"])[0] < margin_px:
+            return False
+        grid = uv.reshape(4, 6, 2)
+        return min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+                   np.linalg.norm(np.diff(grid, axis=1), axis=-1).min()) >= min_square_px
 
     def _head_ok(self, q14) -> bool:
         return self.robot.guard.problem(q14) is None

@@ -36,7 +36,7 @@ import numpy as np
 from agent.design import (BASE_REGISTRY, greedy_d_optimal, log_det, matching_count, predicted_std,
                           stance_information)
 from agent.plan import Plan, Still, Sweep
-from agent.safety import SafetyGuard
+from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
 from agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
 from backends.pybullet_body import CollisionChecker, NaoBody
 from backends.pybullet_quiet import pybullet
@@ -52,9 +52,11 @@ log = logging.getLogger(__name__)
 
 LEG_END_PARTS = ("Sandal", "Foot", "Tibia")
 
-# Both legs out of the camera's way, spread a little (no leg-leg contact) and lifted off the ground; head resting.
-PARKED = {"LHipRoll": 0.35, "LHipPitch": -0.3, "RHipRoll": -0.35, "RHipPitch": -0.3,
-          "HeadYaw": 0.0, "HeadPitch": 0.42}
+# Both legs out of the camera's way, spread wide with the soles turned outwards and lifted off the ground; head
+# resting. Wide, because a HipYawPitch offset of 12 deg (real robots carry that) turns both feet towards each other:
+# the sandals keep their margins for any such offset (agent.safety.worst_case_clearance).
+PARKED = {"LHipRoll": 0.6, "LHipPitch": -0.3, "LAnkleRoll": 0.2, "RHipRoll": -0.6, "RHipPitch": -0.3,
+          "RAnkleRoll": -0.2, "HeadYaw": 0.0, "HeadPitch": 0.42}
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,12 @@ class PlanSettings:
     camera_prior_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": -0.1, "yaw": 0.0})
     max_tilt_deg: float = 60.0
     min_square_px: float = 12.0
+    # The offsets a real robot may carry before they are measured (the agent's worst-case safety check): HipYawPitch
+    # up to about 12 deg (HULKs' bodies: -0.07 and -0.2 rad), the other leg joints a few degrees.
+    hip_yaw_pitch_offset_prior_deg: float = 12.0
+    leg_offset_prior_deg: float = 3.0
+    early_stances_per_leg: int = 2  # each leg's first stances keep their margins whatever those offsets are
+    robust_margin_m: float = 0.010  # the margin of that worst case (the agent's own check uses 8 mm)
     speed_fraction: float = 0.4  # what the measurement will use: for ordering and the time estimate
     sigma_px: float = 0.1  # design: detector noise
     encoder_resolution_deg: float = 0.1  # design: encoder quantisation
@@ -109,11 +117,13 @@ class PlanSettings:
 
 @dataclass
 class Candidate:
-    """A feasible stance: leg angles (6,) and its head postures (H, 2), nominal-model checked."""
+    """A feasible stance: leg angles (6,) and its head postures (H, 2), nominal-model checked; `early`: it keeps its
+    margins before any offset is known (it may open its leg's measurement)."""
 
     leg: str
     q_leg: np.ndarray
     heads: np.ndarray
+    early: bool = False
 
     def stances(self, parked: np.ndarray) -> np.ndarray:
         """(H, 14) full postures, one per head posture."""
@@ -152,6 +162,8 @@ class Planner:
         self.paths = SafetyGuard(self.limits, CollisionChecker(self.body, margin_m=settings.path_collision_margin_m,
                                                                ground_margin_m=settings.path_ground_margin_m),
                                  self.speeds)
+        self.robust = CollisionChecker(self.body, margin_m=settings.robust_margin_m,
+                                       ground_margin_m=settings.robust_margin_m)
         self.parked = parked_posture()
         if not self.stance_ok(self.parked):
             raise AssertionError("the parked posture is not safe: fix agent.planner.PARKED")
@@ -186,6 +198,24 @@ class Planner:
                                              physicsClientId=self.body.client):
                     return False
         return True
+
+    def offset_covariance(self, leg: str, early: bool) -> np.ndarray:
+        """(14, 14) how uncertain the joint offsets are while `leg` is measured (legs in LEGS order): before its first
+        fit (`early`) its own and, for the first leg, the other leg's and HipYawPitch's are unknown; afterwards
+        only the legs not measured yet are (HipYawPitch, one motor, is known with the first leg)."""
+        s = self.settings
+        first = leg == LEGS[0]
+        other = LEGS[1] if first else LEGS[0]
+        unknown = ((leg, other) if first else (leg,)) if early else ((other,) if first else ())
+        return prior_covariance(np.radians(s.hip_yaw_pitch_offset_prior_deg), np.radians(s.leg_offset_prior_deg),
+                                unknown_legs=unknown, hip_yaw_pitch_unknown=early and first)
+
+    def robust_ok(self, Q14, covariance14) -> bool:
+        """Every posture of Q14 (k, 14) keeps robust_margin_m 3 standard deviations of the offsets away
+        (agent.safety.worst_case_clearance)."""
+        if not np.any(covariance14):
+            return True
+        return all(worst_case_clearance(self.robust, q, covariance14)[0] >= 0.0 for q in np.atleast_2d(Q14))
 
     def views_ok(self, Q14, leg) -> np.ndarray:
         """(N,) the view rules for postures Q14 (N, 14) looking at `leg`'s board (nominal model)."""
@@ -234,8 +264,11 @@ class Planner:
             return None
         return heads[chosen]
 
-    def candidates(self, leg: str, rng, n_wanted: int, *, max_batches=400, batch=256) -> list[Candidate]:
-        """`n_wanted` feasible stances of `leg` in random order (deterministic from rng)."""
+    def candidates(self, leg: str, rng, n_wanted: int, *, max_batches=400, batch=256,
+                   early_only: bool = False) -> list[Candidate]:
+        """`n_wanted` feasible stances of `leg` in random order (deterministic from rng): they keep their margins
+        for the offsets still unknown when the agent gets to them (`offset_covariance`, not early); those that
+        keep them before anything is known are marked `early` (`early_only`: only those)."""
         s = self.settings
         names = leg_joints(leg)
         lo = np.array([self.limits[j][0] for j in names]) + s.joint_margin_rad
@@ -249,10 +282,18 @@ class Planner:
                 if not self.stance_ok(with_leg(self.parked, leg, q[i])):
                     continue
                 chosen = self._spread_heads(leg, q[i], heads, visible[i], rng)
-                if chosen is not None:
-                    found.append(Candidate(leg, q[i].copy(), chosen))
-                    if len(found) == n_wanted:
-                        return found
+                if chosen is None:
+                    continue
+                cand = Candidate(leg, q[i].copy(), chosen)
+                postures = cand.stances(self.parked)
+                if not self.robust_ok(postures, self.offset_covariance(leg, early=False)):
+                    continue
+                cand.early = self.robust_ok(postures, self.offset_covariance(leg, early=True))
+                if early_only and not cand.early:
+                    continue
+                found.append(cand)
+                if len(found) == n_wanted:
+                    return found
         raise RuntimeError(f"found only {len(found)} of {n_wanted} feasible stances for leg {leg}: "
                            "are the view rules or margins too strict?")
 
@@ -264,7 +305,23 @@ class Planner:
         return float(np.max(np.abs(np.asarray(b14) - np.asarray(a14)) / v))
 
     def order(self, cands: list[Candidate], start14: np.ndarray) -> list[int]:
-        """Visit order of one leg's stances: short total motion along clear paths, approach directions of every
+        """Visit order of one leg's stances: first `early_stances_per_leg` early ones (the nearest in turn), which
+        teach the agent the offsets; then the rest as `tour` orders them."""
+        k = self.settings.early_stances_per_leg
+        first: list[int] = []
+        position = np.asarray(start14, dtype=float)
+        v = np.array([self.speeds[j] for j in JOINTS]) * self.settings.speed_fraction
+        while len(first) < k:
+            early = [i for i, c in enumerate(cands) if c.early and i not in first]
+            if not early:
+                break
+            first.append(min(early, key=lambda i: (np.max(np.abs(cands[i].stances(self.parked)[0] - position) / v), i)))
+            position = cands[first[-1]].stances(self.parked)[-1]
+        rest = [i for i in range(len(cands)) if i not in first]
+        return first + [rest[i] for i in self.tour([cands[i] for i in rest], position)]
+
+    def tour(self, cands: list[Candidate], start14: np.ndarray) -> list[int]:
+        """Visit order of stances: short total motion along clear paths, approach directions of every
         leg joint balanced.
 
         A transition whose path is not clear (agent.safety.SafetyGuard.path_clear, both motion models) costs a
@@ -376,6 +433,13 @@ class Planner:
         pools = {leg: self.candidates(leg, rng, n_pool + s.verification_per_leg) for leg in LEGS}
         verification_cands = {leg: pools[leg][n_pool:] for leg in LEGS}
         pools = {leg: pools[leg][:n_pool] for leg in LEGS}
+        for leg in LEGS:  # enough stances to open each leg's measurement before its offsets are known
+            missing = min(s.early_stances_per_leg, n_pool) - sum(c.early for c in pools[leg])
+            if missing > 0:
+                extra = self.candidates(leg, rng, missing, early_only=True)
+                late = [i for i, c in enumerate(pools[leg]) if not c.early][-missing:]
+                for i, cand in zip(late, extra):
+                    pools[leg][i] = cand
         stats: dict = {}
         if s.kind == "paper":
             selected = pools
@@ -414,6 +478,10 @@ class Planner:
             "paper_predicted_std": dict(zip(BASE_REGISTRY.names, predicted_std(reference).tolist())),
         }
         selected = {leg: [flat[k] for k in chosen if flat[k].leg == leg] for leg in LEGS}
+        for leg in LEGS:  # each leg opens with stances that are safe before its offsets are known
+            missing = s.early_stances_per_leg - sum(c.early for c in selected[leg])
+            spare = [c for c in pools[leg] if c.early and not any(c is d for d in selected[leg])]
+            selected[leg] += spare[:max(missing, 0)]
         log.info("D-optimal design: %d stances match the paper plan's %d (%s)", n, len(paper_idx), counts)
         return selected, design
 

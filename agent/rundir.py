@@ -148,15 +148,15 @@ def entries(directory: Path) -> list[str]:
 
 
 def calibrate_record(*, backend: str, mock_seed: int | None, effects: dict, plan: str, plan_seed: int,
-                     stances_per_leg: int, probe: bool) -> dict:
-    """The options that define a calibration run (DIR/run.json)."""
-    return {"schema": RECORD_SCHEMA, "verb": "calibrate", "backend": backend, "mock_seed": mock_seed,
+                     stances_per_leg: int, probe: bool, mock: str | None = None) -> dict:
+    """The options that define a calibration run (DIR/run.json); `mock` the mock's realism (None: no mock)."""
+    return {"schema": RECORD_SCHEMA, "verb": "calibrate", "backend": backend, "mock_seed": mock_seed, "mock": mock,
             "effects": {k: float(v) for k, v in sorted(effects.items())}, "plan": plan, "plan_seed": plan_seed,
             "stances_per_leg": stances_per_leg, "probe": probe}
 
 
 RECORD_OPTIONS = {  # record key -> how the command line says it
-    "backend": "--backend", "mock_seed": "--seed", "effects": "--effect", "plan": "--plan",
+    "backend": "--backend", "mock_seed": "--seed", "mock": "--mock", "effects": "--effect", "plan": "--plan",
     "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe"}
 
 
@@ -176,7 +176,10 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
         doc = _read_json(record_path)
         if not isinstance(doc, dict) or doc.get("schema") != RECORD_SCHEMA:
             raise NaocalError(f"{record_path}: not a {RECORD_SCHEMA} file; is {directory} a calibration run?")
-        return {k: doc[k] for k in RECORD_OPTIONS if k in doc}, str(record_path)
+        record = {k: doc[k] for k in RECORD_OPTIONS if k in doc}
+        if record.get("backend") == "mock" and "mock" not in record:
+            record["mock"] = _recorded_realism(directory)  # run.json from before --mock
+        return record, str(record_path)
     record, sources = {}, []
     if plan is not None:
         record.update(plan_seed=plan.seed, plan=plan.kind)
@@ -188,6 +191,7 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
     if truth_path.exists():
         truth = _read_json(truth_path)
         record["backend"] = "mock"
+        record["mock"] = _recorded_realism(directory)
         if isinstance(truth, dict) and isinstance(truth.get("effects"), dict):
             record["effects"] = {k: float(v) for k, v in sorted(truth["effects"].items())}
         sources.append(str(truth_path))
@@ -199,6 +203,16 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
             record["mock_seed"] = int(robot_id[5:])
             sources.append(str(meta_path))
     return record, " and ".join(sources)
+
+
+def _recorded_realism(directory: Path) -> str:
+    """The realism of the mock a run without `mock` in run.json used: truth_effects.json names a realistic one,
+    anything else was the ideal mock (the only one before --mock)."""
+    path = directory / "truth_effects.json"
+    doc = _read_json(path) if path.exists() else None
+    settings = doc.get("realism", {}).get("settings", {}) if isinstance(doc, dict) else {}
+    name = settings.get("name", "ideal") if isinstance(settings, dict) else "ideal"
+    return name if name in ("ideal", "realistic") else "ideal"
 
 
 def mismatches(recorded: dict, wanted: dict) -> list[str]:
@@ -218,7 +232,7 @@ def mismatches(recorded: dict, wanted: dict) -> list[str]:
 def _shown(key, value) -> str:
     if key == "effects":
         return " ".join(f"{k}={v!r}" for k, v in value.items()) if value else "none"
-    if key == "mock_seed" and value is None:
+    if key in ("mock_seed", "mock") and value is None:
         return "none (no mock)"
     return str(value)
 

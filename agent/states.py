@@ -45,11 +45,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Thresholds:
-    """When an identification is plausible enough to compensate with."""
+    """When an identification is plausible enough to compensate with (beyond a max_: refused), and when it is
+    unusual enough to say so (beyond a warn_: a warning, and the offsets are used). Real robots: HipYawPitch offsets
+    up to 11.5 deg (HULKs), camera pitch corrections -6..+2 deg with outliers of 7-14 deg (docs/MOCK.md)."""
 
     max_rms_px: float = 5.0  # the paper's real robot kept ~3 px; far more means a wrong model or bad data
-    max_joint_offset_rad: float = MAX_JOINT_OFFSET_RAD
-    max_camera_rotation_rad: float = MAX_CAMERA_ROTATION_RAD
+    max_joint_offset_rad: float = MAX_JOINT_OFFSET_RAD  # 20 deg, the offsets file's own limit
+    warn_joint_offset_rad: float = math.radians(8.0)
+    max_camera_rotation_rad: float = MAX_CAMERA_ROTATION_RAD  # 15 deg
+    warn_camera_rotation_rad: float = math.radians(7.0)
     max_board_trans_m: float = MAX_BOARD_TRANS_M
     max_board_rot_z_rad: float = MAX_BOARD_ROT_Z_RAD
     max_joint_offset_std_rad: float = math.radians(0.5)  # an offset known worse than this is no calibration
@@ -187,7 +191,8 @@ class Modelling(State):
         backend.set_stiffness(list(backend.joint_names()), 1.0)
         ctx.robot = Robot(backend, make_guard(backend, s, body), plan.parked(), s.timing, s.speed_fraction)
         stored = PlanSettings.from_dict(plan.settings)
-        ctx.estimate = RunningEstimate(stored.intrinsics, camera_prior=stored.camera_prior_rad)
+        ctx.estimate = RunningEstimate(stored.intrinsics, camera_prior=stored.camera_prior_rad,
+                                       max_joint_offset_rad=s.thresholds.max_joint_offset_rad)
         ctx.plan = plan
         return Outcome("ok")
 
@@ -276,7 +281,22 @@ class Identification(State):
         why = implausible(result, s.thresholds)
         if why:
             return Outcome("implausible", why)
+        for warning in unusual(result, s.thresholds):
+            log.warning("%s", warning)
         return Outcome("ok")
+
+
+def unusual(result, t: Thresholds) -> list[str]:
+    """Plausible but unusually large results, worth a look before the offsets are trusted."""
+    warn = {"joint_offset": t.warn_joint_offset_rad, "camera": t.warn_camera_rotation_rad}
+    out = []
+    for name in result.registry.names:
+        group = name.split(".")[0]
+        if group in warn and abs(result.value(name)) > warn[group]:
+            out.append(f"{name} = {math.degrees(result.value(name)):.2f} deg is unusually large (more than "
+                       f"{math.degrees(warn[group]):g} deg): check the robot (a loose joint, a replaced part, a "
+                       "head from another robot)")
+    return out
 
 
 def implausible(result, t: Thresholds) -> str | None:

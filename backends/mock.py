@@ -35,6 +35,14 @@ Injectable effects (off by default; sizes in the units below; per-joint factors 
     distortion    1          true radial distortion k1 = size (OpenCV model on normalised coordinates)
     time_lag      s          image timestamps are `size` later than the true exposure
 
+Realism (`realism="ideal"`, the default, is all of the above; `realism="realistic"` a NAO V6 as teams meet it,
+backends.mock_realism, docs/MOCK.md): readings in 12-bit encoder steps every 12 ms (LoLA); a servo that follows the
+interpolated command as a damped second-order system and rests somewhere in its commanded step, pulled by the
+gravity load (backends.mock_servo); a rolling-shutter camera (rows over 45 ms, boards rendered per band of rows when
+they move) stamped as B-Human relates V4L2 buffer stamps, YUYV 4:2:2 capture, noise, slight defocus, prior fx = fy =
+618 px with true intrinsics a little off; offsets as large as real robots carry; glare spots and a corner fault
+model (backends.mock_faults, applied to the agent's detector through `faulty`).
+
 Safety: `command` refuses with SafetyError a non-finite or unknown target, a speed outside (0, 1], a target outside
 the joint limits (solver.limits, HeadPitch against HeadYaw included) and a motion whose end or any of the points
 sampled along its way brings two parts of the true body, or a part and the ground, closer than `safety_margin_m`.
@@ -50,7 +58,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.mock_render import CameraModel, SceneRenderer
+from backends.mock_realism import IDEAL, Realism, as_realism
+from backends.mock_render import CameraModel, RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
+from backends.mock_servo import SecondOrder, rest_offset, servo_positions
 from backends.pybullet_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
 from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
@@ -83,6 +93,10 @@ DEFAULT_POSTURE = {
     "LHipYawPitch": 0.0, "LHipRoll": 0.3, "LHipPitch": -0.5, "LKneePitch": 0.5, "LAnklePitch": -0.3, "LAnkleRoll": 0.0,
     "RHipYawPitch": 0.0, "RHipRoll": -0.3, "RHipPitch": -0.5, "RKneePitch": 0.5, "RAnklePitch": -0.3, "RAnkleRoll": 0.0,
 }
+
+# A robot with real-size offsets (HipYawPitch up to 12 deg turns both feet) starts with its legs spread wider, so
+# that its sandals clear each other whatever its offsets.
+SPREAD_POSTURE = {**DEFAULT_POSTURE, "LHipRoll": 0.6, "RHipRoll": -0.6, "LAnkleRoll": 0.2, "RAnkleRoll": -0.2}
 
 
 def parse_effect_sizes(items) -> dict[str, float]:
@@ -145,10 +159,13 @@ def _signed(rng, low, high, size=None):
     return rng.choice([-1.0, 1.0], size=size) * rng.uniform(low, high, size=size)
 
 
-def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None) -> MockTruth:
-    """The hidden truth of a mock with this seed and these effects (see the module docstring)."""
+def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
+               realism: Realism | str = IDEAL) -> MockTruth:
+    """The hidden truth of a mock with this seed and these effects (see the module docstring); a realistic mock
+    (Realism.large_offsets) draws its offsets and true intrinsics from streams of their own."""
     effects = check_effects(effects)
-    nominal = nominal or default_intrinsics()
+    realism = as_realism(realism)
+    nominal = nominal or default_intrinsics(realism)
     streams = {name: np.random.default_rng([int(seed), k]) for k, name in enumerate(("base",) + EFFECTS)}
     rng = streams["base"]
     alpha = {j: 0.0 for j in JOINTS}
@@ -161,6 +178,8 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None)
     mounts = {leg: BoardMount(rot_z_rad=float(np.deg2rad(_signed(rng, 0.2, 1.2))),
                               trans_x_m=float(_signed(rng, 0.0005, 0.003)),
                               trans_y_m=float(_signed(rng, 0.0005, 0.003))) for leg in LEGS}
+    if realism.large_offsets:
+        alpha, camera_rotation = _large_offsets(np.random.default_rng([int(seed), 104729]), realism, alpha)
 
     def per_leg_joint(name, low, high):
         size = effects.get(name, 0.0)
@@ -173,10 +192,14 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None)
     focal_sign = streams["intrinsics"].choice([-1.0, 1.0])
     focal_ratio = streams["intrinsics"].uniform(0.7, 1.3)
     focal = effects.get("intrinsics", 0.0)
+    # A real camera's intrinsics differ a little from the prior (independent of the intrinsics effect's stream).
+    lens = np.random.default_rng([int(seed), 130363]).uniform(-1.0, 1.0, 4)
+    lens *= [realism.focal_error_px] * 2 + [realism.principal_error_px] * 2
     camera = CameraModel(width_px=nominal.width_px, height_px=nominal.height_px,
-                         fx_px=nominal.fx_px + focal_sign * focal,
-                         fy_px=nominal.fy_px + focal_sign * focal * focal_ratio,
-                         cx_px=nominal.cx_px, cy_px=nominal.cy_px, k1=effects.get("distortion", 0.0))
+                         fx_px=float(nominal.fx_px + focal_sign * focal + lens[0]),
+                         fy_px=float(nominal.fy_px + focal_sign * focal * focal_ratio + lens[1]),
+                         cx_px=float(nominal.cx_px + lens[2]), cy_px=float(nominal.cy_px + lens[3]),
+                         k1=effects.get("distortion", 0.0))
     return MockTruth(
         seed=int(seed), alpha_rad=alpha, camera_rotation_rad=camera_rotation, board_mount=mounts,
         effects=dict(effects), compliance_rad_per_nm=per_leg_joint("elasticity", 0.5, 1.5),
@@ -186,12 +209,32 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None)
         camera=camera, time_lag_s=effects.get("time_lag", 0.0))
 
 
-def default_intrinsics() -> CameraIntrinsics:
-    """The bottom camera's prior intrinsics (the robot description's, solver/data/nao.json)."""
+def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
+    """Offsets as large as real robots carry (docs/MOCK.md): HipYawPitch up to hip_yaw_pitch_max_deg, the other
+    leg joints up to leg_offset_max_deg, camera pitch in camera_pitch_range_deg or now and then an outlier,
+    roll and yaw 1-3 deg. Head joints keep theirs (the head_offsets effect)."""
+    alpha = dict(alpha)
+    for joint in LEG_JOINTS:
+        alpha[joint] = float(np.deg2rad(_signed(rng, 0.2, realism.leg_offset_max_deg)))
+    alpha["LHipYawPitch"] = alpha["RHipYawPitch"] = float(np.deg2rad(_signed(rng, 0.5, realism.hip_yaw_pitch_max_deg)))
+    outlier = rng.uniform() < realism.camera_pitch_outlier_rate
+    pitch_deg = _signed(rng, *realism.camera_pitch_outlier_deg) if outlier else rng.uniform(
+        *realism.camera_pitch_range_deg)
+    camera_rotation = {"roll": float(np.deg2rad(_signed(rng, 1.0, 3.0))), "pitch": float(np.deg2rad(pitch_deg)),
+                       "yaw": float(np.deg2rad(_signed(rng, 1.0, 3.0)))}
+    return alpha, camera_rotation
+
+
+def default_intrinsics(realism: Realism | str = IDEAL) -> CameraIntrinsics:
+    """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json: fx =
+    fy = 600 px, centre (320, 240)) with the realism's prior focal length if it has one (realistic: a real NAO
+    head's 618 px)."""
     from solver.camera import default_intrinsics as prior
 
     d = prior("bottom")
-    return CameraIntrinsics(width_px=d["width_px"], height_px=d["height_px"], fx_px=d["fx_px"], fy_px=d["fy_px"],
+    f = as_realism(realism).prior_focal_px
+    fx, fy = (d["fx_px"], d["fy_px"]) if f is None else (f, f)
+    return CameraIntrinsics(width_px=d["width_px"], height_px=d["height_px"], fx_px=fx, fy_px=fy,
                             cx_px=d["cx_px"], cy_px=d["cy_px"])
 
 
@@ -228,6 +271,38 @@ class _Track:
     def end_time(self) -> float:
         return self.t0[-1] + self.duration[-1]
 
+    def slope_at(self, t: float) -> float:
+        """The reference's speed at t (rad/s; right-continuous)."""
+        i = max(bisect.bisect_right(self.t0, t) - 1, 0)
+        if self.duration[i] <= 0.0 or t >= self.t0[i] + self.duration[i]:
+            return 0.0
+        return (self.target[i] - self.q0[i]) / self.duration[i]
+
+    def slope_changes(self) -> tuple[list, list]:
+        """([t_k], [ds_k]): the instants at which the reference's slope changes, and by how much."""
+        n = len(self.t0)
+        if getattr(self, "_changes_for", None) != n:
+            times, changes, current, last_stop = [], [], 0.0, -math.inf
+            for i in range(1, n):
+                start = self.t0[i]
+                stop = min(start + self.duration[i], self.t0[i + 1] if i + 1 < n else math.inf)
+                if stop <= start:
+                    continue  # replaced by a command given at the same instant
+                slope = (self.target[i] - self.q0[i]) / self.duration[i] if self.duration[i] > 0.0 else 0.0
+                if last_stop < start and current != 0.0:  # the previous motion ended before this one began
+                    times.append(last_stop)
+                    changes.append(-current)
+                    current = 0.0
+                if slope != current:
+                    times.append(start)
+                    changes.append(slope - current)
+                current, last_stop = slope, stop
+            if current != 0.0 and math.isfinite(last_stop):
+                times.append(last_stop)
+                changes.append(-current)
+            self._slope_changes, self._changes_for = (times, changes), n
+        return self._slope_changes
+
     def direction(self, t: float) -> float:
         i = bisect.bisect_right(self.dir_t, t) - 1
         return self.dirs[i] if i >= 0 else 0.0
@@ -260,6 +335,7 @@ class _Frame:
     image: CameraImage | None = None
     seg: np.ndarray | None = None  # segmentation mask, once rendered
     q_true: np.ndarray | None = None  # true angles at the exposure, once rendered
+    glare: tuple | None = None  # (leg, centre px, sigma px, amplitude) of a rendered specular patch
 
 
 class MockBackend(Backend):
@@ -269,38 +345,56 @@ class MockBackend(Backend):
     ----------
     seed : draws the hidden truth (and the image noise).
     effects : {name: size} of injected physical effects (see the module docstring for names and units).
-    encoder_resolution_deg : joint readings are quantised to this step.
-    image_noise_std : Gaussian noise on the images, grey levels (0-255).
+    realism : 'ideal' (default: the robot the solver was built on), 'realistic' (a NAO V6 as teams meet it:
+        backends.mock_realism, docs/MOCK.md), a `Realism`, or a dict {"preset": name, field: value}.
+    encoder_resolution_deg : joint readings are quantised to this step (default: the realism's).
+    image_noise_std : Gaussian noise on the images, grey levels (0-255) (default: the realism's).
     camera_delay_s : an image arrives this long after its exposure.
     exposure_s : exposure duration (motion blur of moving boards).
-    sensor_period_s, sensor_lag_cycles : joint sampling period and how many samples old a reading is.
+    sensor_period_s, sensor_lag_cycles : joint sampling period and how many samples old a reading is (default:
+        the realism's: 10 ms ideal, 12 ms realistic, 3 cycles).
     command_delay_s : a command starts moving the joints this long after it is given.
     safety_margin_m : parts of the true body (and the ground) closer than this make a motion unsafe.
     supersample : anti-aliasing of the boards (sub-pixels per pixel and axis).
-    nominal_intrinsics : the camera's prior intrinsics (default fx = fy = 600, cx, cy = 320, 240).
+    nominal_intrinsics : the camera's prior intrinsics (default: `default_intrinsics(realism)`, the robot
+        description's fx = fy = 600 px ideal, 618 px realistic; cx, cy = 320, 240).
     posture : starting joint angles (command space) replacing those of DEFAULT_POSTURE.
     """
 
     name = "mock"
 
-    def __init__(self, seed: int = 0, effects=None, *, encoder_resolution_deg: float = 0.1,
-                 image_noise_std: float = 1.0, camera_delay_s: float = 0.1, exposure_s: float = 0.015,
-                 sensor_period_s: float = 0.01, sensor_lag_cycles: int = 3, command_delay_s: float = 0.01,
+    def __init__(self, seed: int = 0, effects=None, *, realism: Realism | str | dict = "ideal",
+                 encoder_resolution_deg: float | None = None, image_noise_std: float | None = None,
+                 camera_delay_s: float = 0.1, exposure_s: float = 0.015, sensor_period_s: float | None = None,
+                 sensor_lag_cycles: int | None = None, command_delay_s: float = 0.01,
                  safety_margin_m: float = 0.003, supersample: int = 4,
                  nominal_intrinsics: CameraIntrinsics | None = None, posture: dict | None = None):
         self.seed = int(seed)
-        self._nominal = nominal_intrinsics or default_intrinsics()
-        self.truth = draw_truth(self.seed, effects, self._nominal)
+        self.realism = as_realism(realism)
+        r = self.realism
+        self._nominal = nominal_intrinsics or default_intrinsics(r)
+        self.truth = draw_truth(self.seed, effects, self._nominal, r)
         if self.truth.time_lag_s >= camera_delay_s:
             raise NaocalError(f"time_lag {self.truth.time_lag_s} s must stay below camera_delay_s {camera_delay_s} s: "
                               "an image cannot be stamped later than it arrives")
-        self.encoder_resolution_rad = math.radians(encoder_resolution_deg)
-        self.image_noise_std = float(image_noise_std)
+        self.encoder_resolution_rad = (r.encoder_step_rad if encoder_resolution_deg is None
+                                       else math.radians(encoder_resolution_deg))
+        self.image_noise_std = float(r.luma_noise_std if image_noise_std is None else image_noise_std)
         self.camera_delay_s = float(camera_delay_s)
         self.exposure_s = float(exposure_s)
-        self.sensor_period_s = float(sensor_period_s)
-        self.sensor_lag_s = int(sensor_lag_cycles) * self.sensor_period_s
+        self.sensor_period_s = float(r.sensor_period_s if sensor_period_s is None else sensor_period_s)
+        lag_cycles = r.sensor_lag_cycles if sensor_lag_cycles is None else sensor_lag_cycles
+        self.sensor_lag_s = int(lag_cycles) * self.sensor_period_s
         self.command_delay_s = float(command_delay_s)
+        # The servo: exact (ideal) or second-order with rest offsets inside the commanded step (realistic).
+        self._dynamics = (None if r.servo_time_constant_s is None
+                          else SecondOrder(r.servo_time_constant_s, r.servo_damping))
+        self._exact_servo = (self._dynamics is None and r.servo_rest == "command"
+                             and r.servo_stiffness_nm_per_rad is None)
+        self._rest_times: list[float] = []  # when each command's motion ends and its rest offsets apply
+        self._rest_offsets: list[np.ndarray] = []  # (14,) sensor-space rest position minus command, rad
+        self._cell_draws = np.zeros(len(JOINTS))  # 'uniform' servo_rest: where in its cell each joint rests
+        self._n_commands_applied = 0
         self._limits = {j: joint_limits()[j] for j in JOINTS}
         self._speeds = {j: max_speeds()[j] for j in JOINTS}
         self._stiffness = {j: 1.0 for j in JOINTS}
@@ -314,7 +408,7 @@ class MockBackend(Backend):
         self.renderer = SceneRenderer(self.body, self.truth.camera, supersample=supersample)
         self._vertices_board = board_vertices_sole() - np.array([BOARD_CENTER_X_M, 0.0, 0.0])
         self._T_sole_board = {leg: T_sole_board(self.truth.board_mount[leg]) for leg in LEGS}
-        start = {**DEFAULT_POSTURE, **(posture or {})}
+        start = {**(SPREAD_POSTURE if r.large_offsets else DEFAULT_POSTURE), **(posture or {})}
         for joint in JOINTS:
             lower, upper = self._limits[joint]
             if not lower <= start[joint] <= upper:
@@ -369,9 +463,8 @@ class MockBackend(Backend):
         t_sample = math.floor((self._t - self.sensor_lag_s) / period + 1e-9) * period
         step = self.encoder_resolution_rad
         angles = {}
-        for joint in JOINTS:
-            servo = self._track(joint).at(t_sample)
-            angles[joint] = round(servo / step) * step if step > 0 else servo
+        for joint, servo in zip(JOINTS, self._servo_q(t_sample)):
+            angles[joint] = round(servo / step) * step if step > 0 else float(servo)
         return JointReading(angles_rad=angles, t_s=t_sample)
 
     def command(self, targets_rad: dict, speed_fraction: float) -> None:
@@ -389,6 +482,8 @@ class MockBackend(Backend):
             raise
         self.command_log.append(CommandRecord(self._t, record, speed, True))
         self._apply(targets, speed, start)
+        if not self._exact_servo:
+            self._add_rest_offsets(targets, start)
 
     def capture(self) -> CameraImage | None:
         self._check_open()
@@ -403,6 +498,14 @@ class MockBackend(Backend):
         self._closed = True
         self._frames.clear()
         self.body.close()
+
+    def faulty(self, detector):
+        """`detector` with this mock's corner fault model (Realism.corner_fault_rate; backends.mock_faults), or
+        `detector` itself when the rate is 0 (the ideal mock)."""
+        from backends.mock_faults import FaultyDetector
+
+        rate = self.realism.corner_fault_rate
+        return FaultyDetector(detector, rate, self.seed) if rate > 0 else detector
 
     # --- Truth, for tests -------------------------------------------------------------------------------------------
     def truth_dict(self) -> dict:
@@ -431,7 +534,12 @@ class MockBackend(Backend):
             "distortion": {"k1": float(t.camera.k1)},
             "time_lag": {"image_stamp_late_s": float(t.time_lag_s)},
         }
-        return {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
+        out = {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
+        if not self.realism.is_ideal:  # what a realistic robot has besides the effects
+            out["realism"] = {"settings": self.realism.to_dict(),
+                              "intrinsics": {k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px",
+                                                                                     "cy_px")}}
+        return out
 
     def true_angles(self, t_s: float | None = None) -> dict[str, float]:
         """The true joint angles (rad) at robot time t_s (default now)."""
@@ -439,13 +547,26 @@ class MockBackend(Backend):
         return {j: float(q[i]) for i, j in enumerate(JOINTS)}
 
     def servo_angles(self, t_s: float | None = None) -> dict[str, float]:
-        """The motors' own (unquantised) sensor positions at robot time t_s (default now)."""
+        """The motors' own (unquantised) sensor positions at robot time t_s (default now): the interpolated
+        command itself on the ideal mock; its second-order response plus the rest offset on a realistic one."""
+        t = self._t if t_s is None else float(t_s)
+        return {j: float(a) for j, a in zip(JOINTS, self._servo_q(t))}
+
+    def reference_angles(self, t_s: float | None = None) -> dict[str, float]:
+        """The interpolated commands at robot time t_s (default now): straight lines from command to command."""
         t = self._t if t_s is None else float(t_s)
         return {j: self._track(j).at(t) for j in JOINTS}
 
     def exposure_time(self, image: CameraImage) -> float:
-        """The true exposure time of an image this mock returned (its stamp minus the time_lag effect)."""
-        return image.t_exposure_s - self.truth.time_lag_s
+        """The true exposure time (of the middle row) of an image this mock returned: its stamp minus the time_lag
+        effect and, on a realistic mock, minus the V4L2 stamp's offset (Realism.stamp_offset_s)."""
+        return image.t_exposure_s - self.truth.time_lag_s - self.realism.stamp_offset_s()
+
+    def row_time(self, t_mid_s: float, v_px) -> np.ndarray:
+        """When row v of a frame whose middle row was exposed at t_mid_s was exposed (rolling shutter: rows one
+        after another over Realism.readout_s; all at t_mid_s with a global shutter)."""
+        h = self.truth.camera.height_px
+        return t_mid_s + (np.asarray(v_px, dtype=float) - (h - 1) / 2.0) * (self.realism.readout_s / h)
 
     def vertex_pixels_at(self, t_s: float) -> dict:
         """{leg: (24, 2)} where the true camera sees both boards' vertices with the robot as it truly is at robot
@@ -464,7 +585,7 @@ class MockBackend(Backend):
         if frame.seg is None:
             frame.image.pixels  # renders it
         out = {}
-        for leg, (uv, facing) in self._vertex_pixels(frame.q_true).items():
+        for leg, (uv, facing) in self._rolling_vertex_pixels(frame).items():
             cam = self.truth.camera
             visible = np.zeros(N_VERTICES, dtype=bool)
             if facing:
@@ -476,6 +597,28 @@ class MockBackend(Backend):
                     u0, v0 = int(round(u)), int(round(v))
                     visible[i] = not covered[max(v0 - r, 0):v0 + r + 1, max(u0 - r, 0):u0 + r + 1].any()
             out[leg] = (uv, visible)
+        return out
+
+    def _rolling_vertex_pixels(self, frame: _Frame) -> dict:
+        """_vertex_pixels of a frame, each vertex at the time its row was exposed: v = v(q(row_time(v))), solved by
+        fixed-point iteration on the vertices' paths sampled every readout / 32 (linear in between; a row's time
+        moves a vertex by a small fraction of a pixel per pixel). Exact for a still robot."""
+        out = self._vertex_pixels(frame.q_true)
+        h = self.truth.camera.height_px
+        t0, t1 = (float(t) for t in self.row_time(frame.t_true_s, [0.0, h - 1.0]))
+        moving = [leg for leg in LEGS if self.realism.readout_s > 0.0 and out[leg][1]
+                  and self._board_motion_px(t0, t1, leg) > 1e-3]
+        if not moving:  # boards out of view, or still to a thousandth of a pixel
+            return out
+        times = np.linspace(t0, t1, 33)
+        paths = [self._vertex_pixels(self._true_q(float(t))) for t in times]
+        for leg in moving:
+            uv, facing = out[leg]
+            track = np.array([p[leg][0] for p in paths])  # (33, 24, 2)
+            for _ in range(8):
+                t_rows = self.row_time(frame.t_true_s, np.clip(np.nan_to_num(uv[:, 1]), 0.0, h - 1.0))
+                uv = np.array([[np.interp(t, times, track[:, i, c]) for c in (0, 1)] for i, t in enumerate(t_rows)])
+            out[leg] = (uv, facing)
         return out
 
     def _vertex_pixels(self, q_true: np.ndarray) -> dict:
@@ -576,8 +719,46 @@ class MockBackend(Backend):
                 q = updated
         return q
 
+    def _servo_q(self, t: float) -> np.ndarray:
+        """Sensor-space positions (14,) at t: the reference (ideal), or its second-order response plus the
+        rest offsets in force (realistic; backends.mock_servo)."""
+        if self._exact_servo:
+            return np.array([self._track(j).at(t) for j in JOINTS])
+        tracks = [self._track(j) for j in JOINTS]
+        return servo_positions(t, [tr.at(t) for tr in tracks], [tr.slope_at(t) for tr in tracks],
+                               [tr.slope_changes() for tr in tracks], self._dynamics, self._rest_times,
+                               self._rest_offsets)
+
+    def _add_rest_offsets(self, targets: dict, start: float) -> None:
+        """Where each joint will stand once this command's motion ends (Realism.servo_rest, sag under the
+        gravity load of the posture it ends in), as a step of the rest offsets at that instant."""
+        r = self.realism
+        commanded = np.array([self._track(j).target[-1] for j in JOINTS])
+        t_end = max(self._track(j).end_time() for j in JOINTS)
+        self._n_commands_applied += 1
+        if r.servo_rest == "uniform":
+            rng = np.random.default_rng([self.seed, 15485863, self._n_commands_applied])
+            draws = rng.uniform(-0.5, 0.5, len(JOINTS))
+            for i, joint in enumerate(JOINTS):
+                motor = SHARED_MOTOR[0] if joint == SHARED_MOTOR[1] else joint
+                if motor in targets:
+                    self._cell_draws[i] = draws[JOINT_INDEX[motor]]
+        tau = np.zeros(len(JOINTS))
+        if r.servo_stiffness_nm_per_rad is not None:
+            tau = self.body.gravity_torques(self._true_static(commanded))
+        offsets = np.array([rest_offset(c, t, r.servo_rest, self.encoder_resolution_rad,
+                                        r.servo_stiffness_nm_per_rad, u)
+                            for c, t, u in zip(commanded, tau, self._cell_draws)])
+        # One motor, one sensor: both HipYawPitch joints stand where the left one does.
+        offsets[JOINT_INDEX[SHARED_MOTOR[1]]] = offsets[JOINT_INDEX[SHARED_MOTOR[0]]]
+        while self._rest_times and self._rest_times[-1] > start:  # superseded before they took effect
+            self._rest_times.pop()
+            self._rest_offsets.pop()
+        self._rest_times.append(t_end)
+        self._rest_offsets.append(offsets)
+
     def _true_q(self, t: float) -> np.ndarray:
-        servo = np.array([self._track(j).at(t) for j in JOINTS])
+        servo = self._servo_q(t)
         directions = np.array([self._track(j).direction(t) for j in JOINTS])
         return self._true_static(servo, directions)
 
@@ -617,48 +798,120 @@ class MockBackend(Backend):
         if k in self._frames:
             return self._frames[k]
         frame = _Frame(k, FRAME_PHASE_S + k * FRAME_PERIOD_S)
-        frame.image = _LazyImage(lambda: self._render(frame), frame.t_true_s + self.truth.time_lag_s)
+        stamp = frame.t_true_s + self.truth.time_lag_s + self.realism.stamp_offset_s()
+        frame.image = _LazyImage(lambda: self._render(frame), stamp)
         self._frames[k] = frame
         while len(self._frames) > 8:
             del self._frames[min(self._frames)]
         return frame
 
     def _render(self, frame: _Frame) -> np.ndarray:
-        """Render a frame: (h, w, 3) uint8 BGR (grey) pixels; keeps its mask and true angles for the truth."""
+        """Render a frame: (h, w, 3) uint8 BGR pixels; keeps its mask and true angles for the truth."""
         self._check_open()
         k, t_true = frame.index, frame.t_true_s
         q_true = self._true_q(t_true)
-        boards = {self.body.link_index[f"{leg}Sandal"]: self._blurred_board_poses(t_true, leg) for leg in LEGS}
+        boards = {self.body.link_index[f"{leg}Sandal"]: self._board_poses(t_true, leg) for leg in LEGS}
         grey, seg = self.renderer.render(q_true, self._T_world_cam(q_true), boards)
         rng = np.random.default_rng([self.seed, 7919, k])
-        pixels = grey * 255.0
-        if self.image_noise_std > 0:
-            pixels = pixels + rng.standard_normal(pixels.shape, dtype=np.float32) * self.image_noise_std
-        grey_u8 = np.clip(np.rint(pixels), 0, 255).astype(np.uint8)
         frame.seg, frame.q_true = seg, q_true
+        if self.realism.glare_rate > 0:
+            grey = self._glare(frame, grey)
         self.frames_rendered += 1
-        return np.repeat(grey_u8[:, :, None], 3, axis=2)
+        if self.realism.is_ideal:
+            pixels = grey * 255.0
+            if self.image_noise_std > 0:
+                pixels = pixels + rng.standard_normal(pixels.shape, dtype=np.float32) * self.image_noise_std
+            grey_u8 = np.clip(np.rint(pixels), 0, 255).astype(np.uint8)
+            return np.repeat(grey_u8[:, :, None], 3, axis=2)
+        r = self.realism
+        return form_image(grey, rng, luma_noise_std=self.image_noise_std, chroma_noise_std=r.chroma_noise_std,
+                          defocus_sigma_px=r.defocus_sigma_px, yuyv=r.yuyv)
 
-    def _blurred_board_poses(self, t_mid: float, leg: str) -> list[np.ndarray]:
-        """Board poses spread over the exposure, as seen from the camera (head motion included) but expressed
-        in the world through the camera's pose at mid-exposure; a single pose if the board's image moves by
-        less than 0.3 px during the exposure."""
-        half = self.exposure_s / 2
+    def _glare_stream(self, frame_index: int):
+        """The random stream of frame k's glare: its first draw decides whether there is one."""
+        return np.random.default_rng([self.seed, 4243, frame_index])
 
-        def seen(t):
-            q = self._true_q(t)
-            return invert_transform(self._T_world_cam(q)) @ self._T_world_board(q, leg)
+    def _glare(self, frame: _Frame, grey: np.ndarray) -> np.ndarray:
+        """With probability Realism.glare_rate, a specular patch on one of the boards in view (frame.glare says
+        which: (leg, centre px, sigma px, amplitude))."""
+        rng = self._glare_stream(frame.index)
+        if rng.uniform() >= self.realism.glare_rate:
+            return grey
+        in_view = []
+        for leg, (uv, facing) in self._vertex_pixels(frame.q_true).items():
+            if facing and np.all(np.isfinite(uv)) and np.any((uv[:, 0] >= 0) & (uv[:, 0] < grey.shape[1])
+                                                              & (uv[:, 1] >= 0) & (uv[:, 1] < grey.shape[0])):
+                in_view.append(leg)
+        if not in_view:
+            return grey
+        leg = in_view[int(rng.integers(len(in_view)))]
+        T = self._seen_board(frame.t_true_s, leg)
+        outline = self.truth.camera.project(board_outline_board_m() @ T[:3, :3].T + T[:3, 3])
+        inner = self._vertices_board[[0, 5, 23, 18]]
+        corners = self.truth.camera.project(inner @ T[:3, :3].T + T[:3, 3])
+        h, w = grey.shape
+        for _ in range(20):  # a point of the inner grid's quadrilateral (bilinear) that is in the image
+            a, b = rng.uniform(0.0, 1.0, 2)
+            centre = ((1 - a) * (1 - b) * corners[0] + a * (1 - b) * corners[1] + a * b * corners[2]
+                      + (1 - a) * b * corners[3])
+            if 0 <= centre[0] < w and 0 <= centre[1] < h:
+                break
+        else:
+            return grey
+        sigma, amplitude = float(rng.uniform(3.0, 10.0)), float(rng.uniform(0.3, 0.8))
+        frame.glare = (leg, (float(centre[0]), float(centre[1])), sigma, amplitude)
+        hidden = self.renderer.occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
+        return add_glare(grey, outline, centre, sigma, amplitude, hidden)
 
-        first, last = seen(t_mid - half), seen(t_mid + half)
-        corners = self._vertices_board[[0, 5, 18, 23]]
-        uv = [self.truth.camera.project(corners @ T[:3, :3].T + T[:3, 3]) for T in (first, last)]
-        moved_px = float(np.nan_to_num(np.max(np.linalg.norm(uv[0] - uv[1], axis=1)), nan=0.0))
-        steps = int(np.clip(np.ceil(moved_px / 0.3), 1, 16))
-        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid))
-        if steps == 1:
+    def _board_poses(self, t_mid: float, leg: str):
+        """A board's poses for rendering: [T_world_board, ...] over the exposure (global shutter), or, when the
+        board moves while a rolling shutter reads the rows out, [RowBand] each with the poses of its rows' time."""
+        readout = self.realism.readout_s
+        if readout == 0.0:
+            return self._blurred_board_poses(t_mid, leg)
+        h = self.truth.camera.height_px
+        t_first, t_last = self.row_time(t_mid, [0.0, h - 1.0])
+        T = self._seen_board(t_mid, leg)
+        in_view = T[:3, 2] @ T[:3, 3] < 0 and np.all(board_outline_board_m() @ T[:3, 0] + T[0, 3] > 0.02)
+        moved_px = self._board_motion_px(t_first - self.exposure_s / 2, t_last + self.exposure_s / 2, leg)
+        if not in_view or moved_px < 0.05:  # not drawn, or still (to 0.05 px): every row shows the same pose
             return [self._T_world_board(self._true_q(t_mid), leg)]
+        n_bands = int(np.clip(np.ceil(moved_px / 0.5), 2, 48))  # rows of a band differ by < 0.5 px of motion
+        edges = np.linspace(0, h, n_bands + 1).round().astype(int)
+        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid))
+        bands = []
+        for v0, v1 in zip(edges[:-1], edges[1:]):
+            t_band = float(self.row_time(t_mid, (v0 + v1 - 1) / 2.0))
+            poses = self._blurred_board_poses(t_band, leg, T_world_cam_ref=T_world_cam_mid)
+            bands.append(RowBand(int(v0), int(v1), poses))
+        return bands
+
+    def _seen_board(self, t: float, leg: str) -> np.ndarray:
+        """T_cam_board at t: the board as the camera sees it (head motion included)."""
+        q = self._true_q(t)
+        return invert_transform(self._T_world_cam(q)) @ self._T_world_board(q, leg)
+
+    def _board_motion_px(self, t0: float, t1: float, leg: str) -> float:
+        """How far (px) the board's outer vertices move in the image between t0 and t1."""
+        corners = self._vertices_board[[0, 5, 18, 23]]
+        uv = [self.truth.camera.project(corners @ T[:3, :3].T + T[:3, 3])
+              for T in (self._seen_board(t0, leg), self._seen_board(t1, leg))]
+        return float(np.nan_to_num(np.max(np.linalg.norm(uv[0] - uv[1], axis=1)), nan=0.0))
+
+    def _blurred_board_poses(self, t_mid: float, leg: str, T_world_cam_ref: np.ndarray | None = None
+                             ) -> list[np.ndarray]:
+        """Board poses spread over the exposure, as seen from the camera (head motion included) but expressed
+        in the world through the camera's pose at mid-exposure (or T_world_cam_ref); a single pose if the board's
+        image moves by less than 0.3 px during the exposure."""
+        half = self.exposure_s / 2
+        moved_px = self._board_motion_px(t_mid - half, t_mid + half, leg)
+        steps = int(np.clip(np.ceil(moved_px / 0.3), 1, 16))
+        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid)) if T_world_cam_ref is None else T_world_cam_ref
+        if steps == 1:
+            return [T_world_cam_mid @ self._seen_board(t_mid, leg)] if T_world_cam_ref is not None else [
+                self._T_world_board(self._true_q(t_mid), leg)]
         times = t_mid - half + (np.arange(steps) + 0.5) * self.exposure_s / steps
-        return [T_world_cam_mid @ seen(float(t)) for t in times]
+        return [T_world_cam_mid @ self._seen_board(float(t), leg) for t in times]
 
 
 def _as_float(value) -> float:

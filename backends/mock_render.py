@@ -26,6 +26,7 @@ import numpy as np
 
 from backends.pybullet_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
 from backends.pybullet_quiet import pybullet
+from solver.camera import project_points
 from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 from solver.transforms import invert_transform
 
@@ -51,11 +52,9 @@ class CameraModel:
 
     def project(self, p_cam: np.ndarray) -> np.ndarray:
         """Pixel positions (..., 2) of points (..., 3) in the camera frame (x > 0 in front of the camera)."""
-        p_cam = np.asarray(p_cam, dtype=float)
-        a = -p_cam[..., 1] / p_cam[..., 0]
-        b = -p_cam[..., 2] / p_cam[..., 0]
-        factor = 1.0 + self.k1 * (a * a + b * b)
-        return np.stack([self.cx_px + self.fx_px * a * factor, self.cy_px + self.fy_px * b * factor], axis=-1)
+        uv, _ = project_points(p_cam, {"fx_px": self.fx_px, "fy_px": self.fy_px, "cx_px": self.cx_px,
+                                       "cy_px": self.cy_px, "distortion": (self.k1, 0.0, 0.0, 0.0, 0.0)})
+        return uv  # solver.camera: the one projection
 
     def undistort_px(self, uv: np.ndarray, iterations: int = 50) -> np.ndarray:
         """Undistorted pixel positions (..., 2) of distorted ones (fixed-point iteration, exact to ~1e-12 px for
@@ -128,10 +127,21 @@ def board_outline_board_m(n_per_side: int = 8) -> np.ndarray:
 
 @dataclass
 class BoardView:
-    """One sandal as the camera sees it during the exposure: its poses at sub-exposure times (motion blur)."""
+    """One sandal as the camera sees it during the exposure: its poses at sub-exposure times (motion blur), in
+    rows v0 <= v < v1 (a band of a rolling shutter's rows; None: all rows)."""
 
     link_index: int  # the sandal's PyBullet link (its own plate never hides its print)
     T_cam_board: list  # [(4, 4)], one or more poses averaged over the exposure
+    rows: tuple[int, int] | None = None
+
+
+@dataclass
+class RowBand:
+    """Rows v0 <= v < v1 of a rolling-shutter image and a board's world poses during their exposure."""
+
+    v0: int
+    v1: int
+    T_world_board: list  # [(4, 4)]
 
 
 class SceneRenderer:
@@ -179,9 +189,9 @@ class SceneRenderer:
         return (obj == robot) & (link != board_link)
 
     # --- The boards ---------------------------------------------------------------------------------------------
-    def _bbox(self, T_cam_boards) -> tuple[int, int, int, int] | None:
+    def _bbox(self, T_cam_boards, rows=None) -> tuple[int, int, int, int] | None:
         """Inclusive pixel bounding box (u0, v0, u1, v1) of the printed region over all poses, clipped to the
-        image; None if it is not in front of the camera and facing it."""
+        image (and to rows v0 <= v < v1 if given); None if it is not in front of the camera and facing it."""
         cam = self.camera
         outline = board_outline_board_m()
         uv_all = []
@@ -197,6 +207,8 @@ class SceneRenderer:
         u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
         u0, v0 = max(u0, 0), max(v0, 0)
         u1, v1 = min(u1, cam.width_px - 1), min(v1, cam.height_px - 1)
+        if rows is not None:
+            v0, v1 = max(v0, rows[0]), min(v1, rows[1] - 1)
         if u1 < u0 or v1 < v0:
             return None
         return int(u0), int(v0), int(u1), int(v1)
@@ -231,7 +243,7 @@ class SceneRenderer:
         """The body image with every visible board's print drawn over it (a new array)."""
         out = grey.copy()
         for board in boards:
-            bbox = self._bbox(board.T_cam_board)
+            bbox = self._bbox(board.T_cam_board, board.rows)
             if bbox is None:
                 continue
             u0, v0, u1, v1 = bbox
@@ -246,9 +258,99 @@ class SceneRenderer:
         """Grey image (h, w) in 0..1 and segmentation mask of the robot at q_true, with the boards' prints.
 
         T_world_boards: {link_index: [T_world_board (4, 4), ...]} poses of each board over the exposure (one pose
-        for a still robot; several for motion blur); the body itself is rendered at q_true.
+        for a still robot; several for motion blur), or {link_index: [RowBand, ...]} for a rolling shutter (each
+        band of rows with the poses of its own exposure); the body itself is rendered at q_true.
         """
         grey, seg = self.render_body(q_true, T_world_cam)
         T_cam_world = invert_transform(T_world_cam)
-        boards = [BoardView(link, [T_cam_world @ T for T in poses]) for link, poses in T_world_boards.items()]
+        boards = []
+        for link, poses in T_world_boards.items():
+            if poses and isinstance(poses[0], RowBand):
+                boards += [BoardView(link, [T_cam_world @ T for T in band.T_world_board], (band.v0, band.v1))
+                           for band in poses]
+            else:
+                boards.append(BoardView(link, [T_cam_world @ T for T in poses]))
         return self.draw_boards(grey, seg, boards), seg
+
+
+def add_glare(grey: np.ndarray, outline_px: np.ndarray, centre_px, sigma_px: float, amplitude: float,
+              hidden: np.ndarray | None = None) -> np.ndarray:
+    """The grey image (h, w) in 0..1 with a specular patch on a board: a Gaussian highlight of `amplitude` and
+    `sigma_px` at `centre_px`, only inside the board's printed outline (polygon (k, 2) px) and not where `hidden`
+    (h, w) bool shows something in front of the board; saturating at 1."""
+    h, w = grey.shape
+    mask = np.zeros((h, w), dtype=np.uint8)
+    cv2.fillPoly(mask, [np.round(outline_px * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    if hidden is not None:
+        mask[hidden] = 0
+    v, u = np.mgrid[0:h, 0:w]
+    blob = amplitude * np.exp(-((u - centre_px[0]) ** 2 + (v - centre_px[1]) ** 2) / (2.0 * sigma_px ** 2))
+    return np.minimum(grey + (blob * mask).astype(np.float32), 1.0)
+
+
+# --- Image formation: what the sensor and its YUYV capture do to the rendered scene -----------------------------
+# ITU-R BT.601 "studio swing" (Y 16..235, Cb and Cr 16..240 around 128), the coefficients OpenCV's
+# COLOR_YUV2BGR_YUYV inverts. The NAO V6's cameras deliver YUYV (YUV 4:2:2) through V4L2.
+_Y_FROM_RGB = np.array([65.481, 128.553, 24.966]) / 255.0
+_CB_FROM_RGB = np.array([-37.797, -74.203, 112.0]) / 255.0
+_CR_FROM_RGB = np.array([112.0, -93.786, -18.214]) / 255.0
+
+
+def bgr_to_yuyv(bgr: np.ndarray, rng=None, *, luma_noise_std: float = 0.0, chroma_noise_std: float = 0.0
+                ) -> np.ndarray:
+    """YUYV 4:2:2 (h, w, 2) uint8 of a BGR image (h, w, 3) in 0..255 (float or uint8), w even: Y per pixel, Cb and
+    Cr per pair of pixels (their mean), Gaussian sensor noise added before the 8-bit rounding."""
+    bgr = np.asarray(bgr, dtype=np.float32)
+    h, w, _ = bgr.shape
+    if w % 2:
+        raise ValueError("YUYV needs an even image width")
+    rgb = bgr[..., ::-1]
+    y = 16.0 + rgb @ _Y_FROM_RGB.astype(np.float32)
+    pairs = rgb.reshape(h, w // 2, 2, 3).mean(axis=2)
+    cb = 128.0 + pairs @ _CB_FROM_RGB.astype(np.float32)
+    cr = 128.0 + pairs @ _CR_FROM_RGB.astype(np.float32)
+    if rng is not None and luma_noise_std > 0:
+        y = y + rng.standard_normal(y.shape, dtype=np.float32) * luma_noise_std
+    if rng is not None and chroma_noise_std > 0:
+        cb = cb + rng.standard_normal(cb.shape, dtype=np.float32) * chroma_noise_std
+        cr = cr + rng.standard_normal(cr.shape, dtype=np.float32) * chroma_noise_std
+    out = np.empty((h, w, 2), dtype=np.float32)
+    out[..., 0] = y
+    out[:, 0::2, 1] = cb
+    out[:, 1::2, 1] = cr
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def grey_to_yuyv(grey: np.ndarray, rng=None, *, luma_noise_std: float = 0.0, chroma_noise_std: float = 0.0
+                 ) -> np.ndarray:
+    """bgr_to_yuyv of a grey scene (h, w) in 0..1 (B = G = R), without building the colour image: Y = 16 + 219 grey,
+    Cb = Cr = 128, plus the same sensor noise."""
+    h, w = grey.shape
+    if w % 2:
+        raise ValueError("YUYV needs an even image width")
+    out = np.empty((h, w, 2), dtype=np.float32)
+    out[..., 0] = 16.0 + 219.0 * np.asarray(grey, dtype=np.float32)
+    out[..., 1] = 128.0
+    if rng is not None and luma_noise_std > 0:
+        out[..., 0] += rng.standard_normal((h, w), dtype=np.float32) * luma_noise_std
+    if rng is not None and chroma_noise_std > 0:
+        out[..., 1] += rng.standard_normal((h, w), dtype=np.float32) * chroma_noise_std  # Cb, Cr: half resolution
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def yuyv_to_bgr(yuyv: np.ndarray) -> np.ndarray:
+    """BGR (h, w, 3) uint8 of a YUYV image (h, w, 2), as a V4L2 client converts it (OpenCV)."""
+    return cv2.cvtColor(np.ascontiguousarray(yuyv), cv2.COLOR_YUV2BGR_YUYV)
+
+
+def form_image(grey: np.ndarray, rng, *, luma_noise_std: float, chroma_noise_std: float = 0.0,
+               defocus_sigma_px: float = 0.0, yuyv: bool = True) -> np.ndarray:
+    """The camera's BGR uint8 image (h, w, 3) of a rendered grey scene (h, w) in 0..1: slight defocus (Gaussian
+    blur), then the sensor's noise and its YUYV 4:2:2 capture, converted back to BGR as the robot's driver does."""
+    grey = np.asarray(grey, dtype=np.float32)
+    if defocus_sigma_px > 0:
+        grey = cv2.GaussianBlur(grey, (0, 0), defocus_sigma_px, borderType=cv2.BORDER_REPLICATE)
+    if not yuyv:
+        noisy = grey * 255.0 + rng.standard_normal(grey.shape, dtype=np.float32) * luma_noise_std
+        return np.repeat(np.clip(np.rint(noisy), 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    return yuyv_to_bgr(grey_to_yuyv(grey, rng, luma_noise_std=luma_noise_std, chroma_noise_std=chroma_noise_std))

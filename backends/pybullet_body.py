@@ -423,6 +423,97 @@ class CollisionChecker:
         if self._owns_body:
             self.body.close()
 
+    def distances(self, q, query_m: float, pairs=None) -> dict:
+        """{(link_a, link_b or 'ground'): signed distance m} of every checked pair (or of `pairs`) closer than
+        query_m at stance q; pairs farther apart are left out."""
+        self.body.set_angles(_as_stance(q))
+        out = {}
+        wanted = None if pairs is None else set(pairs)
+        for name, link in self._ground:
+            if wanted is None or (name, "ground") in wanted:
+                d = self._closest(link, self.body.ground, None, query_m)
+                if d is not None:
+                    out[(name, "ground")] = float(d)
+        for name_a, name_b, link_a, link_b in self._pairs:
+            if wanted is None or (name_a, name_b) in wanted:
+                d = self._closest(link_a, self.body.robot, link_b, query_m)
+                if d is not None:
+                    out[(name_a, name_b)] = float(d)
+        return out
+
+    def margin_for(self, pair) -> float:
+        return self.ground_margin_m if pair[1] == "ground" else self.margin_m
+
+    def distance_gradients(self, q, query_m: float, dof_groups) -> tuple[list, np.ndarray, np.ndarray]:
+        """(pairs, distances (P,), gradients (G, P)) of every checked pair closer than query_m at stance q: the
+        signed distance and its derivative with respect to each group of joints (JOINTS indices turned together,
+        e.g. the one HipYawPitch motor), from the closest points and the joints' axes:
+        d distance / d q_j = n . (w_j x (p_a - o_j) [a below j] - w_j x (p_b - o_j) [b below j]),
+        n the normal from b to a, w_j and o_j joint j's axis and origin in the world."""
+        q = _as_stance(q)
+        self.body.set_angles(q)
+        axes, origins, below = self._joint_frames()
+        pairs, dists, points = [], [], []
+        for name, link in self._ground:
+            found = pybullet.getClosestPoints(self.body.robot, self.body.ground, query_m, linkIndexA=link,
+                                              physicsClientId=self.body.client)
+            if found:
+                pt = min(found, key=lambda p: p[8])
+                pairs.append((name, "ground"))
+                dists.append(pt[8])
+                points.append((link, None, np.array(pt[5]), np.array(pt[6]), np.array(pt[7])))
+        for name_a, name_b, link_a, link_b in self._pairs:
+            found = pybullet.getClosestPoints(self.body.robot, self.body.robot, query_m, linkIndexA=link_a,
+                                              linkIndexB=link_b, physicsClientId=self.body.client)
+            if found:
+                pt = min(found, key=lambda p: p[8])
+                pairs.append((name_a, name_b))
+                dists.append(pt[8])
+                points.append((link_a, link_b, np.array(pt[5]), np.array(pt[6]), np.array(pt[7])))
+        grads = np.zeros((len(dof_groups), len(pairs)))
+        if not pairs:
+            return pairs, np.array(dists), grads
+        link_a = np.array([pt[0] for pt in points]) + 1  # rows of `below` (-1, the torso, is row 0)
+        link_b = np.array([-1 if pt[1] is None else pt[1] for pt in points]) + 1  # the ground: row 0 too
+        p_a, p_b, normal = (np.array([pt[k] for pt in points]) for k in (2, 3, 4))
+        v_a = np.cross(axes[:, None, :], p_a[None] - origins[:, None, :]) * below[:, link_a, None]
+        v_b = np.cross(axes[:, None, :], p_b[None] - origins[:, None, :]) * below[:, link_b, None]
+        per_joint = np.einsum("pk,jpk->jp", normal, v_a - v_b)  # (14 joints, P)
+        for k, group in enumerate(dof_groups):
+            grads[k] = per_joint[np.atleast_1d(group)].sum(axis=0)
+        return pairs, np.array(dists), grads
+
+    def _joint_frames(self):
+        """Axes (14, 3) and origins (14, 3) of the joints (JOINTS order) in the world, and below (14, links + 1)
+        bool: whether joint j moves link i (column i + 1; column 0, the torso, never moves)."""
+        client, robot = self.body.client, self.body.robot
+        if not hasattr(self, "_below"):
+            n = pybullet.getNumJoints(robot, physicsClientId=client)
+            parents = {i: pybullet.getJointInfo(robot, i, physicsClientId=client)[16] for i in range(n)}
+            self._below = np.zeros((len(JOINTS), n + 1), dtype=bool)
+            for k, joint in enumerate(JOINTS):
+                j = self.body.joint_index[joint]
+                for i in range(n):
+                    self._below[k, i + 1] = _descends(i, j, parents)
+            self._axis_local = np.array([pybullet.getJointInfo(robot, self.body.joint_index[j],
+                                                               physicsClientId=client)[13] for j in JOINTS])
+        axes, origins = np.empty((len(JOINTS), 3)), np.empty((len(JOINTS), 3))
+        for k, joint in enumerate(JOINTS):
+            state = pybullet.getLinkState(robot, self.body.joint_index[joint], computeForwardKinematics=True,
+                                          physicsClientId=client)
+            axes[k] = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3) @ self._axis_local[k]
+            origins[k] = state[4]
+        return axes, origins, self._below
+
+
+def _descends(link: int, joint: int, parents: dict) -> bool:
+    """Whether `link` is joint's child link or below it."""
+    while link != -1:
+        if link == joint:
+            return True
+        link = parents[link]
+    return False
+
 
 def _as_stance(q) -> np.ndarray:
     """14 angles in JOINTS order from an array or a {joint: angle} dict holding all 14 joints."""

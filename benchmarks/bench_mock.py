@@ -5,6 +5,9 @@ the squares' own top faces); and the collision checker in stances per second.
 
     python benchmarks/bench_mock.py [--images 40]
 
+Then the same pipeline on the realistic mock (`realism="realistic"`: rolling shutter, YUYV capture, noise,
+defocus; docs/MOCK.md), on stances its own (true) robot sees, in images per second and against the ideal mock.
+
 Both pipelines see the same random visible stances of the same simulated robot and are scored against the same
 exact projections (true kinematics, true camera). naocal's pipeline: the body by TinyRenderer, the boards drawn
 from their exact homography with 4 x 4 area sampling, detection guided by a prediction (the truth shifted by a few
@@ -98,6 +101,26 @@ def summarise(name, errors, failures, seconds, n):
     return n / seconds
 
 
+def capture_and_detect(mock, n, rng):
+    """(errors, failures, seconds) of capture (rendered on demand) + guided detection on n visible stances."""
+    errors, failures, elapsed = [], {}, 0.0
+    for command, leg in visible_stances(mock, n, seed=1):
+        move_and_settle(mock, DEFAULT_POSTURE)  # as visible_stances checked the way
+        move_and_settle(mock, command)
+        mock.sleep(mock.camera_delay_s + 0.3)  # the realistic servo settles for a while
+        before = time.perf_counter()
+        image = mock.capture()
+        truth, _ = mock.true_vertex_pixels(image)[leg]
+        found = detect_board_vertices(image.pixels, truth + rng.normal(0, 5, 2))
+        elapsed += time.perf_counter() - before
+        if found.ok:
+            errors.append(found.vertices_px - truth)
+        else:
+            failures[found.reason] = failures.get(found.reason, 0) + 1
+    mock.close()
+    return errors, failures, elapsed
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=40)
@@ -124,6 +147,9 @@ def main():
         else:
             failures[found.reason] = failures.get(found.reason, 0) + 1
     ours = summarise("homography boards + guided detection", errors, failures, elapsed, len(stances))
+    realistic = capture_and_detect(MockBackend(seed=0, realism="realistic"), args.images, rng)
+    summarise("realistic mock (YUYV, noise, defocus)", *realistic, args.images)
+    print(f"realistic / ideal time per image: {realistic[2] / elapsed:.2f}")
 
     # Straightforward: box squares in TinyRenderer + findChessboardCornersSB.
     boxes = BoxBoards(mock)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from solver.dataset import find_non_finite
+from solver.effects import EFFECTS
 from solver.errors import DataError
 from solver.fileio import atomic_write_text, read_json
 from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
@@ -36,11 +37,12 @@ SCHEMA = SCHEMA_V2 = "naocal.offsets/2"  # what naocal writes
 BACKUP_SUFFIX = ".bak"
 
 # Plausible sizes: anything beyond is a damaged file, a unit mix-up (degrees written as radians) or a broken robot.
-MAX_JOINT_OFFSET_RAD = math.radians(10.0)
-MAX_CAMERA_ROTATION_RAD = math.radians(15.0)
-MAX_CAMERA_TRANSLATION_M = 0.03  # solver/effects/camera_translation.py's offsets_limit
-MAX_BOARD_TRANS_M = 0.03
-MAX_BOARD_ROT_Z_RAD = math.radians(15.0)
+# Each effect keeps its own (solver/effects/); version 1 files are held to the same.
+MAX_JOINT_OFFSET_RAD = EFFECTS["joint_offsets"].offsets_limit  # 20 deg
+MAX_CAMERA_ROTATION_RAD = EFFECTS["camera_rotation"].offsets_limit  # 15 deg
+MAX_CAMERA_TRANSLATION_M = EFFECTS["camera_translation"].offsets_limit  # 0.03 m
+MAX_BOARD_TRANS_M = EFFECTS["board_mount"].limits["trans_x_m"]  # 0.03 m
+MAX_BOARD_ROT_Z_RAD = EFFECTS["board_mount"].limits["rot_z_rad"]  # 15 deg
 
 # model.parameters values by unit: beyond these no NAO parameter can be (a half turn, a metre, ...).
 MAX_PARAMETER_SIZE = {"rad": math.pi, "m": 1.0, "px": 1e5, "s": 10.0, "rad/(N m)": 10.0, "1": 100.0}

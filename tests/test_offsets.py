@@ -303,7 +303,7 @@ def test_missing_file_and_directory(tmp_path):
 
 
 def test_limits_are_the_documented_ones():
-    assert MAX_JOINT_OFFSET_RAD == pytest.approx(math.radians(10))
+    assert MAX_JOINT_OFFSET_RAD == pytest.approx(math.radians(20))
     assert MAX_CAMERA_ROTATION_RAD == pytest.approx(math.radians(15))
     assert MAX_BOARD_ROT_Z_RAD == pytest.approx(math.radians(15))
     assert MAX_BOARD_TRANS_M == 0.03

@@ -207,15 +207,13 @@ def test_a_gap_inside_the_margin_is_called_a_margin_violation_not_a_collision(bo
     guard = SafetyGuard(joint_limits(), CollisionChecker(body, margin_m=0.015, ground_margin_m=0.012),
                         {j: 5.0 for j in JOINTS})
     close = parked_posture()
-    close[JOINT_INDEX["LHipRoll"]] -= 0.16  # sandals a few millimetres apart
-    close[JOINT_INDEX["RHipRoll"]] += 0.16
+    close[JOINT_INDEX["LHipRoll"]], close[JOINT_INDEX["RHipRoll"]] = 0.12, -0.12  # sandals a few millimetres apart
     problem = guard.problem(close)
     assert problem.startswith("LSandal and RSandal closer than the 15 mm margin (") and "collision" not in problem
     gap_mm = float(problem.rsplit("(", 1)[1].split(" mm")[0])
     assert 0 < gap_mm < 15
     crossed = parked_posture()
-    crossed[JOINT_INDEX["LHipRoll"]] -= 0.22
-    crossed[JOINT_INDEX["RHipRoll"]] += 0.22
+    crossed[JOINT_INDEX["LHipRoll"]], crossed[JOINT_INDEX["RHipRoll"]] = 0.06, -0.06
     assert guard.problem(crossed).startswith("collision: LSandal and RSandal overlap by ")
 
 

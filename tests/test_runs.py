@@ -159,6 +159,7 @@ MISMATCHES = [
     (["--plan-seed", "5"], "--plan-seed 5 (the run: 0)"),
     (["--stances-per-leg", "6"], "--stances-per-leg 6 (the run: 5)"),
     (["--no-probe"], "--no-probe (the run: with the lag probe)"),
+    (["--mock", "realistic"], "--mock realistic (the run: ideal)"),
 ]
 
 
@@ -180,6 +181,29 @@ def test_resume_with_other_options_is_refused_before_anything_is_written(interru
     assert shlex.split(err.rsplit("(nothing was changed): ", 1)[1]) == [
         "naocal", "calibrate", *BASE, "--out", str(out), "--resume"]
     assert snapshot(out) == before
+
+
+def test_the_mock_realism_is_recorded_and_another_refused(tmp_path):
+    from agent.rundir import calibrate_record, mismatches, recorded_run, write_record
+
+    def record(mock):
+        return calibrate_record(backend="mock", mock_seed=3, mock=mock, effects={}, plan="paper", plan_seed=0,
+                                stances_per_leg=5, probe=True)
+
+    write_record(tmp_path, record("realistic"))
+    recorded, source = recorded_run(tmp_path)
+    assert recorded["mock"] == "realistic" and source.endswith("run.json")
+    assert mismatches(recorded, record("realistic")) == []
+    assert mismatches(recorded, record("ideal")) == ["--mock ideal (the run: realistic)"]
+    # run.json from before --mock, and a run from before run.json: the ideal mock, the only one there was
+    older = {k: v for k, v in record("ideal").items() if k != "mock"}
+    (tmp_path / "run.json").write_text(json.dumps(older))
+    assert mismatches(recorded_run(tmp_path)[0], record("realistic")) == ["--mock realistic (the run: ideal)"]
+    (tmp_path / "run.json").unlink()
+    (tmp_path / "truth.json").write_text(json.dumps({"effects": {}}))
+    assert recorded_run(tmp_path)[0]["mock"] == "ideal"
+    (tmp_path / "truth_effects.json").write_text(json.dumps({"realism": {"settings": {"name": "realistic"}}}))
+    assert recorded_run(tmp_path)[0]["mock"] == "realistic"
 
 
 @pytest.mark.slow

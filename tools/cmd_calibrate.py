@@ -29,6 +29,10 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
                         "head_offsets, intrinsics, distortion, time_lag")
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+                   help="mock: ideal (default: exact servos, 0.1 deg readings, small offsets) or realistic (a NAO V6 "
+                        "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "
+                        "deg, faulty corners; docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper",
                    help="paper: 24 random stances per leg x 3 head postures (default); optimal: greedy D-optimal "
                         "stances reaching the paper plan's precision")
@@ -37,6 +41,12 @@ def register(subparsers):
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe (slow sweeps; see docs/AGENT.md)")
     p.add_argument("--speed", type=float, default=0.4, metavar="F",
                    help="fraction of the joints' maximum speed for moves between stances (default 0.4)")
+    p.add_argument("--max-joint-offset-deg", type=float, metavar="DEG",
+                   help="refuse a calibration with a larger joint offset (default: the offsets file's limit, 20, "
+                        "solver/effects/joint_offsets.py; a warning above 8)")
+    p.add_argument("--max-camera-rotation-deg", type=float, metavar="DEG",
+                   help="refuse a calibration with a larger camera rotation (default: the offsets file's limit, 15; "
+                        "a warning above 7)")
     p.add_argument("--no-images", action="store_true", help="do not keep the captured images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(run=run)
@@ -54,15 +64,37 @@ def check_common(args) -> None:
         raise NaocalError(f"--stances-per-leg must be within 1..200, got {args.stances_per_leg}")
     if not 0.0 < args.speed <= 1.0:
         raise NaocalError(f"--speed must be within (0, 1], got {args.speed}")
+    for option, limit in _file_limits_deg().items():
+        value = getattr(args, option, None)
+        if value is not None and not 0.0 < value <= limit:
+            raise NaocalError(f"--{option.replace('_', '-')} must be within (0, {limit:g}] (the offsets file's limit), "
+                              f"got {value}")
+
+
+def _file_limits_deg() -> dict:
+    """{option: the largest value the offsets file holds, deg}: the effects' own limits (solver/effects/)."""
+    import math
+
+    from solver.effects import EFFECTS
+
+    return {"max_joint_offset_deg": round(math.degrees(EFFECTS["joint_offsets"].offsets_limit), 9),
+            "max_camera_rotation_deg": round(math.degrees(EFFECTS["camera_rotation"].offsets_limit), 9)}
 
 
 def settings_from_args(args, *, seed: int, source: str):
     from agent.planner import PlanSettings
     from agent.states import AgentSettings
 
+    import math
+
+    from agent.states import Thresholds
+
     plan = PlanSettings(kind=args.plan, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
+    given = {name: getattr(args, f"{name}_deg", None) for name in ("max_joint_offset", "max_camera_rotation")}
+    thresholds = Thresholds(**{f"{name}_rad": math.radians(v) for name, v in given.items() if v is not None})
     return AgentSettings(seed=seed, plan=plan, speed_fraction=args.speed, resume=getattr(args, "resume", False),
-                         save_images=not args.no_images, progress_bar=not args.no_progress, source=source)
+                         save_images=not args.no_images, progress_bar=not args.no_progress, source=source,
+                         thresholds=thresholds)
 
 
 def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, no_images: bool = False,
@@ -75,6 +107,8 @@ def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, n
         parts += ["--endpoint", endpoint]
     if record["backend"] == "mock":
         parts += ["--seed", str(record["mock_seed"])]
+        if record.get("mock", "ideal") != "ideal":
+            parts += ["--mock", record["mock"]]
     for name, size in record["effects"].items():
         parts += ["--effect", f"{name}={size!r}"]
     if record["plan"] != "paper":
@@ -141,6 +175,9 @@ def run(args) -> int:
         check_client_endpoint(args.endpoint)
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
+        if args.mock != "ideal":
+            raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
+                              "`naocal bridge serve --driver mock --mock realistic`")
     elif args.endpoint:
         raise NaocalError("--endpoint is for --backend bridge")
     effects = {}
@@ -149,8 +186,8 @@ def run(args) -> int:
 
         effects = parse_effect_sizes(args.effect)
     record = calibrate_record(backend=args.backend, mock_seed=args.seed if args.backend == "mock" else None,
-                              effects=effects, plan=args.plan, plan_seed=args.plan_seed,
-                              stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
+                              mock=args.mock if args.backend == "mock" else None, effects=effects, plan=args.plan,
+                              plan_seed=args.plan_seed, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
 
     def command(the_record, resume=True):
         return calibrate_command(the_record, out, endpoint=args.endpoint, speed=args.speed,
@@ -184,12 +221,15 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     settings.mock_seed = record["mock_seed"]
     settings.resume_command = resume_hint
     truth = None
+    detector = None
     if args.backend == "mock":
+        from agent.measure import opencv_detector
         from backends.mock import MockBackend
 
-        backend = MockBackend(args.seed, effects=effects)
-        label = f"mock (seed {args.seed}" + (", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items())
-                                             if effects else "") + ")"
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+        detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
+        label = f"mock (seed {args.seed}, {args.mock}" + (
+            ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
     else:
         from agent.rundir import BRIDGE_TOKEN_NAME
@@ -204,7 +244,8 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
         if truth is not None and not (out / "truth.json").exists():  # on --resume: the same truth, kept as it is
             atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")
             atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
-        result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth)
+        result, ctx = calibrate(backend, out, settings, backend_label=label, truth=truth,
+                                detector=detector)
     finally:
         backend.close()
     print(ctx.summary, end="")

@@ -20,6 +20,8 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+                   help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe")
@@ -48,6 +50,7 @@ def run(args) -> int:
 
     effects = parse_effect_sizes(args.effect)
     command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
+                         + (["--mock", args.mock] if args.mock != "ideal" else [])
                          + [f"--effect={k}={v!r}" for k, v in effects.items()])
     with RunLock(out, command):
         if entries(out):
@@ -60,13 +63,14 @@ def run(args) -> int:
 
         from agent.calibrate import simulate
         from agent.machine import INTERRUPTED
+        from agent.measure import opencv_detector
         from solver.fileio import atomic_write_text
 
         settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
-        backend = MockBackend(args.seed, effects=effects)
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
         try:
             atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
-            result, ctx = simulate(backend, out, settings)
+            result, ctx = simulate(backend, out, settings, detector=backend.faulty(opencv_detector))
         finally:
             backend.close()
     if result.final == INTERRUPTED:

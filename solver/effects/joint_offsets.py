@@ -20,9 +20,9 @@ class JointOffsets(Effect):
     base = True
     summary = "encoder offset c of each joint on the chains to the targets (q = theta - c)"
     reading_offsets = True
-    plausible_limit = math.radians(10.0)
+    plausible_limit = math.radians(20.0)  # real robots: HipYawPitch up to 11.5 deg (HULKs body configs)
     offsets_section, offsets_key = "body", "joint_offsets_rad"
-    offsets_limit = math.radians(10.0)
+    offsets_limit = math.radians(20.0)
 
     def parameters(self, setup):
         return per_joint(self, "joint_offset", setup.target_joints(), "rad", 0.01)
