@@ -218,7 +218,7 @@ def _write_overlay(out, image, report: dict) -> None:
     while canvas.shape[1] * scale < 640:
         scale += 1
     canvas = cv2.resize(canvas, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+    size = 0.4
     if report["found"]:
         grid = (np.asarray(report["corners_px"]) + 0.5) * scale - 0.5
         rows, columns = grid.shape[:2]
