@@ -25,7 +25,7 @@ from agent.progress import ProgressBar
 from agent.record import CaptureRecord, CaptureStore
 from agent.robot import Robot
 from agent.visibility import view_margin_px
-from solver.errors import SafetyError
+from backends.errors import SafetyError
 from solver.joints import JOINTS
 from solver.limits import head_pitch_limits
 from solver.model import HEAD_COLUMNS

@@ -26,7 +26,7 @@ import zmq
 from backends import protocol
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.protocol import ControlError, ProtocolError
-from solver.errors import BridgeError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotTimeout, SafetyError
 
 log = logging.getLogger("naocal.bridge.client")
 

@@ -35,7 +35,8 @@ import zmq
 from backends import protocol
 from backends.base import Backend
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
-from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotTimeout, SafetyError
+from solver.errors import NaocalError
 from solver.fileio import atomic_write_bytes
 
 log = logging.getLogger("naocal.bridge.server")

@@ -33,13 +33,11 @@ class SolveError(NaocalError):
     exit_code = 3
 
 
-class SafetyError(NaocalError):
-    """A command was refused because it would leave the joint limits or collide."""
+def __getattr__(name):
+    """The robot-side errors moved to backends.errors (the solver never talks to a robot); their old names import
+    from here until the next release."""
+    if name in ("SafetyError", "RobotTimeout", "BridgeError"):
+        from backends import errors
 
-
-class RobotTimeout(NaocalError):
-    """A wait on the robot passed its deadline."""
-
-
-class BridgeError(NaocalError):
-    """The network bridge failed after its retries, or the server answered with an error."""
+        return getattr(errors, name)
+    raise AttributeError(f"module 'solver.errors' has no attribute {name!r}")

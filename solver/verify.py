@@ -52,7 +52,7 @@ class FixedFit:
 
 
 @dataclass
-class Verification:
+class Verdict:
     """The verdict and the numbers behind it. RMS values in px over both coordinates unless they say (x, y)."""
 
     good: bool
@@ -170,7 +170,7 @@ def _group(p) -> str:
     return p.effect
 
 
-def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> Verification:
+def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> Verdict:
     """The residuals of `data` under the calibration `offsets`, compared with the calibration's RMS and the data's
     noise floor, and the verdict (see the module's docstring)."""
     effects = tuple(offsets.model.get("effects", ()))
@@ -228,7 +228,7 @@ def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> 
     else:
         verdict = (f"drifted: {head}; no calibrated parameter explains it (an effect the calibration lacks, or bad "
                    "detections: run naocal diagnose)")
-    return Verification(
+    return Verdict(
         good=good, verdict=verdict, overall=overall, per_camera=per_camera, per_target=per_target,
         per_image=per_image, calibration_rms_px=calibration_rms, noise_floor_px=comparison.noise_px,
         noise_source=comparison.noise_source, reference_px=reference, ratio=float(ratio), moved=moved,

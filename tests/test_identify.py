@@ -8,7 +8,7 @@ from solver.identify import identify
 from solver.model import Model
 from solver.joints import LEG_JOINTS
 from solver.registry import EXTRA_EFFECTS, Registry
-from solver.synthetic import random_truth, synthesize
+from sim.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
 

@@ -8,7 +8,7 @@ import pytest
 from solver.identify import NormalEquations, identify, normal_equations
 from solver.model import Model
 from solver.registry import Registry
-from solver.synthetic import random_truth, synthesize
+from sim.synthetic import random_truth, synthesize
 
 
 @pytest.fixture(scope="module")
