@@ -31,7 +31,7 @@ def make_data(n_vertices: int, seed: int = 0):
     import numpy as np
 
     from solver.model import ModelData
-    from solver.synthetic import random_truth, synthesize
+    from sim.synthetic import random_truth, synthesize
 
     rng = np.random.default_rng(seed)
     truth = random_truth(rng)
@@ -127,7 +127,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="3456,100000,301000,1000000")
     parser.add_argument("--dense-max", type=int, default=301000,
-                        help="largest size the dense solve is run at (its memory: ~8 KB per vertex)")
+                        help="largest size the dense solve is run at (its memory: ~1.1 KB per vertex)")
     parser.add_argument("--repeats", type=int, default=3, help="timed solves per size (3456: 10x as many)")
     parser.add_argument("--child", nargs=3, metavar=("N", "METHOD", "REPEATS"), help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -137,17 +137,21 @@ def main():
     print(f"BLAS threads: OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}; each line its own process")
     print(f"{'vertices':>9s} {'method':8s} {'time':>10s} {'peak (identify)':>16s} {'per vertex':>11s} "
           f"{'maxrss':>9s} {'worst joint':>12s}")
+    dense_per_vertex = None  # measured at the largest size the dense solve ran
     for size in (int(s) for s in args.sizes.split(",")):
         repeats = args.repeats * 10 if size < 10000 else args.repeats
         rows = {}
         for method in ("chunked", "dense"):
             if method == "dense" and size > args.dense_max:
-                print(f"{size:9d} dense    skipped: about {8.2 * size / 1e6:.1f} GB at ~8.2 KB per vertex "
-                      "(measured below)")
+                guess = "" if dense_per_vertex is None else \
+                    f": it would need about {dense_per_vertex * size / 2 ** 20:.0f} MiB at its measured bytes per vertex"
+                print(f"{size:9d} dense    skipped above --dense-max{guess}")
                 continue
             out = subprocess.run([sys.executable, __file__, "--child", str(size), method, str(repeats)],
                                  capture_output=True, text=True, check=True)
             row = rows[method] = json.loads(out.stdout)
+            if method == "dense":
+                dense_per_vertex = row["peak_bytes"] / row["n_vertices"]
             print(f"{row['n_vertices']:9d} {method:8s} {row['time_s'] * 1e3:8.1f} ms "
                   f"{row['peak_bytes'] / 2 ** 20:12.1f} MiB {row['peak_bytes'] / row['n_vertices']:8.0f} B "
                   f"{row['maxrss_bytes'] / 2 ** 20:7.0f} MiB {row['worst_joint_error_deg']:9.4f} deg", flush=True)
