@@ -21,7 +21,7 @@ from solver.joints import LEG_JOINTS, leg_joints
 from solver.model import Model
 from solver.registry import Registry
 from solver.camera import default_intrinsics
-from solver.synthetic import make_model_data
+from solver.adapter import make_model_data
 
 BASE_REGISTRY = Registry()  # the paper's 21 parameters
 

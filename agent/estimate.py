@@ -21,7 +21,7 @@ from solver.identify import identify
 from solver.joints import JOINTS, LEGS, leg_joints
 from solver.model import Model
 from solver.registry import Registry
-from solver.synthetic import make_model_data
+from solver.adapter import make_model_data
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ from agent.record import CaptureRecord, CaptureStore
 from agent.robot import Robot
 from agent.safety import prior_covariance
 from agent.visibility import OcclusionChecker, view_margin_px
-from solver.errors import SafetyError
+from backends.errors import SafetyError
 from solver.joints import JOINTS
 from solver.limits import head_pitch_limits
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS

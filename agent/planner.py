@@ -5,7 +5,7 @@ Every capture of a plan satisfies, on the nominal model:
   `max_tilt_deg`), squares large enough to detect;
 - joints inside their limits with a margin, HeadPitch inside the HeadPitch-vs-HeadYaw table with a margin and high
   enough that the head stays clear of the ground (the robot lies on its back);
-- no self-collision or ground contact (backends.pybullet_body.CollisionChecker with margins larger than the
+- no self-collision or ground contact (body.nao_body.CollisionChecker with margins larger than the
   robot's own refusal check, because the true robot differs from the nominal one by its offsets), and the two
   legs' feet and shins kept `legs_apart_m` apart (the other leg's offsets are unknown while one is measured);
 - no part of the robot (the other leg, the own foot, the head) between the camera and the board (ray tests).
@@ -38,11 +38,11 @@ from agent.design import (BASE_REGISTRY, greedy_d_optimal, log_det, matching_cou
 from agent.plan import Plan, Still, Sweep
 from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
 from agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
-from backends.pybullet_body import CollisionChecker, NaoBody
-from backends.pybullet_quiet import pybullet
+from body.nao_body import CollisionChecker, NaoBody
+from body.pybullet_quiet import pybullet
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
-from solver.errors import SafetyError
+from backends.errors import SafetyError
 from solver.camera import default_intrinsics
 from solver.limits import head_pitch_limits, joint_limits, max_speeds
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS
@@ -116,7 +116,7 @@ class PlanSettings:
 
 
 @dataclass
-class Candidate:
+class FeasibleStance:
     """A feasible stance: leg angles (6,) and its head postures (H, 2), nominal-model checked; `early`: it keeps its
     margins before any offset is known (it may open its leg's measurement)."""
 
@@ -265,7 +265,7 @@ class Planner:
         return heads[chosen]
 
     def candidates(self, leg: str, rng, n_wanted: int, *, max_batches=400, batch=256,
-                   early_only: bool = False) -> list[Candidate]:
+                   early_only: bool = False) -> list[FeasibleStance]:
         """`n_wanted` feasible stances of `leg` in random order (deterministic from rng): they keep their margins
         for the offsets still unknown when the agent gets to them (`offset_covariance`, not early); those that
         keep them before anything is known are marked `early` (`early_only`: only those)."""
@@ -273,7 +273,7 @@ class Planner:
         names = leg_joints(leg)
         lo = np.array([self.limits[j][0] for j in names]) + s.joint_margin_rad
         hi = np.array([self.limits[j][1] for j in names]) - s.joint_margin_rad
-        found: list[Candidate] = []
+        found: list[FeasibleStance] = []
         for _ in range(max_batches):
             q = rng.uniform(lo, hi, size=(batch, 6))
             heads = self._head_samples(rng)
@@ -284,7 +284,7 @@ class Planner:
                 chosen = self._spread_heads(leg, q[i], heads, visible[i], rng)
                 if chosen is None:
                     continue
-                cand = Candidate(leg, q[i].copy(), chosen)
+                cand = FeasibleStance(leg, q[i].copy(), chosen)
                 postures = cand.stances(self.parked)
                 if not self.robust_ok(postures, self.offset_covariance(leg, early=False)):
                     continue
@@ -304,7 +304,7 @@ class Planner:
         v = np.array([self.speeds[j] for j in JOINTS]) * f
         return float(np.max(np.abs(np.asarray(b14) - np.asarray(a14)) / v))
 
-    def order(self, cands: list[Candidate], start14: np.ndarray) -> list[int]:
+    def order(self, cands: list[FeasibleStance], start14: np.ndarray) -> list[int]:
         """Visit order of one leg's stances: first `early_stances_per_leg` early ones (the nearest in turn), which
         teach the agent the offsets; then the rest as `tour` orders them."""
         k = self.settings.early_stances_per_leg
@@ -320,7 +320,7 @@ class Planner:
         rest = [i for i in range(len(cands)) if i not in first]
         return first + [rest[i] for i in self.tour([cands[i] for i in rest], position)]
 
-    def tour(self, cands: list[Candidate], start14: np.ndarray) -> list[int]:
+    def tour(self, cands: list[FeasibleStance], start14: np.ndarray) -> list[int]:
         """Visit order of stances: short total motion along clear paths, approach directions of every
         leg joint balanced.
 
@@ -400,7 +400,7 @@ class Planner:
         return min(tours, key=score)
 
     # --- the lag probe --------------------------------------------------------------------------------------
-    def probe_sweep(self, cand: Candidate, head: np.ndarray, rng, tries=48):
+    def probe_sweep(self, cand: FeasibleStance, head: np.ndarray, rng, tries=48):
         """(start14, end14) of a slow sweep through (or near) `cand` that keeps the board visible all the way,
         or None. Every leg joint moves (random directions), all at probe_speed_fraction of their own maximum speed,
         so that the sweep takes probe_duration_s; the centre is moved off the limits where the sweep needs room."""
@@ -447,7 +447,7 @@ class Planner:
             selected, stats["design"] = self._optimal_selection(pools)
         return self._assemble(seed, selected, verification_cands, rng, stats)
 
-    def information(self, cands: list[Candidate]) -> np.ndarray:
+    def information(self, cands: list[FeasibleStance]) -> np.ndarray:
         s = self.settings
         theta = np.concatenate([c.stances(self.parked) for c in cands])
         leg = np.repeat([c.leg for c in cands], [len(c.heads) for c in cands])

@@ -14,7 +14,7 @@ import numpy as np
 
 from agent.safety import SafetyGuard
 from backends.base import Backend, CameraImage
-from solver.errors import RobotTimeout
+from backends.errors import RobotTimeout
 from solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
@@ -44,7 +44,7 @@ def as_dict(q14) -> dict:
 
 
 @dataclass(frozen=True)
-class Still:
+class Rest:
     """The robot at rest: since `t_still_s` (first sample of the still window), last reading `reading_rad`."""
 
     t_still_s: float
@@ -89,7 +89,7 @@ class Robot:
         self.n_commands += 1
         return duration
 
-    def move(self, target14, speed_fraction: float | None = None) -> Still:
+    def move(self, target14, speed_fraction: float | None = None) -> Rest:
         """Go to target14 (via a detour if the direct path is not clear) and wait until the joints are still."""
         f = self.speed_fraction if speed_fraction is None else speed_fraction
         still = None
@@ -103,7 +103,7 @@ class Robot:
         reading = self.backend.read_joints()
         return reading.t_s, as_vector(reading.angles_rad)
 
-    def wait_still(self, target14, expected_s: float, t_command: float) -> Still:
+    def wait_still(self, target14, expected_s: float, t_command: float) -> Rest:
         """Wait until every joint has moved less than still_tolerance_rad over still_window_s and is within
         reach_tolerance_rad of target14. Deadline: t_command + expected_s + settle_deadline_s."""
         tm = self.timing
@@ -125,7 +125,7 @@ class Robot:
                 away = np.abs(q - target14) > tm.reach_tolerance_rad
                 if not moving.any() and not away.any():
                     # Start the still period where the joints stopped: the first sample that equals the rest.
-                    return Still(window[0][0], t, q)
+                    return Rest(window[0][0], t, q)
             if self.now() > deadline:
                 names = [JOINTS[j] for j in np.flatnonzero(np.abs(q - target14) > tm.reach_tolerance_rad)]
                 detail = f"{', '.join(names)} not at the commanded angle" if names else "joints still moving"

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from backends.pybullet_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
-from solver.errors import SafetyError
+from body.nao_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
+from backends.errors import SafetyError
 from solver.joints import JOINT_INDEX, JOINTS
 from solver.limits import head_pitch_problem
 

@@ -29,10 +29,11 @@ from agent.robot import Robot, TimingSettings
 from agent.safety import SafetyGuard
 from agent.verify import verify
 from backends.compensated import CompensatedBackend
-from backends.pybullet_body import CollisionChecker, NaoBody
+from body.nao_body import CollisionChecker, NaoBody
 from solver.adapter import model_data_from_dataset
 from solver.dataset import read_dataset
-from solver.errors import NaocalError, SafetyError
+from backends.errors import SafetyError
+from solver.errors import NaocalError
 from solver.fileio import atomic_write_text
 from solver.identify import identify
 from solver.joints import JOINTS, LEGS

@@ -1,7 +1,7 @@
 """Can the bottom camera see a sandal well? Projection margins, viewing angle, square size, and occlusion.
 
 Pure, vectorised functions of the nominal model, plus `OcclusionChecker`, which casts rays in the nominal PyBullet
-body (backends.pybullet_body.NaoBody) from the camera to the printed board: the other leg, the own foot or the
+body (body.nao_body.NaoBody) from the camera to the printed board: the other leg, the own foot or the
 head must not hide any part of it.
 """
 
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backends.pybullet_body import T_WORLD_TORSO, NaoBody
-from backends.pybullet_quiet import pybullet
+from body.nao_body import T_WORLD_TORSO, NaoBody
+from body.pybullet_quiet import pybullet
 from solver.camera import project_points
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole

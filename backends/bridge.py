@@ -34,7 +34,8 @@ from backends import protocol
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.bridge_endpoint import check_client_endpoint
 from backends.protocol import ControlError, ProtocolError
-from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotTimeout, SafetyError
+from solver.errors import NaocalError
 
 log = logging.getLogger("naocal.bridge.client")
 

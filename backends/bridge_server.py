@@ -39,7 +39,8 @@ from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
 from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
 from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
-from solver.errors import BridgeError, NaocalError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotTimeout, SafetyError
+from solver.errors import NaocalError
 from solver.fileio import atomic_write_bytes
 
 log = logging.getLogger("naocal.bridge.server")

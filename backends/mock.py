@@ -1,6 +1,6 @@
 """A simulated NAO with hidden, known errors: the `Backend` that naocal is tested and learned on.
 
-The robot lies on its back (backends.pybullet_body); its bottom camera is rendered (backends.mock_render); time is
+The robot lies on its back (body.nao_body); its bottom camera is rendered (backends.mock_render); time is
 simulated (`now()` and `sleep()` advance a counter, nothing waits on the wall clock). docs/MOCK.md describes the
 model; in short:
 
@@ -58,11 +58,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.errors import SafetyError
 from backends.mock_realism import IDEAL, Realism, as_realism
 from backends.mock_render import CameraModel, RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
 from backends.mock_servo import SecondOrder, rest_offset, servo_positions
-from backends.pybullet_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
-from solver.errors import NaocalError, SafetyError
+from body.nao_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
+from solver.errors import NaocalError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, leg_fk
 from solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds

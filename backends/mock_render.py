@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backends.pybullet_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
-from backends.pybullet_quiet import pybullet
+from body.nao_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
+from body.pybullet_quiet import pybullet
 from solver.camera import project_points
 from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 from solver.transforms import invert_transform

@@ -37,7 +37,8 @@ import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, nominal_intrinsics
 from solver import limits
-from solver.errors import NaocalError, RobotTimeout, SafetyError
+from backends.errors import RobotTimeout, SafetyError
+from solver.errors import NaocalError
 from solver.joints import HEAD_JOINTS, JOINTS
 
 log = logging.getLogger("naocal.naoqi")

@@ -21,7 +21,7 @@ import msgpack
 import numpy as np
 
 from backends.base import CameraImage, CameraIntrinsics, JointReading
-from solver.errors import BridgeError
+from backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply

@@ -26,7 +26,7 @@ from solver.identify import identify  # noqa: E402
 from solver.joints import LEG_JOINTS  # noqa: E402
 from solver.model import Model  # noqa: E402
 from solver.registry import Registry  # noqa: E402
-from solver.synthetic import random_truth, synthesize  # noqa: E402
+from sim.synthetic import random_truth, synthesize  # noqa: E402
 
 
 def refit_every_candidate(result, candidates):

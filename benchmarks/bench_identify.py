@@ -29,7 +29,7 @@ from solver.identify import identify  # noqa: E402
 from solver.kinematics import camera_fk, leg_fk  # noqa: E402
 from solver.joints import HEAD_COLUMNS, LEG_COLUMNS, LEG_JOINTS  # noqa: E402
 from solver.registry import Registry  # noqa: E402
-from solver.synthetic import random_truth, synthesize  # noqa: E402
+from sim.synthetic import random_truth, synthesize  # noqa: E402
 from solver.transforms import rot_x, rot_y, rot_z  # noqa: E402
 
 

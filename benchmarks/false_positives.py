@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from solver.diagnostics import diagnose_result  # noqa: E402
 from solver.identify import identify  # noqa: E402
 from solver.registry import Registry  # noqa: E402
-from solver.synthetic import random_truth, synthesize  # noqa: E402
+from sim.synthetic import random_truth, synthesize  # noqa: E402
 
 
 def main():

@@ -116,3 +116,32 @@ def model_data_from_dataset(dataset, angles: str = "auto") -> ModelData:
         loads=loads, angle_choice=choice, commanded=commanded,
     )
     return data.sorted_by_target()
+
+
+def make_model_data(theta, leg, stance, head_posture, *, direction=None, velocity=None,
+                    intrinsics=None, gravity_torso_mps2=(-9.81, 0.0, 0.0)) -> ModelData:
+    """ModelData of the NAO's bottom camera for every vertex of every image of the sandals `leg` (M,), with zero
+    detections (fill uv_px afterwards): what the agent's planner and estimator evaluate the model on for stances it
+    plans or has measured. theta (M, 14) in solver.joints.JOINTS order; intrinsics default to the description's."""
+    from solver.camera import default_intrinsics
+    from solver.joints import JOINTS
+    from solver.robot import nao
+
+    intrinsics = default_intrinsics() if intrinsics is None else intrinsics
+
+    M = len(theta)
+    robot = nao()
+    leg = np.asarray(leg).astype(str)
+    counts = {t: robot.target(t).board.n_vertices for t in np.unique(leg)}
+    n = np.array([counts[t] for t in leg], dtype=int)
+    image_of_row = np.repeat(np.arange(M), n)
+    vertex = np.concatenate([np.arange(k) for k in n]) if M else np.zeros(0, dtype=int)
+    p_mount = np.concatenate([robot.target(t).vertices() for t in leg]) if M else np.zeros((0, 3))
+    theta = np.asarray(theta, dtype=float)
+    return ModelData(
+        image_of_row=image_of_row, vertex=vertex, uv_px=np.zeros((len(vertex), 2)), p_mount=p_mount, target=leg,
+        image_id=np.arange(M), stance=np.asarray(stance), head_posture=np.asarray(head_posture), theta=theta,
+        direction=np.zeros_like(theta) if direction is None else np.asarray(direction, dtype=float),
+        velocity=velocity, cameras={robot.default_cameras[0]: dict(intrinsics)}, joints=JOINTS,
+        gravity_mps2=np.asarray(gravity_torso_mps2, dtype=float), robot=robot,
+    )

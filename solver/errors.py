@@ -33,18 +33,6 @@ class SolveError(NaocalError):
     exit_code = 3
 
 
-class SafetyError(NaocalError):
-    """A command was refused because it would leave the joint limits or collide."""
-
-
-class RobotTimeout(NaocalError):
-    """A wait on the robot passed its deadline."""
-
-
-class BridgeError(NaocalError):
-    """The network bridge failed after its retries, or the server answered with an error."""
-
-
 class DiskFullError(NaocalError):
     """A write failed for want of space (ENOSPC) or quota (EDQUOT). Names the file and the free space; what was
     saved before stays intact (writes are atomic or appended whole)."""
@@ -56,3 +44,13 @@ class DiskFullError(NaocalError):
         self.free_bytes = free_bytes
         free = "free space unknown" if free_bytes is None else f"{free_bytes} bytes free"
         super().__init__(f"cannot write {self.path}: {reason} ({free})")
+
+
+def __getattr__(name):
+    """The robot-side errors moved to backends.errors (the solver never talks to a robot); their old names import
+    from here until the next release."""
+    if name in ("SafetyError", "RobotTimeout", "BridgeError"):
+        from backends import errors
+
+        return getattr(errors, name)
+    raise AttributeError(f"module 'solver.errors' has no attribute {name!r}")

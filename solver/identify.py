@@ -89,13 +89,13 @@ class IdentificationResult:
         }
 
 
-def identifiability(J_free: np.ndarray, registry: Registry):
-    """Column-scaled SVD of the Jacobian: condition number, and the weakest directions in parameter names."""
-    scales = registry.scales[registry.free_index]
-    Js = J_free * scales
-    # Singular values from the small normal matrix: exact enough here (we only compare against 1e-6 of the
-    # largest) and 50x cheaper than an SVD of the tall Jacobian.
-    eigenvalues, vectors = np.linalg.eigh(Js.T @ Js)
+def identifiability(As: np.ndarray):
+    """Singular values of the column-scaled Jacobian from its normal matrix As = Js^T Js (Js = J * scales):
+    condition number, singular values (largest first) and right singular vectors (rows of Vt).
+
+    From the small normal matrix: exact enough here (we only compare against 1e-6 of the largest) and the tall
+    Jacobian is never held whole (NormalEquations)."""
+    eigenvalues, vectors = np.linalg.eigh(As)
     order = np.argsort(eigenvalues)[::-1]
     sv = np.sqrt(np.clip(eigenvalues[order], 0.0, None))
     Vt = vectors[:, order].T
@@ -126,9 +126,10 @@ def data_warnings(data: ModelData) -> list[str]:
     return warnings
 
 
-def check_identifiable(J_free: np.ndarray, registry: Registry):
-    """Raise SolveError naming the parameters that the data cannot determine at all."""
-    cond, sv, Vt = identifiability(J_free, registry)
+def check_identifiable(As: np.ndarray, registry: Registry):
+    """Raise SolveError naming the parameters that the data cannot determine at all (As: the scaled normal matrix
+    of the free parameters)."""
+    cond, sv, Vt = identifiability(As)
     bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
     if len(bad):
         names = registry.free_names
@@ -141,55 +142,160 @@ def check_identifiable(J_free: np.ndarray, registry: Registry):
         )
 
 
-def parameter_covariance(J_free, r, sv, Vt, scales, image_of_row, cluster_of_image, dof):
+# Vertex rows per chunk of NormalEquations: a chunk's Jacobian is rows x 2 x P doubles (5.5 MB at 16384 rows and
+# 21 parameters), so memory stays linear in the data with a small constant and the chunk's arrays stay near the
+# caches; the paper's 3456 vertices are one chunk (benchmarks/bench_scale.py measured the choice).
+CHUNK_ROWS = 16384
+
+
+@dataclass
+class Normal:
+    """What one pass over the data gives at one free vector, in scaled variables (xs = x / scales): the normal matrix
+    A = Js^T Js, the gradient g = Js^T r, the cost 0.5 r^T r, the residuals (N, 2) and each image's score
+    Js_m^T r_m (M, P_free) for the cluster-robust covariance."""
+
+    A: np.ndarray
+    g: np.ndarray
+    cost: float
+    residuals: np.ndarray
+    scores: object  # (M, P_free) array, or a function computing it (one chunk: only the final pass needs them)
+
+    @property
+    def image_scores(self) -> np.ndarray:
+        if callable(self.scores):
+            self.scores = self.scores()
+        return self.scores
+
+
+class NormalEquations:
+    """The model's normal equations accumulated over chunks of images: the dense (2N x P) Jacobian is never held
+    for more than `chunk_rows` vertices at a time, so memory grows with the data by a small constant (the data, the
+    residuals) and the parameter count stays the only square term.
+
+    model : the Model over all the data (its data sorted by target; chunks are runs of its images, in order).
+    """
+
+    def __init__(self, data: ModelData, registry: Registry, base: np.ndarray, *, chunk_rows: int = CHUNK_ROWS):
+        self.model = model = Model(data, registry)
+        self.registry, self.base = registry, np.asarray(base, dtype=float)
+        data = model.data
+        counts = np.bincount(data.image_of_row, minlength=data.n_images)
+        first = np.searchsorted(data.image_of_row, np.arange(data.n_images + 1))  # each image's first row
+        cuts = [0]
+        for m, row in enumerate(first[:-1]):
+            if m > cuts[-1] and row - first[cuts[-1]] + counts[m] > chunk_rows:
+                cuts.append(m)
+        cuts.append(data.n_images)
+        self.image_ranges = list(zip(cuts[:-1], cuts[1:]))
+        self.parts = [model] if len(self.image_ranges) == 1 else [
+            Model(data.subset(np.arange(a, b)), registry) for a, b in self.image_ranges]
+        self.scales = registry.scales[registry.free_index]
+        P = len(registry)
+        self._identity_expand = registry.expand.shape == (P, P) and np.array_equal(registry.expand, np.eye(P))
+
+    def __call__(self, free: np.ndarray, *, weights: np.ndarray | None = None, jacobian: bool = True) -> Normal:
+        """One pass at the free vector `free`. `weights` (N,) per vertex (a robust loss's): g, cost and the scores
+        are of the weighted residuals sqrt(w) r, A stays J^T J (the covariance's bread); the residuals are returned
+        unweighted. Without `jacobian` only the residuals and cost."""
+        values = self.registry.unpack(free, self.base)
+        p = len(self.scales)
+        A, g, rss = np.zeros((p, p)), np.zeros(p), 0.0
+        residuals = np.empty((self.model.data.n_rows, 2))
+        image_scores = np.zeros((self.model.data.n_images, p))
+        single = len(self.parts) == 1
+        row = 0
+        for (first_image, _), part in zip(self.image_ranges, self.parts):
+            n = part.data.n_rows
+            r, J = part.evaluate(values, jacobian=jacobian)
+            residuals[row:row + n] = r
+            r = r.reshape(-1)
+            if weights is not None:
+                sqrt_w = np.sqrt(np.repeat(weights[row:row + n], 2))
+                r = r * sqrt_w
+            rss += float(r @ r)
+            if jacobian:
+                J = J.reshape(len(r), -1)
+                Js = (J if self._identity_expand else J @ self.registry.expand) * self.scales
+                A += Js.T @ Js
+                g += Js.T @ r
+                starts = 2 * np.searchsorted(part.data.image_of_row, np.arange(part.data.n_images))
+                scores = lambda Js=Js, r=r, starts=starts: np.add.reduceat(Js * r[:, None], starts, axis=0)  # noqa
+                if single:
+                    image_scores = scores if len(r) else image_scores
+                elif len(r):
+                    image_scores[first_image:first_image + part.data.n_images] = scores()
+            row += n
+        return Normal(A, g, 0.5 * rss, residuals, image_scores)
+
+    def residuals(self, free: np.ndarray) -> np.ndarray:
+        return self(free, jacobian=False).residuals
+
+    def dense(self, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(r (2N,), J_free (2N, P_free)) at once: for scipy's solvers (robust losses, MINPACK), which need the whole
+        Jacobian; memory 16 P bytes per vertex."""
+        values = self.registry.unpack(free, self.base)
+        rs, Js = [], []
+        for part in self.parts:
+            r, J = part.evaluate(values)
+            J = J.reshape(r.size, -1)
+            rs.append(r.reshape(-1))
+            Js.append(J if self._identity_expand else J @ self.registry.expand)
+        return np.concatenate(rs), np.concatenate(Js)
+
+
+def normal_equations(model: Model, registry: Registry, values: np.ndarray, *, chunk_rows: int = CHUNK_ROWS):
+    """(A, g, rss, n) at the full vector `values`: the free parameters' normal matrix and gradient in UNSCALED units
+    (J^T J, J^T r), the residual sum of squares and the number of residual coordinates; chunked (NormalEquations)."""
+    equations = NormalEquations(model.data, registry, values, chunk_rows=chunk_rows)
+    normal = equations(registry.pack(values))
+    inverse_scales = 1.0 / equations.scales
+    return (normal.A * np.outer(inverse_scales, inverse_scales), normal.g * inverse_scales, 2.0 * normal.cost,
+            2 * model.data.n_rows)
+
+
+def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image, n, dof):
     """Covariance of the free parameters: cluster-robust (sandwich), and the classic s^2 (J^T J)^-1.
 
     The 24 vertices of one image share its errors (a board that flexes, a detection bias), and the images of one
     stance share the leg's (encoder quantisation, play, whatever the model lacks about that posture), so the
     classic estimate, which treats every pixel as independent, is too optimistic; the sandwich
     (J^T J)^-1 (sum_c g_c g_c^T) (J^T J)^-1 with g_c = J_c^T r_c the score of cluster c is not. Clusters:
-    `cluster_of_image` (M,) (solver.scoretest.stance_cluster_of_image). Both are in the
-    unscaled parameter units. Unidentifiable directions (singular value below UNIDENTIFIABLE_RATIO) are left out.
+    `cluster_of_image` (M,) (solver.scoretest.stance_cluster_of_image); `image_scores` (M, P) the scaled scores of
+    each image (Normal.image_scores). Both results are in the unscaled parameter units. Unidentifiable directions
+    (singular value below UNIDENTIFIABLE_RATIO) are left out.
     """
     usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
     inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
     bread = (Vt.T * inv_sv2) @ Vt  # (Js^T Js)^+ in scaled units
-    s2 = float(r @ r) / dof
+    s2 = rss / dof
     covariance_iid = bread * s2 * np.outer(scales, scales)
-    Js = J_free * scales
-    rows = np.repeat(image_of_row, 2)  # grouped by image (Model sorts its data so)
-    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
-    per_image = np.add.reduceat(Js * r[:, None], starts, axis=0) if len(rows) else np.zeros((0, Js.shape[1]))
-    scores = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, Js.shape[1]))
-    np.add.at(scores, np.asarray(cluster_of_image)[rows[starts]], per_image)
-    n_clusters = len(scores)
-    n, p = len(r), Js.shape[1]
+    scores = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, As.shape[1]))
+    np.add.at(scores, np.asarray(cluster_of_image, dtype=int), image_scores)
+    n_clusters, p = len(scores), As.shape[1]
     small_sample = n_clusters / max(n_clusters - 1, 1) * (n - 1) / max(n - p, 1)
     covariance = bread @ (scores.T @ scores) @ bread * small_sample * np.outer(scales, scales)
     return covariance, covariance_iid
 
 
-def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
+def levenberg_marquardt(normal_at, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
     """Levenberg-Marquardt with Nielsen's damping update, on the normal equations in scaled variables.
 
-    `fun_and_jac(x)` returns (r, J). The variables are scaled by `scales` (x = scales * xs) so that parameters in
-    m, rad and px are conditioned alike. Returns (x, r, J, status, message, n_jacobians, n_functions); status as
+    `normal_at(x)` returns a Normal (A = Js^T Js, g = Js^T r, cost = 0.5 r^T r, Js = J * scales) at x: the
+    variables are scaled by `scales` (x = scales * xs) so that parameters in m, rad and px are conditioned alike,
+    and only the P x P normal equations are needed, never the tall Jacobian (NormalEquations accumulates them
+    over chunks of images). Returns (x, Normal at x, status, message, n_jacobians, n_functions); status as
     scipy.optimize.least_squares's (TERMINATION_MESSAGES).
-    The normal equations cost O(m n^2) once per iteration with BLAS (dsyrk): for the 3456-vertex problem that
-    is ~0.1 ms, where MINPACK's unblocked QR costs ~3 ms (see benchmarks/bench_identify.py).
     """
     x = np.array(x0, dtype=float)
-    r, J = fun_and_jac(x)
+    at = normal_at(x)
     n_fun = n_jac = 1
-    Js = J * scales
-    A, g = Js.T @ Js, Js.T @ r
-    cost = 0.5 * float(r @ r)
-    mu = 1e-6 * float(np.max(np.diag(A))) if A.size else 0.0
+    mu = 1e-6 * float(np.max(np.diag(at.A))) if at.A.size else 0.0
     nu = 2.0
     identity = np.eye(len(x))
     for _ in range(max_iterations):
+        A, g, cost = at.A, at.g, at.cost
         if np.max(np.abs(g), initial=0.0) <= gtol:
-            return x, r, J, 1, TERMINATION_MESSAGES[1], n_jac, n_fun
+            return x, at, 1, TERMINATION_MESSAGES[1], n_jac, n_fun
         try:
             step_s = -np.linalg.solve(A + mu * identity, g)
         except np.linalg.LinAlgError:
@@ -197,33 +303,30 @@ def levenberg_marquardt(fun_and_jac, x0, scales, *, max_iterations=100, ftol=1e-
             continue
         xs = x / scales
         if np.linalg.norm(step_s) <= xtol * (np.linalg.norm(xs) + xtol):
-            return x, r, J, 3, TERMINATION_MESSAGES[3], n_jac, n_fun
+            return x, at, 3, TERMINATION_MESSAGES[3], n_jac, n_fun
         predicted = 0.5 * float(step_s @ (mu * step_s - g))  # cost reduction the linear model promises
         if predicted <= ftol * cost:  # the linear model promises (almost) nothing more
-            return x, r, J, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
+            return x, at, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
         x_new = x + step_s * scales
-        r_new, J_new = fun_and_jac(x_new)
+        trial = normal_at(x_new)
         n_fun += 1
-        cost_new = 0.5 * float(r_new @ r_new)
-        rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
+        rho = (cost - trial.cost) / predicted if predicted > 0 else -1.0
         if rho > 0:
-            reduction = cost - cost_new
-            x, r, J, cost = x_new, r_new, J_new, cost_new
+            reduction = cost - trial.cost
+            x, at = x_new, trial
             n_jac += 1
-            Js = J * scales
-            A, g = Js.T @ Js, Js.T @ r
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
-            if reduction <= ftol * cost_new:
-                return x, r, J, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
+            if reduction <= ftol * trial.cost:
+                return x, at, 2, TERMINATION_MESSAGES[2], n_jac, n_fun
         else:
             mu, nu = mu * nu, nu * 2.0
-    return x, r, J, 0, TERMINATION_MESSAGES[0], n_jac, n_fun
+    return x, at, 0, TERMINATION_MESSAGES[0], n_jac, n_fun
 
 
 def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",
              loss_scale_px: float = 1.0, max_iterations: int = 100, check: bool = True,
-             solver: str = "lm") -> IdentificationResult:
+             solver: str = "lm", chunk_rows: int = CHUNK_ROWS) -> IdentificationResult:
     """Fit the registry's free parameters to the detected vertices.
 
     Parameters
@@ -232,83 +335,93 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     loss : 'linear' (plain least squares) or a robust loss of scipy.optimize.least_squares ('soft_l1', 'huber',
         'cauchy'), solved by its trust-region method; images it down-weights are reported.
     loss_scale_px : residual size at which the robust loss starts to down-weight, px.
-    solver : 'lm' (naocal's Levenberg-Marquardt on the normal equations, the fast default) or 'minpack'
-        (scipy.optimize.least_squares(method='lm')); both minimise the same sum of squares.
+    solver : 'lm' (naocal's Levenberg-Marquardt on the normal equations, the fast default, memory linear in the
+        data) or 'minpack' (scipy.optimize.least_squares(method='lm')); both minimise the same sum of squares.
+        The robust losses and 'minpack' hold the whole Jacobian (16 P bytes per vertex).
+    chunk_rows : vertices per chunk of the normal equations (NormalEquations).
     """
     start = time.perf_counter()
     warnings = []
     base = registry.zeros() if x0 is None else np.asarray(x0, dtype=float)
 
     def make_problem(registry):
-        """The model and a cached residual-and-Jacobian function of the free vector (LM asks both at one x)."""
-        model = Model(data, registry)
-        P = len(registry)
-        identity_expand = registry.expand.shape == (P, P) and np.array_equal(registry.expand, np.eye(P))
+        """The chunked normal equations, and a cache of the last pass (LM and the checks ask at one x twice)."""
+        equations = NormalEquations(data, registry, base, chunk_rows=chunk_rows)
         cache = {}
 
-        def fun_and_jac(free):
+        def normal_at(free):
             key = free.tobytes()
             if key not in cache:
                 cache.clear()
-                r, J = model.evaluate(registry.unpack(free, base))
-                J = J.reshape(-1, P)
-                cache[key] = (r.ravel(), J if identity_expand else registry.free_jacobian(J))
+                cache[key] = equations(free)
             return cache[key]
 
-        return model, fun_and_jac
+        return equations, normal_at
 
-    model, fun_and_jac = make_problem(registry)
+    equations, normal_at = make_problem(registry)
+    model = equations.model
     if check:
         warnings.extend(data_warnings(model.data))
-        J0 = fun_and_jac(registry.pack(base))[1]
-        empty = [n for n, col in zip(registry.free_names, J0.T) if not np.any(col)]
+        empty = [n for n, a in zip(registry.free_names, np.diag(normal_at(registry.pack(base)).A)) if a == 0]
         if empty:
             warnings.append(f"no data for {', '.join(empty)}: these parameters are fixed at their start values")
             registry = registry.with_fixed(empty)
-            model, fun_and_jac = make_problem(registry)
+            equations, normal_at = make_problem(registry)
     if not len(registry.free_names):
         raise SolveError("no free parameters to identify")
 
-    scales = registry.scales[registry.free_index]
+    scales = equations.scales
     free0 = registry.pack(base)
     if check:
-        check_identifiable(fun_and_jac(free0)[1], registry)
+        check_identifiable(normal_at(free0).A, registry)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         try:
             if loss == "linear" and solver == "lm":
-                free, r, J_free, status, message, n_jac, n_fun = levenberg_marquardt(
-                    fun_and_jac, free0, scales, max_iterations=max_iterations)
+                free, final, status, message, n_jac, n_fun = levenberg_marquardt(
+                    normal_at, free0, scales, max_iterations=max_iterations)
                 success = status > 0
             else:
+                dense_cache = {}
+
+                def dense(f):
+                    key = f.tobytes()
+                    if key not in dense_cache:
+                        dense_cache.clear()
+                        dense_cache[key] = equations.dense(f)
+                    return dense_cache[key]
+
                 method = "lm" if loss == "linear" else "trf"
                 sol = least_squares(
-                    lambda f: fun_and_jac(f)[0], free0, jac=lambda f: fun_and_jac(f)[1], method=method,
+                    lambda f: dense(f)[0], free0, jac=lambda f: dense(f)[1], method=method,
                     x_scale=scales, loss=loss, f_scale=loss_scale_px,
                     max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
                 )
+                dense_cache.clear()
                 free, status = sol.x, int(sol.status)
                 message = TERMINATION_MESSAGES.get(status, str(sol.message))
                 n_jac, n_fun, success = int(sol.njev or 0), int(sol.nfev), bool(sol.success)
-                r, J_free = fun_and_jac(free)
+                final = normal_at(free)
         except FloatingPointError as err:
             raise SolveError(f"the model could not be evaluated during the solve ({err}): is a board behind the "
                              "camera, or are the start values wildly wrong?") from None
 
     values = registry.unpack(free, base)
-    residuals = r.reshape(-1, 2)
+    residuals = final.residuals
     weights = np.ones(len(residuals))
     if loss != "linear":
-        z = (r / loss_scale_px) ** 2
+        z = (residuals / loss_scale_px) ** 2
         rho1 = {"soft_l1": lambda z: 1 / np.sqrt(1 + z), "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(z)),
                 "cauchy": lambda z: 1 / (1 + z)}[loss](z)
-        weights = rho1.reshape(-1, 2).mean(axis=1)
-    dof = max(r.size - J_free.shape[1], 1)
-    s2 = float(np.sum(weights.repeat(2) * r ** 2) / dof)
+        weights = rho1.mean(axis=1)
+        final = equations(free, weights=weights)  # the covariance's scores of the weighted residuals
+    n = residuals.size
+    dof = max(n - len(scales), 1)
+    rss = 2.0 * final.cost  # weighted with a robust loss
+    s2 = rss / dof
 
-    cond, sv, Vt = identifiability(J_free, registry)
-    covariance, covariance_iid = parameter_covariance(J_free, r * np.sqrt(weights.repeat(2)), sv, Vt, scales,
-                                                      model.data.image_of_row,
-                                                      stance_cluster_of_image(model.data), dof)
+    cond, sv, Vt = identifiability(final.A)
+    covariance, covariance_iid = parameter_covariance(final.A, rss, final.image_scores, sv, Vt, scales,
+                                                      stance_cluster_of_image(model.data), n, dof)
     std_free = np.sqrt(np.diag(covariance))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)

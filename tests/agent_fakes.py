@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from solver.errors import SafetyError
+from backends.errors import SafetyError
 from solver.joints import JOINTS, LEG_JOINTS
 from solver.limits import joint_limits, max_speeds
 from solver.model import Model
 from solver.registry import Registry
-from solver.synthetic import DEFAULT_INTRINSICS, make_model_data
+from sim.synthetic import DEFAULT_INTRINSICS, make_model_data
 
 FULL = Registry()
 _BLANK = np.zeros((480, 640, 3), dtype=np.uint8)

@@ -293,7 +293,7 @@ def make_valid_inputs(directory: Path, seed: int = 3) -> tuple[Path, Path]:
     from solver.identify import identify
     from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
-    from solver.synthetic import dataset_parts, random_truth, synthesize
+    from sim.synthetic import dataset_parts, random_truth, synthesize
     from tools.cmd_identify import write_offsets_file
 
     rng = np.random.default_rng(seed)

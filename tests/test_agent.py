@@ -13,9 +13,9 @@ from agent.robot import Robot, TimingSettings
 from agent.safety import SafetyGuard
 from agent.states import AgentSettings, calibrate_states
 from backends.compensated import CompensatedBackend
-from backends.pybullet_body import CollisionChecker, NaoBody
+from body.nao_body import CollisionChecker, NaoBody
 from solver.dataset import read_dataset
-from solver.errors import RobotTimeout
+from backends.errors import RobotTimeout
 from solver.joints import JOINTS, LEG_JOINTS
 from solver.offsets import read_offsets
 from tests.agent_fakes import FakeBackend
@@ -336,7 +336,7 @@ def test_running_estimate_keeps_the_first_leg_when_the_second_begins():
     """The second leg's first capture must not throw away the first leg's offsets (nor make the guard believe the
     second leg's are known)."""
     from agent.estimate import RunningEstimate
-    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(40)
     truth = random_truth(rng)

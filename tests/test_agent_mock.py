@@ -15,14 +15,14 @@ from agent.robot import TimingSettings  # noqa: E402
 from agent.states import AgentSettings  # noqa: E402
 from backends.compensated import CompensatedBackend  # noqa: E402
 from backends.mock import SHARED_MOTOR, MockBackend  # noqa: E402
-from backends.pybullet_body import CollisionChecker, NaoBody  # noqa: E402
+from body.nao_body import CollisionChecker, NaoBody  # noqa: E402
 from solver.dataset import read_dataset  # noqa: E402
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS  # noqa: E402
 from solver.limits import head_pitch_limits  # noqa: E402
 from solver.offsets import read_offsets  # noqa: E402
 from solver.registry import Registry  # noqa: E402
 from solver.model import Model  # noqa: E402
-from solver.synthetic import make_model_data  # noqa: E402
+from sim.synthetic import make_model_data  # noqa: E402
 from agent.planner import make_plan  # noqa: E402
 from agent.robot import Robot  # noqa: E402
 from agent.safety import SafetyGuard  # noqa: E402

@@ -16,7 +16,8 @@ from backends.base import CameraImage
 from backends.bridge import BridgeBackend
 from backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
 from backends.protocol import ControlError, ProtocolError
-from solver.errors import BridgeError, NaocalError, SafetyError
+from backends.errors import BridgeError, SafetyError
+from solver.errors import NaocalError
 from tests.backend_contract import check_backend_contract
 from tests.bridge_fakes import CLI, ROOT, FakeBackend, serving
 

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from backends import protocol
 from backends.bridge import BridgeBackend
 from backends.bridge_server import BridgeServer, FaultInjector
-from solver.errors import BridgeError
+from backends.errors import BridgeError
 from tests.bridge_fakes import FakeBackend, serving
 
 TIMEOUT_S = 0.2

@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 from solver.dataset import write_dataset
 from solver.offsets import read_offsets
-from solver.synthetic import dataset_parts, random_truth, synthesize
+from sim.synthetic import dataset_parts, random_truth, synthesize
 from tools.cli import main
 
 DEG = np.pi / 180

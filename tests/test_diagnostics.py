@@ -22,7 +22,7 @@ from solver.identify import identify
 from solver.joints import HEAD_JOINTS, LEG_JOINTS
 from solver.model import Model
 from solver.registry import EXTRA_EFFECTS, Registry
-from solver.synthetic import random_truth, synthesize
+from sim.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
 NOISE_PX = 0.1

@@ -12,7 +12,7 @@ import pytest
 
 from solver.dataset import write_dataset
 from solver.effects import EXTRA_EFFECTS
-from solver.synthetic import dataset_parts, random_truth, synthesize
+from sim.synthetic import dataset_parts, random_truth, synthesize
 from tools.cli import build_parser, main
 
 NOISE_PX = 0.1

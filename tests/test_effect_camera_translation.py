@@ -16,7 +16,7 @@ from solver.errors import DataError
 from solver.identify import identify
 from solver.offsets import read_offsets
 from solver.registry import Registry
-from solver.synthetic import dataset_parts, random_truth, synthesize
+from sim.synthetic import dataset_parts, random_truth, synthesize
 
 NOISE_PX = 0.1
 SHIFT = ("camera.bottom.trans_x", "camera.bottom.trans_y", "camera.bottom.trans_z")

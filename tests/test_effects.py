@@ -14,7 +14,7 @@ from solver.identify import identify
 from solver.model import Model
 from solver.registry import Registry
 from solver.robot import nao
-from solver.synthetic import random_truth, synthesize_views
+from sim.synthetic import random_truth, synthesize_views
 
 # Two cameras and three targets: the sandals on hanging legs and a floor board under a supporting leg; irregular
 # vertex counts (24 and 9). Views beyond the joint limits are fine for the mathematics.
@@ -223,7 +223,7 @@ def test_camera_terms_of_two_effects_combine(monkeypatch):
 @pytest.mark.parametrize("name", EXTRA_EFFECTS)
 def test_each_effects_report_picture_is_well_formed(name):
     """partial_residual_panels of a fit with the effect: points and the fitted line, finite, one group per point."""
-    from solver.synthetic import synthesize
+    from sim.synthetic import synthesize
 
     rng = np.random.default_rng(6)
     velocity = np.zeros((48, 14))

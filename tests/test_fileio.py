@@ -9,7 +9,7 @@ import pytest
 from solver.dataset import DatasetAppender, read_dataset
 from solver.errors import DiskFullError, NaocalError
 from solver.fileio import atomic_write_bytes, atomic_write_text
-from solver.synthetic import dataset_parts, random_truth, synthesize
+from sim.synthetic import dataset_parts, random_truth, synthesize
 
 
 def failing(real, code=errno.ENOSPC):

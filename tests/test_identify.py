@@ -8,7 +8,7 @@ from solver.identify import identify
 from solver.model import Model
 from solver.joints import LEG_JOINTS
 from solver.registry import EXTRA_EFFECTS, Registry
-from solver.synthetic import random_truth, synthesize
+from sim.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
 
@@ -212,18 +212,18 @@ def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
 def test_status_codes_mean_the_same_for_both_solvers():
     """naocal's LM reports why it stopped with scipy.optimize.least_squares's codes (2: ftol, 3: xtol) and the
     message of one table, as the MINPACK path does."""
-    from solver.identify import TERMINATION_MESSAGES, levenberg_marquardt
+    from solver.identify import TERMINATION_MESSAGES, Normal, levenberg_marquardt
 
     rng = np.random.default_rng(3)
     A, b = rng.normal(size=(30, 3)), rng.normal(size=30)
-    problem = lambda x: (A @ x - b, A)  # noqa: E731
-    stop = {name: levenberg_marquardt(problem, np.zeros(3), np.ones(3), **tolerances)[3:5]
+    problem = lambda x: Normal(A.T @ A, A.T @ (A @ x - b), 0.5 * np.sum((A @ x - b) ** 2), None, None)  # noqa: E731
+    stop = {name: levenberg_marquardt(problem, np.zeros(3), np.ones(3), **tolerances)[2:4]
             for name, tolerances in (("xtol", dict(ftol=0.0, gtol=0.0, xtol=1e-3)),
                                      ("ftol", dict(ftol=0.5, gtol=0.0, xtol=0.0)),
                                      ("gtol", dict(ftol=0.0, gtol=1e3, xtol=0.0)))}
     assert stop == {"xtol": (3, TERMINATION_MESSAGES[3]), "ftol": (2, TERMINATION_MESSAGES[2]),
                     "gtol": (1, TERMINATION_MESSAGES[1])}
-    assert levenberg_marquardt(problem, np.zeros(3), np.ones(3), max_iterations=0)[3:5] == (0, TERMINATION_MESSAGES[0])
+    assert levenberg_marquardt(problem, np.zeros(3), np.ones(3), max_iterations=0)[2:4] == (0, TERMINATION_MESSAGES[0])
     data = synthesize(np.random.default_rng(4), random_truth(np.random.default_rng(4)), n_stances_per_leg=6)
     for solver in ("lm", "minpack"):
         result = identify(data, Registry(), solver=solver)

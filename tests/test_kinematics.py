@@ -174,7 +174,7 @@ def test_projection_of_sole_points_equals_the_models_prediction():
     """The planner's and the agent's projection (no distortion) is the identification model's at zero offsets."""
     from solver.model import HEAD_COLUMNS, LEG_COLUMNS, Model
     from solver.registry import Registry
-    from solver.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
+    from sim.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
 
     rng = np.random.default_rng(5)
     theta, leg, stance, posture = random_plan(rng, 4, 2)

@@ -9,7 +9,8 @@ import pytest
 from backends.mock import (
     DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effect_sizes,
 )
-from solver.errors import NaocalError, SafetyError
+from backends.errors import SafetyError
+from solver.errors import NaocalError
 from solver.joints import JOINTS, LEG_JOINTS
 from solver.limits import head_pitch_limits
 from tests.backend_contract import check_backend_contract

@@ -12,7 +12,7 @@ from agent.robot import Robot, TimingSettings
 from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
 from agent.states import Thresholds, implausible, unusual
 from backends.mock import MockBackend
-from backends.pybullet_body import CollisionChecker, NaoBody
+from body.nao_body import CollisionChecker, NaoBody
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS
 from solver.limits import joint_limits, max_speeds
 from tools import cli
@@ -192,7 +192,7 @@ def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
     """A detector that puts 1-2 % of the corners a square off (or on a reflection) must not drag the estimate the
     safety check and the detector rely on: its refits leave out the vertices the current values miss by far."""
     from agent.estimate import FULL, RunningEstimate
-    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(40)
     truth = random_truth(rng)
@@ -230,7 +230,7 @@ def test_a_leg_joining_the_running_estimate_is_not_taken_for_faulty_corners():
     happen to agree, and the safety check would trust a wrong leg (a realistic run sent the mock commands it had to
     refuse). Only the fitted legs' corners are judged, and never more than 5 % of them."""
     from agent.estimate import RunningEstimate
-    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(7)
     truth = random_truth(rng)
@@ -277,7 +277,7 @@ def test_the_running_estimate_gives_the_safety_check_alpha_the_negative_of_the_f
     """joint_offset.<J> is c (q_true = theta - c); the safety check wants alpha = q_true - theta = -c. With the
     sign wrong the guard checks the mirror image of the true stance: twice the offset off."""
     from agent.estimate import RunningEstimate
-    from solver.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(11)
     truth = random_truth(rng, joint_offset_rad=math.radians(3.0))

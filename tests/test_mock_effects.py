@@ -5,7 +5,7 @@ import pytest
 
 from agent.corners import detect_board_vertices
 from backends.mock import MockBackend
-from backends.pybullet_body import T_WORLD_TORSO
+from body.nao_body import T_WORLD_TORSO
 from solver.joints import JOINTS, LEGS, leg_joints
 from solver.kinematics import gravity_torques, leg_fk
 from tests.mock_stances import settle_and_capture, visible_stances

@@ -8,7 +8,7 @@ import pytest
 
 from backends.mock_render import CameraModel, SceneRenderer, board_homography, board_outline_board_m, \
     projection_matrix_gl, view_matrix_gl
-from backends.pybullet_body import (
+from body.nao_body import (
     BOARD_HALF_X_M, BOARD_HALF_Y_M, T_WORLD_TORSO, BoardMount, BodyGeometry, CollisionChecker, NaoBody,
     T_sole_board,
 )

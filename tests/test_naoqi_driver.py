@@ -11,7 +11,8 @@ pytest.importorskip("qi")
 from backends.bridge import BridgeBackend  # noqa: E402
 from backends.bridge_server import BridgeServer  # noqa: E402
 from backends.naoqi_driver import FRAME_PERIOD_S, NaoqiBackend  # noqa: E402
-from solver.errors import NaocalError, RobotTimeout, SafetyError  # noqa: E402
+from backends.errors import RobotTimeout, SafetyError  # noqa: E402
+from solver.errors import NaocalError  # noqa: E402
 from tests.backend_contract import check_backend_contract  # noqa: E402
 from tests.naoqi_fakes import DCM_EPOCH_S, FakeRobot, TextImageVideoDevice, fake_naoqi  # noqa: E402
 

@@ -11,13 +11,14 @@ from agent.plan import Still, Sweep, read_plan, write_plan
 from agent.planner import PlanSettings, Planner, make_plan, parked_posture
 from agent.safety import SafetyGuard
 from agent.visibility import OcclusionChecker, views_ok
-from backends.pybullet_body import CollisionChecker, NaoBody
-from solver.errors import DataError, SafetyError
+from body.nao_body import CollisionChecker, NaoBody
+from backends.errors import SafetyError
+from solver.errors import DataError
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
 from solver.kinematics import camera_fk, leg_fk
 from solver.limits import head_pitch_limits, joint_limits
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS
-from solver.synthetic import DEFAULT_INTRINSICS
+from sim.synthetic import DEFAULT_INTRINSICS
 
 
 @pytest.fixture(scope="module")

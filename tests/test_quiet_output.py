@@ -8,7 +8,7 @@ from conftest import ROOT
 
 def test_loading_and_connecting_pybullet_prints_nothing():
     code = ("import agent.visibility, agent.planner, backends.mock_render\n"
-            "from backends.pybullet_body import NaoBody\n"
+            "from body.nao_body import NaoBody\n"
             "NaoBody().close(); NaoBody().close(); print('ok')\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr

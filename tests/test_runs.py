@@ -19,7 +19,7 @@ from agent.planner import PlanSettings
 from agent.rundir import LOCK_NAME, RunLock, RunLocked
 from agent.states import AgentSettings
 from solver.dataset import read_dataset, write_dataset
-from solver.synthetic import dataset_parts, random_truth, synthesize
+from sim.synthetic import dataset_parts, random_truth, synthesize
 from tests.agent_fakes import FakeBackend
 from tools import cli
 

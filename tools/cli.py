@@ -22,6 +22,7 @@ VERB_MODULES = (
     "tools.cmd_simulate",
     "tools.cmd_identify",
     "tools.cmd_diagnose",
+    "tools.cmd_verify",
     "tools.cmd_offsets",
     "tools.cmd_bridge",
     "tools.cmd_detect",

@@ -18,7 +18,7 @@ COMPONENTS = (("rot_z", "rad", 0.01), ("trans_x", "m", 0.002), ("trans_y", "m", 
 FILE_KEYS = {"rot_z": "rot_z_rad", "trans_x": "trans_x_m", "trans_y": "trans_y_m"}
 
 
-class BoardMount(Effect):
+class BoardMountEffect(Effect):
     name = "board_mount"
     order = 2
     base = True
@@ -61,4 +61,4 @@ class BoardMount(Effect):
                               {k: "rad" if k.endswith("_rad") else "m" for k in keys})
 
 
-EFFECT = BoardMount()
+EFFECT = BoardMountEffect()

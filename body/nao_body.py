@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from backends.pybullet_quiet import pybullet
+from body.pybullet_quiet import pybullet
 from solver.joints import HEAD_JOINTS, JOINTS, LEGS, leg_joints
 from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG, SOLE_JOINTS
 from solver.transforms import make_transform, rot_z, rpy_from_rot

@@ -11,6 +11,7 @@ import numpy as np
 from solver.camera import default_intrinsics
 from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS, LEGS, leg_joints
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
+from solver.adapter import make_model_data  # noqa: F401 (its home is solver.adapter; tests import it here too)
 from solver.model import Model, ModelData
 from solver.nao_model import board_vertices_sole
 from solver.registry import Registry
@@ -54,30 +55,6 @@ def random_plan(rng, n_stances_per_leg=24, n_head_postures=3, intrinsics=DEFAULT
                 thetas.append(theta), legs.append(leg), stances.append(found), postures.append(h)
             found += 1
     return np.array(thetas), np.array(legs), np.array(stances), np.array(postures)
-
-
-def make_model_data(theta, leg, stance, head_posture, *, direction=None, velocity=None,
-                    intrinsics=DEFAULT_INTRINSICS, gravity_torso_mps2=(-9.81, 0.0, 0.0)) -> ModelData:
-    """ModelData of the NAO's bottom camera for every vertex of every image of the sandals `leg` (M,), with zero
-    detections (fill uv_px afterwards). theta (M, 14) in solver.joints.JOINTS order."""
-    from solver.robot import nao
-
-    M = len(theta)
-    robot = nao()
-    leg = np.asarray(leg).astype(str)
-    counts = {t: robot.target(t).board.n_vertices for t in np.unique(leg)}
-    n = np.array([counts[t] for t in leg], dtype=int)
-    image_of_row = np.repeat(np.arange(M), n)
-    vertex = np.concatenate([np.arange(k) for k in n]) if M else np.zeros(0, dtype=int)
-    p_mount = np.concatenate([robot.target(t).vertices() for t in leg]) if M else np.zeros((0, 3))
-    theta = np.asarray(theta, dtype=float)
-    return ModelData(
-        image_of_row=image_of_row, vertex=vertex, uv_px=np.zeros((len(vertex), 2)), p_mount=p_mount, target=leg,
-        image_id=np.arange(M), stance=np.asarray(stance), head_posture=np.asarray(head_posture), theta=theta,
-        direction=np.zeros_like(theta) if direction is None else np.asarray(direction, dtype=float),
-        velocity=velocity, cameras={robot.default_cameras[0]: dict(intrinsics)}, joints=JOINTS,
-        gravity_mps2=np.asarray(gravity_torso_mps2, dtype=float), robot=robot,
-    )
 
 
 def synthesize(rng, truth: dict, *, effects=(), n_stances_per_leg=24, n_head_postures=3, pixel_noise_px=0.1,

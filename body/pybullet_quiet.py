@@ -1,4 +1,4 @@
-"""pybullet, imported without its banner: naocal's modules `from backends.pybullet_quiet import pybullet`.
+"""pybullet, imported without its banner: naocal's modules `from body.pybullet_quiet import pybullet`.
 
 pybullet prints "pybullet build time: ..." from C, on the process's stderr, when its module is first imported;
 naocal's output (one-line errors, summaries, JSON) is its own. The import runs with fds 1 and 2 sent to /dev/null,

@@ -1,0 +1,16 @@
+"""Errors of the robot side: a refused command, a robot that does not answer in time, a failed bridge. User-facing
+(NaocalError: one line, exit 2), raised by the backends and the agent."""
+
+from solver.errors import NaocalError
+
+
+class SafetyError(NaocalError):
+    """A command was refused because it would leave the joint limits or collide."""
+
+
+class RobotTimeout(NaocalError):
+    """A wait on the robot passed its deadline."""
+
+
+class BridgeError(NaocalError):
+    """The network bridge failed after its retries, or the server answered with an error."""

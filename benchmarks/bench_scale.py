@@ -1,0 +1,165 @@
+"""Identification at scale: time and peak memory of naocal's chunked solve against the straightforward dense one.
+
+Datasets: the paper's plan (144 images, 3456 vertices, 21 parameters, 0.1 px noise) repeated with fresh noise to
+3456, ~100k, ~301k and ~1M vertices (each copy its own stances). Each measurement runs in its own subprocess:
+time without tracing, then peak memory of the identify call alone (tracemalloc, which sees numpy's buffers) and
+the process's maximum resident set (ru_maxrss, including the data and the interpreter).
+Straightforward: the whole (2N x P) Jacobian per evaluation, LM on J^T J, covariance from J (what
+solver/identify.py did before it accumulated the normal equations in chunks).
+
+    python benchmarks/bench_scale.py [--sizes 3456,100000,301000,1000000] [--dense-max 301000] [--repeats 5]
+
+BLAS threads: one (as `naocal` runs).
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def make_data(n_vertices: int, seed: int = 0):
+    """The paper-size synthetic plan, repeated until it has at least `n_vertices` vertices; fresh 0.1 px noise."""
+    import numpy as np
+
+    from solver.model import ModelData
+    from sim.synthetic import random_truth, synthesize
+
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    base = synthesize(rng, truth, pixel_noise_px=0.0)
+    copies = max(1, -(-n_vertices // base.n_rows))
+    M, N = base.n_images, base.n_rows
+    tile = lambda a: np.concatenate([a] * copies)  # noqa: E731
+    data = ModelData(
+        image_of_row=np.concatenate([base.image_of_row + k * M for k in range(copies)]), vertex=tile(base.vertex),
+        uv_px=tile(base.uv_px) + rng.normal(0.0, 0.1, size=(copies * N, 2)), p_mount=tile(base.p_mount),
+        target=tile(base.target), image_id=np.arange(copies * M),
+        stance=np.concatenate([base.stance + 1000 * k for k in range(copies)]), head_posture=tile(base.head_posture),
+        theta=tile(base.theta), direction=tile(base.direction), velocity=None, cameras=base.cameras,
+        camera=tile(base.camera), joints=base.joints, robot=base.robot, tau=tile(base.tau))
+    return data, truth
+
+
+def dense_identify(data, registry, max_iterations=100):
+    """The straightforward solve: the whole Jacobian at every evaluation, LM on J^T J, clustered covariance."""
+    import numpy as np
+
+    from solver.identify import UNIDENTIFIABLE_RATIO
+    from solver.model import Model
+    from solver.scoretest import stance_cluster_of_image
+
+    model = Model(data, registry)
+    scales = registry.scales
+    x = registry.zeros()
+
+    def evaluate(x):
+        r, J = model.evaluate(x)
+        return r.reshape(-1), J.reshape(r.size, -1) * scales
+
+    r, Js = evaluate(x)
+    A, g, cost = Js.T @ Js, Js.T @ r, 0.5 * float(r @ r)
+    mu = 1e-6 * float(np.max(np.diag(A)))
+    for _ in range(max_iterations):
+        step = -np.linalg.solve(A + mu * np.eye(len(x)), g)
+        predicted = 0.5 * float(step @ (mu * step - g))
+        if predicted <= 1e-10 * cost:
+            break
+        r_new, Js_new = evaluate(x + step * scales)
+        cost_new = 0.5 * float(r_new @ r_new)
+        rho = (cost - cost_new) / predicted
+        if rho > 0:
+            x, r, Js, cost = x + step * scales, r_new, Js_new, cost_new
+            A, g = Js.T @ Js, Js.T @ r
+            mu *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
+        else:
+            mu *= 2
+    eigenvalues, vectors = np.linalg.eigh(A)
+    keep = eigenvalues > UNIDENTIFIABLE_RATIO ** 2 * eigenvalues.max()
+    bread = (vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T
+    rows = np.repeat(model.data.image_of_row, 2)
+    cluster = stance_cluster_of_image(model.data)[rows]
+    scores = np.zeros((cluster.max() + 1, len(x)))
+    np.add.at(scores, cluster, Js * r[:, None])
+    covariance = bread @ (scores.T @ scores) @ bread * np.outer(scales, scales)
+    return x, np.sqrt(np.diag(covariance))
+
+
+def measure(n_vertices: int, method: str, repeats: int) -> dict:
+    """In this process: time (median of `repeats`) and then peak traced memory of one more solve."""
+    import time
+    import tracemalloc
+    import resource
+
+    import numpy as np
+
+    from solver.identify import identify
+    from solver.registry import Registry
+
+    data, truth = make_data(n_vertices)
+    registry = Registry()
+    solve = (lambda: identify(data, registry)) if method == "chunked" else (lambda: dense_identify(data, registry))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        out = solve()
+        times.append(time.perf_counter() - start)
+    values = out.values if method == "chunked" else out[0]
+    tracemalloc.start()
+    solve()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    error = max(abs(values[registry.index[n]] - truth[n]) for n in registry.names if n.startswith("joint_offset"))
+    return {"n_vertices": int(data.n_rows), "method": method, "time_s": statistics.median(times),
+            "peak_bytes": int(peak), "maxrss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "worst_joint_error_deg": float(np.degrees(error))}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="3456,100000,301000,1000000")
+    parser.add_argument("--dense-max", type=int, default=301000,
+                        help="largest size the dense solve is run at (its memory: ~1.1 KB per vertex)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed solves per size (3456: 10x as many)")
+    parser.add_argument("--child", nargs=3, metavar=("N", "METHOD", "REPEATS"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(measure(int(args.child[0]), args.child[1], int(args.child[2]))))
+        return
+    print(f"BLAS threads: OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}; each line its own process")
+    print(f"{'vertices':>9s} {'method':8s} {'time':>10s} {'peak (identify)':>16s} {'per vertex':>11s} "
+          f"{'maxrss':>9s} {'worst joint':>12s}")
+    dense_per_vertex = None  # measured at the largest size the dense solve ran
+    for size in (int(s) for s in args.sizes.split(",")):
+        repeats = args.repeats * 10 if size < 10000 else args.repeats
+        rows = {}
+        for method in ("chunked", "dense"):
+            if method == "dense" and size > args.dense_max:
+                guess = "" if dense_per_vertex is None else \
+                    f": it would need about {dense_per_vertex * size / 2 ** 20:.0f} MiB at its measured bytes per vertex"
+                print(f"{size:9d} dense    skipped above --dense-max{guess}")
+                continue
+            out = subprocess.run([sys.executable, __file__, "--child", str(size), method, str(repeats)],
+                                 capture_output=True, text=True, check=True)
+            row = rows[method] = json.loads(out.stdout)
+            if method == "dense":
+                dense_per_vertex = row["peak_bytes"] / row["n_vertices"]
+            print(f"{row['n_vertices']:9d} {method:8s} {row['time_s'] * 1e3:8.1f} ms "
+                  f"{row['peak_bytes'] / 2 ** 20:12.1f} MiB {row['peak_bytes'] / row['n_vertices']:8.0f} B "
+                  f"{row['maxrss_bytes'] / 2 ** 20:7.0f} MiB {row['worst_joint_error_deg']:9.4f} deg", flush=True)
+        if len(rows) == 2:
+            c, d = rows["chunked"], rows["dense"]
+            print(f"{'':9s} ratio    dense/chunked: time {d['time_s'] / c['time_s']:.2f}x, "
+                  f"peak memory {d['peak_bytes'] / c['peak_bytes']:.1f}x", flush=True)
+
+
+if __name__ == "__main__":
+    main()
