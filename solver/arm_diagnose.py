@@ -6,7 +6,9 @@ whitened residual r is regressed on the group's Jacobian columns with the model'
 the drop in the residual sum of squares dRSS has, if the group is absent, a chi-square distribution with k (the
 rank of the projected columns) degrees of freedom when the sensors' noise is known (dataset.json), and otherwise
 an F(k, M - p - k) distribution in dRSS / k over the residual variance. An effect is named when its p-value is
-below 0.001 divided by the number of candidates (Bonferroni: one false alarm in 1000 datasets at most).
+below 0.001 divided by the number of candidates (Bonferroni: one false alarm in 1000 datasets at most); the
+significant ones are ranked by dRSS - k log(M) (BIC), so that of two effects that explain the misfit alike the
+one with fewer parameters comes first.
 """
 
 from __future__ import annotations
@@ -161,9 +163,12 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
     threshold = FAMILY_LEVEL / max(1, sum(1 for c in candidates if c.k > 0))
     for c in candidates:
         c.significant = c.k > 0 and c.p_value < threshold
-    candidates.sort(key=lambda c: (not c.significant, -(c.drss - c.k)))
+    # Ranked by what they explain less log(M) per parameter (BIC): of two that explain the misfit alike, the
+    # smaller wins (link poses hold the link lengths and fit 13 more noise parameters on the panda).
+    penalty = math.log(max(2, int(model.component_mask(obs).sum())))
+    candidates.sort(key=lambda c: (not c.significant, -(c.drss - penalty * c.k)))
     location = score_tests(fit, location_groups(fit))
-    location.sort(key=lambda t: -(t.drss - t.k))
+    location.sort(key=lambda t: -(t.drss - penalty * t.k))
     # worst poses by whitened RMS
     r = (fit.residual / fit.sigma[obs.sensor][:, None]) ** 2
     mask = model.component_mask(obs)
@@ -208,7 +213,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
             f"{s} nominal {shown_rms(v['nominal'], kinds[s])} -> calibrated {shown_rms(v['calibrated'], kinds[s])}"
             for s, v in d.heldout.items()))
     lines.append("  worst poses: " + ", ".join(f"{w['pose']} ({w['rms_sigma']:.2f} sigma)" for w in d.worst_poses))
-    lines += ["", "LOCATE (misfit a joint's or a link's missing parameters would explain, beyond noise)"]
+    lines += ["", "LOCATE (misfit a joint's or a link's missing parameters would explain; dRSS in noise variances)"]
     for t in d.location[:6]:
         lines.append(f"  {t.label:32s} dRSS {t.drss:10.1f} on {t.k} dof  p {t.p_value:.1e}")
     lines += ["", f"NAMES (candidate effects, best first; significant: p < {d.threshold:.1e}, i.e. "
