@@ -18,7 +18,7 @@ Rotation corrections use the exponential map; their exact derivative is the left
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

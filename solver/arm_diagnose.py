@@ -20,7 +20,7 @@ import numpy as np
 from scipy import stats
 
 from solver.arm import EFFECTS, ArmModel
-from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, sensor_rms, whitened
+from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
 
 FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
@@ -198,8 +198,16 @@ def shown_rms(value, kind) -> str:
     return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
 
 
+def _shown_value(name, value, units) -> str:
+    from solver.effect import shown
+
+    v, unit = shown(value, units.get(name, "1"))
+    return f"{v:+.4g} {unit}".rstrip()
+
+
 def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     fit, model = d.fit, d.fit.model
+    units = {p.name: p.unit for p in extended(fit)[0].parameters}
     kinds = {s.name: s.kind for s in model.sensors}
     lines = [f"model: sensor frames + {' + '.join(model.effects) or 'nothing'}; {len(fit.obs)} observations in "
              f"{len(np.unique(fit.obs.pose))} poses", "", "COMPARE"]
@@ -221,8 +229,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     for c in d.candidates:
         predicted = ", ".join(f"{s} {shown_rms(v, kinds[s])}" for s, v in c.predicted_rms.items())
         top = sorted(c.values.items(), key=lambda kv: -abs(kv[1]))[:3]
-        values = ", ".join(f"{n} {v * (1e3 if n.startswith(('link_length', 'point')) else math.degrees(1)):+.3f}"
-                           f"{' mm' if n.startswith(('link_length', 'point')) else ''}" for n, v in top)
+        values = ", ".join(f"{n} {_shown_value(n, v, units)}" for n, v in top)
         lines.append(f"  {c.label:14s} dof {c.k:3d}  dRSS {c.drss:10.1f}  p {c.p_value:8.1e}  "
                      f"{'yes' if c.significant else 'no ':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
                      + (f"; {values}" if c.significant else ""))

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.arm import ArmModel, Observations, exp_so3, log_so3
+from solver.arm import ArmModel, Observations, exp_so3
 from solver.errors import DataError, SolveError
 
 TOLERANCE = 1e-5  # relative residual of a Jacobian column below which its parameter is fixed (not identifiable)
