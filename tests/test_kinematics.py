@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import SHARED
+from conftest import ROOT
 from solver import kinematics
 from solver.joints import HEAD_JOINTS, leg_joints
 from solver.nao_model import SANDAL_MASS_KG, board_vertices_sole, leg_chain
 from solver.urdf import nominal_urdf
 
-URDF = SHARED / "reference" / "nao_v50.urdf"
+URDF = ROOT / "solver" / "data" / "nao_v50.urdf"
 
 
 class XmlChain:
