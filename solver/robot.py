@@ -197,17 +197,21 @@ def _joint_origin(joint) -> np.ndarray:
 
 @functools.lru_cache(maxsize=None)
 def _chain(robot: RobotDescription, base: str, tip: str) -> Chain:
-    urdf = robot.urdf
+    return serial_chain(robot.urdf, base, tip, robot.path)
+
+
+def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF") -> Chain:
+    """The serial chain of `urdf` from link `base` to link `tip`; DataError naming `path` when there is none."""
     by_child = {j.child: j for j in urdf.joints.values()}
     path_joints = []
     link = tip
     while link != base:
         joint = by_child.get(link)
         if joint is None:
-            raise DataError(robot.path, f"no chain from {base!r} to {tip!r} in the URDF (stopped at {link!r})",
+            raise DataError(path, f"no chain from {base!r} to {tip!r} in the URDF (stopped at {link!r})",
                             field="chains")
         if joint.kind not in MOVABLE + ("fixed",):
-            raise DataError(robot.path, f"joint {joint.name!r} is {joint.kind}: only revolute, continuous and "
+            raise DataError(path, f"joint {joint.name!r} is {joint.kind}: only revolute, continuous and "
                                         "fixed joints are supported", field="chains")
         path_joints.append(joint)
         link = joint.parent

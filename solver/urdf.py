@@ -57,9 +57,12 @@ def _floats(text: str | None, default: str) -> tuple[float, ...]:
 
 def parse_urdf(path=NOMINAL_URDF) -> Urdf:
     """Joints and link inertias of a URDF file; a malformed file raises DataError naming it and the element."""
+    from solver.fileio import read_bytes
+
+    data = read_bytes(path)  # a regular file only (a FIFO would block the parser), size capped
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as err:
+        root = ET.fromstring(data)
+    except ET.ParseError as err:
         raise DataError(path, f"cannot read the robot model: {err}") from None
     joints = {}
     for element in root.findall("joint"):

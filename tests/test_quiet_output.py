@@ -13,3 +13,14 @@ def test_loading_and_connecting_pybullet_prints_nothing():
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "ok\n" and done.stderr == ""
+
+
+def test_the_simulated_arm_prints_nothing_of_pybullet(tmp_path):
+    code = ("from backends.arm_sim import SimulatedArm\n"
+            "from solver.arm_dataset import resolve_robot\n"
+            "with SimulatedArm(*resolve_robot('franka_panda', None)) as arm:\n"
+            "    arm.measure(arm.sample_stances(2), 1e-4, 0.2)\n"
+            "print('ok')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "ok\n" and done.stderr == ""

@@ -47,11 +47,19 @@ def register(subparsers):
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
     add_angles_option(p)
+    from tools.arm_cli import add_arm_options
+
+    add_arm_options(p)  # an arm (docs/ARM.md): --effects then names the arm's effects
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
     import json
+
+    from tools.arm_cli import run_diagnose, wants_arm
+
+    if wants_arm(args):
+        return run_diagnose(args)
 
     from agent.rundir import find_dataset
     from solver.dataset import read_dataset

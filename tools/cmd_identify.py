@@ -27,6 +27,9 @@ def register(subparsers):
     p.add_argument("--solver", default="lm", choices=("lm", "minpack"),
                    help="lm: naocal's Levenberg-Marquardt (fast); minpack: scipy.optimize.least_squares(method='lm')")
     add_angles_option(p)
+    from tools.arm_cli import add_arm_options
+
+    add_arm_options(p)  # an arm (docs/ARM.md): --effects then names the arm's effects
     p.add_argument("--cv-folds", type=int, default=5,
                    help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
     p.set_defaults(run=run)
@@ -49,6 +52,11 @@ def add_angles_option(parser) -> None:
 
 def run(args) -> int:
     import json
+
+    from tools.arm_cli import run_identify, wants_arm
+
+    if wants_arm(args):
+        return run_identify(args)
 
     from agent.rundir import find_dataset
     from solver.dataset import read_dataset

@@ -273,6 +273,11 @@ def format_diff(a, b, name_a: str, name_b: str):
 
 def run_show(args, out) -> int:
     from solver.offsets import read_offsets
+    from tools.arm_cli import format_calibration, is_calibration_file
+
+    if is_calibration_file(args.file):  # an arm's (docs/ARM.md)
+        out.write(format_calibration(args.file))
+        return 0
 
     out.write(format_show(read_offsets(args.file), args.file))
     return 0

@@ -1,6 +1,8 @@
 """`naocal simulate`: record a dataset of the simulated NAO, with its hidden truth beside it.
 
     naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...]
+    naocal simulate --robot kuka_iiwa|franka_panda|URDF [--chain BASE:TIP] --out DIR [--seed N] [--poses N]
+        a simulated arm instead (docs/ARM.md): naocal.arm_dataset/1 and its hidden truth in DIR/truth.json
 
 Runs the agent's modelling and measurement (the standard plan: 24 stances per leg x 3 head postures, plus the lag
 probe) on the PyBullet mock and writes the naocal.dataset/2 directory DIR (dataset.json, observations.csv,
@@ -28,6 +30,14 @@ def register(subparsers):
     p.add_argument("--speed", type=float, default=0.4, metavar="F", help="speed fraction of moves (default 0.4)")
     p.add_argument("--no-images", action="store_true", help="do not keep the rendered images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    from tools.arm_cli import add_arm_options
+
+    add_arm_options(p, simulate=True)  # an arm instead of the NAO (docs/ARM.md)
+    p.add_argument("--poses", type=int, default=60, metavar="N", help="arm: stances (default 60)")
+    p.add_argument("--noise-m", type=float, default=1e-4, help="arm: the 3-D sensor's noise per axis (default 1e-4 m)")
+    p.add_argument("--noise-px", type=float, default=0.2, help="arm: the camera's noise per axis (default 0.2 px)")
+    p.add_argument("--hidden", default="joint_offsets,link_lengths",
+                   help="arm: the hidden errors (default joint_offsets,link_lengths)")
     p.set_defaults(run=run)
 
 
@@ -41,6 +51,11 @@ def run(args) -> int:
     from agent.rundir import RunLock, entries
     from solver.errors import NaocalError
     from tools.cmd_calibrate import check_common, settings_from_args
+
+    if args.robot or args.chain:
+        from tools.arm_cli import run_simulate
+
+        return run_simulate(args)
 
     check_common(args)
     out = Path(args.out)

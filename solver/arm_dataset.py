@@ -1,0 +1,342 @@
+"""`naocal.arm_dataset/1`: joint readings of a serial arm with 3-D points and pixels of points on its end effector
+(docs/FORMATS.md, docs/ARM.md). A directory with dataset.json and observations.csv; the reader is strict: every
+problem is one DataError naming the file, the line and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from solver.arm import POINT_KINDS, Observations, Sensor
+from solver.errors import DataError
+from solver.fileio import read_json, read_text
+
+SCHEMA = "naocal.arm_dataset/1"
+JOINT_UNITS = {"_rad": 1.0, "_deg": math.pi / 180.0}
+POINT_UNITS = {"_m": 1.0, "_mm": 1e-3}
+PIXEL_COLUMNS = ("u_px", "v_px")
+PYBULLET_ARMS = {  # --robot NAME: URDFs that ship with pybullet (pybullet_data), with their chain and tool
+    "kuka_iiwa": ("kuka_iiwa/model.urdf", "lbr_iiwa_link_0", "lbr_iiwa_link_7"),
+    "franka_panda": ("franka_panda/panda.urdf", "panda_link0", "panda_hand"),
+}
+
+
+@dataclass
+class ArmDataset:
+    path: Path
+    meta: dict
+    urdf_path: Path
+    base: str
+    tip: str
+    chain: object  # solver.robot.Chain
+    link_names: tuple  # the link each joint origin (and the tip offset) ends, for link_length.<link>
+    load: tuple  # (mass kg, com in the tip frame) hanging off the last joint by fixed joints
+    sensors: tuple
+    points: dict  # name -> (3,) in the tip frame, m
+    observations: Observations
+    gravity_mps2: tuple
+
+    @property
+    def joints(self) -> tuple:
+        return self.chain.joint_names
+
+
+def resolve_robot(robot: str | None, chain: str | None):
+    """(URDF path, base, tip) from --robot (a URDF file, or kuka_iiwa / franka_panda from pybullet_data) and
+    --chain BASE_LINK:TIP_LINK (default for the named arms: their flange or hand). None for what was not given."""
+    from solver.errors import NaocalError
+
+    base = tip = None
+    if chain is not None:
+        if chain.count(":") != 1 or not all(chain.split(":")):
+            raise NaocalError(f"--chain {chain!r}: expected BASE_LINK:TIP_LINK")
+        base, tip = chain.split(":")
+    if robot is None:
+        return None, base, tip
+    if robot in PYBULLET_ARMS:
+        import pybullet_data
+
+        rel, default_base, default_tip = PYBULLET_ARMS[robot]
+        return Path(pybullet_data.getDataPath()) / rel, base or default_base, tip or default_tip
+    path = Path(robot)
+    if not path.is_file():
+        raise NaocalError(f"--robot {robot!r}: no such URDF file (or one of {', '.join(PYBULLET_ARMS)})")
+    return path, base, tip
+
+
+def is_arm_dataset(path) -> bool:
+    """Whether `path` is a directory whose dataset.json says naocal.arm_dataset/1 (anything unreadable: no)."""
+    from solver.fileio import MAX_JSON_BYTES, read_text
+
+    try:  # a regular file only: a FIFO here must not block the check
+        head = read_text(Path(path) / "dataset.json", max_bytes=MAX_JSON_BYTES)[:4096]
+    except DataError:
+        return False
+    return f'"{SCHEMA}"' in head
+
+
+def arm_chain(urdf_path, base, tip, where_path):
+    """(chain, link names, load) of a URDF's serial chain base -> tip, DataError naming the file otherwise."""
+    from solver.robot import serial_chain
+    from solver.urdf import parse_urdf
+
+    urdf = parse_urdf(urdf_path)
+    links = {j.child for j in urdf.joints.values()} | {j.parent for j in urdf.joints.values()}
+    for name, link in (("base", base), ("tip", tip)):
+        if link not in links:
+            raise DataError(urdf_path, f"no link {link!r} (the chain's {name}) in the URDF")
+    chain = serial_chain(urdf, base, tip, urdf_path)
+    if not chain.joint_names:
+        raise DataError(urdf_path, f"no revolute joint between {base!r} and {tip!r}")
+    names = [urdf.joints[j].parent for j in chain.joint_names] + [urdf.joints[chain.joint_names[-1]].child]
+    # what the last joint carries beyond its own link (a hand on fixed joints): its mass at its centre, tip frame
+    last_child = urdf.joints[chain.joint_names[-1]].child
+    load = (0.0, (0.0, 0.0, 0.0))
+    if tip != last_child and tip in urdf.links:
+        load = (urdf.links[tip].mass, urdf.links[tip].com)
+    return chain, tuple(names), load
+
+
+def _fail(path, problem, field=None, line=None):
+    raise DataError(path, problem, field=field, line=line)
+
+
+def _number(value, path, field, *, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
+    if positive and value <= 0:
+        _fail(path, f"must be positive, got {value!r}", field)
+    return float(value)
+
+
+def _vector(value, path, field, n=3):
+    if not isinstance(value, list) or len(value) != n:
+        _fail(path, f"expected a list of {n} numbers", field)
+    return tuple(_number(v, path, f"{field}[{i}]") for i, v in enumerate(value))
+
+
+def _object(value, path, field, allowed=None, required=()):
+    if not isinstance(value, dict):
+        _fail(path, "expected a JSON object", field)
+    for key in value:
+        if allowed is not None and key not in allowed:
+            _fail(path, f"unknown field (expected {', '.join(allowed)})", f"{field}.{key}" if field else key)
+    for key in required:
+        if key not in value:
+            _fail(path, "missing required field", f"{field}.{key}" if field else key)
+    return value
+
+
+def _name(value, path, field):
+    if not isinstance(value, str) or not value or len(value) > 200 or not value.isprintable():
+        _fail(path, "expected a non-empty name", field)
+    return value
+
+
+CAMERA_FIELDS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
+
+
+def _sensor(name, doc, path) -> Sensor:
+    where = f"sensors.{name}"
+    doc = _object(doc, path, where, ("kind", "noise_m", "noise_px", "pose", "about", "distortion") + CAMERA_FIELDS,
+                  ("kind",))
+    kind = doc["kind"]
+    if kind not in POINT_KINDS:
+        _fail(path, f"expected one of {', '.join(POINT_KINDS)}, got {str(kind)[:40]!r}", f"{where}.kind")
+    noise_key = "noise_m" if kind == "points" else "noise_px"
+    wrong = "noise_px" if kind == "points" else "noise_m"
+    if wrong in doc:
+        _fail(path, f"a {kind} sensor states its noise as {noise_key}", f"{where}.{wrong}")
+    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True) if noise_key in doc else None
+    intrinsics = None
+    if kind == "camera":
+        for key in CAMERA_FIELDS:
+            if key not in doc:
+                _fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
+        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px")
+                      for key in CAMERA_FIELDS}
+        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5))
+    else:
+        for key in CAMERA_FIELDS + ("distortion",):
+            if key in doc:
+                _fail(path, "only a camera has intrinsics", f"{where}.{key}")
+    rotation = translation = None
+    if "pose" in doc:
+        pose = _object(doc["pose"], path, f"{where}.pose", ("rotation_rad", "translation_m"),
+                       ("rotation_rad", "translation_m"))
+        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad")
+        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m")
+    return Sensor(name, kind, intrinsics, noise, rotation, translation)
+
+
+def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None = None) -> ArmDataset:
+    """Read a naocal.arm_dataset/1 directory. `robot` and `chain` (the CLI's --robot, --chain) win over the
+    file's robot.urdf, robot.base, robot.tip."""
+    directory = Path(directory)
+    meta_path = directory / "dataset.json"
+    if not directory.is_dir():
+        _fail(directory, "not a dataset directory")
+    meta = read_json(meta_path)  # regular files only, size and nesting capped (solver/fileio.py)
+    meta = _object(meta, meta_path, "", ("schema", "robot", "points", "sensors", "gravity_mps2", "source", "about"),
+                   ("schema", "points", "sensors"))
+    if meta["schema"] != SCHEMA:
+        _fail(meta_path, f"wrong schema {str(meta['schema'])[:60]!r}, expected {SCHEMA!r}", "schema")
+    robot_meta = _object(meta.get("robot", {}), meta_path, "robot", ("id", "model", "urdf", "base", "tip", "about"))
+    for key in robot_meta:
+        _name(robot_meta[key], meta_path, f"robot.{key}")
+    urdf_path, base, tip = resolve_robot(robot, chain)
+    if urdf_path is None:
+        if "urdf" not in robot_meta:
+            _fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
+        urdf_path = directory / robot_meta["urdf"]
+    base = base or robot_meta.get("base")
+    tip = tip or robot_meta.get("tip")
+    if not base or not tip:
+        _fail(meta_path, "no chain: name robot.base and robot.tip here or give --chain BASE_LINK:TIP_LINK",
+              "robot.base" if not base else "robot.tip")
+    kin_chain, link_names, load = arm_chain(urdf_path, base, tip, meta_path)
+    points = {}
+    for name, point in _object(meta["points"], meta_path, "points").items():
+        _name(name, meta_path, "points")
+        point = _object(point, meta_path, f"points.{name}", ("xyz_m", "about"), ("xyz_m",))
+        points[name] = _vector(point["xyz_m"], meta_path, f"points.{name}.xyz_m")
+    if not points:
+        _fail(meta_path, "no points: name at least one point on the end effector", "points")
+    sensors = tuple(_sensor(_name(name, meta_path, "sensors"), doc, meta_path)
+                    for name, doc in _object(meta["sensors"], meta_path, "sensors").items())
+    if not sensors:
+        _fail(meta_path, "no sensors", "sensors")
+    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2")
+    obs = _read_observations(directory / "observations.csv", kin_chain.joint_names, sensors, tuple(points))
+    return ArmDataset(directory, meta, Path(urdf_path), base, tip, kin_chain, link_names, load, sensors, points, obs,
+                      gravity)
+
+
+def _read_observations(path, joints, sensors, points) -> Observations:
+    text = read_text(path)  # regular files only, at most 64 MiB (solver/fileio.py)
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        _fail(path, "empty file", line=1)
+    except csv.Error as err:
+        _fail(path, f"malformed CSV: {err}", line=1)
+    seen = set()
+    for h in header:
+        if h in seen:
+            _fail(path, "column named twice", field=h, line=1)
+        seen.add(h)
+    col = {h: i for i, h in enumerate(header)}
+    for required in ("sensor", "point"):
+        if required not in col:
+            _fail(path, "missing column", field=required, line=1)
+    joint_cols = []
+    for joint in joints:
+        found = [(joint + suffix, factor) for suffix, factor in JOINT_UNITS.items() if joint + suffix in col]
+        if len(found) > 1:
+            _fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=1)
+        if not found:
+            hint = f" (a column {joint!r} needs its unit: {joint}_rad or {joint}_deg)" if joint in col else ""
+            _fail(path, f"missing the column of chain joint {joint}: {joint}_rad or {joint}_deg{hint}", field=joint,
+                  line=1)
+        joint_cols.append((col[found[0][0]], found[0][1], found[0][0]))
+    kinds = {s.kind for s in sensors}
+    xyz_cols = None
+    if "points" in kinds:
+        units = [suffix for suffix in POINT_UNITS if all(f"{a}{suffix}" in col for a in "xyz")]
+        if not units:
+            _fail(path, "a 3-D sensor needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)", field="x_m", line=1)
+        if len(units) > 1:
+            _fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=1)
+        xyz_cols = ([col[f"{a}{units[0]}"] for a in "xyz"], POINT_UNITS[units[0]], units[0])
+    if "camera" in kinds:
+        for c in PIXEL_COLUMNS:
+            if c not in col:
+                _fail(path, "a camera needs the columns u_px, v_px", field=c, line=1)
+    sensor_index = {s.name: i for i, s in enumerate(sensors)}
+    point_index = {p: i for i, p in enumerate(points)}
+    pose_col = col.get("pose")
+    theta, pose, sensor, point, measured, lines = [], [], [], [], [], []
+    line = 1
+    try:
+        for row in reader:
+            line = reader.line_num
+            if not row or all(not cell.strip() for cell in row):
+                continue
+            if len(row) != len(header):
+                _fail(path, f"expected {len(header)} cells, got {len(row)}", line=line)
+            row = [cell.strip() for cell in row]
+            name = row[col["sensor"]]
+            if name not in sensor_index:
+                _fail(path, f"unknown sensor {name[:40]!r} (dataset.json has {', '.join(sensor_index)})",
+                      field="sensor", line=line)
+            s = sensor_index[name]
+            pname = row[col["point"]]
+            if pname not in point_index:
+                _fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
+                      field="point", line=line)
+            theta.append([_cell(row[i], path, line, field) * factor for i, factor, field in joint_cols])
+            if pose_col is not None:
+                value = _cell(row[pose_col], path, line, "pose")
+                if value != int(value):
+                    _fail(path, f"expected an integer, got {row[pose_col][:40]!r}", field="pose", line=line)
+                pose.append(int(value))
+            if sensors[s].kind == "points":
+                cols, factor, suffix = xyz_cols
+                measured.append([_cell(row[i], path, line, f"{a}{suffix}") * factor for i, a in zip(cols, "xyz")])
+            else:
+                measured.append([_cell(row[col[c]], path, line, c) for c in PIXEL_COLUMNS] + [0.0])
+            sensor.append(s)
+            point.append(point_index[pname])
+            lines.append(line)
+    except csv.Error as err:
+        _fail(path, f"malformed CSV: {err}", line=line + 1)
+    if not theta:
+        _fail(path, "no observations", line=2)
+    theta = np.array(theta, dtype=float)
+    if pose_col is None:  # rows with the same joint readings are one pose
+        _, pose = np.unique(theta, axis=0, return_inverse=True)
+    return Observations(theta, np.asarray(pose, dtype=np.int64).ravel(), np.array(sensor), np.array(point),
+                        np.array(measured, dtype=float), np.array(lines))
+
+
+def _cell(text, path, line, field) -> float:
+    if not text:
+        _fail(path, "empty cell: this row's sensor needs a value here", field=field, line=line)
+    try:
+        value = float(text)
+    except ValueError:
+        _fail(path, f"expected a number, got {text[:40]!r}", field=field, line=line)
+    if not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {text[:40]!r}", field=field, line=line)
+    return value
+
+
+def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points) -> None:
+    """Write dataset.json and observations.csv (joints in rad, points in m, pixels) atomically."""
+    from solver.fileio import atomic_write_text
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    header = ["pose", "sensor", "point"] + [f"{j}_rad" for j in joints] + ["x_m", "y_m", "z_m", "u_px", "v_px"]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(header)
+    names = [s.name for s in sensors]
+    point_names = list(points)
+    for i in range(len(obs)):
+        s = sensors[obs.sensor[i]]
+        m = obs.measured[i]
+        values = [repr(float(v)) for v in m[:3]] + ["", ""] if s.kind == "points" else \
+            ["", "", ""] + [repr(float(v)) for v in m[:2]]
+        writer.writerow([int(obs.pose[i]), names[obs.sensor[i]], point_names[obs.point[i]]]
+                        + [repr(float(v)) for v in obs.theta[i]] + values)
+    atomic_write_text(directory / "observations.csv", out.getvalue())
+    atomic_write_text(directory / "dataset.json", json.dumps(dict(meta, schema=SCHEMA), indent=1) + "\n")

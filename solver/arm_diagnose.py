@@ -1,0 +1,251 @@
+"""Diagnostics of an arm's fit (docs/ARM.md): compare it with the noise, locate the misfit on the joints and links,
+and name the effects that are missing, each judged by a score test on the fitted model's residuals.
+
+For a group of parameters not in the model (an effect, or every parameter of one joint or link) the model's
+whitened residual r is regressed on the group's Jacobian columns with the model's own columns projected out;
+the drop in the residual sum of squares dRSS has, if the group is absent, a chi-square distribution with k (the
+rank of the projected columns) degrees of freedom when the sensors' noise is known (dataset.json), and otherwise
+an F(k, M - p - k) distribution in dRSS / k over the residual variance. An effect is named when its p-value is
+below 0.001 divided by the number of candidates (Bonferroni: one false alarm in 1000 datasets at most); the
+significant ones are ranked by dRSS - k log(M) (BIC), so that of two effects that explain the misfit alike the
+one with fewer parameters comes first.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from solver.arm import EFFECTS, ArmModel
+from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
+
+FAMILY_LEVEL = 0.001
+RANK_TOLERANCE = 1e-6
+
+
+@dataclass
+class Test:
+    label: str  # an effect name, or 'joint <J>' / 'link <L>'
+    k: int  # degrees of freedom (rank of the group beyond the model)
+    drss: float  # drop of the whitened RSS
+    p_value: float
+    uniqueness: float  # share of the group's signature the model cannot already produce
+    predicted_rms: dict  # sensor -> RMS after adding the group (m or px)
+    values: dict  # parameter name -> predicted value (SI)
+    significant: bool = False
+
+    def as_dict(self):
+        return {"label": self.label, "dof": self.k, "drss": self.drss, "p_value": self.p_value,
+                "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
+                "significant": self.significant}
+
+
+def extended(fit: ArmFit, effects=tuple(EFFECTS)):
+    """(model with every effect, its x at the fit, free mask of the fit's free parameters)."""
+    m = fit.model
+    big = ArmModel(m.chain, dict(zip(m.point_names, m.point_xyz)), m.sensors, effects, m.gravity_mps2, m.load,
+                   m.link_names)
+    big.R0 = m.R0.copy()
+    values = dict(zip(m.names, fit.x))
+    free_names = set(fit.free_names)
+    x = np.array([values.get(n, 0.0) for n in big.names])
+    free = np.array([n in free_names for n in big.names])
+    return big, x, free
+
+
+def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
+    """One Test per {label: [parameter names]} (names of solver.arm.EFFECTS parameters not in the fit)."""
+    big, x, free = extended(fit)
+    obs = fit.obs
+    r, J = whitened(big, obs, x, fit.sigma, jacobian=True)
+    J = J * big.scales
+    Q, _ = np.linalg.qr(J[:, free])
+    rss = float(r @ r)
+    M, p = r.size, int(free.sum())
+    known = bool(fit.noise_known.all())
+    index = {n: i for i, n in enumerate(big.names)}
+    mask = big.component_mask(obs)
+    sigma_rows = np.broadcast_to(fit.sigma[obs.sensor][:, None], mask.shape)[mask]
+    sensor_rows = np.broadcast_to(obs.sensor[:, None], mask.shape)[mask]
+    tests = []
+    for label, names in groups.items():
+        cols = [index[n] for n in names if n in index and not free[index[n]]]
+        if not cols:
+            continue
+        C = J[:, cols]
+        Cp = C - Q @ (Q.T @ C)
+        total = float(np.sum(C ** 2))
+        uniqueness = float(np.sum(Cp ** 2) / total) if total > 0 else 0.0
+        U, sv, Vt = np.linalg.svd(Cp, full_matrices=False)
+        ref = max(float(np.linalg.norm(C, axis=0).max()), 1e-300)
+        k = int(np.sum(sv > RANK_TOLERANCE * ref))
+        if k == 0:
+            tests.append(Test(label, 0, 0.0, 1.0, uniqueness, {}, {}))
+            continue
+        Uk = U[:, :k]
+        proj = Uk.T @ r
+        drss = float(proj @ proj)
+        if known:
+            p_value = float(stats.chi2.sf(drss, k))
+        else:
+            rest = max(rss - drss, 1e-300) / max(1, M - p - k)
+            p_value = float(stats.f.sf(drss / k / rest, k, max(1, M - p - k)))
+        r_new = (r - Uk @ proj) * sigma_rows
+        predicted = {}
+        for s, sensor in enumerate(big.sensors):
+            e = r_new[sensor_rows == s]
+            predicted[sensor.name] = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
+        delta = -(Vt[:k].T @ (proj / sv[:k]))  # in scaled units, on the group's columns
+        values = {big.names[c]: float(d * big.scales[c]) for c, d in zip(cols, delta)}
+        tests.append(Test(label, k, drss, p_value, uniqueness, predicted, values))
+    return tests
+
+
+def candidate_groups(fit: ArmFit) -> dict:
+    """Every effect not in the model (and, for those in it, the parameters the fit has fixed are not retested)."""
+    big, _, _ = extended(fit)
+    in_model = set(fit.model.effects)
+    return {e: [p.name for _, p in big.params(e)] for e in EFFECTS if e not in in_model and big.params(e)}
+
+
+def location_groups(fit: ArmFit) -> dict:
+    """Per joint (offset, elasticity, the rotation of its origin) and per link (length, the translation of its
+    origin; the tip link also its points): every parameter of it the model does not have."""
+    big, _, _ = extended(fit)
+    groups = {}
+    n = len(big.chain.joint_names)
+    for k, joint in enumerate(big.chain.joint_names):
+        groups[f"joint {joint}"] = [f"joint_offset.{joint}", f"elasticity.{joint}"] + [
+            f"link_pose.{big.link_names[k]}.{q}" for q in ("rx", "ry", "rz")]
+    for k, link in enumerate(big.link_names):
+        names = [f"link_length.{link}"]
+        if k < n:
+            names += [f"link_pose.{link}.{q}" for q in ("x", "y", "z")]
+        else:
+            names += [p.name for _, p in big.params("points")]
+        groups[f"link {link}"] = names
+    return groups
+
+
+@dataclass
+class ArmDiagnosis:
+    fit: ArmFit
+    rms: dict
+    noise: dict
+    noise_known: dict
+    worst_poses: list
+    location: list
+    candidates: list
+    threshold: float
+    heldout: dict
+    heldout_with: dict  # the best candidate's held-out RMS when added (empty if none)
+
+    @property
+    def best(self):
+        return next((c for c in self.candidates if c.significant), None)
+
+    def as_dict(self):
+        return {"effects": list(self.fit.model.effects), "rms": self.rms, "noise": self.noise,
+                "noise_known": self.noise_known, "worst_poses": self.worst_poses,
+                "location": [t.as_dict() for t in self.location],
+                "candidates": [t.as_dict() for t in self.candidates], "threshold": self.threshold,
+                "heldout": self.heldout, "heldout_with_best": self.heldout_with,
+                "verdict": None if self.best is None else self.best.label,
+                "fixed": self.fit.fixed_reasons}
+
+
+def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
+    model, obs = fit.model, fit.obs
+    candidates = score_tests(fit, candidate_groups(fit))
+    threshold = FAMILY_LEVEL / max(1, sum(1 for c in candidates if c.k > 0))
+    for c in candidates:
+        c.significant = c.k > 0 and c.p_value < threshold
+    # Ranked by what they explain less log(M) per parameter (BIC): of two that explain the misfit alike, the
+    # smaller wins (link poses hold the link lengths and fit 13 more noise parameters on the panda).
+    penalty = math.log(max(2, int(model.component_mask(obs).sum())))
+    candidates.sort(key=lambda c: (not c.significant, -(c.drss - penalty * c.k)))
+    location = score_tests(fit, location_groups(fit))
+    location.sort(key=lambda t: -(t.drss - penalty * t.k))
+    # worst poses by whitened RMS
+    r = (fit.residual / fit.sigma[obs.sensor][:, None]) ** 2
+    mask = model.component_mask(obs)
+    per_pose = []
+    for pose in np.unique(obs.pose):
+        rows = obs.pose == pose
+        per_pose.append((float(np.sqrt(r[rows][mask[rows]].mean())), int(pose)))
+    per_pose.sort(reverse=True)
+    heldout = heldout_rms(fit, n_folds) if n_folds > 1 else {}
+    heldout_with = {}
+    best = next((c for c in candidates if c.significant), None)
+    if best is not None and n_folds > 1:
+        bigger = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), model.sensors,
+                          model.effects + (best.label,), model.gravity_mps2, model.load, model.link_names)
+        bigger.R0 = model.R0.copy()
+        values = dict(zip(model.names, fit.x))
+        x0 = np.array([values.get(n, 0.0) for n in bigger.names])
+        fixed = tuple(n for n in fit.fixed_reasons)
+        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed), n_folds)
+    return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
+                        {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
+                        [{"pose": p, "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
+                        heldout, heldout_with)
+
+
+def shown_rms(value, kind) -> str:
+    return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
+
+
+def _shown_value(name, value, units) -> str:
+    from solver.effect import shown
+
+    v, unit = shown(value, units.get(name, "1"))
+    return f"{v:+.4g} {unit}".rstrip()
+
+
+def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
+    fit, model = d.fit, d.fit.model
+    units = {p.name: p.unit for p in extended(fit)[0].parameters}
+    kinds = {s.name: s.kind for s in model.sensors}
+    lines = [f"model: sensor frames + {' + '.join(model.effects) or 'nothing'}; {len(fit.obs)} observations in "
+             f"{len(np.unique(fit.obs.pose))} poses", "", "COMPARE"]
+    for s in model.sensors:
+        ratio = d.rms[s.name] / d.noise[s.name]
+        source = "stated by the dataset" if d.noise_known[s.name] else "estimated from the fit"
+        lines.append(f"  {s.name:10s} RMS {shown_rms(d.rms[s.name], s.kind)} per axis; noise "
+                     f"{shown_rms(d.noise[s.name], s.kind)} ({source}); {ratio:.2f} x the noise")
+    if d.heldout:
+        lines.append("  held-out poses (5-fold, whole poses): " + "; ".join(
+            f"{s} nominal {shown_rms(v['nominal'], kinds[s])} -> calibrated {shown_rms(v['calibrated'], kinds[s])}"
+            for s, v in d.heldout.items()))
+    lines.append("  worst poses: " + ", ".join(f"{w['pose']} ({w['rms_sigma']:.2f} sigma)" for w in d.worst_poses))
+    lines += ["", "LOCATE (misfit a joint's or a link's missing parameters would explain; dRSS in noise variances)"]
+    for t in d.location[:6]:
+        lines.append(f"  {t.label:32s} dRSS {t.drss:10.1f} on {t.k} dof  p {t.p_value:.1e}")
+    lines += ["", f"NAMES (candidate effects, best first; significant: p < {d.threshold:.1e}, i.e. "
+                  f"{FAMILY_LEVEL} over {sum(1 for c in d.candidates if c.k > 0)} tests)"]
+    for c in d.candidates:
+        predicted = ", ".join(f"{s} {shown_rms(v, kinds[s])}" for s, v in c.predicted_rms.items())
+        top = sorted(c.values.items(), key=lambda kv: -abs(kv[1]))[:3]
+        values = ", ".join(f"{n} {_shown_value(n, v, units)}" for n, v in top)
+        lines.append(f"  {c.label:14s} dof {c.k:3d}  dRSS {c.drss:10.1f}  p {c.p_value:8.1e}  "
+                     f"{'yes' if c.significant else 'no ':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
+                     + (f"; {values}" if c.significant else ""))
+    for name, reason in fit.fixed_reasons.items():
+        lines.append(f"fixed: {name}: {reason}")
+    best = d.best
+    lines.append("")
+    if best is None:
+        lines.append("verdict: no candidate effect is significant; nothing is missing from the model"
+                     + (" (the fit is at the noise level)." if all(
+                         d.rms[s] < 1.5 * d.noise[s] for s in d.rms) else
+                        " among these candidates (the misfit above the noise is something else)."))
+    else:
+        lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
+                     f"{','.join(model.effects + (best.label,))}")
+        if d.heldout_with:
+            lines.append("  held-out poses with it: " + "; ".join(
+                f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))
+    return "\n".join(lines)

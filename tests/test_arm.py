@@ -1,0 +1,361 @@
+"""The arm model (solver/arm.py), its dataset format, identification and diagnostics on synthetic data, and the
+simulated PyBullet arm against naocal's kinematics (docs/ARM.md)."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from solver.arm import EFFECTS, ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
+from solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
+from solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
+from solver.errors import DataError
+
+CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
+          "distortion": [0.02, -0.01, 0.001, -0.0005, 0.0]}
+
+
+def panda():
+    from solver.arm_dataset import arm_chain
+
+    urdf, base, tip = resolve_robot("franka_panda", None)
+    return (urdf, base, tip) + arm_chain(urdf, base, tip, urdf)
+
+
+def tool():
+    from backends.arm_sim import tool_points
+
+    return tool_points()
+
+
+def synthetic(effects, truth, n_poses=50, seed=0, noise_m=1e-4, noise_px=0.2):
+    """A model of the panda with a tracker and a camera, readings at random stances and their measurements
+    (the model's own predictions at `truth` plus noise)."""
+    urdf, base, tip, chain, names, load = panda()
+    rng = np.random.default_rng(seed)
+    sensors = [Sensor("tracker", "points", noise=noise_m), Sensor("camera", "camera", dict(CAMERA), noise_px)]
+    model = ArmModel(chain, tool(), sensors, effects, load=load, link_names=names)
+    lo = np.array([-2.5, -1.5, -2.5, -2.8, -2.5, 0.3, -2.5])
+    hi = np.array([2.5, 1.5, 2.5, -0.4, 2.5, 3.4, 2.5])
+    theta = rng.uniform(lo, hi, (n_poses, 7))
+    rows = [(i, 0, p) for i in range(n_poses) for p in range(3)] + [(i, 1, p) for i in range(n_poses)
+                                                                    for p in range(3, 7)]
+    obs = Observations(theta[[r[0] for r in rows]], np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
+                       np.array([r[2] for r in rows]), np.zeros((len(rows), 3)))
+    R_cam = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # x_cam = -x_base: looks back at the arm
+    x = np.array([truth.get(n, 0.0) for n in model.names])
+    for i, p in enumerate(model.parameters):
+        if p.effect == "sensor" and p.name not in truth:
+            x[i] = {(0, "rotation"): (0.4, -0.3, 1.2), (0, "translation"): (1.5, -2.0, 0.3),
+                    (1, "rotation"): (0.01, 0.02, -0.01), (1, "translation"): (2.5, 0.1, -0.4)}[
+                (p.index, p.kind)][p.component]
+    model.R0[1] = R_cam
+    pred = model.predict(x, obs)
+    noise = np.where(obs.sensor[:, None] == 0, noise_m, noise_px) * rng.normal(size=pred.shape)
+    noise[obs.sensor == 1, 2] = 0.0
+    obs.measured = pred + noise
+    keep = (obs.sensor == 0) | ((pred[:, 0] > 0) & (pred[:, 0] < 1280) & (pred[:, 1] > 0) & (pred[:, 1] < 1024))
+    obs = obs.subset(keep)
+    model.R0[:] = np.eye(3)  # identification finds the frames itself
+    return model, obs, dict(zip(model.names, x)), sensors
+
+
+def true_errors(seed=1):
+    rng = np.random.default_rng(seed)
+    _, _, _, chain, names, _ = panda()
+    truth = {f"joint_offset.{j}": math.radians(rng.uniform(0.01, 0.5)) * rng.choice((-1, 1))
+             for j in chain.joint_names}
+    for k, name in enumerate(names):
+        offset = chain.T_origin[k, :3, 3] if k < len(chain.joint_names) else chain.T_end[:3, 3]
+        if np.linalg.norm(offset) > 1e-9:
+            truth[f"link_length.{name}"] = rng.uniform(1e-4, 2e-3) * rng.choice((-1, 1))
+    return truth
+
+
+# ------------------------------------------------------------------------------------------------ maths
+
+
+def test_rotation_helpers_round_trip_and_left_jacobian():
+    rng = np.random.default_rng(0)
+    for phi in list(rng.normal(size=(5, 3))) + [np.array([math.pi - 1e-9, 0.0, 0.0]), np.zeros(3)]:
+        assert np.allclose(exp_so3(log_so3(exp_so3(phi))), exp_so3(phi), atol=1e-9)
+        e = np.array([1e-7, -2e-7, 3e-7])
+        assert np.allclose(exp_so3(phi + e), exp_so3(left_jacobian(phi) @ e) @ exp_so3(phi), atol=1e-12)
+
+
+def test_jacobian_matches_finite_differences_for_every_effect():
+    model, obs, truth, _ = synthetic(tuple(EFFECTS), {}, n_poses=8)
+    rng = np.random.default_rng(3)
+    model.R0[1] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    x = np.array([truth[n] for n in model.names]) + rng.normal(0.0, 0.02, len(model.names)) * model.scales * 10
+    _, J = model.predict(x, obs, jacobian=True)
+    numeric = np.empty_like(J)
+    for i in range(len(x)):
+        h = 1e-6
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        numeric[:, :, i] = (model.predict(up, obs) - model.predict(down, obs)) / (2 * h)
+    scale = np.abs(numeric).max(axis=(0, 1)) + 1e-3  # columns near zero (the hand's tiny torque): absolute
+    worst = (np.abs(J - numeric).max(axis=(0, 1)) / scale)
+    assert worst.max() < 1e-5, model.names[int(np.argmax(worst))]
+    assert len({p.effect for p in model.parameters}) == len(EFFECTS) + 1
+
+
+# ------------------------------------------------------------------------------------------------ identification
+
+
+def test_identify_recovers_link_lengths_and_joint_offsets_and_fixes_what_is_not_identifiable():
+    truth = true_errors()
+    model, obs, x_true, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=60)
+    result = fit(model, obs, initialise_sensors(model, obs))
+    assert result.success
+    values = result.model.reported_values(result.x)
+    # the first joint turns the whole arm about an axis through the base: a sensor rotation does the same
+    assert set(result.fixed_reasons) == {"joint_offset.panda_joint1", "link_length.panda_link0"}
+    assert "sensor." in result.fixed_reasons["joint_offset.panda_joint1"]
+    for name, free in zip(model.names, result.free):
+        if not free or name.startswith("sensor."):
+            continue
+        tolerance = 1e-4 if name.startswith("link_length.") else math.radians(0.01)
+        assert abs(values[name] - truth[name]) < tolerance, name
+    assert result.rms()["tracker"] == pytest.approx(1e-4, rel=0.15)
+
+
+def test_identify_refuses_a_camera_without_enough_observations():
+    model, obs, _, _ = synthetic(("joint_offsets",), {}, n_poses=20)
+    few = obs.subset((obs.sensor == 0) | (np.arange(len(obs)) < np.flatnonzero(obs.sensor == 1)[3]))
+    with pytest.raises(DataError, match="camera camera: needs 6"):
+        initialise_sensors(model, few)
+
+
+# ------------------------------------------------------------------------------------------------ diagnose
+
+
+def test_diagnose_names_link_lengths_when_missing_and_nothing_when_complete():
+    from solver.arm_diagnose import diagnose
+
+    truth = true_errors(seed=4)
+    complete, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=40, seed=5)
+    model = ArmModel(complete.chain, dict(zip(complete.point_names, complete.point_xyz)), complete.sensors,
+                     ("joint_offsets",), load=complete.load, link_names=complete.link_names)
+    d = diagnose(fit(model, obs, initialise_sensors(model, obs)), n_folds=0)
+    assert d.best is not None and d.best.label == "link_lengths"
+    d = diagnose(fit(complete, obs, initialise_sensors(complete, obs)), n_folds=0)
+    assert d.best is None
+    assert {c.label for c in d.candidates} == {"link_poses", "points", "elasticity"}
+
+
+def test_diagnose_names_elasticity_under_gravity():
+    from solver.arm_diagnose import diagnose
+
+    truth = true_errors(seed=6)
+    truth.update({f"elasticity.panda_joint{k}": 2e-3 for k in (2, 4)})  # 2 mrad per N m
+    model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), truth, n_poses=50, seed=7)
+    base = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), model.sensors,
+                    ("joint_offsets", "link_lengths"), load=model.load, link_names=model.link_names)
+    d = diagnose(fit(base, obs, initialise_sensors(base, obs)), n_folds=0)
+    assert d.best is not None and d.best.label == "elasticity"
+
+
+# ------------------------------------------------------------------------------------------------ the format
+
+
+def write(tmp_path, model, obs, sensors, meta_extra=None):
+    urdf, base, tip, *_ = panda()
+    points = dict(zip(model.point_names, map(tuple, model.point_xyz)))
+    meta = {"robot": {"id": "test", "urdf": str(urdf), "base": base, "tip": tip},
+            "points": {p: {"xyz_m": list(v)} for p, v in points.items()},
+            "sensors": {"tracker": {"kind": "points", "noise_m": 1e-4},
+                        "camera": dict({"kind": "camera", "noise_px": 0.2}, **CAMERA)}}
+    meta.update(meta_extra or {})
+    write_arm_dataset(tmp_path, meta, model.chain.joint_names, obs, sensors, points)
+    return tmp_path
+
+
+def test_dataset_round_trip_and_units_in_column_names(tmp_path):
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=12)
+    d = read_arm_dataset(write(tmp_path / "rad", model, obs, sensors))
+    assert np.array_equal(d.observations.theta, obs.theta)
+    assert np.array_equal(d.observations.measured, obs.measured)
+    # the same data in degrees and millimetres, columns reordered, no pose column: the same numbers
+    text = (tmp_path / "rad" / "observations.csv").read_text().splitlines()
+    header = text[0].split(",")
+    rows = [line.split(",") for line in text[1:]]
+    new_header = [h.replace("_rad", "_deg").replace("_m", "_mm") if (h.endswith("_rad") or h in ("x_m", "y_m", "z_m"))
+                  else h for h in header if h != "pose"]
+    out = [",".join(reversed(new_header))]
+    for r in rows:
+        cells = []
+        for h, c in zip(header, r):
+            if h == "pose":
+                continue
+            if h.endswith("_rad"):
+                c = repr(math.degrees(float(c)))
+            elif h in ("x_m", "y_m", "z_m") and c:
+                c = repr(float(c) * 1e3)
+            cells.append(c)
+        out.append(",".join(reversed(cells)))
+    (tmp_path / "deg").mkdir()
+    (tmp_path / "deg" / "observations.csv").write_text("\n".join(out) + "\n")
+    (tmp_path / "deg" / "dataset.json").write_text((tmp_path / "rad" / "dataset.json").read_text())
+    e = read_arm_dataset(tmp_path / "deg")
+    assert np.allclose(e.observations.theta, obs.theta, atol=1e-12)
+    assert np.allclose(e.observations.measured, obs.measured, atol=1e-12)
+    assert len(np.unique(e.observations.pose)) == 12  # rows with the same readings are one pose
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda h, r: (h.replace("panda_joint3_rad", "panda_joint3"), r), "needs its unit"),
+    (lambda h, r: (h, r.replace("tracker", "trackr", 1)), "unknown sensor 'trackr'"),
+    (lambda h, r: (h, r.replace(",t1,", ",t9,", 1)), "unknown point 't9'"),
+    (lambda h, r: (h.replace("x_m", "x_q"), r), "x_m, y_m, z_m"),
+    (lambda h, r: (h, r + "\n1,2\n"), "expected"),
+])
+def test_bad_observations_are_one_line_naming_file_line_and_field(tmp_path, change, message):
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=10)
+    d = write(tmp_path, model, obs, sensors)
+    lines = (d / "observations.csv").read_text().split("\n", 1)
+    header, rest = change(lines[0], lines[1])
+    (d / "observations.csv").write_text(header + "\n" + rest)
+    with pytest.raises(DataError, match=message) as err:
+        read_arm_dataset(d)
+    assert "observations.csv" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_bad_number_names_its_line_and_column(tmp_path):
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=10)
+    d = write(tmp_path, model, obs, sensors)
+    lines = (d / "observations.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[4] = "nan"
+    lines[3] = ",".join(cells)
+    (d / "observations.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"line 4, field 'panda_joint2_rad'"):
+        read_arm_dataset(d)
+
+
+@pytest.mark.parametrize("meta, message", [
+    ({"sensors": {"tracker": {"kind": "laser"}}}, "sensors.tracker.kind"),
+    ({"sensors": {"camera": {"kind": "camera", "noise_px": 1}}}, "sensors.camera.width_px"),
+    ({"points": {"t1": {"xyz_m": [0, 0]}}}, "points.t1.xyz_m"),
+    ({"robot": {"urdf": "missing.urdf", "base": "panda_link0", "tip": "panda_hand"}}, "missing.urdf"),
+    ({"robot": {"base": "panda_link0", "tip": "nowhere"}}, "robot.urdf"),
+])
+def test_bad_dataset_json_names_the_field(tmp_path, meta, message):
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=10)
+    d = write(tmp_path, model, obs, sensors)
+    doc = json.loads((d / "dataset.json").read_text())
+    doc.update(meta)
+    (d / "dataset.json").write_text(json.dumps(doc))
+    with pytest.raises(DataError, match=message):
+        read_arm_dataset(d)
+
+
+def test_cli_bad_chain_is_one_line_exit_2(tmp_path):
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=10)
+    d = write(tmp_path, model, obs, sensors)
+    for extra, message in ((["--chain", "panda_link0:nowhere"], "no link 'nowhere'"),
+                           (["--chain", "panda_link0"], "BASE_LINK:TIP_LINK"),
+                           (["--effects", "gravity"], "unknown arm effect")):
+        run = subprocess.run([sys.executable, "-m", "tools", "identify", str(d), *extra], capture_output=True,
+                             text=True, timeout=120)
+        assert run.returncode == 2, run.stderr
+        assert message in run.stderr and run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
+
+
+def naocal(*argv, timeout=60):
+    """naocal in a child process: a read that blocks fails the test (TimeoutExpired) instead of hanging it."""
+    return subprocess.run([sys.executable, "-m", "tools", *map(str, argv)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.parametrize("name", ["dataset.json", "observations.csv", "robot.urdf"])
+def test_a_fifo_in_an_arm_dataset_is_refused_in_one_line_without_blocking(tmp_path, name):
+    import shutil
+
+    model, obs, _, sensors = synthetic(("joint_offsets",), {}, n_poses=10)
+    d = write(tmp_path / "d", model, obs, sensors)
+    doc = json.loads((d / "dataset.json").read_text())
+    shutil.copyfile(doc["robot"]["urdf"], d / "robot.urdf")
+    doc["robot"]["urdf"] = "robot.urdf"
+    (d / "dataset.json").write_text(json.dumps(doc))
+    (d / name).unlink()
+    os.mkfifo(d / name)
+    args = ["--robot", "franka_panda"] if name == "dataset.json" else []  # (without it: not an arm dataset)
+    run = naocal("identify", d, *args)
+    assert run.returncode == 2 and name in run.stderr and "FIFO" in run.stderr, run.stderr
+    assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
+
+
+def test_an_arm_calibration_file_that_is_a_fifo_is_refused_by_offsets_show(tmp_path):
+    os.mkfifo(tmp_path / "arm.json")
+    run = naocal("offsets", "show", tmp_path / "arm.json")
+    assert run.returncode == 2 and "arm.json" in run.stderr and run.stderr.count("\n") == 1, run.stderr
+
+
+def test_arm_simulate_takes_its_directory_s_lock_and_only_a_new_or_empty_one(tmp_path, capsys):
+    from agent.rundir import RunLock
+    from tools.cli import main
+
+    out = tmp_path / "out"
+    with RunLock(out, "naocal simulate (another run)"):
+        assert main(["simulate", "--robot", "franka_panda", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "in use by another run" in err and "naocal simulate (another run)" in err, err
+    assert not out.exists()  # the lock made it, and a refused run leaves no trace
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert main(["simulate", "--robot", "franka_panda", "--out", str(out)]) == 2
+    assert "not an empty directory" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+# ------------------------------------------------------------------------------------------------ the simulated arm
+
+
+@pytest.mark.parametrize("robot", ["kuka_iiwa", "franka_panda"])
+def test_simulated_arm_agrees_with_the_model_at_its_hidden_truth(robot):
+    """PyBullet's forward kinematics of the perturbed URDF equals naocal's model at the truth (to 1 um)."""
+    from backends.arm_sim import SimulatedArm
+
+    urdf, base, tip = resolve_robot(robot, None)
+    with SimulatedArm(urdf, base, tip, seed=2) as arm:
+        thetas = arm.sample_stances(5)
+        limits = np.array(arm.limits())
+        assert np.all((thetas > limits[:, 0]) & (thetas < limits[:, 1]))
+        obs, sensors = arm.measure(thetas, noise_m=1e-12, noise_px=1e-9)
+        assert sum(1 for v in arm.truth if v.startswith("link_length.")) >= 5
+        model = ArmModel(arm.chain, arm.points, sensors, ("joint_offsets", "link_lengths"), load=arm.load,
+                         link_names=arm.link_names)
+        x = np.array([arm.truth.get(n, 0.0) for n in model.names])
+        for s, name in enumerate(("tracker", "camera")):
+            model.R0[s] = arm.frames[name][0]
+            for i, p in model.params("sensor"):
+                if p.index == s:
+                    x[i] = 0.0 if p.kind == "rotation" else arm.frames[name][1][p.component]
+        error = model.predict(x, obs) - obs.measured
+        assert np.abs(error[obs.sensor == 0]).max() < 1e-6  # PyBullet rounds to ~5e-8 m
+        assert np.abs(error[obs.sensor == 1, :2]).max() < 1e-3
+
+
+def test_a_camera_pose_is_found_from_points_and_pixels_without_opencv():
+    """The solver's starting camera pose (the direct linear transform, no OpenCV): exact on exact pixels, close
+    under 0.2 px noise, refused (None) for points in one plane, which it cannot determine."""
+    rng = np.random.default_rng(5)
+    R, t = exp_so3(np.array([0.3, -0.5, 0.2])), np.array([0.1, -0.2, 1.5])
+    K = np.array([[600.0, 0.0, 320.0], [0.0, 610.0, 240.0], [0.0, 0.0, 1.0]])
+    points = rng.uniform(-0.3, 0.3, (40, 3))
+    homogeneous = (K @ (points @ R.T + t).T).T
+    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
+    R_found, t_found = camera_pose_dlt(points, pixels, K)
+    assert np.allclose(R_found, R, atol=1e-9) and np.allclose(t_found, t, atol=1e-9)
+    R_noisy, t_noisy = camera_pose_dlt(points, pixels + rng.normal(0.0, 0.2, pixels.shape), K)
+    assert np.degrees(np.linalg.norm(log_so3(R_noisy @ R.T))) < 0.5 and np.linalg.norm(t_noisy - t) < 0.02
+    flat = points * [1.0, 1.0, 0.0]
+    assert camera_pose_dlt(flat, pixels, K) is None
+    assert camera_pose_dlt(points[:5], pixels[:5], K) is None

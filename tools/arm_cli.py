@@ -1,0 +1,266 @@
+"""The arm's side of `naocal identify`, `diagnose`, `simulate` and `offsets show` (docs/ARM.md): chosen when the
+command gets --robot / --chain or a naocal.arm_dataset/1 directory."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+CALIBRATION_SCHEMA = "naocal.arm_calibration/1"
+
+
+def add_arm_options(parser, *, simulate=False) -> None:
+    """--robot and --chain (argparse only)."""
+    parser.add_argument("--robot", metavar="URDF",
+                        help="an arm: its URDF file, or kuka_iiwa / franka_panda (pybullet_data); "
+                             + ("simulates that arm" if simulate else "default: the dataset's robot.urdf"))
+    parser.add_argument("--chain", metavar="BASE_LINK:TIP_LINK",
+                        help="the arm's serial chain by its URDF base and tip links (default: the dataset's, or "
+                             "the named arm's flange / hand)")
+
+
+def wants_arm(args) -> bool:
+    from solver.arm_dataset import is_arm_dataset
+
+    return bool(getattr(args, "robot", None) or getattr(args, "chain", None)
+                or is_arm_dataset(getattr(args, "dataset", "")))
+
+
+def parse_arm_effects(text: str):
+    from solver.arm import DEFAULT_EFFECTS, EFFECTS
+    from solver.errors import NaocalError
+
+    if not text:
+        return DEFAULT_EFFECTS
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    for name in names:
+        if name not in EFFECTS:
+            raise NaocalError(f"--effects: unknown arm effect {name!r} (expected {', '.join(EFFECTS)})")
+    return tuple(names)
+
+
+def _check_nao_only(args) -> None:
+    from solver.errors import NaocalError
+
+    if getattr(args, "loss", "linear") != "linear":
+        raise NaocalError("--loss: an arm is fitted with the linear loss only")
+    if getattr(args, "tie_hip_yaw_pitch", False):
+        raise NaocalError("--tie-hip-yaw-pitch is the NAO's")
+
+
+def _load(args):
+    from solver.arm_dataset import read_arm_dataset
+
+    return read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
+
+
+def _unit_of(kind):
+    return "m" if kind == "points" else "px"
+
+
+def result_json(fit, dataset, heldout) -> dict:
+    sensors = {s.name: s.kind for s in fit.model.sensors}
+    return {
+        "success": fit.success, "message": fit.message,
+        "robot": {"urdf": str(dataset.urdf_path), "base": dataset.base, "tip": dataset.tip},
+        "effects": list(fit.model.effects),
+        "n_observations": len(fit.obs), "n_poses": int(len(set(fit.obs.pose.tolist()))),
+        "rms": {s: {"value": v, "unit": _unit_of(sensors[s])} for s, v in fit.rms().items()},
+        "noise": {s.name: {"value": float(fit.sigma[i]), "unit": _unit_of(s.kind), "stated": bool(fit.noise_known[i])}
+                  for i, s in enumerate(fit.model.sensors)},
+        "heldout": None if heldout is None else {
+            s: dict(v, unit=_unit_of(sensors[s])) for s, v in heldout.items()},
+        "parameters": fit.parameters_dict(),
+        "fixed": fit.fixed_reasons,
+        "condition_number": fit.condition_number,
+        "weak_directions": [{"singular_value": w.singular_value, "coefficients": w.coefficients}
+                            for w in fit.weak_directions],
+        "iterations": fit.iterations, "solve_time_s": fit.solve_time_s,
+    }
+
+
+def _shown(value, unit):
+    from solver.effect import shown
+
+    return shown(value, unit)
+
+
+def format_table(report: dict) -> str:
+    from solver.arm_diagnose import shown_rms
+
+    kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
+    lines = ["fit: " + "; ".join(f"{s} RMS {shown_rms(v['value'], kind[s])} per axis" for s, v in
+                                  report["rms"].items())
+             + f" over {report['n_observations']} observations in {report['n_poses']} poses; "
+               f"{report['iterations']} evaluations, {report['solve_time_s'] * 1e3:.0f} ms"]
+    if report["heldout"]:
+        lines.append("held-out poses: " + "; ".join(
+            f"{s} nominal {shown_rms(v['nominal'], kind[s])} -> calibrated {shown_rms(v['calibrated'], kind[s])}"
+            for s, v in report["heldout"].items()))
+    lines += ["", f"{'parameter':45s} {'value':>12s} {'std':>10s}  unit"]
+    for name, e in report["parameters"].items():
+        value, unit = _shown(e["value"], e["unit"])
+        std, _ = _shown(e["std"], e["unit"])
+        lines.append(f"{name:45s} {value:12.4f} {std:10.4f}  {unit}{'  (fixed)' if e['fixed'] else ''}")
+    lines.append("")
+    for name, reason in report["fixed"].items():
+        lines.append(f"fixed: {name}: {reason}")
+    lines.append(f"condition number (scaled Jacobian): {report['condition_number']:.3g}")
+    lines.append("weakest directions (what the data determine least):")
+    for w in report["weak_directions"]:
+        lines.append(f"  relative singular value {w['singular_value']:.2e}: "
+                     + " ".join(f"{c:+.2f}*{n}" for n, c in w["coefficients"].items()))
+    return "\n".join(lines)
+
+
+def run_identify(args) -> int:
+    from solver.arm_identify import heldout_rms, identify_dataset
+    from solver.errors import SolveError
+
+    _check_nao_only(args)
+    effects = parse_arm_effects(args.effects)
+    if args.out:
+        from solver.fileio import check_output_file
+
+        check_output_file(args.out)  # before the fit, as the NAO's identify
+    dataset = _load(args)
+    fit = identify_dataset(dataset, effects, fixed=tuple(args.fix))
+    if not fit.success:
+        raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
+    heldout = heldout_rms(fit, args.cv_folds) if args.cv_folds and args.cv_folds > 1 else None
+    report = result_json(fit, dataset, heldout)
+    if args.out:
+        write_calibration(args.out, report, dataset, args.dataset)
+    print(json.dumps(json_safe(report), indent=1) if args.json else format_table(report))
+    return 0
+
+
+def json_safe(obj):
+    from tools.cmd_diagnose import json_safe as safe
+
+    return safe(obj)
+
+
+def write_calibration(path, report, dataset, dataset_path) -> None:
+    """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
+    from solver.fileio import atomic_write_text
+    from solver.offsets import utc_now_iso
+
+    params = report["parameters"]
+    sections = {"joint_offsets_rad": {}, "link_lengths_m": {}, "sensors": {}}
+    for name, e in params.items():
+        if name.startswith("joint_offset."):
+            sections["joint_offsets_rad"][name.split(".", 1)[1]] = e["value"]
+        elif name.startswith("link_length."):
+            sections["link_lengths_m"][name.split(".", 1)[1]] = e["value"]
+    for s in dataset.sensors:
+        sections["sensors"][s.name] = {
+            "rotation_rad": [params[f"sensor.{s.name}.rotation.{a}"]["value"] for a in "xyz"],
+            "translation_m": [params[f"sensor.{s.name}.translation.{a}"]["value"] for a in "xyz"]}
+    doc = {"schema": CALIBRATION_SCHEMA, "created": utc_now_iso(),
+           "robot": dict(report["robot"], id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
+           **sections,
+           "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"]},
+           "fit": {"rms": report["rms"], "heldout": report["heldout"], "n_observations": report["n_observations"]},
+           "source": {"tool": "naocal identify", "dataset": str(dataset_path)}}
+    atomic_write_text(path, json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n", backup_suffix=".bak")
+
+
+def is_calibration_file(path) -> bool:
+    from solver.errors import DataError
+    from solver.fileio import read_text
+
+    try:  # a regular file only: a FIFO must not block the check
+        head = read_text(path)[:4096]
+    except DataError:
+        return False
+    return f'"{CALIBRATION_SCHEMA}"' in head
+
+
+def format_calibration(path) -> str:
+    """`naocal offsets show` of an arm calibration file; DataError naming the field when it is damaged."""
+    from solver.errors import DataError
+    from solver.fileio import read_json
+
+    doc = read_json(path)  # regular files only, size and nesting capped
+    if not isinstance(doc, dict) or doc.get("schema") != CALIBRATION_SCHEMA:
+        raise DataError(path, f"expected schema {CALIBRATION_SCHEMA}", field="schema")
+    params = doc.get("model", {}).get("parameters") if isinstance(doc.get("model"), dict) else None
+    if not isinstance(params, dict):
+        raise DataError(path, "missing the fitted parameters", field="model.parameters")
+    robot = doc.get("robot", {})
+    lines = [f"{path}: arm calibration of {robot.get('id', '?')} ({robot.get('base', '?')} -> {robot.get('tip', '?')}), "
+             f"created {doc.get('created', '?')}", ""]
+    lines.append(f"{'parameter':45s} {'value':>12s} {'std':>10s}  unit")
+    for name, e in params.items():
+        try:
+            value, unit = _shown(float(e["value"]), str(e["unit"]))
+            std, _ = _shown(float(e["std"]), str(e["unit"]))
+        except (KeyError, TypeError, ValueError):
+            raise DataError(path, "expected value, std, unit", field=f"model.parameters.{name}") from None
+        if not (math.isfinite(value) and math.isfinite(std)):
+            raise DataError(path, "not a finite number", field=f"model.parameters.{name}")
+        lines.append(f"{name:45s} {value:12.4f} {std:10.4f}  {unit}{'  (fixed)' if e.get('fixed') else ''}")
+    fit = doc.get("fit", {})
+    if isinstance(fit, dict) and isinstance(fit.get("rms"), dict):
+        lines += ["", "fit: " + "; ".join(f"{s} {v.get('value')} {v.get('unit')}" for s, v in fit["rms"].items()
+                                          if isinstance(v, dict))]
+    return "\n".join(lines) + "\n"
+
+
+def run_diagnose(args) -> int:
+    from solver.arm_diagnose import diagnose, format_diagnosis
+    from solver.arm_identify import identify_dataset
+    from solver.errors import SolveError
+
+    effects = parse_arm_effects(args.effects)
+    dataset = _load(args)
+    fit = identify_dataset(dataset, effects)
+    if not fit.success:
+        raise SolveError(f"the fit did not converge ({fit.message})")
+    d = diagnose(fit)
+    if args.json:
+        print(json.dumps(json_safe(d.as_dict()), indent=1))
+    else:
+        print(format_diagnosis(d, args.dataset))
+    return 0
+
+
+def run_simulate(args) -> int:
+    import shlex
+    from pathlib import Path
+
+    from agent.rundir import RunLock, entries
+    from backends.arm_sim import simulate_arm
+    from solver.arm_dataset import PYBULLET_ARMS, resolve_robot
+    from solver.errors import NaocalError
+
+    hidden = tuple(h for h in args.hidden.split(",") if h)
+    for h in hidden:
+        if h not in ("joint_offsets", "link_lengths"):
+            raise NaocalError(f"--hidden: unknown error {h!r} (expected joint_offsets, link_lengths)")
+    if args.poses < 10:
+        raise NaocalError("--poses: at least 10")
+    if not (args.noise_m > 0 and args.noise_px > 0):
+        raise NaocalError("--noise-m and --noise-px must be positive")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
+    if args.robot is None:
+        raise NaocalError("--robot kuka_iiwa|franka_panda|URDF is needed with --chain")
+    urdf, base, tip = resolve_robot(args.robot, args.chain)
+    if base is None or tip is None:
+        raise NaocalError("--chain BASE_LINK:TIP_LINK is needed for a URDF file")
+    name = args.robot if args.robot in PYBULLET_ARMS else Path(args.robot).stem
+    # as the NAO's simulate: one run per DIR (its lock), into a new or empty directory only
+    command = shlex.join(["naocal", "simulate", "--robot", str(args.robot), "--chain", f"{base}:{tip}", "--out",
+                          str(out), "--seed", str(args.seed), "--poses", str(args.poses)])
+    with RunLock(out, command):
+        if entries(out):
+            raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
+        info = simulate_arm(out, urdf, base, tip, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
+                            noise_px=args.noise_px, hidden=hidden, name=name)
+    print(f"naocal simulate: wrote {out}: {info['n_observations']} observations in {info['n_poses']} poses of "
+          f"{name}; hidden truth in {out / 'truth.json'}", file=sys.stdout)
+    return 0
