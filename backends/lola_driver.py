@@ -517,6 +517,7 @@ class LolaBackend(Backend):
     def status(self) -> dict:
         with self._lock:
             frame, mode, paused, fault = self._frame, self.control.mode, self.control.paused_reason, self._fault
+            moving = bool(self.control.moving.any())
         body_id, body_version, head_id, head_version = frame.robot_config
         names = list(LOLA_JOINTS) + [SHARED_MOTOR[1]]
         joints = {}
@@ -526,7 +527,8 @@ class LolaBackend(Backend):
                             "temperature_c": _reported(frame.temperature_c[i]), "status": frame.status[i],
                             "current_a": _reported(frame.current_a[i])}
         return {"robot": {"body_id": body_id, "body_version": body_version, "head_id": head_id,
-                          "head_version": head_version, "control": mode, "paused": paused, "fault": fault},
+                          "head_version": head_version, "control": mode, "paused": paused, "fault": fault,
+                          "moving": moving},
                 "joints": joints, "t_s": frame.t_s}
 
     def capture(self) -> CameraImage | None:

@@ -170,10 +170,12 @@ class FakeLola:
     second_client : 'silent' (accepted, never served: what LoLA does with a second connection as far as teams
         report) or 'refuse' (the listening socket is closed while a client is served).
     record_path : also append every record to this file (msgpack), for a fake in another process.
+    cycle_s : the cycle period (LoLA's is 12 ms).
     """
 
-    def __init__(self, path, physics=None, *, second_client: str = "silent", record_path=None):
+    def __init__(self, path, physics=None, *, second_client: str = "silent", record_path=None, cycle_s=CYCLE_S):
         self.path = os.fspath(path)
+        self.cycle_s = cycle_s  # longer than 12 ms: a robot whose LoLA runs slow (a loaded or throttled head)
         self.physics = physics or SimpleServos()
         self.second_client = second_client
         self.temperature = np.full(N_LOLA, 35.0)
@@ -243,13 +245,13 @@ class FakeLola:
         k = 0
         while not self._stop.is_set():
             k += 1
-            tick = t0 + k * CYCLE_S
+            tick = t0 + k * self.cycle_s
             delay = tick - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            elif delay < -CYCLE_S:  # late (a busy machine, or the mock rendering): skip the missed ticks
+            elif delay < -self.cycle_s:  # late (a busy machine, or the mock rendering): skip the missed ticks
                 self.late_cycles += 1
-                k += int(-delay / CYCLE_S)
+                k += int(-delay / self.cycle_s)
             self._accept()
             now = time.monotonic()
             answers = self._drain()

@@ -41,7 +41,8 @@ def robot(tmp_path, request):
     servos = getattr(request, "param", SimpleServos)()
     for name, angle in distinct.items():
         servos.q[LOLA_INDEX[name]] = angle
-    with FakeLola(path, servos) as fake:
+    slow = request.node.get_closest_marker("lola_cycle_s")
+    with FakeLola(path, servos, cycle_s=slow.args[0] if slow else CYCLE_S) as fake:
         fake.distinct = distinct
         server = subprocess.Popen([sys.executable, "-m", "tools", "bridge", "serve", "--driver", "lola",
                                    "--lola-socket", path, "--bind", "tcp://127.0.0.1:0", "--hold-s", "0.5",
@@ -175,7 +176,13 @@ def test_move_gives_up_at_its_deadline_when_a_joint_does_not_follow(robot):
                          timeout_s=10.0)  # released all the same: held, then ramped to 0
 
 
-def test_move_does_not_release_before_the_motion_has_reached_its_target(robot):
+@pytest.mark.parametrize("cycle_s", [CYCLE_S, 4 * CYCLE_S])
+def test_move_does_not_release_before_the_motion_has_reached_its_target(request, cycle_s):
+    request.applymarker(pytest.mark.lola_cycle_s(cycle_s))  # 4x: a LoLA running slow (the driver steps per cycle)
+    _release_at_target(request.getfixturevalue("robot"))
+
+
+def _release_at_target(robot):
     """A joint reads within --tolerance-deg before the driver's interpolation ends; releasing then would freeze
     it short of the target (release holds where the joints are commanded at that moment)."""
     fake, endpoint = robot

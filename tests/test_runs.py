@@ -27,8 +27,15 @@ ROOT = Path(__file__).resolve().parents[1]
 BASE = ["--backend", "mock", "--seed", "3", "--stances-per-leg", "5", "--no-images", "--no-progress"]
 
 
+def _sigint_default():
+    # A test run started in the background (`pytest &`) ignores SIGINT, and its children inherit that: Python
+    # then never turns the signal into KeyboardInterrupt. Ctrl-C on a real terminal always arrives.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def naocal_process(*argv, **kw):
-    return subprocess.Popen([sys.executable, "-m", "tools", *argv], cwd=ROOT, text=True, **kw)
+    return subprocess.Popen([sys.executable, "-m", "tools", *argv], cwd=ROOT, text=True,
+                            preexec_fn=_sigint_default, **kw)
 
 
 def snapshot(directory: Path) -> dict:

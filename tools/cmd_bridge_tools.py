@@ -142,7 +142,9 @@ def run_move(args) -> int:
         while True:
             reading = robot.read_joints().angles_rad
             away = {j: reading[j] for j in targets if abs(reading[j] - targets[j]) > tolerance}
-            if not away and time.monotonic() >= done_s:
+            # A driver that interpolates itself (LoLA) says when its motion has ended: on a slow cycle that is
+            # later than the nominal motion time, and releasing earlier freezes the joint short of its target.
+            if not away and time.monotonic() >= done_s and not bridge.status()["robot"].get("moving", False):
                 break
             if time.monotonic() > deadline:
                 raise RobotTimeout(f"not there within {allowed_s:.1f} s: " + ", ".join(
