@@ -6,7 +6,7 @@ mrlspl: MRL-SPL's 2009 calibration samples of a standing NAO V3 looking at a 4 x
 (tests/data/realdata/mrlspl-nao-2009/: joints_raw.csv and image_<N>.png; tools/import_mrlspl.py says what is
 done to them). The board's corners are found by naocal's detector and put in the `floor` target's vertex order
 by the nominal model's prediction; each image gets the gravity of a flat right sole; the camera is the 320 x 240
-bottom camera with the nominal field of view (fx = fy = 272.4 px). dataset.json records all of it
+bottom camera with the nominal field of view (fx = fy = 271.8 px). dataset.json records all of it
 (`source`, `provenance`), and the images are copied into DATASET/images/.
 
 DATASET must not exist or be an empty directory. Exit codes: 0 written, 2 bad input (one line naming the file,

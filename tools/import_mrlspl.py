@@ -71,11 +71,11 @@ GRAVITY_MPS2 = 9.81
 # 1.0641 rad (60.97 deg, "according to NAO documentation") over the image width and the image centre.
 WIDTH_PX, HEIGHT_PX = 320, 240
 HORIZONTAL_FOV_RAD = 1.0641
-FOCAL_PX = (WIDTH_PX / 2) / math.tan(HORIZONTAL_FOV_RAD / 2)  # 272.4 px
+FOCAL_PX = (WIDTH_PX / 2) / math.tan(HORIZONTAL_FOV_RAD / 2)  # 271.8 px
 INTRINSICS = {"width_px": WIDTH_PX, "height_px": HEIGHT_PX, "fx_px": FOCAL_PX, "fy_px": FOCAL_PX,
               "cx_px": (WIDTH_PX - 1) / 2, "cy_px": (HEIGHT_PX - 1) / 2,  # pixel (0, 0) is a pixel's centre
               "distortion": [0.0, 0.0, 0.0, 0.0, 0.0]}
-INTRINSICS_SOURCE = ("fx = fy = 160 px / tan(1.0641 rad / 2) = 272.4 px: the nominal horizontal field of view "
+INTRINSICS_SOURCE = ("fx = fy = 160 px / tan(1.0641 rad / 2) = 271.8 px: the nominal horizontal field of view "
                      "(60.97 deg) upstream's code uses (mrlspl/auto-calibration, "
                      "Jacobian_inFieldSpace_fromCameraSpace.m); principal point the image centre; no distortion; "
                      "not calibrated")
@@ -252,9 +252,21 @@ def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def _read_checked(image_path: Path):
+    """A 320 x 240 colour image (BGR), or DataError naming the file."""
+    from tools.cmd_detect import read_image
+
+    image = read_image(str(image_path))
+    if image.shape[:2] != (HEIGHT_PX, WIDTH_PX):
+        raise DataError(image_path, f"{image.shape[1]} x {image.shape[0]} pixels: expected {WIDTH_PX} x "
+                                    f"{HEIGHT_PX} (the intrinsics are the 320 x 240 camera's)")
+    if image.ndim != 3:
+        raise DataError(image_path, "a grey image: the board's colours (orange, blue) need colour")
+    return image
+
+
 def build_dataset(directory) -> tuple[dict, dict, dict]:
     """(meta, columns, image files {image: path}) of the dataset the directory's samples make."""
-    from tools.cmd_detect import read_image
     from solver.dataset import SCHEMA_V2
     from solver.robot import load_robot
 
@@ -274,15 +286,12 @@ def build_dataset(directory) -> tuple[dict, dict, dict]:
         for j in joints:
             columns[prefix + j] = []
     vertices = robot.target(TARGET).vertices()
+    for row in rows:  # every image checked before any is searched: bad input is found at once
+        _read_checked(directory / IMAGE_PATTERN.format(row["image"]))
     images, per_image, files = {}, {}, {}
     for row in rows:
         image_path = directory / IMAGE_PATTERN.format(row["image"])
-        image = read_image(str(image_path))
-        if image.shape[:2] != (HEIGHT_PX, WIDTH_PX):
-            raise DataError(image_path, f"{image.shape[1]} x {image.shape[0]} pixels: expected {WIDTH_PX} x "
-                                        f"{HEIGHT_PX} (the intrinsics are the 320 x 240 camera's)")
-        if image.ndim != 3:
-            raise DataError(image_path, "a grey image: the orange/blue board needs colour")
+        image = _read_checked(image_path)
         camera = CAMERAS[row["camera_flag"]]
         q = dict(zip(joints, today_angles(row["raw"], joints)))
         corners, how = detect_and_order(image_path, image, robot, camera, q, INTRINSICS, board)
