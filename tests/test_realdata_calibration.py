@@ -219,8 +219,8 @@ def test_a_missing_or_wrong_image_is_named(tmp_path, capsys):
 
 def test_with_headpitch_as_stored_the_prediction_cannot_order_the_corners(monkeypatch):
     """The file's HeadPitch has the opposite sign to today's: read as stored, the nominal prediction of image 1
-    (its head 25 deg up, read as 25 deg down) is so far off that no labelling of the corners fits it, and the import stops, naming the
-    image, rather than guess an order."""
+    (its head 25 deg up, read as 25 deg down) is so far off that no labelling of the corners fits it, and the
+    import stops, naming the image, rather than guess an order."""
     import tools.import_mrlspl as importer
     from solver.errors import DataError
 
