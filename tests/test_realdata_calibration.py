@@ -253,3 +253,45 @@ def test_a_board_turned_by_a_quarter_turn_is_refused_by_its_colours(dataset):
         assert colour_check(image, channel, uv[::-1, ::-1].reshape(-1, 2), board) is None  # 180 deg: same colours
         turned = np.swapaxes(uv, 0, 1)[::-1].reshape(-1, 2)  # 90 deg
         assert "not orange" in colour_check(image, channel, turned, board)
+
+
+def test_seeded_damage_to_the_joints_file_is_refused_as_bad_input_or_read(tmp_path):
+    """300 seeded damages (bytes changed, deleted, doubled; lines cut, repeated, swapped; huge numbers, NaN,
+    bad UTF-8): every one reads or is a DataError naming joints_raw.csv - never another exception."""
+    from solver.errors import DataError
+    from solver.robot import load_robot
+    from tools.import_mrlspl import check_limits, read_joints
+
+    original = (DATA / "joints_raw.csv").read_bytes()
+    robot = load_robot("nao")
+    rng = np.random.default_rng(13)
+    path = tmp_path / "joints_raw.csv"
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(300):
+        data = bytearray(original)
+        for _ in range(rng.integers(1, 4)):
+            kind = rng.integers(0, 6)
+            at = int(rng.integers(0, len(data)))
+            if kind == 0:
+                data[at] = int(rng.integers(0, 256))
+            elif kind == 1:
+                del data[at:at + int(rng.integers(1, 40))]
+            elif kind == 2:
+                data[at:at] = data[at:at + int(rng.integers(1, 40))]
+            elif kind == 3:
+                data[at:at] = rng.choice([b"nan", b"1e308", b"-inf", b"99999999999999999999999", b"\xff\xfe", b","])
+            elif kind == 4:
+                data = data[:at]
+            else:
+                lines = bytes(data).split(b"\n")
+                i, j = rng.integers(0, len(lines), 2)
+                lines[i], lines[j] = lines[j], lines[i]
+                data = bytearray(b"\n".join(lines))
+        path.write_bytes(bytes(data))
+        try:
+            check_limits(read_joints(path), robot, path)
+            outcomes["read"] += 1
+        except DataError as err:
+            assert str(err).startswith(str(path)) and "\n" not in str(err)
+            outcomes["refused"] += 1
+    assert outcomes["refused"] > 200 and outcomes["read"] > 0, outcomes
