@@ -295,3 +295,20 @@ def test_seeded_damage_to_the_joints_file_is_refused_as_bad_input_or_read(tmp_pa
             assert str(err).startswith(str(path)) and "\n" not in str(err)
             outcomes["refused"] += 1
     assert outcomes["refused"] > 200 and outcomes["read"] > 0, outcomes
+
+
+def test_a_write_that_fails_half_way_leaves_no_half_dataset(tmp_path, monkeypatch, capsys):
+    """The disk fills while dataset.json is written: the images already copied are taken back, the output
+    directory is left as it was (empty), and the error is one line (exit 3)."""
+    import solver.dataset
+    from solver.errors import DiskFullError
+
+    def full(*args, **kwargs):
+        raise DiskFullError(tmp_path / "out" / "dataset.json", 0)
+
+    monkeypatch.setattr(solver.dataset, "write_dataset", full)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["import", "mrlspl", str(DATA), "--out", str(out)]) == 3
+    assert "no space left" in capsys.readouterr().err
+    assert sorted(p.name for p in out.rglob("*")) == []

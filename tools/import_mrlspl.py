@@ -343,11 +343,11 @@ def build_dataset(directory) -> tuple[dict, dict, dict]:
     return meta, columns, files
 
 
-def import_mrlspl(directory, out) -> "Dataset":  # noqa: F821 (solver.dataset.Dataset)
+def import_mrlspl(directory, out):
     """Write the dataset of `directory`'s samples to `out` (absent or an empty directory); returns it as read
-    back. Nothing is written when anything is wrong."""
+    back (solver.dataset.Dataset). Nothing is left written when anything is wrong."""
     from agent.rundir import RunLock, entries
-    from solver.dataset import IMAGES_DIR, write_dataset
+    from solver.dataset import IMAGES_DIR, META_FILE, OBSERVATIONS_FILE, write_dataset
     from solver.fileio import atomic_write_bytes, check_output_directory
 
     out = Path(out)
@@ -358,10 +358,18 @@ def import_mrlspl(directory, out) -> "Dataset":  # noqa: F821 (solver.dataset.Da
     with RunLock(out, f"naocal import mrlspl {directory} --out {out}"):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
-        for image, path in files.items():
-            atomic_write_bytes(out / IMAGES_DIR / f"{image:06d}.png", path.read_bytes())
-        licence = Path(directory) / LICENCE_FILE  # the images' licence travels with them
-        if licence.is_file():
-            atomic_write_bytes(out / IMAGES_DIR / LICENCE_FILE, licence.read_bytes())
-        dataset = write_dataset((meta, columns), out)
+        written = []
+        try:
+            for image, path in files.items():
+                written.append(atomic_write_bytes(out / IMAGES_DIR / f"{image:06d}.png", path.read_bytes()))
+            licence = Path(directory) / LICENCE_FILE  # the images' licence travels with them
+            if licence.is_file():
+                written.append(atomic_write_bytes(out / IMAGES_DIR / LICENCE_FILE, licence.read_bytes()))
+            dataset = write_dataset((meta, columns), out)
+        except BaseException:  # the directory was empty: take back what we wrote, so no half dataset stays
+            for path in written + [out / META_FILE, out / OBSERVATIONS_FILE]:
+                path.unlink(missing_ok=True)
+            if (out / IMAGES_DIR).is_dir() and not any((out / IMAGES_DIR).iterdir()):
+                (out / IMAGES_DIR).rmdir()
+            raise
     return dataset
