@@ -26,6 +26,7 @@ VERB_MODULES = (
     "tools.cmd_offsets",
     "tools.cmd_bridge",
     "tools.cmd_detect",
+    "tools.cmd_import",
 )
 
 
