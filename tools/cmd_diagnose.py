@@ -2,7 +2,7 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
-from tools.cmd_identify import add_angles_option, effect_names
+from tools.cmd_identify import add_angles_option, add_tie_option, effect_names
 
 EPILOG = """\
 Sections of the output:
@@ -42,6 +42,7 @@ def register(subparsers):
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
     add_angles_option(p)
+    add_tie_option(p)
     p.set_defaults(run=run)
 
 
@@ -51,19 +52,21 @@ def run(args) -> int:
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
     from solver.errors import NaocalError, SolveError
-    from solver.identify import identify
     from solver.adapter import model_data_from_dataset
     from solver.effects import EFFECTS, parse_effect_names
-    from solver.registry import Registry
+    from solver.fit import identify_dataset
 
     effects = parse_effect_names(args.effects)
     dataset = read_dataset(args.dataset)
-    data = model_data_from_dataset(dataset, angles=args.angles)
+    data = model_data_from_dataset(dataset)
     for name in effects:
         reason = EFFECTS[name].untestable_reason(data)
         if reason:
             raise NaocalError(f"{args.dataset}: the {name} effect {reason}")
-    result = identify(data, Registry.for_data(data, effects))
+    # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
+    fit = identify_dataset(dataset, effects, angles=args.angles, moving="all",
+                           tie_shared_motors=args.tie_hip_yaw_pitch)
+    result = fit.result
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
@@ -75,10 +78,11 @@ def run(args) -> int:
         report_path = write_report(args.report, diagnosis, dataset_path=args.dataset)
     if args.json:
         out = diagnosis.as_dict()
+        out.update(fit.as_dict())
         out["report"] = None if report_path is None else str(report_path)
         print(json.dumps(json_safe(out), indent=1))
     else:
-        print(format_text(diagnosis))
+        print(format_text(diagnosis, fit))
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
@@ -117,8 +121,9 @@ def json_safe(obj):
     return obj
 
 
-def format_text(diagnosis) -> str:
-    """The human-readable report: compare, locate, names."""
+def format_text(diagnosis, fit=None) -> str:
+    """The human-readable report: compare, locate, names (and, given the DatasetFit, its angle and outlier
+    evidence)."""
     import math
 
     from solver.diagnostics import LOW_UNIQUENESS
@@ -135,6 +140,9 @@ def format_text(diagnosis) -> str:
                 f"{c.encoder_noise_px:.3f} px" if c.encoder_resolution_rad > 0 else "); joint readings not quantised"),
              f"  the fit is {c.ratio_to_noise:.2f} x the noise floor"
              + (": at the noise level" if c.ratio_to_noise < 1.2 else "")]
+    if fit is not None:
+        lines[3:3] = ["  " + fit.describe_angles(), "  " + fit.describe_outliers()
+                      + (" (mis-detections, not physics, explain them)" if fit.outliers else "")]
     lines.append("  per target:       " + ", ".join(
         f"{t} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for t, v in c.per_target.items()))
     lines.append("  per head posture: " + ", ".join(
