@@ -27,8 +27,8 @@ def register(subparsers) -> None:
     serve.add_argument("--seed", type=int, default=0, help="mock: seed of the hidden truth (default 0)")
     serve.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                        help="mock: inject a physical effect (repeatable), as in `naocal simulate`")
-    serve.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
-                       help="mock: ideal (default) or realistic robot (docs/MOCK.md; its corner fault model lives "
+    serve.add_argument("--mock", choices=("ideal", "realistic"), default="realistic",
+                       help="mock: realistic (default) or ideal robot (docs/MOCK.md; its corner fault model lives "
                             "with the agent's detector and does not cross the bridge)")
     serve.add_argument("--naoqi", default="tcp://127.0.0.1:9559", metavar="URL",
                        help="naoqi: NAOqi's address (default tcp://127.0.0.1:9559, i.e. on the robot)")

@@ -27,10 +27,10 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
                         "head_offsets, intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
-                   help="mock: ideal (default: exact servos, 0.1 deg readings, small offsets) or realistic (a NAO V6 "
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="realistic",
+                   help="mock: realistic (default: a NAO V6 "
                         "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "
-                        "deg, faulty corners; docs/MOCK.md)")
+                        "deg, faulty corners; docs/MOCK.md) or ideal (exact servos, 0.1 deg readings, small offsets: for teaching and exactness)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper",
                    help="paper: 24 random stances per leg x 3 head postures (default); optimal: greedy D-optimal "
                         "stances reaching the paper plan's precision")

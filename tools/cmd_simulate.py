@@ -20,7 +20,7 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+    p.add_argument("--mock", choices=("ideal", "realistic"), default="realistic",
                    help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
