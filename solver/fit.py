@@ -123,8 +123,8 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
         data, n_moving = _moving_handled(data, effects, moving)
         registry = Registry.for_data(data, effects, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
-        fits[mode] = _robust_fit(data, registry, step, robust, dict(solver=solver, loss=loss,
-                                                                                loss_scale_px=loss_scale_px)) + (n_moving, step)
+        options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
+        fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)
     chosen = _choose(fits)
     data, result, outliers, scale, n_moving, step = fits[chosen]
     flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
