@@ -27,7 +27,7 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
                         "head_offsets, intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="realistic",
+    p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
                    help="mock: realistic (default: a NAO V6 "
                         "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "
                         "deg, faulty corners; docs/MOCK.md) or ideal (exact servos, 0.1 deg readings, small offsets: for teaching and exactness)")
@@ -127,7 +127,7 @@ def run(args) -> int:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
-        if args.mock != "ideal":
+        if args.mock is not None:
             raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
                               "`naocal bridge serve --driver mock --mock realistic`")
     elif args.endpoint:
@@ -150,9 +150,9 @@ def run(args) -> int:
         from backends.mock import MockBackend, parse_effect_sizes
 
         effects = parse_effect_sizes(args.effect)
-        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
-        label = f"mock (seed {args.seed}, {args.mock}" + (
+        label = f"mock (seed {args.seed}, {args.mock or 'realistic'}" + (
             ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
         out.mkdir(parents=True, exist_ok=True)

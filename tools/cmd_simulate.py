@@ -20,7 +20,7 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="realistic",
+    p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
                    help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
@@ -57,7 +57,7 @@ def run(args) -> int:
 
     effects = parse_effect_sizes(args.effect)
     settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
-    backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+    backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")
     try:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
