@@ -35,6 +35,7 @@ from solver.dataset import read_dataset
 from backends.errors import SafetyError
 from solver.errors import NaocalError
 from solver.fileio import atomic_write_text
+from solver.fit import identify_dataset
 from solver.identify import identify
 from solver.joints import JOINTS, LEGS
 from solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD,
@@ -99,7 +100,7 @@ class Context:
     meta: dict | None = None
     measurement: dict | None = None
     identification: object = None
-    angle_choice: object = None  # how the fit's joint angles were taken (solver.model.AngleChoice)
+    angle_choice: object = None  # the fit's evidence: angles chosen, outliers (solver.fit.DatasetFit)
     offsets: object = None
     compensated: CompensatedBackend | None = None
     verification: object = None
@@ -256,9 +257,9 @@ def _still_images(data) -> np.ndarray:
 
 
 class Identification(State):
-    """Fit the paper's 21 parameters (HipYawPitch tied: one motor) to the still captures with solver.identify;
-    `implausible` if the fit cannot be trusted. The joint angles are chosen as `naocal identify` chooses them
-    (solver.model.choose_angles, 'auto'), so both give the same offsets from the same dataset."""
+    """Fit the paper's 21 parameters (HipYawPitch tied: one motor) to the still captures with `naocal identify`'s
+    routine (solver.fit.identify_dataset, its defaults), so both give the same offsets from the same dataset;
+    `implausible` if the fit cannot be trusted."""
 
     name = "identification"
     needs = ("measurement",)
@@ -266,18 +267,14 @@ class Identification(State):
 
     def run(self, ctx: Context) -> Outcome:
         s = ctx.settings
-        dataset = read_dataset(ctx.dataset_dir)
-        data = model_data_from_dataset(dataset)
-        still = _still_images(data)
-        if len(still) < data.n_images:
-            log.info("identification uses the %d still captures (the %d moving ones of the lag probe are for the "
-                     "diagnostics' time_lag effect)", len(still), data.n_images - len(still))
-        data = data.subset(still)
-        registry = Registry(tie_hip_yaw_pitch=s.tie_hip_yaw_pitch)
-        ctx.angle_choice = data.angle_choice
-        if data.angle_choice is not None:
-            log.info("%s", data.angle_choice.describe())
-        result = identify(data, registry)
+        fit = identify_dataset(read_dataset(ctx.dataset_dir), tie_shared_motors=s.tie_hip_yaw_pitch)
+        if fit.n_moving_set_aside:
+            log.info("identification uses the still captures (the %d moving ones of the lag probe are for the "
+                     "diagnostics' time_lag effect)", fit.n_moving_set_aside)
+        ctx.angle_choice = fit
+        log.info("%s", fit.describe_angles())
+        log.info("%s", fit.describe_outliers())
+        result = fit.result
         ctx.identification = result
         why = implausible(result, s.thresholds)
         if why:

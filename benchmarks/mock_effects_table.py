@@ -41,7 +41,7 @@ def total(xy):
 def simulate(root: Path, seed: int, effects) -> Path:
     out = root / ("_".join(effects) or "none")
     if not (out / "truth.json").exists():
-        args = ["simulate", "--out", str(out), "--seed", str(seed), "--no-progress"]
+        args = ["simulate", "--out", str(out), "--seed", str(seed), "--no-progress", "--mock", "ideal"]
         for e in effects:
             args += ["--effect", f"{e}={SIZES[e]}"]
         with contextlib.redirect_stdout(io.StringIO()):

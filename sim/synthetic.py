@@ -174,6 +174,9 @@ def random_truth(rng, effects=(), *, joint_offset_rad=0.02, camera_rad=0.05, boa
             truth[p.name] = rng.uniform(-board_rad, board_rad) if p.unit == "rad" else rng.uniform(-board_m, board_m)
         else:
             truth[p.name] = rng.uniform(-1.0, 1.0) * p.scale
+    for p in Registry(effects, setup=setup, tie_shared_motors=True).parameters:  # one motor: one offset (the NAO's
+        if p.tied_to:  # HipYawPitch pair), as on the robot
+            truth[p.name] = truth[p.tied_to]
     return truth
 
 

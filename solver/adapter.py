@@ -16,13 +16,13 @@ from solver.robot import load_robot
 class AngleChoice:
     """How the joint angles theta were taken from a dataset's measured and commanded columns."""
 
-    mode: str  # 'measured', 'commanded' or 'auto'
+    mode: str  # 'measured', 'commanded' or 'cell' ('auto': the cell rule; solver.fit lets the data choose)
     resolution_rad: dict  # joint -> detected encoder step (rad), for joints whose readings are quantised
     n_commanded: int  # joint readings replaced by their command
     n_total: int
 
     def describe(self) -> str:
-        if self.mode != "auto" or not self.n_commanded:
+        if self.mode not in ("auto", "cell") or not self.n_commanded:
             return f"joint angles: {self.mode} readings"
         steps = sorted({round(np.degrees(r), 4) for r in self.resolution_rad.values()})
         return (f"joint angles: readings quantised to {', '.join(f'{s:g}' for s in steps)} deg; used the command for "
@@ -33,7 +33,8 @@ class AngleChoice:
 def choose_angles(measured, commanded, velocity, mode="auto", *, joints=None, still_rad_per_s=1e-3):
     """theta (M, J) from measured and commanded angles (M, J), per `mode`, and an AngleChoice saying what was done.
 
-    'measured' is the paper's choice. 'auto' also uses measured angles, except for joints whose readings are
+    'measured' is the paper's choice. 'cell' (and 'auto', which only solver.fit.identify_dataset, fitting every
+    choice, can decide by the data) also uses measured angles, except for joints whose readings are
     quantised (solver.quantisation.reading_resolution): there, for a still joint whose command lies inside its
     reading's quantisation cell, the command is the better estimate (quantisation error up to half a step, shared by
     every image of a stance, otherwise dominates the leg offsets). 'commanded' uses the commands throughout.
@@ -48,8 +49,8 @@ def choose_angles(measured, commanded, velocity, mode="auto", *, joints=None, st
         return measured.copy(), AngleChoice(mode, {}, 0, measured.size)
     if mode == "commanded":
         return commanded.copy(), AngleChoice(mode, {}, measured.size, measured.size)
-    if mode != "auto":
-        raise ValueError(f"unknown angle mode {mode!r}: expected measured, commanded or auto")
+    if mode not in ("auto", "cell"):
+        raise ValueError(f"unknown angle mode {mode!r}: expected measured, commanded, cell or auto")
     theta = measured.copy()
     still = np.ones(measured.shape, dtype=bool) if velocity is None else np.abs(velocity) < still_rad_per_s
     steps = reading_resolution(measured, still)  # moving joints' readings may be interpolated

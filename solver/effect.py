@@ -190,6 +190,7 @@ class Effect:
     plausible_limit: float = math.inf  # |value| beyond it (SI) a candidate is probably standing in for something else
     non_rigid: bool = False  # it changes the projection, not the targets' poses: the noise floor removes it
     reading_offsets: bool = False  # its parameters are offsets of the joints' readings (d r / d theta_j = -d r / dc)
+    uses_velocity: bool = False  # it models captures taken while the joints move (solver.fit fits them only then)
     no_signal_hint: str = "its parameters do not change any prediction"
     # The offsets file: the section and key its values go to (None: only in model.parameters).
     offsets_section: str | None = None

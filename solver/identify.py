@@ -277,6 +277,59 @@ def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image
     return covariance, covariance_iid
 
 
+def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, step_rad) -> np.ndarray:
+    """Covariance of the free parameters that quantised joint readings cause (errors in the variables).
+
+    A reading quantised to a step s leaves the angle off by an error of variance s^2 / 12 (uniform in the step).
+    The images that share a reading of a joint within a cluster of one stance (solver.scoretest) share that error:
+    it moves their residuals by a = d r / d theta_j = -d r / d c_j (the joint-offset columns) and the fit by
+    -(J^T J)^-1 J^T a, so each group adds (s^2 / 12) (J^T J)^-1 J^T a a^T J (J^T J)^-1. The fit absorbs this error
+    into the parameters, so neither the residuals nor the sandwich can see it. Joints without an offset
+    parameter in the full model are left out.
+    Whether the angles carry that error is the data's to say: a servo that stands exactly at its command, with the
+    command as theta, leaves none. The error moves whole boards, so the rigid part of the residuals measures it:
+    its excess over the detector noise (estimated from the non-rigid part) divided by what the full error would
+    leave there scales the term (between 0 and 1).
+    """
+    from solver.noisefloor import RigidSplit
+    from solver.effects import EFFECTS
+    from solver.model import Model
+
+    data = model.data
+    offsets = tuple(name for name, e in EFFECTS.items() if e.reading_offsets)
+    full = Registry(tuple(dict.fromkeys(registry.effects + offsets)), setup=registry.setup)
+    J = Model(data, full).evaluate(full.from_dict(registry.as_dict(values)))[1]  # (N, 2, P_full)
+    usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
+    inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
+    bread = (Vt.T * inv_sv2) @ Vt  # (Js^T Js)^+, scaled units
+    Js = (J_free * scales).reshape(data.n_rows, 2, -1)  # J_free: tall (2N, P_free)
+    cluster = stance_cluster_of_image(data)
+    meat = np.zeros((Js.shape[2], Js.shape[2]))
+    left_px2 = 0.0  # the residual sum of squares the full quantisation error would leave after the fit
+    for p in full.parameters:
+        if not EFFECTS[p.effect].reading_offsets:
+            continue
+        c = data.column(p.joint)
+        if step_rad[c] <= 0:
+            continue
+        a = J[:, :, full.index[p.name]]  # (N, 2): d r / d c_j = -d r / d theta_j (the sign drops out)
+        g = np.einsum("ni,nip->np", a, Js)  # per row: J_s^T a
+        _, group = np.unique(np.column_stack([cluster, np.round(data.theta[:, c] / step_rad[c])]), axis=0,
+                             return_inverse=True)
+        b = np.zeros((int(group.max()) + 1, Js.shape[2]))
+        np.add.at(b, group.reshape(-1)[data.image_of_row], g)
+        meat += step_rad[c] ** 2 / 12.0 * (b.T @ b)
+        a_sq = np.zeros(len(b))
+        np.add.at(a_sq, group.reshape(-1)[data.image_of_row], np.sum(a ** 2, axis=1))
+        left_px2 += step_rad[c] ** 2 / 12.0 * float(np.sum(a_sq) - np.einsum("gp,pq,gq->", b, bread, b))
+    rigid, nonrigid = RigidSplit(model, values)(model.residuals(values))
+    n_images, p = data.n_images, Js.shape[2]
+    detector_px2 = float(np.sum(nonrigid ** 2)) / max(2 * data.n_rows - 6 * n_images, 1)
+    excess_px2 = float(np.sum(rigid ** 2)) - detector_px2 * max(6 * n_images - p, 0)
+    share = float(np.clip(excess_px2 / left_px2, 0.0, 1.0)) if left_px2 > 0 else 1.0
+    return share * (bread @ meat @ bread) * np.outer(scales, scales)
+
+
 def levenberg_marquardt(normal_at, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
     """Levenberg-Marquardt with Nielsen's damping update, on the normal equations in scaled variables.
 
@@ -326,7 +379,7 @@ def levenberg_marquardt(normal_at, x0, scales, *, max_iterations=100, ftol=1e-10
 
 def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",
              loss_scale_px: float = 1.0, max_iterations: int = 100, check: bool = True,
-             solver: str = "lm", chunk_rows: int = CHUNK_ROWS) -> IdentificationResult:
+             solver: str = "lm", chunk_rows: int = CHUNK_ROWS, reading_step_rad=None) -> IdentificationResult:
     """Fit the registry's free parameters to the detected vertices.
 
     Parameters
@@ -339,6 +392,8 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
         data) or 'minpack' (scipy.optimize.least_squares(method='lm')); both minimise the same sum of squares.
         The robust losses and 'minpack' hold the whole Jacobian (16 P bytes per vertex).
     chunk_rows : vertices per chunk of the normal equations (NormalEquations).
+    reading_step_rad : (J,) encoder step of each joint's readings (0: exact); the standard deviations then include
+        the error the step leaves in the angles (`quantisation_covariance`).
     """
     start = time.perf_counter()
     warnings = []
@@ -422,6 +477,10 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     cond, sv, Vt = identifiability(final.A)
     covariance, covariance_iid = parameter_covariance(final.A, rss, final.image_scores, sv, Vt, scales,
                                                       stance_cluster_of_image(model.data), n, dof)
+    if reading_step_rad is not None and np.any(np.asarray(reading_step_rad) > 0):
+        J_free = equations.dense(free)[1]  # the only tall Jacobian of the linear fit; only when steps are asked
+        covariance = covariance + quantisation_covariance(model, values, registry, J_free, sv, Vt, scales,
+                                                          np.asarray(reading_step_rad, dtype=float))
     std_free = np.sqrt(np.diag(covariance))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)

@@ -144,6 +144,15 @@ class ModelData:
         images = np.asarray(sorted(set(np.asarray(images).tolist())), dtype=int)
         return self.reordered(images)
 
+    def without_rows(self, rows) -> "ModelData":
+        """The data less some vertex rows (e.g. mis-detected corners); images left without a row are dropped."""
+        keep = np.ones(self.n_rows, dtype=bool)
+        keep[np.asarray(rows, dtype=int)] = False
+        out = self.reordered(np.arange(self.n_images))
+        out.image_of_row, out.vertex = self.image_of_row[keep], self.vertex[keep]
+        out.uv_px, out.p_mount = self.uv_px[keep], self.p_mount[keep]
+        return out.subset(np.unique(out.image_of_row))
+
     def reordered(self, images) -> "ModelData":
         """The data of the images `images` (index 0..M-1), in that order, rows grouped by image."""
         images = np.asarray(images, dtype=int)

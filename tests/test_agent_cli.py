@@ -86,8 +86,8 @@ def offsets(directory: Path) -> tuple[dict, dict]:
 
 @pytest.mark.slow
 def test_killed_during_measurement_and_resumed_holds_every_capture_once(tmp_path):
-    args = ["calibrate", "--backend", "mock", "--seed", "2", "--stances-per-leg", "4", "--no-progress",
-            "--no-images"]
+    args = ["calibrate", "--backend", "mock", "--mock", "ideal", "--seed", "2", "--stances-per-leg", "4",
+            "--no-progress", "--no-images"]
     killed = tmp_path / "killed"
     proc = subprocess.Popen([sys.executable, "-m", "tools", *args, "--out", str(killed)], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

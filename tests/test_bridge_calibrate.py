@@ -26,8 +26,9 @@ def naocal(*argv):
 
 
 def start_server(seed, *options):
-    server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--seed", str(seed), "--bind",
-                                     "tcp://127.0.0.1:0", *options), cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--mock", "ideal", "--seed", str(seed),
+                                     "--bind", "tcp://127.0.0.1:0", *options), cwd=ROOT, stdout=subprocess.PIPE,
+                              text=True)
     selector = selectors.DefaultSelector()
     selector.register(server.stdout, selectors.EVENT_READ)
     deadline = time.monotonic() + 120.0
@@ -59,7 +60,8 @@ def test_calibrating_over_the_bridge_gives_the_same_offsets_as_the_direct_mock(t
         server.wait(timeout=60)
     assert bridged.returncode == 0, bridged.stderr
     assert server.returncode == 0
-    direct = subprocess.run(naocal("calibrate", "--backend", "mock", "--seed", str(SEED), "--out",
+    # the ideal mock: a realistic one behind the bridge cannot fault the agent's detections as in-process
+    direct = subprocess.run(naocal("calibrate", "--backend", "mock", "--mock", "ideal", "--seed", str(SEED), "--out",
                                    str(tmp_path / "direct")), cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert direct.returncode == 0, direct.stderr
     assert offsets(tmp_path / "bridge") == offsets(tmp_path / "direct")
@@ -112,8 +114,8 @@ def test_a_server_restarted_in_the_middle_of_a_calibration_fails_cleanly_and_res
 def start_server_at(seed, endpoint):
     """The mock server again on the endpoint it had (the port may take a moment to be free)."""
     for _ in range(50):
-        server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--seed", str(seed), "--bind",
-                                         endpoint), cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        server = subprocess.Popen(naocal("bridge", "serve", "--driver", "mock", "--mock", "ideal", "--seed", str(seed),
+                                         "--bind", endpoint), cwd=ROOT, stdout=subprocess.PIPE, text=True)
         line = server.stdout.readline()
         if line.startswith("naocal bridge: serving"):
             return server, endpoint

@@ -40,7 +40,7 @@ def simulated(tmp_path_factory):
         key = tuple(effects)
         if key not in cache:
             out = tmp_path_factory.mktemp("mock_" + ("_".join(key) or "none"))
-            args = ["simulate", "--out", str(out), "--seed", str(SEED), "--no-progress"]
+            args = ["simulate", "--out", str(out), "--seed", str(SEED), "--no-progress", "--mock", "ideal"]
             for effect in key:
                 args += ["--effect", f"{effect}={EFFECT_SIZES[effect]}"]
             with contextlib.redirect_stdout(io.StringIO()):

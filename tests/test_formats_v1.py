@@ -26,13 +26,15 @@ def v2_name(name: str) -> str:
     return f"{group}.bottom.{rest}" if group in ("camera", "intrinsics", "distortion") else name
 
 
-@pytest.mark.parametrize("case,extra", [("base", []), ("effects", ["--effects", "time_lag,head_offsets",
-                                                                     "--tie-hip-yaw-pitch"])])
-def test_identify_on_a_version_1_dataset_gives_the_same_numbers(capsys, tmp_path, case, extra):
+def test_identify_on_a_version_1_dataset_gives_the_same_numbers(capsys, tmp_path):
+    """The same values as then; the standard deviations now also hold the readings' quantisation (0.1 deg
+    steps), so they are larger."""
+    case = "effects"
     old = json.loads((V1 / f"identify_{case}.json").read_text())
-    new = run_json(capsys, "identify", V1 / "mock_dataset", *extra, "--cv-folds", 0, "--out", tmp_path / "o.json")
+    new = run_json(capsys, "identify", V1 / "mock_dataset", "--effects", "time_lag,head_offsets", "--angles", "cell",
+                   "--cv-folds", 0, "--out", tmp_path / "o.json")
     np.testing.assert_allclose(new["rms_px"], old["rms_px"], rtol=1e-9)
-    assert new["angles"] == old["angles"]
+    assert "the command inside the reading's step (as asked)" in new["angles"]
     assert len(new["model_parameters"]) == len(old["parameters"])
     for name, entry in old["parameters"].items():
         sign = -1.0 if name.startswith(("joint_offset.", "head_offset.")) else 1.0  # version 1 reported alpha = -c
@@ -40,7 +42,7 @@ def test_identify_on_a_version_1_dataset_gives_the_same_numbers(capsys, tmp_path
         if sign < 0:  # the c table says the same
             assert new["joint_offsets_c"][name.split(".", 1)[1]]["c_rad"] == got["value"], name
         assert got["value"] == pytest.approx(sign * entry["value"], abs=1e-9 * max(1.0, abs(entry["value"]))), name
-        assert got["std"] == pytest.approx(entry["std"], rel=1e-6), name
+        assert got["std"] >= entry["std"] * (1 - 1e-6), name
         assert got["unit"] == entry["unit"]
     # ... and the file it writes (version 2) holds the same offsets as the version 1 file of that time
     written, then = read_offsets(tmp_path / "o.json"), read_offsets(V1 / f"offsets_{case}.json")
@@ -57,6 +59,15 @@ def test_identify_on_a_version_1_dataset_gives_the_same_numbers(capsys, tmp_path
         assert written.model["parameters"][name]["value"] == pytest.approx(entry["value"], abs=1e-12), name
 
 
+def test_the_base_fit_of_a_version_1_dataset_sets_its_moving_captures_aside(capsys):
+    """Then, the base model was fitted to the lag probe's moving captures too (angles off by velocity x lag: RMS
+    0.13/0.32 px); now they wait for the time_lag effect and the base fit is at the noise."""
+    old = json.loads((V1 / "identify_base.json").read_text())
+    new = run_json(capsys, "identify", V1 / "mock_dataset", "--cv-folds", 0)
+    assert new["moving_captures_set_aside"] == 6
+    assert max(new["rms_px"]) < 0.06 < min(old["rms_px"])
+
+
 def test_a_version_1_dataset_reads_as_written():
     dataset = read_dataset(V1 / "mock_dataset")
     assert dataset.version == 1 and dataset.meta["schema"] == "naocal.dataset/1"
@@ -69,14 +80,14 @@ def test_diagnose_on_a_version_1_dataset_with_the_angles_as_then(capsys):
     time; with 'auto', version 1's per-joint step search missed RAnklePitch (5 readings, a gap of more than 100
     steps) and used the command for 260 of 280 readings: the one step search now finds all 280."""
     old = json.loads((V1 / "diagnose_synthetic.json").read_text())
-    new = run_json(capsys, "diagnose", V1 / "synthetic_dataset")
+    new = run_json(capsys, "diagnose", V1 / "synthetic_dataset", "--no-tie-hip-yaw-pitch")  # made with two offsets
     assert new["rms_px"][0] < old["rms_px"][0] and new["rms_px"][1] < old["rms_px"][1]  # the fix: at the noise
     assert total(new["rms_px"]) < 1.1 * 0.05
     for mode in ("measured", "commanded"):
         ours = run_json(capsys, "identify", V1 / "synthetic_dataset", "--angles", mode, "--cv-folds", 0)
-        assert ours["angles"] == f"joint angles: {mode} readings"
-    auto = run_json(capsys, "identify", V1 / "synthetic_dataset", "--cv-folds", 0)
-    assert "used the command for 280 of 280 still joint readings" in auto["angles"]
+        assert "(as asked)" in ours["angles"] and ours["angle_choice"]["chosen"] == mode
+    auto = run_json(capsys, "identify", V1 / "synthetic_dataset", "--cv-folds", 0, "--no-tie-hip-yaw-pitch")
+    assert auto["angle_choice"]["chosen"] == "cell" and "quantised to 0.1 deg" in auto["angles"]
 
 
 def total(xy):

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     out = tmp_path / "sim"
     done = subprocess.run([sys.executable, "-m", "tools", "simulate", "--out", str(out), "--seed", "4",
-                           "--stances-per-leg", "3", "--effect", "time_lag=0.02", "--no-progress"],
+                           "--stances-per-leg", "3", "--effect", "time_lag=0.02", "--no-progress", "--mock", "ideal"],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "naocal simulate: wrote" in done.stdout

@@ -32,8 +32,8 @@ def register(subparsers) -> None:
     serve.add_argument("--seed", type=int, default=0, help="mock: seed of the hidden truth (default 0)")
     serve.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                        help="mock: inject a physical effect (repeatable), as in `naocal simulate`")
-    serve.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
-                       help="mock: ideal (default) or realistic robot (docs/MOCK.md; its corner fault model lives "
+    serve.add_argument("--mock", choices=("ideal", "realistic"), default=None,
+                       help="mock: realistic (default) or ideal robot (docs/MOCK.md; its corner fault model lives "
                             "with the agent's detector and does not cross the bridge)")
     serve.add_argument("--naoqi", default="tcp://127.0.0.1:9559", metavar="URL",
                        help="naoqi: NAOqi's address (default tcp://127.0.0.1:9559, i.e. on the robot)")
@@ -141,11 +141,11 @@ def _open_backend(args):
             from backends.mock import MockBackend, parse_effect_sizes
         except ImportError as err:
             raise NaocalError(f"the PyBullet mock is not available: {err}") from None
-        kwargs = {"seed": args.seed, "realism": args.mock}
+        kwargs = {"seed": args.seed, "realism": args.mock or "realistic"}
         if args.effect:
             kwargs["effects"] = parse_effect_sizes(args.effect)
         return MockBackend(**kwargs), "simulated", False
-    if args.mock != "ideal":
+    if args.mock is not None:
         raise NaocalError("--mock is for --driver mock")
     if args.driver == "lola":
         return _open_lola(args), "wall", True

@@ -29,10 +29,11 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
                         "head_offsets, intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
-                   help="mock: ideal (default: exact servos, 0.1 deg readings, small offsets) or realistic (a NAO V6 "
+    p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
+                   help="mock: realistic (default: a NAO V6 "
                         "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "
-                        "deg, faulty corners; docs/MOCK.md)")
+                        "deg, faulty corners; docs/MOCK.md) or ideal (exact servos, 0.1 deg readings, small "
+                        "offsets: for teaching and exactness)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper",
                    help="paper: 24 random stances per leg x 3 head postures (default); optimal: greedy D-optimal "
                         "stances reaching the paper plan's precision")
@@ -107,8 +108,8 @@ def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, n
         parts += ["--endpoint", endpoint]
     if record["backend"] == "mock":
         parts += ["--seed", str(record["mock_seed"])]
-        if record.get("mock", "ideal") != "ideal":
-            parts += ["--mock", record["mock"]]
+        if record.get("mock", "ideal") != "realistic":  # the default mock; runs from before --mock were ideal
+            parts += ["--mock", record.get("mock", "ideal")]
     for name, size in record["effects"].items():
         parts += ["--effect", f"{name}={size!r}"]
     if record["plan"] != "paper":
@@ -175,7 +176,7 @@ def run(args) -> int:
         check_client_endpoint(args.endpoint)
         if args.effect:
             raise NaocalError("--effect injects effects into the mock; a bridge's robot is what it is")
-        if args.mock != "ideal":
+        if args.mock is not None:
             raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
                               "`naocal bridge serve --driver mock --mock realistic`")
     elif args.endpoint:
@@ -185,8 +186,9 @@ def run(args) -> int:
         from backends.mock import parse_effect_sizes
 
         effects = parse_effect_sizes(args.effect)
+    realism = (args.mock or "realistic") if args.backend == "mock" else None
     record = calibrate_record(backend=args.backend, mock_seed=args.seed if args.backend == "mock" else None,
-                              mock=args.mock if args.backend == "mock" else None, effects=effects, plan=args.plan,
+                              mock=realism, effects=effects, plan=args.plan,
                               plan_seed=args.plan_seed, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
 
     def command(the_record, resume=True):
@@ -226,9 +228,9 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
         from agent.measure import opencv_detector
         from backends.mock import MockBackend
 
-        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+        backend = MockBackend(args.seed, effects=effects, realism=record["mock"])
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
-        label = f"mock (seed {args.seed}, {args.mock}" + (
+        label = f"mock (seed {args.seed}, {record['mock']}" + (
             ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
     else:

@@ -2,7 +2,7 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
-from tools.cmd_identify import add_angles_option, effect_names
+from tools.cmd_identify import add_angles_option, add_tie_option, effect_names
 
 EPILOG = """\
 Sections of the output:
@@ -47,6 +47,7 @@ def register(subparsers):
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")
     add_angles_option(p)
+    add_tie_option(p)
     from tools.arm_cli import add_arm_options
 
     add_arm_options(p)  # an arm (docs/ARM.md): --effects then names the arm's effects
@@ -66,22 +67,24 @@ def run(args) -> int:
     from solver.diagnostics import diagnose_result
     from solver.errors import NaocalError, SolveError
     from solver.fileio import check_output_directory
-    from solver.identify import identify
     from solver.adapter import model_data_from_dataset
     from solver.effects import EFFECTS, parse_effect_names
-    from solver.registry import Registry
+    from solver.fit import identify_dataset
 
     effects = parse_effect_names(args.effects)
     if args.report:
         check_output_directory(args.report)
     dataset_path = find_dataset(args.dataset)
     dataset = read_dataset(dataset_path)
-    data = model_data_from_dataset(dataset, angles=args.angles)
+    data = model_data_from_dataset(dataset)
     for name in effects:
         reason = EFFECTS[name].untestable_reason(data)
         if reason:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
-    result = identify(data, Registry.for_data(data, effects, fixed=args.fix))
+    # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
+    fit = identify_dataset(dataset, effects, angles=args.angles, moving="all", fixed=args.fix,
+                           tie_shared_motors=args.tie_hip_yaw_pitch)
+    result = fit.result
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
@@ -95,13 +98,15 @@ def run(args) -> int:
         from tools.cmd_identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
 
         out = diagnosis.as_dict()
+        out.update(fit.as_dict())
         out["joint_offsets_c"] = joint_offsets_c(result)
         out["model_parameters_note"] = MODEL_PARAMETERS_NOTE
         out["model_parameters"] = out.pop("parameters")
         out["report"] = None if report_path is None else str(report_path)
         print(json.dumps(json_safe(out), indent=1))
     else:
-        print(format_text(diagnosis, dataset_path=dataset_path, fixed=args.fix, angles=args.angles))
+        print(format_text(diagnosis, fit, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
+                          tied=args.tie_hip_yaw_pitch))
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
@@ -140,10 +145,10 @@ def json_safe(obj):
     return obj
 
 
-def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto") -> tuple[str, str]:
+def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:
     """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model:
     its effects plus the candidate, its fixed parameters plus the candidate's that these data cannot tell from
-    the model, the same --angles."""
+    the model, the same --angles and --tie-hip-yaw-pitch."""
     import shlex
 
     res = diagnosis.result
@@ -153,12 +158,14 @@ def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto"
         options += ["--fix", name]
     if angles != "auto":
         options += ["--angles", angles]
+    if not tied:
+        options.append("--no-tie-hip-yaw-pitch")
     return tuple(shlex.join(["naocal", verb, str(dataset_path), *options]) for verb in ("identify", "diagnose"))
 
 
-def format_text(diagnosis, *, dataset_path="DATASET", fixed=(), angles="auto") -> str:
-    """The human-readable report: compare, locate, names. `dataset_path`, `fixed` and `angles` are the run's, for
-    the commands the verdict prints."""
+def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles="auto", tied=True) -> str:
+    """The human-readable report: compare, locate, names (and, given the DatasetFit, its angle and outlier
+    evidence). `dataset_path`, `fixed`, `angles` and `tied` are the run's, for the commands the verdict prints."""
     import math
 
     from solver.diagnostics import LOW_UNIQUENESS
@@ -175,6 +182,9 @@ def format_text(diagnosis, *, dataset_path="DATASET", fixed=(), angles="auto") -
                 f"{c.encoder_noise_px:.3f} px" if c.encoder_resolution_rad > 0 else "); joint readings not quantised"),
              f"  the fit is {c.ratio_to_noise:.2f} x the noise floor"
              + (": at the noise level" if c.ratio_to_noise < 1.2 else "")]
+    if fit is not None:
+        lines[3:3] = ["  " + fit.describe_angles(), "  " + fit.describe_outliers()
+                      + (" (mis-detections, not physics, explain them)" if fit.outliers else "")]
     lines.append("  per target:       " + ", ".join(
         f"{t} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for t, v in c.per_target.items()))
     lines.append("  per head posture: " + ", ".join(
@@ -226,7 +236,7 @@ def format_text(diagnosis, *, dataset_path="DATASET", fixed=(), angles="auto") -
                         " as far as these candidates go (the remaining misfit is something else)."))
     else:
         identify_command, diagnose_command = next_commands(diagnosis, best, dataset_path=dataset_path, fixed=fixed,
-                                                           angles=angles)
+                                                           angles=angles, tied=tied)
         lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): {identify_command}")
         lines.append(f"  then diagnose again: {diagnose_command}")
     for warning in res.warnings:

@@ -1,5 +1,7 @@
 """`naocal identify DATASET`: fit the model to a dataset and print (or save) the parameters."""
 
+import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
+
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -17,8 +19,9 @@ def register(subparsers):
     p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
     p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/2 file (atomic, old one kept as .bak)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    p.add_argument("--tie-hip-yaw-pitch", action="store_true",
-                   help="RHipYawPitch takes LHipYawPitch's offset (one motor on the robot)")
+    add_tie_option(p)
+    p.add_argument("--keep-outliers", action="store_true",
+                   help="fit every corner (default: corners no rigid board motion explains are set aside and listed)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME",
                    help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw")
     p.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
@@ -42,12 +45,18 @@ def effect_names() -> str:
     return ", ".join(EXTRA_EFFECTS)
 
 
+def add_tie_option(parser) -> None:
+    """--tie-hip-yaw-pitch, shared by identify and diagnose."""
+    parser.add_argument("--tie-hip-yaw-pitch", action=argparse.BooleanOptionalAction, default=True,
+                        help="joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
+
+
 def add_angles_option(parser) -> None:
     """--angles, shared by identify and diagnose (both must read a dataset the same way)."""
-    parser.add_argument("--angles", default="auto", choices=("auto", "measured", "commanded"),
-                        help="joint angles used as theta: measured readings (the paper), commanded, or auto "
-                             "(default): readings, except that a still joint whose readings are quantised and whose "
-                             "command lies inside its reading's quantisation cell uses the command")
+    parser.add_argument("--angles", default="auto", choices=("auto", "measured", "cell", "commanded"),
+                        help="joint angles used as theta: measured readings (the paper), cell (a still joint whose "
+                             "readings are quantised and whose command lies inside its reading's step uses the "
+                             "command), commanded, or auto (default): each is fitted and the best fit chosen")
 
 
 def run(args) -> int:
@@ -59,14 +68,13 @@ def run(args) -> int:
         return run_identify(args)
 
     from agent.rundir import find_dataset
+    from solver.adapter import model_data_from_dataset
     from solver.dataset import read_dataset
+    from solver.effects import EFFECTS, parse_effect_names
     from solver.errors import NaocalError, SolveError
     from solver.fileio import check_output_file
-    from solver.identify import identify
-    from solver.adapter import model_data_from_dataset
-    from solver.effects import EFFECTS, parse_effect_names
+    from solver.fit import identify_dataset
     from solver.offsets import implausible_parameters
-    from solver.registry import Registry
 
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
         raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
@@ -75,13 +83,15 @@ def run(args) -> int:
         check_output_file(args.out)
     dataset_path = find_dataset(args.dataset)
     dataset = read_dataset(dataset_path)
-    data = model_data_from_dataset(dataset, angles=args.angles)
-    registry = Registry.for_data(data, effects, tie_shared_motors=args.tie_hip_yaw_pitch, fixed=args.fix)
+    data = model_data_from_dataset(dataset)
     for name in effects:
         reason = EFFECTS[name].untestable_reason(data)
         if reason:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
-    result = identify(data, registry, loss=args.loss, loss_scale_px=args.loss_scale_px, solver=args.solver)
+    fit = identify_dataset(dataset, effects, angles=args.angles, robust=not args.keep_outliers, fixed=args.fix,
+                           tie_shared_motors=args.tie_hip_yaw_pitch, solver=args.solver, loss=args.loss,
+                           loss_scale_px=args.loss_scale_px)
+    result, data = fit.result, fit.data
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
     why = implausible_parameters(result.parameters_dict())
@@ -99,10 +109,14 @@ def run(args) -> int:
 
     if args.json:
         report = result_json(result, effects, cv_rms)
-        report["angles"] = data.angle_choice.describe()
+        report.update(fit.as_dict(), angles=fit.describe_angles(), angle_choice=fit.as_dict()["angles"])
         print(json.dumps(report, indent=1))
     else:
-        print(data.angle_choice.describe())
+        print(fit.describe_angles())
+        print(fit.describe_outliers())
+        if fit.n_moving_set_aside:
+            print(f"{fit.n_moving_set_aside} captures taken while moving set aside (only --effects time_lag models "
+                  "them)")
         print(format_table(result, cv_rms))
     return 0
 

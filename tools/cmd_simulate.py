@@ -22,7 +22,7 @@ def register(subparsers):
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
                         "intrinsics, distortion, time_lag")
-    p.add_argument("--mock", choices=("ideal", "realistic"), default="ideal",
+    p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
                    help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
@@ -65,7 +65,7 @@ def run(args) -> int:
 
     effects = parse_effect_sizes(args.effect)
     command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
-                         + (["--mock", args.mock] if args.mock != "ideal" else [])
+                         + (["--mock", args.mock] if args.mock else [])
                          + [f"--effect={k}={v!r}" for k, v in effects.items()])
     with RunLock(out, command):
         if entries(out):
@@ -82,7 +82,7 @@ def run(args) -> int:
         from solver.fileio import atomic_write_text
 
         settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
-        backend = MockBackend(args.seed, effects=effects, realism=args.mock)
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")
         try:
             atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
             result, ctx = simulate(backend, out, settings, detector=backend.faulty(opencv_detector))

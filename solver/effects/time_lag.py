@@ -15,6 +15,7 @@ class TimeLag(Effect):
     order = 60
     summary = "one lag dt between the image and joint clocks (+ joint velocity * dt; needs vel_<Joint> columns)"
     plausible_limit = 0.2  # s
+    uses_velocity = True
     no_signal_hint = "every image was taken with the joints still: capture while moving to see a time lag"
     offsets_section, offsets_key = "head", "time_lag_s"
     offsets_limit = 1.0

@@ -1,0 +1,203 @@
+"""The one identification routine: from a dataset to a fitted model, as `naocal identify`, `naocal diagnose` and
+the agent all do it.
+
+What the data decide here, rather than an assumption:
+- which joint angle to trust: each hypothesis (the reading, the reading's step with the command inside it, the
+  command) is fitted and the one that explains the images best is used; every hypothesis's RMS is reported;
+- which corners are mis-detections: a corner that no rigid motion of its board explains, far beyond the robust
+  (MAD) scale of the others, is set aside and reported by image and vertex with its size;
+- how precisely the offsets are known: the readings' quantisation joins the standard deviations (solver.identify).
+The robot description's shared motors (the NAO's HipYawPitch pair) take one offset. Captures taken while the
+joints move are fitted only when the model has an effect for them (time_lag); otherwise their angles are off by
+velocity x lag and they are set aside (diagnose keeps them: they are how it tests time_lag).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.adapter import model_data_from_dataset
+from solver.effects import EFFECTS
+from solver.identify import IdentificationResult, identify
+from solver.model import ModelData
+from solver.quantisation import reading_resolution
+from solver.registry import Registry
+
+# The angle hypotheses, in the order a tie is broken (the paper's choice first).
+ANGLE_HYPOTHESES = ("measured", "cell", "commanded")
+HYPOTHESIS_WORDS = {"measured": "the readings", "cell": "the command inside the reading's step",
+                    "commanded": "the commands"}
+# A hypothesis must fit this much better (relative RMS) than an earlier one in ANGLE_HYPOTHESES to be chosen.
+ANGLE_MARGIN = 0.01
+# Outliers: a corner whose non-rigid residual exceeds OUTLIER_SCALES robust scales (2-D Gaussian: 4e-6 of good
+# corners) and OUTLIER_MIN_PX (mis-detections are a square or a reflection off, several px).
+OUTLIER_SCALES = 5.0
+OUTLIER_MIN_PX = 1.0
+MAX_TRIM_ROUNDS = 10
+MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
+
+
+@dataclass
+class Outlier:
+    image: int  # the dataset's image id
+    vertex: int
+    size_px: float  # |residual| of the corner at the final fit
+
+
+@dataclass
+class AngleHypothesis:
+    mode: str
+    rms_px: float  # over both coordinates, on the corners no hypothesis flagged
+    n_outliers: int
+
+
+@dataclass
+class DatasetFit:
+    """What identify_dataset did: the fitted data and result, and the evidence for its choices."""
+
+    data: ModelData  # the fitted data (outliers and, without time_lag, moving captures set aside)
+    result: IdentificationResult
+    angles: str  # the chosen hypothesis
+    hypotheses: list[AngleHypothesis]
+    reading_step_rad: float  # the readings' encoder step (0: not quantised)
+    outliers: list[Outlier] = field(default_factory=list)
+    robust_scale_px: float = float("nan")  # MAD scale of the non-rigid residual (outliers cannot inflate it)
+    n_moving_set_aside: int = 0
+
+    def describe_angles(self) -> str:
+        step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
+                else "readings not quantised")
+        if len(self.hypotheses) < 2:
+            return f"joint angles: {HYPOTHESIS_WORDS[self.angles]} (as asked); {step}"
+        evidence = ", ".join(f"{HYPOTHESIS_WORDS[h.mode]} {h.rms_px:.3f} px" for h in self.hypotheses)
+        return f"joint angles: {HYPOTHESIS_WORDS[self.angles]}, chosen by the fit ({evidence}); {step}"
+
+    def describe(self) -> str:
+        return f"{self.describe_angles()}\n  {self.describe_outliers()}"
+
+    def describe_outliers(self, count: int = 8) -> str:
+        if not self.outliers:
+            return f"outliers: none (robust scale {self.robust_scale_px:.3f} px)"
+        worst = sorted(self.outliers, key=lambda o: -o.size_px)[:count]
+        listed = ", ".join(f"image {o.image} vertex {o.vertex} {o.size_px:.1f} px" for o in worst)
+        images = len({o.image for o in self.outliers})
+        return (f"outliers: {len(self.outliers)} corners in {images} images set aside as mis-detections (no rigid "
+                f"board motion, so no physical effect, explains them; beyond {OUTLIER_SCALES:g} x the robust scale "
+                f"{self.robust_scale_px:.3f} px): {listed}" + (" ..." if len(self.outliers) > count else ""))
+
+    def as_dict(self) -> dict:
+        return {
+            "angles": {"chosen": self.angles, "description": self.describe_angles(),
+                       "reading_step_deg": float(np.degrees(self.reading_step_rad)),
+                       "hypotheses": [{"mode": h.mode, "rms_px": h.rms_px, "n_outliers": h.n_outliers}
+                                      for h in self.hypotheses]},
+            "robust_scale_px": self.robust_scale_px,
+            "outliers": [{"image": o.image, "vertex": o.vertex, "size_px": o.size_px} for o in self.outliers],
+            "moving_captures_set_aside": self.n_moving_set_aside,
+        }
+
+
+def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool = True, fixed=(),
+                     tie_shared_motors: bool = True, moving: str = "auto", solver: str = "lm", loss: str = "linear",
+                     loss_scale_px: float = 1.0) -> DatasetFit:
+    """Fit the base model plus `effects` to a read dataset (solver.dataset.Dataset): the routine every caller uses.
+
+    angles : 'auto' (every hypothesis of ANGLE_HYPOTHESES is fitted, the best fit chosen) or one of them.
+    robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale.
+    moving : 'auto' (captures taken while moving are fitted only if an effect models them), 'all' or 'still'.
+    solver, loss, loss_scale_px : as solver.identify.identify's.
+    Raises SolveError (solver.identify) when the data cannot determine the model.
+    """
+    effects = tuple(effects)
+    modes = ANGLE_HYPOTHESES if angles == "auto" else (angles,)
+    if angles != "auto" and angles not in ANGLE_HYPOTHESES:
+        raise ValueError(f"unknown angle choice {angles!r}: expected auto or one of {', '.join(ANGLE_HYPOTHESES)}")
+    fits, seen = {}, []
+    for mode in modes:
+        data = model_data_from_dataset(dataset, angles=mode)
+        if any(np.array_equal(data.theta, other) for other in seen):
+            continue  # the same angles as a hypothesis already fitted (unquantised readings: cell = measured)
+        seen.append(data.theta)
+        data, n_moving = _moving_handled(data, effects, moving)
+        registry = Registry.for_data(data, effects, tie_shared_motors=tie_shared_motors, fixed=fixed)
+        step = _reading_step(dataset, data)
+        options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
+        fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)
+    chosen = _choose(fits)
+    data, result, outliers, scale, n_moving, step = fits[chosen]
+    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
+    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], flagged), len(f[2])) for mode, f in fits.items()]
+    return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving)
+
+
+def _moving_handled(data: ModelData, effects, moving: str):
+    if data.velocity is None or moving == "all":
+        return data, 0
+    still = np.flatnonzero(np.all(data.velocity == 0.0, axis=1))
+    if len(still) == data.n_images or (moving == "auto" and any(EFFECTS[e].uses_velocity for e in effects)):
+        return data, 0
+    return data.subset(still), data.n_images - len(still)
+
+
+def _reading_step(dataset, data: ModelData) -> np.ndarray:
+    """(J,) the encoder step of each joint's still readings (0: not quantised), whatever theta was chosen."""
+    measured = dataset.as_v2().joint_matrix("")
+    image = np.asarray(dataset.as_v2().columns["image"], dtype=np.int64)
+    ids, first = np.unique(image, return_index=True)
+    readings = measured[first]
+    if data.velocity is not None:
+        velocity = dataset.as_v2().joint_matrix("vel_")[first]
+        readings = readings[np.all(velocity == 0.0, axis=1)]
+    return reading_resolution(readings)
+
+
+def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict):
+    """(data, result, outliers, robust scale): fit, set aside the corners only a mis-detection explains, refit."""
+    from solver.model import Model
+    from solver.noisefloor import RigidSplit
+
+    first_data = data
+    result = identify(data, registry, reading_step_rad=step, **options)
+    outliers, scale = [], float("nan")
+    for _ in range(MAX_TRIM_ROUNDS if robust else 0):
+        nonrigid = RigidSplit(result.model, result.values)(result.residuals_px)[1]
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
+        size = np.linalg.norm(nonrigid, axis=1)
+        d = result.model.data
+        # the worst corner of each image only: a bad corner drags its image's rigid fit, and so its neighbours
+        worst = np.full(d.n_images, -1)
+        order = np.argsort(size)
+        worst[d.image_of_row[order]] = order
+        bad = np.array([i for i in worst if i >= 0 and size[i] > max(OUTLIER_SCALES * scale, OUTLIER_MIN_PX)], int)
+        if not len(bad):
+            break
+        outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]
+        data = d.without_rows(bad)
+        result = identify(data, registry, x0=result.values, reading_step_rad=step, **options)
+    if outliers:  # their size at the final fit, predicted from the corners that were kept
+        original = Model(first_data, result.registry).residuals(result.values)
+        row = {(int(first_data.image_id[m]), int(v)): i
+               for i, (m, v) in enumerate(zip(first_data.image_of_row, first_data.vertex))}
+        for o in outliers:
+            o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
+    return result.model.data, result, outliers, scale
+
+
+def _rms_without(result, flagged) -> float:
+    """RMS over both coordinates of a hypothesis's fit, on the corners no hypothesis flagged (a fair comparison)."""
+    d = result.model.data
+    keep = np.array([(int(d.image_id[m]), int(v)) not in flagged for m, v in zip(d.image_of_row, d.vertex)])
+    r = result.residuals_px[keep]
+    return float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan")
+
+
+def _choose(fits) -> str:
+    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
+    best = None
+    for mode, f in fits.items():  # ANGLE_HYPOTHESES order: a later one must be clearly better
+        rms = _rms_without(f[1], flagged)
+        if best is None or rms < best[1] * (1.0 - ANGLE_MARGIN):
+            best = (mode, rms)
+    return best[0]
