@@ -124,14 +124,16 @@ def test_the_camera_rotation_brings_it_to_4_6_px_with_the_pitch_determined(impor
 
 def test_freeing_the_board_or_the_leg_fits_the_six_images_no_better_out_of_sample(imported, capsys):
     """More parameters lower the fit a little and raise the cross-validated error: with 6 images they fit noise
-    (and the unconstrained right-leg offsets are refused as beyond any NAO's)."""
+    (the unconstrained right-leg offsets reach 12.6 deg, inside the 20 deg a worn NAO may show, but they predict
+    held-out images worse than the camera rotation alone)."""
     board = _json_of(capsys, ["identify", str(imported), "--fix", "joint_offsets", "--json"])
     assert board["rms_px"] == pytest.approx([4.32, 4.54], abs=0.02)
     assert board["cv_rms_px"][1] > 8.0  # against 5.9 px with the camera rotation alone
     assert board["model_parameters"]["board.floor.trans_x"]["std"] > 0.010  # m: the board's place is not determined
-    capsys.readouterr()
-    assert main(["identify", str(imported), "--fix", "board_mount"]) == 3
-    assert "RHipYawPitch" in capsys.readouterr().err
+    leg = _json_of(capsys, ["identify", str(imported), "--fix", "board_mount", "--json"])
+    assert leg["rms_px"] == pytest.approx([1.57, 2.56], abs=0.02)
+    assert leg["cv_rms_px"][1] > 7.0  # against 5.9 px with the camera rotation alone
+    assert math.degrees(leg["joint_offsets_c"]["RHipYawPitch"]["c_rad"]) == pytest.approx(12.6, abs=0.1)
 
 
 def test_the_diagnosis_finds_a_rigid_kinematic_misfit_no_candidate_explains(imported, capsys):
