@@ -46,9 +46,9 @@ def test_the_agent_and_identify_fit_the_same_way(tmp_path, capsys):
     ctx = Context(backend=None, settings=AgentSettings(), out_dir=tmp_path, dataset_dir=path, progress_path=None,
                   plan_path=None)
     Identification().run(ctx)
-    for name, entry in report["parameters"].items():
+    for name, entry in report["model_parameters"].items():
         assert ctx.identification.value(name) == pytest.approx(entry["value"], abs=1e-12), name
-    assert report["parameters"]["joint_offset.RHipYawPitch"]["value"] == report["parameters"][
+    assert report["model_parameters"]["joint_offset.RHipYawPitch"]["value"] == report["model_parameters"][
         "joint_offset.LHipYawPitch"]["value"]
     err, _ = offset_errors(ctx.angle_choice, truth)
     assert np.max(np.abs(err)) < 0.02 * DEG
