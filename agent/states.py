@@ -267,7 +267,10 @@ class Identification(State):
 
     def run(self, ctx: Context) -> Outcome:
         s = ctx.settings
-        fit = identify_dataset(read_dataset(ctx.dataset_dir), tie_shared_motors=s.tie_hip_yaw_pitch)
+        # The whole NAO setup: a sandal without captures keeps its nominal mount (the summary, offsets and guard
+        # name all 21 parameters).
+        fit = identify_dataset(read_dataset(ctx.dataset_dir), tie_shared_motors=s.tie_hip_yaw_pitch,
+                               setup=Registry().setup)
         if fit.n_moving_set_aside:
             log.info("identification uses the still captures (the %d moving ones of the lag probe are for the "
                      "diagnostics' time_lag effect)", fit.n_moving_set_aside)

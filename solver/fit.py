@@ -101,13 +101,15 @@ class DatasetFit:
 
 def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool = True, fixed=(),
                      tie_shared_motors: bool = True, moving: str = "auto", solver: str = "lm", loss: str = "linear",
-                     loss_scale_px: float = 1.0) -> DatasetFit:
+                     loss_scale_px: float = 1.0, setup=None) -> DatasetFit:
     """Fit the base model plus `effects` to a read dataset (solver.dataset.Dataset): the routine every caller uses.
 
     angles : 'auto' (every hypothesis of ANGLE_HYPOTHESES is fitted, the best fit chosen) or one of them.
     robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale.
     moving : 'auto' (captures taken while moving are fitted only if an effect models them), 'all' or 'still'.
     solver, loss, loss_scale_px : as solver.identify.identify's.
+    setup : the cameras and targets to parametrise (default: the data's); a target without captures keeps its
+        nominal values (solver.identify fixes parameters without data).
     Raises SolveError (solver.identify) when the data cannot determine the model.
     """
     effects = tuple(effects)
@@ -121,7 +123,7 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
             continue  # the same angles as a hypothesis already fitted (unquantised readings: cell = measured)
         seen.append(data.theta)
         data, n_moving = _moving_handled(data, effects, moving)
-        registry = Registry.for_data(data, effects, tie_shared_motors=tie_shared_motors, fixed=fixed)
+        registry = Registry(effects, setup=setup or data.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
         options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
         fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)

@@ -24,7 +24,8 @@ from tests.agent_fakes import FakeBackend
 from tools import cli
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = ["--backend", "mock", "--seed", "3", "--stances-per-leg", "5", "--no-images", "--no-progress"]
+# The ideal mock: the interrupted and resumed runs are compared capture by capture.
+BASE = ["--backend", "mock", "--seed", "3", "--mock", "ideal", "--stances-per-leg", "5", "--no-images", "--no-progress"]
 
 
 def _sigint_default():
