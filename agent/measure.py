@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agent.camera_estimate import CameraEstimate
 from agent.corners import detect_board_vertices
 from agent.estimate import RunningEstimate
 from agent.plan import Plan, Still, Sweep
@@ -86,6 +87,8 @@ class Measurement:
         self.n_saved = 0
         self.n_skipped = 0
         self._substitutes: dict = {}  # (leg, stance) -> leg angles (6,) replacing a stance unsafe on this robot
+        # Cameras other than the running estimate's (the top camera): their rotation learnt from their captures.
+        self.other_cameras = {"top": CameraEstimate("top", self.intrinsics, stored.camera_prior_rad)}
 
     # --- bookkeeping -------------------------------------------------------------------------------------------
     def session_time_s(self) -> float:
@@ -170,9 +173,17 @@ class Measurement:
         base = s.search_margin_px_fitted if known else s.search_margin_px_nominal
         return min(base * (1 + attempt), s.search_margin_px_nominal * (1 if known else 3))
 
-    def _detect(self, image, leg, theta14, attempt: int = 0):
-        predicted = self.estimate.predict(leg, theta14)
-        return self.detector(image, predicted, leg, self._search_margin(leg, attempt)), predicted
+    def _detect(self, image, leg, theta14, attempt: int = 0, camera: str = "bottom"):
+        if camera == "bottom":
+            predicted = self.estimate.predict(leg, theta14)
+            margin = self._search_margin(leg, attempt)
+        else:  # its rotation is known once it has a capture; the wide margin until then
+            other = self.other_cameras[camera]
+            predicted = other.predict(self.estimate, leg, theta14)
+            s = self.settings
+            known = other.fitted and max(other.rms_px) < s.known_fit_rms_px
+            margin = (s.search_margin_px_fitted if known else s.search_margin_px_nominal) * (1 + attempt)
+        return self.detector(image, predicted, leg, margin), predicted
 
     # --- still captures ----------------------------------------------------------------------------------------
     def still(self, step: Still, *, may_defer: bool = False) -> str:
@@ -181,7 +192,8 @@ class Measurement:
         offsets move the legs by centimetres from the nominal model the plan was made on) is replaced by a nearby
         one the estimate says is safe and sees the board (`substitute`), the same for all its head postures."""
         planned = self._substituted(step)
-        target = self.aim(planned, step.leg)
+        bottom = step.camera == "bottom"  # the running estimate aims, substitutes and learns from bottom images
+        target = self.aim(planned, step.leg) if bottom else planned
         reasons = []
         for attempt in range(self.settings.detection_tries):
             try:
@@ -190,7 +202,8 @@ class Measurement:
                 if may_defer and attempt == 0 and self.robot.guard.uncertain():
                     log.info("capture %d deferred until the offsets are better known: %s", step.image, err)
                     return "deferred"
-                replacement = self.substitute(step) if attempt == 0 and step.leg in self.estimate.known_legs else None
+                replacement = (self.substitute(step) if bottom and attempt == 0 and step.leg in self.estimate.known_legs
+                               else None)
                 if replacement is not None:
                     log.info("capture %d: the planned stance is unsafe on this robot (%s); a nearby one instead",
                              step.image, err)
@@ -204,24 +217,27 @@ class Measurement:
                     reasons.append(str(err))
                     break
             if self.settings.wait_for_still_image:
-                image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s)
+                image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s, step.camera)
             else:
-                image = self.robot.newest_image()
+                image = self.robot.newest_image(step.camera)
             t_joints, theta = self.robot.read()
-            detection, _ = self._detect(image, step.leg, theta, attempt)
+            detection, _ = self._detect(image, step.leg, theta, attempt, step.camera)
             if detection.ok:
                 record = CaptureRecord(step.image, step.leg, step.stance, step.head_posture,
                                        np.asarray(detection.vertices_px, dtype=float), theta, self.robot.commanded.copy(),
                                        self.robot.direction.copy(), np.zeros(len(JOINTS)), float(image.t_exposure_s),
-                                       float(t_joints))
+                                       float(t_joints), step.camera)
                 self._save(record, image.pixels)
-                self.estimate.add(step.leg, theta, record.vertices_px)
-                self._update_guard()
+                if bottom:
+                    self.estimate.add(step.leg, theta, record.vertices_px)
+                    self._update_guard()
+                else:
+                    self.other_cameras[step.camera].add(self.estimate, step.leg, theta, record.vertices_px)
                 return "saved"
             reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
             log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
                      detection.reason, detection.detail)
-            target = self.retry_target(target, step.leg, attempt)
+            target = self.retry_target(target, step.leg, attempt, recentre=bottom)
             if target is None:
                 reasons.append("no safe head move left to retry with")
                 break
@@ -337,11 +353,12 @@ class Measurement:
                  margin, new_margin)
         return moved
 
-    def retry_target(self, target14, leg, attempt) -> np.ndarray | None:
-        """A small head move for another try: re-centre the board, then a step in one of four directions."""
+    def retry_target(self, target14, leg, attempt, *, recentre: bool = True) -> np.ndarray | None:
+        """A small head move for another try: re-centre the board (the running estimate's camera), then a step in
+        one of four directions."""
         s = self.settings.retry_head_step_rad
         pattern = [(s, 0.0), (-s, 0.0), (0.0, -s), (0.0, s)]
-        base = self.recentred(target14, leg)
+        base = self.recentred(target14, leg) if recentre else np.asarray(target14, dtype=float)
         for k in range(len(pattern)):
             dyaw, dpitch = pattern[(attempt + k) % len(pattern)]
             q = base.copy()

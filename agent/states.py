@@ -128,7 +128,7 @@ def dataset_meta(backend, source: str) -> dict:
         "robot": {"id": str(identity.get("id", "unknown")), "model": str(identity.get("model", "NAO")),
                   "body_id": str(identity.get("body_id", identity.get("id", "unknown"))),
                   "head_id": str(identity.get("head_id", identity.get("id", "unknown"))), "description": "nao"},
-        "cameras": {name: camera},
+        "cameras": {name: camera, "top": dict(camera)},  # the backend states one prior: both NAO cameras' lens
         "targets": {leg: {"columns": t.board.columns, "rows": t.board.rows, "square_m": t.board.square_m,
                           "mass_kg": t.board.mass_kg, "centre_m": [float(x) for x in t.centre]}
                     for leg, t in sandals.items()},
@@ -235,6 +235,8 @@ class Measure(State):
         data = model_data_from_dataset(dataset)
         still = _still_images(data)
         for m in still:
+            if data.camera[m] != "bottom":
+                continue  # the running estimate is the bottom camera's (the top camera's rotation is relearnt)
             rows = data.image_of_row == m
             if rows.sum() == data.robot.target(data.target[m]).board.n_vertices:  # a complete board
                 ctx.estimate.preload(str(data.leg[m]), data.theta[m], data.uv_px[rows])
@@ -266,7 +268,7 @@ class Identification(State):
             log.info("identification uses the %d still captures (the %d moving ones of the lag probe are for the "
                      "diagnostics' time_lag effect)", len(still), data.n_images - len(still))
         data = data.subset(still)
-        registry = Registry(tie_hip_yaw_pitch=s.tie_hip_yaw_pitch)
+        registry = Registry.for_data(data, tie_hip_yaw_pitch=s.tie_hip_yaw_pitch)  # every camera the data use
         ctx.angle_choice = data.angle_choice
         if data.angle_choice is not None:
             log.info("%s", data.angle_choice.describe())

@@ -104,8 +104,8 @@ def render_check(views: list, n: int) -> None:
             image = mock.capture(camera="top")
             truth = mock.true_vertex_pixels(image)[leg]
             visible = int(truth[1].sum())
-            corners = opencv_detector(image.pixels, truth[0], leg, 60.0)
-            found.append((visible, 0 if corners is None else int(np.isfinite(corners).all(axis=1).sum())))
+            detection = opencv_detector(image, truth[0], leg, 60.0)
+            found.append((visible, len(detection.vertices_px) if detection.ok else 0))
     print(f"rendered on the ideal mock (seed 1): {len(found)} views; truly visible corners "
           f"{[v for v, _ in found]}, detected {[d for _, d in found]}")
 

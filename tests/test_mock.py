@@ -30,9 +30,10 @@ def test_backend_contract():
 def test_truth_has_the_naocal_truth_format():
     truth = MockBackend(seed=3).truth_dict()
     assert set(truth) == {"schema", "alpha_rad", "camera_rotation_rad", "board_mount", "effects"}
-    assert truth["schema"] == "naocal.truth/1"
+    assert truth["schema"] == "naocal.truth/2"
     assert set(truth["alpha_rad"]) == set(JOINTS)
-    assert set(truth["camera_rotation_rad"]) == {"roll", "pitch", "yaw"}
+    assert set(truth["camera_rotation_rad"]) == {"bottom", "top"}  # keyed by camera name, as in offsets.json
+    assert all(set(r) == {"roll", "pitch", "yaw"} for r in truth["camera_rotation_rad"].values())
     assert set(truth["board_mount"]) == {"L", "R"}
     for mount in truth["board_mount"].values():
         assert set(mount) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
@@ -59,9 +60,11 @@ def test_truth_sizes_are_those_of_a_real_robot():
         assert np.all((leg_alpha_deg >= 0.2) & (leg_alpha_deg <= 2.0))
         assert truth.alpha_rad["RHipYawPitch"] == truth.alpha_rad["LHipYawPitch"]  # one motor
         assert truth.alpha_rad["HeadYaw"] == truth.alpha_rad["HeadPitch"] == 0.0  # only with head_offsets
-        rot = {k: math.degrees(v) for k, v in truth.camera_rotation_rad.items()}
-        assert -8.5 <= rot["pitch"] <= -3.0
-        assert 1.0 <= abs(rot["roll"]) <= 3.0 and 1.0 <= abs(rot["yaw"]) <= 3.0
+        for rotation in truth.camera_rotations().values():  # both cameras
+            rot = {k: math.degrees(v) for k, v in rotation.items()}
+            assert -8.5 <= rot["pitch"] <= -3.0
+            assert 1.0 <= abs(rot["roll"]) <= 3.0 and 1.0 <= abs(rot["yaw"]) <= 3.0
+        assert truth.top_camera_rotation_rad != truth.camera_rotation_rad
         for mount in truth.board_mount.values():
             assert 0.2 <= abs(math.degrees(mount.rot_z_rad)) <= 1.2
             assert 0.0005 <= abs(mount.trans_x_m) <= 0.003 and 0.0005 <= abs(mount.trans_y_m) <= 0.003
@@ -72,7 +75,7 @@ def test_effects_do_not_change_the_base_truth():
     with_effects = draw_truth(11, {"elasticity": 0.02, "backlash": 0.01, "head_offsets": 0.01})
     for joint in LEG_JOINTS:
         assert with_effects.alpha_rad[joint] == base.alpha_rad[joint]
-    assert with_effects.camera_rotation_rad == base.camera_rotation_rad
+    assert with_effects.camera_rotations() == base.camera_rotations()
     assert with_effects.board_mount == base.board_mount
     assert with_effects.alpha_rad["HeadYaw"] != 0.0
 
@@ -258,3 +261,28 @@ def test_closed_mock_refuses_work():
     mock.close()
     with pytest.raises(NaocalError, match="closed"):
         mock.capture()
+
+
+def test_the_top_camera_sees_a_sandal_pulled_up_to_the_chest_where_its_truth_says():
+    # A stance benchmarks/top_camera_views.py finds: the left thigh raised, the head turned towards it.
+    legs = dict(zip(["LHipYawPitch", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch", "LAnkleRoll"],
+                    [-0.597, 0.545, -0.981, 0.07, 0.254, 0.535]))
+    posture = {**legs, "RHipYawPitch": legs["LHipYawPitch"], "HeadYaw": 0.5, "HeadPitch": 0.40}
+    with MockBackend(seed=1, posture=posture) as mock:
+        mock.sleep(0.5)
+        top, bottom = mock.capture("top"), mock.capture("bottom")
+        assert (top.camera, bottom.camera) == ("top", "bottom")
+        uv, visible = mock.true_vertex_pixels(top)["L"]
+        assert visible.sum() >= 16 and not mock.true_vertex_pixels(bottom)["L"][1].any()
+        # the truth's pixels are those of the top camera's frame and rotation: the printed board is dark and light
+        # around them, and it moves by the top camera's rotation only
+        grey = top.pixels[..., 1].astype(float)
+        inside = [(int(round(v)), int(round(u))) for (u, v), ok in zip(uv, visible) if ok]
+        assert all(0 < grey[r, c] < 255 for r, c in inside)
+        from agent.measure import opencv_detector
+
+        detection = opencv_detector(top, uv, "L", 40.0)
+        if detection.ok:
+            assert np.max(np.abs(np.asarray(detection.vertices_px) - uv)) < 0.5
+        with pytest.raises(NaocalError):
+            mock.capture("middle")

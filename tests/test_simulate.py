@@ -32,9 +32,9 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom"}
     assert data.has_velocities
     truth = json.loads((out / "truth.json").read_text())
-    assert truth["schema"] == "naocal.truth/1"
+    assert truth["schema"] == "naocal.truth/2"
     assert set(truth["alpha_rad"]) == set(JOINTS)
-    assert set(truth["camera_rotation_rad"]) == {"roll", "pitch", "yaw"}
+    assert set(truth["camera_rotation_rad"]) == {"bottom", "top"}
     assert set(truth["board_mount"]["L"]) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
     assert truth["effects"] == {"time_lag": 0.02}
     assert data.meta["source"].startswith("naocal simulate")
