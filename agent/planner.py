@@ -77,7 +77,8 @@ class PlanSettings:
     # drawn from that region, after the bottom camera's captures (the joint offsets are known by then).
     top_stances_per_leg: int = 1
     top_head_postures: int = 2
-    top_hip_pitch_rad: tuple = (-1.50, -1.15)
+    top_hip_pitch_min_rad: float = -1.50
+    top_hip_pitch_max_rad: float = -1.15
     top_head_yaw_max_rad: float = 0.7
     joint_margin_rad: float = 0.05
     head_pitch_margin_rad: float = 0.03
@@ -308,7 +309,7 @@ class Planner:
 
     def top_candidates(self, leg: str, rng, n_wanted: int, *, max_batches=200, batch=256) -> list[Candidate]:
         """`n_wanted` stances in which the top camera sees `leg`'s sandal, each with `top_head_postures` head
-        postures: HipPitch within `top_hip_pitch_rad` (the thigh towards the chest, where alone the top camera sees
+        postures: HipPitch within top_hip_pitch_min_rad..top_hip_pitch_max_rad (the thigh towards the chest, where alone the top camera sees
         the board), the other joints anywhere within their margins, HeadYaw within +-top_head_yaw_max_rad. Taken
         after both legs' offsets are known: checked at the nominal offsets (the measurement's guard checks again
         with the estimated ones)."""
@@ -317,7 +318,7 @@ class Planner:
         lo = np.array([self.limits[j][0] for j in names]) + s.joint_margin_rad
         hi = np.array([self.limits[j][1] for j in names]) - s.joint_margin_rad
         pitch = names.index(f"{leg}HipPitch")
-        lo[pitch], hi[pitch] = max(lo[pitch], s.top_hip_pitch_rad[0]), min(hi[pitch], s.top_hip_pitch_rad[1])
+        lo[pitch], hi[pitch] = max(lo[pitch], s.top_hip_pitch_min_rad), min(hi[pitch], s.top_hip_pitch_max_rad)
         found: list[Candidate] = []
         for _ in range(max_batches):
             q = rng.uniform(lo, hi, size=(batch, 6))
