@@ -75,7 +75,7 @@ class PlanSettings:
     verification_per_leg: int = 2
     # The top camera (docs/AGENT.md): it sees a sandal only with the thigh pulled up to the chest; stances for it are
     # drawn from that region, after the bottom camera's captures (the joint offsets are known by then).
-    top_stances_per_leg: int = 1
+    top_stances_per_leg: int = 2
     top_head_postures: int = 2
     top_hip_pitch_min_rad: float = -1.50
     top_hip_pitch_max_rad: float = -1.15

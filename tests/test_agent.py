@@ -130,7 +130,7 @@ def test_images_are_exposed_after_the_robot_was_still(fake_run):
     cmd = data.joint_matrix("cmd_")
     vel = data.joint_matrix("vel_")
     rows = np.flatnonzero(np.all(vel == 0, axis=1))[::24]
-    assert len(rows) == 2 * 6 * 3 + 2 * 2  # and each leg's top-camera stance in two head postures
+    assert len(rows) == 2 * 6 * 3 + 2 * 2 * 2  # and each leg's two top-camera stances in two head postures
     for row in rows:
         sensors = fake.detected[round(data.columns["t_image_s"][row], 9)]
         np.testing.assert_allclose(sensors, cmd[row], atol=1e-9)

@@ -53,7 +53,8 @@ def test_paper_plan_has_24_stances_per_leg_times_3_head_postures_and_a_lag_probe
 def test_paper_plan_ends_with_top_camera_stances_that_pull_the_thigh_up(paper_plan):
     s = PlanSettings()
     top = [st for st in paper_plan.stills() if st.camera == "top"]
-    assert [st.leg for st in top] == ["L"] * s.top_head_postures + ["R"] * s.top_head_postures
+    per_leg = s.top_stances_per_leg * s.top_head_postures
+    assert [st.leg for st in top] == ["L"] * per_leg + ["R"] * per_leg
     assert paper_plan.steps[-len(top):] == top  # after the bottom camera's: the offsets are known by then
     for st in top:
         hip = st.angles()[JOINT_INDEX[f"{st.leg}HipPitch"]]
