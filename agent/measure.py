@@ -192,8 +192,8 @@ class Measurement:
         offsets move the legs by centimetres from the nominal model the plan was made on) is replaced by a nearby
         one the estimate says is safe and sees the board (`substitute`), the same for all its head postures."""
         planned = self._substituted(step)
-        bottom = step.camera == "bottom"  # the running estimate aims, substitutes and learns from bottom images
-        target = self.aim(planned, step.leg) if bottom else planned
+        bottom = step.camera == "bottom"  # the running estimate substitutes and learns from bottom images
+        target = self.aim(planned, step.leg, step.camera)  # the top camera: once its rotation is learnt
         reasons = []
         for attempt in range(self.settings.detection_tries):
             try:
@@ -237,7 +237,7 @@ class Measurement:
             reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
             log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
                      detection.reason, detection.detail)
-            target = self.retry_target(target, step.leg, attempt, recentre=bottom)
+            target = self.retry_target(target, step.leg, attempt, camera=step.camera)
             if target is None:
                 reasons.append("no safe head move left to retry with")
                 break
@@ -315,11 +315,17 @@ class Measurement:
             q[pitch_col] += 0.02
         return None
 
-    def recentred(self, target14, leg) -> np.ndarray:
+    def _predict(self, leg, q14, camera: str = "bottom") -> np.ndarray:
+        """Where the estimate puts `leg`'s board vertices (24, 2) in `camera` at angles q14."""
+        if camera == "bottom":
+            return self.estimate.predict(leg, q14)
+        return self.other_cameras[camera].predict(self.estimate, leg, q14)
+
+    def recentred(self, target14, leg, camera: str = "bottom") -> np.ndarray:
         """target14 with the head turned so that the estimate puts the board's centre at the image centre
         (at most 0.15 rad of head motion)."""
         def centre(q):
-            return self.estimate.predict(leg, q).mean(axis=0)
+            return self._predict(leg, q, camera).mean(axis=0)
 
         c0 = centre(target14)
         goal = np.array([self.intrinsics["cx_px"], self.intrinsics["cy_px"]])
@@ -336,16 +342,16 @@ class Measurement:
         out[HEAD_COLUMNS] += step
         return out
 
-    def aim(self, target14, leg) -> np.ndarray:
+    def aim(self, target14, leg, camera: str = "bottom") -> np.ndarray:
         """The planned posture, or with the head re-aimed if the estimate puts the board near the image edge."""
-        predicted = self.estimate.predict(leg, target14)
+        predicted = self._predict(leg, target14, camera)
         margin = view_margin_px(predicted[None], self.intrinsics["width_px"], self.intrinsics["height_px"])[0]
         if margin >= self.settings.aim_margin_px:
             return target14
-        moved = self.feasible_head(self.recentred(target14, leg))
+        moved = self.feasible_head(self.recentred(target14, leg, camera))
         if moved is None:
             return target14
-        new_margin = view_margin_px(self.estimate.predict(leg, moved)[None], self.intrinsics["width_px"],
+        new_margin = view_margin_px(self._predict(leg, moved, camera)[None], self.intrinsics["width_px"],
                                     self.intrinsics["height_px"])[0]
         if new_margin <= margin:
             return target14
@@ -353,12 +359,11 @@ class Measurement:
                  margin, new_margin)
         return moved
 
-    def retry_target(self, target14, leg, attempt, *, recentre: bool = True) -> np.ndarray | None:
-        """A small head move for another try: re-centre the board (the running estimate's camera), then a step in
-        one of four directions."""
+    def retry_target(self, target14, leg, attempt, *, camera: str = "bottom") -> np.ndarray | None:
+        """A small head move for another try: re-centre the board, then a step in one of four directions."""
         s = self.settings.retry_head_step_rad
         pattern = [(s, 0.0), (-s, 0.0), (0.0, -s), (0.0, s)]
-        base = self.recentred(target14, leg) if recentre else np.asarray(target14, dtype=float)
+        base = self.recentred(target14, leg, camera)
         for k in range(len(pattern)):
             dyaw, dpitch = pattern[(attempt + k) % len(pattern)]
             q = base.copy()
