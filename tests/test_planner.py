@@ -196,7 +196,7 @@ def test_d_optimal_plan_reaches_the_paper_precision_with_fewer_stances():
     assert design["selected_log_det"] >= design["paper_log_det"]
     paper_worst = max(design["paper_predicted_std"][f"joint_offset.{j}"] for j in LEG_JOINTS)
     assert np.radians(plan.stats["predicted_worst_joint_offset_std_deg"]) <= paper_worst + 1e-12
-    assert plan.n_images() == 3 * design["selected_stances"]
+    assert plan.n_images() == 3 * design["selected_stances"] + plan.stats["n_top_camera_images"]
 
 
 def test_safety_guard_refuses_limits_head_table_and_collisions(body):

@@ -26,10 +26,11 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "images", "observations.csv", "truth.json"]
     data = read_dataset(out)
     n_images = len(np.unique(data.columns["image"]))
-    assert n_images == 2 * (3 * 3 + 3)  # 3 stances x 3 head postures + 3 lag-probe images, per leg
+    # 3 stances x 3 head postures + 3 lag-probe images, and 2 top-camera stances x 2 head postures, per leg
+    assert n_images == 2 * (3 * 3 + 3 + 2 * 2)
     assert len(list((out / "images").glob("*.png"))) == n_images
     assert data.meta["schema"] == "naocal.dataset/2"
-    assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom"}
+    assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom", "top"}
     assert data.has_velocities
     truth = json.loads((out / "truth.json").read_text())
     assert truth["schema"] == "naocal.truth/2"
