@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agent.camera_estimate import CameraEstimate
 from agent.corners import detect_board_vertices
 from agent.estimate import RunningEstimate
 from agent.plan import Plan, Still, Sweep
@@ -86,6 +87,8 @@ class Measurement:
         self.n_saved = 0
         self.n_skipped = 0
         self._substitutes: dict = {}  # (leg, stance) -> leg angles (6,) replacing a stance unsafe on this robot
+        # Cameras other than the running estimate's (the top camera): their rotation learnt from their captures.
+        self.other_cameras = {"top": CameraEstimate("top", self.intrinsics, stored.camera_prior_rad)}
 
     # --- bookkeeping -------------------------------------------------------------------------------------------
     def session_time_s(self) -> float:
@@ -170,9 +173,17 @@ class Measurement:
         base = s.search_margin_px_fitted if known else s.search_margin_px_nominal
         return min(base * (1 + attempt), s.search_margin_px_nominal * (1 if known else 3))
 
-    def _detect(self, image, leg, theta14, attempt: int = 0):
-        predicted = self.estimate.predict(leg, theta14)
-        return self.detector(image, predicted, leg, self._search_margin(leg, attempt)), predicted
+    def _detect(self, image, leg, theta14, attempt: int = 0, camera: str = "bottom"):
+        if camera == "bottom":
+            predicted = self.estimate.predict(leg, theta14)
+            margin = self._search_margin(leg, attempt)
+        else:  # its rotation is known once it has a capture; the wide margin until then
+            other = self.other_cameras[camera]
+            predicted = other.predict(self.estimate, leg, theta14)
+            s = self.settings
+            known = other.fitted and max(other.rms_px) < s.known_fit_rms_px
+            margin = (s.search_margin_px_fitted if known else s.search_margin_px_nominal) * (1 + attempt)
+        return self.detector(image, predicted, leg, margin), predicted
 
     # --- still captures ----------------------------------------------------------------------------------------
     def still(self, step: Still, *, may_defer: bool = False) -> str:
@@ -181,7 +192,8 @@ class Measurement:
         offsets move the legs by centimetres from the nominal model the plan was made on) is replaced by a nearby
         one the estimate says is safe and sees the board (`substitute`), the same for all its head postures."""
         planned = self._substituted(step)
-        target = self.aim(planned, step.leg)
+        bottom = step.camera == "bottom"  # the running estimate substitutes and learns from bottom images
+        target = self.aim(planned, step.leg, step.camera)  # the top camera: once its rotation is learnt
         reasons = []
         for attempt in range(self.settings.detection_tries):
             try:
@@ -190,7 +202,8 @@ class Measurement:
                 if may_defer and attempt == 0 and self.robot.guard.uncertain():
                     log.info("capture %d deferred until the offsets are better known: %s", step.image, err)
                     return "deferred"
-                replacement = self.substitute(step) if attempt == 0 and step.leg in self.estimate.known_legs else None
+                replacement = (self.substitute(step) if bottom and attempt == 0 and step.leg in self.estimate.known_legs
+                               else None)
                 if replacement is not None:
                     log.info("capture %d: the planned stance is unsafe on this robot (%s); a nearby one instead",
                              step.image, err)
@@ -204,24 +217,27 @@ class Measurement:
                     reasons.append(str(err))
                     break
             if self.settings.wait_for_still_image:
-                image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s)
+                image = self.robot.wait_image(rest.t_still_s + self.robot.timing.exposure_guard_s, step.camera)
             else:
-                image = self.robot.newest_image()
+                image = self.robot.newest_image(step.camera)
             t_joints, theta = self.robot.read()
-            detection, _ = self._detect(image, step.leg, theta, attempt)
+            detection, _ = self._detect(image, step.leg, theta, attempt, step.camera)
             if detection.ok:
                 record = CaptureRecord(step.image, step.leg, step.stance, step.head_posture,
                                        np.asarray(detection.vertices_px, dtype=float), theta, self.robot.commanded.copy(),
                                        self.robot.direction.copy(), np.zeros(len(JOINTS)), float(image.t_exposure_s),
-                                       float(t_joints))
+                                       float(t_joints), step.camera)
                 self._save(record, image.pixels)
-                self.estimate.add(step.leg, theta, record.vertices_px)
-                self._update_guard()
+                if bottom:
+                    self.estimate.add(step.leg, theta, record.vertices_px)
+                    self._update_guard()
+                else:
+                    self.other_cameras[step.camera].add(self.estimate, step.leg, theta, record.vertices_px)
                 return "saved"
             reasons.append(f"try {attempt + 1}: {detection.reason} ({detection.detail})")
             log.info("capture %d: detection failed (%s: %s); retrying with a small head move", step.image,
                      detection.reason, detection.detail)
-            target = self.retry_target(target, step.leg, attempt)
+            target = self.retry_target(target, step.leg, attempt, camera=step.camera)
             if target is None:
                 reasons.append("no safe head move left to retry with")
                 break
@@ -299,11 +315,17 @@ class Measurement:
             q[pitch_col] += 0.02
         return None
 
-    def recentred(self, target14, leg) -> np.ndarray:
+    def _predict(self, leg, q14, camera: str = "bottom") -> np.ndarray:
+        """Where the estimate puts `leg`'s board vertices (24, 2) in `camera` at angles q14."""
+        if camera == "bottom":
+            return self.estimate.predict(leg, q14)
+        return self.other_cameras[camera].predict(self.estimate, leg, q14)
+
+    def recentred(self, target14, leg, camera: str = "bottom") -> np.ndarray:
         """target14 with the head turned so that the estimate puts the board's centre at the image centre
         (at most 0.15 rad of head motion)."""
         def centre(q):
-            return self.estimate.predict(leg, q).mean(axis=0)
+            return self._predict(leg, q, camera).mean(axis=0)
 
         c0 = centre(target14)
         goal = np.array([self.intrinsics["cx_px"], self.intrinsics["cy_px"]])
@@ -320,16 +342,16 @@ class Measurement:
         out[HEAD_COLUMNS] += step
         return out
 
-    def aim(self, target14, leg) -> np.ndarray:
+    def aim(self, target14, leg, camera: str = "bottom") -> np.ndarray:
         """The planned posture, or with the head re-aimed if the estimate puts the board near the image edge."""
-        predicted = self.estimate.predict(leg, target14)
+        predicted = self._predict(leg, target14, camera)
         margin = view_margin_px(predicted[None], self.intrinsics["width_px"], self.intrinsics["height_px"])[0]
         if margin >= self.settings.aim_margin_px:
             return target14
-        moved = self.feasible_head(self.recentred(target14, leg))
+        moved = self.feasible_head(self.recentred(target14, leg, camera))
         if moved is None:
             return target14
-        new_margin = view_margin_px(self.estimate.predict(leg, moved)[None], self.intrinsics["width_px"],
+        new_margin = view_margin_px(self._predict(leg, moved, camera)[None], self.intrinsics["width_px"],
                                     self.intrinsics["height_px"])[0]
         if new_margin <= margin:
             return target14
@@ -337,11 +359,11 @@ class Measurement:
                  margin, new_margin)
         return moved
 
-    def retry_target(self, target14, leg, attempt) -> np.ndarray | None:
+    def retry_target(self, target14, leg, attempt, *, camera: str = "bottom") -> np.ndarray | None:
         """A small head move for another try: re-centre the board, then a step in one of four directions."""
         s = self.settings.retry_head_step_rad
         pattern = [(s, 0.0), (-s, 0.0), (0.0, -s), (0.0, s)]
-        base = self.recentred(target14, leg)
+        base = self.recentred(target14, leg, camera)
         for k in range(len(pattern)):
             dyaw, dpitch = pattern[(attempt + k) % len(pattern)]
             q = base.copy()

@@ -33,6 +33,7 @@ class Still:
     stance: int
     head_posture: int
     angles_rad: tuple  # 14 floats
+    camera: str = "bottom"  # the camera the image is taken with
 
     @property
     def images(self) -> tuple[int, ...]:
@@ -93,7 +94,8 @@ class Plan:
     def to_dict(self) -> dict:
         def still(s: Still) -> dict:
             return {"kind": "still", "image": s.image, "leg": s.leg, "stance": s.stance,
-                    "head_posture": s.head_posture, "angles_rad": [float(a) for a in s.angles_rad]}
+                    "head_posture": s.head_posture, "angles_rad": [float(a) for a in s.angles_rad],
+                    "camera": s.camera}
 
         def step(s) -> dict:
             if isinstance(s, Still):
@@ -122,8 +124,11 @@ class Plan:
                 return tuple(float(a) for a in values)
 
             def still(d, where):
+                camera = d.get("camera", "bottom")  # plans from before the top camera have none
+                if camera not in ("bottom", "top"):
+                    raise DataError(path, f"unknown camera {camera!r} (expected bottom or top)", field=f"{where}.camera")
                 return Still(int(d["image"]), str(d["leg"]), int(d["stance"]), int(d["head_posture"]),
-                             angles(d["angles_rad"], f"{where}.angles_rad"))
+                             angles(d["angles_rad"], f"{where}.angles_rad"), camera)
 
             steps = []
             for k, d in enumerate(doc["steps"]):

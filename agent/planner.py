@@ -73,6 +73,13 @@ class PlanSettings:
     probe_speed_fraction: float = 0.016  # fastest leg joint at about 0.1 rad/s: little motion blur
     probe_duration_s: float = 1.5
     verification_per_leg: int = 2
+    # The top camera (docs/AGENT.md): it sees a sandal only with the thigh pulled up to the chest; stances for it are
+    # drawn from that region, after the bottom camera's captures (the joint offsets are known by then).
+    top_stances_per_leg: int = 2
+    top_head_postures: int = 2
+    top_hip_pitch_min_rad: float = -1.50
+    top_hip_pitch_max_rad: float = -1.15
+    top_head_yaw_max_rad: float = 0.7
     joint_margin_rad: float = 0.05
     head_pitch_margin_rad: float = 0.03
     head_yaw_max_rad: float = 0.5
@@ -124,6 +131,7 @@ class FeasibleStance:
     q_leg: np.ndarray
     heads: np.ndarray
     early: bool = False
+    camera: str = "bottom"
 
     def stances(self, parked: np.ndarray) -> np.ndarray:
         """(H, 14) full postures, one per head posture."""
@@ -217,21 +225,22 @@ class Planner:
             return True
         return all(worst_case_clearance(self.robust, q, covariance14)[0] >= 0.0 for q in np.atleast_2d(Q14))
 
-    def views_ok(self, Q14, leg) -> np.ndarray:
-        """(N,) the view rules for postures Q14 (N, 14) looking at `leg`'s board (nominal model)."""
+    def views_ok(self, Q14, leg, camera: str = "bottom") -> np.ndarray:
+        """(N,) the view rules for postures Q14 (N, 14) looking at `leg`'s board through `camera` (nominal
+        model)."""
         Q14 = np.atleast_2d(np.asarray(Q14, dtype=float))
-        return views_ok(camera_fk(Q14[:, HEAD_COLUMNS]), leg_fk(Q14[:, LEG_COLUMNS[leg]], leg),
+        return views_ok(camera_fk(Q14[:, HEAD_COLUMNS], camera), leg_fk(Q14[:, LEG_COLUMNS[leg]], leg),
                         self.settings.intrinsics, self.settings.view_rules(), self.settings.camera_offset())
 
-    def capture_ok(self, q14, leg, *, view_checked=False) -> bool:
-        """A still capture of `leg`'s board at posture q14 meets every rule (`view_checked`: the view rules
-        are known to hold already)."""
+    def capture_ok(self, q14, leg, *, view_checked=False, camera: str = "bottom") -> bool:
+        """A still capture of `leg`'s board at posture q14 through `camera` meets every rule (`view_checked`: the
+        view rules are known to hold already)."""
         q14 = np.asarray(q14, dtype=float)
         if not self.stance_ok(q14):
             return False
-        if not view_checked and not self.views_ok(q14, leg)[0]:
+        if not view_checked and not self.views_ok(q14, leg, camera)[0]:
             return False
-        return self.occlusion.is_visible(q14, leg)
+        return self.occlusion.is_visible(q14, leg, camera)
 
     # --- candidates -----------------------------------------------------------------------------------------
     def _head_samples(self, rng, n=48) -> np.ndarray:
@@ -243,9 +252,10 @@ class Planner:
         keep = hi > lo
         return np.column_stack([yaw[keep], rng.uniform(lo[keep], hi[keep])])
 
-    def _spread_heads(self, leg, q_leg, heads, visible, rng) -> np.ndarray | None:
-        """`head_postures` valid head postures, far apart from each other (farthest-point order)."""
-        k = self.settings.head_postures
+    def _spread_heads(self, leg, q_leg, heads, visible, rng, camera: str = "bottom") -> np.ndarray | None:
+        """`head_postures` (top camera: `top_head_postures`) valid head postures, far apart from each other
+        (farthest-point order)."""
+        k = self.settings.head_postures if camera == "bottom" else self.settings.top_head_postures
         remaining = list(rng.permutation(np.flatnonzero(visible)))
         chosen = []
         while remaining and len(chosen) < k:
@@ -258,7 +268,7 @@ class Planner:
                 pick = remaining.pop(0)
             q14 = with_leg(self.parked, leg, q_leg)
             q14[HEAD_COLUMNS] = heads[pick]
-            if self.capture_ok(q14, leg, view_checked=True):
+            if self.capture_ok(q14, leg, view_checked=True, camera=camera):
                 chosen.append(pick)
         if len(chosen) < k:
             return None
@@ -296,6 +306,40 @@ class Planner:
                     return found
         raise RuntimeError(f"found only {len(found)} of {n_wanted} feasible stances for leg {leg}: "
                            "are the view rules or margins too strict?")
+
+    def top_candidates(self, leg: str, rng, n_wanted: int, *, max_batches=200, batch=256) -> list[FeasibleStance]:
+        """`n_wanted` stances in which the top camera sees `leg`'s sandal, each with `top_head_postures` head
+        postures: HipPitch within top_hip_pitch_min_rad..top_hip_pitch_max_rad (the thigh towards the chest, where alone the top camera sees
+        the board), the other joints anywhere within their margins, HeadYaw within +-top_head_yaw_max_rad. Taken
+        after both legs' offsets are known: checked at the nominal offsets (the measurement's guard checks again
+        with the estimated ones)."""
+        s = self.settings
+        names = leg_joints(leg)
+        lo = np.array([self.limits[j][0] for j in names]) + s.joint_margin_rad
+        hi = np.array([self.limits[j][1] for j in names]) - s.joint_margin_rad
+        pitch = names.index(f"{leg}HipPitch")
+        lo[pitch], hi[pitch] = max(lo[pitch], s.top_hip_pitch_min_rad), min(hi[pitch], s.top_hip_pitch_max_rad)
+        found: list[FeasibleStance] = []
+        for _ in range(max_batches):
+            q = rng.uniform(lo, hi, size=(batch, 6))
+            yaw = rng.uniform(-s.top_head_yaw_max_rad, s.top_head_yaw_max_rad, 48)
+            bounds = np.array([head_pitch_limits(y) for y in yaw])
+            p_lo = np.maximum(bounds[:, 0] + s.head_pitch_margin_rad, s.head_pitch_min_rad)
+            p_hi = bounds[:, 1] - s.head_pitch_margin_rad
+            keep = p_hi > p_lo
+            heads = np.column_stack([yaw[keep], rng.uniform(p_lo[keep], p_hi[keep])])
+            visible = view_matrix(q, leg, heads, s.intrinsics, s.view_rules(), s.camera_offset(), camera="top")
+            for i in np.flatnonzero(visible.sum(axis=1) >= s.top_head_postures):
+                if not self.stance_ok(with_leg(self.parked, leg, q[i])):
+                    continue
+                chosen = self._spread_heads(leg, q[i], heads, visible[i], rng, camera="top")
+                if chosen is None:
+                    continue
+                found.append(FeasibleStance(leg, q[i].copy(), chosen, camera="top"))
+                if len(found) == n_wanted:
+                    return found
+        log.warning("found only %d of %d top-camera stances for leg %s", len(found), n_wanted, leg)
+        return found
 
     # --- ordering -------------------------------------------------------------------------------------------
     def move_time_s(self, a14, b14, speed_fraction=None) -> float:
@@ -537,6 +581,8 @@ class Planner:
                     image += len(images)
                     position = sweep[1]
             position = self._park_leg(position, leg)
+        if s.top_stances_per_leg > 0:
+            image, position = self._top_steps(seed, steps, image, position)
         verification = []
         for leg in LEGS:
             for k, cand in enumerate(verification_cands[leg]):
@@ -547,6 +593,28 @@ class Planner:
         plan.stats.update(self.describe(plan))
         return plan
 
+    def _top_steps(self, seed, steps, image, position):
+        """Append the top camera's stills (after everything else: the offsets are known by then); its own random
+        stream, so the bottom camera's plan of a seed stays what it was."""
+        s = self.settings
+        rng = np.random.default_rng([seed, 4099])
+        for leg in LEGS:
+            stance = 1 + max((st.stance for st in steps if st.leg == leg), default=-1)
+            for cand in self.top_candidates(leg, rng, s.top_stances_per_leg):
+                first = cand.stances(self.parked)[0]
+                try:
+                    self.paths.waypoints(position, first, s.speed_fraction, self.parked)
+                except SafetyError:
+                    log.warning("plan: no clear way to a top-camera stance of leg %s: left out", leg)
+                    continue
+                for h, q14 in enumerate(cand.stances(self.parked)):
+                    steps.append(Still(image, leg, stance, h, tuple(float(a) for a in q14), camera="top"))
+                    image += 1
+                    position = q14
+                stance += 1
+            position = self._park_leg(position, leg)
+        return image, position
+
     def _park_leg(self, position, leg):
         return with_leg(position, leg, self.parked[LEG_COLUMNS[leg]])
 
@@ -555,7 +623,7 @@ class Planner:
         """Plan statistics: captures, stances, predicted parameter precision, approach-direction balance, gravity
         torque ranges and an estimate of the robot time (motion at speed_fraction plus a fixed overhead per
         capture for settling and the image delay)."""
-        stills = plan.stills()
+        stills = [st for st in plan.stills() if st.camera == "bottom"]  # the design's model is the bottom camera's
         theta = np.array([st.angles() for st in stills])
         leg = np.array([st.leg for st in stills])
         stance = np.array([st.stance for st in stills])
@@ -578,7 +646,8 @@ class Planner:
                     torque_range[name] = [float(tau[:, j].min()), float(tau[:, j].max())]
         return {
             "n_images": plan.n_images(),
-            "n_still_images": len(stills),
+            "n_still_images": len(plan.stills()),
+            "n_top_camera_images": sum(st.camera == "top" for st in plan.stills()),
             "n_stances": {lg: int(len(set(stance[leg == lg]))) for lg in LEGS},
             "n_probe_images": sum(len(sw.images) for sw in plan.sweeps()),
             "predicted_std": {name: float(v) for name, v in zip(BASE_REGISTRY.names, std)},

@@ -41,14 +41,15 @@ class CaptureRecord:
     velocity_rad_s: np.ndarray
     t_image_s: float
     t_joints_s: float
+    camera: str = "bottom"
 
     def rows(self) -> dict:
-        """The observations.csv columns of this capture (24 rows), naocal.dataset/2: the bottom camera, the sandal
+        """The observations.csv columns of this capture (24 rows), naocal.dataset/2: its camera, the sandal
         of `leg` (target 'L' or 'R'), its vertices' nominal positions in the sole frame."""
         V = board_vertices_sole()
         n = len(V)
         cols = {
-            "image": [self.image] * n, "camera": ["bottom"] * n, "target": [self.leg] * n,
+            "image": [self.image] * n, "camera": [self.camera] * n, "target": [self.leg] * n,
             "stance": [self.stance] * n, "head_posture": [self.head_posture] * n, "vertex": list(range(n)),
             "u_px": self.vertices_px[:, 0], "v_px": self.vertices_px[:, 1],
             "x_mount_m": V[:, 0], "y_mount_m": V[:, 1], "z_mount_m": V[:, 2],

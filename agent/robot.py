@@ -133,8 +133,9 @@ class Robot:
                                    f"of robot time ({detail})")
             self.backend.sleep(tm.sample_period_s)
 
-    def wait_image(self, exposed_after_s: float) -> CameraImage:
-        """The first image whose mid-exposure time is at or after `exposed_after_s` (images arrive late)."""
+    def wait_image(self, exposed_after_s: float, camera: str = "bottom") -> CameraImage:
+        """The first image of `camera` whose mid-exposure time is at or after `exposed_after_s` (images arrive
+        late)."""
         tm = self.timing
         start = self.now()
         deadline = max(start, exposed_after_s) + tm.image_deadline_s
@@ -142,7 +143,7 @@ class Robot:
         if wait > 0:
             self.backend.sleep(wait)
         while True:
-            image = self.backend.capture()
+            image = self.backend.capture() if camera == "bottom" else self.backend.capture(camera)
             if image is not None and image.t_exposure_s >= exposed_after_s - 1e-9:
                 delay = self.now() - image.t_exposure_s
                 # Learn the delivery delay from below: never wait longer than the fastest arrival seen.
@@ -153,11 +154,11 @@ class Robot:
                                    f"{tm.image_deadline_s:.1f} s")
             self.backend.sleep(tm.image_poll_s)
 
-    def newest_image(self) -> CameraImage:
+    def newest_image(self, camera: str = "bottom") -> CameraImage:
         """Whatever image arrived last, however old (for demonstrating why that is wrong)."""
         deadline = self.now() + self.timing.image_deadline_s
         while True:
-            image = self.backend.capture()
+            image = self.backend.capture() if camera == "bottom" else self.backend.capture(camera)
             if image is not None:
                 return image
             if self.now() > deadline:

@@ -135,7 +135,7 @@ def dataset_meta(backend, source: str) -> dict:
         "robot": {"id": str(identity.get("id", "unknown")), "model": str(identity.get("model", "NAO")),
                   "body_id": str(identity.get("body_id", identity.get("id", "unknown"))),
                   "head_id": str(identity.get("head_id", identity.get("id", "unknown"))), "description": "nao"},
-        "cameras": {name: camera},
+        "cameras": {name: camera, "top": dict(camera)},  # the backend states one prior: both NAO cameras' lens
         "targets": {leg: {"columns": t.board.columns, "rows": t.board.rows, "square_m": t.board.square_m,
                           "mass_kg": t.board.mass_kg, "centre_m": [float(x) for x in t.centre]}
                     for leg, t in sandals.items()},
@@ -243,6 +243,8 @@ class Measure(State):
         data = model_data_from_dataset(dataset)
         still = _still_images(data)
         for m in still:
+            if data.camera[m] != "bottom":
+                continue  # the running estimate is the bottom camera's (the top camera's rotation is relearnt)
             rows = data.image_of_row == m
             if rows.sum() == data.robot.target(data.target[m]).board.n_vertices:  # a complete board
                 ctx.estimate.preload(str(data.leg[m]), data.theta[m], data.uv_px[rows])
@@ -256,6 +258,16 @@ def _still_images(data) -> np.ndarray:
     return np.flatnonzero(np.all(data.velocity == 0.0, axis=1))
 
 
+def _identification_setup(data_setup):
+    """The robot's default cameras and targets plus those the data use, in the description's order."""
+    from solver.effect import Setup
+
+    default = Setup.default(data_setup.robot)
+    cameras, targets = set(default.cameras + data_setup.cameras), set(default.targets + data_setup.targets)
+    return Setup(data_setup.robot, tuple(c for c in data_setup.robot.cameras if c in cameras),
+                 tuple(t for t in data_setup.robot.targets if t in targets))
+
+
 class Identification(State):
     """Fit the paper's 21 parameters (HipYawPitch tied: one motor) to the still captures with `naocal identify`'s
     routine (solver.fit.identify_dataset, its defaults), so both give the same offsets from the same dataset;
@@ -267,10 +279,11 @@ class Identification(State):
 
     def run(self, ctx: Context) -> Outcome:
         s = ctx.settings
-        # The whole NAO setup: a sandal without captures keeps its nominal mount (the summary, offsets and guard
-        # name all 21 parameters).
-        fit = identify_dataset(read_dataset(ctx.dataset_dir), tie_shared_motors=s.tie_hip_yaw_pitch,
-                               setup=Registry().setup)
+        dataset = read_dataset(ctx.dataset_dir)
+        # Every camera the data use and both sandals: a sandal without captures keeps its nominal mount (the
+        # summary, offsets and guard name all its parameters).
+        fit = identify_dataset(dataset, tie_shared_motors=s.tie_hip_yaw_pitch,
+                               setup=_identification_setup(model_data_from_dataset(dataset).setup))
         if fit.n_moving_set_aside:
             log.info("identification uses the still captures (the %d moving ones of the lag probe are for the "
                      "diagnostics' time_lag effect)", fit.n_moving_set_aside)

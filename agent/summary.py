@@ -72,11 +72,11 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         for j in LEG_JOINTS:
             name = f"joint_offset.{j}"  # the parameter is c
             lines.append(f"  {j:14s} c = {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
-        camera = res.registry.setup.cameras[0]
-        lines.append(f"{camera} camera rotation (alpha of Eq. 3):")
-        for a in ("roll", "pitch", "yaw"):
-            name = f"camera.{camera}.{a}"
-            lines.append(f"  {a:14s} {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
+        for camera in res.registry.setup.cameras:  # every camera the data use (the NAO: bottom, and top)
+            lines.append(f"{camera} camera rotation (alpha of Eq. 3):")
+            for a in ("roll", "pitch", "yaw"):
+                name = f"camera.{camera}.{a}"
+                lines.append(f"  {a:14s} {_deg(res.value(name)):+8.4f} deg   std {_deg(std[name]):.4f} deg")
         lines.append("board mount (alpha of Eq. 4):")
         for leg in LEGS:
             rz, x, y = (f"board.{leg}.{k}" for k in ("rot_z", "trans_x", "trans_y"))
@@ -112,18 +112,22 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
 
 
 def truth_errors(result, truth: dict) -> dict:
-    """Identified minus true model values: {"joint_offset_deg": {joint: e}, "camera_deg": {a: e},
-    "board": {leg: {"rot_z_deg", "trans_x_mm", "trans_y_mm"}}}."""
+    """Identified minus true model values: {"joint_offset_deg": {joint: e}, "camera_deg": {camera: {a: e}},
+    "board": {leg: {"rot_z_deg", "trans_x_mm", "trans_y_mm"}}} for the cameras the fit has. `truth` is
+    naocal.truth/2 (camera_rotation_rad keyed by camera) or /1 (one {roll, pitch, yaw}: the bottom camera's)."""
     alpha = truth.get("alpha_rad", {})
     out = {"joint_offset_deg": {}, "camera_deg": {}, "board": {}}
     for j in LEG_JOINTS:
         if j in alpha:  # the parameter is c = -alpha
             out["joint_offset_deg"][j] = _deg(-result.value(f"joint_offset.{j}") - alpha[j])
-    cam = truth.get("camera_rotation_rad", {})
-    camera = result.registry.setup.cameras[0]
-    for a in ("roll", "pitch", "yaw"):
-        if a in cam:
-            out["camera_deg"][a] = _deg(result.value(f"camera.{camera}.{a}") - cam[a])
+    cams = truth.get("camera_rotation_rad", {})
+    if "pitch" in cams:  # naocal.truth/1
+        cams = {"bottom": cams}
+    for camera in result.registry.setup.cameras:
+        cam = cams.get(camera, {})
+        errors = {a: _deg(result.value(f"camera.{camera}.{a}") - cam[a]) for a in ("roll", "pitch", "yaw") if a in cam}
+        if errors:
+            out["camera_deg"][camera] = errors
     for leg in LEGS:
         mount = truth.get("board_mount", {}).get(leg)
         if mount:
@@ -143,8 +147,8 @@ def truth_comparison(result, truth: dict) -> list[str]:
         worst = max(joints, key=lambda j: abs(joints[j]))
         lines.append(f"  joint offsets: largest error {joints[worst]:+.4f} deg ({worst}), RMS "
                      f"{math.sqrt(np.mean(np.square(list(joints.values())))):.4f} deg")
-    if err["camera_deg"]:
-        lines.append("  camera rotation error: " + ", ".join(f"{a} {e:+.4f} deg" for a, e in err["camera_deg"].items()))
+    for camera, errors in err["camera_deg"].items():
+        lines.append(f"  {camera} camera rotation error: " + ", ".join(f"{a} {e:+.4f} deg" for a, e in errors.items()))
     for leg, e in err["board"].items():
         lines.append(f"  board {leg} error: rot_z {e['rot_z_deg']:+.3f} deg, x {e['trans_x_mm']:+.3f} mm, "
                      f"y {e['trans_y_mm']:+.3f} mm")

@@ -1,4 +1,4 @@
-"""Can the bottom camera see a sandal well? Projection margins, viewing angle, square size, and occlusion.
+"""Can a camera (bottom or top) see a sandal well? Projection margins, viewing angle, square size, and occlusion.
 
 Pure, vectorised functions of the nominal model, plus `OcclusionChecker`, which casts rays in the nominal PyBullet
 body (body.nao_body.NaoBody) from the camera to the printed board: the other leg, the own foot or the
@@ -90,10 +90,12 @@ def views_ok(T_torso_cam, T_torso_sole, intrinsics, rules: ViewRules = ViewRules
     return _rules_ok(uv, depth, cos_tilt, intrinsics, rules)
 
 
-def view_matrix(q_leg, leg, q_head, intrinsics, rules: ViewRules = ViewRules(), camera_offset=None) -> np.ndarray:
-    """(N, H) visibility of N leg stances (N, 6) of `leg` under H head postures (H, 2): every pair."""
+def view_matrix(q_leg, leg, q_head, intrinsics, rules: ViewRules = ViewRules(), camera_offset=None,
+                camera: str = "bottom") -> np.ndarray:
+    """(N, H) visibility of N leg stances (N, 6) of `leg` under H head postures (H, 2) through `camera`: every
+    pair."""
     T_sole = leg_fk(np.atleast_2d(q_leg), leg)
-    T_cam = camera_fk(np.atleast_2d(q_head))
+    T_cam = camera_fk(np.atleast_2d(q_head), camera)
     if camera_offset is not None:
         T_cam[:, :3, :3] = T_cam[:, :3, :3] @ camera_offset
     n, h = len(T_sole), len(T_cam)
@@ -112,7 +114,7 @@ def view_matrix(q_leg, leg, q_head, intrinsics, rules: ViewRules = ViewRules(), 
 
 
 class OcclusionChecker:
-    """Ray tests in the nominal body: is any part of a sandal's printed grid hidden from the bottom camera?"""
+    """Ray tests in the nominal body: is any part of a sandal's printed grid hidden from a camera?"""
 
     RAY_SHORTENING_M = 0.003  # stop each ray just above the board so that the board's own plate does not count
 
@@ -120,13 +122,14 @@ class OcclusionChecker:
         self.body = body
         self._points_sole = board_probe_points_sole()
 
-    def hidden_points(self, stance, leg: str) -> int:
-        """How many of the board's probe points (board_probe_points_sole) are hidden at `stance` (14 angles, solver.joints.JOINTS order)."""
+    def hidden_points(self, stance, leg: str, camera: str = "bottom") -> int:
+        """How many of the board's probe points (board_probe_points_sole) are hidden from `camera` at `stance` (14
+        angles, solver.joints.JOINTS order)."""
         from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 
         stance = np.asarray(stance, dtype=float)
         self.body.set_angles(stance)
-        T_world_cam = T_WORLD_TORSO @ camera_fk(stance[HEAD_COLUMNS][None])[0]
+        T_world_cam = T_WORLD_TORSO @ camera_fk(stance[HEAD_COLUMNS][None], camera)[0]
         T_world_sole = T_WORLD_TORSO @ leg_fk(stance[LEG_COLUMNS[leg]][None], leg)[0]
         targets = transform_points(T_world_sole, self._points_sole)
         origin = T_world_cam[:3, 3]
@@ -137,5 +140,5 @@ class OcclusionChecker:
         hits = pybullet.rayTestBatch(starts.tolist(), ends.tolist(), physicsClientId=self.body.client)
         return sum(1 for hit in hits if hit[0] != -1)
 
-    def is_visible(self, stance, leg: str) -> bool:
-        return self.hidden_points(stance, leg) == 0
+    def is_visible(self, stance, leg: str, camera: str = "bottom") -> bool:
+        return self.hidden_points(stance, leg, camera) == 0

@@ -24,7 +24,7 @@ class JointReading:
 
 @dataclass(frozen=True)
 class CameraImage:
-    """One image of the bottom camera."""
+    """One image of a camera ('bottom' or 'top')."""
 
     pixels: np.ndarray  # (height, width, 3) uint8, BGR
     t_exposure_s: float  # robot clock time of the exposure (middle of the frame)
@@ -104,8 +104,8 @@ class Backend(abc.ABC):
         """Set the stiffness (0..1) of the named joints."""
 
     @abc.abstractmethod
-    def capture(self) -> CameraImage | None:
-        """The newest bottom-camera image that has arrived, or None if none has yet.
+    def capture(self, camera: str = "bottom") -> CameraImage | None:
+        """The newest image of `camera` ('bottom' or 'top') that has arrived, or None if none has yet.
 
         Images arrive some time after their exposure: an image returned now may show the robot as it was
         before the last command. Check `t_exposure_s`.

@@ -377,8 +377,8 @@ class BridgeBackend(Backend):
         names = [names] if isinstance(names, str) else [str(name) for name in names]
         self._motion_call("set_stiffness", {"names": names, "stiffness": float(stiffness)})
 
-    def capture(self) -> CameraImage | None:
-        return protocol.image_from_wire(self._call("capture"))
+    def capture(self, camera: str = "bottom") -> CameraImage | None:
+        return protocol.image_from_wire(self._call("capture", {"camera": camera}))
 
     def now(self) -> float:
         return float(self._call("now"))

@@ -443,7 +443,8 @@ class BridgeServer:
         if cmd == "read_joints":
             return protocol.joint_reading_to_wire(backend.read_joints())
         if cmd == "capture":
-            return protocol.image_to_wire(backend.capture())
+            camera = args["camera"]  # a backend that has only the bottom camera takes no argument
+            return protocol.image_to_wire(backend.capture() if camera == "bottom" else backend.capture(camera))
         if cmd == "now":
             return float(backend.now())
         if cmd == "status":

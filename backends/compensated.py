@@ -46,8 +46,8 @@ class CompensatedBackend(Backend):
     def set_stiffness(self, names, stiffness):
         self.inner.set_stiffness(names, stiffness)
 
-    def capture(self):
-        return self.inner.capture()
+    def capture(self, camera: str = "bottom"):
+        return self.inner.capture(camera)
 
     def intrinsics(self):
         return self.inner.intrinsics()

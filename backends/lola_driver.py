@@ -531,9 +531,13 @@ class LolaBackend(Backend):
                           "moving": moving},
                 "joints": joints, "t_s": frame.t_s}
 
-    def capture(self) -> CameraImage | None:
+    def capture(self, camera: str = "bottom") -> CameraImage | None:
         if self._camera is None:
             raise NaocalError("this LoLA bridge was started without a camera")
+        started = getattr(self._camera, "name", "bottom")
+        if camera != started:  # one V4L2 device is opened at start; the other one may be the team's
+            raise NaocalError(f"this LoLA bridge serves only the {started} camera (the V4L2 device it opened at "
+                              f"start), not the {camera} camera")
         return self._camera.capture()
 
     def intrinsics(self) -> CameraIntrinsics:

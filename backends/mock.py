@@ -80,7 +80,8 @@ EFFECT_UNITS = {
     "time_lag": "s",
 }
 EFFECTS = tuple(EFFECT_UNITS)
-TRUTH_SCHEMA = "naocal.truth/1"
+TRUTH_SCHEMA = "naocal.truth/2"  # /1 had one camera_rotation_rad {roll, pitch, yaw}: the bottom camera's
+CAMERAS = ("bottom", "top")
 TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"
 FRAME_PERIOD_S = 1.0 / 30.0
 FRAME_PHASE_S = 0.004  # exposure times are FRAME_PHASE_S + k * FRAME_PERIOD_S
@@ -136,7 +137,7 @@ class MockTruth:
 
     seed: int
     alpha_rad: dict  # 14 joints: encoder offsets (head joints: the head_offsets effect, else 0)
-    camera_rotation_rad: dict  # roll, pitch, yaw
+    camera_rotation_rad: dict  # roll, pitch, yaw of the bottom camera
     board_mount: dict  # leg -> BoardMount
     effects: dict  # name -> size
     compliance_rad_per_nm: dict  # leg joints (0 without elasticity)
@@ -145,14 +146,19 @@ class MockTruth:
     tibia_delta_m: dict  # leg -> m
     camera: CameraModel  # the true intrinsics and distortion
     time_lag_s: float
+    top_camera_rotation_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": 0.0, "yaw": 0.0})
+
+    def camera_rotations(self) -> dict:
+        """{camera: {roll, pitch, yaw}} of both cameras, rad."""
+        return {"bottom": dict(self.camera_rotation_rad), "top": dict(self.top_camera_rotation_rad)}
 
     def geometry(self) -> BodyGeometry:
         return BodyGeometry(thigh_delta_m=dict(self.thigh_delta_m), tibia_delta_m=dict(self.tibia_delta_m),
                             board_mount=dict(self.board_mount))
 
-    def R_cam_offset(self) -> np.ndarray:
+    def R_cam_offset(self, camera: str = "bottom") -> np.ndarray:
         """Rot_y(pitch) @ Rot_x(roll) @ Rot_z(yaw), the camera's rotation error (Eq. 3)."""
-        r = self.camera_rotation_rad
+        r = self.camera_rotations()[camera]
         return rot_y(r["pitch"]) @ rot_x(r["roll"]) @ rot_z(r["yaw"])
 
 
@@ -181,6 +187,15 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
                               trans_y_m=float(_signed(rng, 0.0005, 0.003))) for leg in LEGS}
     if realism.large_offsets:
         alpha, camera_rotation = _large_offsets(np.random.default_rng([int(seed), 104729]), realism, alpha)
+    # The top camera's rotation from a stream of its own (the bottom camera's truth stays what it was): the same
+    # ranges as the bottom camera's (B-Human's upper corrections are of the same size, ../shared/reference/NAO.md).
+    top_rng = np.random.default_rng([int(seed), 27183])
+    if realism.large_offsets:
+        top_rotation = _large_offsets(top_rng, realism, alpha)[1]
+    else:
+        top_rotation = {"roll": float(np.deg2rad(_signed(top_rng, 1.0, 3.0))),
+                        "pitch": float(np.deg2rad(-top_rng.uniform(3.0, 8.5))),
+                        "yaw": float(np.deg2rad(_signed(top_rng, 1.0, 3.0)))}
 
     def per_leg_joint(name, low, high):
         size = effects.get(name, 0.0)
@@ -207,7 +222,7 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
         backlash_rad=per_leg_joint("backlash", 0.5, 1.5),
         thigh_delta_m={"L": float(lengths[0]), "R": float(lengths[1])},
         tibia_delta_m={"L": float(lengths[2]), "R": float(lengths[3])},
-        camera=camera, time_lag_s=effects.get("time_lag", 0.0))
+        camera=camera, time_lag_s=effects.get("time_lag", 0.0), top_camera_rotation_rad=top_rotation)
 
 
 def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
@@ -333,6 +348,7 @@ class _LazyImage(CameraImage):
 class _Frame:
     index: int
     t_true_s: float  # true exposure time (middle of the frame)
+    camera: str = "bottom"
     image: CameraImage | None = None
     seg: np.ndarray | None = None  # segmentation mask, once rendered
     q_true: np.ndarray | None = None  # true angles at the exposure, once rendered
@@ -401,12 +417,14 @@ class MockBackend(Backend):
         self._stiffness = {j: 1.0 for j in JOINTS}
         self.command_log: list[CommandRecord] = []
         self._t = START_TIME_S
-        self._frames: dict[int, _Frame] = {}
+        self._frames: dict[tuple, _Frame] = {}  # (camera, k) -> frame
         self.frames_rendered = 0  # how many frames were rendered (only those whose pixels someone read)
         self._closed = False
         self.body = NaoBody(self.truth.geometry())
         self.checker = CollisionChecker(self.body, margin_m=safety_margin_m, ground_margin_m=safety_margin_m)
         self.renderer = SceneRenderer(self.body, self.truth.camera, supersample=supersample)
+        self._renderers = {"bottom": self.renderer}  # the top camera's is made when first asked for
+        self._supersample = int(supersample)
         self._vertices_board = board_vertices_sole() - np.array([BOARD_CENTER_X_M, 0.0, 0.0])
         self._T_sole_board = {leg: T_sole_board(self.truth.board_mount[leg]) for leg in LEGS}
         start = {**(SPREAD_POSTURE if r.large_offsets else DEFAULT_POSTURE), **(posture or {})}
@@ -486,12 +504,20 @@ class MockBackend(Backend):
         if not self._exact_servo:
             self._add_rest_offsets(targets, start)
 
-    def capture(self) -> CameraImage | None:
+    def capture(self, camera: str = "bottom") -> CameraImage | None:
+        """The newest frame of `camera` ('bottom' or 'top'; both run at 30 fps in phase, with the same lens)."""
         self._check_open()
+        if camera not in CAMERAS:
+            raise NaocalError(f"unknown camera {camera!r}: expected one of {', '.join(CAMERAS)}")
         k = math.floor((self._t - self.camera_delay_s - FRAME_PHASE_S) / FRAME_PERIOD_S + 1e-9)
         if k * FRAME_PERIOD_S + FRAME_PHASE_S < START_TIME_S - 1.0:
             return None  # nothing exposed yet since the camera started
-        return self._frame(k).image
+        return self._frame(k, camera).image
+
+    def _renderer(self, camera: str) -> SceneRenderer:
+        if camera not in self._renderers:
+            self._renderers[camera] = SceneRenderer(self.body, self.truth.camera, supersample=self._supersample)
+        return self._renderers[camera]
 
     def close(self) -> None:
         if getattr(self, "_closed", True):
@@ -515,7 +541,8 @@ class MockBackend(Backend):
         return {
             "schema": TRUTH_SCHEMA,
             "alpha_rad": {j: float(t.alpha_rad[j]) for j in JOINTS},
-            "camera_rotation_rad": {k: float(t.camera_rotation_rad[k]) for k in ("roll", "pitch", "yaw")},
+            "camera_rotation_rad": {cam: {k: float(r[k]) for k in ("roll", "pitch", "yaw")}
+                                    for cam, r in t.camera_rotations().items()},
             "board_mount": {leg: {"rot_z_rad": float(m.rot_z_rad), "trans_x_m": float(m.trans_x_m),
                                   "trans_y_m": float(m.trans_y_m)} for leg, m in t.board_mount.items()},
             "effects": {name: float(size) for name, size in t.effects.items()},
@@ -582,7 +609,7 @@ class MockBackend(Backend):
         when it lies inside the image, its board faces the camera and no other part of the robot covers any pixel
         within `clearance_px` of it in the image's segmentation mask.
         """
-        frame = self._frame(self._frame_index(image))
+        frame = self._frame(self._frame_index(image), image.camera)
         if frame.seg is None:
             frame.image.pixels  # renders it
         out = {}
@@ -590,7 +617,7 @@ class MockBackend(Backend):
             cam = self.truth.camera
             visible = np.zeros(N_VERTICES, dtype=bool)
             if facing:
-                covered = self.renderer.occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
+                covered = self._renderer(frame.camera).occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
                 r = int(math.ceil(clearance_px))
                 for i, (u, v) in enumerate(uv):
                     if not (0 <= u <= cam.width_px - 1 and 0 <= v <= cam.height_px - 1):
@@ -604,15 +631,15 @@ class MockBackend(Backend):
         """_vertex_pixels of a frame, each vertex at the time its row was exposed: v = v(q(row_time(v))), solved by
         fixed-point iteration on the vertices' paths sampled every readout / 32 (linear in between; a row's time
         moves a vertex by a small fraction of a pixel per pixel). Exact for a still robot."""
-        out = self._vertex_pixels(frame.q_true)
+        out = self._vertex_pixels(frame.q_true, frame.camera)
         h = self.truth.camera.height_px
         t0, t1 = (float(t) for t in self.row_time(frame.t_true_s, [0.0, h - 1.0]))
         moving = [leg for leg in LEGS if self.realism.readout_s > 0.0 and out[leg][1]
-                  and self._board_motion_px(t0, t1, leg) > 1e-3]
+                  and self._board_motion_px(t0, t1, leg, frame.camera) > 1e-3]
         if not moving:  # boards out of view, or still to a thousandth of a pixel
             return out
         times = np.linspace(t0, t1, 33)
-        paths = [self._vertex_pixels(self._true_q(float(t))) for t in times]
+        paths = [self._vertex_pixels(self._true_q(float(t)), frame.camera) for t in times]
         for leg in moving:
             uv, facing = out[leg]
             track = np.array([p[leg][0] for p in paths])  # (33, 24, 2)
@@ -622,9 +649,9 @@ class MockBackend(Backend):
             out[leg] = (uv, facing)
         return out
 
-    def _vertex_pixels(self, q_true: np.ndarray) -> dict:
+    def _vertex_pixels(self, q_true: np.ndarray, camera: str = "bottom") -> dict:
         """{leg: (pixels (24, 2) through the true camera, whether the board faces the camera)}."""
-        T_cam_world = invert_transform(self._T_world_cam(q_true))
+        T_cam_world = invert_transform(self._T_world_cam(q_true, camera))
         out = {}
         for leg in LEGS:
             T_cam_board = T_cam_world @ self._T_world_board(q_true, leg)
@@ -776,10 +803,10 @@ class MockBackend(Backend):
             track.target.append(target)
             track.duration.append(duration)
 
-    def _T_world_cam(self, q_true: np.ndarray) -> np.ndarray:
+    def _T_world_cam(self, q_true: np.ndarray, camera: str = "bottom") -> np.ndarray:
         head = q_true[[JOINT_INDEX[j] for j in HEAD_JOINTS]]
-        T_torso_cam = camera_fk(head[None])[0].copy()
-        T_torso_cam[:3, :3] = T_torso_cam[:3, :3] @ self.truth.R_cam_offset()
+        T_torso_cam = camera_fk(head[None], camera)[0].copy()
+        T_torso_cam[:3, :3] = T_torso_cam[:3, :3] @ self.truth.R_cam_offset(camera)
         return T_WORLD_TORSO @ T_torso_cam
 
     def _T_world_board(self, q_true: np.ndarray, leg: str) -> np.ndarray:
@@ -789,21 +816,21 @@ class MockBackend(Backend):
         return T_WORLD_TORSO @ T_torso_sole @ self._T_sole_board[leg]
 
     def _frame_index(self, image: CameraImage) -> int:
-        for k, frame in self._frames.items():
+        for (_, k), frame in self._frames.items():
             if frame.image is image:
                 return k
         return int(round((self.exposure_time(image) - FRAME_PHASE_S) / FRAME_PERIOD_S))
 
-    def _frame(self, k: int) -> _Frame:
-        """Frame k (exposed at FRAME_PHASE_S + k / 30 s), its image not yet rendered."""
-        if k in self._frames:
-            return self._frames[k]
-        frame = _Frame(k, FRAME_PHASE_S + k * FRAME_PERIOD_S)
+    def _frame(self, k: int, camera: str = "bottom") -> _Frame:
+        """Frame k of `camera` (exposed at FRAME_PHASE_S + k / 30 s), its image not yet rendered."""
+        if (camera, k) in self._frames:
+            return self._frames[(camera, k)]
+        frame = _Frame(k, FRAME_PHASE_S + k * FRAME_PERIOD_S, camera)
         stamp = frame.t_true_s + self.truth.time_lag_s + self.realism.stamp_offset_s()
-        frame.image = _LazyImage(lambda: self._render(frame), stamp)
-        self._frames[k] = frame
+        frame.image = _LazyImage(lambda: self._render(frame), stamp, camera)
+        self._frames[(camera, k)] = frame
         while len(self._frames) > 8:
-            del self._frames[min(self._frames)]
+            del self._frames[min(self._frames, key=lambda key: key[1])]
         return frame
 
     def _render(self, frame: _Frame) -> np.ndarray:
@@ -811,8 +838,9 @@ class MockBackend(Backend):
         self._check_open()
         k, t_true = frame.index, frame.t_true_s
         q_true = self._true_q(t_true)
-        boards = {self.body.link_index[f"{leg}Sandal"]: self._board_poses(t_true, leg) for leg in LEGS}
-        grey, seg = self.renderer.render(q_true, self._T_world_cam(q_true), boards)
+        cam = frame.camera
+        boards = {self.body.link_index[f"{leg}Sandal"]: self._board_poses(t_true, leg, cam) for leg in LEGS}
+        grey, seg = self._renderer(cam).render(q_true, self._T_world_cam(q_true, cam), boards)
         rng = np.random.default_rng([self.seed, 7919, k])
         frame.seg, frame.q_true = seg, q_true
         if self.realism.glare_rate > 0:
@@ -839,14 +867,14 @@ class MockBackend(Backend):
         if rng.uniform() >= self.realism.glare_rate:
             return grey
         in_view = []
-        for leg, (uv, facing) in self._vertex_pixels(frame.q_true).items():
+        for leg, (uv, facing) in self._vertex_pixels(frame.q_true, frame.camera).items():
             if facing and np.all(np.isfinite(uv)) and np.any((uv[:, 0] >= 0) & (uv[:, 0] < grey.shape[1])
                                                               & (uv[:, 1] >= 0) & (uv[:, 1] < grey.shape[0])):
                 in_view.append(leg)
         if not in_view:
             return grey
         leg = in_view[int(rng.integers(len(in_view)))]
-        T = self._seen_board(frame.t_true_s, leg)
+        T = self._seen_board(frame.t_true_s, leg, frame.camera)
         outline = self.truth.camera.project(board_outline_board_m() @ T[:3, :3].T + T[:3, 3])
         inner = self._vertices_board[[0, 5, 23, 18]]
         corners = self.truth.camera.project(inner @ T[:3, :3].T + T[:3, 3])
@@ -861,58 +889,59 @@ class MockBackend(Backend):
             return grey
         sigma, amplitude = float(rng.uniform(3.0, 10.0)), float(rng.uniform(0.3, 0.8))
         frame.glare = (leg, (float(centre[0]), float(centre[1])), sigma, amplitude)
-        hidden = self.renderer.occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
+        hidden = self._renderer(frame.camera).occluders(frame.seg, self.body.link_index[f"{leg}Sandal"])
         return add_glare(grey, outline, centre, sigma, amplitude, hidden)
 
-    def _board_poses(self, t_mid: float, leg: str):
+    def _board_poses(self, t_mid: float, leg: str, camera: str = "bottom"):
         """A board's poses for rendering: [T_world_board, ...] over the exposure (global shutter), or, when the
         board moves while a rolling shutter reads the rows out, [RowBand] each with the poses of its rows' time."""
         readout = self.realism.readout_s
         if readout == 0.0:
-            return self._blurred_board_poses(t_mid, leg)
+            return self._blurred_board_poses(t_mid, leg, camera=camera)
         h = self.truth.camera.height_px
         t_first, t_last = self.row_time(t_mid, [0.0, h - 1.0])
-        T = self._seen_board(t_mid, leg)
+        T = self._seen_board(t_mid, leg, camera)
         in_view = T[:3, 2] @ T[:3, 3] < 0 and np.all(board_outline_board_m() @ T[:3, 0] + T[0, 3] > 0.02)
-        moved_px = self._board_motion_px(t_first - self.exposure_s / 2, t_last + self.exposure_s / 2, leg)
+        moved_px = self._board_motion_px(t_first - self.exposure_s / 2, t_last + self.exposure_s / 2, leg, camera)
         if not in_view or moved_px < 0.05:  # not drawn, or still (to 0.05 px): every row shows the same pose
             return [self._T_world_board(self._true_q(t_mid), leg)]
         n_bands = int(np.clip(np.ceil(moved_px / 0.5), 2, 48))  # rows of a band differ by < 0.5 px of motion
         edges = np.linspace(0, h, n_bands + 1).round().astype(int)
-        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid))
+        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid), camera)
         bands = []
         for v0, v1 in zip(edges[:-1], edges[1:]):
             t_band = float(self.row_time(t_mid, (v0 + v1 - 1) / 2.0))
-            poses = self._blurred_board_poses(t_band, leg, T_world_cam_ref=T_world_cam_mid)
+            poses = self._blurred_board_poses(t_band, leg, T_world_cam_ref=T_world_cam_mid, camera=camera)
             bands.append(RowBand(int(v0), int(v1), poses))
         return bands
 
-    def _seen_board(self, t: float, leg: str) -> np.ndarray:
+    def _seen_board(self, t: float, leg: str, camera: str = "bottom") -> np.ndarray:
         """T_cam_board at t: the board as the camera sees it (head motion included)."""
         q = self._true_q(t)
-        return invert_transform(self._T_world_cam(q)) @ self._T_world_board(q, leg)
+        return invert_transform(self._T_world_cam(q, camera)) @ self._T_world_board(q, leg)
 
-    def _board_motion_px(self, t0: float, t1: float, leg: str) -> float:
+    def _board_motion_px(self, t0: float, t1: float, leg: str, camera: str = "bottom") -> float:
         """How far (px) the board's outer vertices move in the image between t0 and t1."""
         corners = self._vertices_board[[0, 5, 18, 23]]
         uv = [self.truth.camera.project(corners @ T[:3, :3].T + T[:3, 3])
-              for T in (self._seen_board(t0, leg), self._seen_board(t1, leg))]
+              for T in (self._seen_board(t0, leg, camera), self._seen_board(t1, leg, camera))]
         return float(np.nan_to_num(np.max(np.linalg.norm(uv[0] - uv[1], axis=1)), nan=0.0))
 
-    def _blurred_board_poses(self, t_mid: float, leg: str, T_world_cam_ref: np.ndarray | None = None
-                             ) -> list[np.ndarray]:
+    def _blurred_board_poses(self, t_mid: float, leg: str, T_world_cam_ref: np.ndarray | None = None,
+                             camera: str = "bottom") -> list[np.ndarray]:
         """Board poses spread over the exposure, as seen from the camera (head motion included) but expressed
         in the world through the camera's pose at mid-exposure (or T_world_cam_ref); a single pose if the board's
         image moves by less than 0.3 px during the exposure."""
         half = self.exposure_s / 2
-        moved_px = self._board_motion_px(t_mid - half, t_mid + half, leg)
+        moved_px = self._board_motion_px(t_mid - half, t_mid + half, leg, camera)
         steps = int(np.clip(np.ceil(moved_px / 0.3), 1, 16))
-        T_world_cam_mid = self._T_world_cam(self._true_q(t_mid)) if T_world_cam_ref is None else T_world_cam_ref
+        T_world_cam_mid = (self._T_world_cam(self._true_q(t_mid), camera) if T_world_cam_ref is None
+                           else T_world_cam_ref)
         if steps == 1:
-            return [T_world_cam_mid @ self._seen_board(t_mid, leg)] if T_world_cam_ref is not None else [
+            return [T_world_cam_mid @ self._seen_board(t_mid, leg, camera)] if T_world_cam_ref is not None else [
                 self._T_world_board(self._true_q(t_mid), leg)]
         times = t_mid - half + (np.arange(steps) + 0.5) * self.exposure_s / steps
-        return [T_world_cam_mid @ self._seen_board(float(t), leg) for t in times]
+        return [T_world_cam_mid @ self._seen_board(float(t), leg, camera) for t in times]
 
 
 def _as_float(value) -> float:

@@ -44,6 +44,7 @@ from solver.joints import HEAD_JOINTS, JOINTS
 log = logging.getLogger("naocal.naoqi")
 
 BOTTOM_CAMERA, VGA, BGR_COLORSPACE, FPS = 1, 2, 13, 30
+CAMERA_INDEX = {"top": 0, "bottom": BOTTOM_CAMERA}  # ALVideoDevice's camera indices
 FRAME_PERIOD_S = 1.0 / FPS
 DCM_CYCLE_S = 0.010
 MAX_IMAGE_AGE_S = 2.0
@@ -91,6 +92,8 @@ class NaoqiBackend(Backend):
         self._lock = threading.Lock()  # NAOqi calls from one thread at a time
         self._closed = False
         self._camera_handle = None
+        self._camera_subscriber = camera_subscriber
+        self._top_camera_handle = None  # subscribed when the top camera is first asked for
         self._image_clock_offset_s = None
         self._head_targets: dict[str, float] = {}  # last commanded head angles
         self._session = qi.Session()
@@ -207,12 +210,21 @@ class NaoqiBackend(Backend):
             raise SafetyError(f"stiffness must be in [0, 1], got {stiffness}")
         self._call(self._motion, "setStiffnesses", names, [stiffness] * len(names))
 
-    def capture(self) -> CameraImage | None:
+    def capture(self, camera: str = "bottom") -> CameraImage | None:
+        if camera not in CAMERA_INDEX:
+            raise NaocalError(f"unknown camera {camera!r}: expected one of {', '.join(CAMERA_INDEX)}")
+        handle = self._camera_handle
+        if camera == "top":
+            if self._top_camera_handle is None:
+                self._top_camera_handle = str(self._call(self._video, "subscribeCamera",
+                                                         f"{self._camera_subscriber}_top", CAMERA_INDEX["top"], VGA,
+                                                         BGR_COLORSPACE, FPS))
+            handle = self._top_camera_handle
         try:
-            raw = self._call(self._video, "getImageRemote", self._camera_handle)
+            raw = self._call(self._video, "getImageRemote", handle)
         finally:
             try:
-                self._call(self._video, "releaseImage", self._camera_handle)
+                self._call(self._video, "releaseImage", handle)
             except NaocalError as err:
                 log.debug("releaseImage: %s", err)
         if not raw or len(raw) < 7:
@@ -229,7 +241,7 @@ class NaoqiBackend(Backend):
         stamp_s = int(seconds) + int(microseconds) * 1e-6
         t_exposure_s = self._image_stamp_to_robot_s(stamp_s) + self.image_stamp_offset_s
         return CameraImage(pixels=pixels.reshape(int(height), int(width), 3).copy(),
-                           t_exposure_s=min(t_exposure_s, self.now()))
+                           t_exposure_s=min(t_exposure_s, self.now()), camera=camera)
 
     def _image_stamp_to_robot_s(self, stamp_s: float) -> float:
         if self._image_clock_offset_s is None:
@@ -278,8 +290,9 @@ class NaoqiBackend(Backend):
         if self._closed:
             return
         try:
-            if self._camera_handle is not None:
-                self._call(self._video, "unsubscribe", self._camera_handle)
+            for handle in (self._top_camera_handle, self._camera_handle):
+                if handle is not None:
+                    self._call(self._video, "unsubscribe", handle)
         except NaocalError as err:
             log.warning("could not unsubscribe the camera: %s", err)
         finally:

@@ -94,6 +94,18 @@ def _str_list(value, key):
     return list(value)
 
 
+CAMERA_NAMES = ("bottom", "top")
+
+
+def _camera_name(value, key):
+    if value not in CAMERA_NAMES:
+        raise ProtocolError(f"args.{key} must be one of {', '.join(CAMERA_NAMES)}")
+    return value
+
+
+# Arguments a request may leave out, with the value they then take (requests of clients older than the argument).
+OPTIONAL_ARGS = {"capture": {"camera": "bottom"}}
+
 # cmd -> (argument validators, needs the motion lease). Everything not marked is a read without side effects.
 COMMANDS = {
     "hello": ({}, False),
@@ -104,7 +116,7 @@ COMMANDS = {
     "intrinsics": ({}, False),
     "gravity_torso": ({}, False),
     "read_joints": ({}, False),
-    "capture": ({}, False),
+    "capture": ({"camera": _camera_name}, False),
     "now": ({}, False),
     "status": ({}, False),
     "command": ({"targets_rad": _float_map, "speed_fraction": _finite_or_nan_float}, True),
@@ -209,6 +221,7 @@ def validate_request(message) -> tuple[str, str, dict]:
     if not isinstance(args, dict):
         raise ProtocolError("'args' must be a map")
     validators, _ = COMMANDS[cmd]
+    args = {**OPTIONAL_ARGS.get(cmd, {}), **args}
     missing = validators.keys() - args.keys()
     extra = args.keys() - validators.keys()
     if missing or extra:

@@ -49,6 +49,10 @@ def run(mock_kind: str, seed: int, out: Path) -> dict:
                    worst_std_deg=math.degrees(max(stds)),
                    worst_z=max(e / s for e, s in zip(errors, stds) if s > 0))
         row["largest_offset_deg"] = math.degrees(max(abs(alpha[j]) for j in LEG_JOINTS))
+        for camera, truth in mock.truth.camera_rotations().items():  # worst of roll, pitch, yaw per camera
+            if f"camera.{camera}.pitch" in fit.registry.index:
+                row[f"{camera}_camera_error_deg"] = math.degrees(max(
+                    abs(fit.value(f"camera.{camera}.{a}") - truth[a]) for a in ("roll", "pitch", "yaw")))
     return row
 
 
@@ -60,8 +64,9 @@ def main():
     args = parser.parse_args()
     base = args.out or Path(tempfile.mkdtemp(prefix="naocal_realism_"))
     print("| mock | seed | done | saved | refused by the mock | robot time s | RMS px | worst std deg | "
-          "worst error deg | error / std | largest offset deg | wall s | CPU s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "worst error deg | error / std | largest offset deg | bottom camera error deg | top camera error deg | wall s | "
+          "CPU s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for kind in args.mock:
         for seed in args.seeds:
             r = run(kind, seed, base / f"{kind}-{seed}")
@@ -70,7 +75,9 @@ def main():
                      f"{r.get('robot_s', float('nan')):.1f}",
                      f"{r.get('rms_px', float('nan')):.3f}", f"{r.get('worst_std_deg', float('nan')):.4f}",
                      f"{r.get('worst_error_deg', float('nan')):.4f}", f"{r.get('worst_z', float('nan')):.1f}",
-                     f"{r.get('largest_offset_deg', float('nan')):.1f}", f"{r['wall_s']:.0f}", f"{r['cpu_s']:.0f}"]
+                     f"{r.get('largest_offset_deg', float('nan')):.1f}",
+                     f"{r.get('bottom_camera_error_deg', float('nan')):.4f}",
+                     f"{r.get('top_camera_error_deg', float('nan')):.4f}", f"{r['wall_s']:.0f}", f"{r['cpu_s']:.0f}"]
             print("| " + " | ".join(str(c) for c in cells) + " |", flush=True)
     print(f"runs kept in {base}")
 

@@ -8,7 +8,7 @@ at 30 Hz and arrive `image_delay_s` later, showing the robot as it was at their 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -128,13 +128,13 @@ class FakeBackend(Backend):
     def set_stiffness(self, names, stiffness):
         pass
 
-    def capture(self):
+    def capture(self, camera="bottom"):
         k = int(np.floor((self.t - self.image_delay_s) * 30.0 + 1e-9))
         if k < 0:
             return None
         t_exposure = k / 30.0
         self.n_captures += 1
-        return FakeImage(_BLANK, float(t_exposure), "bottom", tuple(self.sensor_at(t_exposure)))
+        return FakeImage(_BLANK, float(t_exposure), camera, tuple(self.sensor_at(t_exposure)))
 
     def intrinsics(self):
         d = DEFAULT_INTRINSICS
@@ -147,13 +147,23 @@ class FakeBackend(Backend):
         self.t += max(float(duration_s), 0.0)
 
     # --- the fake detector ---------------------------------------------------------------------------------
-    def project(self, leg, sensor14) -> np.ndarray:
+    # The top camera's hidden rotation (the bottom camera's is in `values`).
+    TOP_ROTATION_RAD = {"roll": 0.02, "pitch": -0.06, "yaw": -0.03}
+
+    def project(self, leg, sensor14, camera="bottom") -> np.ndarray:
         data = make_model_data(np.asarray(sensor14)[None], np.array([leg]), np.array([0]), np.array([0]))
-        return Model(data, FULL).residuals(self.values)
+        if camera == "bottom":
+            return Model(data, FULL).residuals(self.values)
+        data = replace(data, camera=np.array([camera]), cameras={camera: data.cameras["bottom"]})
+        registry = Registry.for_data(data)
+        known = {**dict(zip(FULL.names, self.values)),
+                 **{f"camera.{camera}.{a}": v for a, v in self.TOP_ROTATION_RAD.items()}}
+        values = np.array([known.get(name, 0.0) for name in registry.names])
+        return Model(data, registry).residuals(values)
 
     def detector(self, image, predicted_px, leg, search_margin_px):
         self.detected[round(image.t_exposure_s, 9)] = np.array(image.sensor_rad)
-        uv = self.project(leg, image.sensor_rad) + self.rng.normal(0.0, self.pixel_noise_px, (24, 2))
+        uv = self.project(leg, image.sensor_rad, image.camera) + self.rng.normal(0.0, self.pixel_noise_px, (24, 2))
         if np.any(uv < 6) or np.any(uv[:, 0] > 633) or np.any(uv[:, 1] > 473):
             return FakeDetection(None, "cut_off", "a vertex near the image edge")
         shift = np.linalg.norm(uv.mean(axis=0) - np.asarray(predicted_px).mean(axis=0))

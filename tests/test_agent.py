@@ -130,7 +130,7 @@ def test_images_are_exposed_after_the_robot_was_still(fake_run):
     cmd = data.joint_matrix("cmd_")
     vel = data.joint_matrix("vel_")
     rows = np.flatnonzero(np.all(vel == 0, axis=1))[::24]
-    assert len(rows) == 2 * 6 * 3
+    assert len(rows) == 2 * 6 * 3 + 2 * 2 * 2  # and each leg's two top-camera stances in two head postures
     for row in rows:
         sensors = fake.detected[round(data.columns["t_image_s"][row], 9)]
         np.testing.assert_allclose(sensors, cmd[row], atol=1e-9)
@@ -142,6 +142,8 @@ def test_offsets_are_c_minus_alpha_close_to_the_fake_truth(fake_run):
     for joint in LEG_JOINTS:
         assert offsets.joint_offset(joint) == pytest.approx(fake.truth[f"joint_offset.{joint}"], abs=np.radians(0.1))
     assert offsets.camera_rpy()[1] == pytest.approx(fake.truth["camera.bottom.pitch"], abs=np.radians(0.05))
+    for k, angle in enumerate(("roll", "pitch", "yaw")):  # the top camera from the same run
+        assert offsets.camera_rpy("top")[k] == pytest.approx(fake.TOP_ROTATION_RAD[angle], abs=np.radians(0.05))
 
 
 def test_verification_error_falls_after_compensation(fake_run):

@@ -385,6 +385,20 @@ def test_the_lola_driver_passes_the_backend_contract(fake, lola_path):
     check_backend_contract(LolaBackend(lola_path, camera=camera, ramp_s=0.2), settle_s=0.6)
 
 
+def test_the_lola_driver_refuses_a_camera_it_was_not_started_with_in_one_line(fake, lola_path):
+    """The V4L2 camera is opened at start: capture('top') on a bottom-camera bridge is refused, naming both."""
+    camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
+    backend = LolaBackend(lola_path, camera=camera, ramp_s=0.2)
+    try:
+        with pytest.raises(NaocalError) as info:
+            backend.capture("top")
+        message = str(info.value)
+        assert "top" in message and "bottom" in message and "\n" not in message
+        assert backend.capture("bottom") is not None
+    finally:
+        backend.close()
+
+
 def test_the_lola_driver_over_the_bridge_passes_the_backend_contract(fake, lola_path):
     camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
     backend = LolaBackend(lola_path, camera=camera, ramp_s=0.2)

@@ -31,9 +31,10 @@ def test_backend_contract():
 def test_truth_has_the_naocal_truth_format():
     truth = MockBackend(seed=3).truth_dict()
     assert set(truth) == {"schema", "alpha_rad", "camera_rotation_rad", "board_mount", "effects"}
-    assert truth["schema"] == "naocal.truth/1"
+    assert truth["schema"] == "naocal.truth/2"
     assert set(truth["alpha_rad"]) == set(JOINTS)
-    assert set(truth["camera_rotation_rad"]) == {"roll", "pitch", "yaw"}
+    assert set(truth["camera_rotation_rad"]) == {"bottom", "top"}  # keyed by camera name, as in offsets.json
+    assert all(set(r) == {"roll", "pitch", "yaw"} for r in truth["camera_rotation_rad"].values())
     assert set(truth["board_mount"]) == {"L", "R"}
     for mount in truth["board_mount"].values():
         assert set(mount) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
@@ -60,9 +61,11 @@ def test_truth_sizes_are_those_of_a_real_robot():
         assert np.all((leg_alpha_deg >= 0.2) & (leg_alpha_deg <= 2.0))
         assert truth.alpha_rad["RHipYawPitch"] == truth.alpha_rad["LHipYawPitch"]  # one motor
         assert truth.alpha_rad["HeadYaw"] == truth.alpha_rad["HeadPitch"] == 0.0  # only with head_offsets
-        rot = {k: math.degrees(v) for k, v in truth.camera_rotation_rad.items()}
-        assert -8.5 <= rot["pitch"] <= -3.0
-        assert 1.0 <= abs(rot["roll"]) <= 3.0 and 1.0 <= abs(rot["yaw"]) <= 3.0
+        for rotation in truth.camera_rotations().values():  # both cameras
+            rot = {k: math.degrees(v) for k, v in rotation.items()}
+            assert -8.5 <= rot["pitch"] <= -3.0
+            assert 1.0 <= abs(rot["roll"]) <= 3.0 and 1.0 <= abs(rot["yaw"]) <= 3.0
+        assert truth.top_camera_rotation_rad != truth.camera_rotation_rad
         for mount in truth.board_mount.values():
             assert 0.2 <= abs(math.degrees(mount.rot_z_rad)) <= 1.2
             assert 0.0005 <= abs(mount.trans_x_m) <= 0.003 and 0.0005 <= abs(mount.trans_y_m) <= 0.003
@@ -73,7 +76,7 @@ def test_effects_do_not_change_the_base_truth():
     with_effects = draw_truth(11, {"elasticity": 0.02, "backlash": 0.01, "head_offsets": 0.01})
     for joint in LEG_JOINTS:
         assert with_effects.alpha_rad[joint] == base.alpha_rad[joint]
-    assert with_effects.camera_rotation_rad == base.camera_rotation_rad
+    assert with_effects.camera_rotations() == base.camera_rotations()
     assert with_effects.board_mount == base.board_mount
     assert with_effects.alpha_rad["HeadYaw"] != 0.0
 
@@ -259,3 +262,28 @@ def test_closed_mock_refuses_work():
     mock.close()
     with pytest.raises(NaocalError, match="closed"):
         mock.capture()
+
+
+def test_the_top_camera_sees_a_planned_top_stance_where_its_truth_says():
+    from agent.measure import opencv_detector
+    from agent.planner import Planner
+
+    planner = Planner()
+    try:
+        cand = planner.top_candidates("L", np.random.default_rng(3), 1)[0]
+    finally:
+        planner.close()
+    q14 = cand.stances(planner.parked)[0]
+    with MockBackend(seed=1, posture=dict(zip(JOINTS, q14))) as mock:
+        mock.sleep(0.5)
+        top, bottom = mock.capture("top"), mock.capture("bottom")
+        assert (top.camera, bottom.camera) == ("top", "bottom")
+        uv, visible = mock.true_vertex_pixels(top)["L"]
+        assert visible.all()  # the planner's 50 px margin holds the board in view whatever the camera's rotation
+        detection = opencv_detector(top, uv, "L", 40.0)
+        assert detection.ok, detection.reason
+        assert np.max(np.abs(np.asarray(detection.vertices_px) - uv)) < 0.5  # the truth's pixels are the top camera's
+        bottom_uv = mock.true_vertex_pixels(bottom)["L"][0]
+        assert np.min(np.linalg.norm(bottom_uv - uv, axis=1)) > 20.0  # a different camera, a different view
+        with pytest.raises(NaocalError):
+            mock.capture("middle")

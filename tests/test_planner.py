@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agent.design import _gls_information, greedy_d_optimal, log_det, stance_information
-from agent.plan import Still, Sweep, read_plan, write_plan
+from agent.plan import Plan, Still, Sweep, read_plan, write_plan
 from agent.planner import PlanSettings, Planner, make_plan, parked_posture
 from agent.safety import SafetyGuard
 from agent.visibility import OcclusionChecker, views_ok
@@ -34,7 +34,7 @@ def body():
 
 
 def test_paper_plan_has_24_stances_per_leg_times_3_head_postures_and_a_lag_probe(paper_plan):
-    stills = paper_plan.stills()
+    stills = [s for s in paper_plan.stills() if s.camera == "bottom"]
     assert len(stills) == 2 * 24 * 3
     for leg in LEGS:
         mine = [s for s in stills if s.leg == leg]
@@ -51,6 +51,21 @@ def test_paper_plan_has_24_stances_per_leg_times_3_head_postures_and_a_lag_probe
     assert paper_plan.image_indices() == list(range(paper_plan.n_images()))
 
 
+def test_paper_plan_ends_with_top_camera_stances_that_pull_the_thigh_up(paper_plan):
+    s = PlanSettings()
+    top = [st for st in paper_plan.stills() if st.camera == "top"]
+    per_leg = s.top_stances_per_leg * s.top_head_postures
+    assert [st.leg for st in top] == ["L"] * per_leg + ["R"] * per_leg
+    assert paper_plan.steps[-len(top):] == top  # after the bottom camera's: the offsets are known by then
+    for st in top:
+        hip = st.angles()[JOINT_INDEX[f"{st.leg}HipPitch"]]
+        assert s.top_hip_pitch_min_rad <= hip <= s.top_hip_pitch_max_rad
+    # the bottom camera's plan of a seed is what it was without them
+    bottom_only = make_plan(0, PlanSettings(top_stances_per_leg=0))
+    assert [st for st in paper_plan.steps if not (isinstance(st, Still) and st.camera == "top")] == bottom_only.steps
+    assert Plan.from_dict(paper_plan.to_dict()).stills()[-1].camera == "top"  # plan.json keeps the camera
+
+
 def test_every_capture_meets_the_rules_on_the_nominal_model(paper_plan, body):
     s = PlanSettings()
     limits = joint_limits()
@@ -65,8 +80,8 @@ def test_every_capture_meets_the_rules_on_the_nominal_model(paper_plan, body):
         assert lo + s.head_pitch_margin_rad <= q[JOINT_INDEX["HeadPitch"]] <= hi - s.head_pitch_margin_rad
         assert q[JOINT_INDEX["LHipYawPitch"]] == q[JOINT_INDEX["RHipYawPitch"]], "one motor drives both"
         assert collisions.is_safe(q), still.image
-        assert occlusion.is_visible(q, still.leg), still.image
-        T_cam = camera_fk(q[HEAD_COLUMNS][None])
+        assert occlusion.is_visible(q, still.leg, still.camera), still.image
+        T_cam = camera_fk(q[HEAD_COLUMNS][None], still.camera)
         T_sole = leg_fk(q[LEG_COLUMNS[still.leg]][None], still.leg)
         assert views_ok(T_cam, T_sole, DEFAULT_INTRINSICS, s.view_rules(), s.camera_offset())[0], still.image
 
@@ -124,8 +139,13 @@ def test_plan_file_round_trip_and_bad_files(tmp_path, paper_plan):
     write_plan(paper_plan, path)
     back = read_plan(path)
     assert back.to_dict() == paper_plan.to_dict()
-    assert isinstance(back.steps[-1], Sweep) and isinstance(back.steps[0], Still)
+    assert any(isinstance(st, Sweep) for st in back.steps) and isinstance(back.steps[0], Still)
     doc = json.loads(path.read_text())
+    doc["steps"][-1]["camera"] = "middle"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="camera"):
+        read_plan(path)
+    doc["steps"][-1]["camera"] = "top"
     doc["schema"] = "naocal.plan/0"
     path.write_text(json.dumps(doc))
     with pytest.raises(DataError, match="schema"):
@@ -177,7 +197,7 @@ def test_d_optimal_plan_reaches_the_paper_precision_with_fewer_stances():
     assert design["selected_log_det"] >= design["paper_log_det"]
     paper_worst = max(design["paper_predicted_std"][f"joint_offset.{j}"] for j in LEG_JOINTS)
     assert np.radians(plan.stats["predicted_worst_joint_offset_std_deg"]) <= paper_worst + 1e-12
-    assert plan.n_images() == 3 * design["selected_stances"]
+    assert plan.n_images() == 3 * design["selected_stances"] + plan.stats["n_top_camera_images"]
 
 
 def test_safety_guard_refuses_limits_head_table_and_collisions(body):

@@ -26,15 +26,16 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "images", "observations.csv", "truth.json"]
     data = read_dataset(out)
     n_images = len(np.unique(data.columns["image"]))
-    assert n_images == 2 * (3 * 3 + 3)  # 3 stances x 3 head postures + 3 lag-probe images, per leg
+    # 3 stances x 3 head postures + 3 lag-probe images, and 2 top-camera stances x 2 head postures, per leg
+    assert n_images == 2 * (3 * 3 + 3 + 2 * 2)
     assert len(list((out / "images").glob("*.png"))) == n_images
     assert data.meta["schema"] == "naocal.dataset/2"
-    assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom"}
+    assert set(data.columns["target"]) == {"L", "R"} and set(data.columns["camera"]) == {"bottom", "top"}
     assert data.has_velocities
     truth = json.loads((out / "truth.json").read_text())
-    assert truth["schema"] == "naocal.truth/1"
+    assert truth["schema"] == "naocal.truth/2"
     assert set(truth["alpha_rad"]) == set(JOINTS)
-    assert set(truth["camera_rotation_rad"]) == {"roll", "pitch", "yaw"}
+    assert set(truth["camera_rotation_rad"]) == {"bottom", "top"}
     assert set(truth["board_mount"]["L"]) == {"rot_z_rad", "trans_x_m", "trans_y_m"}
     assert truth["effects"] == {"time_lag": 0.02}
     assert data.meta["source"].startswith("naocal simulate")
