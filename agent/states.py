@@ -178,6 +178,9 @@ class Modelling(State):
                                   "resume with the same seed")
             log.info("resuming with the stored plan %s (%d images)", ctx.plan_path, plan.n_images())
         else:
+            if "top" not in backend.cameras:  # e.g. a LoLA bridge started with the bottom camera's V4L2 device
+                log.info("the backend offers no top camera: the plan has bottom-camera stances only")
+                plan_settings = replace(plan_settings, top_stances_per_leg=0)
             planner = Planner(plan_settings, limits=backend.joint_limits(), speeds=backend.max_speeds())
             try:
                 plan = planner.make_plan(s.seed)

@@ -74,6 +74,7 @@ class Backend(abc.ABC):
     """
 
     name = "abstract"
+    cameras = ("bottom", "top")  # the cameras capture() offers
 
     @abc.abstractmethod
     def robot_identity(self) -> dict:

@@ -377,6 +377,11 @@ class BridgeBackend(Backend):
         names = [names] if isinstance(names, str) else [str(name) for name in names]
         self._motion_call("set_stiffness", {"names": names, "stiffness": float(stiffness)})
 
+    @property
+    def cameras(self) -> tuple:
+        """The cameras the server's driver offers (a server from before the top camera: the bottom one)."""
+        return tuple(str(c) for c in self._server_info().get("cameras", ("bottom",)))
+
     def capture(self, camera: str = "bottom") -> CameraImage | None:
         return protocol.image_from_wire(self._call("capture", {"camera": camera}))
 

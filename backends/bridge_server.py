@@ -427,6 +427,7 @@ class BridgeServer:
                 "lease_timeout_s": self.lease_timeout_s,
                 "max_request_bytes": protocol.MAX_REQUEST_BYTES,
                 "max_sleep_s": protocol.MAX_SLEEP_S,
+                "cameras": [str(c) for c in getattr(backend, "cameras", ("bottom",))],
             }
         if cmd == "robot_identity":
             return {str(k): str(v) for k, v in backend.robot_identity().items()}

@@ -49,6 +49,10 @@ class CompensatedBackend(Backend):
     def capture(self, camera: str = "bottom"):
         return self.inner.capture(camera)
 
+    @property
+    def cameras(self):
+        return self.inner.cameras
+
     def intrinsics(self):
         return self.inner.intrinsics()
 

@@ -531,6 +531,11 @@ class LolaBackend(Backend):
                           "moving": moving},
                 "joints": joints, "t_s": frame.t_s}
 
+    @property
+    def cameras(self) -> tuple:
+        """The one camera whose V4L2 device this driver opened (none without a camera)."""
+        return () if self._camera is None else (getattr(self._camera, "name", "bottom"),)
+
     def capture(self, camera: str = "bottom") -> CameraImage | None:
         if self._camera is None:
             raise NaocalError("this LoLA bridge was started without a camera")

@@ -399,6 +399,20 @@ def test_the_lola_driver_refuses_a_camera_it_was_not_started_with_in_one_line(fa
         backend.close()
 
 
+def test_a_lola_bridge_says_it_offers_only_its_camera(fake, lola_path):
+    """The agent plans top-camera stances only for a backend that offers the top camera."""
+    camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
+    backend = LolaBackend(lola_path, camera=camera, ramp_s=0.2)
+    server = BridgeServer(backend, "tcp://127.0.0.1:0", driver="lola", clock="wall").start_thread()
+    client = BridgeBackend(server.endpoint, timeout_s=3.0)
+    try:
+        assert backend.cameras == ("bottom",) and client.cameras == ("bottom",)
+    finally:
+        client.close()
+        server.stop()
+        backend.close()
+
+
 def test_the_lola_driver_over_the_bridge_passes_the_backend_contract(fake, lola_path):
     camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
     backend = LolaBackend(lola_path, camera=camera, ramp_s=0.2)
