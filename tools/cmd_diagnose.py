@@ -83,7 +83,7 @@ def run(args) -> int:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
     # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
     fit = identify_dataset(dataset, effects, angles=args.angles, moving="all", fixed=args.fix,
-                           tie_shared_motors=args.tie_hip_yaw_pitch)
+                           tie_shared_motors=args.tie_hip_yaw_pitch is not False)
     result = fit.result
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
@@ -106,7 +106,7 @@ def run(args) -> int:
         print(json.dumps(json_safe(out), indent=1))
     else:
         print(format_text(diagnosis, fit, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
-                          tied=args.tie_hip_yaw_pitch))
+                          tied=args.tie_hip_yaw_pitch is not False))
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0

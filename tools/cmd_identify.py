@@ -47,7 +47,8 @@ def effect_names() -> str:
 
 def add_tie_option(parser) -> None:
     """--tie-hip-yaw-pitch, shared by identify and diagnose."""
-    parser.add_argument("--tie-hip-yaw-pitch", action=argparse.BooleanOptionalAction, default=True,
+    # default None (on for the NAO) so that an arm can refuse the option only when it is given
+    parser.add_argument("--tie-hip-yaw-pitch", action=argparse.BooleanOptionalAction, default=None,
                         help="joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
 
 
@@ -89,7 +90,7 @@ def run(args) -> int:
         if reason:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
     fit = identify_dataset(dataset, effects, angles=args.angles, robust=not args.keep_outliers, fixed=args.fix,
-                           tie_shared_motors=args.tie_hip_yaw_pitch, solver=args.solver, loss=args.loss,
+                           tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
                            loss_scale_px=args.loss_scale_px)
     result, data = fit.result, fit.data
     if not result.success:
