@@ -137,13 +137,17 @@ def test_a_restarted_mock_server_is_not_silently_taken_for_the_same_robot():
 
 
 def test_when_the_retries_are_spent_the_error_names_endpoint_and_command():
-    with zmq.Context.instance().socket(zmq.ROUTER) as placeholder:
-        port = placeholder.bind_to_random_port("tcp://127.0.0.1")
+    # A peer that is bound and never answers (a closed port could be taken by another test's CURVE server).
+    placeholder = zmq.Context.instance().socket(zmq.ROUTER)
+    port = placeholder.bind_to_random_port("tcp://127.0.0.1")
     endpoint = f"tcp://127.0.0.1:{port}"
     bridge = client(endpoint, timeout_s=0.05, retries=2)
     start = time.monotonic()
-    with pytest.raises(BridgeError) as err:
-        bridge.command(TARGETS[0], 0.2)
+    try:
+        with pytest.raises(BridgeError) as err:
+            bridge.command(TARGETS[0], 0.2)
+    finally:
+        placeholder.close(linger=0)
     assert time.monotonic() - start < 2.0  # bounded: 3 attempts of 0.05 s, not forever
     assert endpoint in str(err.value) and "'command'" in str(err.value) and "3 attempt(s)" in str(err.value)
 
