@@ -93,7 +93,7 @@ class PlanSettings:
     path_ground_margin_m: float = 0.012
     view_margin_px: float = 50.0  # around the projection through the prior camera rotation: room for +-3 deg
     # Real heads' bottom cameras are rotated: published corrections pitch -3..-8.5 deg, roll and yaw 1-3 deg
-    # (../shared/reference/NAO.md). Boards are planned where the camera sees them with the typical rotation.
+    # (B-Human cameraCalibration.cfg, HULKs head.<id>.json; docs/MOCK.md). Boards are planned where the camera sees them with the typical rotation.
     camera_prior_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": -0.1, "yaw": 0.0})
     max_tilt_deg: float = 60.0
     min_square_px: float = 12.0

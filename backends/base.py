@@ -58,7 +58,7 @@ class CameraIntrinsics:
 
 def nominal_intrinsics(width_px: int = 640, height_px: int = 480) -> CameraIntrinsics:
     """A NAO camera's intrinsics from the OV5640's nominal field of view, 56.3 x 43.7 deg
-    (../shared/reference/NAO.md), at this resolution: fx about 598 px at 640 x 480 (teams calibrate about 618)."""
+    (Aldebaran's NAO V6 video camera documentation; docs/MOCK.md), at this resolution: fx about 598 px at 640 x 480 (teams calibrate about 618)."""
     return CameraIntrinsics(width_px=width_px, height_px=height_px,
                             fx_px=(width_px / 2) / math.tan(math.radians(56.3) / 2),
                             fy_px=(height_px / 2) / math.tan(math.radians(43.7) / 2),

@@ -188,7 +188,7 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
     if realism.large_offsets:
         alpha, camera_rotation = _large_offsets(np.random.default_rng([int(seed), 104729]), realism, alpha)
     # The top camera's rotation from a stream of its own (the bottom camera's truth stays what it was): the same
-    # ranges as the bottom camera's (B-Human's upper corrections are of the same size, ../shared/reference/NAO.md).
+    # ranges as the bottom camera's (B-Human's upper corrections are of the same size; docs/MOCK.md).
     top_rng = np.random.default_rng([int(seed), 27183])
     if realism.large_offsets:
         top_rotation = _large_offsets(top_rng, realism, alpha)[1]

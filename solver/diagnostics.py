@@ -1,7 +1,7 @@
 """Diagnostics: compare the fitted model with the measurements, locate where it fails, name the missing effect.
 
 Pure functions of a fitted `IdentificationResult` (its model, data, values and residuals); nothing is written.
-The method is docs/DIAGNOSTICS.md and ../shared/design/diagnostics.md; the statistics live in solver.scoretest,
+The method is docs/DIAGNOSTICS.md; the statistics live in solver.scoretest,
 the noise floor in solver.noisefloor:
 
 - compare: RMS overall, per leg, stance, head posture and image, against the noise floor;

@@ -4,7 +4,7 @@ Every backend that can move a real joint checks its targets against these before
 implementation here: `check_targets` (known joint, finite, inside its box, HeadPitch inside the table for every
 HeadYaw the head may have) and `check_speed_fraction`. The agent's own guard uses `limit_problem` and
 `head_pitch_problem` with its margins. The URDF is `solver/data/nao_v50.urdf` (the nominal model, see
-../shared/reference/NAO.md); it is parsed once.
+docs/ROBOT.md; Aldebaran's NAO V6 joint documentation); it is parsed once.
 """
 
 from __future__ import annotations
