@@ -160,6 +160,26 @@ def test_ctrl_c_writes_the_summary_and_prints_the_resume_command(interrupted):
     assert not (out / LOCK_NAME).exists()
 
 
+def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
+    """systemd's stop, `kill` or a closed terminal must not kill a run between two writes."""
+    out = tmp_path / "run"
+    proc = naocal_process("calibrate", *BASE, "--out", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: captured_lines(out / "dataset" / "observations.csv") > 1 + 24 * 2 or proc.poll() is not None,
+                 300, "2 captures")
+        assert proc.poll() is None, "the run ended before it could be stopped"
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().startswith("naocal calibrate: interrupted during ") and "Traceback" not in stderr
+    assert (out / "summary.txt").read_text().startswith("naocal calibrate: interrupted")
+    assert not (out / LOCK_NAME).exists()
+
+
 MISMATCHES = [
     (["--seed", "4"], "--seed 4 (the run: 3)"),
     (["--effect", "elasticity=0.03"], "--effect elasticity=0.03 (the run: none)"),

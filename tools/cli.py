@@ -8,7 +8,9 @@ and `run(args) -> int` does the work, importing numpy, scipy, pybullet ... insid
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 
 # One BLAS thread unless the user says otherwise. naocal's matrices are small (3456 x 21): threads gain
 # nothing on an idle 2-core machine (identify 12.4 ms with 2, 13.0 ms with 1) and lose badly when the other core
@@ -48,6 +50,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     from solver.errors import NaocalError
 
+    _terminate_like_ctrl_c()
     try:
         return int(args.run(args) or 0)
     except NaocalError as err:
@@ -71,6 +74,21 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"naocal {args.verb}: interrupted", file=sys.stderr)
         return 130
+
+
+def _terminate_like_ctrl_c() -> None:
+    """SIGTERM (systemd, `kill`, a closing terminal's SIGHUP) ends a run as Ctrl-C does: the state machine stops in
+    `interrupted`, saves the summary and prints the resume command, instead of dying between two writes.
+    `bridge serve` installs its own handlers later."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def interrupt(signum, _frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(signum) == signal.SIG_DFL:  # an ignored SIGHUP (nohup) stays ignored
+            signal.signal(signum, interrupt)
 
 
 def _error(verb: str, message: str, exit_code: int) -> int:

@@ -6,7 +6,7 @@ Modelling (plan) -> measurement (DIR/dataset) -> identification -> compensation 
 verification; DIR/summary.txt says what happened, DIR/calibrate.log how, DIR/run.json with which options. With the
 mock, DIR/truth.json holds its hidden truth. One run at a time per DIR; --resume must repeat the run's options.
 Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration failed or the disk is full, 130
-after Ctrl-C (the reason is printed; what was measured stays in DIR/dataset, and the last line printed is the
+after Ctrl-C, SIGTERM or SIGHUP (the reason is printed; what was measured stays in DIR/dataset, and the last line printed is the
 command that continues the run).
 """
 
