@@ -330,7 +330,7 @@ class BridgeBackend(Backend):
         from solver.fileio import atomic_write_bytes
 
         try:
-            atomic_write_bytes(self.lease_file, f"{token}\n".encode("ascii"))  # mkstemp: mode 0600
+            atomic_write_bytes(self.lease_file, f"{token}\n".encode("ascii"), mode=0o600)  # a secret
         except (OSError, NaocalError) as err:  # the run goes on; only a resume after a crash would wait
             log.warning("%s: cannot keep the lease token (%s): a resumed run would wait for the lease to time out",
                         self.lease_file, err)

@@ -120,7 +120,7 @@ class LeaseJournal:
             compacted = msgpack.packb({"lease": lease.token_digest}, use_bin_type=True) + b"".join(
                 _pack_reply(lease.token_digest, c, s, r) for c, s, r in lease.records())
         try:
-            atomic_write_bytes(self.path, compacted)
+            atomic_write_bytes(self.path, compacted, mode=0o600)  # clients' ids: like the journal it replaces
             self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
         except (OSError, NaocalError) as err:
             raise NaocalError(f"journal {self.path}: cannot write it: {_reason(err)} ({free_space(self.path)})") \

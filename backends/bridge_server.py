@@ -508,9 +508,8 @@ def write_curve_keys(directory, name: str = "server") -> tuple[str, str]:
     secret_text = (f"{banner}#   SECRET: keep it on the machine that uses it.\nmetadata\ncurve\n"
                    f"    public-key = \"{public}\"\n    secret-key = \"{secret}\"\n")
     try:
-        atomic_write_bytes(secret_path, secret_text.encode("ascii"))  # mkstemp: created with mode 0600
-        atomic_write_bytes(public_path, public_text.encode("ascii"))
-        os.chmod(public_path, 0o644)
+        atomic_write_bytes(secret_path, secret_text.encode("ascii"), mode=0o600)
+        atomic_write_bytes(public_path, public_text.encode("ascii"), mode=0o644)
     except OSError as err:
         raise NaocalError(f"{err.filename or directory}: cannot write the key files: {err.strerror}") from None
     return public_path, secret_path

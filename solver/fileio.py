@@ -42,22 +42,46 @@ def disk_full_as_error(path):
         raise DiskFullError(path, free_bytes(path), DISK_FULL_ERRNOS[err.errno]) from err
 
 
-def atomic_write_bytes(path, data: bytes, *, backup_suffix: str | None = None) -> Path:
+def atomic_write_bytes(path, data: bytes, *, backup_suffix: str | None = None, mode: int | None = None) -> Path:
     """Write `data` to `path` through a temporary file in the same directory, fsync, then rename.
 
     If `backup_suffix` is given and `path` exists, the old file is kept as `path + backup_suffix`
     (by hard link, so it is never missing even if we crash between the steps).
+    `mode`: the file's permissions; by default those of the file it replaces, or what open() would give a new
+    file (0666 less the umask). A secret passes 0o600.
     """
     path = Path(path)
     with disk_full_as_error(path):
-        _atomic_write(path, data, backup_suffix)
+        _atomic_write(path, data, backup_suffix, mode)
     return path
 
 
-def _atomic_write(path: Path, data: bytes, backup_suffix: str | None) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+def _umask() -> int:
+    try:  # Linux >= 4.7 tells it without changing it (os.umask would, for every thread)
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    current = os.umask(0o022)
+    os.umask(current)
+    return current
+
+
+def _new_file_mode(path: Path) -> int:
     try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return 0o666 & ~_umask()
+
+
+def _atomic_write(path: Path, data: bytes, backup_suffix: str | None, mode: int | None) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mode = _new_file_mode(path) if mode is None else mode
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # 0600 until chmod
+    try:
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as tmp:
             tmp.write(data)
             tmp.flush()

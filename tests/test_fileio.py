@@ -2,6 +2,7 @@
 
 import errno
 import os
+import stat
 
 import numpy as np
 import pytest
@@ -71,3 +72,20 @@ def test_a_capture_appended_to_a_full_disk_leaves_the_dataset_as_it_was(tmp_path
     assert "observations.csv" in str(info.value) and "bytes free" in str(info.value)
     assert (tmp_path / "ds" / "observations.csv").read_bytes() == before
     assert len(np.unique(read_dataset(tmp_path / "ds").columns["image"])) == 1
+
+
+def test_atomic_write_gives_a_new_file_the_umask_mode_and_keeps_a_replaced_files_mode(tmp_path):
+    """mkstemp makes 0600 files: offsets.json or a report written so could not be read by the team's framework."""
+    old_umask = os.umask(0o022)
+    try:
+        fresh = atomic_write_text(tmp_path / "offsets.json", "{}\n")
+        assert stat.S_IMODE(fresh.stat().st_mode) == 0o644
+        kept = tmp_path / "shared.json"
+        kept.write_text("old\n")
+        kept.chmod(0o664)
+        atomic_write_text(kept, "new\n", backup_suffix=".bak")
+        assert stat.S_IMODE(kept.stat().st_mode) == 0o664
+        secret = atomic_write_text(tmp_path / "bridge.token", "t\n", mode=0o600)
+        assert stat.S_IMODE(secret.stat().st_mode) == 0o600
+    finally:
+        os.umask(old_umask)
