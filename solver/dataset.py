@@ -36,8 +36,8 @@ import numpy as np
 
 from solver.errors import DataError
 from solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
-    atomic_write_text, decode_text, disk_full_as_error, fsync_directory, parse_json_text, read_bytes, read_json,
-    read_text,
+    atomic_write_text, decode_text, disk_full_as_error, fsync_directory, interrupts_deferred, parse_json_text,
+    read_bytes, read_json, read_text,
 )
 from solver.joints import JOINTS
 
@@ -1017,9 +1017,10 @@ class DatasetAppender:
         if image in self._images:
             raise DataError(label, f"image {image} is already saved", field="image")
         data = (text if self._header is not None else header_text + text).encode("utf-8")
-        self._write_all(data, new_file=self._header is None)
-        self._header = names
-        self._images.add(image)
+        with interrupts_deferred():  # on disk means counted as saved, even if Ctrl-C comes in between
+            self._write_all(data, new_file=self._header is None)
+            self._header = names
+            self._images.add(image)
         return n
 
     def _write_all(self, data: bytes, *, new_file: bool) -> None:

@@ -11,8 +11,10 @@ import json
 import os
 import re
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 from pathlib import Path
 
 from solver.errors import DataError, DiskFullError
@@ -29,6 +31,33 @@ def free_bytes(path) -> int | None:
         except OSError:
             continue
     return None
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Hold Ctrl-C / SIGTERM (Python-level handlers only) until the block ends, then deliver it.
+
+    For a write and its bookkeeping that must happen together: a capture on disk that the run does not count
+    as saved would make the summary one image short (and --resume would refuse the image as already saved).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals reach Python in the main thread only
+        return
+    held = []
+    previous = {}
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        handler = signal.getsignal(signum)
+        if callable(handler):
+            previous[signum] = handler
+            signal.signal(signum, lambda number, frame: held.append((number, frame)))
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if held:
+            number, frame = held[0]
+            previous[number](number, frame)
 
 
 @contextlib.contextmanager
