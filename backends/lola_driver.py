@@ -312,19 +312,23 @@ class JointControl:
 class LolaBackend(Backend):
     """A NAO V6 through LoLA's socket at `socket_path` (see the module docstring).
 
-    camera : an object with capture() -> CameraImage | None, intrinsics(), close() (backends.v4l2_camera.V4L2Camera),
-        or None for a robot served without a camera (capture then raises NaocalError).
-    intrinsics : the bottom camera's prior intrinsics if `camera` is None.
+    cameras : objects with `name` ('bottom' or 'top'), capture() -> CameraImage | None, intrinsics(), close()
+        (backends.v4l2_camera.V4L2Camera), each opened on its first capture; none for a robot served without a camera
+        (capture then raises NaocalError naming the missing camera). `camera`: one camera, the same as (camera,).
+    missing_cameras : {name: device} of cameras whose device was not there at start (named when asked for).
+    intrinsics : the bottom camera's prior intrinsics if no camera is given.
     """
 
     name = "lola"
 
-    def __init__(self, socket_path: str = DEFAULT_SOCKET, *, camera=None, intrinsics: CameraIntrinsics | None = None,
+    def __init__(self, socket_path: str = DEFAULT_SOCKET, *, cameras=(), camera=None, missing_cameras=None,
+                 intrinsics: CameraIntrinsics | None = None,
                  hold_s: float = DEFAULT_HOLD_S, ramp_s: float = DEFAULT_RAMP_S, stiffen_s: float = DEFAULT_STIFFEN_S,
                  first_message_timeout_s: float = 2.0, silence_timeout_s: float = 1.0):
         self.socket_path = os.fspath(socket_path)
         self.silence_timeout_s = float(silence_timeout_s)
-        self._camera = camera
+        self._cameras = {getattr(c, "name", "bottom"): c for c in (*cameras, *([camera] if camera else []))}
+        self._missing_cameras = dict(missing_cameras or {})  # {name: device} not found at start
         self._intrinsics = intrinsics
         self._limits = {j: limits.joint_limits()[j] for j in JOINTS}
         self._speeds = {j: limits.max_speeds()[j] for j in JOINTS}
@@ -533,21 +537,21 @@ class LolaBackend(Backend):
 
     @property
     def cameras(self) -> tuple:
-        """The one camera whose V4L2 device this driver opened (none without a camera)."""
-        return () if self._camera is None else (getattr(self._camera, "name", "bottom"),)
+        """The cameras this driver serves: those given whose V4L2 device was present at start."""
+        return tuple(self._cameras)
 
     def capture(self, camera: str = "bottom") -> CameraImage | None:
-        if self._camera is None:
-            raise NaocalError("this LoLA bridge was started without a camera")
-        started = getattr(self._camera, "name", "bottom")
-        if camera != started:  # one V4L2 device is opened at start; the other one may be the team's
-            raise NaocalError(f"this LoLA bridge serves only the {started} camera (the V4L2 device it opened at "
-                              f"start), not the {camera} camera")
-        return self._camera.capture()
+        if camera not in self._cameras:
+            served = f"serves only the {' and '.join(self._cameras)} camera" if self._cameras else "has no camera"
+            why = (f"its device {self._missing_cameras[camera]} was missing at start" if camera in
+                   self._missing_cameras else "it was not asked for (--cameras, --no-camera)")
+            raise NaocalError(f"this LoLA bridge {served}, not the {camera} camera: {why}")
+        return self._cameras[camera].capture()
 
     def intrinsics(self) -> CameraIntrinsics:
-        if self._camera is not None:
-            return self._camera.intrinsics()
+        """The bottom camera's prior (the top one has the same lens); a served camera's own if no bottom one."""
+        if self._cameras:
+            return self._cameras.get("bottom", next(iter(self._cameras.values()))).intrinsics()
         if self._intrinsics is None:
             raise NaocalError("this LoLA bridge was started without a camera and without intrinsics")
         return self._intrinsics
@@ -609,5 +613,5 @@ class LolaBackend(Backend):
             if err.errno not in (errno.ENOTCONN, errno.EBADF):
                 log.debug("shutdown: %s", err)
         self._sock.close()
-        if self._camera is not None:
-            self._camera.close()
+        for camera in self._cameras.values():
+            camera.close()

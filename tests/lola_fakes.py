@@ -471,8 +471,9 @@ class CameraServer:
 
         self.path = os.fspath(path)
         self.physics = physics
-        prior = CAMERAS["bottom"]
-        self.stamp_shift_s = prior.stamp_delay_s + prior.readout_s / 2 + stamp_error_s
+        # per camera: its V4L2 prior, each off by stamp_error_s
+        self.stamp_shift_s = {name: prior.stamp_delay_s + prior.readout_s / 2 + stamp_error_s
+                              for name, prior in CAMERAS.items()}
         self.missing = missing
         self._stop = threading.Event()
 
@@ -495,7 +496,7 @@ class CameraServer:
 
         mock = self.physics.mock
         unpacker = msgpack.Unpacker(raw=False)
-        image, last_k = None, None
+        image, last_k, camera = None, None, "bottom"
         with conn:
             while True:
                 data = conn.recv(4096)
@@ -504,7 +505,8 @@ class CameraServer:
                 unpacker.feed(data)
                 for request in unpacker:
                     op = request.get("op")
-                    if op == "open":
+                    if op == "open":  # the device names the camera, as the NAO's udev rules do
+                        camera = "top" if "top" in str(request.get("device", "")) else "bottom"
                         reply = {"ok": not self.missing}
                     elif op == "grab":
                         # The next frame after the last one served: wait for its arrival, as V4L2's DQBUF does.
@@ -515,9 +517,9 @@ class CameraServer:
                         time.sleep(max(0.0, arrival - time.monotonic()))
                         with self.physics.lock:
                             self.physics._advance_locked(time.monotonic())
-                            image = mock.capture()
+                            image = mock.capture(camera)
                         k = last_k = int(round((mock.exposure_time(image) - FRAME_PHASE_S) / FRAME_PERIOD_S))
-                        stamp_s = self.physics.to_mono(image.t_exposure_s) + self.stamp_shift_s
+                        stamp_s = self.physics.to_mono(image.t_exposure_s) + self.stamp_shift_s[camera]
                         reply = {"ok": True, "k": k, "stamp_ms": stamp_s * 1000.0}
                     elif op == "retrieve" and image is not None:
                         with self.physics.lock:
@@ -540,7 +542,7 @@ class RemoteCapture:
         self._sock.settimeout(10.0)
         self._sock.connect(os.fspath(camera_socket))
         self._unpacker = msgpack.Unpacker(raw=False, max_buffer_size=64 << 20)
-        self._open = bool(self._call({"op": "open"})["ok"])
+        self._open = bool(self._call({"op": "open", "device": str(device)})["ok"])
 
     def _call(self, request) -> dict:
         self._sock.sendall(msgpack.packb(request))
@@ -620,6 +622,7 @@ def _bridge_main(camera_socket, naocal_argv) -> int:
     from tools import cli
 
     v4l2_camera.open_v4l2 = lambda device: RemoteCapture(device, cv2.CAP_V4L2, camera_socket=camera_socket)
+    v4l2_camera.device_present = lambda device: True  # the fake robot serves both cameras
     return cli.main(naocal_argv)
 
 

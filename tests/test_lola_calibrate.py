@@ -121,10 +121,12 @@ def test_calibrating_through_lola_and_v4l2_recovers_the_mock_truth_and_a_killed_
         for joint in LEG_JOINTS:
             error_deg = np.degrees(-stored["body"]["joint_offsets_rad"][joint] - truth.alpha_rad[joint])  # c = -alpha
             assert abs(error_deg) < 0.1, (joint, error_deg)
-        for angle in ("roll", "pitch", "yaw"):
-            camera = stored["head"]["camera_rotation_rad"]["bottom"]
-            error_deg = np.degrees(camera[angle] - truth.camera_rotation_rad[angle])
-            assert abs(error_deg) < 0.1, (angle, error_deg)
+        # Both V4L2 devices (/dev/video-bottom, /dev/video-top) served: one run calibrates both cameras.
+        assert set(stored["head"]["camera_rotation_rad"]) == {"bottom", "top"}
+        for name, true in truth.camera_rotations().items():
+            for angle in ("roll", "pitch", "yaw"):
+                error_deg = np.degrees(stored["head"]["camera_rotation_rad"][name][angle] - true[angle])
+                assert abs(error_deg) < 0.1, (name, angle, error_deg)
         assert stored["robot"]["body_id"] == "P0000074A05S94700111"
 
         # 2. Another run, killed while a leg is moving.

@@ -413,6 +413,40 @@ def test_a_lola_bridge_says_it_offers_only_its_camera(fake, lola_path):
         backend.close()
 
 
+def test_a_lola_bridge_serves_both_v4l2_cameras_each_from_its_own_device(fake, lola_path):
+    opened = []
+
+    def open_capture(device):
+        opened.append(device)
+        return SyntheticCapture(device)
+
+    cameras = [V4L2Camera(name, open_capture=open_capture) for name in ("bottom", "top")]
+    backend = LolaBackend(lola_path, cameras=cameras, ramp_s=0.2)
+    server = BridgeServer(backend, "tcp://127.0.0.1:0", driver="lola", clock="wall").start_thread()
+    client = BridgeBackend(server.endpoint, timeout_s=3.0)
+    try:
+        assert backend.cameras == ("bottom", "top") and client.cameras == ("bottom", "top")
+        assert opened == []  # opened on first use
+        assert client.capture("top") is not None or backend.capture("top") is not None
+        assert opened == ["/dev/video-top"]
+        assert backend.capture("bottom") is not None and opened == ["/dev/video-top", "/dev/video-bottom"]
+    finally:
+        client.close()
+        server.stop()
+        backend.close()
+
+
+def test_a_camera_missing_at_start_is_named_when_asked_for(fake, lola_path):
+    camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
+    backend = LolaBackend(lola_path, cameras=[camera], missing_cameras={"top": "/dev/video-top"}, ramp_s=0.2)
+    try:
+        assert backend.cameras == ("bottom",)
+        with pytest.raises(NaocalError, match="/dev/video-top was missing at start"):
+            backend.capture("top")
+    finally:
+        backend.close()
+
+
 def test_the_lola_driver_over_the_bridge_passes_the_backend_contract(fake, lola_path):
     camera = V4L2Camera("bottom", open_capture=lambda device: SyntheticCapture(device))
     backend = LolaBackend(lola_path, camera=camera, ramp_s=0.2)

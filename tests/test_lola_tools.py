@@ -157,7 +157,9 @@ def test_bad_tool_and_serve_arguments_are_one_line_errors(robot, tmp_path):
                         (["bridge", "serve", "--driver", "lola", "--lola-socket", str(tmp_path / "none")],
                          "no LoLA socket"),
                         (["bridge", "serve", "--driver", "lola", "--lola-socket", fake.path, "--hold-s", "-1"],
-                         "--hold-s")]:
+                         "--hold-s"),
+                        (["bridge", "serve", "--driver", "lola", "--lola-socket", fake.path, "--cameras",
+                          "bottom,side"], "--cameras")]:
         result = naocal(*argv)
         assert result.returncode == 2, argv
         assert match in result.stderr and "Traceback" not in result.stderr and \

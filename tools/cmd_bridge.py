@@ -12,6 +12,7 @@ with `naocal calibrate --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL
 """
 
 import argparse
+import logging
 
 from tools import cmd_bridge_tools
 
@@ -48,6 +49,11 @@ def register(subparsers) -> None:
                       help="... then ramp their stiffness to 0 over this long (default 5)")
     lola.add_argument("--camera-device", default="/dev/video-bottom", metavar="PATH",
                       help="the bottom camera's V4L2 device (default /dev/video-bottom)")
+    lola.add_argument("--top-camera-device", default="/dev/video-top", metavar="PATH",
+                      help="the top camera's V4L2 device (default /dev/video-top); a camera whose device is missing "
+                           "at start is not offered (the agent then calibrates the other one)")
+    lola.add_argument("--cameras", default="bottom,top", metavar="LIST",
+                      help="the cameras to serve: bottom,top (default), bottom or top")
     lola.add_argument("--camera-resolution", default="640x480", choices=("640x480", "1280x960"),
                       help="YUYV frame size (default 640x480)")
     lola.add_argument("--camera-exposure", default="100", metavar="N|auto",
@@ -158,11 +164,14 @@ def _open_backend(args):
 
 
 def _open_lola(args):
-    """The LoLA driver with the bottom camera (opened on first capture) for `serve --driver lola`."""
+    """The LoLA driver with the cameras whose devices exist (each opened on first capture) for `serve --driver lola`."""
     from backends.lola_driver import LolaBackend
     from backends.base import nominal_intrinsics
+    from backends import v4l2_camera
     from backends.v4l2_camera import V4L2Camera, read_intrinsics
     from solver.errors import NaocalError
+
+    log = logging.getLogger("naocal.bridge")
 
     if not 0.0 <= args.hold_s <= 600.0 or not 0.0 < args.ramp_s <= 60.0:
         raise NaocalError(f"--hold-s must be within [0, 600] and --ramp-s within (0, 60], got {args.hold_s}, "
@@ -171,7 +180,10 @@ def _open_lola(args):
         raise NaocalError(f"--lola-timeout-s must be within [0.05, 60], got {args.lola_timeout_s}")
     width, height = (int(n) for n in args.camera_resolution.split("x"))
     intrinsics = read_intrinsics(args.intrinsics) if args.intrinsics else nominal_intrinsics(width, height)
-    camera = None
+    names = [name.strip() for name in args.cameras.split(",") if name.strip()]
+    if not names or len(set(names)) != len(names) or not set(names) <= {"bottom", "top"}:
+        raise NaocalError(f"--cameras must list bottom and/or top, got {args.cameras!r}")
+    cameras, missing = [], {}
     if not args.no_camera:
         if args.camera_exposure == "auto":
             exposure = None
@@ -180,10 +192,19 @@ def _open_lola(args):
         else:
             raise NaocalError(f"--camera-exposure must be 1..10000 (100 us units) or 'auto', got "
                               f"{args.camera_exposure!r}")
-        camera = V4L2Camera("bottom", device=args.camera_device, width=width, height=height, exposure=exposure,
-                            gain=args.camera_gain, intrinsics=intrinsics)
-    return LolaBackend(args.lola_socket, camera=camera, intrinsics=intrinsics, hold_s=args.hold_s,
-                       ramp_s=args.ramp_s, silence_timeout_s=args.lola_timeout_s)
+        devices = {"bottom": args.camera_device, "top": args.top_camera_device}
+        for name in names:
+            if not v4l2_camera.device_present(devices[name]):
+                missing[name] = devices[name]
+                continue
+            # Same lens: the top camera starts from the bottom one's prior too.
+            cameras.append(V4L2Camera(name, device=devices[name], width=width, height=height, exposure=exposure,
+                                      gain=args.camera_gain, intrinsics=intrinsics))
+    backend = LolaBackend(args.lola_socket, cameras=cameras, missing_cameras=missing, intrinsics=intrinsics,
+                          hold_s=args.hold_s, ramp_s=args.ramp_s, silence_timeout_s=args.lola_timeout_s)
+    for name, device in missing.items():  # said once connected, so that a bad start stays one line
+        log.warning("%s camera: no device %s: serving without it", name, device)
+    return backend
 
 
 def _ping(args) -> int:
