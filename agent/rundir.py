@@ -238,11 +238,12 @@ def _shown(key, value) -> str:
 
 
 def _read_json(path: Path):
+    from solver.fileio import read_json  # the safe reader: a regular file only (a FIFO would block), size capped
+
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:
-        raise NaocalError(f"{path}: unreadable ({type(err).__name__}); is {path.parent} a calibration run?") \
-            from None
+        return read_json(path)
+    except NaocalError as err:
+        raise NaocalError(f"{err}; is {path.parent} a calibration run?") from None
 
 
 # ------------------------------------------------------------------------------------------------- datasets

@@ -407,3 +407,14 @@ def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path)
         calibrate(other, tmp_path, settings, detector=other.detector)
     assert "dataset.json" in str(info.value) and "another" in str(info.value) and "nothing was changed" in str(info.value)
     assert snapshot(tmp_path) == before
+
+
+def test_a_fifo_in_place_of_run_json_is_refused_not_waited_on(tmp_path):
+    """--resume reads DIR/run.json: a named pipe there blocked the reader for ever."""
+    out = tmp_path / "run"
+    out.mkdir()
+    os.mkfifo(out / "run.json")
+    result = subprocess.run([sys.executable, "-m", "tools", "calibrate", "--backend", "mock", "--out", str(out),
+                             "--resume"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "run.json" in result.stderr and "FIFO" in result.stderr
