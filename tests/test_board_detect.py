@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from agent import board_detect
 from agent.board_detect import (SANDAL, BoardSpec, channels_to_try, detect_board, image_order, labellings,
                                 line_rms_px, parse_board, polarity)
 from tests.synthetic_boards import board_homography, inner_corners, render
@@ -190,3 +191,68 @@ def test_board_specs_and_bad_arguments():
         detect_board(image, BoardSpec(4, 4), channel="red")
     with pytest.raises(ValueError):
         detect_board(image[..., 0], BoardSpec(4, 4), channel="cr")
+
+
+# --- small, blurred, JPEG-compressed boards: OpenCV's detectors as a second opinion ---------------------------------
+def _small_jpeg_board(seed, columns=10, rows=7, square=40):
+    """A black/white board of 7-12 px squares in perspective on a mottled background, lit unevenly, blurred, noisy,
+    JPEG 70: (BGR image, true inner corners (n, 2) in board order)."""
+    rng = np.random.default_rng(seed)
+    board = np.zeros((rows * square, columns * square), np.uint8)
+    for r in range(rows):
+        for c in range(columns):
+            if (r + c) % 2 == 0:
+                board[r * square:(r + 1) * square, c * square:(c + 1) * square] = 255
+    board = cv2.copyMakeBorder(board, square, square, square, square, cv2.BORDER_CONSTANT, value=255)
+    h, w = board.shape
+    scale = rng.uniform(0.25, 0.45)
+    cx, cy = 320 + rng.uniform(-80, 80), 240 + rng.uniform(-60, 60)
+    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    dst = np.float32([[cx - w * scale / 2, cy - h * scale / 2], [cx + w * scale / 2, cy - h * scale / 2],
+                      [cx + w * scale / 2, cy + h * scale / 2], [cx - w * scale / 2, cy + h * scale / 2]])
+    M = cv2.getPerspectiveTransform(src, dst + rng.uniform(-40, 40, dst.shape).astype(np.float32))
+    background = cv2.resize(rng.uniform(60, 200, (60, 80)).astype(np.uint8), (640, 480))
+    img = cv2.warpPerspective(board, M, (640, 480), dst=background, borderMode=cv2.BORDER_TRANSPARENT)
+    img = img * np.linspace(0.6, 1.1, 640)[None, :] * rng.uniform(0.5, 1.0) + rng.uniform(0, 40)
+    img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.5, 1.5)) + rng.normal(0, 4, img.shape)
+    ok, jpeg = cv2.imencode(".jpg", np.clip(img, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 70])
+    grey = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE)
+    corners = np.array([[square * (i + 2), square * (j + 2)] for j in range(rows - 1) for i in range(columns - 1)],
+                       np.float32) - 0.5  # between two pixels: pixel centres at integer coordinates
+    return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR), cv2.perspectiveTransform(corners[None], M)[0]
+
+
+@pytest.mark.parametrize("seed", [102, 112, 129])  # boards the X-corner checks refuse (of seeds 100-129: 11, of
+# which OpenCV's second opinion finds 7)
+def test_small_blurred_compressed_boards_are_found_with_opencvs_second_opinion(seed):
+    image, truth = _small_jpeg_board(seed)
+    own = board_detect._own_lattices(board_detect.channel_image(image, "grey"), "grey", BoardSpec(10, 7))
+    assert own.grid is None  # the case this covers
+    found = detect_board(image, BoardSpec(10, 7))  # no colours: found, the orientation ambiguous
+    assert found.image_order_px is not None, found.detail
+    error = np.linalg.norm(found.image_order_px[:, None] - truth[None], axis=-1).min(axis=1)
+    assert error.max() < 1.2 and np.sqrt(np.mean(error ** 2)) < 0.5
+
+
+def test_opencvs_second_opinion_does_not_cut_a_bigger_board_down_to_size():
+    """OpenCV finds a board of the size asked for inside a bigger one; the check beyond its outer squares refuses
+    that (here on exact corners of a 10 x 7 board: a 6 x 5 window in it, and the whole board)."""
+    square = 40
+    board = np.zeros((7 * square, 10 * square), np.uint8)
+    for r in range(7):
+        for c in range(10):
+            board[r * square:(r + 1) * square, c * square:(c + 1) * square] = 255 * ((r + c) % 2 == 0)
+    img = cv2.copyMakeBorder(board, 60, 480 - 60 - 7 * square, 60, 640 - 60 - 10 * square,
+                             cv2.BORDER_CONSTANT, value=255)
+    img = cv2.copyMakeBorder(img[20:-20, 20:-20], 20, 20, 20, 20, cv2.BORDER_CONSTANT, value=120)
+
+    def window(x0, y0, columns, rows):  # exact inner corners of a window of the board
+        xs, ys = np.meshgrid(np.arange(columns), np.arange(rows))
+        cells = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+        return cells, 60 - 0.5 + square * (cells + [x0 + 1, y0 + 1])
+
+    for (x0, y0, columns, rows), bigger in (((2, 1, 5, 4), True), ((0, 0, 9, 6), False)):
+        cells, points = window(x0, y0, columns, rows)
+        ok, contrast, _ = board_detect.alternation(img, cells, points)
+        assert ok
+        assert board_detect._continues_beyond(img, cells, points, contrast, rows, columns) == bigger
