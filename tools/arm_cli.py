@@ -144,6 +144,8 @@ def json_safe(obj):
 
 def write_calibration(path, report, dataset, dataset_path) -> None:
     """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
+    from pathlib import Path
+
     from solver.fileio import atomic_write_text
     from solver.offsets import utc_now_iso
 
@@ -159,7 +161,8 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
             "rotation_rad": [params[f"sensor.{s.name}.rotation.{a}"]["value"] for a in "xyz"],
             "translation_m": [params[f"sensor.{s.name}.translation.{a}"]["value"] for a in "xyz"]}
     doc = {"schema": CALIBRATION_SCHEMA, "created": utc_now_iso(),
-           "robot": dict(report["robot"], id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
+           "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
+                         id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
            "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"]},
            "fit": {"rms": report["rms"], "noise": report["noise"], "heldout": report["heldout"],
