@@ -52,7 +52,10 @@ def _check_nao_only(args) -> None:
 def _load(args):
     from solver.arm_dataset import read_arm_dataset
 
-    return read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
+    dataset = read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
+    for note in dataset.notes or ():
+        print(f"naocal {args.verb}: note: {note}", file=sys.stderr)
+    return dataset
 
 
 def _unit_of(kind):
