@@ -179,3 +179,27 @@ def test_an_arm_without_hidden_errors_is_reported_honestly(tmp_path, capsys):
     assert report["weak_directions"] and all(w["coefficients"] for w in report["weak_directions"])
     assert main(["diagnose", str(d), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["verdict"] is None
+
+
+def test_the_examples_in_formats_md_read_as_documented(tmp_path, capsys):
+    """docs/FORMATS.md's dataset.json and observations.csv examples, as they are there."""
+    import re
+    import shutil
+    from pathlib import Path
+
+    from solver.arm_dataset import resolve_robot
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "FORMATS.md").read_text()
+    section = text[text.index("## `naocal.arm_dataset/1`"):]
+    meta = re.search(r"```json\n(.*?)```", section, re.S).group(1)
+    rows = re.search(r"```\n(# exported.*?)```", section, re.S).group(1)
+    (tmp_path / "dataset.json").write_text(meta)
+    (tmp_path / "observations.csv").write_text(rows)
+    shutil.copyfile(resolve_robot("franka_panda", None)[0], tmp_path / "panda.urdf")
+    data = read_arm_dataset(tmp_path)
+    obs = data.observations
+    assert len(obs) == 3 and "1 row(s) without a measurement" in data.notes[0]
+    assert np.allclose(obs.theta[0], np.radians([12.5, -30.0, 5.0, -120.0, 10.0, 95.0, 45.0]))
+    assert np.allclose(obs.measured[0], [1.532114, -2.010527, 0.312880])  # mm -> m
+    assert np.allclose(obs.measured[1, :2], [702.31, 488.90]) and obs.pose.tolist() == [0, 0, 1]
+    assert [s.name for s in data.sensors] == ["tracker", "camera"] and data.sensors[0].noise == 2e-5
