@@ -22,6 +22,13 @@ LIMITS = {"rad": math.radians(20.0), "m": 0.1}
 SENSOR_LIMITS = {"rad": 2 * math.pi, "m": 100.0}  # a sensor's frame: anywhere within 100 m
 
 
+def implausible(parameters: dict) -> list:
+    """Names of {name: {"value", "unit"}} beyond what a calibration file may hold (LIMITS): identify refuses such a
+    fit (exit 3) rather than write a file every reader would refuse."""
+    return [n for n, e in parameters.items() if not n.startswith("sensor.")
+            and abs(e["value"]) > LIMITS.get(e["unit"], math.inf)]
+
+
 @dataclass
 class ArmCalibration:
     path: str

@@ -205,3 +205,14 @@ def test_offsets_export_urdf_gives_the_calibrated_arm_to_pybullet(tmp_path, caps
     # and the nominal URDF is not where the calibration puts the hand (the test can fail)
     zero = model.base_points(np.zeros(len(model.names)), obs).reshape(5, 3, 3)
     assert np.abs(zero - expected).max() > 1e-3
+
+
+def test_identify_refuses_a_fit_beyond_what_a_calibration_file_may_hold(tmp_path, capsys):
+    """A joint whose readings are 25 deg off the URDF's zero (another zero convention): exit 3 and no file, not a
+    calibration file every reader then refuses."""
+    truth = dict(true_errors(seed=8), **{"joint_offset.panda_joint4": math.radians(25.0)})
+    model, obs, _, sensors = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=30, seed=9)
+    d = write(tmp_path / "d", model, obs, sensors)
+    code, _, err = run(capsys, "identify", d, "--out", tmp_path / "cal.json")
+    assert code == 3 and "joint_offset.panda_joint4" in err and "nothing written" in err, err
+    assert not (tmp_path / "cal.json").exists()

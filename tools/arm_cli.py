@@ -131,6 +131,14 @@ def run_identify(args) -> int:
     fit = identify_dataset(dataset, effects, fixed=tuple(args.fix))
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
+    from solver.arm_calibration import LIMITS, implausible
+
+    beyond = implausible(fit.parameters_dict())
+    if beyond:
+        e = fit.parameters_dict()[beyond[0]]
+        raise SolveError(f"{beyond[0]} = {e['value']:.4g} {e['unit']} is beyond any plausible calibration "
+                         f"({LIMITS[e['unit']]:.4g} {e['unit']}; {len(beyond)} such): is the URDF the arm's, are the "
+                         "readings' zeros its zeros? nothing written")
     heldout = heldout_rms(fit, args.cv_folds) if args.cv_folds and args.cv_folds > 1 else None
     report = result_json(fit, dataset, heldout)
     if args.out:
