@@ -27,6 +27,9 @@ MISSING = ("", "nan", "NaN", "NAN", "-nan")  # a measurement a sensor did not ma
 ANGLE_MARGIN = math.radians(10.0)  # readings beyond a joint's URDF limits by more are refused
 MAX_POINT_M = 100.0  # a 3-D reading farther from its sensor is refused
 WORKSPACE_M = 10.0  # a point on the tip farther from the tip frame is refused
+MAX_PIXELS = 1e5  # image sizes, focal lengths and principal points, px
+MAX_DISTORTION = 1e3  # OpenCV distortion coefficients
+MAX_NOISE = {"noise_m": 1.0, "noise_px": 1e3}
 PYBULLET_ARMS = {  # --robot NAME: URDFs that ship with pybullet (pybullet_data), with their chain and tool
     "kuka_iiwa": ("kuka_iiwa/model.urdf", "lbr_iiwa_link_0", "lbr_iiwa_link_7"),
     "franka_panda": ("franka_panda/panda.urdf", "panda_link0", "panda_hand"),
@@ -114,18 +117,21 @@ def _fail(path, problem, field=None, line=None):
     raise DataError(path, problem, field=field, line=line)
 
 
-def _number(value, path, field, *, positive=False):
+def _number(value, path, field, *, positive=False, bound=None):
+    """A finite number, positive if asked, and within +-bound (generous physical bounds: docs/FORMATS.md)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
     if positive and value <= 0:
         _fail(path, f"must be positive, got {value!r}", field)
+    if bound is not None and abs(value) > bound:
+        _fail(path, f"{value!r} is beyond any plausible value (at most {bound:g} in size)", field)
     return float(value)
 
 
-def _vector(value, path, field, n=3):
+def _vector(value, path, field, n=3, bound=None):
     if not isinstance(value, list) or len(value) != n:
         _fail(path, f"expected a list of {n} numbers", field)
-    return tuple(_number(v, path, f"{field}[{i}]") for i, v in enumerate(value))
+    return tuple(_number(v, path, f"{field}[{i}]", bound=bound) for i, v in enumerate(value))
 
 
 def _object(value, path, field, allowed=None, required=()):
@@ -160,15 +166,17 @@ def _sensor(name, doc, path) -> Sensor:
     wrong = "noise_px" if kind == "points" else "noise_m"
     if wrong in doc:
         _fail(path, f"a {kind} sensor states its noise as {noise_key}", f"{where}.{wrong}")
-    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True) if noise_key in doc else None
+    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True,
+                    bound=MAX_NOISE[noise_key]) if noise_key in doc else None
     intrinsics = None
     if kind == "camera":
         for key in CAMERA_FIELDS:
             if key not in doc:
                 _fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
-        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px")
-                      for key in CAMERA_FIELDS}
-        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5))
+        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px",
+                                   bound=MAX_PIXELS) for key in CAMERA_FIELDS}
+        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5,
+                                                bound=MAX_DISTORTION))
     else:
         for key in CAMERA_FIELDS + ("distortion",):
             if key in doc:
@@ -177,8 +185,8 @@ def _sensor(name, doc, path) -> Sensor:
     if "pose" in doc:
         pose = _object(doc["pose"], path, f"{where}.pose", ("rotation_rad", "translation_m"),
                        ("rotation_rad", "translation_m"))
-        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad")
-        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m")
+        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad", bound=2 * math.pi)
+        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m", bound=MAX_POINT_M)
     return Sensor(name, kind, intrinsics, noise, rotation, translation)
 
 
@@ -222,7 +230,10 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
                     for name, doc in _object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
         _fail(meta_path, "no sensors", "sensors")
-    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2")
+    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2", bound=13.0)
+    if not 7.0 <= math.hypot(*gravity) <= 13.0:
+        _fail(meta_path, f"|g| = {math.hypot(*gravity):.4g} m/s^2: expected 7-13 (m/s^2, in the base frame)",
+              "gravity_mps2")
     notes = []
     obs = _read_observations(directory / "observations.csv", kin_chain.joint_names, sensors, tuple(points),
                              joint_limits(urdf_path, kin_chain.joint_names), notes)

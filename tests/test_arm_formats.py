@@ -5,6 +5,7 @@ honestly. On synthetic data of the Franka Panda (tests/test_arm.py)."""
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -203,3 +204,18 @@ def test_the_examples_in_formats_md_read_as_documented(tmp_path, capsys):
     assert np.allclose(obs.measured[0], [1.532114, -2.010527, 0.312880])  # mm -> m
     assert np.allclose(obs.measured[1, :2], [702.31, 488.90]) and obs.pose.tolist() == [0, 0, 1]
     assert [s.name for s in data.sensors] == ["tracker", "camera"] and data.sensors[0].noise == 2e-5
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda m: m["sensors"]["camera"].update(fx_px=1e308), "sensors.camera.fx_px"),  # once an SVD failure
+    (lambda m: m["sensors"]["camera"].update(distortion=[1e300, 0, 0, 0, 0]), "sensors.camera.distortion[0]"),
+    (lambda m: m["sensors"]["tracker"].update(noise_m=5.0), "sensors.tracker.noise_m"),
+    (lambda m: m["sensors"]["tracker"].update(pose={"rotation_rad": [1e300, 0, 0], "translation_m": [0, 0, 0]}),
+     "sensors.tracker.pose.rotation_rad[0]"),
+    (lambda m: m.update(gravity_mps2=[0.0, 0.0, -9810.0]), "gravity_mps2[2]"),
+    (lambda m: m.update(gravity_mps2=[0.0, 0.0, 0.0]), "gravity_mps2"),
+])
+def test_implausible_dataset_json_numbers_are_refused_naming_the_field(plain, tmp_path, edit, field):
+    directory, _ = plain
+    with pytest.raises(DataError, match=rf"field '{re.escape(field)}'"):
+        read_arm_dataset(copy(directory, tmp_path / "bad", edit_meta=edit))
