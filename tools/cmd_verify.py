@@ -18,7 +18,8 @@ def register(subparsers):
     )
     p.add_argument("dataset", metavar="DATASET",
                    help="naocal.dataset/2 (or /1) directory of new captures, or a `naocal calibrate --out` run")
-    p.add_argument("--offsets", required=True, metavar="FILE", help="the calibration: naocal.offsets/2 (or /1); an arm's naocal.arm_calibration/1")
+    p.add_argument("--offsets", required=True, metavar="FILE",
+                   help="the calibration: naocal.offsets/2 (or /1); an arm's naocal.arm_calibration/1")
     p.add_argument("--json", action="store_true", help="print one JSON object (docs/DIAGNOSTICS.md) instead of text")
     from tools.cmd_identify import add_angles_option
 
