@@ -63,14 +63,12 @@ def _text(value, path, field):
 
 
 def is_arm_calibration(path) -> bool:
-    """Whether `path` is a file whose head says naocal.arm_calibration/1 (anything unreadable: no)."""
-    from solver.fileio import MAX_JSON_BYTES, read_text
-
-    try:  # a regular file only: a FIFO must not block the check
-        head = read_text(path, max_bytes=MAX_JSON_BYTES)[:4096]
+    """Whether `path` is a file whose JSON says naocal.arm_calibration/1 (anything unreadable: no)."""
+    try:  # a regular file only: a FIFO must not block the check; the whole file (the key may come last)
+        doc = read_json(path)
     except DataError:
         return False
-    return f'"{SCHEMA}"' in head
+    return isinstance(doc, dict) and doc.get("schema") == SCHEMA
 
 
 def read_arm_calibration(path) -> ArmCalibration:

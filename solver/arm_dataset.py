@@ -82,13 +82,13 @@ def resolve_robot(robot: str | None, chain: str | None):
 
 def is_arm_dataset(path) -> bool:
     """Whether `path` is a directory whose dataset.json says naocal.arm_dataset/1 (anything unreadable: no)."""
-    from solver.fileio import MAX_JSON_BYTES, read_text
+    from solver.fileio import read_json
 
-    try:  # a regular file only: a FIFO here must not block the check
-        head = read_text(Path(path) / "dataset.json", max_bytes=MAX_JSON_BYTES)[:4096]
+    try:  # a regular file only: a FIFO here must not block the check; the whole file (the key may come last)
+        doc = read_json(Path(path) / "dataset.json")
     except DataError:
         return False
-    return f'"{SCHEMA}"' in head
+    return isinstance(doc, dict) and doc.get("schema") == SCHEMA
 
 
 def arm_chain(urdf_path, base, tip, where_path):

@@ -219,3 +219,22 @@ def test_implausible_dataset_json_numbers_are_refused_naming_the_field(plain, tm
     directory, _ = plain
     with pytest.raises(DataError, match=rf"field '{re.escape(field)}'"):
         read_arm_dataset(copy(directory, tmp_path / "bad", edit_meta=edit))
+
+
+def test_an_arm_dataset_is_recognised_wherever_its_schema_key_stands(plain, tmp_path, capsys):
+    """A real export may write `schema` last, after kilobytes of points and sensors."""
+    directory, _ = plain
+
+    def schema_last(meta):
+        meta.pop("schema")
+        meta["about"] = "x" * 5000
+        meta["schema"] = "naocal.arm_dataset/1"
+
+    d = copy(directory, tmp_path / "last", edit_meta=schema_last)
+    assert main(["identify", str(d), "--cv-folds", "0", "--out", str(tmp_path / "cal.json")]) == 0, \
+        capsys.readouterr().err
+    doc = json.loads((tmp_path / "cal.json").read_text())
+    doc["about"] = "y" * 5000
+    doc["schema"] = doc.pop("schema")
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    assert main(["offsets", "validate", str(tmp_path / "cal.json")]) == 0
