@@ -40,12 +40,13 @@ class Test:
     values: dict  # parameter name -> predicted value (SI)
     significant: bool = False
     noise_rss: float = float("nan")  # what the group removes from the residuals' own errors on average (per pose)
+    testable: bool = True  # False: too few poses for its directions (k >= poses - 1): p-value 1, not named
 
     def as_dict(self):
         return {"label": self.label, "dof": self.k, "drss": self.drss, "noise_rss": self.noise_rss,
                 "p_value": self.p_value,
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
-                "significant": self.significant}
+                "significant": self.significant, "testable": self.testable}
 
 
 def extended(fit: ArmFit, effects=tuple(EFFECTS)):
@@ -102,7 +103,8 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
         delta = -(Vt[:k].T @ (proj / sv[:k]))  # in scaled units, on the group's columns
         values = {big.names[c]: float(d * big.scales[c]) for c, d in zip(cols, delta)}
         tests.append(Test(label, k, drss, p_value, uniqueness, predicted, values,
-                          noise_rss=clustered.noise_rss if np.isfinite(clustered.noise_rss) else float(k)))
+                          noise_rss=clustered.noise_rss if np.isfinite(clustered.noise_rss) else float(k),
+                          testable=bool(np.isfinite(clustered.p_value))))
     return tests
 
 
@@ -169,7 +171,7 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
     # the pose-correlated errors' share instead of 1 per parameter): of two that explain the misfit alike, the
     # smaller wins (link poses hold the link lengths and fit 13 more noise parameters on the panda).
     penalty = 1.0 + math.log(max(2, int(model.component_mask(obs).sum())))
-    candidates.sort(key=lambda c: (not c.significant, -(c.drss - penalty * c.noise_rss)))
+    candidates.sort(key=lambda c: (not c.significant, not c.testable, -(c.drss - penalty * c.noise_rss)))
     location = score_tests(fit, location_groups(fit))
     location.sort(key=lambda t: (t.k == 0, -(t.drss - penalty * t.noise_rss)))
     # worst poses by whitened RMS
@@ -234,8 +236,12 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         top = sorted(c.values.items(), key=lambda kv: -abs(kv[1]))[:3]
         values = ", ".join(f"{n} {_shown_value(n, v, units)}" for n, v in top)
         lines.append(f"  {c.label:14s} dof {c.k:3d}  dRSS {c.drss:10.1f}  p {c.p_value:8.1e}  "
-                     f"{'yes' if c.significant else 'no ':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
+                     f"{'yes' if c.significant else 'no ' if c.testable else 'n/a':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
                      + (f"; {values}" if c.significant else ""))
+    untestable = [c.label for c in d.candidates if not c.testable]
+    if untestable:
+        lines.append(f"n/a: {', '.join(untestable)}: more directions than the {len(np.unique(fit.obs.pose))} poses "
+                     "can judge (significance counts poses): measure more poses to test them")
     for name, reason in fit.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     best = d.best

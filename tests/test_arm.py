@@ -173,6 +173,18 @@ def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate()
     assert d.best is not None and d.best.label == "link_lengths"
 
 
+def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
+    """Significance counts poses: 12 poses cannot judge link poses (13 directions) or points (19); they are marked
+    n/a and not named, the 5-parameter elasticity is still tested."""
+    from solver.arm_diagnose import diagnose, format_diagnosis
+
+    model, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=3), n_poses=12, seed=4)
+    d = diagnose(fit(model, obs, initialise_sensors(model, obs)), n_folds=0)
+    testable = {c.label: c.testable for c in d.candidates}
+    assert testable == {"link_poses": False, "points": False, "elasticity": True}
+    assert d.best is None and "n/a: link_poses, points" in format_diagnosis(d)
+
+
 def test_diagnose_names_elasticity_under_gravity():
     from solver.arm_diagnose import diagnose
 
