@@ -7,8 +7,6 @@ import json
 import math
 import sys
 
-from solver.arm_calibration import SCHEMA as CALIBRATION_SCHEMA
-
 
 def add_arm_options(parser, *, simulate=False) -> None:
     """--robot and --chain (argparse only)."""
@@ -157,6 +155,7 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
     """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
     from pathlib import Path
 
+    from solver.arm_calibration import SCHEMA
     from solver.fileio import atomic_write_text
     from solver.offsets import utc_now_iso
 
@@ -171,7 +170,7 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
         sections["sensors"][s.name] = {
             "rotation_rad": [params[f"sensor.{s.name}.rotation.{a}"]["value"] for a in "xyz"],
             "translation_m": [params[f"sensor.{s.name}.translation.{a}"]["value"] for a in "xyz"]}
-    doc = {"schema": CALIBRATION_SCHEMA, "created": utc_now_iso(),
+    doc = {"schema": SCHEMA, "created": utc_now_iso(),
            "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
                          id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
