@@ -4,7 +4,6 @@ the command gets --robot / --chain, a naocal.arm_dataset/1 directory or a naocal
 from __future__ import annotations
 
 import json
-import math
 import sys
 
 
