@@ -22,6 +22,14 @@ SCHEMA = "naocal.arm_dataset/1"
 JOINT_UNITS = {"_rad": 1.0, "_deg": math.pi / 180.0}
 POINT_UNITS = {"_m": 1.0, "_mm": 1e-3}
 PIXEL_COLUMNS = ("u_px", "v_px")
+DELIMITERS = (",", ";", "\t")  # ',' (the format); ';' (with decimal commas) or a tab as spreadsheets export
+MISSING = ("", "nan", "NaN", "NAN", "-nan")  # a measurement a sensor did not make (a marker out of sight)
+ANGLE_MARGIN = math.radians(10.0)  # readings beyond a joint's URDF limits by more are refused
+MAX_POINT_M = 100.0  # a 3-D reading farther from its sensor is refused
+WORKSPACE_M = 10.0  # a point on the tip farther from the tip frame is refused
+MAX_PIXELS = 1e5  # image sizes, focal lengths and principal points, px
+MAX_DISTORTION = 1e3  # OpenCV distortion coefficients
+MAX_NOISE = {"noise_m": 1.0, "noise_px": 1e3}
 PYBULLET_ARMS = {  # --robot NAME: URDFs that ship with pybullet (pybullet_data), with their chain and tool
     "kuka_iiwa": ("kuka_iiwa/model.urdf", "lbr_iiwa_link_0", "lbr_iiwa_link_7"),
     "franka_panda": ("franka_panda/panda.urdf", "panda_link0", "panda_hand"),
@@ -42,6 +50,7 @@ class ArmDataset:
     points: dict  # name -> (3,) in the tip frame, m
     observations: Observations
     gravity_mps2: tuple
+    notes: list = None  # what the reader left out and why (printed by the commands)
 
     @property
     def joints(self) -> tuple:
@@ -73,13 +82,13 @@ def resolve_robot(robot: str | None, chain: str | None):
 
 def is_arm_dataset(path) -> bool:
     """Whether `path` is a directory whose dataset.json says naocal.arm_dataset/1 (anything unreadable: no)."""
-    from solver.fileio import MAX_JSON_BYTES, read_text
+    from solver.fileio import read_json
 
-    try:  # a regular file only: a FIFO here must not block the check
-        head = read_text(Path(path) / "dataset.json", max_bytes=MAX_JSON_BYTES)[:4096]
+    try:  # a regular file only: a FIFO here must not block the check; the whole file (the key may come last)
+        doc = read_json(Path(path) / "dataset.json")
     except DataError:
         return False
-    return f'"{SCHEMA}"' in head
+    return isinstance(doc, dict) and doc.get("schema") == SCHEMA
 
 
 def arm_chain(urdf_path, base, tip, where_path):
@@ -108,18 +117,21 @@ def _fail(path, problem, field=None, line=None):
     raise DataError(path, problem, field=field, line=line)
 
 
-def _number(value, path, field, *, positive=False):
+def _number(value, path, field, *, positive=False, bound=None):
+    """A finite number, positive if asked, and within +-bound (generous physical bounds: docs/FORMATS.md)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
     if positive and value <= 0:
         _fail(path, f"must be positive, got {value!r}", field)
+    if bound is not None and abs(value) > bound:
+        _fail(path, f"{value!r} is beyond any plausible value (at most {bound:g} in size)", field)
     return float(value)
 
 
-def _vector(value, path, field, n=3):
+def _vector(value, path, field, n=3, bound=None):
     if not isinstance(value, list) or len(value) != n:
         _fail(path, f"expected a list of {n} numbers", field)
-    return tuple(_number(v, path, f"{field}[{i}]") for i, v in enumerate(value))
+    return tuple(_number(v, path, f"{field}[{i}]", bound=bound) for i, v in enumerate(value))
 
 
 def _object(value, path, field, allowed=None, required=()):
@@ -154,15 +166,17 @@ def _sensor(name, doc, path) -> Sensor:
     wrong = "noise_px" if kind == "points" else "noise_m"
     if wrong in doc:
         _fail(path, f"a {kind} sensor states its noise as {noise_key}", f"{where}.{wrong}")
-    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True) if noise_key in doc else None
+    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True,
+                    bound=MAX_NOISE[noise_key]) if noise_key in doc else None
     intrinsics = None
     if kind == "camera":
         for key in CAMERA_FIELDS:
             if key not in doc:
                 _fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
-        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px")
-                      for key in CAMERA_FIELDS}
-        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5))
+        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px",
+                                   bound=MAX_PIXELS) for key in CAMERA_FIELDS}
+        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5,
+                                                bound=MAX_DISTORTION))
     else:
         for key in CAMERA_FIELDS + ("distortion",):
             if key in doc:
@@ -171,8 +185,8 @@ def _sensor(name, doc, path) -> Sensor:
     if "pose" in doc:
         pose = _object(doc["pose"], path, f"{where}.pose", ("rotation_rad", "translation_m"),
                        ("rotation_rad", "translation_m"))
-        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad")
-        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m")
+        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad", bound=2 * math.pi)
+        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m", bound=MAX_POINT_M)
     return Sensor(name, kind, intrinsics, noise, rotation, translation)
 
 
@@ -184,8 +198,8 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
     if not directory.is_dir():
         _fail(directory, "not a dataset directory")
     meta = read_json(meta_path)  # regular files only, size and nesting capped (solver/fileio.py)
-    meta = _object(meta, meta_path, "", ("schema", "robot", "points", "sensors", "gravity_mps2", "source", "about"),
-                   ("schema", "points", "sensors"))
+    meta = _object(meta, meta_path, "", ("schema", "robot", "points", "sensors", "gravity_mps2", "source", "about",
+                                         "notes", "created"), ("schema", "points", "sensors"))
     if meta["schema"] != SCHEMA:
         _fail(meta_path, f"wrong schema {str(meta['schema'])[:60]!r}, expected {SCHEMA!r}", "schema")
     robot_meta = _object(meta.get("robot", {}), meta_path, "robot", ("id", "model", "urdf", "base", "tip", "about"))
@@ -207,64 +221,98 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         _name(name, meta_path, "points")
         point = _object(point, meta_path, f"points.{name}", ("xyz_m", "about"), ("xyz_m",))
         points[name] = _vector(point["xyz_m"], meta_path, f"points.{name}.xyz_m")
+        if max(abs(v) for v in points[name]) > WORKSPACE_M:
+            _fail(meta_path, f"more than {WORKSPACE_M:.0f} m from the tip frame (millimetres? xyz_m is in m)",
+                  f"points.{name}.xyz_m")
     if not points:
         _fail(meta_path, "no points: name at least one point on the end effector", "points")
     sensors = tuple(_sensor(_name(name, meta_path, "sensors"), doc, meta_path)
                     for name, doc in _object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
         _fail(meta_path, "no sensors", "sensors")
-    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2")
-    obs = _read_observations(directory / "observations.csv", kin_chain.joint_names, sensors, tuple(points))
+    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2", bound=13.0)
+    if not 7.0 <= math.hypot(*gravity) <= 13.0:
+        _fail(meta_path, f"|g| = {math.hypot(*gravity):.4g} m/s^2: expected 7-13 (m/s^2, in the base frame)",
+              "gravity_mps2")
+    notes = []
+    obs = _read_observations(directory / "observations.csv", kin_chain.joint_names, sensors, tuple(points),
+                             joint_limits(urdf_path, kin_chain.joint_names), notes)
+    seen = sorted(set(obs.sensor.tolist()))
+    if len(seen) < len(sensors):  # e.g. a camera named in dataset.json, but only tracker rows: left out, said so
+        unused = [s.name for i, s in enumerate(sensors) if i not in seen]
+        notes.append(f"{meta_path}: sensor(s) {', '.join(unused)} without observations left out")
+        obs.sensor = np.searchsorted(seen, obs.sensor)
+        sensors = tuple(sensors[i] for i in seen)
     return ArmDataset(directory, meta, Path(urdf_path), base, tip, kin_chain, link_names, load, sensors, points, obs,
-                      gravity)
+                      gravity, notes)
 
 
-def _read_observations(path, joints, sensors, points) -> Observations:
-    text = read_text(path)  # regular files only, at most 64 MiB (solver/fileio.py)
-    reader = csv.reader(io.StringIO(text, newline=""))
+def joint_limits(urdf_path, joints) -> dict:
+    """{joint: (lower, upper)} rad of the URDF's revolute joints among `joints` (continuous ones have none)."""
+    from solver.urdf import parse_urdf
+
+    urdf = parse_urdf(urdf_path)
+    return {j: (urdf.joints[j].lower, urdf.joints[j].upper) for j in joints
+            if urdf.joints[j].kind == "revolute" and math.isfinite(urdf.joints[j].lower + urdf.joints[j].upper)}
+
+
+def _comment_free_lines(text):
+    """The file's lines with comment lines ('#' first) and blank lines emptied (line numbers kept)."""
+    return ["" if not line.strip() or line.lstrip().startswith("#") else line
+            for line in text.splitlines(keepends=True)]
+
+
+def _read_observations(path, joints, sensors, points, limits=None, notes=None) -> Observations:
+    """The rows of observations.csv (docs/FORMATS.md); `limits` {joint: (lower, upper)} rad from the URDF; what was
+    skipped goes to `notes`."""
+    notes = [] if notes is None else notes
+    lines = _comment_free_lines(read_text(path))  # regular files only, at most 64 MiB (solver/fileio.py)
+    first = next((i for i, line in enumerate(lines) if line), None)
+    if first is None:
+        _fail(path, "empty file: no header row", line=1)
+    delimiter = next((d for d in DELIMITERS if d in lines[first]), ",")
+    decimal_comma = delimiter == ";"
+    reader = csv.reader(io.StringIO("".join(lines), newline=""), delimiter=delimiter)
     try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        _fail(path, "empty file", line=1)
+        header = next(row for row in reader if row and any(cell.strip() for cell in row))
     except csv.Error as err:
-        _fail(path, f"malformed CSV: {err}", line=1)
+        _fail(path, f"malformed CSV: {err}", line=first + 1)
+    header_line = reader.line_num
+    header = [h.strip() for h in header]
     seen = set()
     for h in header:
         if h in seen:
-            _fail(path, "column named twice", field=h, line=1)
+            _fail(path, "column named twice", field=h, line=header_line)
         seen.add(h)
     col = {h: i for i, h in enumerate(header)}
-    for required in ("sensor", "point"):
-        if required not in col:
-            _fail(path, "missing column", field=required, line=1)
+    for required, names in (("sensor", [s.name for s in sensors]), ("point", list(points))):
+        if required not in col and len(names) != 1:
+            _fail(path, f"missing column (needed when dataset.json names more than one {required})", field=required,
+                  line=header_line)
     joint_cols = []
     for joint in joints:
         found = [(joint + suffix, factor) for suffix, factor in JOINT_UNITS.items() if joint + suffix in col]
         if len(found) > 1:
-            _fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=1)
+            _fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=header_line)
         if not found:
             hint = f" (a column {joint!r} needs its unit: {joint}_rad or {joint}_deg)" if joint in col else ""
             _fail(path, f"missing the column of chain joint {joint}: {joint}_rad or {joint}_deg{hint}", field=joint,
-                  line=1)
-        joint_cols.append((col[found[0][0]], found[0][1], found[0][0]))
-    kinds = {s.kind for s in sensors}
-    xyz_cols = None
-    if "points" in kinds:
-        units = [suffix for suffix in POINT_UNITS if all(f"{a}{suffix}" in col for a in "xyz")]
-        if not units:
-            _fail(path, "a 3-D sensor needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)", field="x_m", line=1)
-        if len(units) > 1:
-            _fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=1)
-        xyz_cols = ([col[f"{a}{units[0]}"] for a in "xyz"], POINT_UNITS[units[0]], units[0])
-    if "camera" in kinds:
-        for c in PIXEL_COLUMNS:
-            if c not in col:
-                _fail(path, "a camera needs the columns u_px, v_px", field=c, line=1)
+                  line=header_line)
+        joint_cols.append((col[found[0][0]], found[0][1], found[0][0], joint))
+    units = [suffix for suffix in POINT_UNITS if all(f"{a}{suffix}" in col for a in "xyz")]
+    if len(units) > 1:
+        _fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=header_line)
+    xyz_cols = ([col[f"{a}{units[0]}"] for a in "xyz"], POINT_UNITS[units[0]], units[0]) if units else None
     sensor_index = {s.name: i for i, s in enumerate(sensors)}
     point_index = {p: i for i, p in enumerate(points)}
     pose_col = col.get("pose")
-    theta, pose, sensor, point, measured, lines = [], [], [], [], [], []
-    line = 1
+    theta, pose, sensor, point, measured, rows_read = [], [], [], [], [], []
+    unseen = 0
+    line = header_line
+
+    def number(text, field):
+        return _cell(text.replace(",", ".") if decimal_comma else text, path, line, field)
+
     try:
         for row in reader:
             line = reader.line_num
@@ -273,38 +321,79 @@ def _read_observations(path, joints, sensors, points) -> Observations:
             if len(row) != len(header):
                 _fail(path, f"expected {len(header)} cells, got {len(row)}", line=line)
             row = [cell.strip() for cell in row]
-            name = row[col["sensor"]]
+            name = row[col["sensor"]] if "sensor" in col else sensors[0].name
             if name not in sensor_index:
                 _fail(path, f"unknown sensor {name[:40]!r} (dataset.json has {', '.join(sensor_index)})",
                       field="sensor", line=line)
             s = sensor_index[name]
-            pname = row[col["point"]]
+            pname = row[col["point"]] if "point" in col else next(iter(points))
             if pname not in point_index:
                 _fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
                       field="point", line=line)
-            theta.append([_cell(row[i], path, line, field) * factor for i, factor, field in joint_cols])
-            if pose_col is not None:
-                value = _cell(row[pose_col], path, line, "pose")
-                if value != int(value):
-                    _fail(path, f"expected an integer, got {row[pose_col][:40]!r}", field="pose", line=line)
-                pose.append(int(value))
             if sensors[s].kind == "points":
+                if xyz_cols is None:
+                    _fail(path, f"a 3-D sensor's row ({name}) needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)",
+                          field="x_m", line=line)
                 cols, factor, suffix = xyz_cols
-                measured.append([_cell(row[i], path, line, f"{a}{suffix}") * factor for i, a in zip(cols, "xyz")])
+                cells = [(row[i], f"{a}{suffix}") for i, a in zip(cols, "xyz")]
             else:
-                measured.append([_cell(row[col[c]], path, line, c) for c in PIXEL_COLUMNS] + [0.0])
+                for c in PIXEL_COLUMNS:
+                    if c not in col:
+                        _fail(path, f"a camera's row ({name}) needs the columns u_px, v_px", field=c, line=line)
+                cells = [(row[col[c]], c) for c in PIXEL_COLUMNS]
+            if all(text in MISSING for text, _ in cells):  # not seen at this pose: no observation
+                unseen += 1
+                continue
+            values = [number(text, field) for text, field in cells]
+            if sensors[s].kind == "points":
+                values = [v * xyz_cols[1] for v in values]
+                far = max(range(3), key=lambda a: abs(values[a]))
+                if abs(values[far]) > MAX_POINT_M:
+                    _fail(path, f"a 3-D reading {abs(values[far]):.4g} m from its sensor (more than {MAX_POINT_M:.0f} "
+                                "m: millimetres in an _m column?)", field=cells[far][1], line=line)
+            else:
+                k = sensors[s].intrinsics
+                if not (-k["width_px"] <= values[0] <= 2 * k["width_px"]
+                        and -k["height_px"] <= values[1] <= 2 * k["height_px"]):
+                    _fail(path, f"pixel ({values[0]:.6g}, {values[1]:.6g}) is beyond one image size of camera "
+                                f"{name}'s {k['width_px']:.0f} x {k['height_px']:.0f} image", field="u_px", line=line)
+                values.append(0.0)
+            reading = []
+            for i, factor, field, joint in joint_cols:
+                angle = number(row[i], field) * factor
+                lower, upper = (limits or {}).get(joint, (math.nan, math.nan))
+                if not lower - ANGLE_MARGIN <= angle <= upper + ANGLE_MARGIN and math.isfinite(lower + upper):
+                    hint = " (degrees in a _rad column?)" if field.endswith("_rad") else ""
+                    _fail(path, f"reading {math.degrees(angle):.4g} deg is beyond the URDF's limits "
+                                f"{math.degrees(lower):.4g}..{math.degrees(upper):.4g} deg by more than 10 deg{hint}",
+                          field=field, line=line)
+                reading.append(angle)
+            if pose_col is not None:
+                if not row[pose_col]:
+                    _fail(path, "empty cell: the pose column needs a value on every row", field="pose", line=line)
+                pose.append(row[pose_col])
+            theta.append(reading)
+            measured.append(values)
             sensor.append(s)
             point.append(point_index[pname])
-            lines.append(line)
+            rows_read.append(line)
     except csv.Error as err:
         _fail(path, f"malformed CSV: {err}", line=line + 1)
+    if unseen:
+        notes.append(f"{path}: {unseen} row(s) without a measurement (empty or nan: not seen) left out")
     if not theta:
-        _fail(path, "no observations", line=2)
+        _fail(path, "no observations", line=header_line + 1)
     theta = np.array(theta, dtype=float)
     if pose_col is None:  # rows with the same joint readings are one pose
         _, pose = np.unique(theta, axis=0, return_inverse=True)
+    else:  # integers as they are; other labels numbered in order of appearance
+        try:
+            pose = [int(p) for p in pose]
+        except ValueError:
+            labels = {}
+            pose = [labels.setdefault(p, len(labels)) for p in pose]
     return Observations(theta, np.asarray(pose, dtype=np.int64).ravel(), np.array(sensor), np.array(point),
-                        np.array(measured, dtype=float), np.array(lines))
+                        np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read))
 
 
 def _cell(text, path, line, field) -> float:

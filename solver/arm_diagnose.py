@@ -2,13 +2,17 @@
 and name the effects that are missing, each judged by a score test on the fitted model's residuals.
 
 For a group of parameters not in the model (an effect, or every parameter of one joint or link) the model's
-whitened residual r is regressed on the group's Jacobian columns with the model's own columns projected out;
-the drop in the residual sum of squares dRSS has, if the group is absent, a chi-square distribution with k (the
-rank of the projected columns) degrees of freedom when the sensors' noise is known (dataset.json), and otherwise
-an F(k, M - p - k) distribution in dRSS / k over the residual variance. An effect is named when its p-value is
-below 0.001 divided by the number of candidates (Bonferroni: one false alarm in 1000 datasets at most); the
-significant ones are ranked by dRSS - k log(M) (BIC), so that of two effects that explain the misfit alike the
-one with fewer parameters comes first.
+whitened residual r is regressed on the group's Jacobian columns with the model's own columns projected out; the
+drop in the residual sum of squares is dRSS. Its significance is judged per pose, not per measurement: a real arm's
+errors are correlated within a pose (its repeatability, a tracker's drift, what no model holds), so the
+observations of one pose are one cluster and the score's variance is the clustered sandwich over poses
+(solver.scoretest.score_test, the NAO's per-stance test: Hotelling T^2 with G poses, F(k, G - k)). Counting every
+measurement as independent would name a candidate whenever the misfit is above the stated noise. An effect is
+named when its p-value is below 0.001 divided by the number of candidates (Bonferroni: one false alarm in 1000
+datasets at most); the significant ones are ranked by dRSS - (1 + log M) n, n what the group would remove from the
+errors alone (k for independent errors, more when they are correlated within poses; BIC's k log M), so that
+of two effects that explain the misfit alike the one with fewer parameters comes first. A group with as many
+directions as poses less one cannot be tested (p-value 1).
 """
 
 from __future__ import annotations
@@ -17,10 +21,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
-
 from solver.arm import EFFECTS, ArmModel
 from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
+from solver.scoretest import score_test
 
 FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
@@ -36,11 +39,14 @@ class Test:
     predicted_rms: dict  # sensor -> RMS after adding the group (m or px)
     values: dict  # parameter name -> predicted value (SI)
     significant: bool = False
+    noise_rss: float = float("nan")  # what the group removes from the residuals' own errors on average (per pose)
+    testable: bool = True  # False: too few poses for its directions (k >= poses - 1): p-value 1, not named
 
     def as_dict(self):
-        return {"label": self.label, "dof": self.k, "drss": self.drss, "p_value": self.p_value,
+        return {"label": self.label, "dof": self.k, "drss": self.drss, "noise_rss": self.noise_rss,
+                "p_value": self.p_value,
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
-                "significant": self.significant}
+                "significant": self.significant, "testable": self.testable}
 
 
 def extended(fit: ArmFit, effects=tuple(EFFECTS)):
@@ -63,13 +69,12 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
     r, J = whitened(big, obs, x, fit.sigma, jacobian=True)
     J = J * big.scales
     Q, _ = np.linalg.qr(J[:, free])
-    rss = float(r @ r)
-    M, p = r.size, int(free.sum())
-    known = bool(fit.noise_known.all())
     index = {n: i for i, n in enumerate(big.names)}
     mask = big.component_mask(obs)
     sigma_rows = np.broadcast_to(fit.sigma[obs.sensor][:, None], mask.shape)[mask]
     sensor_rows = np.broadcast_to(obs.sensor[:, None], mask.shape)[mask]
+    pose_rows = np.broadcast_to(obs.pose[:, None], mask.shape)[mask]
+    clusters = [np.flatnonzero(pose_rows == pose) for pose in np.unique(obs.pose)]
     tests = []
     for label, names in groups.items():
         cols = [index[n] for n in names if n in index and not free[index[n]]]
@@ -83,16 +88,13 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
         ref = max(float(np.linalg.norm(C, axis=0).max()), 1e-300)
         k = int(np.sum(sv > RANK_TOLERANCE * ref))
         if k == 0:
-            tests.append(Test(label, 0, 0.0, 1.0, uniqueness, {}, {}))
+            tests.append(Test(label, 0, 0.0, 1.0, uniqueness, {}, {}, noise_rss=0.0))
             continue
         Uk = U[:, :k]
         proj = Uk.T @ r
         drss = float(proj @ proj)
-        if known:
-            p_value = float(stats.chi2.sf(drss, k))
-        else:
-            rest = max(rss - drss, 1e-300) / max(1, M - p - k)
-            p_value = float(stats.f.sf(drss / k / rest, k, max(1, M - p - k)))
+        clustered = score_test(Uk, r, clusters, Q=Q)  # per pose (the module's docstring), on its k directions
+        p_value = clustered.p_value if np.isfinite(clustered.p_value) else 1.0
         r_new = (r - Uk @ proj) * sigma_rows
         predicted = {}
         for s, sensor in enumerate(big.sensors):
@@ -100,7 +102,9 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
             predicted[sensor.name] = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
         delta = -(Vt[:k].T @ (proj / sv[:k]))  # in scaled units, on the group's columns
         values = {big.names[c]: float(d * big.scales[c]) for c, d in zip(cols, delta)}
-        tests.append(Test(label, k, drss, p_value, uniqueness, predicted, values))
+        tests.append(Test(label, k, drss, p_value, uniqueness, predicted, values,
+                          noise_rss=clustered.noise_rss if np.isfinite(clustered.noise_rss) else float(k),
+                          testable=bool(np.isfinite(clustered.p_value))))
     return tests
 
 
@@ -163,12 +167,13 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
     threshold = FAMILY_LEVEL / max(1, sum(1 for c in candidates if c.k > 0))
     for c in candidates:
         c.significant = c.k > 0 and c.p_value < threshold
-    # Ranked by what they explain less log(M) per parameter (BIC): of two that explain the misfit alike, the
+    # Ranked by what they explain less (1 + log M) times what they would take from the errors alone (BIC, with
+    # the pose-correlated errors' share instead of 1 per parameter): of two that explain the misfit alike, the
     # smaller wins (link poses hold the link lengths and fit 13 more noise parameters on the panda).
-    penalty = math.log(max(2, int(model.component_mask(obs).sum())))
-    candidates.sort(key=lambda c: (not c.significant, -(c.drss - penalty * c.k)))
+    penalty = 1.0 + math.log(max(2, int(model.component_mask(obs).sum())))
+    candidates.sort(key=lambda c: (not c.significant, not c.testable, -(c.drss - penalty * c.noise_rss)))
     location = score_tests(fit, location_groups(fit))
-    location.sort(key=lambda t: -(t.drss - penalty * t.k))
+    location.sort(key=lambda t: (t.k == 0, -(t.drss - penalty * t.noise_rss)))
     # worst poses by whitened RMS
     r = (fit.residual / fit.sigma[obs.sensor][:, None]) ** 2
     mask = model.component_mask(obs)
@@ -231,8 +236,12 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         top = sorted(c.values.items(), key=lambda kv: -abs(kv[1]))[:3]
         values = ", ".join(f"{n} {_shown_value(n, v, units)}" for n, v in top)
         lines.append(f"  {c.label:14s} dof {c.k:3d}  dRSS {c.drss:10.1f}  p {c.p_value:8.1e}  "
-                     f"{'yes' if c.significant else 'no ':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
+                     f"{'yes' if c.significant else 'no ' if c.testable else 'n/a':3s}  uniqueness {c.uniqueness:.3f}  predicted {predicted}"
                      + (f"; {values}" if c.significant else ""))
+    untestable = [c.label for c in d.candidates if not c.testable]
+    if untestable:
+        lines.append(f"n/a: {', '.join(untestable)}: more directions than the {len(np.unique(fit.obs.pose))} poses "
+                     "can judge (significance counts poses): measure more poses to test them")
     for name, reason in fit.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     best = d.best

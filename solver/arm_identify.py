@@ -102,7 +102,7 @@ def camera_pose_dlt(points, pixels, K):
     A = np.zeros((2 * len(X), 12))
     A[0::2, 0:4], A[0::2, 8:12] = X, -xn[:, :1] * X
     A[1::2, 4:8], A[1::2, 8:12] = X, -xn[:, 1:2] * X
-    P = np.linalg.svd(A)[2][-1].reshape(3, 4)
+    P = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 4)  # V only: U would be (2 N, 2 N)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = np.eye(3) / spread, -centre / spread
     P = P @ T  # back from the normalised points

@@ -1,13 +1,10 @@
-"""The arm's side of `naocal identify`, `diagnose`, `simulate` and `offsets show` (docs/ARM.md): chosen when the
-command gets --robot / --chain or a naocal.arm_dataset/1 directory."""
+"""The arm's side of `naocal identify`, `diagnose`, `verify`, `simulate` and `offsets` (docs/ARM.md): chosen when
+the command gets --robot / --chain, a naocal.arm_dataset/1 directory or a naocal.arm_calibration/1 file."""
 
 from __future__ import annotations
 
 import json
-import math
 import sys
-
-CALIBRATION_SCHEMA = "naocal.arm_calibration/1"
 
 
 def add_arm_options(parser, *, simulate=False) -> None:
@@ -52,7 +49,10 @@ def _check_nao_only(args) -> None:
 def _load(args):
     from solver.arm_dataset import read_arm_dataset
 
-    return read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
+    dataset = read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
+    for note in dataset.notes or ():
+        print(f"naocal {args.verb}: note: {note}", file=sys.stderr)
+    return dataset
 
 
 def _unit_of(kind):
@@ -128,6 +128,14 @@ def run_identify(args) -> int:
     fit = identify_dataset(dataset, effects, fixed=tuple(args.fix))
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
+    from solver.arm_calibration import LIMITS, implausible
+
+    beyond = implausible(fit.parameters_dict())
+    if beyond:
+        e = fit.parameters_dict()[beyond[0]]
+        raise SolveError(f"{beyond[0]} = {e['value']:.4g} {e['unit']} is beyond any plausible calibration "
+                         f"({LIMITS[e['unit']]:.4g} {e['unit']}; {len(beyond)} such): is the URDF the arm's, are the "
+                         "readings' zeros its zeros? nothing written")
     heldout = heldout_rms(fit, args.cv_folds) if args.cv_folds and args.cv_folds > 1 else None
     report = result_json(fit, dataset, heldout)
     if args.out:
@@ -144,6 +152,9 @@ def json_safe(obj):
 
 def write_calibration(path, report, dataset, dataset_path) -> None:
     """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
+    from pathlib import Path
+
+    from solver.arm_calibration import SCHEMA
     from solver.fileio import atomic_write_text
     from solver.offsets import utc_now_iso
 
@@ -158,55 +169,63 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
         sections["sensors"][s.name] = {
             "rotation_rad": [params[f"sensor.{s.name}.rotation.{a}"]["value"] for a in "xyz"],
             "translation_m": [params[f"sensor.{s.name}.translation.{a}"]["value"] for a in "xyz"]}
-    doc = {"schema": CALIBRATION_SCHEMA, "created": utc_now_iso(),
-           "robot": dict(report["robot"], id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
+    doc = {"schema": SCHEMA, "created": utc_now_iso(),
+           "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
+                         id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
            "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"]},
-           "fit": {"rms": report["rms"], "heldout": report["heldout"], "n_observations": report["n_observations"]},
+           "fit": {"rms": report["rms"], "noise": report["noise"], "heldout": report["heldout"],
+                   "n_observations": report["n_observations"]},
            "source": {"tool": "naocal identify", "dataset": str(dataset_path)}}
     atomic_write_text(path, json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n", backup_suffix=".bak")
 
 
 def is_calibration_file(path) -> bool:
-    from solver.errors import DataError
-    from solver.fileio import read_text
+    from solver.arm_calibration import is_arm_calibration
 
-    try:  # a regular file only: a FIFO must not block the check
-        head = read_text(path)[:4096]
-    except DataError:
-        return False
-    return f'"{CALIBRATION_SCHEMA}"' in head
+    return is_arm_calibration(path)
 
 
 def format_calibration(path) -> str:
     """`naocal offsets show` of an arm calibration file; DataError naming the field when it is damaged."""
-    from solver.errors import DataError
-    from solver.fileio import read_json
+    from solver.arm_calibration import read_arm_calibration
 
-    doc = read_json(path)  # regular files only, size and nesting capped
-    if not isinstance(doc, dict) or doc.get("schema") != CALIBRATION_SCHEMA:
-        raise DataError(path, f"expected schema {CALIBRATION_SCHEMA}", field="schema")
-    params = doc.get("model", {}).get("parameters") if isinstance(doc.get("model"), dict) else None
-    if not isinstance(params, dict):
-        raise DataError(path, "missing the fitted parameters", field="model.parameters")
-    robot = doc.get("robot", {})
-    lines = [f"{path}: arm calibration of {robot.get('id', '?')} ({robot.get('base', '?')} -> {robot.get('tip', '?')}), "
-             f"created {doc.get('created', '?')}", ""]
+    cal = read_arm_calibration(path)
+    robot = cal.robot
+    lines = [f"{path}: arm calibration of {robot.get('id', '?')} ({robot['base']} -> {robot['tip']}), "
+             f"created {cal.created}", "  model: sensor frames + " + (" + ".join(cal.effects) or "nothing"), ""]
     lines.append(f"{'parameter':45s} {'value':>12s} {'std':>10s}  unit")
-    for name, e in params.items():
-        try:
-            value, unit = _shown(float(e["value"]), str(e["unit"]))
-            std, _ = _shown(float(e["std"]), str(e["unit"]))
-        except (KeyError, TypeError, ValueError):
-            raise DataError(path, "expected value, std, unit", field=f"model.parameters.{name}") from None
-        if not (math.isfinite(value) and math.isfinite(std)):
-            raise DataError(path, "not a finite number", field=f"model.parameters.{name}")
-        lines.append(f"{name:45s} {value:12.4f} {std:10.4f}  {unit}{'  (fixed)' if e.get('fixed') else ''}")
-    fit = doc.get("fit", {})
-    if isinstance(fit, dict) and isinstance(fit.get("rms"), dict):
-        lines += ["", "fit: " + "; ".join(f"{s} {v.get('value')} {v.get('unit')}" for s, v in fit["rms"].items()
-                                          if isinstance(v, dict))]
+    for name, e in cal.parameters.items():
+        value, unit = _shown(e["value"], e["unit"])
+        std, _ = _shown(e["std"], e["unit"])
+        lines.append(f"{name:45s} {value:12.4f} {std:10.4f}  {unit}{'  (fixed)' if e['fixed'] else ''}")
+    for name, reason in cal.fixed_reasons.items():
+        lines.append(f"fixed: {name}: {reason}")
+    if cal.rms:
+        from solver.arm_verify import _shown as shown_rms
+
+        lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, u)} per axis" for s, (v, u) in cal.rms.items())]
     return "\n".join(lines) + "\n"
+
+
+def run_verify(args) -> int:
+    """`naocal verify` of an arm dataset under an arm calibration: exit 0 still good, 1 drifted."""
+    from solver.arm_calibration import read_arm_calibration
+    from solver.arm_verify import format_arm_verdict, verify_arm
+
+    if getattr(args, "angles", "auto") != "auto":
+        from solver.errors import NaocalError
+
+        raise NaocalError("--angles is the NAO's: an arm's dataset has one reading per joint")
+    cal = read_arm_calibration(args.offsets)
+    dataset = _load(args)
+    verdict = verify_arm(dataset, cal)
+    if args.json:
+        print(json.dumps(json_safe({"dataset": str(args.dataset), "offsets": str(args.offsets), **verdict.as_dict()}),
+                         indent=1))
+    else:
+        print(format_arm_verdict(verdict))
+    return 0 if verdict.good else 1
 
 
 def run_diagnose(args) -> int:

@@ -18,6 +18,8 @@ COMMANDS_HELP = """commands:
                                   export never replaces an existing file, a replaced one is kept as NAME.bak)
   apply FILE --command|--reading JOINT=ANGLE ...
                                   compensated command = requested + c, corrected reading = measured - c
+An arm's naocal.arm_calibration/1 (docs/ARM.md) works with show, diff, validate, apply and export --format
+urdf (its URDF with the calibration in the joint origins) or json.
 """
 
 
@@ -108,7 +110,8 @@ def register(subparsers):
                         help="body id or name in the team's file names (default: robot.body_id of FILE)")
     export.add_argument("--strip-meshes", action="store_true",
                         help="urdf: drop the mesh visuals/collisions (their files are not shipped), e.g. for PyBullet")
-    export.add_argument("--nominal-urdf", metavar="URDF", help="urdf: start from this URDF instead of nao_v50")
+    export.add_argument("--nominal-urdf", metavar="URDF", help="urdf: start from this URDF instead of nao_v50 (an "
+                                                               "arm's file: of its robot.urdf)")
 
     apply = commands.add_parser(
         "apply", help="compensate commands or correct readings with a file's joint offsets",
@@ -285,6 +288,12 @@ def run_show(args, out) -> int:
 
 def run_diff(args, out) -> int:
     from solver.offsets import read_offsets
+    from tools.arm_cli import is_calibration_file
+
+    if is_calibration_file(args.file_a) or is_calibration_file(args.file_b):  # an arm's (docs/ARM.md)
+        from tools.arm_offsets import run_diff as run_arm_diff
+
+        return run_arm_diff(args, out)
 
     text, marked = format_diff(read_offsets(args.file_a), read_offsets(args.file_b), args.file_a, args.file_b)
     out.write(text)
@@ -293,6 +302,12 @@ def run_diff(args, out) -> int:
 
 def run_validate(args, out) -> int:
     from solver.offsets import read_offsets
+    from tools.arm_cli import is_calibration_file
+
+    if is_calibration_file(args.file):  # an arm's (docs/ARM.md)
+        from tools.arm_offsets import run_validate as run_arm_validate
+
+        return run_arm_validate(args, out)
 
     read_offsets(args.file)
     out.write("ok\n")
@@ -300,7 +315,13 @@ def run_validate(args, out) -> int:
 
 
 def run_export(args, out) -> int:
+    from tools.arm_cli import is_calibration_file
     from tools.export.write import run_export as export
+
+    if is_calibration_file(args.file):  # an arm's (docs/ARM.md): a corrected URDF, or the file itself
+        from tools.arm_offsets import run_export as run_arm_export
+
+        return run_arm_export(args, out)
 
     return export(args, out)
 
@@ -334,6 +355,12 @@ def run_apply(args, out) -> int:
 
     from solver.compensation import compensate_command, correct_reading
     from solver.offsets import read_offsets
+    from tools.arm_cli import is_calibration_file
+
+    if is_calibration_file(args.file):  # an arm's (docs/ARM.md): its chain's joints
+        from tools.arm_offsets import run_apply as run_arm_apply
+
+        return run_arm_apply(args, out)
 
     offsets = read_offsets(args.file)
     posture = dict(parse_assignment(text) for text in args.angles)

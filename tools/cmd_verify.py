@@ -12,21 +12,32 @@ def register(subparsers):
             "refitting: RMS, median, 95th percentile and maximum pixel error overall, per camera, per target and per "
             "image, against the calibration's own RMS and the data's noise floor. Verdict 'still good' or 'drifted', "
             "naming the joints, cameras or boards whose calibrated values the new data say have moved. Exit 0 still "
-            "good, 1 drifted, 2 bad input (docs/DIAGNOSTICS.md)."
+            "good, 1 drifted, 2 bad input (docs/DIAGNOSTICS.md). An arm's naocal.arm_dataset/1 under its "
+            "naocal.arm_calibration/1: the same, per sensor and pose (docs/ARM.md)."
         ),
     )
     p.add_argument("dataset", metavar="DATASET",
                    help="naocal.dataset/2 (or /1) directory of new captures, or a `naocal calibrate --out` run")
-    p.add_argument("--offsets", required=True, metavar="FILE", help="the calibration: naocal.offsets/2 (or /1)")
+    p.add_argument("--offsets", required=True, metavar="FILE",
+                   help="the calibration: naocal.offsets/2 (or /1); an arm's naocal.arm_calibration/1")
     p.add_argument("--json", action="store_true", help="print one JSON object (docs/DIAGNOSTICS.md) instead of text")
     from tools.cmd_identify import add_angles_option
 
     add_angles_option(p)
+    from tools.arm_cli import add_arm_options
+
+    add_arm_options(p)  # an arm (docs/ARM.md): DATASET a naocal.arm_dataset/1, FILE a naocal.arm_calibration/1
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
     import json
+
+    from solver.arm_calibration import is_arm_calibration
+    from tools.arm_cli import run_verify, wants_arm
+
+    if wants_arm(args) or is_arm_calibration(args.offsets):
+        return run_verify(args)
 
     from agent.rundir import find_dataset
     from solver.adapter import model_data_from_dataset

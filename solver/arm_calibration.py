@@ -1,0 +1,161 @@
+"""`naocal.arm_calibration/1`: an arm's calibration file, as `naocal identify --out` writes it (docs/FORMATS.md).
+
+The reader is strict: every problem is one DataError naming the file and the field. `model.parameters` is the
+file's truth (every parameter by its identify --json name, SI value, std, unit, fixed); the sections
+`joint_offsets_rad`, `link_lengths_m` and `sensors` repeat it for people and other programs and must agree.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from solver.errors import DataError
+from solver.fileio import read_json
+
+SCHEMA = "naocal.arm_calibration/1"
+# The units a parameter of each kind is stored in (solver/arm.py), by the first part of its name.
+UNITS = {"joint_offset": "rad", "link_length": "m", "point": "m", "elasticity": "rad/(N m)"}
+# Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
+# limit), 0.1 m of link length or point position.
+LIMITS = {"rad": math.radians(20.0), "m": 0.1}
+SENSOR_LIMITS = {"rad": 2 * math.pi, "m": 100.0}  # a sensor's frame: anywhere within 100 m
+
+
+def implausible(parameters: dict) -> list:
+    """Names of {name: {"value", "unit"}} beyond what a calibration file may hold (LIMITS): identify refuses such a
+    fit (exit 3) rather than write a file every reader would refuse."""
+    return [n for n, e in parameters.items() if not n.startswith("sensor.")
+            and abs(e["value"]) > LIMITS.get(e["unit"], math.inf)]
+
+
+@dataclass
+class ArmCalibration:
+    path: str
+    robot: dict  # urdf, base, tip, id
+    effects: tuple
+    parameters: dict  # name -> {"value", "std", "unit", "fixed"} (SI)
+    fixed_reasons: dict
+    rms: dict  # sensor -> (value, unit) of the fit
+    noise: dict  # sensor -> (value, unit) the fit weighted by (absent in older files)
+    created: str
+
+    @property
+    def arm_parameters(self) -> dict:
+        """The arm's own parameters (not the sensors' frames, which belong to the setup)."""
+        return {n: e for n, e in self.parameters.items() if not n.startswith("sensor.")}
+
+
+def _fail(path, problem, field=None):
+    raise DataError(path, problem, field=field)
+
+
+def _number(value, path, field):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
+    return float(value)
+
+
+def _text(value, path, field):
+    if not isinstance(value, str) or len(value) > 4096 or not value.isprintable():
+        _fail(path, "expected a line of printable text", field)
+    return value
+
+
+def is_arm_calibration(path) -> bool:
+    """Whether `path` is a file whose JSON says naocal.arm_calibration/1 (anything unreadable: no)."""
+    try:  # a regular file only: a FIFO must not block the check; the whole file (the key may come last)
+        doc = read_json(path)
+    except DataError:
+        return False
+    return isinstance(doc, dict) and doc.get("schema") == SCHEMA
+
+
+def read_arm_calibration(path) -> ArmCalibration:
+    doc = read_json(path)  # regular files only, size and nesting capped (solver/fileio.py)
+    if not isinstance(doc, dict):
+        _fail(path, "expected a JSON object")
+    if doc.get("schema") != SCHEMA:
+        _fail(path, f"expected schema {SCHEMA!r}, got {str(doc.get('schema'))[:60]!r}", "schema")
+    robot = doc.get("robot")
+    if not isinstance(robot, dict):
+        _fail(path, "expected a JSON object", "robot")
+    for key in ("base", "tip"):
+        if key not in robot:
+            _fail(path, "missing required field", f"robot.{key}")
+    robot = {k: _text(v, path, f"robot.{k}") for k, v in robot.items()}
+    model = doc.get("model")
+    if not isinstance(model, dict):
+        _fail(path, "missing the fitted model", "model")
+    effects = model.get("effects", [])
+    if not isinstance(effects, list):
+        _fail(path, "expected a list of effect names", "model.effects")
+    from solver.arm import EFFECTS
+
+    for i, e in enumerate(effects):
+        if e not in EFFECTS:
+            _fail(path, f"unknown arm effect {str(e)[:40]!r}", f"model.effects[{i}]")
+    params = model.get("parameters")
+    if not isinstance(params, dict) or not params:
+        _fail(path, "missing the fitted parameters", "model.parameters")
+    parameters = {}
+    for name, entry in params.items():
+        where = f"model.parameters.{name}"
+        _text(name, path, "model.parameters")
+        if not isinstance(entry, dict):
+            _fail(path, "expected {value, std, unit, fixed}", where)
+        for key in ("value", "std", "unit"):
+            if key not in entry:
+                _fail(path, "missing required field", f"{where}.{key}")
+        value = _number(entry["value"], path, f"{where}.value")
+        std = _number(entry["std"], path, f"{where}.std")
+        unit = _text(entry["unit"], path, f"{where}.unit")
+        kind = name.split(".", 1)[0]
+        expected = "rad" if kind == "link_pose" and name.rsplit(".", 1)[-1].startswith("r") else \
+            "m" if kind == "link_pose" else UNITS.get(kind)
+        if kind == "sensor":
+            expected = "rad" if ".rotation." in name else "m"
+        if expected is None:
+            _fail(path, "not an arm parameter (joint_offset., link_length., link_pose., point., elasticity., "
+                        "sensor.)", where)
+        if unit != expected:
+            _fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
+        limit = (SENSOR_LIMITS if kind == "sensor" else LIMITS).get(unit, math.inf)
+        if abs(value) > limit:
+            _fail(path, f"|value| {abs(value):.4g} {unit} is beyond any plausible calibration ({limit:.4g} {unit}): "
+                        "a damaged file or a unit mix-up", f"{where}.value")
+        if std < 0:
+            _fail(path, "a standard deviation cannot be negative", f"{where}.std")
+        parameters[name] = {"value": value, "std": std, "unit": unit, "fixed": bool(entry.get("fixed", False))}
+    # the people's sections must say what model.parameters says (an edited file that disagrees is refused)
+    for section, prefix in (("joint_offsets_rad", "joint_offset."), ("link_lengths_m", "link_length.")):
+        table = doc.get(section, {})
+        if not isinstance(table, dict):
+            _fail(path, "expected a JSON object", section)
+        for key, value in table.items():
+            value = _number(value, path, f"{section}.{key}")
+            entry = parameters.get(prefix + key)
+            if entry is None or abs(entry["value"] - value) > 1e-12 * max(1.0, abs(value)):
+                _fail(path, f"disagrees with model.parameters.{prefix}{key}", f"{section}.{key}")
+    fit = doc.get("fit", {})
+    if not isinstance(fit, dict):
+        _fail(path, "expected a JSON object", "fit")
+    rms, noise = {}, {}
+    for section, out in (("rms", rms), ("noise", noise)):
+        table = fit.get(section, {})
+        if not isinstance(table, dict):
+            _fail(path, "expected a JSON object", f"fit.{section}")
+        for sensor, entry in table.items():
+            if not isinstance(entry, dict) or entry.get("unit") not in ("m", "px"):
+                _fail(path, "expected {value, unit: m | px}", f"fit.{section}.{sensor}")
+            value = _number(entry.get("value"), path, f"fit.{section}.{sensor}.value")
+            if value < 0:
+                _fail(path, "cannot be negative", f"fit.{section}.{sensor}.value")
+            out[sensor] = (value, entry["unit"])
+    reasons = model.get("fixed", {})
+    if not isinstance(reasons, dict):
+        _fail(path, "expected a JSON object", "model.fixed")
+    created = doc.get("created", "?")
+    return ArmCalibration(str(path), robot, tuple(effects), parameters,
+                          {str(k): str(v) for k, v in reasons.items()}, rms, noise,
+                          _text(created, path, "created") if created != "?" else "?")

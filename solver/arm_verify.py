@@ -1,0 +1,192 @@
+"""Is an arm's calibration still good? The residuals of new data under a calibration's fixed values (docs/ARM.md).
+
+The arm's parameters are the calibration's and are not refitted. The sensors' frames are found from the new data
+(6 parameters per sensor, the arm's fixed): they belong to the setup, and a tracker or camera set up again stands
+elsewhere. Each sensor's RMS is compared with a reference, the larger of the calibration's own RMS for that sensor
+and the new data's noise floor (dataset.json's noise_m / noise_px, else the RMS of a refit of every calibrated
+parameter on the new data); beyond DRIFT_RATIO times it the calibration has drifted. That refit only names what
+moved: a calibrated parameter whose refitted value differs from the calibration's by DRIFT_Z standard deviations
+and by DRIFT_MIN_SCALE of its typical size. As the NAO's (solver/verify.py), with sensors for cameras and poses
+for images.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.errors import DataError
+from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES
+
+UNIT = {"points": "m", "camera": "px"}
+
+
+@dataclass
+class ArmVerdict:
+    good: bool
+    verdict: str
+    per_sensor: dict  # sensor -> statistics (its unit), calibration RMS, noise floor, reference, ratio
+    per_pose: list  # [{"pose", "rms_reference", "n"}]: each pose's RMS in units of its sensors' reference
+    ratio: float  # the largest sensor ratio
+    moved: list
+    suspects: list
+    worst_poses: list
+    uncalibrated: list
+    warnings: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"good": self.good, "verdict": self.verdict, "per_sensor": self.per_sensor, "per_pose": self.per_pose,
+                "ratio": self.ratio, "drift_ratio": DRIFT_RATIO, "moved": self.moved, "suspects": self.suspects,
+                "worst_poses": self.worst_poses, "uncalibrated": self.uncalibrated, "warnings": self.warnings}
+
+
+def error_statistics(residual: np.ndarray, kind: str) -> dict:
+    """{"n", "rms" (per axis, as identify), "median", "p95", "max" (of each observation's error distance)} in the
+    sensor's unit (m or px)."""
+    e = residual[:, :3] if kind == "points" else residual[:, :2]
+    if not len(e):
+        return {"n": 0, "rms": None, "median": None, "p95": None, "max": None, "unit": UNIT[kind]}
+    distance = np.linalg.norm(e, axis=1)
+    return {"n": int(len(e)), "rms": float(np.sqrt(np.mean(e ** 2))), "median": float(np.median(distance)),
+            "p95": float(np.percentile(distance, 95)), "max": float(distance.max()), "unit": UNIT[kind]}
+
+
+def check_same_arm(cal, dataset) -> None:
+    """DataError (naming the calibration file) unless it is of the dataset's chain and arm."""
+    for key, ours in (("base", dataset.base), ("tip", dataset.tip)):
+        if cal.robot.get(key) != ours:
+            raise DataError(cal.path, f"the calibration is of the chain's {key} {cal.robot.get(key)!r}, the dataset "
+                                      f"of {ours!r}", field=f"robot.{key}")
+    theirs = str(dataset.meta.get("robot", {}).get("id", "unknown"))
+    ours = cal.robot.get("id", "unknown")
+    if "unknown" not in (ours, theirs) and ours != theirs:
+        raise DataError(cal.path, f"the calibration is of arm {ours!r}, the dataset of {theirs!r}: another arm's "
+                                  "calibration", field="robot.id")
+
+
+def verify_arm(dataset, cal) -> ArmVerdict:
+    """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset)."""
+    from solver.arm_identify import fit, initialise_sensors, model_for
+
+    check_same_arm(cal, dataset)
+    model = model_for(dataset, cal.effects)
+    obs = dataset.observations
+    meta_path = dataset.path / "dataset.json"
+    arm_names = [n for n in model.names if not n.startswith("sensor.")]
+    foreign = [n for n in cal.arm_parameters if n not in model.names]
+    if foreign:
+        raise DataError(cal.path, f"{foreign[0]} is not a parameter of the dataset's chain ({len(foreign)} such): "
+                                  "another arm's calibration", field=f"model.parameters.{foreign[0]}")
+    missing = [n for n in arm_names if n not in cal.parameters]
+    x0 = initialise_sensors(model, obs, meta_path)
+    for i, name in enumerate(model.names):
+        if name in cal.arm_parameters:
+            x0[i] = cal.parameters[name]["value"]
+    # 1. the calibration as it is; only the sensors' frames found from the new data
+    fixed = fit(model, obs, x0, fixed=tuple(arm_names), path=meta_path)
+    # 2. a refit of what the calibration fitted: the noise floor (when the data state none) and what moved
+    kept_fixed = tuple(n for n in arm_names if n in cal.parameters and cal.parameters[n]["fixed"]) + tuple(missing)
+    refit = fit(model, obs, fixed.x, fixed=kept_fixed, path=meta_path)
+
+    per_sensor, reference = {}, np.zeros(len(model.sensors))
+    refit_rms = refit.rms()
+    for s, sensor in enumerate(model.sensors):
+        rows = obs.sensor == s
+        stats = error_statistics(fixed.residual[rows], sensor.kind)
+        own = cal.rms.get(sensor.name)
+        calibration_rms = own[0] if own is not None and own[1] == UNIT[sensor.kind] else None
+        if sensor.noise is not None:
+            floor, source = sensor.noise, "dataset"
+        else:
+            m = int(model.component_mask(obs)[rows].sum())
+            p = int(refit.free.sum())  # shared by the sensors: a conservative share each
+            floor, source = refit_rms[sensor.name] * math.sqrt(m / max(1, m - p)), "refit"
+        reference[s] = max(calibration_rms or 0.0, floor)
+        ratio = stats["rms"] / reference[s] if reference[s] > 0 else math.inf
+        per_sensor[sensor.name] = {**stats, "calibration_rms": calibration_rms, "noise_floor": float(floor),
+                                   "noise_source": source, "reference": float(reference[s]), "ratio": float(ratio)}
+    ratio = max(v["ratio"] for v in per_sensor.values())
+    good = bool(ratio <= DRIFT_RATIO)
+
+    mask = model.component_mask(obs)
+    scaled = (fixed.residual / reference[obs.sensor][:, None]) ** 2
+    per_pose = []
+    for pose in np.unique(obs.pose):
+        rows = obs.pose == pose
+        per_pose.append({"pose": int(pose), "rms_reference": float(np.sqrt(scaled[rows][mask[rows]].mean())),
+                         "n": int(rows.sum())})
+    worst = sorted((e for e in per_pose if e["rms_reference"] > DRIFT_RATIO), key=lambda e: -e["rms_reference"])
+
+    moved = []
+    values = dict(zip(model.names, fixed.x))
+    for i, p in enumerate(model.parameters):
+        if p.effect == "sensor" or not refit.free[i]:
+            continue
+        change = float(refit.x[i] - values[p.name])
+        std = float(refit.std[i])
+        z = abs(change) / std if std > 0 else math.inf
+        if z >= DRIFT_Z and abs(change) >= DRIFT_MIN_SCALE * p.scale:
+            from solver.effect import shown
+
+            moved.append({"parameter": p.name, "group": _group(p.name), "change": change, "std": std, "z": z,
+                          "unit": p.unit, "display": list(shown(change, p.unit)), "size": abs(change) / p.scale})
+    moved.sort(key=lambda e: -e["size"])
+    suspects = list(dict.fromkeys(e["group"] for e in moved))
+
+    warnings = []
+    if missing:
+        warnings.append(f"the calibration has no value for {len(missing)} parameter(s) of these data "
+                        f"({', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}): taken as 0 (nominal)")
+    for name, v in per_sensor.items():
+        if v["calibration_rms"] is None:
+            warnings.append(f"sensor {name}: the calibration has no RMS of it; compared with the noise floor only")
+    head = "; ".join(f"{name} RMS {_shown(v['rms'], v['unit'])} (reference {_shown(v['reference'], v['unit'])}, "
+                     f"ratio {v['ratio']:.2f})" for name, v in per_sensor.items())
+    if good:
+        verdict = f"still good: {head}"
+    elif moved:
+        listed = "; ".join(f"{e['parameter']} {e['display'][0]:+.3f} {e['display'][1]}" for e in moved[:4])
+        verdict = f"drifted: {head}; the pattern points to {', '.join(suspects[:3])} ({listed})"
+    else:
+        verdict = (f"drifted: {head}; no calibrated parameter explains it (an effect the calibration lacks, a moved "
+                   "tool, or bad readings: run naocal diagnose)")
+    return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), moved, suspects, worst[:WORST_IMAGES],
+                      missing, warnings)
+
+
+def _group(name: str) -> str:
+    kind, rest = name.split(".", 1)
+    if kind in ("joint_offset", "elasticity"):
+        return f"joint {rest}"
+    if kind in ("link_length", "link_pose"):
+        return f"link {rest.rsplit('.', 1)[0] if kind == 'link_pose' else rest}"
+    return "tool points" if kind == "point" else kind
+
+
+def _shown(value, unit) -> str:
+    from solver.arm_diagnose import shown_rms
+
+    return shown_rms(value, "points" if unit == "m" else "camera")
+
+
+def format_arm_verdict(v: ArmVerdict) -> str:
+    lines = []
+    for name, s in v.per_sensor.items():
+        u = s["unit"]
+        lines.append(f"sensor {name}: RMS {_shown(s['rms'], u)} per axis, median {_shown(s['median'], u)}, p95 "
+                     f"{_shown(s['p95'], u)}, max {_shown(s['max'], u)} ({s['n']} observations)")
+        own = "-" if s["calibration_rms"] is None else _shown(s["calibration_rms"], u)
+        lines.append(f"  the calibration's own fit {own}; noise floor {_shown(s['noise_floor'], u)} "
+                     f"({'stated by the dataset' if s['noise_source'] == 'dataset' else 'from a refit'}); ratio "
+                     f"{s['ratio']:.2f}")
+    if v.worst_poses:
+        lines.append("worst poses: " + ", ".join(f"{e['pose']} ({e['rms_reference']:.2f} x the reference)"
+                                                 for e in v.worst_poses))
+    for e in v.moved:
+        lines.append(f"moved: {e['parameter']} {e['display'][0]:+.4f} {e['display'][1]} "
+                     f"({e['z']:.0f} standard deviations)")
+    lines += [f"warning: {w}" for w in v.warnings]
+    lines.append(v.verdict)
+    return "\n".join(lines)
