@@ -68,6 +68,10 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         if choice is not None:
             lines.append(f"  {choice.describe()}")
         std = {n: float(s) for n, s in zip(res.registry.names, res.std)}
+        weakest_joint = max(LEG_JOINTS, key=lambda j: std[f"joint_offset.{j}"])
+        robot_s = f", in {m['robot_time_s']:.1f} s of robot time" if m else ""
+        lines.append(f"precision: worst joint-offset std {_deg(std[f'joint_offset.{weakest_joint}']):.4f} deg "
+                     f"({weakest_joint}){robot_s}")
         lines.append("joint offsets c (stored; ADDED to commands, SUBTRACTED from readings; c = -alpha):")
         for j in LEG_JOINTS:
             name = f"joint_offset.{j}"  # the parameter is c
@@ -147,6 +151,11 @@ def truth_comparison(result, truth: dict) -> list[str]:
         worst = max(joints, key=lambda j: abs(joints[j]))
         lines.append(f"  joint offsets: largest error {joints[worst]:+.4f} deg ({worst}), RMS "
                      f"{math.sqrt(np.mean(np.square(list(joints.values())))):.4f} deg")
+        z = {j: abs(e) / math.degrees(result.std[result.registry.index[f"joint_offset.{j}"]]) for j, e in joints.items()
+             if result.std[result.registry.index[f"joint_offset.{j}"]] > 0}
+        if z:
+            most = max(z, key=z.get)
+            lines.append(f"  joint offsets: largest error in standard deviations {z[most]:.2f} ({most})")
     for camera, errors in err["camera_deg"].items():
         lines.append(f"  {camera} camera rotation error: " + ", ".join(f"{a} {e:+.4f} deg" for a, e in errors.items()))
     for leg, e in err["board"].items():
