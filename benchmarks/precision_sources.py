@@ -11,7 +11,8 @@ true exposure time. It then refits the same images with one error source at a ti
 - servo in cell (commands): the commands as joint angles (the servo stands somewhere in the commanded step)
 - quantisation (readings): the readings as joint angles
 - detection: the detected corners (YUYV, noise, defocus, mis-detections set aside as identify_dataset does)
-- agent: what the agent's identification did (solver.fit.identify_dataset)
+- ordinary least squares: solver.fit.identify_dataset without GLS (the agent before issue 12's deliver 3)
+- agent: what the agent's identification does (identify_dataset with GLS: solver/gls.py)
 
 and prints, per leg joint, the error against the truth (deg). docs/AGENT.md quotes it.
 """
@@ -78,8 +79,8 @@ def main():
         settings = AgentSettings(seed=0, progress_bar=False, plan=PlanSettings(kind=args.plan))
         result, ctx = calibrate(mock, out, settings, detector=mock.faulty(opencv_detector), truth=mock.truth_dict())
         dataset = read_dataset(out / "dataset")
-        agent_fit = identify_dataset(dataset)
-        data = agent_fit.data  # the still captures the agent fitted, mis-detections set aside
+        agent_fit = identify_dataset(dataset, gls=False)
+        data = agent_fit.data  # the still captures the agent fits, mis-detections set aside
         servo, uv_exact = truth_of_images(mock, dataset, data)
         true_cameras = {name: dict(cam, fx_px=mock.truth.camera.fx_px, fy_px=mock.truth.camera.fy_px,
                                    cx_px=mock.truth.camera.cx_px, cy_px=mock.truth.camera.cy_px)
@@ -109,7 +110,8 @@ def main():
         ("servo in cell (commands)", variant(commanded.theta[pick], uv_exact, true_cameras)),
         ("quantisation (readings)", variant(measured.theta[pick], uv_exact, true_cameras)),
         ("detection", variant(servo, None, true_cameras)),
-        (f"agent ({agent_fit.angles})", agent_fit.result),
+        (f"ordinary least squares ({agent_fit.angles})", agent_fit.result),
+        ("agent (GLS, intrinsics free)", identify_dataset(dataset, gls=True).result),
     ]
     print(f"seed {args.seed}, {args.plan} plan: {data.n_images} still images, robot time "
           f"{ctx.measurement['robot_time_s']:.1f} s; run in {out}")
