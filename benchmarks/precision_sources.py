@@ -18,7 +18,6 @@ and prints, per leg joint, the error against the truth (deg). docs/AGENT.md quot
 """
 
 import argparse
-import math
 import sys
 import tempfile
 from dataclasses import replace
