@@ -120,8 +120,8 @@ def identify_gls(data: ModelData, registry: Registry, x0: np.ndarray, step_rad, 
     """Fit by GLS from `x0` (the ordinary fit's values). Standard deviations: the delete-one-cluster jackknife of the
     GLS estimator, clusters the stances (joined where a held command spans them), so that what the noise model
     lacks (detection biases, a load that pulls joints to one side of their cells) shows in them rather than
-    hides; the sandwich, with as few clusters as parameters (about 50 stances, 21-29 parameters), claimed half of
-    the errors measured on the realistic mock."""
+    hides; the sandwich, with about as many clusters as parameters (50 stances, 21-29 parameters), is too small
+    (realistic mock seed 1: sandwich 0.034 deg, jackknife 0.043 deg, error 0.071 deg)."""
 
     start = time.perf_counter()
     problem = GLSProblem(data, registry, x0, step_rad, sigma_px)
