@@ -284,3 +284,20 @@ def test_planner_rejects_unknown_plan_kind():
             planner.make_plan(0)
     finally:
         planner.close()
+
+
+def test_the_robot_time_estimate_counts_each_capture_s_settling_and_guard():
+    """Motion at the plan's speed plus `capture_overhead_s` per capture (the servo settling, the still window, the
+    image guard: 0.37 s measured on the realistic mock, against 0.21 s assumed before)."""
+    parked = parked_posture()
+    bent = parked.copy()
+    bent[JOINT_INDEX["LKneePitch"]] += 0.5
+    stills = [Still(0, "L", 0, 0, tuple(bent)), Still(1, "L", 0, 1, tuple(bent))]
+    plan = Plan(0, "paper", {}, stills, [], tuple(parked))
+    planner = Planner(PlanSettings())
+    try:
+        motion = planner.move_time_s(parked, bent)
+        assert planner.estimate_robot_time_s(plan) == pytest.approx(motion + 2 * 0.37)
+        assert planner.estimate_robot_time_s(plan, 0.0) == pytest.approx(motion)
+    finally:
+        planner.close()
