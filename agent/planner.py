@@ -113,8 +113,10 @@ class PlanSettings:
     encoder_resolution_deg: float = 360.0 / 4096  # 12-bit encoders (docs/MOCK.md)
     design_effects: str = "intrinsics"  # comma-separated, besides the paper's parameters
     # optimal plan: stances in greedy order until the predicted worst joint-offset std reaches this (None: until the
-    # paper plan's precision is matched)
-    target_worst_std_deg: float | None = 0.05
+    # paper plan's precision is matched). Below issue 12's goal of 0.05 deg: the prediction lacks what the fit meets
+    # on the realistic mock (the load pulling joints to one side of their step, detection biases), and the selection
+    # favours what the model overrates: with 0.05 the plan (9 stances per leg, 48 s) reached 0.078 deg (seed 1).
+    target_worst_std_deg: float | None = 0.03
     # robot time per capture besides the motion: the servo settling, the still window, the image guard. Measured,
     # paper plan seed 0 (motion 22.3 s at speed_fraction 0.4, 158 images): 63.0 s on the ideal mock (0.26 s), 81.3 s
     # on the realistic one (0.37 s: its servo settles like a damped second-order system, LoLA's 12 ms cycle).
