@@ -67,6 +67,7 @@ class DatasetFit:
     outliers: list[Outlier] = field(default_factory=list)
     robust_scale_px: float = float("nan")  # MAD scale of the non-rigid residual (outliers cannot inflate it)
     n_moving_set_aside: int = 0
+    gls: bool = False  # refined by generalised least squares (solver.gls), intrinsics free
 
     def describe_angles(self) -> str:
         step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
@@ -77,7 +78,9 @@ class DatasetFit:
         return f"joint angles: {HYPOTHESIS_WORDS[self.angles]}, chosen by the fit ({evidence}); {step}"
 
     def describe(self) -> str:
-        return f"{self.describe_angles()}\n  {self.describe_outliers()}"
+        method = ("\n  fitted by generalised least squares: the images of one held command share its error in the "
+                  "step; intrinsics free; jackknife standard deviations" if self.gls else "")
+        return f"{self.describe_angles()}\n  {self.describe_outliers()}{method}"
 
     def describe_outliers(self, count: int = 8) -> str:
         if not self.outliers:
@@ -98,6 +101,7 @@ class DatasetFit:
             "robust_scale_px": self.robust_scale_px,
             "outliers": [{"image": o.image, "vertex": o.vertex, "size_px": o.size_px} for o in self.outliers],
             "moving_captures_set_aside": self.n_moving_set_aside,
+            "generalised_least_squares": self.gls,
         }
 
 
@@ -136,9 +140,11 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     data, result, outliers, scale, n_moving, step = fits[chosen]
     flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
     hypotheses = [AngleHypothesis(mode, _rms_without(f[1], flagged), len(f[2])) for mode, f in fits.items()]
-    if gls and chosen == "measured" and np.any(step > 0):
+    use_gls = gls and chosen == "measured" and bool(np.any(step > 0))
+    if use_gls:
         result = _gls_refined(data, result, step, scale, fixed, tie_shared_motors, solver)
-    return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving)
+    return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving,
+                      use_gls)
 
 
 def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shared_motors, solver):

@@ -103,7 +103,8 @@ def test_gls_recovers_the_offsets_ordinary_least_squares_loses_to_shared_step_er
         dataset = shared_step_dataset(rng, truth)
         plain = identify_dataset(dataset, gls=False)
         refined = identify_dataset(dataset, gls=True)
-        assert plain.angles == refined.angles == "measured"
+        assert plain.angles == refined.angles == "measured" and refined.gls and not plain.gls
+        assert "generalised least squares" in refined.describe() and refined.as_dict()["generalised_least_squares"]
         ols.append(np.max(np.abs(offset_errors(plain, truth)[0])))
         err, zz = offset_errors(refined, truth)
         gls.append(np.max(np.abs(err)))
