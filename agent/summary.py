@@ -45,8 +45,13 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
                      f"stances L {n_st.get('L', '?')}, R {n_st.get('R', '?')}")
         design = st.get("design")
         if design:
-            lines.append(f"  D-optimal: {design['selected_stances']} stances reach the precision of the paper plan's "
-                         f"{design['paper_stances']} (from a pool of {design['pool_stances']})")
+            if design.get("target_worst_std_deg") is not None:
+                lines.append(f"  D-optimal: {design['selected_stances']} stances from a pool of {design['pool_stances']}"
+                             f", until the predicted worst joint-offset std reaches "
+                             f"{design['target_worst_std_deg']:g} deg (the paper plan: {design['paper_stances']})")
+            else:
+                lines.append(f"  D-optimal: {design['selected_stances']} stances reach the precision of the paper "
+                             f"plan's {design['paper_stances']} (from a pool of {design['pool_stances']})")
     m = ctx.measurement
     if m:
         lines.append(f"measurement: {m['n_saved']} of {m['n_planned']} images saved, {m['n_skipped']} skipped, "
