@@ -155,8 +155,8 @@ def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shar
     registry = result.registry
     effects = tuple(dict.fromkeys(registry.effects + ("intrinsics",)))
     registry = Registry(effects, setup=registry.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
-    start = identify(data, registry, x0=registry.from_dict(result.registry.as_dict(result.values)), solver=solver,
-                     reading_step_rad=step)
+    start = identify(data, registry, x0=registry.from_dict(result.registry.as_dict(result.values)), solver=solver)
+    # (only its values are used: no quantisation covariance, which costs a dense Jacobian)
     sigma_px = max(scale_px, GLS_MIN_SIGMA_PX) if np.isfinite(scale_px) else GLS_MIN_SIGMA_PX
     return identify_gls(start.model.data, registry, start.values, step, sigma_px)
 
