@@ -1,4 +1,5 @@
-"""Experimental design: how much a stance tells about the paper's 21 parameters, and greedy D-optimal selection.
+"""Experimental design: how much a stance tells about the parameters the agent fits (the paper's 21, and with the
+GLS fit the intrinsics: `registry`), greedy D-optimal selection, and when a selection is precise enough.
 
 The information of one stance (a leg posture seen under several head postures) is the Fisher information of its
 vertex measurements about the parameters, in the registry's scaled units (value / scale):
