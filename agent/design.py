@@ -1,4 +1,5 @@
-"""Experimental design: how much a stance tells about the paper's 21 parameters, and greedy D-optimal selection.
+"""Experimental design: how much a stance tells about the parameters the agent fits (the paper's 21, and with the
+GLS fit the intrinsics: `registry`), greedy D-optimal selection, and when a selection is precise enough.
 
 The information of one stance (a leg posture seen under several head postures) is the Fisher information of its
 vertex measurements about the parameters, in the registry's scaled units (value / scale):
@@ -142,3 +143,21 @@ def matching_count(infos: np.ndarray, order: list[int], reference: np.ndarray,
             found["both"] = n
             break
     return found
+
+
+def reaching_count(infos: np.ndarray, order: list[int], target_worst_std_deg: float | None,
+                   registry: Registry = BASE_REGISTRY) -> int | None:
+    """How many of the greedily ordered stances `order` it takes until the predicted worst standard deviation of
+    the 12 leg joint offsets is at most `target_worst_std_deg` (None: not reached with all of them, or no target)."""
+    if target_worst_std_deg is None:
+        return None
+    joints = joint_offset_indices(registry)
+    A = np.zeros(infos.shape[1:])
+    for n, s in enumerate(order, start=1):
+        A = A + infos[s]
+        eigenvalues = np.linalg.eigvalsh(A)
+        if eigenvalues[0] <= 1e-9 * eigenvalues[-1]:
+            continue  # not every parameter determined yet (the pseudo-inverse would call them known)
+        if np.degrees(np.max(predicted_std(A, registry)[joints])) <= target_worst_std_deg:
+            return n
+    return None

@@ -45,8 +45,13 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
                      f"stances L {n_st.get('L', '?')}, R {n_st.get('R', '?')}")
         design = st.get("design")
         if design:
-            lines.append(f"  D-optimal: {design['selected_stances']} stances reach the precision of the paper plan's "
-                         f"{design['paper_stances']} (from a pool of {design['pool_stances']})")
+            if design.get("target_worst_std_deg") is not None:
+                lines.append(f"  D-optimal: {design['selected_stances']} stances from a pool of {design['pool_stances']}"
+                             f", until the predicted worst joint-offset std reaches "
+                             f"{design['target_worst_std_deg']:g} deg (the paper plan: {design['paper_stances']})")
+            else:
+                lines.append(f"  D-optimal: {design['selected_stances']} stances reach the precision of the paper "
+                             f"plan's {design['paper_stances']} (from a pool of {design['pool_stances']})")
     m = ctx.measurement
     if m:
         lines.append(f"measurement: {m['n_saved']} of {m['n_planned']} images saved, {m['n_skipped']} skipped, "
@@ -68,6 +73,10 @@ def summary_text(ctx, result, *, backend_label: str, truth: dict | None = None) 
         if choice is not None:
             lines.append(f"  {choice.describe()}")
         std = {n: float(s) for n, s in zip(res.registry.names, res.std)}
+        weakest_joint = max(LEG_JOINTS, key=lambda j: std[f"joint_offset.{j}"])
+        robot_s = f", in {m['robot_time_s']:.1f} s of robot time" if m else ""
+        lines.append(f"precision: worst joint-offset std {_deg(std[f'joint_offset.{weakest_joint}']):.4f} deg "
+                     f"({weakest_joint}){robot_s}")
         lines.append("joint offsets c (stored; ADDED to commands, SUBTRACTED from readings; c = -alpha):")
         for j in LEG_JOINTS:
             name = f"joint_offset.{j}"  # the parameter is c
@@ -147,6 +156,11 @@ def truth_comparison(result, truth: dict) -> list[str]:
         worst = max(joints, key=lambda j: abs(joints[j]))
         lines.append(f"  joint offsets: largest error {joints[worst]:+.4f} deg ({worst}), RMS "
                      f"{math.sqrt(np.mean(np.square(list(joints.values())))):.4f} deg")
+        z = {j: abs(e) / math.degrees(result.std[result.registry.index[f"joint_offset.{j}"]]) for j, e in joints.items()
+             if result.std[result.registry.index[f"joint_offset.{j}"]] > 0}
+        if z:
+            most = max(z, key=z.get)
+            lines.append(f"  joint offsets: largest error in standard deviations {z[most]:.2f} ({most})")
     for camera, errors in err["camera_deg"].items():
         lines.append(f"  {camera} camera rotation error: " + ", ".join(f"{a} {e:+.4f} deg" for a, e in errors.items()))
     for leg, e in err["board"].items():

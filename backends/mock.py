@@ -412,6 +412,7 @@ class MockBackend(Backend):
         self._rest_offsets: list[np.ndarray] = []  # (14,) sensor-space rest position minus command, rad
         self._cell_draws = np.zeros(len(JOINTS))  # 'uniform' servo_rest: where in its cell each joint rests
         self._n_commands_applied = 0
+        self._rest_commanded = np.full(len(JOINTS), np.nan)  # the targets the cell draws were made for
         self._limits = {j: joint_limits()[j] for j in JOINTS}
         self._speeds = {j: max_speeds()[j] for j in JOINTS}
         self._stiffness = {j: 1.0 for j in JOINTS}
@@ -769,8 +770,11 @@ class MockBackend(Backend):
             draws = rng.uniform(-0.5, 0.5, len(JOINTS))
             for i, joint in enumerate(JOINTS):
                 motor = SHARED_MOTOR[0] if joint == SHARED_MOTOR[1] else joint
-                if motor in targets:
+                # A joint sent the target it already holds does not move (its reading stays in the commanded
+                # cell), so it keeps where it stands: only a changed command finds a new place in its cell.
+                if motor in targets and commanded[JOINT_INDEX[motor]] != self._rest_commanded[JOINT_INDEX[motor]]:
                     self._cell_draws[i] = draws[JOINT_INDEX[motor]]
+            self._rest_commanded = commanded
         tau = np.zeros(len(JOINTS))
         if r.servo_stiffness_nm_per_rad is not None:
             tau = self.body.gravity_torques(self._true_static(commanded))

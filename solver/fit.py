@@ -36,6 +36,8 @@ ANGLE_MARGIN = 0.01
 OUTLIER_SCALES = 5.0
 OUTLIER_MIN_PX = 1.0
 MAX_TRIM_ROUNDS = 10
+# GLS trusts the board's shape to this noise at least (the realistic mock's detections: 0.028 px robust scale).
+GLS_MIN_SIGMA_PX = 0.02
 MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
 
 
@@ -65,6 +67,7 @@ class DatasetFit:
     outliers: list[Outlier] = field(default_factory=list)
     robust_scale_px: float = float("nan")  # MAD scale of the non-rigid residual (outliers cannot inflate it)
     n_moving_set_aside: int = 0
+    gls: bool = False  # refined by generalised least squares (solver.gls), intrinsics free
 
     def describe_angles(self) -> str:
         step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
@@ -75,7 +78,9 @@ class DatasetFit:
         return f"joint angles: {HYPOTHESIS_WORDS[self.angles]}, chosen by the fit ({evidence}); {step}"
 
     def describe(self) -> str:
-        return f"{self.describe_angles()}\n  {self.describe_outliers()}"
+        method = ("\n  fitted by generalised least squares: the images of one held command share its error in the "
+                  "step; intrinsics free; jackknife standard deviations" if self.gls else "")
+        return f"{self.describe_angles()}\n  {self.describe_outliers()}{method}"
 
     def describe_outliers(self, count: int = 8) -> str:
         if not self.outliers:
@@ -96,12 +101,13 @@ class DatasetFit:
             "robust_scale_px": self.robust_scale_px,
             "outliers": [{"image": o.image, "vertex": o.vertex, "size_px": o.size_px} for o in self.outliers],
             "moving_captures_set_aside": self.n_moving_set_aside,
+            "generalised_least_squares": self.gls,
         }
 
 
 def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool = True, fixed=(),
                      tie_shared_motors: bool = True, moving: str = "auto", solver: str = "lm", loss: str = "linear",
-                     loss_scale_px: float = 1.0, setup=None) -> DatasetFit:
+                     loss_scale_px: float = 1.0, setup=None, gls: bool = False) -> DatasetFit:
     """Fit the base model plus `effects` to a read dataset (solver.dataset.Dataset): the routine every caller uses.
 
     angles : 'auto' (every hypothesis of ANGLE_HYPOTHESES is fitted, the best fit chosen) or one of them.
@@ -110,6 +116,9 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     solver, loss, loss_scale_px : as solver.identify.identify's.
     setup : the cameras and targets to parametrise (default: the data's); a target without captures keeps its
         nominal values (solver.identify fixes parameters without data).
+    gls : when the readings win and are quantised, refine the fit by generalised least squares (solver.gls: the
+        images that share a joint's command share its error in the step), with the cameras' intrinsics free (GLS
+        leans on the board's perspective, which the prior intrinsics bias).
     Raises SolveError (solver.identify) when the data cannot determine the model.
     """
     effects = tuple(effects)
@@ -131,7 +140,25 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     data, result, outliers, scale, n_moving, step = fits[chosen]
     flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
     hypotheses = [AngleHypothesis(mode, _rms_without(f[1], flagged), len(f[2])) for mode, f in fits.items()]
-    return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving)
+    use_gls = gls and chosen == "measured" and bool(np.any(step > 0))
+    if use_gls:
+        result = _gls_refined(data, result, step, scale, fixed, tie_shared_motors, solver)
+    return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving,
+                      use_gls)
+
+
+def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shared_motors, solver):
+    """The GLS fit (solver.gls) from the ordinary one, intrinsics free; detector noise the robust scale of the
+    non-rigid residual (at least GLS_MIN_SIGMA_PX)."""
+    from solver.gls import identify_gls
+
+    registry = result.registry
+    effects = tuple(dict.fromkeys(registry.effects + ("intrinsics",)))
+    registry = Registry(effects, setup=registry.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
+    start = identify(data, registry, x0=registry.from_dict(result.registry.as_dict(result.values)), solver=solver)
+    # (only its values are used: no quantisation covariance, which costs a dense Jacobian)
+    sigma_px = max(scale_px, GLS_MIN_SIGMA_PX) if np.isfinite(scale_px) else GLS_MIN_SIGMA_PX
+    return identify_gls(start.model.data, registry, start.values, step, sigma_px)
 
 
 def _moving_handled(data: ModelData, effects, moving: str):

@@ -105,6 +105,27 @@ def test_a_still_joint_stands_inside_its_commanded_step_and_sags_with_the_load(m
     soft.close()
 
 
+def test_a_joint_sent_the_target_it_holds_stays_where_it_stands_in_its_cell():
+    """Re-sending a joint its target (the agent sends all 14 joints for every head posture) does not move it: the
+    error it has inside its step is shared by every image until its command changes (then it finds a new place)."""
+    mock = MockBackend(seed=SEED, realism={"preset": "realistic", "servo_stiffness_nm_per_rad": None})
+    legs = {"LKneePitch": 0.2503, "LHipPitch": -0.6011}
+    _still(mock, dict(legs, HeadYaw=0.1, HeadPitch=0.40))
+    first = mock.servo_angles()
+    moved = []
+    for k in range(6):  # the head moves, the legs are sent the same targets again
+        _still(mock, dict(legs, HeadYaw=0.1 - 0.02 * (k + 1), HeadPitch=0.40))
+        now = mock.servo_angles()
+        assert now["LKneePitch"] == pytest.approx(first["LKneePitch"], abs=1e-12)
+        assert now["LHipPitch"] == pytest.approx(first["LHipPitch"], abs=1e-12)
+        moved.append(now["HeadYaw"] - (0.1 - 0.02 * (k + 1)))
+    assert np.std(moved) > STEP / 20  # the re-commanded head finds a new place in its cell each time
+    _still(mock, {"LKneePitch": 0.2503 + 5 * STEP})
+    _still(mock, {"LKneePitch": 0.2503})  # away and back: a new place
+    assert mock.servo_angles()["LKneePitch"] != pytest.approx(first["LKneePitch"], abs=1e-9)
+    mock.close()
+
+
 def test_the_load_mode_sags_by_torque_over_stiffness_and_more_under_more_load():
     mock = MockBackend(seed=SEED, realism={"preset": "realistic", "servo_rest": "load",
                                            "servo_stiffness_nm_per_rad": 200.0})

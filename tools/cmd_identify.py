@@ -30,6 +30,10 @@ def register(subparsers):
     p.add_argument("--solver", default="lm", choices=("lm", "minpack"),
                    help="lm: naocal's Levenberg-Marquardt (fast); minpack: scipy.optimize.least_squares(method='lm')")
     add_angles_option(p)
+    p.add_argument("--gls", action=argparse.BooleanOptionalAction, default=True,
+                   help="when the readings fit best and are quantised, refine by generalised least squares: the "
+                        "images of one held command share its error in the step, intrinsics free (docs/AGENT.md; "
+                        "the agent does the same; default: on)")
     from tools.arm_cli import add_arm_options
 
     add_arm_options(p)  # an arm (docs/ARM.md): --effects then names the arm's effects
@@ -91,7 +95,7 @@ def run(args) -> int:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
     fit = identify_dataset(dataset, effects, angles=args.angles, robust=not args.keep_outliers, fixed=args.fix,
                            tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
-                           loss_scale_px=args.loss_scale_px)
+                           loss_scale_px=args.loss_scale_px, gls=args.gls and args.loss == "linear")
     result, data = fit.result, fit.data
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
