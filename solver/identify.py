@@ -273,8 +273,31 @@ def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image
     np.add.at(scores, np.asarray(cluster_of_image, dtype=int), image_scores)
     n_clusters, p = len(scores), As.shape[1]
     small_sample = n_clusters / max(n_clusters - 1, 1) * (n - 1) / max(n - p, 1)
-    covariance = bread @ (scores.T @ scores) @ bread * small_sample * np.outer(scales, scales)
+    clustered = bread @ (scores.T @ scores) @ bread * small_sample
+    covariance = _at_least(clustered, bread * s2) * np.outer(scales, scales)
     return covariance, covariance_iid
+
+
+def _at_least(clustered: np.ndarray, iid: np.ndarray) -> np.ndarray:
+    """The clustered covariance, raised in every direction where it is below the classic one.
+
+    With few clusters for many parameters (32 stances for 21 parameters) the sandwich is biased low along the
+    weakly determined directions: on data whose only error is independent pixel noise, where the classic estimate
+    is right, it claimed 0.006 deg for a right-leg offset whose error was 0.021 deg (3.6 std). Errors shared within
+    a stance can only add to the pixel noise, so along every direction the larger of the two is kept (the
+    generalised eigenvalues of the pair raised to at least 1).
+    """
+    a, W = np.linalg.eigh((iid + iid.T) / 2)
+    keep = a > 1e-12 * max(a.max(initial=0.0), 1e-300)
+    if not np.any(keep):
+        return clustered
+    S = W[:, keep] * np.sqrt(a[keep])  # iid = S S^T
+    S_inv = (W[:, keep] / np.sqrt(a[keep])).T
+    lam, U = np.linalg.eigh(S_inv @ ((clustered + clustered.T) / 2) @ S_inv.T)
+    raised = S @ (U * np.maximum(lam, 1.0)) @ U.T @ S.T
+    # what lies outside the classic estimate's span (nothing, for a sandwich with the same bread) is kept
+    outside = clustered - S @ (S_inv @ clustered @ S_inv.T) @ S.T
+    return raised + outside
 
 
 def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, step_rad) -> np.ndarray:
