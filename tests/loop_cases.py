@@ -408,7 +408,7 @@ def run_loop(dataset, max_steps=4):
     for _ in range(max_steps + 1):
         out = naocal_json("diagnose", dataset, *(["--effects", ",".join(effects)] if effects else []))
         steps.append(out)
-        named = next((c["effect"] for c in out["candidates"] if c["significant"] and c["plausible"]), None)
+        named = out["verdict"]["add"]
         if named is None:
             break
         effects.append(named)
