@@ -100,8 +100,15 @@ def compare(result, *, pixel_noise_px: float | None = None, split: RigidSplit | 
     else:
         detector, source = estimate, "estimated"
     still = np.ones(data.n_images, bool) if data.velocity is None else np.all(data.velocity == 0, axis=1)
-    resolution = reading_resolution(data.theta[still])  # angles of moving captures are interpolated, not read
-    encoder_xy = encoder_noise_px(model, result.values, resolution)
+    step, share = getattr(result, "reading_step_rad", None), getattr(result, "quantisation_share", float("nan"))
+    if step is not None and np.any(step > 0) and np.isfinite(share):
+        # the readings' step (whatever angles the fit chose) and the share of its full error the rigid residuals
+        # show (solver.identify.quantisation_covariance): a servo standing at its step or at its command leaves
+        # none, one anywhere in its step all of it; never more than the full error
+        resolution = step
+    else:
+        resolution, share = reading_resolution(data.theta[still]), 1.0  # moving captures' angles: interpolated
+    encoder_xy = encoder_noise_px(model, result.values, resolution) * math.sqrt(share)
     encoder = float(np.sqrt(np.mean(encoder_xy ** 2)))
     resolution = float(resolution.max())
     noise = float(math.hypot(detector, encoder))

@@ -72,6 +72,8 @@ class IdentificationResult:
     model: Model
     downweighted_images: list[int] = field(default_factory=list)  # dataset image ids
     warnings: list[str] = field(default_factory=list)
+    reading_step_rad: np.ndarray | None = None  # (J,) the readings' encoder step the std accounts for (None: none)
+    quantisation_share: float = float("nan")  # how much of the full quantisation error the residuals show (0-1)
 
     @property
     def sigma_px(self) -> float:
@@ -300,7 +302,7 @@ def _at_least(clustered: np.ndarray, iid: np.ndarray) -> np.ndarray:
     return raised + outside
 
 
-def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, step_rad) -> np.ndarray:
+def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, step_rad, *, with_share=False):
     """Covariance of the free parameters that quantised joint readings cause (errors in the variables).
 
     A reading quantised to a step s leaves the angle off by an error of variance s^2 / 12 (uniform in the step).
@@ -350,7 +352,8 @@ def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, ste
     detector_px2 = float(np.sum(nonrigid ** 2)) / max(2 * data.n_rows - 6 * n_images, 1)
     excess_px2 = float(np.sum(rigid ** 2)) - detector_px2 * max(6 * n_images - p, 0)
     share = float(np.clip(excess_px2 / left_px2, 0.0, 1.0)) if left_px2 > 0 else 1.0
-    return share * (bread @ meat @ bread) * np.outer(scales, scales)
+    covariance = share * (bread @ meat @ bread) * np.outer(scales, scales)
+    return (covariance, share) if with_share else covariance
 
 
 def levenberg_marquardt(normal_at, x0, scales, *, max_iterations=100, ftol=1e-10, xtol=1e-10, gtol=1e-10):
@@ -500,10 +503,12 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     cond, sv, Vt = identifiability(final.A)
     covariance, covariance_iid = parameter_covariance(final.A, rss, final.image_scores, sv, Vt, scales,
                                                       stance_cluster_of_image(model.data), n, dof)
+    share = float("nan")
     if reading_step_rad is not None and np.any(np.asarray(reading_step_rad) > 0):
         J_free = equations.dense(free)[1]  # the only tall Jacobian of the linear fit; only when steps are asked
-        covariance = covariance + quantisation_covariance(model, values, registry, J_free, sv, Vt, scales,
-                                                          np.asarray(reading_step_rad, dtype=float))
+        added, share = quantisation_covariance(model, values, registry, J_free, sv, Vt, scales,
+                                               np.asarray(reading_step_rad, dtype=float), with_share=True)
+        covariance = covariance + added
     std_free = np.sqrt(np.diag(covariance))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)
@@ -531,4 +536,6 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
         residuals_px=residuals, weights=weights, rms_px=(float(rms[0]), float(rms[1])),
         iterations=int(n_jac), function_evaluations=int(n_fun), solve_time_s=time.perf_counter() - start,
         model=model, downweighted_images=downweighted, warnings=warnings,
+        reading_step_rad=None if reading_step_rad is None else np.asarray(reading_step_rad, dtype=float),
+        quantisation_share=share,
     )

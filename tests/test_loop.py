@@ -44,6 +44,7 @@ def _offset_z_scores(seeds, *, with_quantisation_term, tmp_path, **case):
     return np.array(z)
 
 
+@pytest.mark.slow  # 8 fits: 15 s
 def test_the_standard_deviations_need_the_quantisation_term(tmp_path):
     """Servos anywhere inside a 0.3 deg encoder step, few stances, little pixel noise: the quantisation error
     dominates, is shared by the images of a stance and largely absorbed by the fit, so the residuals (and the
@@ -91,3 +92,16 @@ def test_the_loop_names_exactly_the_hidden_effects_and_ends_at_the_noise(name, s
         assert s["n_outliers"] == 0, s
     if name == "outliers":
         assert s["n_outliers"] >= 0.5 * 0.015 * truth["n_vertices"], s
+
+
+def test_the_noise_floor_counts_only_the_quantisation_the_residuals_show(tmp_path):
+    """Readings in 12-bit steps whose servos stand exactly at the step leave no angle error: the floor is the
+    pixel noise (it claimed the full quantisation, 0.34 px against 0.1 px of noise). Servos anywhere inside the
+    step leave it all: the floor holds it, and the fit reaches the floor in both."""
+    from loop_cases import generate, naocal_json
+
+    for servo, floor_px in (("step", 0.1), ("anywhere", 0.33)):
+        generate(tmp_path / servo, 2, servo=servo, stances_per_leg=10)
+        out = naocal_json("diagnose", tmp_path / servo)
+        assert out["noise_px"] == pytest.approx(floor_px, rel=0.15), servo
+        assert 0.8 < out["ratio_to_noise"] < 1.2, servo
