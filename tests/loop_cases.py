@@ -206,6 +206,7 @@ CASES = {  # name -> generator options (every case: 12-bit encoder readings)
     "partial": dict(servo="step", partial=True),
     "noise_0.25": dict(servo="step", pixel_noise_px=0.25),
     "outliers": dict(servo="step", outliers=0.015),
+    "partial_outliers": dict(servo="anywhere", partial=True, outliers=0.015, pixel_noise_px=0.25),
     "not_a_candidate": dict(servo="step", effects=("axis_tilt",)),
 }
 CANDIDATE_EFFECTS = ("elasticity", "backlash", "time_lag")
