@@ -125,6 +125,7 @@ class ScoreTest:
     of clusters (`effective_clusters`).
     noise_rss: what the block would remove from pure noise on average, trace of the score's variance, px^2;
     delta_rss - noise_rss estimates, without bias, the drop it owes to a real effect.
+    step_std: (d,) standard deviation of `step` from the same clustered variance (nan where not estimable).
     """
 
     dof: int
@@ -133,6 +134,7 @@ class ScoreTest:
     statistic: float
     p_value: float
     noise_rss: float = float("nan")
+    step_std: np.ndarray | None = None
 
 
 def _jackknife_scores(U, q, e, clusters):
@@ -201,4 +203,6 @@ def score_test(J_tilde: np.ndarray, r: np.ndarray, clusters: list, Q: np.ndarray
     V = G / (G - 1) * (h.T @ h)  # variance of the score g
     t2 = float(g @ np.linalg.lstsq(V, g, rcond=1e-12)[0])
     f_value = (G - q) / (q * (G - 1)) * t2
-    return ScoreTest(q, float(g @ g), step, t2, float(fdtrc(q, G - q, f_value)), float(np.trace(V)))
+    to_step = to_z / scale[:, None]  # step = -to_step @ g
+    step_std = np.sqrt(np.maximum(np.einsum("iq,qr,ir->i", to_step, V, to_step), 0.0))
+    return ScoreTest(q, float(g @ g), step, t2, float(fdtrc(q, G - q, f_value)), float(np.trace(V)), step_std)

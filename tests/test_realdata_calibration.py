@@ -114,7 +114,8 @@ def test_the_camera_rotation_brings_it_to_4_6_px_with_the_pitch_determined(impor
     p = {name: (math.degrees(e["value"]), math.degrees(e["std"]))
          for name, e in report["model_parameters"].items() if name.startswith("camera.bottom.")}
     assert p["camera.bottom.pitch"] == pytest.approx((5.87, 0.41), abs=0.02)  # 14 std from zero
-    assert p["camera.bottom.roll"] == pytest.approx((-0.50, 0.71), abs=0.02)  # not distinguishable from zero
+    # not distinguishable from zero (the sandwich of 6 clusters said 0.71; the classic estimate along roll is 1.02)
+    assert p["camera.bottom.roll"] == pytest.approx((-0.50, 1.02), abs=0.02)
     assert p["camera.bottom.yaw"] == pytest.approx((0.43, 0.35), abs=0.02)
     # Roll is the weakest direction.
     weakest = report["weak_directions"][0]

@@ -103,6 +103,11 @@ def run(args) -> int:
         out["model_parameters_note"] = MODEL_PARAMETERS_NOTE
         out["model_parameters"] = out.pop("parameters")
         out["report"] = None if report_path is None else str(report_path)
+        best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
+        out["verdict"] = {"add": None if best is None else best.effect,
+                          "commands": [] if best is None else list(next_commands(
+                              diagnosis, best, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
+                              tied=args.tie_hip_yaw_pitch is not False))}
         print(json.dumps(json_safe(out), indent=1))
     else:
         print(format_text(diagnosis, fit, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
@@ -220,7 +225,9 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
             notes.append("indistinguishable from the model: " + ", ".join(cand.inside_model[:2]))
         if cand.implausible:
             notes.append("implausible size: " + ", ".join(cand.implausible[:2]))
-        if cand.uniqueness < LOW_UNIQUENESS:
+        if cand.stand_in and cand.significant:
+            notes.append("a stand-in: hard to tell apart from the model and explains little of the misfit")
+        elif cand.uniqueness < LOW_UNIQUENESS:
             notes.append("its values would correlate with the model's" if cand.significant
                          else "hard to tell apart from the model")
         if cand.significant and not notes:
@@ -231,7 +238,10 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
     best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
     lines.append("")
     if best is None:
-        lines.append("verdict: no candidate effect is significant; the model explains the data"
+        unnamed = [x.effect for x in diagnosis.candidates if x.significant]
+        lines.append(("verdict: no candidate effect is significant; the model explains the data" if not unnamed else
+                      f"verdict: no candidate effect explains the misfit ({', '.join(unnamed)} significant but a "
+                      "stand-in or of implausible size); the model explains the data")
                      + (" to the noise level." if c.ratio_to_noise < 1.5 else
                         " as far as these candidates go (the remaining misfit is something else)."))
     else:
