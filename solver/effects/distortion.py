@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, ProjectionTerm
+from solver.effect import Effect, MockPerturbation, Parameter, ProjectionTerm
 from solver.effects._common import per_name_section, read_per_name_section
 
 COMPONENTS = ("k1", "k2")
@@ -22,6 +22,7 @@ class Distortion(Effect):
     plausible_limit = 0.5
     offsets_section, offsets_key = "head", "distortion_correction"
     offsets_limit = 2.0
+    mock_size_unit, mock_stream = "1 (radial k1)", 6
 
     def parameters(self, setup):
         return [Parameter(f"distortion.{cam}.{k}", self.name, "1", 0.05, camera=cam, component=k)
@@ -51,6 +52,10 @@ class Distortion(Effect):
                            "radial partial residual (px)", groups[rows],
                            (xs, -xs * (get("k1") * rho2 + get("k2") * rho2 ** 2))))
         return panels
+
+    def mock_perturbation(self, rng, size, setup):
+        """The cameras' true radial distortion k1 = size (OpenCV's model on the normalised coordinates)."""
+        return MockPerturbation(distortion={"k1": float(size)}, record={"k1": float(size)})
 
     def write_offsets(self, values, setup):
         return per_name_section(values, self.parameters(setup), lambda p: p.camera)

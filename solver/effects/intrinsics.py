@@ -5,7 +5,7 @@
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, ProjectionTerm
+from solver.effect import Effect, MockPerturbation, Parameter, ProjectionTerm
 from solver.effects._common import per_name_section, read_per_name_section
 
 COMPONENTS = ("fx", "fy", "cx", "cy")
@@ -25,6 +25,7 @@ class Intrinsics(Effect):
     plausible_limit = 60.0  # px: 10 % of the focal length
     offsets_section, offsets_key = "head", "intrinsics_correction_px"
     offsets_limit = 200.0
+    mock_size_unit, mock_stream = "px", 5
 
     def parameters(self, setup):
         return [Parameter(f"intrinsics.{cam}.{k}", self.name, "px", 5.0, camera=cam, component=k)
@@ -52,6 +53,13 @@ class Intrinsics(Effect):
                                f"partial residual {'x' if axis == 0 else 'y'} (px)", groups[rows],
                                (xs, -(get(fk) * xs / intr[f] + get(ck)))))
         return panels
+
+    def mock_perturbation(self, rng, size, setup):
+        """The cameras' true focal lengths off the prior: fx by s * size, fy by s * size * U(0.7, 1.3), s = +-1."""
+        sign = rng.choice([-1.0, 1.0])
+        ratio = rng.uniform(0.7, 1.3)
+        delta = {"fx": float(sign * size), "fy": float(sign * size * ratio)}
+        return MockPerturbation(intrinsics_px=delta, record={"delta_px": dict(delta)})
 
     def write_offsets(self, values, setup):
         return per_name_section(values, self.parameters(setup), lambda p: p.camera)
