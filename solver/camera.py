@@ -157,6 +157,33 @@ def project_points(p_cam, intrinsics) -> tuple[np.ndarray, np.ndarray]:
     return uv, depth
 
 
+def undistort_points(uv_px, intrinsics, iterations: int = 50) -> np.ndarray:
+    """Undistorted pixels (..., 2) of distorted ones: the inverse of `distort` by fixed-point iteration on the
+    normalised coordinates (as OpenCV's undistortPoints), exact to ~1e-12 px for the NAO's mild distortions."""
+    uv_px = np.asarray(uv_px, dtype=float)
+    fx, fy, cx, cy = (intrinsics[k] for k in ("fx_px", "fy_px", "cx_px", "cy_px"))
+    xd, yd = (uv_px[..., 0] - cx) / fx, (uv_px[..., 1] - cy) / fy
+    xn, yn = xd.copy(), yd.copy()
+    k1, k2, p1, p2, k3 = distortion_of(intrinsics)
+    if any((k1, k2, p1, p2, k3)):
+        for _ in range(iterations):
+            r2 = xn * xn + yn * yn
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xn = (xd - (2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn))) / radial
+            yn = (yd - (p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn)) / radial
+    return np.stack([cx + fx * xn, cy + fy * yn], axis=-1)
+
+
+def plane_homography(T_cam_plane, intrinsics) -> np.ndarray:
+    """H (3, 3): points (x, y, 1) of the plane z = 0 of a frame at T_cam_plane -> undistorted pixels (u, v, 1).
+
+    The pinhole part of the projection above as a matrix: (u, v, 1) ~ K @ p_cam with K mapping the NAO camera
+    frame (x optical axis, y left, z up) to pixels."""
+    K = np.array([[intrinsics["cx_px"], -intrinsics["fx_px"], 0.0], [intrinsics["cy_px"], 0.0, -intrinsics["fy_px"]],
+                  [1.0, 0.0, 0.0]])
+    return K @ np.column_stack([T_cam_plane[:3, 0], T_cam_plane[:3, 1], T_cam_plane[:3, 3]])
+
+
 def transform_to_camera(T_base_cam, p_base) -> np.ndarray:
     """Points (..., K, 3) in the base frame -> camera frame, for camera poses T_base_cam (..., 4, 4)."""
     R, t = T_base_cam[..., :3, :3], T_base_cam[..., :3, 3]
