@@ -143,6 +143,7 @@ class RobotDescription:
     default_targets: tuple[str, ...]
     gravity_mps2: tuple[float, float, float]
     link_lengths: dict = field(default_factory=dict)  # "<chain label>.<link>" -> joint whose origin it lengthens
+    command_limits: dict = field(default_factory=dict)  # joint -> (lower, upper) rad naocal commands it within
 
     # -- chains
 
@@ -293,7 +294,8 @@ def parse_robot(doc, path) -> RobotDescription:
     """A RobotDescription from a `naocal.robot/1` document; DataError naming the file and field otherwise."""
     doc = _object(doc, path, "(top level)")
     _keys(doc, ("schema", "name", "urdf", "base", "joints", "cameras", "targets"),
-          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2"),
+          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2",
+           "command_limits_rad"),
           path, "")
     if doc["schema"] != SCHEMA:
         _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
@@ -322,6 +324,15 @@ def parse_robot(doc, path) -> RobotDescription:
         if joint not in joints:
             _fail(path, f"{joint!r} is not one of `joints`", f"link_lengths.{name}")
         link_lengths[name] = joint
+    command_limits = {}
+    for name, bounds in _object(doc.get("command_limits_rad", {}), path, "command_limits_rad").items():
+        where = f"command_limits_rad.{name}"
+        if name not in joints:
+            _fail(path, f"{name!r} is not one of `joints`", where)
+        lower, upper = _vector(bounds, 2, path, where)
+        if not lower < upper:
+            _fail(path, "expected [lower, upper] with lower < upper", where)
+        command_limits[name] = (lower, upper)
     cameras = {}
     for name, cam in _object(doc["cameras"], path, "cameras").items():
         where = f"cameras.{name}"
@@ -373,7 +384,7 @@ def parse_robot(doc, path) -> RobotDescription:
         chains=chains, cameras=cameras, targets=targets, default_cameras=default_cameras,
         default_targets=default_targets,
         gravity_mps2=_vector(doc.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, path, "gravity_mps2"),
-        link_lengths=link_lengths)
+        link_lengths=link_lengths, command_limits=command_limits)
     for name, cam in cameras.items():  # every frame must hang off the base by a serial chain
         robot.camera_chain(name)
     for name in targets:
