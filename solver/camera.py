@@ -21,6 +21,32 @@ COMPONENTS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 NO_DISTORTION = (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """A camera's intrinsics: image size, pinhole (fx, fy, cx, cy) and OpenCV distortion (k1, k2, p1, p2, k3), in
+    the conventions above. The one intrinsics type: the robot description's cameras (solver.robot.Camera) are these
+    with a name, a frame and a readout; the backends report them (backends.base.CameraIntrinsics is this)."""
+
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    distortion: tuple = NO_DISTORTION
+
+    def intrinsics(self) -> dict:
+        """The intrinsics dict the camera model, the datasets and the agent use."""
+        return {"width_px": int(self.width_px), "height_px": int(self.height_px), "fx_px": float(self.fx_px),
+                "fy_px": float(self.fy_px), "cx_px": float(self.cx_px), "cy_px": float(self.cy_px),
+                "distortion": [float(d) for d in self.distortion]}
+
+    def to_dict(self) -> dict:
+        """As the bridge protocol sends it: the dict with the camera's name (a backend's intrinsics() are its
+        bottom camera's)."""
+        return {"name": getattr(self, "name", "bottom"), **self.intrinsics()}
+
+
 def default_intrinsics(camera: str | None = None, robot=None) -> dict:
     """The prior intrinsics of a camera of the robot description (default: the NAO's first default camera)."""
     from solver.robot import nao

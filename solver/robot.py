@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.camera import CameraIntrinsics
 from solver.errors import DataError
 from solver.transforms import make_transform, rot_rpy
 from solver.urdf import Urdf, parse_urdf
@@ -107,25 +108,14 @@ class Target:
         return self.T_frame_board[:3, 3].copy()
 
 
-@dataclass(frozen=True)
-class Camera:
-    """A camera: its URDF frame (NAO camera convention) and its prior intrinsics."""
+@dataclass(frozen=True, kw_only=True)
+class Camera(CameraIntrinsics):
+    """A camera: its prior intrinsics (solver.camera.CameraIntrinsics, `intrinsics()` the dict), its name, its URDF
+    frame (NAO camera convention) and its rolling-shutter readout."""
 
     name: str
     frame: str
-    width_px: int
-    height_px: int
-    fx_px: float
-    fy_px: float
-    cx_px: float
-    cy_px: float
-    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)  # OpenCV (k1, k2, p1, p2, k3)
     readout_s: float = 0.0  # rolling shutter: time between the first and the last row's exposure (prior)
-
-    def intrinsics(self) -> dict:
-        """The prior intrinsics as the dict the camera model and the datasets use."""
-        return {"width_px": self.width_px, "height_px": self.height_px, "fx_px": self.fx_px, "fy_px": self.fy_px,
-                "cx_px": self.cx_px, "cy_px": self.cy_px, "distortion": [float(d) for d in self.distortion]}
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: one object per loaded file
