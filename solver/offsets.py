@@ -399,19 +399,23 @@ def _validated_model(model, path) -> dict:
             expected_unit = parameter_unit(name)
         except ValueError as err:
             _fail(path, str(err), where)
-        entry = _object(entry, path, where)
-        _keys(entry, PARAMETER_KEYS, (), path, where)
-        unit = entry["unit"]
-        if unit not in PARAMETER_UNITS:
-            _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
-                  f"{where}.unit")
-        if unit != expected_unit:
-            _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
-                                          unit=unit),
-                         "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
-                         "unit": unit}
+        checked[name] = _parameter_entry(entry, name, expected_unit, path, where)
     return {"effects": list(effects), "parameters": checked}
+
+
+def _parameter_entry(entry, name: str, expected_unit: str, path, where) -> dict:
+    """One model parameter's {value, std, unit} (both versions): the unit known and the parameter's, the value
+    within the unit's plausible size, the std non-negative."""
+    entry = _object(entry, path, where)
+    _keys(entry, PARAMETER_KEYS, (), path, where)
+    unit = entry["unit"]
+    if unit not in PARAMETER_UNITS:
+        _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
+              f"{where}.unit")
+    if unit != expected_unit:
+        _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
+    return {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit], unit=unit),
+            "std": _number(entry["std"], path, f"{where}.std", non_negative=True), "unit": unit}
 
 
 def _validated_fit(fit, path) -> dict:
@@ -497,18 +501,7 @@ def _validated_model_v2(model, path, robot) -> dict:
         where = f"model.parameters.{name}"
         if name not in units:
             _fail(path, f"unknown model parameter of robot {robot.name!r}", where)
-        entry = _object(entry, path, where)
-        _keys(entry, PARAMETER_KEYS, (), path, where)
-        unit = entry["unit"]
-        if unit not in PARAMETER_UNITS:
-            _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
-                  f"{where}.unit")
-        if unit != units[name]:
-            _fail(path, f"wrong unit {unit!r}, {name} is in {units[name]!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
-                                          unit=unit),
-                         "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
-                         "unit": unit}
+        checked[name] = _parameter_entry(entry, name, units[name], path, where)
     return {"effects": list(effects), "parameters": checked}
 
 
