@@ -64,9 +64,8 @@ from solver.effects import EFFECTS as MODEL_EFFECTS
 from solver.errors import NaocalError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import chain_frames, leg_fk
-from solver.nao_model import head_chain
 from solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds
-from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole
+from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole, head_chain
 from solver.transforms import invert_transform, rot_x, rot_y, rot_z
 
 # The effects the mock simulates (solver/effects/ modules with a mock injection) and the unit of their size.
@@ -207,6 +206,9 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
     unknown = set(total.distortion) - {"k1"}
     if unknown:
         raise NaocalError(f"the mock's cameras have radial distortion k1 only, not {', '.join(sorted(unknown))}")
+    off_legs = (set(total.compliance_rad_per_nm) | set(total.half_play_rad)) - set(LEG_JOINTS)
+    if off_legs:
+        raise NaocalError(f"the mock simulates compliance and play on the leg joints only, not {sorted(off_legs)}")
     camera = CameraModel(width_px=nominal.width_px, height_px=nominal.height_px,
                          fx_px=float(nominal.fx_px + d["fx"] + lens[0]), fy_px=float(nominal.fy_px + d["fy"] + lens[1]),
                          cx_px=float(nominal.cx_px + d["cx"] + lens[2]), cy_px=float(nominal.cy_px + d["cy"] + lens[3]),
