@@ -139,7 +139,7 @@ class MockTruth:
     camera: CameraModel  # the true intrinsics and distortion
     time_lag_s: float
     top_camera_rotation_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": 0.0, "yaw": 0.0})
-    camera_translation_m: dict = field(default_factory=dict)  # camera -> (3,) mount shift in the head frame
+    camera_translation_m: dict = field(default_factory=dict)  # camera -> (x, y, z) mount shift in the head frame, m
     effect_records: dict = field(default_factory=dict)  # effect -> what it drew (truth_effects.json)
 
     def camera_rotations(self) -> dict:
@@ -220,7 +220,7 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
         backlash_rad={j: float(total.half_play_rad.get(j, 0.0)) for j in LEG_JOINTS},
         thigh_delta_m=lengths["thigh"], tibia_delta_m=lengths["tibia"],
         camera=camera, time_lag_s=float(total.image_stamp_late_s), top_camera_rotation_rad=top_rotation,
-        camera_translation_m={cam: np.asarray(total.camera_translation_m.get(cam, np.zeros(3)), dtype=float)
+        camera_translation_m={cam: tuple(float(v) for v in total.camera_translation_m.get(cam, (0.0, 0.0, 0.0)))
                               for cam in CAMERAS},
         effect_records={name: p.record for name, p in perturbations.items()})
 

@@ -211,8 +211,11 @@ def test_safety_guard_refuses_limits_head_table_and_collisions(body):
     with pytest.raises(SafetyError, match="LKneePitch"):
         guard.check(too_far)
     head = parked.copy()
-    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 1.2, 0.45
+    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 0.68, 0.5
     with pytest.raises(SafetyError, match="HeadPitch"):
+        guard.check(head)
+    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 1.2, 0.2  # beyond the command range
+    with pytest.raises(SafetyError, match="HeadYaw"):
         guard.check(head)
     crossed = parked.copy()
     crossed[JOINT_INDEX["LHipRoll"]], crossed[JOINT_INDEX["RHipRoll"]] = -0.3, 0.3  # legs into each other
