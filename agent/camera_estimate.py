@@ -70,9 +70,19 @@ class CameraEstimate:
 
     def add(self, estimate, leg: str, theta14, uv_px) -> None:
         """Record a capture and refit the rotation (the joint offsets and mounts held at the estimate's)."""
+        self.preload(leg, theta14, uv_px)
+        self.refit(estimate)
+
+    def preload(self, leg: str, theta14, uv_px) -> None:
+        """Record a capture made earlier (a resumed run) without refitting; call refit() after the last."""
         self._theta.append(np.asarray(theta14, dtype=float))
         self._leg.append(leg)
         self._uv.append(np.asarray(uv_px, dtype=float))
+
+    def refit(self, estimate) -> None:
+        """Fit the rotation to the captures recorded so far (the joint offsets and mounts held at the estimate's)."""
+        if not self._theta:
+            return
         data = self._data(np.array(self._theta), self._leg)
         data.uv_px = np.concatenate(self._uv)
         free = self.registry.with_fixed(("joint_offsets", "board_mount"))

@@ -301,11 +301,13 @@ class Measurement:
         return self.robot.guard.problem(q14) is None
 
     def feasible_head(self, q14) -> np.ndarray | None:
-        """q14 with the head moved to the nearest posture the guard accepts (HeadYaw within +-0.6 rad, HeadPitch
-        inside the HeadYaw table, raised in small steps if the head comes too near the ground), or None."""
+        """q14 with the head moved to the nearest posture the guard accepts (HeadYaw within the guard's limits:
+        the robot description's command range, +-0.7 rad, as the planner's; HeadPitch inside the HeadYaw table,
+        raised in small steps if the head comes too near the ground), or None."""
         q = np.array(q14, dtype=float)
         yaw_col, pitch_col = HEAD_COLUMNS
-        q[yaw_col] = np.clip(q[yaw_col], -0.6, 0.6)
+        guard = self.robot.guard
+        q[yaw_col] = np.clip(q[yaw_col], guard.lower[yaw_col], guard.upper[yaw_col])
         lo, hi = head_pitch_limits(q[yaw_col])
         m = self.robot.guard.head_pitch_margin_rad + 0.005
         q[pitch_col] = np.clip(q[pitch_col], lo + m, hi - m)

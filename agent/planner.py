@@ -43,7 +43,7 @@ from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
 from backends.errors import SafetyError
 from solver.camera import default_intrinsics
-from solver.limits import head_pitch_limits, joint_limits, max_speeds
+from solver.limits import command_limits, head_pitch_limits, joint_limits, max_speeds
 from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 from solver.registry import Registry
 from solver.transforms import rot_x, rot_y, rot_z
@@ -79,7 +79,7 @@ class PlanSettings:
     top_head_postures: int = 2
     top_hip_pitch_min_rad: float = -1.50
     top_hip_pitch_max_rad: float = -1.15
-    top_head_yaw_max_rad: float = 0.7
+    top_head_yaw_max_rad: float = field(default_factory=lambda: command_limits()["HeadYaw"][1])  # nao.json
     joint_margin_rad: float = 0.05
     head_pitch_margin_rad: float = 0.03
     head_yaw_max_rad: float = 0.5

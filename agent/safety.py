@@ -20,7 +20,7 @@ import numpy as np
 from body.nao_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
 from backends.errors import SafetyError
 from solver.joints import JOINT_INDEX, JOINTS
-from solver.limits import head_pitch_problem
+from solver.limits import command_limits, head_pitch_problem
 
 
 REACH_M = 0.5  # farther than any part of the robot from a leg joint's axis (a leg with its sandal: about 0.45 m)
@@ -93,8 +93,12 @@ class SafetyGuard:
         missing = [j for j in JOINTS if j not in limits]
         if missing:
             raise SafetyError(f"the robot reports no limits for {', '.join(missing)}")
-        self.lower = np.array([limits[j][0] for j in JOINTS]) + margin_rad
-        self.upper = np.array([limits[j][1] for j in JOINTS]) - margin_rad
+        # the robot's limits with a margin, and never beyond the range the agent commands a joint in (HeadYaw)
+        narrow = command_limits()
+        self.lower = np.maximum(np.array([limits[j][0] for j in JOINTS]) + margin_rad,
+                                [narrow.get(j, (-np.inf, np.inf))[0] for j in JOINTS])
+        self.upper = np.minimum(np.array([limits[j][1] for j in JOINTS]) - margin_rad,
+                                [narrow.get(j, (-np.inf, np.inf))[1] for j in JOINTS])
         self.checker = checker
         self.speeds = np.array([speeds[j] for j in JOINTS])
         self.head_pitch_margin_rad = head_pitch_margin_rad

@@ -221,9 +221,9 @@ class Measure(State):
         ctx.store = store
         if store.repair:
             log.warning(store.repair)
-        self._warm_start(ctx, store)
         progress = ProgressBar(ctx.plan.n_images(), enabled=s.progress_bar)
         measurement = Measurement(ctx.robot, ctx.plan, store, ctx.estimate, ctx.detector, s.measure, progress)
+        self._warm_start(ctx, store, measurement.other_cameras)
         measurement.run()
         saved = store.saved_images() & set(ctx.plan.image_indices())
         ctx.measurement = {
@@ -241,20 +241,29 @@ class Measure(State):
         return Outcome("dataset_only" if self.dataset_only else "ok")
 
     @staticmethod
-    def _warm_start(ctx: Context, store: CaptureStore) -> None:
-        """On resume, the running estimate learns from the captures already on disk."""
+    def _warm_start(ctx: Context, store: CaptureStore, other_cameras: dict) -> None:
+        """On resume, the running estimate learns from the bottom camera's captures already on disk, and each
+        other camera's estimate (the top camera's rotation) from its own, held at the estimate's offsets: the
+        first top capture after a resume is aimed and searched with the rotation learnt before, not relearnt."""
         if not store.saved_images():
             return
         dataset = read_dataset(ctx.dataset_dir)
         data = model_data_from_dataset(dataset)
         still = _still_images(data)
+        others = []
         for m in still:
-            if data.camera[m] != "bottom":
-                continue  # the running estimate is the bottom camera's (the top camera's rotation is relearnt)
             rows = data.image_of_row == m
-            if rows.sum() == data.robot.target(data.target[m]).board.n_vertices:  # a complete board
+            if rows.sum() != data.robot.target(data.target[m]).board.n_vertices:
+                continue  # only complete boards
+            if data.camera[m] == "bottom":
                 ctx.estimate.preload(str(data.leg[m]), data.theta[m], data.uv_px[rows])
+            elif data.camera[m] in other_cameras:
+                others.append((other_cameras[data.camera[m]], m, rows))
         ctx.estimate.refit()
+        for camera_estimate, m, rows in others:
+            camera_estimate.preload(str(data.leg[m]), data.theta[m], data.uv_px[rows])
+        for camera_estimate in {id(c): c for c, _, _ in others}.values():
+            camera_estimate.refit(ctx.estimate)
 
 
 def _still_images(data) -> np.ndarray:

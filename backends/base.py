@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+from solver.camera import CameraIntrinsics  # noqa: F401  (the backends report the one intrinsics type)
 
 
 @dataclass(frozen=True)
@@ -29,31 +31,6 @@ class CameraImage:
     pixels: np.ndarray  # (height, width, 3) uint8, BGR
     t_exposure_s: float  # robot clock time of the exposure (middle of the frame)
     camera: str = "bottom"
-
-
-@dataclass(frozen=True)
-class CameraIntrinsics:
-    """Pinhole intrinsics in the OpenCV sense; see docs/CONVENTIONS.md for the NAO camera frame."""
-
-    width_px: int
-    height_px: int
-    fx_px: float
-    fy_px: float
-    cx_px: float
-    cy_px: float
-    distortion: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))  # k1, k2, p1, p2, k3
-
-    def to_dict(self) -> dict:
-        return {
-            "name": "bottom",
-            "width_px": int(self.width_px),
-            "height_px": int(self.height_px),
-            "fx_px": float(self.fx_px),
-            "fy_px": float(self.fy_px),
-            "cx_px": float(self.cx_px),
-            "cy_px": float(self.cy_px),
-            "distortion": [float(d) for d in self.distortion],
-        }
 
 
 def nominal_intrinsics(width_px: int = 640, height_px: int = 480) -> CameraIntrinsics:

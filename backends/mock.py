@@ -23,17 +23,13 @@ Camera: frames are exposed every 1/30 s (the exposure time is the middle of the 
 asks for are never rendered) and showing the robot at its exposure time, with the boards motion-blurred over
 `exposure_s` if they move.
 
-Injectable effects (off by default; sizes in the units below; per-joint factors from the seed):
-    elasticity    rad/(N m)  compliance c_j = size * U(0.5, 1.5) on each leg joint:
-                             q_true = servo + alpha + c_j * tau_j(q_true), tau_j the gravity torque from PyBullet's
-                             inverse dynamics of the simulated masses and the sandal (fixed-point iteration)
-    backlash      rad        half play b_j = size * U(0.5, 1.5) on each leg joint: q_true = servo + alpha + b_j * dir_j,
-                             dir_j the sign of the last change of that joint's command (0 before any change)
-    link_lengths  m          thigh and tibia of each leg longer by size * U(0.5, 1) with random sign
-    head_offsets  rad        HeadYaw and HeadPitch encoder offsets of size * U(0.5, 1) with random sign
-    intrinsics    px         true fx = nominal + s * size, fy = nominal + s * size * U(0.7, 1.3), s = +-1
-    distortion    1          true radial distortion k1 = size (OpenCV model on normalised coordinates)
-    time_lag      s          image timestamps are `size` later than the true exposure
+Injectable effects (off by default): every effect of solver/effects/ with a `mock_size_unit`. Each effect's module
+draws what a robot with it has (`Effect.mock_perturbation`, from the effect's own random stream, a
+`solver.effect.MockPerturbation`) and this mock applies it: encoder offsets, compliance (q_true = servo + alpha +
+c_j * tau_j(q_true), tau_j the gravity torque from PyBullet's inverse dynamics of the simulated masses and the
+sandal, fixed-point iteration), half play (+ b_j * dir_j, dir_j the sign of the last change of that joint's
+command), longer links (the PyBullet body and the kinematics), the cameras' true intrinsics and distortion, their
+mounts' translation, late image stamps. docs/MOCK.md lists the effects and their sizes.
 
 Realism (`realism="ideal"`, the default, is all of the above; `realism="realistic"` a NAO V6 as teams meet it,
 backends.mock_realism, docs/MOCK.md): readings in 12-bit encoder steps every 12 ms (LoLA); a servo that follows the
@@ -63,26 +59,22 @@ from backends.mock_realism import IDEAL, Realism, as_realism
 from backends.mock_render import CameraModel, RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
 from backends.mock_servo import SecondOrder, rest_offset, servo_positions
 from body.nao_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
+from solver.effect import MockPerturbation, Setup, signed_uniform
+from solver.effects import EFFECTS as MODEL_EFFECTS
 from solver.errors import NaocalError
 from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
-from solver.kinematics import camera_fk, leg_fk
+from solver.kinematics import chain_frames, leg_fk
 from solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds
-from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole
+from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole, head_chain
 from solver.transforms import invert_transform, rot_x, rot_y, rot_z
 
-EFFECT_UNITS = {
-    "elasticity": "rad/(N m)",
-    "backlash": "rad",
-    "link_lengths": "m",
-    "head_offsets": "rad",
-    "intrinsics": "px",
-    "distortion": "1 (radial k1)",
-    "time_lag": "s",
-}
+# The effects the mock simulates (solver/effects/ modules with a mock injection) and the unit of their size.
+EFFECT_UNITS = {name: e.mock_size_unit for name, e in MODEL_EFFECTS.items() if e.mock_size_unit is not None}
 EFFECTS = tuple(EFFECT_UNITS)
 TRUTH_SCHEMA = "naocal.truth/2"  # /1 had one camera_rotation_rad {roll, pitch, yaw}: the bottom camera's
 CAMERAS = ("bottom", "top")
 TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"
+MOCK_SETUP = Setup.everything()  # what the effects' injections are drawn for: the NAO, both cameras, its targets
 FRAME_PERIOD_S = 1.0 / 30.0
 FRAME_PHASE_S = 0.004  # exposure times are FRAME_PHASE_S + k * FRAME_PERIOD_S
 START_TIME_S = 10.0  # the simulated clock at start (the robot has been up for a while)
@@ -147,6 +139,8 @@ class MockTruth:
     camera: CameraModel  # the true intrinsics and distortion
     time_lag_s: float
     top_camera_rotation_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": 0.0, "yaw": 0.0})
+    camera_translation_m: dict = field(default_factory=dict)  # camera -> (x, y, z) mount shift in the head frame, m
+    effect_records: dict = field(default_factory=dict)  # effect -> what it drew (truth_effects.json)
 
     def camera_rotations(self) -> dict:
         """{camera: {roll, pitch, yaw}} of both cameras, rad."""
@@ -162,10 +156,6 @@ class MockTruth:
         return rot_y(r["pitch"]) @ rot_x(r["roll"]) @ rot_z(r["yaw"])
 
 
-def _signed(rng, low, high, size=None):
-    return rng.choice([-1.0, 1.0], size=size) * rng.uniform(low, high, size=size)
-
-
 def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
                realism: Realism | str = IDEAL) -> MockTruth:
     """The hidden truth of a mock with this seed and these effects (see the module docstring); a realistic mock
@@ -173,18 +163,17 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
     effects = check_effects(effects)
     realism = as_realism(realism)
     nominal = nominal or default_intrinsics(realism)
-    streams = {name: np.random.default_rng([int(seed), k]) for k, name in enumerate(("base",) + EFFECTS)}
-    rng = streams["base"]
+    rng = np.random.default_rng([int(seed), 0])  # the base truth's stream
     alpha = {j: 0.0 for j in JOINTS}
     for joint in LEG_JOINTS:
-        alpha[joint] = float(np.deg2rad(_signed(rng, 0.2, 2.0)))
+        alpha[joint] = float(np.deg2rad(signed_uniform(rng, 0.2, 2.0)))
     alpha["RHipYawPitch"] = alpha["LHipYawPitch"]
-    camera_rotation = {"roll": float(np.deg2rad(_signed(rng, 1.0, 3.0))),
+    camera_rotation = {"roll": float(np.deg2rad(signed_uniform(rng, 1.0, 3.0))),
                        "pitch": float(np.deg2rad(-rng.uniform(3.0, 8.5))),
-                       "yaw": float(np.deg2rad(_signed(rng, 1.0, 3.0)))}
-    mounts = {leg: BoardMount(rot_z_rad=float(np.deg2rad(_signed(rng, 0.2, 1.2))),
-                              trans_x_m=float(_signed(rng, 0.0005, 0.003)),
-                              trans_y_m=float(_signed(rng, 0.0005, 0.003))) for leg in LEGS}
+                       "yaw": float(np.deg2rad(signed_uniform(rng, 1.0, 3.0)))}
+    mounts = {leg: BoardMount(rot_z_rad=float(np.deg2rad(signed_uniform(rng, 0.2, 1.2))),
+                              trans_x_m=float(signed_uniform(rng, 0.0005, 0.003)),
+                              trans_y_m=float(signed_uniform(rng, 0.0005, 0.003))) for leg in LEGS}
     if realism.large_offsets:
         alpha, camera_rotation = _large_offsets(np.random.default_rng([int(seed), 104729]), realism, alpha)
     # The top camera's rotation from a stream of its own (the bottom camera's truth stays what it was): the same
@@ -193,36 +182,59 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
     if realism.large_offsets:
         top_rotation = _large_offsets(top_rng, realism, alpha)[1]
     else:
-        top_rotation = {"roll": float(np.deg2rad(_signed(top_rng, 1.0, 3.0))),
+        top_rotation = {"roll": float(np.deg2rad(signed_uniform(top_rng, 1.0, 3.0))),
                         "pitch": float(np.deg2rad(-top_rng.uniform(3.0, 8.5))),
-                        "yaw": float(np.deg2rad(_signed(top_rng, 1.0, 3.0)))}
+                        "yaw": float(np.deg2rad(signed_uniform(top_rng, 1.0, 3.0)))}
 
-    def per_leg_joint(name, low, high):
-        size = effects.get(name, 0.0)
-        factors = streams[name].uniform(low, high, len(LEG_JOINTS))
-        return {j: float(size * f) for j, f in zip(LEG_JOINTS, factors)}
-
-    lengths = _signed(streams["link_lengths"], 0.5, 1.0, size=4) * effects.get("link_lengths", 0.0)
-    head = _signed(streams["head_offsets"], 0.5, 1.0, size=2) * effects.get("head_offsets", 0.0)
-    alpha["HeadYaw"], alpha["HeadPitch"] = float(head[0]), float(head[1])
-    focal_sign = streams["intrinsics"].choice([-1.0, 1.0])
-    focal_ratio = streams["intrinsics"].uniform(0.7, 1.3)
-    focal = effects.get("intrinsics", 0.0)
+    # Each effect draws what it perturbs from its own stream (solver/effects/<name>.py, mock_perturbation).
+    perturbations = {name: MODEL_EFFECTS[name].mock_perturbation(
+        np.random.default_rng([int(seed), MODEL_EFFECTS[name].mock_stream_id()]), size, MOCK_SETUP)
+        for name, size in effects.items()}
+    total = MockPerturbation()
+    for p in perturbations.values():
+        _add_perturbation(total, p)
+    for joint, a in total.alpha_rad.items():
+        alpha[joint] += a
+    lengths = {"thigh": {leg: 0.0 for leg in LEGS}, "tibia": {leg: 0.0 for leg in LEGS}}
+    for label, delta in total.link_deltas_m.items():  # the NAO's labels: '<leg>.<thigh|tibia>'
+        leg, _, kind = label.partition(".")
+        lengths[kind][leg] += delta
+    d = {k: total.intrinsics_px.get(k, 0.0) for k in ("fx", "fy", "cx", "cy")}
     # A real camera's intrinsics differ a little from the prior (independent of the intrinsics effect's stream).
     lens = np.random.default_rng([int(seed), 130363]).uniform(-1.0, 1.0, 4)
     lens *= [realism.focal_error_px] * 2 + [realism.principal_error_px] * 2
+    unknown = set(total.distortion) - {"k1"}
+    if unknown:
+        raise NaocalError(f"the mock's cameras have radial distortion k1 only, not {', '.join(sorted(unknown))}")
+    off_legs = (set(total.compliance_rad_per_nm) | set(total.half_play_rad)) - set(LEG_JOINTS)
+    if off_legs:
+        raise NaocalError(f"the mock simulates compliance and play on the leg joints only, not {sorted(off_legs)}")
     camera = CameraModel(width_px=nominal.width_px, height_px=nominal.height_px,
-                         fx_px=float(nominal.fx_px + focal_sign * focal + lens[0]),
-                         fy_px=float(nominal.fy_px + focal_sign * focal * focal_ratio + lens[1]),
-                         cx_px=float(nominal.cx_px + lens[2]), cy_px=float(nominal.cy_px + lens[3]),
-                         k1=effects.get("distortion", 0.0))
+                         fx_px=float(nominal.fx_px + d["fx"] + lens[0]), fy_px=float(nominal.fy_px + d["fy"] + lens[1]),
+                         cx_px=float(nominal.cx_px + d["cx"] + lens[2]), cy_px=float(nominal.cy_px + d["cy"] + lens[3]),
+                         k1=float(total.distortion.get("k1", 0.0)))
     return MockTruth(
         seed=int(seed), alpha_rad=alpha, camera_rotation_rad=camera_rotation, board_mount=mounts,
-        effects=dict(effects), compliance_rad_per_nm=per_leg_joint("elasticity", 0.5, 1.5),
-        backlash_rad=per_leg_joint("backlash", 0.5, 1.5),
-        thigh_delta_m={"L": float(lengths[0]), "R": float(lengths[1])},
-        tibia_delta_m={"L": float(lengths[2]), "R": float(lengths[3])},
-        camera=camera, time_lag_s=effects.get("time_lag", 0.0), top_camera_rotation_rad=top_rotation)
+        effects=dict(effects),
+        compliance_rad_per_nm={j: float(total.compliance_rad_per_nm.get(j, 0.0)) for j in LEG_JOINTS},
+        backlash_rad={j: float(total.half_play_rad.get(j, 0.0)) for j in LEG_JOINTS},
+        thigh_delta_m=lengths["thigh"], tibia_delta_m=lengths["tibia"],
+        camera=camera, time_lag_s=float(total.image_stamp_late_s), top_camera_rotation_rad=top_rotation,
+        camera_translation_m={cam: tuple(float(v) for v in total.camera_translation_m.get(cam, (0.0, 0.0, 0.0)))
+                              for cam in CAMERAS},
+        effect_records={name: p.record for name, p in perturbations.items()})
+
+
+def _add_perturbation(total: MockPerturbation, p: MockPerturbation) -> None:
+    """Add one effect's perturbation to the sum of those before it (per-key sums; k1 and the like add too)."""
+    for name in ("alpha_rad", "compliance_rad_per_nm", "half_play_rad", "link_deltas_m", "intrinsics_px",
+                 "distortion"):
+        into = getattr(total, name)
+        for key, value in getattr(p, name).items():
+            into[key] = into.get(key, 0.0) + float(value)
+    for cam, shift in p.camera_translation_m.items():
+        total.camera_translation_m[cam] = np.asarray(total.camera_translation_m.get(cam, np.zeros(3))) + shift
+    total.image_stamp_late_s += float(p.image_stamp_late_s)
 
 
 def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
@@ -231,13 +243,13 @@ def _large_offsets(rng, realism: Realism, alpha: dict) -> tuple[dict, dict]:
     roll and yaw 1-3 deg. Head joints keep theirs (the head_offsets effect)."""
     alpha = dict(alpha)
     for joint in LEG_JOINTS:
-        alpha[joint] = float(np.deg2rad(_signed(rng, 0.2, realism.leg_offset_max_deg)))
-    alpha["LHipYawPitch"] = alpha["RHipYawPitch"] = float(np.deg2rad(_signed(rng, 0.5, realism.hip_yaw_pitch_max_deg)))
+        alpha[joint] = float(np.deg2rad(signed_uniform(rng, 0.2, realism.leg_offset_max_deg)))
+    alpha["LHipYawPitch"] = alpha["RHipYawPitch"] = float(np.deg2rad(signed_uniform(rng, 0.5, realism.hip_yaw_pitch_max_deg)))
     outlier = rng.uniform() < realism.camera_pitch_outlier_rate
-    pitch_deg = _signed(rng, *realism.camera_pitch_outlier_deg) if outlier else rng.uniform(
+    pitch_deg = signed_uniform(rng, *realism.camera_pitch_outlier_deg) if outlier else rng.uniform(
         *realism.camera_pitch_range_deg)
-    camera_rotation = {"roll": float(np.deg2rad(_signed(rng, 1.0, 3.0))), "pitch": float(np.deg2rad(pitch_deg)),
-                       "yaw": float(np.deg2rad(_signed(rng, 1.0, 3.0)))}
+    camera_rotation = {"roll": float(np.deg2rad(signed_uniform(rng, 1.0, 3.0))), "pitch": float(np.deg2rad(pitch_deg)),
+                       "yaw": float(np.deg2rad(signed_uniform(rng, 1.0, 3.0)))}
     return alpha, camera_rotation
 
 
@@ -552,18 +564,11 @@ class MockBackend(Backend):
     def effect_values_dict(self) -> dict:
         """What each injected effect drew from the seed, per joint or per leg (only the effects present), in the
         `naocal.truth_effects/1` format (truth_effects.json beside truth.json, whose format stays as specified)."""
-        t, legs = self.truth, tuple(LEGS)
-        values = {
-            "elasticity": {"compliance_rad_per_nm": {j: float(t.compliance_rad_per_nm[j]) for j in LEG_JOINTS}},
-            "backlash": {"half_play_rad": {j: float(t.backlash_rad[j]) for j in LEG_JOINTS}},
-            "link_lengths": {"thigh_delta_m": {g: float(t.thigh_delta_m[g]) for g in legs},
-                             "tibia_delta_m": {g: float(t.tibia_delta_m[g]) for g in legs}},
-            "head_offsets": {"alpha_rad": {j: float(t.alpha_rad[j]) for j in HEAD_JOINTS}},
-            "intrinsics": {k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px")},
-            "distortion": {"k1": float(t.camera.k1)},
-            "time_lag": {"image_stamp_late_s": float(t.time_lag_s)},
-        }
-        out = {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: values[name] for name in t.effects}}
+        t = self.truth
+        out = {"schema": TRUTH_EFFECTS_SCHEMA, "effects": {name: t.effect_records[name] for name in t.effects}}
+        if "intrinsics" in t.effects:  # beside what the effect added, the true intrinsics themselves
+            out["effects"]["intrinsics"] = {**t.effect_records["intrinsics"], **{
+                k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px", "cy_px")}}
         if not self.realism.is_ideal:  # what a realistic robot has besides the effects
             out["realism"] = {"settings": self.realism.to_dict(),
                               "intrinsics": {k: float(getattr(t.camera, k)) for k in ("fx_px", "fy_px", "cx_px",
@@ -809,7 +814,9 @@ class MockBackend(Backend):
 
     def _T_world_cam(self, q_true: np.ndarray, camera: str = "bottom") -> np.ndarray:
         head = q_true[[JOINT_INDEX[j] for j in HEAD_JOINTS]]
-        T_torso_cam = camera_fk(head[None], camera)[0].copy()
+        # the camera's mount, moved in the head frame by camera_translation (Trans(t) @ T_head_cam0)
+        T_torso_cam = chain_frames(head_chain(camera), head[None],
+                                   end_shift_m=self.truth.camera_translation_m[camera])[1][0].copy()
         T_torso_cam[:3, :3] = T_torso_cam[:3, :3] @ self.truth.R_cam_offset(camera)
         return T_WORLD_TORSO @ T_torso_cam
 

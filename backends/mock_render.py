@@ -14,7 +14,7 @@ cy + 1 (measured in tests/test_mock_render.py with the edge of a box).
 
 Lens distortion (radial k1 on the normalised coordinates, OpenCV's model) is rendered by remapping: the body image
 through the exact undistortion map, the boards by sampling the texture at the undistorted position of every
-sub-pixel.
+sub-pixel. Projection, undistortion and the board's homography are solver.camera's (the one camera model).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from body.nao_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
 from body.pybullet_quiet import pybullet
-from solver.camera import project_points
+from solver.camera import plane_homography, project_points, undistort_points
 from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 from solver.transforms import invert_transform
 
@@ -50,24 +50,18 @@ class CameraModel:
     cy_px: float = 240.0
     k1: float = 0.0
 
+    def intrinsics(self) -> dict:
+        """The intrinsics dict of solver.camera (the one camera model: projection, undistortion, homography)."""
+        return {"fx_px": self.fx_px, "fy_px": self.fy_px, "cx_px": self.cx_px, "cy_px": self.cy_px,
+                "distortion": (self.k1, 0.0, 0.0, 0.0, 0.0), "width_px": self.width_px, "height_px": self.height_px}
+
     def project(self, p_cam: np.ndarray) -> np.ndarray:
         """Pixel positions (..., 2) of points (..., 3) in the camera frame (x > 0 in front of the camera)."""
-        uv, _ = project_points(p_cam, {"fx_px": self.fx_px, "fy_px": self.fy_px, "cx_px": self.cx_px,
-                                       "cy_px": self.cy_px, "distortion": (self.k1, 0.0, 0.0, 0.0, 0.0)})
-        return uv  # solver.camera: the one projection
+        return project_points(p_cam, self.intrinsics())[0]
 
-    def undistort_px(self, uv: np.ndarray, iterations: int = 50) -> np.ndarray:
-        """Undistorted pixel positions (..., 2) of distorted ones (fixed-point iteration, exact to ~1e-12 px for
-        the distortions the mock uses)."""
-        uv = np.asarray(uv, dtype=float)
-        a_d = (uv[..., 0] - self.cx_px) / self.fx_px
-        b_d = (uv[..., 1] - self.cy_px) / self.fy_px
-        a, b = a_d.copy(), b_d.copy()
-        if self.k1 != 0.0:
-            for _ in range(iterations):
-                factor = 1.0 + self.k1 * (a * a + b * b)
-                a, b = a_d / factor, b_d / factor
-        return np.stack([self.cx_px + self.fx_px * a, self.cy_px + self.fy_px * b], axis=-1)
+    def undistort_px(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted pixel positions (..., 2) of distorted ones (solver.camera.undistort_points)."""
+        return undistort_points(uv, self.intrinsics())
 
 
 def projection_matrix_gl(camera: CameraModel) -> np.ndarray:
@@ -108,12 +102,6 @@ def board_texture(px_per_square: int = TEXTURE_PX_PER_SQUARE) -> tuple[np.ndarra
                   [0.0, texel, -BOARD_HALF_Y_M + 0.5 * texel],
                   [0.0, 0.0, 1.0]])
     return texture, A
-
-
-def board_homography(camera: CameraModel, T_cam_board: np.ndarray) -> np.ndarray:
-    """H (3, 3): board-frame metres (x, y, 1) on the printed plane z = 0 -> undistorted pixels (u, v, 1)."""
-    K_nao = np.array([[camera.cx_px, -camera.fx_px, 0.0], [camera.cy_px, 0.0, -camera.fy_px], [1.0, 0.0, 0.0]])
-    return K_nao @ np.column_stack([T_cam_board[:3, 0], T_cam_board[:3, 1], T_cam_board[:3, 3]])
 
 
 def board_outline_board_m(n_per_side: int = 8) -> np.ndarray:
@@ -218,7 +206,7 @@ class SceneRenderer:
         u0, v0, u1, v1 = bbox
         s = self.supersample
         bw, bh = u1 - u0 + 1, v1 - v0 + 1
-        H = board_homography(self.camera, T_cam_board)  # board m -> undistorted px
+        H = plane_homography(T_cam_board, self.camera.intrinsics())  # board m -> undistorted px
         if self._undistort_map is None:
             # canvas sub-pixel (a, b) -> image u = u0 - 0.5 + (a + 0.5) / s
             S = np.array([[1.0 / s, 0.0, u0 - 0.5 + 0.5 / s], [0.0, 1.0 / s, v0 - 0.5 + 0.5 / s], [0, 0, 1.0]])

@@ -21,6 +21,32 @@ COMPONENTS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 NO_DISTORTION = (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """A camera's intrinsics: image size, pinhole (fx, fy, cx, cy) and OpenCV distortion (k1, k2, p1, p2, k3), in
+    the conventions above. The one intrinsics type: the robot description's cameras (solver.robot.Camera) are these
+    with a name, a frame and a readout; the backends report them (backends.base.CameraIntrinsics is this)."""
+
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    distortion: tuple = NO_DISTORTION
+
+    def intrinsics(self) -> dict:
+        """The intrinsics dict the camera model, the datasets and the agent use."""
+        return {"width_px": int(self.width_px), "height_px": int(self.height_px), "fx_px": float(self.fx_px),
+                "fy_px": float(self.fy_px), "cx_px": float(self.cx_px), "cy_px": float(self.cy_px),
+                "distortion": [float(d) for d in self.distortion]}
+
+    def to_dict(self) -> dict:
+        """As the bridge protocol sends it: the dict with the camera's name (a backend's intrinsics() are its
+        bottom camera's)."""
+        return {"name": getattr(self, "name", "bottom"), **self.intrinsics()}
+
+
 def default_intrinsics(camera: str | None = None, robot=None) -> dict:
     """The prior intrinsics of a camera of the robot description (default: the NAO's first default camera)."""
     from solver.robot import nao
@@ -155,6 +181,33 @@ def project_points(p_cam, intrinsics) -> tuple[np.ndarray, np.ndarray]:
         uv = np.stack([intrinsics["cx_px"] + intrinsics["fx_px"] * xn,
                        intrinsics["cy_px"] + intrinsics["fy_px"] * yn], axis=-1)
     return uv, depth
+
+
+def undistort_points(uv_px, intrinsics, iterations: int = 50) -> np.ndarray:
+    """Undistorted pixels (..., 2) of distorted ones: the inverse of `distort` by fixed-point iteration on the
+    normalised coordinates (as OpenCV's undistortPoints), exact to ~1e-12 px for the NAO's mild distortions."""
+    uv_px = np.asarray(uv_px, dtype=float)
+    fx, fy, cx, cy = (intrinsics[k] for k in ("fx_px", "fy_px", "cx_px", "cy_px"))
+    xd, yd = (uv_px[..., 0] - cx) / fx, (uv_px[..., 1] - cy) / fy
+    xn, yn = xd.copy(), yd.copy()
+    k1, k2, p1, p2, k3 = distortion_of(intrinsics)
+    if any((k1, k2, p1, p2, k3)):
+        for _ in range(iterations):
+            r2 = xn * xn + yn * yn
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xn = (xd - (2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn))) / radial
+            yn = (yd - (p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn)) / radial
+    return np.stack([cx + fx * xn, cy + fy * yn], axis=-1)
+
+
+def plane_homography(T_cam_plane, intrinsics) -> np.ndarray:
+    """H (3, 3): points (x, y, 1) of the plane z = 0 of a frame at T_cam_plane -> undistorted pixels (u, v, 1).
+
+    The pinhole part of the projection above as a matrix: (u, v, 1) ~ K @ p_cam with K mapping the NAO camera
+    frame (x optical axis, y left, z up) to pixels."""
+    K = np.array([[intrinsics["cx_px"], -intrinsics["fx_px"], 0.0], [intrinsics["cy_px"], 0.0, -intrinsics["fy_px"]],
+                  [1.0, 0.0, 0.0]])
+    return K @ np.column_stack([T_cam_plane[:3, 0], T_cam_plane[:3, 1], T_cam_plane[:3, 3]])
 
 
 def transform_to_camera(T_base_cam, p_base) -> np.ndarray:

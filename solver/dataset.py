@@ -198,6 +198,19 @@ def _require(meta: dict, key: str, path, where: str):
     return meta[key]
 
 
+def _named_objects(meta, key: str, what: str, known, path):
+    """(field, object) of each entry of meta[key], a non-empty object whose names are among `known` (the robot
+    description's cameras or targets) and whose entries are objects; DataError naming the field otherwise."""
+    entries = _check_object(_require(meta, key, path, ""), path, key)
+    if not entries:
+        raise DataError(path, f"expected at least one {what}", field=key)
+    for name, entry in entries.items():
+        where = f"{key}.{name}"
+        if name not in known:
+            raise DataError(path, f"{what} {name!r} is not one of the robot's ({', '.join(known)})", field=where)
+        yield where, _check_object(entry, path, where)
+
+
 def _check_object(value, path, field) -> dict:
     if not isinstance(value, dict):
         raise DataError(path, f"expected a JSON object, got {type(value).__name__}", field=field)
@@ -347,15 +360,7 @@ def validate_meta_v2(meta, path) -> dict:
     except DataError:
         raise DataError(path, f"unknown robot description {description!r}", field="robot.description") from None
 
-    cameras = _check_object(_require(meta, "cameras", path, ""), path, "cameras")
-    if not cameras:
-        raise DataError(path, "expected at least one camera", field="cameras")
-    for name, camera in cameras.items():
-        where = f"cameras.{name}"
-        if name not in robot.cameras:
-            raise DataError(path, f"camera {name!r} is not one of the robot's ({', '.join(robot.cameras)})",
-                            field=where)
-        camera = _check_object(camera, path, where)
+    for where, camera in _named_objects(meta, "cameras", "camera", robot.cameras, path):
         for key in ("width_px", "height_px"):
             _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
                           integer=True, at_most=MAX_IMAGE_SIDE_PX)
@@ -370,15 +375,7 @@ def validate_meta_v2(meta, path) -> dict:
         if "distortion" in camera:
             _check_vector(camera["distortion"], 5, path, f"{where}.distortion", at_most=MAX_DISTORTION)
 
-    targets = _check_object(_require(meta, "targets", path, ""), path, "targets")
-    if not targets:
-        raise DataError(path, "expected at least one target", field="targets")
-    for name, board in targets.items():
-        where = f"targets.{name}"
-        if name not in robot.targets:
-            raise DataError(path, f"target {name!r} is not one of the robot's ({', '.join(robot.targets)})",
-                            field=where)
-        board = _check_object(board, path, where)
+    for where, board in _named_objects(meta, "targets", "target", robot.targets, path):
         for key in ("columns", "rows"):
             n = _check_number(_require(board, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
                               integer=True, at_most=MAX_BOARD_SQUARES)

@@ -13,15 +13,16 @@ An effect owns
 - its diagnostics: plausible size, why it cannot be tested on some data, what to do when the data do not excite it,
   and the partial-residual view of the report (`partial_residual_panels`);
 - its display (unit shown to people) and its section of the offsets file (`offsets_section`, `offsets_key`,
-  `write_offsets`, `read_offsets`).
+  `write_offsets`, `read_offsets`);
+- its mock injection (`mock_perturbation`): what a simulated robot with the effect of a given size has, described
+  as plain data (`MockPerturbation`) that backends/mock.py applies to its body, servos and camera.
 Adding an effect is adding one module with an `EFFECT = SomeEffect()` in solver/effects/: it is discovered there.
-
-Mock injection still lives in backends/mock.py; `mock_truth` is the hook it moves to (see its docstring).
 """
 
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -157,6 +158,28 @@ class ProjectionTerm:
     value: float
 
 
+@dataclass
+class MockPerturbation:
+    """What a simulated robot with an effect has, in the mock's physical terms (backends/mock.py applies every
+    field; docs/MOCK.md). SI units; the mock's own sign for joint offsets (alpha = -c: q_true = servo + alpha).
+    Effects combine by adding (each draws from its own random stream)."""
+
+    alpha_rad: dict = field(default_factory=dict)  # joint -> encoder offset: q_true = servo + alpha
+    compliance_rad_per_nm: dict = field(default_factory=dict)  # joint -> q_true += C * tau(q_true)
+    half_play_rad: dict = field(default_factory=dict)  # joint -> q_true += b * (direction of the last command)
+    link_deltas_m: dict = field(default_factory=dict)  # robot description link label ('L.thigh') -> longer by
+    intrinsics_px: dict = field(default_factory=dict)  # 'fx', 'fy', 'cx', 'cy' -> added to the cameras' true value
+    distortion: dict = field(default_factory=dict)  # 'k1' -> the cameras' true radial distortion
+    camera_translation_m: dict = field(default_factory=dict)  # camera -> (3,) mount moved by, in its parent link
+    image_stamp_late_s: float = 0.0  # images stamped this much later than their exposure
+    record: dict = field(default_factory=dict)  # what the effect drew, for truth_effects.json (plain JSON)
+
+
+def signed_uniform(rng, low: float, high: float, size=None):
+    """Random sign times U(low, high): the mock's draw of an error of unknown sign."""
+    return rng.choice([-1.0, 1.0], size=size) * rng.uniform(low, high, size=size)
+
+
 # ------------------------------------------------------------------------------------------- display
 
 
@@ -196,6 +219,10 @@ class Effect:
     offsets_section: str | None = None
     offsets_key: str | None = None
     offsets_limit: float = math.inf  # largest |value| a file may hold (SI); beyond it: damaged file or unit mix-up
+    # The mock: the unit of `--effect NAME=SIZE` (None: the mock does not simulate this effect), and the number of
+    # its random stream (None: one derived from the name; the older effects keep the numbers they had).
+    mock_size_unit: str | None = None
+    mock_stream: int | None = None
 
     # -- parameters
 
@@ -251,16 +278,17 @@ class Effect:
     def read_offsets(self, content, path, where: str, robot) -> None:
         """Validate the content of this effect's key of a file; DataError naming the field otherwise."""
 
-    # -- the mock (not used yet)
+    # -- the mock
 
-    def mock_truth(self, rng, size: float, setup: Setup) -> dict:
-        """Hidden parameter values of a simulated robot with this effect of `size` ({name: value}).
+    def mock_perturbation(self, rng, size: float, setup: Setup) -> MockPerturbation:
+        """What a simulated robot with this effect of `size` (in `mock_size_unit`) has, drawn from `rng` (the
+        effect's own stream): a pure description; the mock applies it through its physics (PyBullet masses, servo
+        tracks, the rendered cameras). `setup`: the robot description and the cameras and targets it simulates."""
+        raise NotImplementedError(f"{self.name}: the mock does not simulate this effect")
 
-        Not used yet: backends/mock.py still injects effects itself (its own physics: PyBullet masses, servo
-        tracks, a rendered camera). When that moves here, the mock draws each effect's truth from this method
-        and applies it through the effect's physical counterpart.
-        """
-        raise NotImplementedError(f"{self.name}: the mock injects this effect itself (backends/mock.py)")
+    def mock_stream_id(self) -> int:
+        """The number of this effect's random stream in the mock (seeded [seed, number])."""
+        return self.mock_stream if self.mock_stream is not None else zlib.crc32(self.name.encode()) & 0x7FFFFFFF
 
 
 # ------------------------------------------------------------------------------------------- helpers for effects

@@ -77,6 +77,19 @@ def joint_limits(urdf_path=URDF_PATH) -> dict[str, tuple[float, float]]:
     return limits
 
 
+def command_limits(robot=None) -> dict[str, tuple[float, float]]:
+    """(lower, upper) in rad that the agent commands each joint within: `joint_limits` narrowed by the robot
+    description's `command_limits_rad` (the NAO: HeadYaw +-0.7 rad). The planner, the measurement's head moves and
+    the safety guard all take it from here."""
+    from solver.robot import nao
+
+    limits = dict(joint_limits())
+    for joint, (lower, upper) in (robot or nao()).command_limits.items():
+        box = limits.get(joint, (-math.inf, math.inf))
+        limits[joint] = (max(box[0], lower), min(box[1], upper))
+    return limits
+
+
 def max_speeds(urdf_path=URDF_PATH) -> dict[str, float]:
     """Maximum joint speed in rad/s for every revolute joint (the URDF's `velocity`)."""
     return {name: speed for name, (_, _, speed) in _urdf_joint_table(str(urdf_path)).items()}

@@ -129,8 +129,9 @@ class ModelData:
 
     def _target_key(self, order):
         order = list(order or self.robot.targets)
-        order += [t for t in np.unique(self.target) if t not in order]
-        return np.array([order.index(t) for t in self.target], dtype=int)
+        names, inverse = np.unique(self.target, return_inverse=True)
+        order += [t for t in names if t not in order]
+        return np.array([order.index(t) for t in names], dtype=int)[inverse.reshape(-1)]
 
     # the NAO's names
     is_sorted_by_leg = is_sorted_by_target

@@ -310,25 +310,36 @@ def _created(value, path) -> str:
     return value
 
 
-def _validated_fields(doc, path) -> dict:
-    """The fields of a version 1 document (its own layout); DataError naming the file and field otherwise."""
+def _document(doc, path, schema: str, expected: str, top_level_keys) -> dict:
+    """The top level of an offsets document of `schema` (both versions): an object, its schema, no non-finite
+    value anywhere, exactly `top_level_keys`; DataError naming the file and field otherwise."""
     doc = _object(doc, path, "(top level)")
     if "schema" not in doc:
         _fail(path, "missing required field", "schema")
-    if doc["schema"] != SCHEMA_V1:
-        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA_V1!r}", "schema")
+    if doc["schema"] != schema:
+        _fail(path, f"wrong schema {doc['schema']!r}, expected {expected}", "schema")
     bad = find_non_finite(doc)
     if bad:
         _fail(path, "non-finite value (NaN or infinity)", bad)
-    _keys(doc, TOP_LEVEL_KEYS, (), path, "")
+    _keys(doc, top_level_keys, (), path, "")
+    return doc
 
-    robot = _object(doc["robot"], path, "robot")
-    _keys(robot, ROBOT_KEYS, (), path, "robot")
+
+def _robot_ids(robot, path) -> None:
+    """The robot's ids (both versions): each a valid id string, or null when unknown."""
     for key in ROBOT_KEYS:
         if robot[key] is not None and not isinstance(robot[key], str):
             _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
         if isinstance(robot[key], str) and not ROBOT_ID_PATTERN.fullmatch(robot[key]):
             _fail(path, f"not a valid id {json.dumps(robot[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
+
+
+def _validated_fields(doc, path) -> dict:
+    """The fields of a version 1 document (its own layout); DataError naming the file and field otherwise."""
+    doc = _document(doc, path, SCHEMA_V1, repr(SCHEMA_V1), TOP_LEVEL_KEYS)
+    robot = _object(doc["robot"], path, "robot")
+    _keys(robot, ROBOT_KEYS, (), path, "robot")
+    _robot_ids(robot, path)
 
     joints = _object(doc["joint_offsets_rad"], path, "joint_offsets_rad")
     for joint in joints:
@@ -388,19 +399,23 @@ def _validated_model(model, path) -> dict:
             expected_unit = parameter_unit(name)
         except ValueError as err:
             _fail(path, str(err), where)
-        entry = _object(entry, path, where)
-        _keys(entry, PARAMETER_KEYS, (), path, where)
-        unit = entry["unit"]
-        if unit not in PARAMETER_UNITS:
-            _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
-                  f"{where}.unit")
-        if unit != expected_unit:
-            _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
-                                          unit=unit),
-                         "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
-                         "unit": unit}
+        checked[name] = _parameter_entry(entry, name, expected_unit, path, where)
     return {"effects": list(effects), "parameters": checked}
+
+
+def _parameter_entry(entry, name: str, expected_unit: str, path, where) -> dict:
+    """One model parameter's {value, std, unit} (both versions): the unit known and the parameter's, the value
+    within the unit's plausible size, the std non-negative."""
+    entry = _object(entry, path, where)
+    _keys(entry, PARAMETER_KEYS, (), path, where)
+    unit = entry["unit"]
+    if unit not in PARAMETER_UNITS:
+        _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
+              f"{where}.unit")
+    if unit != expected_unit:
+        _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
+    return {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit], unit=unit),
+            "std": _number(entry["std"], path, f"{where}.std", non_negative=True), "unit": unit}
 
 
 def _validated_fit(fit, path) -> dict:
@@ -430,23 +445,10 @@ def _validated_fields_v2(doc, path) -> dict:
     """The fields of Offsets from a version 2 document; DataError naming the file and field otherwise."""
     from solver.robot import load_robot
 
-    doc = _object(doc, path, "(top level)")
-    if "schema" not in doc:
-        _fail(path, "missing required field", "schema")
-    if doc["schema"] != SCHEMA:
-        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r} (or {SCHEMA_V1!r})", "schema")
-    bad = find_non_finite(doc)
-    if bad:
-        _fail(path, "non-finite value (NaN or infinity)", bad)
-    _keys(doc, TOP_LEVEL_KEYS_V2, (), path, "")
-
+    doc = _document(doc, path, SCHEMA, f"{SCHEMA!r} (or {SCHEMA_V1!r})", TOP_LEVEL_KEYS_V2)
     robot_meta = _object(doc["robot"], path, "robot")
     _keys(robot_meta, ROBOT_KEYS_V2, (), path, "robot")
-    for key in ROBOT_KEYS:
-        if robot_meta[key] is not None and not isinstance(robot_meta[key], str):
-            _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
-        if isinstance(robot_meta[key], str) and not ROBOT_ID_PATTERN.fullmatch(robot_meta[key]):
-            _fail(path, f"not a valid id {json.dumps(robot_meta[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
+    _robot_ids(robot_meta, path)
     description = robot_meta["description"]
     if not isinstance(description, str) or not re.match(r"^[a-z0-9_]{1,64}$", description):
         _fail(path, "expected the name of a robot description (e.g. 'nao')", "robot.description")
@@ -499,18 +501,7 @@ def _validated_model_v2(model, path, robot) -> dict:
         where = f"model.parameters.{name}"
         if name not in units:
             _fail(path, f"unknown model parameter of robot {robot.name!r}", where)
-        entry = _object(entry, path, where)
-        _keys(entry, PARAMETER_KEYS, (), path, where)
-        unit = entry["unit"]
-        if unit not in PARAMETER_UNITS:
-            _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
-                  f"{where}.unit")
-        if unit != units[name]:
-            _fail(path, f"wrong unit {unit!r}, {name} is in {units[name]!r}", f"{where}.unit")
-        checked[name] = {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit],
-                                          unit=unit),
-                         "std": _number(entry["std"], path, f"{where}.std", non_negative=True),
-                         "unit": unit}
+        checked[name] = _parameter_entry(entry, name, units[name], path, where)
     return {"effects": list(effects), "parameters": checked}
 
 

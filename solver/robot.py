@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.camera import CameraIntrinsics
 from solver.errors import DataError
 from solver.transforms import make_transform, rot_rpy
 from solver.urdf import Urdf, parse_urdf
@@ -107,25 +108,14 @@ class Target:
         return self.T_frame_board[:3, 3].copy()
 
 
-@dataclass(frozen=True)
-class Camera:
-    """A camera: its URDF frame (NAO camera convention) and its prior intrinsics."""
+@dataclass(frozen=True, kw_only=True)
+class Camera(CameraIntrinsics):
+    """A camera: its prior intrinsics (solver.camera.CameraIntrinsics, `intrinsics()` the dict), its name, its URDF
+    frame (NAO camera convention) and its rolling-shutter readout."""
 
     name: str
     frame: str
-    width_px: int
-    height_px: int
-    fx_px: float
-    fy_px: float
-    cx_px: float
-    cy_px: float
-    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)  # OpenCV (k1, k2, p1, p2, k3)
     readout_s: float = 0.0  # rolling shutter: time between the first and the last row's exposure (prior)
-
-    def intrinsics(self) -> dict:
-        """The prior intrinsics as the dict the camera model and the datasets use."""
-        return {"width_px": self.width_px, "height_px": self.height_px, "fx_px": self.fx_px, "fy_px": self.fy_px,
-                "cx_px": self.cx_px, "cy_px": self.cy_px, "distortion": [float(d) for d in self.distortion]}
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: one object per loaded file
@@ -143,6 +133,7 @@ class RobotDescription:
     default_targets: tuple[str, ...]
     gravity_mps2: tuple[float, float, float]
     link_lengths: dict = field(default_factory=dict)  # "<chain label>.<link>" -> joint whose origin it lengthens
+    command_limits: dict = field(default_factory=dict)  # joint -> (lower, upper) rad naocal commands it within
 
     # -- chains
 
@@ -293,7 +284,8 @@ def parse_robot(doc, path) -> RobotDescription:
     """A RobotDescription from a `naocal.robot/1` document; DataError naming the file and field otherwise."""
     doc = _object(doc, path, "(top level)")
     _keys(doc, ("schema", "name", "urdf", "base", "joints", "cameras", "targets"),
-          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2"),
+          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2",
+           "command_limits_rad"),
           path, "")
     if doc["schema"] != SCHEMA:
         _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
@@ -322,6 +314,15 @@ def parse_robot(doc, path) -> RobotDescription:
         if joint not in joints:
             _fail(path, f"{joint!r} is not one of `joints`", f"link_lengths.{name}")
         link_lengths[name] = joint
+    command_limits = {}
+    for name, bounds in _object(doc.get("command_limits_rad", {}), path, "command_limits_rad").items():
+        where = f"command_limits_rad.{name}"
+        if name not in joints:
+            _fail(path, f"{name!r} is not one of `joints`", where)
+        lower, upper = _vector(bounds, 2, path, where)
+        if not lower < upper:
+            _fail(path, "expected [lower, upper] with lower < upper", where)
+        command_limits[name] = (lower, upper)
     cameras = {}
     for name, cam in _object(doc["cameras"], path, "cameras").items():
         where = f"cameras.{name}"
@@ -373,7 +374,7 @@ def parse_robot(doc, path) -> RobotDescription:
         chains=chains, cameras=cameras, targets=targets, default_cameras=default_cameras,
         default_targets=default_targets,
         gravity_mps2=_vector(doc.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, path, "gravity_mps2"),
-        link_lengths=link_lengths)
+        link_lengths=link_lengths, command_limits=command_limits)
     for name, cam in cameras.items():  # every frame must hang off the base by a serial chain
         robot.camera_chain(name)
     for name in targets:

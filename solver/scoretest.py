@@ -85,15 +85,18 @@ def stance_cluster_of_image(data: ModelData) -> np.ndarray:
     # the stance's readings: every joint but the cameras' (a leg, for the NAO's sandals)
     on_cameras = {j for c in np.unique(data.camera) for j in data.robot.camera_chain(c).joint_names}
     body = [k for k, j in enumerate(data.joints) if j not in on_cameras]
-    legs = np.array([np.round(row * 1e6).astype(np.int64).tobytes() for row in data.theta[:, body]])
-    still_keys = {(data.target[m], data.stance[m], legs[m]) for m in np.flatnonzero(~moving)}
-    keys = []
-    for m in range(data.n_images):
-        key = (data.target[m], int(data.stance[m]))
-        if moving[m] and (data.target[m], data.stance[m], legs[m]) not in still_keys:
-            key += (legs[m],)
-        keys.append(repr(key))
-    return np.unique(np.array(keys), return_inverse=True)[1].reshape(-1)
+    # Vectorised (a Python loop over the images took a tenth of a 100k-vertex solve): integer ids of the target,
+    # the stance and the body's readings (to 1e-6 rad), combined into one key per image.
+    _, target_id = np.unique(data.target, return_inverse=True)
+    stance_values, stance_id = np.unique(np.asarray(data.stance), return_inverse=True)
+    _, leg_id = np.unique(np.round(data.theta[:, body] * 1e6).astype(np.int64), axis=0, return_inverse=True)
+    target_id, stance_id, leg_id = (np.asarray(a, dtype=np.int64).reshape(-1) for a in (target_id, stance_id, leg_id))
+    n_pairs = (int(target_id.max(initial=0)) + 1) * len(stance_values)
+    pair = target_id * len(stance_values) + stance_id
+    triple = pair * (int(leg_id.max(initial=0)) + 1) + leg_id
+    alone = moving & ~np.isin(triple, triple[~moving])  # a sweep's image: its own cluster unless a still one shares it
+    key = np.where(alone, n_pairs + triple, pair)
+    return np.unique(key, return_inverse=True)[1].reshape(-1)
 
 
 def image_clusters(data: ModelData) -> list[np.ndarray]:

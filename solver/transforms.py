@@ -6,41 +6,44 @@ Angles may be arrays of any shape S; results then have shape S + (3, 3) or S + (
 import numpy as np
 
 
+def _matrices(c, entries):
+    """(shape of c) + (3, 3) zeros with the given entries {(row, col): array or constant}: filled in place, as
+    stacking nine arrays costs more than the maths on the small arrays of a solve."""
+    R = np.zeros(np.shape(c) + (3, 3))
+    for (i, j), value in entries.items():
+        R[..., i, j] = value
+    return R
+
+
 def rot_x(angle):
     c, s = np.cos(angle), np.sin(angle)
-    o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([o, z, z, z, c, -s, z, s, c], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(0, 0): 1.0, (1, 1): c, (1, 2): -s, (2, 1): s, (2, 2): c})
 
 
 def rot_y(angle):
     c, s = np.cos(angle), np.sin(angle)
-    o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([c, z, s, z, o, z, -s, z, c], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(0, 0): c, (0, 2): s, (1, 1): 1.0, (2, 0): -s, (2, 2): c})
 
 
 def rot_z(angle):
     c, s = np.cos(angle), np.sin(angle)
-    o, z = np.ones_like(c), np.zeros_like(c)
-    return np.stack([c, -s, z, s, c, z, z, z, o], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(0, 0): c, (0, 1): -s, (1, 0): s, (1, 1): c, (2, 2): 1.0})
 
 
 def d_rot_x(angle):
     """Derivative of rot_x with respect to its angle."""
     c, s = np.cos(angle), np.sin(angle)
-    z = np.zeros_like(c)
-    return np.stack([z, z, z, z, -s, -c, z, c, -s], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(1, 1): -s, (1, 2): -c, (2, 1): c, (2, 2): -s})
 
 
 def d_rot_y(angle):
     c, s = np.cos(angle), np.sin(angle)
-    z = np.zeros_like(c)
-    return np.stack([-s, z, c, z, z, z, -c, z, -s], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(0, 0): -s, (0, 2): c, (2, 0): -c, (2, 2): -s})
 
 
 def d_rot_z(angle):
     c, s = np.cos(angle), np.sin(angle)
-    z = np.zeros_like(c)
-    return np.stack([-s, -c, z, c, -s, z, z, z, z], axis=-1).reshape(np.shape(c) + (3, 3))
+    return _matrices(c, {(0, 0): -s, (0, 1): -c, (1, 0): c, (1, 1): -s})
 
 
 def skew(v):

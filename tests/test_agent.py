@@ -374,3 +374,31 @@ def test_running_estimate_keeps_the_first_leg_when_the_second_begins():
         assert guard.checker.margin_m == pytest.approx(0.008)
     finally:
         guard_body.close()
+
+
+def test_a_resumed_run_reloads_the_top_cameras_rotation_instead_of_relearning_it(tmp_path):
+    """The first top capture after a resume is searched with the narrow margin: the rotation learnt from the top
+    captures on disk is refitted at the warm start (it was relearnt from the first new top capture, searched wide)."""
+    fake = FakeBackend(3, resolution_rad=0.0)
+    first_session = []
+
+    def crash_after_two_top_captures(image, predicted, leg, margin):
+        if sum(camera == "top" for camera, _ in first_session) == 2:
+            raise Crash("power cut")
+        first_session.append((image.camera, margin))
+        return fake.detector(image, predicted, leg, margin)
+
+    with pytest.raises(Crash):
+        calibrate(fake, tmp_path, small_settings(), detector=crash_after_two_top_captures)
+    assert [m for c, m in first_session if c == "top"] == [120.0, 40.0]  # wide until its rotation is learnt
+    fresh = FakeBackend(3, resolution_rad=0.0)
+    resumed = []
+
+    def recording(image, predicted, leg, margin):
+        resumed.append((image.camera, margin))
+        return fresh.detector(image, predicted, leg, margin)
+
+    result, ctx = calibrate(fresh, tmp_path, small_settings(resume=True), detector=recording)
+    assert result.ok, result.reason
+    top = [m for c, m in resumed if c == "top"]
+    assert top and all(m == 40.0 for m in top), top

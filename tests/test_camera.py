@@ -91,3 +91,33 @@ def test_default_intrinsics_come_from_the_robot_description():
 
     assert camera.default_intrinsics() == nao().camera("bottom").intrinsics()
     assert camera.default_intrinsics("top")["height_px"] == 480
+
+
+def test_undistortion_inverts_the_projection_and_agrees_with_opencv():
+    """undistort_points: distorted pixels back to the pinhole pixels of the same rays (every OpenCV coefficient),
+    as cv2.undistortPoints finds them."""
+    intrinsics = {"fx_px": 560.0, "fy_px": 575.0, "cx_px": 318.0, "cy_px": 243.0,
+                  "distortion": (-0.12, 0.05, 0.002, -0.001, -0.01)}
+    rng = np.random.default_rng(3)
+    p_cam = np.column_stack([np.ones(300), rng.uniform(-0.5, 0.5, 300), rng.uniform(-0.4, 0.4, 300)])
+    distorted, _ = camera.project_points(p_cam, intrinsics)
+    pinhole, _ = camera.project_points(p_cam, {**intrinsics, "distortion": None})
+    np.testing.assert_allclose(camera.undistort_points(distorted, intrinsics), pinhole, atol=1e-8)
+    K = np.array([[560.0, 0, 318.0], [0, 575.0, 243.0], [0, 0, 1]])
+    opencv = cv2.undistortPoints(distorted[:, None, :], K, np.array(intrinsics["distortion"]), P=K,
+                                 criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))[:, 0]
+    np.testing.assert_allclose(camera.undistort_points(distorted, intrinsics), opencv, atol=1e-3)
+    np.testing.assert_array_equal(camera.undistort_points(distorted, {**intrinsics, "distortion": None}), distorted)
+
+
+def test_plane_homography_maps_a_plane_as_the_projection_does():
+    from solver.transforms import make_transform, rot_rpy
+
+    intrinsics = {"fx_px": 600.0, "fy_px": 610.0, "cx_px": 320.0, "cy_px": 240.0}
+    T_cam_plane = make_transform(rot_rpy(0.2, -0.3, 0.1) @ np.array([[0, 0, -1.0], [0, 1, 0], [1, 0, 0]]),
+                                 [0.5, 0.02, -0.03])
+    xy = np.random.default_rng(1).uniform(-0.1, 0.1, (50, 2))
+    H = camera.plane_homography(T_cam_plane, intrinsics)
+    mapped = np.column_stack([xy, np.ones(50)]) @ H.T
+    p_cam = np.column_stack([xy, np.zeros(50)]) @ T_cam_plane[:3, :3].T + T_cam_plane[:3, 3]
+    np.testing.assert_allclose(mapped[:, :2] / mapped[:, 2:], camera.project_points(p_cam, intrinsics)[0], atol=1e-9)

@@ -100,3 +100,49 @@ def test_offsets_show_lists_it(tmp_path, capsys):
     line = next(line for line in out.splitlines() if "camera.bottom.trans_z" in line)
     assert "4.20000" in line and "mm" in line
     assert not any("camera.bottom.pitch" in line for line in out.splitlines())  # in the rotation table instead
+
+
+def test_the_mock_simulates_it_from_its_own_module(tmp_path):
+    """Its mock injection is its module's `mock_perturbation`: the mock moves each camera's mount in the head frame
+    by what it drew, renders the boards there, and says so in its truth; nothing else names the effect."""
+    from agent.corners import detect_board_vertices
+    from backends.mock import EFFECTS, MockBackend, parse_effect_sizes
+    from body.nao_body import T_WORLD_TORSO
+    from solver.effects import EFFECTS as MODEL_EFFECTS
+    from solver.kinematics import chain_frames
+    from solver.nao_model import head_chain
+    from tests.mock_stances import settle_and_capture, visible_stances
+
+    assert "camera_translation" in EFFECTS
+    assert parse_effect_sizes(["camera_translation=0.004"]) == {"camera_translation": 0.004}
+    moved, nominal = MockBackend(seed=21, effects={"camera_translation": 0.004}), MockBackend(seed=21)
+    try:
+        drawn = moved.effect_values_dict()["effects"]["camera_translation"]["camera_translation_m"]
+        assert set(drawn) == {"bottom", "top"}
+        for shift in drawn.values():
+            assert all(0.002 <= abs(shift[a]) <= 0.004 for a in ("trans_x", "trans_y", "trans_z"))
+        assert moved.truth_dict()["effects"] == {"camera_translation": 0.004}
+        assert moved.truth.alpha_rad == nominal.truth.alpha_rad  # the base truth stays what it was
+        # The true camera sits where the head frame says: its origin moved by R_torso_head @ t, its axes kept.
+        q = np.array(list(moved.true_angles().values()))
+        head = q[:2][None]
+        for cam, shift in drawn.items():
+            t = np.array([shift["trans_x"], shift["trans_y"], shift["trans_z"]])
+            R_torso_head = chain_frames(head_chain(cam), head)[0][0, -1, :3, :3]
+            T_moved, T_nominal = moved._T_world_cam(q, cam), nominal._T_world_cam(q, cam)
+            np.testing.assert_allclose(T_moved[:3, :3], T_nominal[:3, :3], atol=1e-12)
+            np.testing.assert_allclose(T_moved[:3, 3] - T_nominal[:3, 3], T_WORLD_TORSO[:3, :3] @ R_torso_head @ t,
+                                       atol=1e-12)
+        # The rendered image shows the boards where the moved camera sees them (a few pixels from the nominal's).
+        command, leg = visible_stances(moved, 1, seed=3)[0]
+        image, reference = settle_and_capture(moved, command), settle_and_capture(nominal, command)
+        pixels, visible = moved.true_vertex_pixels(image)[leg]
+        assert visible.all()
+        assert np.max(np.linalg.norm(pixels - nominal.true_vertex_pixels(reference)[leg][0], axis=1)) > 1.0
+        found = detect_board_vertices(image.pixels, pixels + 3.0)
+        assert found.ok, found.detail
+        assert np.sqrt(np.mean((found.vertices_px - pixels) ** 2)) < 0.1
+    finally:
+        moved.close()
+        nominal.close()
+    assert MODEL_EFFECTS["camera_translation"].mock_size_unit == "m"

@@ -49,8 +49,23 @@ def test_each_effect_is_complete(name):
         assert math.isfinite(value) and isinstance(unit, str)
     assert effect.plausible_limit > 0
     assert effect.offsets_section in ("body", "head", "targets") and effect.offsets_key
-    with pytest.raises(NotImplementedError):  # the mock still injects effects itself (backends/mock.py)
-        effect.mock_truth(np.random.default_rng(0), 1.0, Setup.default())
+    if effect.mock_size_unit is None:  # the base model's terms: the mock draws them as its base truth
+        with pytest.raises(NotImplementedError):
+            effect.mock_perturbation(np.random.default_rng(0), 1.0, Setup.everything())
+    else:  # its mock injection: a plain description, drawn from the stream it is given, zero at size 0
+        import json
+
+        from solver.effect import MockPerturbation
+
+        first = effect.mock_perturbation(np.random.default_rng(7), 1e-3, Setup.everything())
+        again = effect.mock_perturbation(np.random.default_rng(7), 1e-3, Setup.everything())
+        assert isinstance(first, MockPerturbation) and first.record
+        assert json.loads(json.dumps(first.record)) == first.record == again.record
+        assert first != MockPerturbation(record=first.record)  # it perturbs something
+        zero = effect.mock_perturbation(np.random.default_rng(7), 0.0, Setup.everything())
+        assert all(not np.any(np.asarray(v, dtype=float)) for d in (zero.alpha_rad, zero.compliance_rad_per_nm,
+                   zero.half_play_rad, zero.link_deltas_m, zero.intrinsics_px, zero.distortion,
+                   zero.camera_translation_m) for v in d.values()) and zero.image_stamp_late_s == 0.0
 
 
 @pytest.mark.parametrize("name", ALL_EFFECTS)

@@ -247,3 +247,40 @@ def test_one_encoder_step_for_every_joint_of_one_kind_of_encoder():
     assert choice.resolution_rad["HeadYaw"] == pytest.approx(step)
     assert theta[0, 0] == measured[0, 0]  # the reading stands: its command is not inside its cell
     assert np.allclose(reading_resolution(measured), step)  # the noise floor's step: the same function
+
+
+def _clusters_straightforward(data):
+    """stance_cluster_of_image as it was written first (a key string per image): the reference."""
+    moving = np.zeros(data.n_images, bool) if data.velocity is None else np.any(data.velocity != 0, axis=1)
+    on_cameras = {j for c in np.unique(data.camera) for j in data.robot.camera_chain(c).joint_names}
+    body = [k for k, j in enumerate(data.joints) if j not in on_cameras]
+    legs = np.array([np.round(row * 1e6).astype(np.int64).tobytes() for row in data.theta[:, body]])
+    still_keys = {(data.target[m], data.stance[m], legs[m]) for m in np.flatnonzero(~moving)}
+    keys = []
+    for m in range(data.n_images):
+        key = (data.target[m], int(data.stance[m]))
+        if moving[m] and (data.target[m], data.stance[m], legs[m]) not in still_keys:
+            key += (legs[m],)
+        keys.append(repr(key))
+    return np.unique(np.array(keys), return_inverse=True)[1].reshape(-1)
+
+
+def test_stance_clusters_are_the_straightforward_ones():
+    """The vectorised stance clusters partition the images as the per-image keys did: still images by (target,
+    stance); a moving image with them when a still one has its readings, else on its own."""
+    from dataclasses import replace
+
+    from solver.scoretest import stance_cluster_of_image
+
+    rng = np.random.default_rng(4)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=6, pixel_noise_px=0.0)
+    velocity = np.zeros_like(data.theta)
+    moving = rng.choice(data.n_images, 12, replace=False)
+    velocity[moving] = 0.1
+    theta = data.theta.copy()
+    theta[moving[:6]] += 0.01  # six sweep images at readings of their own, six at a still image's
+    data = replace(data, velocity=velocity, theta=theta)
+    new, old = stance_cluster_of_image(data), _clusters_straightforward(data)
+    assert len(np.unique(new)) == len(np.unique(old)) > len(np.unique(data.stance))
+    pairs = set(zip(new.tolist(), old.tolist()))
+    assert len(pairs) == len(np.unique(new))  # one to one: the same partition

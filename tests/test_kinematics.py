@@ -211,3 +211,25 @@ def test_the_urdf_holds_the_documented_geometry_and_masses(xml_chain):
             name = f"{sole}_ankle" if part == "ankle" else f"{side}{part}"
             assert masses[name] == pytest.approx(mass, abs=1e-5), name
     assert sum(masses.values()) == pytest.approx(TOTAL_MASS, abs=1e-3)
+
+
+def test_elementary_rotations_and_their_derivatives():
+    """rot_x, rot_y, rot_z: right-handed rotations of any shape of angles; d_rot_*: their exact derivatives."""
+    from solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_axis_angle, rot_x, rot_y, rot_z
+
+    angles = np.random.default_rng(2).uniform(-3.0, 3.0, (4, 5))
+    for axis, rot, d_rot in ((0, rot_x, d_rot_x), (1, rot_y, d_rot_y), (2, rot_z, d_rot_z)):
+        R = rot(angles)
+        assert R.shape == (4, 5, 3, 3) and rot(0.3).shape == (3, 3)
+        np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-15)
+        np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-14)
+        unit = np.eye(3)[axis]
+        np.testing.assert_allclose(R[1, 2], _rodrigues(unit, angles[1, 2]), atol=1e-15)
+        h = 1e-6
+        np.testing.assert_allclose(d_rot(angles), (rot(angles + h) - rot(angles - h)) / (2 * h), atol=1e-9)
+        np.testing.assert_allclose(rot_axis_angle(unit, angles), R, atol=1e-15)
+
+
+def _rodrigues(axis, angle):
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K

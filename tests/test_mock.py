@@ -81,6 +81,17 @@ def test_effects_do_not_change_the_base_truth():
     assert with_effects.alpha_rad["HeadYaw"] != 0.0
 
 
+def test_a_seeds_effects_are_what_they_were_before_the_injection_moved_into_the_effect_modules():
+    """Each effect's module draws from the stream the mock gave that effect before (commit 17e9f5d's values)."""
+    t = draw_truth(3, {"elasticity": 0.02, "backlash": 0.01, "link_lengths": 0.003, "head_offsets": 0.01,
+                       "intrinsics": 5.0, "distortion": 0.05, "time_lag": 0.03})
+    assert t.compliance_rad_per_nm["LKneePitch"] == 0.018548907479973543
+    assert t.backlash_rad["RAnkleRoll"] == 0.014704571583842741
+    assert (t.thigh_delta_m["R"], t.tibia_delta_m["L"]) == (-0.0017892403698596647, -0.002752684707140297)
+    assert t.alpha_rad["HeadPitch"] == 0.0055865647844509075
+    assert (t.camera.fx_px, t.camera.fy_px, t.camera.k1, t.time_lag_s) == (595.0, 593.848749666668, 0.05, 0.03)
+
+
 def test_effect_arguments_are_checked():
     assert parse_effect_sizes(["elasticity=0.02", "time_lag=0.03"]) == {"elasticity": 0.02, "time_lag": 0.03}
     for bad in (["elasticity"], ["elasticity=abc"], ["gravity=1"], ["backlash=nan"]):

@@ -6,8 +6,9 @@ import numpy as np
 import pybullet
 import pytest
 
-from backends.mock_render import CameraModel, SceneRenderer, board_homography, board_outline_board_m, \
-    projection_matrix_gl, view_matrix_gl
+from backends.mock_render import CameraModel, SceneRenderer, board_outline_board_m, projection_matrix_gl, \
+    view_matrix_gl
+from solver.camera import plane_homography
 from body.nao_body import (
     BOARD_HALF_X_M, BOARD_HALF_Y_M, T_WORLD_TORSO, BoardMount, BodyGeometry, CollisionChecker, NaoBody,
     T_sole_board,
@@ -143,7 +144,7 @@ def test_board_coverage_is_the_exact_projected_area(body):
         coverage = renderer._warp_board(T_cam_board, bbox)[..., 1]
         assert coverage.sum() == pytest.approx(area, rel=2e-4)
         # The homography used to draw maps the board plane exactly as the camera model projects it.
-        H = board_homography(cam, T_cam_board)
+        H = plane_homography(T_cam_board, cam.intrinsics())
         outline = board_outline_board_m()
         mapped = (H @ np.column_stack([outline[:, :2], np.ones(len(outline))]).T).T
         np.testing.assert_allclose(mapped[:, :2] / mapped[:, 2:], cam.project(outline @ T_cam_board[:3, :3].T

@@ -230,8 +230,11 @@ def test_safety_guard_refuses_limits_head_table_and_collisions(body):
     with pytest.raises(SafetyError, match="LKneePitch"):
         guard.check(too_far)
     head = parked.copy()
-    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 1.2, 0.45
+    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 0.68, 0.5
     with pytest.raises(SafetyError, match="HeadPitch"):
+        guard.check(head)
+    head[JOINT_INDEX["HeadYaw"]], head[JOINT_INDEX["HeadPitch"]] = 1.2, 0.2  # beyond the command range
+    with pytest.raises(SafetyError, match="HeadYaw"):
         guard.check(head)
     crossed = parked.copy()
     crossed[JOINT_INDEX["LHipRoll"]], crossed[JOINT_INDEX["RHipRoll"]] = -0.3, 0.3  # legs into each other
@@ -301,3 +304,31 @@ def test_the_robot_time_estimate_counts_each_capture_s_settling_and_guard():
         assert planner.estimate_robot_time_s(plan, 0.0) == pytest.approx(motion)
     finally:
         planner.close()
+
+
+def test_head_yaw_range_is_one_constant_of_the_robot_description(body):
+    """The planner drew top-camera head postures up to |HeadYaw| 0.7 rad while the measurement's head moves
+    clamped to 0.6 (re-aiming a planned posture moved the head away from it): both, and the guard, now take the
+    robot description's command range."""
+    from types import SimpleNamespace
+
+    from agent.measure import Measurement
+    from agent.planner import PlanSettings
+    from solver.limits import command_limits
+    from solver.robot import nao
+
+    assert nao().command_limits == {"HeadYaw": (-0.7, 0.7)}
+    assert command_limits()["HeadYaw"] == (-0.7, 0.7) and command_limits()["HeadPitch"] == joint_limits()["HeadPitch"]
+    assert PlanSettings().top_head_yaw_max_rad == 0.7
+    guard = SafetyGuard(joint_limits(), CollisionChecker(body, margin_m=0.015, ground_margin_m=0.012),
+                        {j: 5.0 for j in JOINTS})
+    yaw = JOINT_INDEX["HeadYaw"]
+    assert (guard.lower[yaw], guard.upper[yaw]) == (-0.7, 0.7)
+    q = parked_posture()
+    q[yaw], q[JOINT_INDEX["HeadPitch"]] = 0.68, 0.35
+    assert guard.problem(q) is None
+    measurement = SimpleNamespace(robot=SimpleNamespace(guard=guard), _head_ok=lambda p: guard.problem(p) is None)
+    assert Measurement.feasible_head(measurement, q)[yaw] == 0.68  # kept where the planner put it (was 0.6)
+    q[yaw] = 0.75
+    assert "HeadYaw" in guard.problem(q)
+    assert Measurement.feasible_head(measurement, q)[yaw] == 0.7

@@ -126,3 +126,17 @@ def test_a_description_with_another_base_and_chains(tmp_path):
                                                        "LElbowRoll", "LWristYaw")
     assert robot.target("hand").board.n_vertices == 4
     assert nominal_urdf().joints["LWristYaw"].parent == "LForeArm"
+
+
+def test_one_intrinsics_type_for_the_description_and_the_backends():
+    """The robot description's cameras and what backends report are one type (solver.camera.CameraIntrinsics)."""
+    from backends.base import CameraIntrinsics as reported
+    from solver.camera import CameraIntrinsics
+
+    assert reported is CameraIntrinsics
+    top = nao().camera("top")
+    assert isinstance(top, CameraIntrinsics) and (top.name, top.frame) == ("top", "CameraTop_frame")
+    assert top.intrinsics() == {"width_px": 640, "height_px": 480, "fx_px": 600.0, "fy_px": 600.0, "cx_px": 320.0,
+                                "cy_px": 240.0, "distortion": [0.0] * 5}
+    assert top.to_dict() == {"name": "top", **top.intrinsics()}
+    assert CameraIntrinsics(640, 480, 600.0, 600.0, 320.0, 240.0).to_dict()["name"] == "bottom"

@@ -23,7 +23,10 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "naocal simulate: wrote" in done.stdout
-    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "images", "observations.csv", "truth.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "images", "observations.csv", "truth.json",
+                                                     "truth_effects.json"]
+    drawn = json.loads((out / "truth_effects.json").read_text())
+    assert drawn["effects"] == {"time_lag": {"image_stamp_late_s": 0.02}}
     data = read_dataset(out)
     n_images = len(np.unique(data.columns["image"]))
     # 3 stances x 3 head postures + 3 lag-probe images, and 2 top-camera stances x 2 head postures, per leg

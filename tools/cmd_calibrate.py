@@ -27,8 +27,8 @@ def register(subparsers):
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run in DIR: captures already in DIR/dataset are kept, not repeated")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
-                   help="mock: inject a physical effect (repeatable): elasticity, backlash, link_lengths, "
-                        "head_offsets, intrinsics, distortion, time_lag")
+                   help="mock: inject a physical effect (repeatable): any effect the mock simulates, e.g. "
+                        "elasticity=0.02 (docs/MOCK.md)")
     p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
                    help="mock: realistic (default: a NAO V6 "
                         "as teams meet it: encoder steps, servo sag, rolling-shutter YUYV camera, offsets up to 12 "

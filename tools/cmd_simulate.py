@@ -6,7 +6,8 @@
 
 Runs the agent's modelling and measurement (the standard plan: 24 stances per leg x 3 head postures, plus the lag
 probe) on the PyBullet mock and writes the naocal.dataset/2 directory DIR (dataset.json, observations.csv,
-images/) and DIR/truth.json (naocal.truth/1: the mock's alpha, camera rotation, board mounts and effects).
+images/) and DIR/truth.json (naocal.truth/2: the mock's alpha, camera rotations, board mounts and effects; with
+--effect also DIR/truth_effects.json: what each effect drew, e.g. camera_translation's shift of each camera).
 Exit 0 on success, 2 on bad input, 3 if the measurement failed.
 """
 
@@ -20,8 +21,8 @@ def register(subparsers):
     p.add_argument("--out", required=True, metavar="DIR", help="the dataset directory to create")
     p.add_argument("--seed", type=int, default=0, help="seed of the mock's hidden truth and of the plan (default 0)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
-                   help="inject a physical effect (repeatable): elasticity, backlash, link_lengths, head_offsets, "
-                        "intrinsics, distortion, time_lag")
+                   help="inject a physical effect (repeatable): any effect the mock simulates, e.g. "
+                        "elasticity=0.02 or camera_translation=0.004 (docs/MOCK.md)")
     p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
                    help="ideal (default) or realistic mock robot (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
@@ -85,6 +86,8 @@ def run(args) -> int:
         backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")
         try:
             atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
+            if effects:  # what each injected effect drew, as `naocal calibrate` writes it
+                atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
             result, ctx = simulate(backend, out, settings, detector=backend.faulty(opencv_detector))
         finally:
             backend.close()

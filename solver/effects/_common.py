@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.effect import Parameter, check_number, check_object
+from solver.effect import Effect, Parameter, ProjectionTerm, check_number, check_object
 
 
 def per_joint(effect, prefix: str, joints, unit: str, scale: float) -> list[Parameter]:
@@ -79,3 +79,36 @@ def apparent_offset_panels(fit, prefix: str, joints, regressor, xlabel, *, jitte
 def _offset_name(fit, joint):
     setup = fit.registry.setup
     return ("head_offset." if joint in setup.camera_joints() else "joint_offset.") + joint
+
+
+class CameraCorrections(Effect):
+    """Corrections of some of each camera's intrinsic components (solver.camera.COMPONENTS) to the prior: one
+    parameter `<prefix>.<camera>.<component>` each, a projection term, a per-camera section of the offsets file.
+    The intrinsics and distortion effects are this with their components."""
+
+    prefix: str = ""
+    components: tuple = ()
+    unit: str = "1"
+    scale: float = 1.0
+    non_rigid = True
+
+    def parameters(self, setup):
+        return [Parameter(f"{self.prefix}.{cam}.{k}", self.name, self.unit, self.scale, camera=cam, component=k)
+                for cam in setup.cameras for k in self.components]
+
+    def projection_terms(self, layout, values):
+        return [ProjectionTerm(i, p.camera, p.component, float(values[i])) for i, p in layout.params(self.name)
+                if p.camera in layout.cameras]
+
+    def fitted(self, fit, camera: str):
+        """value(component) of the fit's correction of `camera`'s component, 0 when the fit has none."""
+        prefix = f"{self.prefix}.{camera}."
+        return lambda k: fit.value(prefix + k) if prefix + k in fit.registry.index else 0.0
+
+    def write_offsets(self, values, setup):
+        return per_name_section(values, self.parameters(setup), lambda p: p.camera)
+
+    def read_offsets(self, content, path, where, robot):
+        read_per_name_section(content, path, where, tuple(robot.cameras), self.components,
+                              dict.fromkeys(self.components, self.offsets_limit),
+                              dict.fromkeys(self.components, self.unit), complete=False)

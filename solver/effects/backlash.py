@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm
+from solver.effect import Effect, JointTerm, MockPerturbation
 from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
@@ -21,6 +21,7 @@ class Backlash(Effect):
     no_signal_hint = "no approach directions recorded: approach each pose from both sides"
     offsets_section, offsets_key = "body", "backlash_rad"
     offsets_limit = math.radians(10.0)
+    mock_size_unit, mock_stream = "rad", 2
 
     def parameters(self, setup):
         return per_joint(self, "backlash", setup.target_joints(), "rad", 0.01)
@@ -37,6 +38,13 @@ class Backlash(Effect):
         joints = sorted(size, key=lambda j: -size[j])[:3]
         return apparent_offset_panels(fit, "backlash", joints, lambda c: data.direction[:, c],
                                       lambda j: f"approach direction of {j}", jitter=0.08)
+
+    def mock_perturbation(self, rng, size, setup):
+        """Half play size * U(0.5, 1.5) on each joint of the chains to the targets: the joint stands b_j away
+        from its servo in the direction of its last command's change (0 before any change)."""
+        joints = setup.target_joints()
+        play = {j: float(size * f) for j, f in zip(joints, rng.uniform(0.5, 1.5, len(joints)))}
+        return MockPerturbation(half_play_rad=play, record={"half_play_rad": play})
 
     def write_offsets(self, values, setup):
         return joint_section(self, values, setup)

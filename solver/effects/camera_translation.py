@@ -10,7 +10,7 @@ camera's rotation. Seen by the parallax it causes: a board near the camera moves
 
 import numpy as np
 
-from solver.effect import CameraTerm, Effect, Parameter
+from solver.effect import CameraTerm, Effect, MockPerturbation, Parameter, signed_uniform
 from solver.effects._common import per_name_section, read_per_name_section
 
 AXES = ("trans_x", "trans_y", "trans_z")
@@ -23,6 +23,7 @@ class CameraTranslation(Effect):
     plausible_limit = 0.01  # m: a camera a centimetre off its mount is a broken head, not a calibration
     offsets_section, offsets_key = "head", "camera_translation_m"
     offsets_limit = 0.03
+    mock_size_unit = "m"
 
     def parameters(self, setup):
         return [Parameter(f"camera.{cam}.{axis}", self.name, "m", 0.002, camera=cam, component=axis)
@@ -38,6 +39,13 @@ class CameraTranslation(Effect):
                                         translation_params=[(index[a], np.eye(3)[k]) for k, a in enumerate(AXES)
                                                             if a in index]))
         return terms
+
+    def mock_perturbation(self, rng, size, setup):
+        """Each camera's mount off by size * U(0.5, 1) with random sign on each axis of the link it is on."""
+        shifts = {cam: signed_uniform(rng, 0.5, 1.0, len(AXES)) * size for cam in setup.cameras}
+        record = {cam: {a: float(v) for a, v in zip(AXES, shift)} for cam, shift in shifts.items()}
+        return MockPerturbation(camera_translation_m={cam: s.tolist() for cam, s in shifts.items()},
+                                record={"camera_translation_m": record})
 
     def write_offsets(self, values, setup):
         return per_name_section(values, self.parameters(setup), lambda p: p.camera)

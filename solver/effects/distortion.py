@@ -2,34 +2,21 @@
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, ProjectionTerm
-from solver.effects._common import per_name_section, read_per_name_section
+from solver.effect import MockPerturbation
+from solver.effects._common import CameraCorrections
 
 COMPONENTS = ("k1", "k2")
 
 
-
-def _getter(fit, prefix):
-    """value(component) of the fit's parameter prefix + component, 0 when the fit has none."""
-    return lambda k: fit.value(prefix + k) if prefix + k in fit.registry.index else 0.0
-
-
-class Distortion(Effect):
+class Distortion(CameraCorrections):
     name = "distortion"
     order = 55
     summary = "corrections of each camera's radial distortion k1, k2 to the prior"
-    non_rigid = True
+    prefix, components, unit, scale = "distortion", COMPONENTS, "1", 0.05
     plausible_limit = 0.5
     offsets_section, offsets_key = "head", "distortion_correction"
     offsets_limit = 2.0
-
-    def parameters(self, setup):
-        return [Parameter(f"distortion.{cam}.{k}", self.name, "1", 0.05, camera=cam, component=k)
-                for cam in setup.cameras for k in COMPONENTS]
-
-    def projection_terms(self, layout, values):
-        return [ProjectionTerm(i, p.camera, p.component, float(values[i])) for i, p in layout.params(self.name)
-                if p.camera in layout.cameras]
+    mock_size_unit, mock_stream = "1 (radial k1)", 6
 
     def partial_residual_panels(self, fit):
         from solver.diagnostics import partial_residuals
@@ -44,7 +31,7 @@ class Distortion(Effect):
             du, dv = data.uv_px[rows, 0] - intr["cx_px"], data.uv_px[rows, 1] - intr["cy_px"]
             radius = np.hypot(du, dv)
             radial = (r_off[rows, 0] * du + r_off[rows, 1] * dv) / np.maximum(radius, 1e-9)
-            get = _getter(fit, f"distortion.{cam}.")
+            get = self.fitted(fit, cam)
             xs = np.linspace(0, radius.max(), 50)
             rho2 = (xs / intr["fx_px"]) ** 2
             panels.append((radius, radial, f"distance from the principal point (px), {cam}",
@@ -52,13 +39,9 @@ class Distortion(Effect):
                            (xs, -xs * (get("k1") * rho2 + get("k2") * rho2 ** 2))))
         return panels
 
-    def write_offsets(self, values, setup):
-        return per_name_section(values, self.parameters(setup), lambda p: p.camera)
-
-    def read_offsets(self, content, path, where, robot):
-        read_per_name_section(content, path, where, tuple(robot.cameras), COMPONENTS,
-                              dict.fromkeys(COMPONENTS, self.offsets_limit), dict.fromkeys(COMPONENTS, "1"),
-                              complete=False)
+    def mock_perturbation(self, rng, size, setup):
+        """The cameras' true radial distortion k1 = size (OpenCV's model on the normalised coordinates)."""
+        return MockPerturbation(distortion={"k1": float(size)}, record={"k1": float(size)})
 
 
 EFFECT = Distortion()

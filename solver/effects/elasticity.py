@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm
+from solver.effect import Effect, JointTerm, MockPerturbation
 from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
@@ -24,6 +24,7 @@ class Elasticity(Effect):
     no_signal_hint = "no gravity torque on the joints of the chains to the targets"
     offsets_section, offsets_key = "body", "elasticity_rad_per_nm"
     offsets_limit = 1.0
+    mock_size_unit, mock_stream = "rad/(N m)", 1
 
     def parameters(self, setup):
         return per_joint(self, "elasticity", setup.target_joints(), "rad/(N m)", 0.02)
@@ -49,6 +50,13 @@ class Elasticity(Effect):
         joints = sorted(size, key=lambda j: -size[j])[:3]
         return apparent_offset_panels(fit, "elasticity", joints, lambda c: tau[:, c],
                                       lambda j: f"gravity torque on {j} (N m)")
+
+    def mock_perturbation(self, rng, size, setup):
+        """Compliance size * U(0.5, 1.5) on each joint of the chains to the targets; the mock's PyBullet masses
+        give the torques (q_true = servo + alpha + C tau(q_true), solved by fixed-point iteration)."""
+        joints = setup.target_joints()
+        compliance = {j: float(size * f) for j, f in zip(joints, rng.uniform(0.5, 1.5, len(joints)))}
+        return MockPerturbation(compliance_rad_per_nm=compliance, record={"compliance_rad_per_nm": compliance})
 
     def display(self, parameter, value):
         return math.degrees(value), "deg/(N m)"

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm
+from solver.effect import Effect, JointTerm, MockPerturbation, signed_uniform
 from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
@@ -22,6 +22,7 @@ class HeadOffsets(Effect):
     plausible_limit = math.radians(6.0)
     offsets_section, offsets_key = "body", "joint_offsets_rad"
     offsets_limit = math.radians(10.0)
+    mock_size_unit, mock_stream = "rad", 4
 
     def parameters(self, setup):
         return per_joint(self, "head_offset", setup.camera_joints(), "rad", 0.01)
@@ -39,6 +40,12 @@ class HeadOffsets(Effect):
         joints = [p.joint for p in self.parameters(fit.registry.setup)]
         return apparent_offset_panels(fit, "head_offset", joints, lambda c: data.theta[:, c],
                                       lambda j: f"{j} angle (rad)", slope_from_value=False)
+
+    def mock_perturbation(self, rng, size, setup):
+        """An encoder offset of size * U(0.5, 1) with random sign on each joint of the chains to the cameras."""
+        joints = setup.camera_joints()
+        alpha = {j: float(a) for j, a in zip(joints, signed_uniform(rng, 0.5, 1.0, len(joints)) * size)}
+        return MockPerturbation(alpha_rad=alpha, record={"alpha_rad": alpha})
 
     def write_offsets(self, values, setup):
         return joint_section(self, values, setup)

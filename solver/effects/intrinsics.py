@@ -5,34 +5,21 @@
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, ProjectionTerm
-from solver.effects._common import per_name_section, read_per_name_section
+from solver.effect import MockPerturbation
+from solver.effects._common import CameraCorrections
 
 COMPONENTS = ("fx", "fy", "cx", "cy")
 
 
-
-def _getter(fit, prefix):
-    """value(component) of the fit's parameter prefix + component, 0 when the fit has none."""
-    return lambda k: fit.value(prefix + k) if prefix + k in fit.registry.index else 0.0
-
-
-class Intrinsics(Effect):
+class Intrinsics(CameraCorrections):
     name = "intrinsics"
     order = 50
     summary = "corrections of each camera's fx, fy, cx, cy to the prior"
-    non_rigid = True
+    prefix, components, unit, scale = "intrinsics", COMPONENTS, "px", 5.0
     plausible_limit = 60.0  # px: 10 % of the focal length
     offsets_section, offsets_key = "head", "intrinsics_correction_px"
     offsets_limit = 200.0
-
-    def parameters(self, setup):
-        return [Parameter(f"intrinsics.{cam}.{k}", self.name, "px", 5.0, camera=cam, component=k)
-                for cam in setup.cameras for k in COMPONENTS]
-
-    def projection_terms(self, layout, values):
-        return [ProjectionTerm(i, p.camera, p.component, float(values[i])) for i, p in layout.params(self.name)
-                if p.camera in layout.cameras]
+    mock_size_unit, mock_stream = "px", 5
 
     def partial_residual_panels(self, fit):
         from solver.diagnostics import partial_residuals
@@ -44,7 +31,7 @@ class Intrinsics(Effect):
         for cam in np.unique(data.camera):
             rows = data.camera[data.image_of_row] == cam
             intr = data.cameras[cam]
-            get = _getter(fit, f"intrinsics.{cam}.")
+            get = self.fitted(fit, cam)
             for axis, (f, c, fk, ck) in enumerate((("fx_px", "cx_px", "fx", "cx"), ("fy_px", "cy_px", "fy", "cy"))):
                 d = data.uv_px[rows, axis] - intr[c]
                 xs = np.array([d.min(), d.max()])
@@ -53,13 +40,12 @@ class Intrinsics(Effect):
                                (xs, -(get(fk) * xs / intr[f] + get(ck)))))
         return panels
 
-    def write_offsets(self, values, setup):
-        return per_name_section(values, self.parameters(setup), lambda p: p.camera)
-
-    def read_offsets(self, content, path, where, robot):
-        read_per_name_section(content, path, where, tuple(robot.cameras), COMPONENTS,
-                              dict.fromkeys(COMPONENTS, self.offsets_limit), dict.fromkeys(COMPONENTS, "px"),
-                              complete=False)
+    def mock_perturbation(self, rng, size, setup):
+        """The cameras' true focal lengths off the prior: fx by s * size, fy by s * size * U(0.7, 1.3), s = +-1."""
+        sign = rng.choice([-1.0, 1.0])
+        ratio = rng.uniform(0.7, 1.3)
+        delta = {"fx": float(sign * size), "fy": float(sign * size * ratio)}
+        return MockPerturbation(intrinsics_px=delta, record={"delta_px": dict(delta)})
 
 
 EFFECT = Intrinsics()

@@ -8,7 +8,7 @@ The robot description names the links (`link_lengths`: label -> the joint at the
 
 import numpy as np
 
-from solver.effect import ChainTerm, Effect, Parameter, check_number, check_object
+from solver.effect import ChainTerm, Effect, MockPerturbation, Parameter, check_number, check_object, signed_uniform
 
 
 def _links(setup):
@@ -24,6 +24,7 @@ class LinkLengths(Effect):
     plausible_limit = 0.01  # m
     offsets_section, offsets_key = "body", "link_lengths_m"
     offsets_limit = 0.03
+    mock_size_unit, mock_stream = "m", 3
 
     def parameters(self, setup):
         return [Parameter(f"link_length.{label}", self.name, "m", 0.002, joint=joint, component=label)
@@ -55,6 +56,17 @@ class LinkLengths(Effect):
                 panels.append((angle[ok], error[ok] * 1e3, f"{p.joint} angle (rad)", f"apparent {p.component} (mm)",
                                data.target[ok], (xs, np.full(2, fit.value(p.name) * 1e3))))
         return panels
+
+    def mock_perturbation(self, rng, size, setup):
+        """Each named link longer by size * U(0.5, 1) with random sign (the mock's body is built with them)."""
+        # Drawn by kind, then side (the NAO's thighs, then tibias): the order the mock always drew them in.
+        labels = sorted((label for label, _ in _links(setup)), key=lambda s: (s.rpartition(".")[2], s))
+        deltas = {label: float(d) for label, d in zip(labels, signed_uniform(rng, 0.5, 1.0, len(labels)) * size)}
+        record = {}
+        for label, delta in deltas.items():
+            side, _, kind = label.rpartition(".")
+            record.setdefault(f"{kind}_delta_m", {})[side] = delta
+        return MockPerturbation(link_deltas_m=deltas, record=record)
 
     def write_offsets(self, values, setup):
         return {p.component: float(values[p.name]) for p in self.parameters(setup) if p.name in values}

@@ -7,7 +7,7 @@ Only images taken while the joints move carry it (the agent's lag probe).
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm, Parameter, check_number, check_object
+from solver.effect import Effect, JointTerm, MockPerturbation, Parameter, check_number, check_object
 
 
 class TimeLag(Effect):
@@ -19,6 +19,7 @@ class TimeLag(Effect):
     no_signal_hint = "every image was taken with the joints still: capture while moving to see a time lag"
     offsets_section, offsets_key = "head", "time_lag_s"
     offsets_limit = 1.0
+    mock_size_unit, mock_stream = "s", 7
 
     def parameters(self, setup):
         return [Parameter("time_lag.dt", self.name, "s", 0.01, component="dt")]
@@ -47,6 +48,10 @@ class TimeLag(Effect):
         xs = np.array([speed[ok].min(), speed[ok].max()])
         return [(speed[ok], lag[ok] * 1e3, "joint speed |q_dot| (rad/s)", "apparent time lag (ms)", data.target[ok],
                  (xs, np.full(2, fit.value("time_lag.dt") * 1e3)))]
+
+    def mock_perturbation(self, rng, size, setup):
+        """Images stamped `size` later than their true exposure."""
+        return MockPerturbation(image_stamp_late_s=float(size), record={"image_stamp_late_s": float(size)})
 
     def write_offsets(self, values, setup):
         return {"dt": float(values["time_lag.dt"])} if "time_lag.dt" in values else {}
