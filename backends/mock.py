@@ -111,7 +111,7 @@ def parse_effect_sizes(items) -> dict[str, float]:
 
 
 def check_effects(effects) -> dict[str, float]:
-    """A validated copy of {name: size}: known names, finite sizes."""
+    """A validated copy of {name: size}: known names, finite sizes, none below its effect's mock_size_min."""
     checked = {}
     for name, size in dict(effects or {}).items():
         if name not in EFFECT_UNITS:
@@ -119,6 +119,9 @@ def check_effects(effects) -> dict[str, float]:
         size = float(size)
         if not math.isfinite(size):
             raise NaocalError(f"effect {name!r}: size must be finite, got {size}")
+        if size < MODEL_EFFECTS[name].mock_size_min:
+            raise NaocalError(f"effect {name!r}: size must be at least {MODEL_EFFECTS[name].mock_size_min:g} "
+                              f"{EFFECT_UNITS[name]}, got {size:g}")
         checked[name] = size
     return checked
 

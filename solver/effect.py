@@ -222,6 +222,7 @@ class Effect:
     # The mock: the unit of `--effect NAME=SIZE` (None: the mock does not simulate this effect), and the number of
     # its random stream (None: one derived from the name; the older effects keep the numbers they had).
     mock_size_unit: str | None = None
+    mock_size_min: float = -math.inf  # the smallest size that is physics (a play or a compliance is never negative)
     mock_stream: int | None = None
 
     # -- parameters

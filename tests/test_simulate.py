@@ -47,6 +47,8 @@ def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
 @pytest.mark.parametrize("argv, message", [
     (["simulate", "--out", "X", "--effect", "elasticity"], "NAME=SIZE"),
     (["simulate", "--out", "X", "--effect", "gravity=2"], "unknown effect"),
+    (["simulate", "--out", "X", "--effect", "backlash=-0.002"], "at least 0 rad"),  # a play is never negative
+    (["simulate", "--out", "X", "--effect", "elasticity=-0.02"], "at least 0 rad/(N m)"),
     (["simulate", "--out", "X", "--seed", "-3"], "--seed"),
 ])
 def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path, capsys):
