@@ -36,11 +36,9 @@ from backends.errors import SafetyError
 from solver.errors import NaocalError
 from solver.fileio import atomic_write_text
 from solver.fit import identify_dataset
-from solver.identify import identify
 from solver.joints import JOINTS, LEGS
 from solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD,
                             offsets_from_result, write_offsets)
-from solver.registry import Registry
 
 log = logging.getLogger(__name__)
 
