@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from agent.calibrate import calibrate
+from agent.plan import read_plan
 from agent.planner import PlanSettings
 from agent.rundir import LOCK_NAME, RunLock, RunLocked
 from agent.states import AgentSettings
@@ -155,7 +156,8 @@ def test_ctrl_c_writes_the_summary_and_prints_the_resume_command(interrupted):
     assert summary.startswith("naocal calibrate: interrupted - measurement")
     assert f"to continue (captures already saved are kept, not repeated): {command}" in summary
     saved = len(np.unique(read_dataset(out / "dataset").columns["image"]))
-    assert f"measurement (not finished): {saved} of 36 images saved" in summary
+    planned = len(read_plan(out / "plan.json").image_indices())  # 44: 38 still (bottom and top), 6 in the probe
+    assert f"measurement (not finished): {saved} of {planned} images saved" in summary
     assert summary in stdout
     assert not (out / LOCK_NAME).exists()
 
@@ -250,9 +252,12 @@ def test_the_printed_resume_command_completes_the_run_with_both_seeds_recorded(i
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
     done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
-    assert done.stderr == ""
+    # Seed 3's top camera is 7.3 deg off: the plausibility warning is right to say so; nothing else may be said.
+    assert all("WARNING: camera.top.pitch" in line and "unusually large" in line
+               for line in done.stderr.splitlines()), done.stderr
     counts = np.bincount(read_dataset(out / "dataset").columns["image"])
-    assert np.count_nonzero(counts) == 36 and np.all(counts[counts > 0] == 24), "every capture exactly once"
+    planned = len(read_plan(out / "plan.json").image_indices())
+    assert np.count_nonzero(counts) == planned and np.all(counts[counts > 0] == 24), "every capture exactly once"
     source = json.loads((out / "offsets.json").read_text())["source"]
     assert source["mock_seed"] == 3 and source["plan_seed"] == 0 and "seed" not in source
     assert json.loads((out / "progress.json").read_text())["sessions"] == 2
