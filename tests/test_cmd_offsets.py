@@ -399,3 +399,17 @@ def test_help_documents_the_verbs(capsys):
     for text in ("x = roll", "calibration rising", "hulks", "naodevils", "--merge-from", "--bhuman-release",
                  "--head-id", "waistYaw", "correction_in_camera_bottom", "docs/EXPORTS.md"):
         assert text in out, text
+
+
+def test_diff_of_files_with_different_parameters_lists_them_instead_of_failing(capsys, tmp_path, offsets_file):
+    """A file without the boards' mounts (found by the fuzz harness: a KeyError traceback when A had them)."""
+    import json
+
+    doc = json.loads(offsets_file.read_text())
+    doc["targets"].pop("board_mount")
+    (tmp_path / "fewer.json").write_text(json.dumps(doc))
+    for a, b, where in ((offsets_file, tmp_path / "fewer.json", "(only in A)"),
+                        (tmp_path / "fewer.json", offsets_file, "(only in B)")):
+        code, out, err = naocal(capsys, "diff", a, b)
+        assert code == 0 and "Traceback" not in err, err
+        assert any(line.startswith("  board.L.rot_z") and line.endswith(where) for line in out.splitlines()), out

@@ -254,7 +254,8 @@ def format_diff(a, b, name_a: str, name_b: str):
     out.append(f"  {'parameter':<28}{'A':>11}{'B':>11}{'B - A':>11}{'sigma':>10}  unit")
     marked = 0
     for label in labels:
-        unit, value_a, std_a = rows_a.get(label, (rows_b[label][0], None, None))
+        unit = (rows_a.get(label) or rows_b[label])[0]  # a parameter in one file only (was a KeyError: B lacks it)
+        _, value_a, std_a = rows_a.get(label, (unit, None, None))
         _, value_b, std_b = rows_b.get(label, (unit, None, None))
         delta = sigma = None
         mark = ""
