@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver.errors import DataError
-from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES
+from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, verdict_text
 
 UNIT = {"points": "m", "camera": "px"}
 
@@ -144,14 +144,8 @@ def verify_arm(dataset, cal) -> ArmVerdict:
             warnings.append(f"sensor {name}: the calibration has no RMS of it; compared with the noise floor only")
     head = "; ".join(f"{name} RMS {_shown(v['rms'], v['unit'])} (reference {_shown(v['reference'], v['unit'])}, "
                      f"ratio {v['ratio']:.2f})" for name, v in per_sensor.items())
-    if good:
-        verdict = f"still good: {head}"
-    elif moved:
-        listed = "; ".join(f"{e['parameter']} {e['display'][0]:+.3f} {e['display'][1]}" for e in moved[:4])
-        verdict = f"drifted: {head}; the pattern points to {', '.join(suspects[:3])} ({listed})"
-    else:
-        verdict = (f"drifted: {head}; no calibrated parameter explains it (an effect the calibration lacks, a moved "
-                   "tool, or bad readings: run naocal diagnose)")
+    verdict = verdict_text(good, head, moved, suspects, "an effect the calibration lacks, a moved tool, or bad "
+                                                        "readings")
     return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), moved, suspects, worst[:WORST_IMAGES],
                       missing, warnings)
 

@@ -170,6 +170,16 @@ def _group(p) -> str:
     return p.effect
 
 
+def verdict_text(good: bool, head: str, moved: list, suspects: list, unexplained: str) -> str:
+    """The one-line verdict (the NAO's and the arm's): still good, drifted with what moved, or drifted unexplained."""
+    if good:
+        return f"still good: {head}"
+    if moved:
+        listed = "; ".join(f"{e['parameter']} {e['display'][0]:+.3f} {e['display'][1]}" for e in moved[:4])
+        return f"drifted: {head}; the pattern points to {', '.join(suspects[:3])} ({listed})"
+    return f"drifted: {head}; no calibrated parameter explains it ({unexplained}: run naocal diagnose)"
+
+
 def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> Verdict:
     """The residuals of `data` under the calibration `offsets`, compared with the calibration's RMS and the data's
     noise floor, and the verdict (see the module's docstring)."""
@@ -220,14 +230,7 @@ def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> 
     against = (f"calibration {calibration_rms:.3f} px, " if calibration_rms is not None else "") + \
         f"noise floor {comparison.noise_px:.3f} px"
     head = f"RMS {overall['rms_px']:.3f} px over {overall['n_vertices']} vertices ({against}; ratio {ratio:.2f})"
-    if good:
-        verdict = f"still good: {head}"
-    elif moved:
-        listed = "; ".join(f"{e['parameter']} {e['display'][0]:+.3f} {e['display'][1]}" for e in moved[:4])
-        verdict = f"drifted: {head}; the pattern points to {', '.join(suspects[:3])} ({listed})"
-    else:
-        verdict = (f"drifted: {head}; no calibrated parameter explains it (an effect the calibration lacks, or bad "
-                   "detections: run naocal diagnose)")
+    verdict = verdict_text(good, head, moved, suspects, "an effect the calibration lacks, or bad detections")
     return Verdict(
         good=good, verdict=verdict, overall=overall, per_camera=per_camera, per_target=per_target,
         per_image=per_image, calibration_rms_px=calibration_rms, noise_floor_px=comparison.noise_px,
