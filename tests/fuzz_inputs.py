@@ -11,6 +11,7 @@ traceback, no warning, no hang.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -311,6 +312,17 @@ def make_valid_inputs(directory: Path, seed: int = 3) -> tuple[Path, Path]:
         for child in path.iterdir():
             os.chmod(child, 0o644)
     return dataset, offsets
+
+
+@contextlib.contextmanager
+def work_directory(prefix: str):
+    """A fresh temporary directory that nobody (the permission-denied cases' user) can reach, removed afterwards."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    os.chmod(path, 0o755)
+    try:
+        yield path
+    finally:
+        remove_tree(path)
 
 
 def remove_tree(path: Path):

@@ -8,8 +8,6 @@ exactly one line on stderr, `naocal VERB: error: ...`, naming the damaged file; 
 import os
 import random
 import shutil
-import tempfile
-from pathlib import Path
 
 import pytest
 
@@ -24,12 +22,8 @@ CALIBRATION = "calibration.json"
 
 @pytest.fixture(scope="module")
 def work():
-    path = Path(tempfile.mkdtemp(prefix="naocal-arm-fuzz-"))
-    os.chmod(path, 0o755)  # the permission-denied cases run as nobody, who must reach the files
-    try:
+    with fz.work_directory("naocal-arm-fuzz-") as path:  # the permission-denied cases run as nobody
         yield path
-    finally:
-        fz.remove_tree(path)
 
 
 @pytest.fixture(scope="module")

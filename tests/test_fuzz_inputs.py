@@ -6,7 +6,6 @@ the runner are in tests/fuzz_inputs.py; benchmarks/fuzz_inputs.py runs many more
 """
 
 import os
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -18,12 +17,8 @@ DEADLINE_S = 30.0  # a hang is for ever; identify on a loaded 2-core CI machine 
 
 @pytest.fixture(scope="module")
 def work():
-    path = Path(tempfile.mkdtemp(prefix="naocal-fuzz-"))
-    os.chmod(path, 0o755)  # the permission-denied cases run as nobody, who must reach the files
-    try:
+    with fz.work_directory("naocal-fuzz-") as path:  # the permission-denied cases run as nobody
         yield path
-    finally:
-        fz.remove_tree(path)
 
 
 @pytest.fixture(scope="module")
