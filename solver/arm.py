@@ -69,7 +69,8 @@ class Sensor:
 @dataclass
 class Observations:
     """N observations: joint readings theta (N, n) in chain order, pose id, sensor and point indices, the measured
-    point (N, 3) for 3-D sensors or pixel (N, 2 in [:, :2]) for cameras; `source_line` for messages."""
+    point (N, 3) for 3-D sensors or pixel (N, 2 in [:, :2]) for cameras; `source_line` for messages;
+    `pose_labels` the file's text label of each pose id (None: the ids are the file's own numbers)."""
 
     theta: np.ndarray
     pose: np.ndarray
@@ -77,13 +78,19 @@ class Observations:
     point: np.ndarray
     measured: np.ndarray
     source_line: np.ndarray | None = None
+    pose_labels: tuple | None = None
 
     def __len__(self):
         return len(self.pose)
 
+    def pose_name(self, pose: int):
+        """A pose as the user's file names it: its text label, or its number."""
+        return self.pose_labels[pose] if self.pose_labels is not None else int(pose)
+
     def subset(self, rows) -> "Observations":
         return Observations(self.theta[rows], self.pose[rows], self.sensor[rows], self.point[rows],
-                            self.measured[rows], None if self.source_line is None else self.source_line[rows])
+                            self.measured[rows], None if self.source_line is None else self.source_line[rows],
+                            self.pose_labels)
 
 
 def exp_so3(phi) -> np.ndarray:

@@ -384,16 +384,18 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
     if not theta:
         _fail(path, "no observations", line=header_line + 1)
     theta = np.array(theta, dtype=float)
+    pose_labels = None
     if pose_col is None:  # rows with the same joint readings are one pose
         _, pose = np.unique(theta, axis=0, return_inverse=True)
-    else:  # integers as they are; other labels numbered in order of appearance
+    else:  # integers as they are; other labels numbered in order of appearance, kept for the reports
         try:
             pose = [int(p) for p in pose]
         except ValueError:
             labels = {}
             pose = [labels.setdefault(p, len(labels)) for p in pose]
+            pose_labels = tuple(labels)
     return Observations(theta, np.asarray(pose, dtype=np.int64).ravel(), np.array(sensor), np.array(point),
-                        np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read))
+                        np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read), pose_labels)
 
 
 def _cell(text, path, line, field) -> float:
@@ -425,7 +427,7 @@ def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors,
         m = obs.measured[i]
         values = [repr(float(v)) for v in m[:3]] + ["", ""] if s.kind == "points" else \
             ["", "", ""] + [repr(float(v)) for v in m[:2]]
-        writer.writerow([int(obs.pose[i]), names[obs.sensor[i]], point_names[obs.point[i]]]
+        writer.writerow([obs.pose_name(obs.pose[i]), names[obs.sensor[i]], point_names[obs.point[i]]]
                         + [repr(float(v)) for v in obs.theta[i]] + values)
     atomic_write_text(directory / "observations.csv", out.getvalue())
     atomic_write_text(directory / "dataset.json", json.dumps(dict(meta, schema=SCHEMA), indent=1) + "\n")

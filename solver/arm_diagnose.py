@@ -195,7 +195,7 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
         heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed), n_folds)
     return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
-                        [{"pose": p, "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
+                        [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
                         heldout, heldout_with)
 
 

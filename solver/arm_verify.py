@@ -115,7 +115,7 @@ def verify_arm(dataset, cal) -> ArmVerdict:
     per_pose = []
     for pose in np.unique(obs.pose):
         rows = obs.pose == pose
-        per_pose.append({"pose": int(pose), "rms_reference": float(np.sqrt(scaled[rows][mask[rows]].mean())),
+        per_pose.append({"pose": obs.pose_name(pose), "rms_reference": float(np.sqrt(scaled[rows][mask[rows]].mean())),
                          "n": int(rows.sum())})
     worst = sorted((e for e in per_pose if e["rms_reference"] > DRIFT_RATIO), key=lambda e: -e["rms_reference"])
 

@@ -74,6 +74,31 @@ def test_verify_names_what_moved_when_the_arm_drifted(two_sessions, capsys, tmp_
     assert report["moved"][0]["display"][1] == unit and report["verdict"].startswith("drifted")
 
 
+def test_verify_and_diagnose_name_poses_by_the_file_s_labels(two_sessions, capsys, tmp_path):
+    """Poses labelled with text in the file (a lab's 'home', 'P-17') are reported by those labels, not by the
+    numbers the reader gave them."""
+    root, _, second, cal = two_sessions
+    labelled = tmp_path / "labelled"
+    labelled.mkdir()
+    (labelled / "dataset.json").write_text((second / "dataset.json").read_text())
+    lines = (second / "observations.csv").read_text().splitlines()
+    pose = lines[0].split(",").index("pose")
+    rows = [line.split(",") for line in lines[1:]]
+    for r in rows:
+        r[pose] = f"P-{r[pose]}"
+    (labelled / "observations.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    drifted = edited(cal, tmp_path / "drifted.json", lambda doc: shift(doc, "joint_offset.panda_joint4", 0.005))
+    code, out, err = run(capsys, "verify", labelled, "--offsets", drifted, "--json")
+    assert code == 1, err
+    report = json.loads(out)
+    labels = {r[pose] for r in rows}
+    assert {e["pose"] for e in report["per_pose"]} == labels
+    assert report["worst_poses"] and all(e["pose"] in labels for e in report["worst_poses"])
+    code, out, err = run(capsys, "diagnose", labelled, "--json")
+    assert code == 0, err
+    assert all(e["pose"] in labels for e in json.loads(out)["worst_poses"])
+
+
 def test_verify_without_stated_noise_takes_a_refit_as_the_noise_floor(two_sessions, capsys, tmp_path):
     root, _, second, cal = two_sessions
     import shutil
