@@ -121,7 +121,7 @@ class SimulatedArm:
     """A PyBullet arm with hidden errors. Use as a context manager (it owns a PyBullet connection)."""
 
     def __init__(self, urdf_path, base, tip, seed=0, *, hidden=("joint_offsets", "link_lengths")):
-        from body.pybullet_quiet import pybullet  # without its banner on naocal's output
+        from body.pybullet_quiet import c_output_silenced, pybullet  # without its banner on naocal's output
 
         self.urdf_path = Path(urdf_path)
         self.base, self.tip = base, tip
@@ -147,7 +147,8 @@ class SimulatedArm:
         self._tmp = tempfile.TemporaryDirectory(prefix="naocal-arm-")
         true_urdf = Path(self._tmp.name) / "true.urdf"
         perturbed_urdf(self.urdf_path, self.chain, self.link_names, self.truth, true_urdf)
-        self.body = pybullet.loadURDF(str(true_urdf), useFixedBase=True, physicsClientId=self._client)
+        with c_output_silenced():  # its warnings about links without <inertial> (masses are not used here)
+            self.body = pybullet.loadURDF(str(true_urdf), useFixedBase=True, physicsClientId=self._client)
         info = [pybullet.getJointInfo(self.body, i, physicsClientId=self._client)
                 for i in range(pybullet.getNumJoints(self.body, physicsClientId=self._client))]
         index = {i[1].decode(): i[0] for i in info}

@@ -1,18 +1,20 @@
 """pybullet, imported without its banner: naocal's modules `from body.pybullet_quiet import pybullet`.
 
-pybullet prints "pybullet build time: ..." from C, on the process's stderr, when its module is first imported;
-naocal's output (one-line errors, summaries, JSON) is its own. The import runs with fds 1 and 2 sent to /dev/null,
-once per process, here only. (Other threads' output in that moment would be lost too: naocal imports this before
-it starts any.)
+pybullet prints from C, on the process's stdout and stderr: "pybullet build time: ..." when its module is first
+imported, and a b3Warning per link without <inertial> when it loads such a URDF (a user's arm; the warnings would
+land in the middle of naocal's --json output). naocal's output (one-line errors, summaries, JSON) is its own:
+those calls run inside `c_output_silenced()`, which sends fds 1 and 2 to /dev/null for their duration. (Other
+threads' output in that moment would be lost too: naocal uses it before it starts any, and around a load.)
 """
 
+import contextlib
 import os
 import sys
 
 
-def _import_quietly():
-    if "pybullet" in sys.modules:
-        return sys.modules["pybullet"]
+@contextlib.contextmanager
+def c_output_silenced():
+    """fds 1 and 2 to /dev/null while the block runs (what C code prints there; Python's streams are flushed)."""
     for stream in (sys.stdout, sys.stderr):
         if stream is not None:
             stream.flush()
@@ -21,12 +23,19 @@ def _import_quietly():
     try:
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        import pybullet
+        yield
     finally:
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
         for fd in saved + [devnull]:
             os.close(fd)
+
+
+def _import_quietly():
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    with c_output_silenced():
+        import pybullet
     return pybullet
 
 

@@ -41,3 +41,26 @@ def test_simulated_panda_identified_to_the_truth_and_diagnosed(tmp_path):
     assert json.loads(out[out.index("{"):])["verdict"] == "link_lengths"
     out = naocal("diagnose", str(data), "--json")
     assert json.loads(out[out.index("{"):])["verdict"] is None
+
+
+TWO_LINKS_WITHOUT_INERTIA = """<robot name="two">
+ <link name="base"/> <link name="l1"/> <link name="l2"/> <link name="tip"/>
+ <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.3"/>
+  <axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="10" velocity="1"/></joint>
+ <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.4"/>
+  <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="1"/></joint>
+ <joint name="j3" type="fixed"><parent link="l2"/><child link="tip"/><origin xyz="0.3 0 0"/></joint>
+</robot>
+"""
+
+
+def test_a_user_urdf_without_inertial_data_leaves_naocal_s_output_clean(tmp_path):
+    """PyBullet warns from C, on stdout, for each link without <inertial>: not in naocal's output."""
+    urdf = tmp_path / "two.urdf"
+    urdf.write_text(TWO_LINKS_WITHOUT_INERTIA)
+    run = subprocess.run([sys.executable, "-m", "tools", "simulate", "--robot", str(urdf), "--chain", "base:tip",
+                          "--seed", "1", "--poses", "12", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "b3Warning" not in run.stdout + run.stderr and "inertial" not in run.stdout + run.stderr
+    assert run.stdout.startswith("naocal simulate: wrote") and run.stderr == ""
