@@ -456,12 +456,7 @@ class Model:
         """Residuals (N, 2) and, if asked, the Jacobian (N, 2, P) with respect to the full parameter vector."""
         values = np.asarray(values, dtype=float)
         elastic = bool(self.gravity.any()) and jacobian and not _twist_only
-        q, regressor, dq = self.joint_state(values, jacobian=elastic)  # hook 1: joint terms
-        terms = _Terms.of(self.effects, self.layout, values)  # hooks 2-5: chain, camera, target, projection terms
-        pose = self._poses(q, terms)
-        p_cam = self._in_camera(self._target_points(terms), pose)
-        projection = camera_model.project(p_cam, *self._intrinsics(terms.projection))
-        residual = projection.uv_px - self.data.uv_px
+        residual, projection, pose, terms, regressor, dq = self._project(values, elastic)
         if not (jacobian or _twist_only):
             return residual, None
         L = projection.twist_jacobian()  # (N, 2, 6): d pixel / d twist of the point relative to the camera
@@ -469,6 +464,40 @@ class Model:
             return residual, L
         twists = self._twists(len(values), pose, terms, regressor, dq)
         return residual, self._jacobian(L, twists, projection, terms)
+
+    def factored(self, values):
+        """Residuals (N, 2) and the Jacobian in two factors: J[rows of image m] = F[rows of m] @ T[m].
+
+        F (N, 2, C): pixels per twist of each point (six columns) and per projection term (one column each);
+        T (M, C, P): each image's twists per parameter, and a unit row per projection term. The normal equations
+        J^T J = sum_m T_m^T (F_m^T F_m) T_m then need only each image's small C x C matrix (NormalEquations), never
+        the (N, 2, P) Jacobian: every kinematic parameter moves an image's board rigidly."""
+        values = np.asarray(values, dtype=float)
+        residual, projection, pose, terms, regressor, dq = self._project(values, bool(self.gravity.any()))
+        L = projection.twist_jacobian()
+        twists = self._twists(len(values), pose, terms, regressor, dq)
+        if not terms.projection:
+            return residual, L, twists
+        K = len(terms.projection)
+        F = np.zeros(L.shape[:2] + (6 + K,))
+        F[:, :, :6] = L
+        T = np.zeros((twists.shape[0], 6 + K, twists.shape[2]))
+        T[:, :6] = twists
+        for k, term in enumerate(terms.projection):
+            rows = self.layout.camera_rows[term.camera]
+            F[rows, :, 6 + k] = projection.intrinsic_jacobian(term.component)[rows]
+            T[:, 6 + k, term.param] = 1.0
+        return residual, F, T
+
+    def _project(self, values, elastic):
+        """The residuals at `values` and what their derivatives need: (residual, projection, poses, terms,
+        regressors, dq/dvalues (with `elastic`, else None))."""
+        q, regressor, dq = self.joint_state(values, jacobian=elastic)  # hook 1: joint terms
+        terms = _Terms.of(self.effects, self.layout, values)  # hooks 2-5: chain, camera, target, projection terms
+        pose = self._poses(q, terms)
+        p_cam = self._in_camera(self._target_points(terms), pose)
+        projection = camera_model.project(p_cam, *self._intrinsics(terms.projection))
+        return projection.uv_px - self.data.uv_px, projection, pose, terms, regressor, dq
 
     def _poses(self, q, terms) -> _Poses:
         """Every image's target frame and camera in the base frame, and the target frame in the camera frame."""
