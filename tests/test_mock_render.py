@@ -167,3 +167,20 @@ def test_view_matrix_looks_along_the_nao_optical_axis():
     ahead = T_world_cam[:3, 3] + T_world_cam[:3, 0]  # 1 m along the optical axis
     p_gl = V @ np.append(ahead, 1.0)
     np.testing.assert_allclose(p_gl[:3], [0.0, 0.0, -1.0], atol=1e-12)  # OpenGL cameras look along -z
+
+
+def test_rendered_images_are_pinned_to_the_bit():
+    """A capture of seed 21 with a distorted lens and shifted intrinsics, pinned by its SHA-256 (taken before the
+    renderer's camera became solver.camera.CameraIntrinsics): the renderer's camera type,
+    projection, undistortion map and homography may change in form, not in a single pixel."""
+    import hashlib
+
+    from backends.mock import MockBackend
+    from tests.mock_stances import settle_and_capture, visible_stances
+
+    mock = MockBackend(seed=21, effects={"distortion": -0.08, "intrinsics": 5.0})
+    command, _ = visible_stances(mock, 1, seed=5, margin_px=10.0)[0]
+    pixels = np.ascontiguousarray(settle_and_capture(mock, command).pixels)
+    assert pixels.shape == (480, 640, 3)
+    assert hashlib.sha256(pixels.tobytes()).hexdigest() == \
+        "ff0b4fc3c88fcbd78c53c8f3629e77e56c041ed624872d31f5c5556330e5202a"
