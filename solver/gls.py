@@ -226,6 +226,9 @@ def _blocks(data: ModelData, problem: GLSProblem) -> np.ndarray:
     return np.unique(component[cluster], return_inverse=True)[1].reshape(-1)
 
 
+JACKKNIFE_BLOCK = 1024  # clusters whose left-out systems are solved together (memory: 3 x 8 P^2 bytes each)
+
+
 def _jackknife_covariance(problem: GLSProblem, free: np.ndarray, cluster: np.ndarray) -> np.ndarray:
     """(C-1)/C sum_c (d_c - mean)(d_c - mean)^T, d_c the one-step change of the fit without cluster c
     (A - A_c)^-1 g_c, in scaled units; A_c and g_c accumulated chunk by chunk."""
@@ -246,9 +249,14 @@ def _jackknife_covariance(problem: GLSProblem, free: np.ndarray, cluster: np.nda
             A_c[c] += Js[rows].T @ SJ[rows]
             g_c[c] += Js[rows].T @ u[rows]
     # each cluster's left-out system, solved as numpy's lstsq does (least norm; singular values below
-    # eps * p of the largest dropped), all at once: one lstsq a cluster cost 0.2 ms each, mostly the call
-    U, sv, Vt = np.linalg.svd(A_c.sum(axis=0) - A_c)
-    inverse = np.where(sv > np.finfo(float).eps * p * sv[:, :1], 1.0 / np.where(sv > 0, sv, 1.0), 0.0)
-    deltas = np.einsum("cji,cj->ci", Vt, inverse * np.einsum("ckj,ck->cj", U, g_c))
+    # eps * p of the largest dropped), JACKKNIFE_BLOCK clusters at a time: one lstsq a cluster cost 0.2 ms, mostly
+    # the call
+    A = A_c.sum(axis=0)
+    deltas = np.empty((n_clusters, p))
+    for first in range(0, n_clusters, JACKKNIFE_BLOCK):
+        some = slice(first, first + JACKKNIFE_BLOCK)
+        U, sv, Vt = np.linalg.svd(A - A_c[some])
+        inverse = np.where(sv > np.finfo(float).eps * p * sv[:, :1], 1.0 / np.where(sv > 0, sv, 1.0), 0.0)
+        deltas[some] = np.einsum("cji,cj->ci", Vt, inverse * np.einsum("ckj,ck->cj", U, g_c[some]))
     centred = deltas - deltas.mean(axis=0)
     return (n_clusters - 1) / n_clusters * centred.T @ centred
