@@ -131,3 +131,17 @@ def test_factored_normal_equations_equal_the_dense_ones_with_weights_and_uneven_
         assert normal.cost == pytest.approx(0.5 * rw @ rw, rel=1e-12)
         np.testing.assert_allclose(normal.image_scores, scores, rtol=1e-9, atol=1e-9 * np.abs(scores).max())
         np.testing.assert_allclose(normal.residuals, r, rtol=0, atol=1e-9)  # elastic sag: Newton to 1e-13 rad
+
+
+def test_row_ids_are_numpys_unique_rows():
+    """solver.scoretest.row_ids (the stance clusters' row labels) equals np.unique(axis=0)'s inverse: negative values,
+    repeated rows, one column, no rows."""
+    from solver.scoretest import row_ids
+
+    rng = np.random.default_rng(9)
+    for shape in ((200, 12), (50, 1), (0, 3), (7, 0)):
+        a = rng.integers(-3, 3, size=shape).astype(np.int64)
+        expected = np.unique(a, axis=0, return_inverse=True)[1].reshape(-1) if a.size else np.zeros(len(a), int)
+        np.testing.assert_array_equal(row_ids(a), expected)
+    a = rng.integers(-2, 2, size=(300, 4))
+    assert len(set(row_ids(a).tolist())) == len(np.unique(a, axis=0)) < 300
