@@ -268,7 +268,9 @@ def _cross(a, b):
     """Cross product over the last axis (faster than np.cross for small broadcast arrays)."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))  # filled in place: np.stack costs more than the maths
+    out[..., 0], out[..., 1], out[..., 2] = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    return out
 
 
 def _yield_to_gravity(q0, compliance, chain, gravity, load, *, sag_guess=None, tolerance_rad=1e-13,
@@ -575,10 +577,13 @@ class Model:
             twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
         for term in terms.target:
             images = layout.target_images[term.target]
-            for param, v, w in term.params:
-                w_c = pose.R_ct[images] @ w
-                twists[images, :3, param] += pose.R_ct[images] @ v + _cross(pose.t_ct[images], w_c)
-                twists[images, 3:, param] += w_c
+            for param, v, w in term.params:  # a shift (v) or a turn (w): the other part is zero, skipped
+                if np.any(v):
+                    twists[images, :3, param] += pose.R_ct[images] @ v
+                if np.any(w):
+                    w_c = pose.R_ct[images] @ w
+                    twists[images, :3, param] += _cross(pose.t_ct[images], w_c)
+                    twists[images, 3:, param] += w_c
         return twists
 
     def _chain_twists(self, chain, frames, images, columns, pose, sign, joint_twists, twists, chain_terms):
