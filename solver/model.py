@@ -380,10 +380,30 @@ class Model:
         self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
         self._camera_cache = {}
         self._sag = {}  # target -> last solved elastic sag (m, k): where Newton starts next time, not a result
+        self._distinct = {} if self.gravity.any() else self._distinct_configurations()
 
     @property
     def robot(self):
         return self.layout.robot
+
+    def _distinct_configurations(self) -> dict:
+        """target -> (one image of each distinct configuration of its chain, the configuration of each image), for
+        targets whose images share configurations (the head postures of one stance): without elasticity a chain's
+        angles are theta plus the joint terms' regressors times values, so images equal in both are equal at every
+        parameter vector and their chain is computed once."""
+        from solver.scoretest import row_ids
+
+        layout, out = self.layout, {}
+        for t in layout.targets:
+            images, cols = layout.target_images[t], layout.columns[layout.target_frame(t)]
+            entries = np.isin(self.joint_col, cols)
+            ids = row_ids(np.column_stack([self.data.theta[images][:, cols], self.regressor[images][:, entries]]))
+            n = int(ids.max(initial=-1)) + 1
+            if n <= 0.75 * len(ids):
+                first = np.empty(n, dtype=np.int64)
+                first[ids] = np.arange(len(ids))  # an image of each configuration (any: they are equal)
+                out[t] = (first, ids)
+        return out
 
     # ---------------------------------------------------------------------------------- hook 1: joint angles
 
@@ -508,8 +528,13 @@ class Model:
         poses = _Poses(np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, 3)))
         for t in layout.targets:  # the chains to the targets, with the chain terms
             images, frame = layout.target_images[t], layout.target_frame(t)
-            frames, T_end = chain_frames(layout.chains[frame], q[images][:, layout.columns[frame]],
-                                         origin_shifts_m=terms.shifts.get(frame))
+            q_chain, shifts = q[images][:, layout.columns[frame]], terms.shifts.get(frame)
+            distinct = self._distinct.get(t)
+            if distinct is not None and all(np.ndim(v) <= 1 for v in (shifts or {}).values()):
+                frames, T_end = chain_frames(layout.chains[frame], q_chain[distinct[0]], origin_shifts_m=shifts)
+                frames, T_end = frames[distinct[1]], T_end[distinct[1]]
+            else:
+                frames, T_end = chain_frames(layout.chains[frame], q_chain, origin_shifts_m=shifts)
             poses.R_bt[images], poses.t_bt[images] = T_end[:, :3, :3], T_end[:, :3, 3]
             poses.target_frames[t] = frames
         for c in layout.cameras:  # T_base_cam = T_base_parent @ Trans(translation) @ T_parent_cam0 @ rotation

@@ -80,8 +80,9 @@ def stance_clusters(data: ModelData) -> list[np.ndarray]:
 
 
 def row_ids(a: np.ndarray) -> np.ndarray:
-    """(n,) np.unique(a, axis=0, return_inverse=True)[1] of an integer array (n, k): each row's rank among the
-    distinct rows in lexicographic order; by np.lexsort, 5-10x faster than unique's sort of a structured view."""
+    """(n,) np.unique(a, axis=0, return_inverse=True)[1] of an array (n, k) (integers, or finite floats): each row's
+    rank among the distinct rows in lexicographic order; by np.lexsort, 5-10x faster than unique's sort of a
+    structured view."""
     ids = np.zeros(len(a), dtype=np.int64)
     if len(a) == 0 or a.shape[1] == 0:
         return ids

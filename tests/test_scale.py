@@ -145,3 +145,28 @@ def test_row_ids_are_numpys_unique_rows():
         np.testing.assert_array_equal(row_ids(a), expected)
     a = rng.integers(-2, 2, size=(300, 4))
     assert len(set(row_ids(a).tolist())) == len(np.unique(a, axis=0)) < 300
+
+
+@pytest.mark.parametrize("effects", [(), ("backlash", "time_lag", "link_lengths")])
+def test_chains_computed_once_per_distinct_configuration_change_nothing(effects):
+    """The head postures of a stance share their leg's configuration: its chain is computed once for them
+    (Model._distinct_configurations), with residuals and Jacobian those of a chain per image, also where joint
+    terms differ within a stance (approach direction, a moving image's velocity) and with chain terms (link
+    lengths)."""
+    rng = np.random.default_rng(11)
+    data = synthesize(rng, random_truth(rng), n_stances_per_leg=5, n_head_postures=3)  # 3 images a stance
+    data.direction = np.repeat(data.direction[::3], 3, axis=0)
+    data.direction[4] *= -1  # one image approached from the other side
+    data.velocity = np.zeros_like(data.theta)
+    data.velocity[[7, 20]] = 0.2  # two images taken while moving
+    registry = Registry(effects)
+    x = registry.scales * rng.uniform(-1.0, 1.0, len(registry))
+    model = Model(data, registry)
+    n_configurations = sum(len(first) for first, _ in model._distinct.values())
+    assert set(model._distinct) == {"L", "R"}
+    assert n_configurations == (10 if not effects else 13)
+    r, J = model.evaluate(x)
+    model._distinct = {}
+    r_each, J_each = model.evaluate(x)
+    np.testing.assert_allclose(r, r_each, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(J, J_each, rtol=0, atol=1e-12 * np.abs(J).max())
