@@ -7,6 +7,9 @@ then peak memory of the identify call alone (tracemalloc, which sees numpy's buf
 resident set (ru_maxrss, including the data and the interpreter).
 Straightforward: the whole (2N x P) Jacobian per evaluation, LM on J^T J, covariance from J (what
 solver/identify.py did before it accumulated the normal equations in chunks).
+`--gls`: the GLS refinement instead (solver.gls.identify_gls from the ordinary fit's values, intrinsics free, the
+NAO's 12-bit encoder steps, 0.1 px), against the dense GLS: the whole Jacobian and group matrix per evaluation and
+a mask per cluster in the jackknife (what solver/gls.py did before it worked in chunks).
 
     python benchmarks/bench_scale.py [--sizes 3456,100000,301000,1000000] [--dense-max 301000] [--repeats 5] [--gls]
 
@@ -184,8 +187,8 @@ def measure(n_vertices: int, method: str, repeats: int) -> dict:
         registry = Registry(("intrinsics",))
         ordinary = identify(data, registry)
         step_rad = np.full(len(data.joints), 2 * np.pi / 4096)  # the NAO's 12-bit encoders
-        solve = (lambda: identify_gls(ordinary.model.data, registry, ordinary.values, step_rad, 0.1)) if method == "gls" \
-            else (lambda: dense_gls(ordinary.model.data, registry, ordinary.values, step_rad, 0.1))
+        gls = identify_gls if method == "gls" else dense_gls
+        solve = lambda: gls(ordinary.model.data, registry, ordinary.values, step_rad, 0.1)  # noqa: E731
     else:
         registry = Registry()
         solve = (lambda: identify(data, registry)) if method == "chunked" else (lambda: dense_identify(data, registry))
