@@ -144,7 +144,8 @@ def check_identifiable(As: np.ndarray, registry: Registry):
         )
 
 
-# Vertex rows per chunk of NormalEquations: a chunk's Jacobian is rows x 2 x P doubles (5.5 MB at 16384 rows and
+# Vertex rows per chunk of NormalEquations: a chunk's arrays are a few per vertex (its factored Jacobian's F is
+# rows x 2 x 6 doubles; a dense chunk Jacobian, for scipy's solvers and GLS, rows x 2 x P: 5.5 MB at 16384 rows and
 # 21 parameters), so memory stays linear in the data with a small constant and the chunk's arrays stay near the
 # caches; the paper's 3456 vertices are one chunk (benchmarks/bench_scale.py measured the choice).
 CHUNK_ROWS = 16384
@@ -172,7 +173,8 @@ class Normal:
 class NormalEquations:
     """The model's normal equations accumulated over chunks of images: the dense (2N x P) Jacobian is never held
     for more than `chunk_rows` vertices at a time, so memory grows with the data by a small constant (the data, the
-    residuals) and the parameter count stays the only square term.
+    residuals) and the parameter count stays the only square term. A pass does not form it at all: each image's
+    J_m = F_m T_m (Model.factored), so A = sum_m T_m^T (F_m^T F_m) T_m and g = sum_m T_m^T F_m^T r_m.
 
     model : the Model over all the data (its data sorted by target; chunks are runs of its images, in order).
     """
