@@ -156,3 +156,8 @@ def test_gls_in_chunks_equals_gls_in_one_chunk_and_the_dense_jackknife(monkeypat
     scales = problem.equations.scales
     dense = (C - 1) / C * centred.T @ centred * np.outer(scales, scales)
     np.testing.assert_allclose(whole.covariance, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
+    # each image's score Js_m^T Sigma^-1 r_m, in chunks
+    starts = 2 * np.searchsorted(problem.data.image_of_row, np.arange(problem.data.n_images))
+    scores = np.add.reduceat(Js * u[:, None], starts, axis=0)
+    chunked_scores = GLSProblem(data, registry, x0, step, sigma, chunk_rows=8 * 24)(free).image_scores
+    np.testing.assert_allclose(chunked_scores, scores, rtol=1e-6, atol=1e-9 * np.abs(scores).max())
