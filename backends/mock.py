@@ -56,7 +56,7 @@ import numpy as np
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.errors import SafetyError
 from backends.mock_realism import IDEAL, Realism, as_realism
-from backends.mock_render import CameraModel, RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
+from backends.mock_render import RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
 from backends.mock_servo import SecondOrder, rest_offset, servo_positions
 from body.nao_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
 from solver.effect import MockPerturbation, Setup, signed_uniform
@@ -139,7 +139,7 @@ class MockTruth:
     backlash_rad: dict  # leg joints (0 without backlash)
     thigh_delta_m: dict  # leg -> m
     tibia_delta_m: dict  # leg -> m
-    camera: CameraModel  # the true intrinsics and distortion
+    camera: CameraIntrinsics  # the true intrinsics and distortion (radial k1 only)
     time_lag_s: float
     top_camera_rotation_rad: dict = field(default_factory=lambda: {"roll": 0.0, "pitch": 0.0, "yaw": 0.0})
     camera_translation_m: dict = field(default_factory=dict)  # camera -> (x, y, z) mount shift in the head frame, m
@@ -212,10 +212,11 @@ def draw_truth(seed: int, effects=None, nominal: CameraIntrinsics | None = None,
     off_legs = (set(total.compliance_rad_per_nm) | set(total.half_play_rad)) - set(LEG_JOINTS)
     if off_legs:
         raise NaocalError(f"the mock simulates compliance and play on the leg joints only, not {sorted(off_legs)}")
-    camera = CameraModel(width_px=nominal.width_px, height_px=nominal.height_px,
-                         fx_px=float(nominal.fx_px + d["fx"] + lens[0]), fy_px=float(nominal.fy_px + d["fy"] + lens[1]),
-                         cx_px=float(nominal.cx_px + d["cx"] + lens[2]), cy_px=float(nominal.cy_px + d["cy"] + lens[3]),
-                         k1=float(total.distortion.get("k1", 0.0)))
+    camera = CameraIntrinsics(
+        width_px=nominal.width_px, height_px=nominal.height_px,
+        fx_px=float(nominal.fx_px + d["fx"] + lens[0]), fy_px=float(nominal.fy_px + d["fy"] + lens[1]),
+        cx_px=float(nominal.cx_px + d["cx"] + lens[2]), cy_px=float(nominal.cy_px + d["cy"] + lens[3]),
+        distortion=(float(total.distortion.get("k1", 0.0)), 0.0, 0.0, 0.0, 0.0))
     return MockTruth(
         seed=int(seed), alpha_rad=alpha, camera_rotation_rad=camera_rotation, board_mount=mounts,
         effects=dict(effects),

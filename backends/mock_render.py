@@ -14,7 +14,8 @@ cy + 1 (measured in tests/test_mock_render.py with the edge of a box).
 
 Lens distortion (radial k1 on the normalised coordinates, OpenCV's model) is rendered by remapping: the body image
 through the exact undistortion map, the boards by sampling the texture at the undistorted position of every
-sub-pixel. Projection, undistortion and the board's homography are solver.camera's (the one camera model).
+sub-pixel. The camera is a solver.camera.CameraIntrinsics; projection, undistortion and the board's homography
+are solver.camera's (the one camera model).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 
 from body.nao_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
 from body.pybullet_quiet import pybullet
-from solver.camera import plane_homography, project_points, undistort_points
+from solver.camera import CameraIntrinsics, plane_homography
 from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 from solver.transforms import invert_transform
 
@@ -38,33 +39,7 @@ R_CAM_GL = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # GL
 TEXTURE_PX_PER_SQUARE = 100
 
 
-@dataclass(frozen=True)
-class CameraModel:
-    """A pinhole camera with radial distortion k1 (OpenCV model), NAO camera frame."""
-
-    width_px: int = 640
-    height_px: int = 480
-    fx_px: float = 600.0
-    fy_px: float = 600.0
-    cx_px: float = 320.0
-    cy_px: float = 240.0
-    k1: float = 0.0
-
-    def intrinsics(self) -> dict:
-        """The intrinsics dict of solver.camera (the one camera model: projection, undistortion, homography)."""
-        return {"fx_px": self.fx_px, "fy_px": self.fy_px, "cx_px": self.cx_px, "cy_px": self.cy_px,
-                "distortion": (self.k1, 0.0, 0.0, 0.0, 0.0), "width_px": self.width_px, "height_px": self.height_px}
-
-    def project(self, p_cam: np.ndarray) -> np.ndarray:
-        """Pixel positions (..., 2) of points (..., 3) in the camera frame (x > 0 in front of the camera)."""
-        return project_points(p_cam, self.intrinsics())[0]
-
-    def undistort_px(self, uv: np.ndarray) -> np.ndarray:
-        """Undistorted pixel positions (..., 2) of distorted ones (solver.camera.undistort_points)."""
-        return undistort_points(uv, self.intrinsics())
-
-
-def projection_matrix_gl(camera: CameraModel) -> np.ndarray:
+def projection_matrix_gl(camera: CameraIntrinsics) -> np.ndarray:
     """OpenGL projection (4, 4) for TinyRenderer such that its pixel (row r, column k) samples (u, v) = (k, r)."""
     w, h = camera.width_px, camera.height_px
     cy_gl = camera.cy_px + 1.0  # TinyRenderer's row flip: see the module docstring
@@ -135,7 +110,7 @@ class RowBand:
 class SceneRenderer:
     """Renders the bottom camera's view of a `NaoBody` with exact boards. Grey float image in 0..1."""
 
-    def __init__(self, body: NaoBody, camera: CameraModel, *, supersample: int = 4,
+    def __init__(self, body: NaoBody, camera: CameraIntrinsics, *, supersample: int = 4,
                  px_per_square: int = TEXTURE_PX_PER_SQUARE):
         self.body = body
         self.camera = camera
@@ -143,7 +118,7 @@ class SceneRenderer:
         self.texture, self.A_board_texel = board_texture(px_per_square)
         self._projection = projection_matrix_gl(camera).T.ravel().tolist()
         self._undistort_map = None
-        if camera.k1 != 0.0:
+        if any(camera.distortion):
             v, u = np.mgrid[0:camera.height_px, 0:camera.width_px].astype(float)
             self._undistort_map = camera.undistort_px(np.stack([u, v], axis=-1)).astype(np.float32)
 

@@ -46,6 +46,14 @@ class CameraIntrinsics:
         bottom camera's)."""
         return {"name": getattr(self, "name", "bottom"), **self.intrinsics()}
 
+    def project(self, p_cam) -> np.ndarray:
+        """Pixels (..., 2) of points (..., 3) in the camera frame (`project_points`; depth > 0 in front)."""
+        return project_points(p_cam, self.intrinsics())[0]
+
+    def undistort_px(self, uv_px) -> np.ndarray:
+        """Undistorted pixels (..., 2) of distorted ones (`undistort_points`)."""
+        return undistort_points(uv_px, self.intrinsics())
+
 
 def default_intrinsics(camera: str | None = None, robot=None) -> dict:
     """The prior intrinsics of a camera of the robot description (default: the NAO's first default camera)."""

@@ -24,11 +24,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.sparse import csc_matrix, diags
+from scipy.sparse import csc_matrix, csr_matrix, diags, vstack
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from solver.identify import (UNIDENTIFIABLE_RATIO, WEAK_RATIO, IdentificationResult, Normal, NormalEquations,
-                             _direction, identifiability, levenberg_marquardt)
+from solver.identify import (CHUNK_ROWS, UNIDENTIFIABLE_RATIO, WEAK_RATIO, IdentificationResult, Normal,
+                             NormalEquations, _direction, identifiability, levenberg_marquardt)
 from solver.model import Model, ModelData
 from solver.registry import Registry
 from solver.scoretest import stance_cluster_of_image
@@ -56,75 +57,125 @@ def angle_error_groups(data: ModelData, step_rad) -> list[tuple[int, np.ndarray]
 
 
 class GLSProblem:
-    """The GLS normal equations at any parameter vector, for `levenberg_marquardt` (solver.identify)."""
+    """The GLS normal equations at any parameter vector, for `levenberg_marquardt` (solver.identify), accumulated
+    over the chunks of images of NormalEquations: with A the (2N x k) group matrix (columns a_g) and
+    S = sigma^2 Q^-1 + A^T A (k x k, sparse, factorised once), Sigma^-1 = (I - A S^-1 A^T) / sigma^2, so
+    J^T Sigma^-1 J = (J^T J - (A^T J)^T S^-1 (A^T J)) / sigma^2 needs per chunk only its J^T J, J^T r, A^T J and A^T r:
+    memory linear in the data, the tall Jacobian never held whole."""
 
-    def __init__(self, data: ModelData, registry: Registry, x0: np.ndarray, step_rad, sigma_px: float):
+    def __init__(self, data: ModelData, registry: Registry, x0: np.ndarray, step_rad, sigma_px: float, *,
+                 chunk_rows: int = CHUNK_ROWS):
         from solver.effects import EFFECTS
 
-        self.equations = NormalEquations(data, registry, x0)
+        self.equations = equations = NormalEquations(data, registry, x0, chunk_rows=chunk_rows)
         self.registry, self.sigma2 = registry, float(sigma_px) ** 2
-        data = self.equations.model.data  # sorted as the model's rows are
+        data = equations.model.data  # sorted as the model's rows are
         self.data = data
         offsets = tuple(name for name, e in EFFECTS.items() if e.reading_offsets)
         full = Registry(tuple(dict.fromkeys(registry.effects + offsets)), setup=registry.setup)
-        J_full = Model(data, full).evaluate(full.from_dict(registry.as_dict(x0)))[1]  # (N, 2, P_full)
+        full_values = full.from_dict(registry.as_dict(x0))
         column_of_joint = {data.column(p.joint): full.index[p.name] for p in full.parameters
                            if EFFECTS[p.effect].reading_offsets}
-        rows, cols, vals, q2 = [], [], [], []
-        coordinate = np.arange(2 * data.n_rows).reshape(-1, 2)
-        k = 0
         step_rad = np.asarray(step_rad, dtype=float)
-        for c, group in angle_error_groups(data, step_rad):
-            if c not in column_of_joint:
-                continue
-            a = J_full[:, :, column_of_joint[c]]  # d r / d c_j = -d r / d theta_j: the sign drops out of a a^T
-            g_row = group[data.image_of_row]
-            used = np.any(a != 0, axis=1)
-            ids, g_row = np.unique(g_row[used], return_inverse=True)
-            rows.append(coordinate[used].reshape(-1))
-            cols.append(np.repeat(k + g_row, 2))
-            vals.append(a[used].reshape(-1))
-            q2.append(np.full(len(ids), step_rad[c] ** 2 / 12.0))
-            k += len(ids)
+        groups = [(c, group) for c, group in angle_error_groups(data, step_rad) if c in column_of_joint]
+        first_group = np.cumsum([0] + [int(group.max(initial=-1)) + 1 for _, group in groups])
+        q2 = np.concatenate([np.full(int(group.max(initial=-1)) + 1, step_rad[c] ** 2 / 12.0) for c, group in groups]
+                            + [np.zeros(0)])
+        # each chunk's rows of A, from d r / d c_j (= -d r / d theta_j: the sign drops out of a a^T) at x0
+        blocks = []
+        for (first_image, last_image), part in zip(equations.image_ranges, equations.parts):
+            J_full = Model(part.data, full).evaluate(full_values)[1]  # (n, 2, P_full), one chunk
+            coordinate = np.arange(2 * part.data.n_rows).reshape(-1, 2)
+            rows, cols, vals = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)], [np.zeros(0)]
+            for (c, group), offset in zip(groups, first_group):
+                a = J_full[:, :, column_of_joint[c]]
+                used = np.any(a != 0, axis=1)
+                rows.append(coordinate[used].reshape(-1))
+                cols.append(np.repeat(offset + group[first_image:last_image][part.data.image_of_row[used]], 2))
+                vals.append(a[used].reshape(-1))
+            blocks.append(csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                     shape=(2 * part.data.n_rows, int(first_group[-1]))))
+            del J_full
+        # only the groups with entries, numbered as before (joint by joint, each joint's groups in order)
+        counts = sum((np.bincount(b.indices, minlength=int(first_group[-1])) for b in blocks),
+                     np.zeros(int(first_group[-1]), dtype=np.int64))
+        kept = counts > 0
+        number = np.cumsum(kept) - 1
+        k = int(np.count_nonzero(kept))
+        self.blocks = [csr_matrix((b.data, number[b.indices], b.indptr), shape=(b.shape[0], k)) for b in blocks]
         self.n_groups = k
         if k:
-            self.A = csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                                shape=(2 * data.n_rows, k))
-            inner = diags(self.sigma2 / np.concatenate(q2)) + (self.A.T @ self.A)
+            inner = diags(self.sigma2 / q2[kept]) + sum(b.T @ b for b in self.blocks)
             self.inner = splu(csc_matrix(inner))
+        self._whitening = (None, None, None)  # (free bytes, S^-1 A^T r, S^-1 A^T Js) of the last pass
 
-    def _project(self, M: np.ndarray) -> np.ndarray:
-        """A (sigma^2 Q^-1 + A^T A)^-1 A^T M: the part of M that the angle errors explain."""
-        if not self.n_groups:
-            return np.zeros_like(M)
-        return self.A @ self.inner.solve(np.asarray(self.A.T @ M))
+    @property
+    def A(self):
+        """The whole (2N x k) group matrix (sparse; for tests and small data)."""
+        return vstack(self.blocks, format="csc") if len(self.blocks) > 1 else self.blocks[0].tocsc()
 
-    def whitened_residual(self, r: np.ndarray) -> np.ndarray:
-        """Sigma^-1 r (r: (2N,) residual coordinates)."""
-        return (r - self._project(r)) / self.sigma2
+    def _chunks(self, free: np.ndarray):
+        """Per chunk: (its first image, its group rows, residuals r (2n,), scaled Jacobian Js (2n, P_free))."""
+        equations = self.equations
+        values = self.registry.unpack(free, equations.base)
+        for (first_image, _), part, block in zip(equations.image_ranges, equations.parts, self.blocks):
+            r, J = part.evaluate(values)
+            J = J.reshape(r.size, -1)
+            Js = (J if equations._identity_expand else J @ self.registry.expand) * equations.scales
+            yield first_image, part, block, r.reshape(-1), Js
 
     def __call__(self, free: np.ndarray) -> Normal:
-        r, J = self.equations.dense(free)
-        Js = J * self.equations.scales
-        u = self.whitened_residual(r)
-        SJ = (Js - self._project(Js)) / self.sigma2
-        A = Js.T @ SJ
-        data = self.data
-        starts = 2 * np.searchsorted(data.image_of_row, np.arange(data.n_images))
-        scores = lambda: np.add.reduceat(Js * u[:, None], starts, axis=0)  # noqa: E731 (per image)
-        return Normal(0.5 * (A + A.T), Js.T @ u, 0.5 * float(r @ u), r.reshape(-1, 2), scores)
+        p, k = len(self.equations.scales), self.n_groups
+        JJ, Jr, rr = np.zeros((p, p)), np.zeros(p), 0.0
+        AJ, Ar = np.zeros((k, p)), np.zeros(k)
+        residuals = np.empty((self.data.n_rows, 2))
+        row = 0
+        for _, part, block, r, Js in self._chunks(free):
+            residuals[row:row + part.data.n_rows] = r.reshape(-1, 2)
+            row += part.data.n_rows
+            JJ += Js.T @ Js
+            Jr += Js.T @ r
+            rr += float(r @ r)
+            if k:
+                AJ += np.asarray(block.T @ Js)
+                Ar += block.T @ r
+        z = self.inner.solve(Ar) if k else Ar
+        W = self.inner.solve(AJ) if k else AJ
+        self._whitening = (free.tobytes(), z, W)
+        A = (JJ - AJ.T @ W) / self.sigma2
+        g = (Jr - AJ.T @ z) / self.sigma2
+        cost = 0.5 * (rr - float(Ar @ z)) / self.sigma2
+        return Normal(0.5 * (A + A.T), g, cost, residuals, lambda: self._image_scores(free))
+
+    def whitening(self, free: np.ndarray):
+        """(S^-1 A^T r, S^-1 A^T Js) at `free`: Sigma^-1 r = (r - A z) / sigma^2, Sigma^-1 Js = (Js - A W) / sigma^2."""
+        if self._whitening[0] != free.tobytes():
+            self(free)
+        return self._whitening[1], self._whitening[2]
+
+    def _image_scores(self, free: np.ndarray) -> np.ndarray:
+        """(M, P_free) each image's score Js_m^T Sigma^-1 r (a second pass over the chunks)."""
+        z, _ = self.whitening(free)
+        scores = np.zeros((self.data.n_images, len(self.equations.scales)))
+        for first_image, part, block, r, Js in self._chunks(free):
+            u = (r - block @ z) / self.sigma2 if self.n_groups else r / self.sigma2
+            starts = 2 * np.searchsorted(part.data.image_of_row, np.arange(part.data.n_images))
+            if len(u):
+                scores[first_image:first_image + part.data.n_images] = np.add.reduceat(Js * u[:, None], starts, axis=0)
+        return scores
 
 
 def identify_gls(data: ModelData, registry: Registry, x0: np.ndarray, step_rad, sigma_px: float, *,
-                 max_iterations: int = 50) -> IdentificationResult:
+                 max_iterations: int = 50, chunk_rows: int = CHUNK_ROWS) -> IdentificationResult:
     """Fit by GLS from `x0` (the ordinary fit's values). Standard deviations: the delete-one-cluster jackknife of the
     GLS estimator, clusters the stances (joined where a held command spans them), so that what the noise model
     lacks (detection biases, a load that pulls joints to one side of their cells) shows in them rather than
     hides; the sandwich, with about as many clusters as parameters (50 stances, 21-29 parameters), is too small
-    (realistic mock seed 1: sandwich 0.034 deg, jackknife 0.043 deg, error 0.071 deg)."""
+    (realistic mock seed 1: sandwich 0.034 deg, jackknife 0.043 deg, error 0.071 deg). `chunk_rows`: vertices per
+    chunk (solver.identify.NormalEquations)."""
 
     start = time.perf_counter()
-    problem = GLSProblem(data, registry, x0, step_rad, sigma_px)
+    problem = GLSProblem(data, registry, x0, step_rad, sigma_px, chunk_rows=chunk_rows)
     scales = problem.equations.scales
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         free, final, status, message, n_jac, n_fun = levenberg_marquardt(problem, registry.pack(x0), scales,
@@ -156,43 +207,56 @@ def identify_gls(data: ModelData, registry: Registry, x0: np.ndarray, step_rad, 
 
 
 def _blocks(data: ModelData, problem: GLSProblem) -> np.ndarray:
-    """(M,) the sandwich's clusters: stances, joined where an angle error group spans two of them."""
+    """(M,) the sandwich's clusters: stances, joined where an angle error group spans two of them (the connected
+    components of the graph of clusters and groups)."""
     cluster = stance_cluster_of_image(data)
-    parent = list(range(int(cluster.max()) + 1))
+    n_clusters, k = int(cluster.max()) + 1, problem.n_groups
+    if not k:
+        return np.unique(cluster, return_inverse=True)[1].reshape(-1)
+    pairs = []  # (cluster, group) of every entry of A
+    for (first_image, _), part, block in zip(problem.equations.image_ranges, problem.equations.parts,
+                                             problem.blocks):
+        coordinate_cluster = np.repeat(cluster[first_image:first_image + part.data.n_images][part.data.image_of_row], 2)
+        entry_row = np.repeat(np.arange(block.shape[0]), np.diff(block.indptr))
+        pairs.append(np.unique(coordinate_cluster[entry_row].astype(np.int64) * k + block.indices))  # one key a pair
+    pairs = np.concatenate(pairs)
+    graph = csr_matrix((np.ones(len(pairs)), (pairs // k, n_clusters + pairs % k)),
+                       shape=(n_clusters + k, n_clusters + k))
+    _, component = connected_components(graph, directed=False)
+    return np.unique(component[cluster], return_inverse=True)[1].reshape(-1)
 
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
 
-    if problem.n_groups:
-        A = problem.A.tocsc()
-        image_of_coordinate = np.repeat(data.image_of_row, 2)
-        for g in range(problem.n_groups):
-            members = np.unique(cluster[image_of_coordinate[A.indices[A.indptr[g]:A.indptr[g + 1]]]])
-            for m in members[1:]:
-                parent[root(int(m))] = root(int(members[0]))
-    roots = np.array([root(int(c)) for c in cluster])
-    return np.unique(roots, return_inverse=True)[1].reshape(-1)
+JACKKNIFE_BLOCK = 1024  # clusters whose left-out systems are solved together (memory: 3 x 8 P^2 bytes each)
 
 
 def _jackknife_covariance(problem: GLSProblem, free: np.ndarray, cluster: np.ndarray) -> np.ndarray:
     """(C-1)/C sum_c (d_c - mean)(d_c - mean)^T, d_c the one-step change of the fit without cluster c
-    (A - A_c)^-1 g_c, in scaled units."""
-    r, J = problem.equations.dense(free)
-    Js = J * problem.equations.scales
-    SJ = (Js - problem._project(Js)) / problem.sigma2
-    u = problem.whitened_residual(r)
-    of_coordinate = cluster[np.repeat(problem.data.image_of_row, 2)]
-    n_clusters, p = int(cluster.max()) + 1, Js.shape[1]
+    (A - A_c)^-1 g_c, in scaled units; A_c and g_c accumulated chunk by chunk."""
+    z, W = problem.whitening(free)
+    n_clusters, p = int(cluster.max()) + 1, len(problem.equations.scales)
     A_c = np.zeros((n_clusters, p, p))
     g_c = np.zeros((n_clusters, p))
-    for c in range(n_clusters):
-        rows = of_coordinate == c
-        A_c[c] = Js[rows].T @ SJ[rows]
-        g_c[c] = Js[rows].T @ u[rows]
+    for first_image, part, block, r, Js in problem._chunks(free):
+        if problem.n_groups:
+            SJ = (Js - block @ W) / problem.sigma2
+            u = (r - block @ z) / problem.sigma2
+        else:
+            SJ, u = Js / problem.sigma2, r / problem.sigma2
+        of_coordinate = np.repeat(cluster[first_image:first_image + part.data.n_images][part.data.image_of_row], 2)
+        order = np.argsort(of_coordinate, kind="stable")
+        present, starts = np.unique(of_coordinate[order], return_index=True)
+        for c, rows in zip(present, np.split(order, starts[1:])):
+            A_c[c] += Js[rows].T @ SJ[rows]
+            g_c[c] += Js[rows].T @ u[rows]
+    # each cluster's left-out system, solved as numpy's lstsq does (least norm; singular values below
+    # eps * p of the largest dropped), JACKKNIFE_BLOCK clusters at a time: one lstsq a cluster cost 0.2 ms, mostly
+    # the call
     A = A_c.sum(axis=0)
-    deltas = np.array([np.linalg.lstsq(A - A_c[c], g_c[c], rcond=None)[0] for c in range(n_clusters)])
+    deltas = np.empty((n_clusters, p))
+    for first in range(0, n_clusters, JACKKNIFE_BLOCK):
+        some = slice(first, first + JACKKNIFE_BLOCK)
+        U, sv, Vt = np.linalg.svd(A - A_c[some])
+        inverse = np.where(sv > np.finfo(float).eps * p * sv[:, :1], 1.0 / np.where(sv > 0, sv, 1.0), 0.0)
+        deltas[some] = np.einsum("cji,cj->ci", Vt, inverse * np.einsum("ckj,ck->cj", U, g_c[some]))
     centred = deltas - deltas.mean(axis=0)
     return (n_clusters - 1) / n_clusters * centred.T @ centred

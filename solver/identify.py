@@ -144,7 +144,8 @@ def check_identifiable(As: np.ndarray, registry: Registry):
         )
 
 
-# Vertex rows per chunk of NormalEquations: a chunk's Jacobian is rows x 2 x P doubles (5.5 MB at 16384 rows and
+# Vertex rows per chunk of NormalEquations: a chunk's arrays are a few per vertex (its factored Jacobian's F is
+# rows x 2 x 6 doubles; a dense chunk Jacobian, for scipy's solvers and GLS, rows x 2 x P: 5.5 MB at 16384 rows and
 # 21 parameters), so memory stays linear in the data with a small constant and the chunk's arrays stay near the
 # caches; the paper's 3456 vertices are one chunk (benchmarks/bench_scale.py measured the choice).
 CHUNK_ROWS = 16384
@@ -172,7 +173,8 @@ class Normal:
 class NormalEquations:
     """The model's normal equations accumulated over chunks of images: the dense (2N x P) Jacobian is never held
     for more than `chunk_rows` vertices at a time, so memory grows with the data by a small constant (the data, the
-    residuals) and the parameter count stays the only square term.
+    residuals) and the parameter count stays the only square term. A pass does not form it at all: each image's
+    J_m = F_m T_m (Model.factored), so A = sum_m T_m^T (F_m^T F_m) T_m and g = sum_m T_m^T F_m^T r_m.
 
     model : the Model over all the data (its data sorted by target; chunks are runs of its images, in order).
     """
@@ -194,6 +196,7 @@ class NormalEquations:
         self.scales = registry.scales[registry.free_index]
         P = len(registry)
         self._identity_expand = registry.expand.shape == (P, P) and np.array_equal(registry.expand, np.eye(P))
+        self._rows_of_images = [_ImageRows(part.data) for part in self.parts]
 
     def __call__(self, free: np.ndarray, *, weights: np.ndarray | None = None, jacobian: bool = True) -> Normal:
         """One pass at the free vector `free`. `weights` (N,) per vertex (a robust loss's): g, cost and the scores
@@ -204,30 +207,26 @@ class NormalEquations:
         A, g, rss = np.zeros((p, p)), np.zeros(p), 0.0
         residuals = np.empty((self.model.data.n_rows, 2))
         image_scores = np.zeros((self.model.data.n_images, p))
-        single = len(self.parts) == 1
         row = 0
-        for (first_image, _), part in zip(self.image_ranges, self.parts):
+        for (first_image, last_image), part, rows in zip(self.image_ranges, self.parts, self._rows_of_images):
             n = part.data.n_rows
-            r, J = part.evaluate(values, jacobian=jacobian)
+            if jacobian:  # J = F @ T per image (Model.factored): sum the images' T^T (F^T F) T, never J itself
+                r, F, T = part.factored(values)
+            else:
+                r = part.evaluate(values, jacobian=False)[0]
             residuals[row:row + n] = r
-            r = r.reshape(-1)
             if weights is not None:
-                sqrt_w = np.sqrt(np.repeat(weights[row:row + n], 2))
-                r = r * sqrt_w
-            rss += float(r @ r)
+                r = r * np.sqrt(weights[row:row + n])[:, None]
+            rss += float(r.reshape(-1) @ r.reshape(-1))
             if jacobian:
-                J = J.reshape(len(r), -1)
-                Js = (J if self._identity_expand else J @ self.registry.expand) * self.scales
-                A += Js.T @ Js
-                g += Js.T @ r
-                starts = 2 * np.searchsorted(part.data.image_of_row, np.arange(part.data.n_images))
-                scores = lambda Js=Js, r=r, starts=starts: np.add.reduceat(Js * r[:, None], starts, axis=0)  # noqa
-                if single:
-                    image_scores = scores if len(r) else image_scores
-                elif len(r):
-                    image_scores[first_image:first_image + part.data.n_images] = scores()
+                Ts = (T if self._identity_expand else T @ self.registry.expand) * self.scales  # (M, C, P_free)
+                gram, projected = rows.gram(F, r)  # F_m^T F_m (M, C, C), F_m^T r_m (M, C)
+                flat = Ts.reshape(-1, p)
+                A += flat.T @ (gram @ Ts).reshape(-1, p)
+                g += flat.T @ projected.reshape(-1)
+                image_scores[first_image:last_image] = np.einsum("mcp,mc->mp", Ts, projected)
             row += n
-        return Normal(A, g, 0.5 * rss, residuals, image_scores)
+        return Normal(0.5 * (A + A.T), g, 0.5 * rss, residuals, image_scores)
 
     def residuals(self, free: np.ndarray) -> np.ndarray:
         return self(free, jacobian=False).residuals
@@ -243,6 +242,30 @@ class NormalEquations:
             rs.append(r.reshape(-1))
             Js.append(J if self._identity_expand else J @ self.registry.expand)
         return np.concatenate(rs), np.concatenate(Js)
+
+
+class _ImageRows:
+    """Sums over each image's rows of a Model's data (rows grouped by image, in image order)."""
+
+    def __init__(self, data: ModelData):
+        counts = np.bincount(data.image_of_row, minlength=data.n_images)
+        self.n_images, self.n_rows = data.n_images, data.n_rows
+        self.per_image = int(counts[0]) if data.n_images and np.all(counts == counts[0]) else None  # None: varies
+        self.filled = np.flatnonzero(counts)  # images with rows
+        self.starts = np.searchsorted(data.image_of_row, self.filled)
+
+    def gram(self, F: np.ndarray, r: np.ndarray):
+        """(F_m^T F_m (M, C, C), F_m^T r_m (M, C)) of every image m, for F (N, 2, C) and r (N, 2)."""
+        C = F.shape[2]
+        if self.per_image:  # every image the same number of rows: one batched product
+            Fm = F.reshape(self.n_images, -1, C)
+            Ft = np.swapaxes(Fm, 1, 2)
+            return Ft @ Fm, (Ft @ r.reshape(self.n_images, -1, 1))[..., 0]
+        gram, projected = np.zeros((self.n_images, C, C)), np.zeros((self.n_images, C))
+        if len(self.filled):
+            gram[self.filled] = np.add.reduceat(np.einsum("nki,nkj->nij", F, F), self.starts, axis=0)
+            projected[self.filled] = np.add.reduceat(np.einsum("nki,nk->ni", F, r), self.starts, axis=0)
+        return gram, projected
 
 
 def normal_equations(model: Model, registry: Registry, values: np.ndarray, *, chunk_rows: int = CHUNK_ROWS):

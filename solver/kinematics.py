@@ -8,13 +8,15 @@ T_base_<frame> (N, 4, 4), every point in m.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from solver.camera import project_points, transform_to_camera
 from solver.nao_model import (
     BOARD_CENTER_X_M, SANDAL_MASS_KG, THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, Chain, head_chain, leg_chain,
 )
-from solver.transforms import rot_axis_angle
+from solver.transforms import rot_axis_angle, rot_x, rot_y, rot_z
 
 
 def chain_frames(chain: Chain, q, *, length_deltas_m=None, origin_shifts_m=None, end_shift_m=None):
@@ -40,27 +42,50 @@ def chain_frames(chain: Chain, q, *, length_deltas_m=None, origin_shifts_m=None,
         raise ValueError(f"expected {len(chain.joint_names)} joint angles per row, got {k}")
     frames = np.zeros((n, k, 4, 4))
     frames[:, :, 3, 3] = 1.0
-    R = np.broadcast_to(np.eye(3), (n, 3, 3))
-    t = np.zeros((n, 3))
-    for j in range(k):
+    R, t = None, np.zeros((n, 3))  # R None: the identity (the base frame), no product needed
+    for j, (rotation, R_origin) in enumerate(_joint_rotations(chain)):
         offset = chain.T_origin[j, :3, 3]
         if length_deltas_m is not None and j in length_deltas_m:
             delta = np.asarray(length_deltas_m[j], dtype=float)
             offset = offset + delta[..., None] * (offset / np.linalg.norm(offset))
         if origin_shifts_m is not None and j in origin_shifts_m:
             offset = offset + np.asarray(origin_shifts_m[j], dtype=float)
-        t = t + (R @ offset[..., None])[..., 0] if np.ndim(offset) > 1 else t + R @ offset
-        R_origin = chain.T_origin[j, :3, :3]
-        R_joint = rot_axis_angle(chain.axes[j], q[:, j])
-        R = R @ (R_joint if np.array_equal(R_origin, np.eye(3)) else R_origin @ R_joint)
+        if R is None:
+            t = t + offset
+        else:
+            t = t + (R @ offset[..., None])[..., 0] if np.ndim(offset) > 1 else t + R @ offset
+        R_joint = rotation(q[:, j])
+        R_joint = R_joint if R_origin is None else R_origin @ R_joint
+        R = R_joint if R is None else R @ R_joint
         frames[:, j, :3, :3] = R
         frames[:, j, :3, 3] = t
+    if R is None:
+        R = np.broadcast_to(np.eye(3), (n, 3, 3))
     end = chain.T_end[:3, 3] if end_shift_m is None else chain.T_end[:3, 3] + np.asarray(end_shift_m, dtype=float)
     T_end = np.zeros((n, 4, 4))
     T_end[:, :3, :3] = R @ chain.T_end[:3, :3]
     T_end[:, :3, 3] = t + R @ end
     T_end[:, 3, 3] = 1.0
     return frames, T_end
+
+
+_ROTATIONS = {}  # id(chain) -> (chain, [(rotation of the joint's angles, R_origin or None for the identity)])
+
+
+def _joint_rotations(chain: Chain) -> list:
+    """Each joint's rotation function (rot_x/y/z for an axis along x, y or z, else Rodrigues') and its origin's
+    rotation (None: the identity), looked up once per chain: per call they cost more than the maths of a solve."""
+    known = _ROTATIONS.get(id(chain))
+    if known is None or known[0] is not chain:
+        plan = []
+        for axis, T in zip(chain.axes, chain.T_origin):
+            axis = np.array(axis, dtype=float)
+            R_origin = None if np.array_equal(T[:3, :3], np.eye(3)) else T[:3, :3].copy()
+            unit = [i for i in range(3) if axis[i] == 1.0 and np.count_nonzero(axis) == 1]  # as rot_axis_angle
+            rotation = (rot_x, rot_y, rot_z)[unit[0]] if unit else functools.partial(rot_axis_angle, axis)
+            plan.append((rotation, R_origin))
+        known = _ROTATIONS[id(chain)] = (chain, plan)
+    return known[1]
 
 
 def leg_length_deltas(thigh_delta_m=0.0, tibia_delta_m=0.0) -> dict:
@@ -100,7 +125,7 @@ def project_sole_points(T_torso_cam, T_torso_sole, points_sole, intrinsics):
 
 def joint_axes_and_origins(T_torso_joint, chain: Chain):
     """Unit axes (N, k, 3) and positions (N, k, 3) of the chain's joints in the torso frame."""
-    axes = np.einsum("nkij,kj->nki", T_torso_joint[..., :3, :3], chain.axes)
+    axes = (T_torso_joint[..., :3, :3] @ chain.axes[:, :, None])[..., 0]  # matmul: 3x einsum's speed
     return axes, T_torso_joint[..., :3, 3]
 
 

@@ -268,7 +268,9 @@ def _cross(a, b):
     """Cross product over the last axis (faster than np.cross for small broadcast arrays)."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))  # filled in place: np.stack costs more than the maths
+    out[..., 0], out[..., 1], out[..., 2] = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    return out
 
 
 def _yield_to_gravity(q0, compliance, chain, gravity, load, *, sag_guess=None, tolerance_rad=1e-13,
@@ -378,10 +380,30 @@ class Model:
         self._regular = bool(data.n_images and np.all(counts == counts[0]))  # same vertex count in every image
         self._camera_cache = {}
         self._sag = {}  # target -> last solved elastic sag (m, k): where Newton starts next time, not a result
+        self._distinct = {} if self.gravity.any() else self._distinct_configurations()
 
     @property
     def robot(self):
         return self.layout.robot
+
+    def _distinct_configurations(self) -> dict:
+        """target -> (one image of each distinct configuration of its chain, the configuration of each image), for
+        targets whose images share configurations (the head postures of one stance): without elasticity a chain's
+        angles are theta plus the joint terms' regressors times values, so images equal in both are equal at every
+        parameter vector and their chain is computed once."""
+        from solver.scoretest import row_ids
+
+        layout, out = self.layout, {}
+        for t in layout.targets:
+            images, cols = layout.target_images[t], layout.columns[layout.target_frame(t)]
+            entries = np.isin(self.joint_col, cols)
+            ids = row_ids(np.column_stack([self.data.theta[images][:, cols], self.regressor[images][:, entries]]))
+            n = int(ids.max(initial=-1)) + 1
+            if n <= 0.75 * len(ids):
+                first = np.empty(n, dtype=np.int64)
+                first[ids] = np.arange(len(ids))  # an image of each configuration (any: they are equal)
+                out[t] = (first, ids)
+        return out
 
     # ---------------------------------------------------------------------------------- hook 1: joint angles
 
@@ -456,12 +478,7 @@ class Model:
         """Residuals (N, 2) and, if asked, the Jacobian (N, 2, P) with respect to the full parameter vector."""
         values = np.asarray(values, dtype=float)
         elastic = bool(self.gravity.any()) and jacobian and not _twist_only
-        q, regressor, dq = self.joint_state(values, jacobian=elastic)  # hook 1: joint terms
-        terms = _Terms.of(self.effects, self.layout, values)  # hooks 2-5: chain, camera, target, projection terms
-        pose = self._poses(q, terms)
-        p_cam = self._in_camera(self._target_points(terms), pose)
-        projection = camera_model.project(p_cam, *self._intrinsics(terms.projection))
-        residual = projection.uv_px - self.data.uv_px
+        residual, projection, pose, terms, regressor, dq = self._project(values, elastic)
         if not (jacobian or _twist_only):
             return residual, None
         L = projection.twist_jacobian()  # (N, 2, 6): d pixel / d twist of the point relative to the camera
@@ -470,6 +487,40 @@ class Model:
         twists = self._twists(len(values), pose, terms, regressor, dq)
         return residual, self._jacobian(L, twists, projection, terms)
 
+    def factored(self, values):
+        """Residuals (N, 2) and the Jacobian in two factors: J[rows of image m] = F[rows of m] @ T[m].
+
+        F (N, 2, C): pixels per twist of each point (six columns) and per projection term (one column each);
+        T (M, C, P): each image's twists per parameter, and a unit row per projection term. The normal equations
+        J^T J = sum_m T_m^T (F_m^T F_m) T_m then need only each image's small C x C matrix (NormalEquations), never
+        the (N, 2, P) Jacobian: every kinematic parameter moves an image's board rigidly."""
+        values = np.asarray(values, dtype=float)
+        residual, projection, pose, terms, regressor, dq = self._project(values, bool(self.gravity.any()))
+        L = projection.twist_jacobian()
+        twists = self._twists(len(values), pose, terms, regressor, dq)
+        if not terms.projection:
+            return residual, L, twists
+        K = len(terms.projection)
+        F = np.zeros(L.shape[:2] + (6 + K,))
+        F[:, :, :6] = L
+        T = np.zeros((twists.shape[0], 6 + K, twists.shape[2]))
+        T[:, :6] = twists
+        for k, term in enumerate(terms.projection):
+            rows = self.layout.camera_rows[term.camera]
+            F[rows, :, 6 + k] = projection.intrinsic_jacobian(term.component)[rows]
+            T[:, 6 + k, term.param] = 1.0
+        return residual, F, T
+
+    def _project(self, values, elastic):
+        """The residuals at `values` and what their derivatives need: (residual, projection, poses, terms,
+        regressors, dq/dvalues (with `elastic`, else None))."""
+        q, regressor, dq = self.joint_state(values, jacobian=elastic)  # hook 1: joint terms
+        terms = _Terms.of(self.effects, self.layout, values)  # hooks 2-5: chain, camera, target, projection terms
+        pose = self._poses(q, terms)
+        p_cam = self._in_camera(self._target_points(terms), pose)
+        projection = camera_model.project(p_cam, *self._intrinsics(terms.projection))
+        return projection.uv_px - self.data.uv_px, projection, pose, terms, regressor, dq
+
     def _poses(self, q, terms) -> _Poses:
         """Every image's target frame and camera in the base frame, and the target frame in the camera frame."""
         data, layout = self.data, self.layout
@@ -477,8 +528,13 @@ class Model:
         poses = _Poses(np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((M, 3, 3)), np.empty((M, 3)))
         for t in layout.targets:  # the chains to the targets, with the chain terms
             images, frame = layout.target_images[t], layout.target_frame(t)
-            frames, T_end = chain_frames(layout.chains[frame], q[images][:, layout.columns[frame]],
-                                         origin_shifts_m=terms.shifts.get(frame))
+            q_chain, shifts = q[images][:, layout.columns[frame]], terms.shifts.get(frame)
+            distinct = self._distinct.get(t)
+            if distinct is not None and all(np.ndim(v) <= 1 for v in (shifts or {}).values()):
+                frames, T_end = chain_frames(layout.chains[frame], q_chain[distinct[0]], origin_shifts_m=shifts)
+                frames, T_end = frames[distinct[1]], T_end[distinct[1]]
+            else:
+                frames, T_end = chain_frames(layout.chains[frame], q_chain, origin_shifts_m=shifts)
             poses.R_bt[images], poses.t_bt[images] = T_end[:, :3, :3], T_end[:, :3, 3]
             poses.target_frames[t] = frames
         for c in layout.cameras:  # T_base_cam = T_base_parent @ Trans(translation) @ T_parent_cam0 @ rotation
@@ -491,7 +547,7 @@ class Model:
             poses.camera_frames[c] = frames
         poses.R_cb = np.swapaxes(poses.R_bc, 1, 2)
         poses.R_ct = poses.R_cb @ poses.R_bt
-        poses.t_ct = np.einsum("mij,mj->mi", poses.R_cb, poses.t_bt - poses.t_bc)
+        poses.t_ct = (poses.R_cb @ (poses.t_bt - poses.t_bc)[..., None])[..., 0]  # matmul: 2-5x einsum's speed
         return poses
 
     def _target_points(self, terms) -> np.ndarray:
@@ -546,10 +602,13 @@ class Model:
             twists += (entries.reshape(-1, entries.shape[2]) @ self._entry_to_param).reshape(M, 6, P)
         for term in terms.target:
             images = layout.target_images[term.target]
-            for param, v, w in term.params:
-                w_c = pose.R_ct[images] @ w
-                twists[images, :3, param] += pose.R_ct[images] @ v + _cross(pose.t_ct[images], w_c)
-                twists[images, 3:, param] += w_c
+            for param, v, w in term.params:  # a shift (v) or a turn (w): the other part is zero, skipped
+                if np.any(v):
+                    twists[images, :3, param] += pose.R_ct[images] @ v
+                if np.any(w):
+                    w_c = pose.R_ct[images] @ w
+                    twists[images, :3, param] += _cross(pose.t_ct[images], w_c)
+                    twists[images, 3:, param] += w_c
         return twists
 
     def _chain_twists(self, chain, frames, images, columns, pose, sign, joint_twists, twists, chain_terms):
@@ -557,8 +616,9 @@ class Model:
         +1 for a target's chain, -1 for a camera's."""
         if joint_twists is not None and len(chain.joint_names):
             axes, origins = joint_axes_and_origins(frames, chain)
-            z_c = np.einsum("mij,mkj->mki", pose.R_cb[images], axes)
-            o_c = np.einsum("mij,mkj->mki", pose.R_cb[images], origins - pose.t_bc[images, None, :])
+            R_bc = pose.R_bc[images]  # rows of R_bc are the columns of R_cb: x @ R_bc = (R_cb @ x^T)^T
+            z_c = axes @ R_bc
+            o_c = (origins - pose.t_bc[images, None, :]) @ R_bc
             _add(joint_twists, images, columns, sign * np.swapaxes(_cross(o_c, z_c), 1, 2),
                  sign * np.swapaxes(z_c, 1, 2))
         for term in chain_terms:

@@ -112,3 +112,52 @@ def test_gls_recovers_the_offsets_ordinary_least_squares_loses_to_shared_step_er
     # measured: ordinary 0.19-0.46 deg, GLS 0.020-0.028 deg (z up to 2.0)
     assert max(gls) < 0.05 * DEG and min(ols) > 3 * max(gls), (np.degrees(ols), np.degrees(gls))
     assert max(z) < 3.5, max(z)
+
+
+def test_gls_in_chunks_equals_gls_in_one_chunk_and_the_dense_jackknife(monkeypatch):
+    """Chunks of 8 images (stances cut by chunk edges): the same fit, standard deviations and residuals as one chunk
+    to 1e-9, and the jackknife covariance (its left-out systems solved 5 clusters at a time) is the one built from
+    the dense (2N x 2N) covariance."""
+    from solver import gls
+    from solver.adapter import model_data_from_dataset
+    from solver.gls import _blocks, identify_gls
+
+    monkeypatch.setattr(gls, "JACKKNIFE_BLOCK", 5)
+    rng = np.random.default_rng(5)
+    truth = random_truth(rng)
+    data = model_data_from_dataset(shared_step_dataset(rng, truth, n_stances_per_leg=6), angles="measured")
+    registry = Registry(("intrinsics",))
+    x0 = registry.from_dict(truth) * 0.9
+    step, sigma = np.full(len(data.joints), STEP), 0.05
+    whole = identify_gls(data, registry, x0, step, sigma, chunk_rows=10 ** 9)
+    chunked = identify_gls(data, registry, x0, step, sigma, chunk_rows=8 * 24)
+    assert len(GLSProblem(data, registry, x0, step, sigma, chunk_rows=8 * 24).blocks) >= 4
+    assert whole.success and chunked.success and chunked.iterations == whole.iterations
+    np.testing.assert_allclose(chunked.values, whole.values, rtol=0, atol=1e-9 * registry.scales.min())
+    np.testing.assert_allclose(chunked.std, whole.std, rtol=1e-9)
+    np.testing.assert_allclose(chunked.residuals_px, whole.residuals_px, rtol=0, atol=1e-9)
+    # the jackknife from its definition, with the dense covariance and a boolean mask per cluster
+    problem = GLSProblem(data, registry, x0, step, sigma)
+    free = registry.pack(whole.values)
+    r, J = problem.equations.dense(free)
+    Js = J * problem.equations.scales
+    a = problem.A.toarray()
+    S = sigma ** 2 * np.eye(len(r)) + STEP ** 2 / 12 * a @ a.T
+    SJ, u = np.linalg.solve(S, Js), np.linalg.solve(S, r)
+    cluster = _blocks(problem.data, problem)
+    of_coordinate = cluster[np.repeat(problem.data.image_of_row, 2)]
+    C = int(cluster.max()) + 1
+    assert 1 < C < problem.data.n_images
+    A = Js.T @ SJ
+    deltas = np.array([np.linalg.lstsq(A - Js[of_coordinate == c].T @ SJ[of_coordinate == c],
+                                       Js[of_coordinate == c].T @ u[of_coordinate == c], rcond=None)[0]
+                       for c in range(C)])
+    centred = deltas - deltas.mean(axis=0)
+    scales = problem.equations.scales
+    dense = (C - 1) / C * centred.T @ centred * np.outer(scales, scales)
+    np.testing.assert_allclose(whole.covariance, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
+    # each image's score Js_m^T Sigma^-1 r_m, in chunks
+    starts = 2 * np.searchsorted(problem.data.image_of_row, np.arange(problem.data.n_images))
+    scores = np.add.reduceat(Js * u[:, None], starts, axis=0)
+    chunked_scores = GLSProblem(data, registry, x0, step, sigma, chunk_rows=8 * 24)(free).image_scores
+    np.testing.assert_allclose(chunked_scores, scores, rtol=1e-6, atol=1e-9 * np.abs(scores).max())

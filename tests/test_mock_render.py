@@ -6,9 +6,8 @@ import numpy as np
 import pybullet
 import pytest
 
-from backends.mock_render import CameraModel, SceneRenderer, board_outline_board_m, projection_matrix_gl, \
-    view_matrix_gl
-from solver.camera import plane_homography
+from backends.mock_render import SceneRenderer, board_outline_board_m, projection_matrix_gl, view_matrix_gl
+from solver.camera import CameraIntrinsics, plane_homography
 from body.nao_body import (
     BOARD_HALF_X_M, BOARD_HALF_Y_M, T_WORLD_TORSO, BoardMount, BodyGeometry, CollisionChecker, NaoBody,
     T_sole_board,
@@ -102,7 +101,7 @@ def _edge_scene(edge_u_px=None, edge_v_px=None, depth_m=1.0):
     """A PyBullet client with one large thin box whose near face, at `depth_m` in front of a NAO camera at the
     world origin (looking along world +x), starts at pixel column u (covering larger u) or row v."""
     client = pybullet.connect(pybullet.DIRECT)
-    cam = CameraModel()
+    cam = CameraIntrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
     half = 0.2
     shape = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=[0.001, half, half], physicsClientId=client)
     # u = cx - fx * y / x  ->  the edge at u is at y = (cx - u) * x / fx; the box covers y below it.
@@ -128,7 +127,7 @@ def test_tinyrenderer_samples_pixel_centres_with_the_opencv_convention(edge):
 
 def test_board_coverage_is_the_exact_projected_area(body):
     """Area sampling: the board's drawn coverage sums to the area of its exact projection (shoelace)."""
-    cam = CameraModel()
+    cam = CameraIntrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
     renderer = SceneRenderer(body, cam, supersample=4)
     rng = np.random.default_rng(4)
     for _ in range(5):
@@ -152,7 +151,7 @@ def test_board_coverage_is_the_exact_projected_area(body):
 
 
 def test_camera_model_distortion_round_trip():
-    cam = CameraModel(k1=-0.1)
+    cam = CameraIntrinsics(640, 480, 600.0, 600.0, 320.0, 240.0, distortion=(-0.1, 0.0, 0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     uv = rng.uniform([0, 0], [639, 479], size=(200, 2))
     undistorted = cam.undistort_px(uv)
@@ -167,3 +166,20 @@ def test_view_matrix_looks_along_the_nao_optical_axis():
     ahead = T_world_cam[:3, 3] + T_world_cam[:3, 0]  # 1 m along the optical axis
     p_gl = V @ np.append(ahead, 1.0)
     np.testing.assert_allclose(p_gl[:3], [0.0, 0.0, -1.0], atol=1e-12)  # OpenGL cameras look along -z
+
+
+def test_rendered_images_are_pinned_to_the_bit():
+    """A capture of seed 21 with a distorted lens and shifted intrinsics, pinned by its SHA-256 (taken before the
+    renderer's camera became solver.camera.CameraIntrinsics): the renderer's camera type,
+    projection, undistortion map and homography may change in form, not in a single pixel."""
+    import hashlib
+
+    from backends.mock import MockBackend
+    from tests.mock_stances import settle_and_capture, visible_stances
+
+    mock = MockBackend(seed=21, effects={"distortion": -0.08, "intrinsics": 5.0})
+    command, _ = visible_stances(mock, 1, seed=5, margin_px=10.0)[0]
+    pixels = np.ascontiguousarray(settle_and_capture(mock, command).pixels)
+    assert pixels.shape == (480, 640, 3)
+    assert hashlib.sha256(pixels.tobytes()).hexdigest() == \
+        "ff0b4fc3c88fcbd78c53c8f3629e77e56c041ed624872d31f5c5556330e5202a"
