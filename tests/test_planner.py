@@ -9,7 +9,7 @@ import pytest
 from agent.design import _gls_information, greedy_d_optimal, log_det, stance_information
 from agent.plan import Plan, Still, Sweep, read_plan, write_plan
 from agent.planner import PlanSettings, Planner, make_plan, parked_posture
-from agent.safety import SafetyGuard
+from agent.safety import SafetyGuard, prior_covariance
 from agent.visibility import OcclusionChecker, views_ok
 from body.nao_body import CollisionChecker, NaoBody
 from backends.errors import SafetyError
@@ -332,3 +332,68 @@ def test_head_yaw_range_is_one_constant_of_the_robot_description(body):
     q[yaw] = 0.75
     assert "HeadYaw" in guard.problem(q)
     assert Measurement.feasible_head(measurement, q)[yaw] == 0.7
+
+
+def _guards_of_realistic_robots(body, seeds=(1, 2, 3, 4)):
+    """The agent's guard (its own margins) as it stands on the realistic mock's robots `seeds`: before anything is
+    known (offsets 0, the plausible offsets as 3 standard deviations) and once the offsets and sandal mounts are
+    known (the hidden truth: the verification's and the top camera's state)."""
+    from agent.states import AgentSettings
+    from backends.mock import draw_truth
+
+    s = AgentSettings()
+    planned = PlanSettings()
+    prior = prior_covariance(np.radians(planned.hip_yaw_pitch_offset_prior_deg),
+                             np.radians(planned.leg_offset_prior_deg))
+
+    def guard():
+        checker = CollisionChecker(body, margin_m=s.collision_margin_m, ground_margin_m=s.ground_margin_m)
+        return SafetyGuard(joint_limits(), checker, {j: 5.0 for j in JOINTS}, margin_rad=s.command_margin_rad,
+                           known_offset_margin_m=s.known_offset_margin_m)
+
+    unknown = guard()
+    unknown.set_true_offset(np.zeros(len(JOINTS)), known=False, covariance14=prior)
+    yield "nothing known", unknown
+    for seed in seeds:
+        truth = draw_truth(seed, realism="realistic")
+        known = guard()
+        known.set_true_offset(np.array([truth.alpha_rad[j] for j in JOINTS]), known=True)
+        known.set_board_mounts({leg: (m.rot_z_rad, m.trans_x_m, m.trans_y_m) for leg, m in truth.board_mount.items()})
+        yield f"realistic seed {seed}", known
+        known.close()
+
+
+def assert_every_stance_passes_the_guard(plan, body):
+    postures = [(f"{st.camera} capture {st.image}", st.angles()) for st in plan.stills()]
+    postures += [(f"verification {st.leg} stance {st.stance}", st.angles()) for st in plan.verification]
+    for state, guard in _guards_of_realistic_robots(body):
+        refused = [(what, guard.problem(np.asarray(q))) for what, q in postures]
+        refused = [r for r in refused if r[1] is not None]
+        assert not refused, (state, refused[:3], len(refused))
+
+
+def test_every_planned_stance_passes_the_agents_guard_on_realistic_robots(paper_plan, body):
+    """The agent commands the planned angles raw: the joints stand at plan + offset (HipYawPitch up to 12 deg on a
+    real robot). Every calibration, top-camera and verification stance must pass the guard whatever the robot's
+    offsets (before: a plan checked at the nominal offsets put realistic seed 1's verification stance R 1 with
+    LSandal 11.8 mm into the ground, and 27 calibration stances within the margins: refused or substituted)."""
+    assert plan_has_top_and_verification(paper_plan)
+    assert_every_stance_passes_the_guard(paper_plan, body)
+
+
+def plan_has_top_and_verification(plan) -> bool:
+    return any(st.camera == "top" for st in plan.stills()) and len(plan.verification) == 4
+
+
+@pytest.mark.slow
+def test_every_stance_of_the_realistic_mocks_plans_passes_the_guard(body):
+    """As above, for the plans the realistic mock's runs use (its prior intrinsics, fx = 618 px): paper and
+    optimal."""
+    from backends.mock import default_intrinsics
+
+    prior = default_intrinsics("realistic").to_dict()
+    intrinsics = {k: prior[k] for k in ("fx_px", "fy_px", "cx_px", "cy_px", "width_px", "height_px")}
+    for kind in ("paper", "optimal"):
+        plan = make_plan(0, PlanSettings(kind=kind, intrinsics=dict(intrinsics, distortion=[0.0] * 5)))
+        assert plan_has_top_and_verification(plan)
+        assert_every_stance_passes_the_guard(plan, body)
