@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from agent.design import _gls_information, greedy_d_optimal, log_det, stance_information
+from agent.design import _gls_information, greedy_d_optimal, load_error_moment, log_det, stance_information
 from agent.plan import Plan, Still, Sweep, read_plan, write_plan
 from agent.planner import PlanSettings, Planner, make_plan, parked_posture
 from agent.safety import SafetyGuard, prior_covariance
@@ -166,6 +166,36 @@ def test_information_by_woodbury_equals_the_dense_inverse():
     sigma_px, sigma_q = 0.1, 0.02
     S = sigma_px ** 2 * np.eye(40) + sigma_q ** 2 * G @ G.T
     np.testing.assert_allclose(_gls_information(J, G, sigma_px, sigma_q), J.T @ np.linalg.solve(S, J), rtol=1e-9)
+    per_column = np.array([0.02, 0.0, 0.05])  # one variance per shared error; a zero one shares nothing
+    S = sigma_px ** 2 * np.eye(40) + G @ np.diag(per_column ** 2) @ G.T
+    np.testing.assert_allclose(_gls_information(J, G, sigma_px, per_column), J.T @ np.linalg.solve(S, J), rtol=1e-9)
+
+
+def test_the_load_error_moment_is_that_of_a_servo_pulled_to_one_side_of_its_step():
+    """A servo resting anywhere in its step cell, pulled `a` steps towards one edge and stopped there: the second
+    moment of its error about the cell's centre (the reading) by Monte Carlo, 1/12 unloaded, 1/4 at the edge."""
+    u = np.random.default_rng(0).uniform(-0.5, 0.5, 400_000)
+    for a in (0.0, 0.3, -0.7, 1.0, 2.5):
+        assert load_error_moment(a) == pytest.approx(np.mean(np.clip(u + a, -0.5, 0.5) ** 2), abs=1e-3)
+    assert load_error_moment(0.0) == pytest.approx(1 / 12) and load_error_moment(3.0) == pytest.approx(0.25)
+
+
+def test_a_loaded_stance_tells_less_than_the_unloaded_model_says(paper_plan):
+    """The design's load model (servo_stiffness_nm_per_rad): the gravity load pulls each leg joint towards one side
+    of its step, a larger error the stance's images share; the information of every stance is at most what the
+    load-free model gives, and smaller where the load is large."""
+    stills = [s for s in paper_plan.stills() if s.camera == "bottom"][:12]
+    theta = np.array([s.angles() for s in stills])
+    leg, stance = np.array([s.leg for s in stills]), np.array([s.stance for s in stills])
+    free = stance_information(theta, leg, stance, encoder_resolution_rad=np.radians(360 / 4096))
+    loaded = stance_information(theta, leg, stance, encoder_resolution_rad=np.radians(360 / 4096),
+                                servo_stiffness_nm_per_rad=1300.0)
+    stiff = stance_information(theta, leg, stance, encoder_resolution_rad=np.radians(360 / 4096),
+                               servo_stiffness_nm_per_rad=1e9)
+    np.testing.assert_allclose(stiff, free, rtol=1e-6, atol=1e-9)  # no sag: the old model
+    for a, b in zip(free, loaded):
+        assert np.min(np.linalg.eigvalsh(a - b)) > -1e-6 * np.max(np.linalg.eigvalsh(a))
+        assert np.trace(b) < np.trace(a)
 
 
 def test_shared_leg_reading_error_limits_what_more_head_postures_add(paper_plan):
