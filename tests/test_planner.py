@@ -406,7 +406,8 @@ def test_every_planned_stance_passes_the_agents_guard_on_realistic_robots(paper_
     """The agent commands the planned angles raw: the joints stand at plan + offset (HipYawPitch up to 12 deg on a
     real robot). Every calibration, top-camera and verification stance must pass the guard whatever the robot's
     offsets (before: a plan checked at the nominal offsets put realistic seed 1's verification stance R 1 with
-    LSandal 11.8 mm into the ground, and 27 calibration stances within the margins: refused or substituted)."""
+    LSandal 11.8 mm into the ground, and 27 calibration captures inside the guard's margins once seed 1's offsets
+    were known, 16 before anything was)."""
     assert plan_has_top_and_verification(paper_plan)
     assert_every_stance_passes_the_guard(paper_plan, body)
 
