@@ -405,9 +405,9 @@ def assert_every_stance_passes_the_guard(plan, body):
 def test_every_planned_stance_passes_the_agents_guard_on_realistic_robots(paper_plan, body):
     """The agent commands the planned angles raw: the joints stand at plan + offset (HipYawPitch up to 12 deg on a
     real robot). Every calibration, top-camera and verification stance must pass the guard whatever the robot's
-    offsets (before: a plan checked at the nominal offsets put realistic seed 1's verification stance R 1 with
-    LSandal 11.8 mm into the ground, and 27 calibration captures inside the guard's margins once seed 1's offsets
-    were known, 16 before anything was)."""
+    offsets (before, checked at the nominal offsets: the run's plan put realistic seed 1's verification stance R 1
+    with LSandal 11.8 mm into the ground; this plan had 16 captures refused before anything is known, and 18
+    captures and a verification stance once seed 1's offsets are)."""
     assert plan_has_top_and_verification(paper_plan)
     assert_every_stance_passes_the_guard(paper_plan, body)
 
