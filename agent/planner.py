@@ -114,8 +114,8 @@ class PlanSettings:
     # readings in encoder steps shared by the images of one command, each servo pulled towards one side of its step
     # by its load). sigma_px is the effective pixel noise: the detector's 0.03 px plus what the model still lacks
     # (detection biases). Chosen so that the predicted worst joint-offset std matches the fit's jackknife std on the
-    # realistic mock: whole runs of seeds 1-4, paper and optimal plans, realised / predicted 0.70-1.26 with 0.05 px,
-    # mean 0.99 (with 0.1 px: 0.47-0.85; benchmarks/bench_precision.py, docs/AGENT.md).
+    # realistic mock: whole runs of seeds 1-4, paper and optimal plans, realised / predicted 0.70-1.33 with 0.05 px,
+    # mean 0.98 (with 0.1 px: 0.47-0.85; benchmarks/bench_precision.py, docs/AGENT.md).
     sigma_px: float = 0.05
     encoder_resolution_deg: float = 360.0 / 4096  # 12-bit encoders (docs/MOCK.md)
     # The load pulling a servo to one side of its step (agent.design.load_error_moment): tau / K. Not published for
