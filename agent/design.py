@@ -10,8 +10,18 @@ J (rows = 2 x 24 x head postures, 21 columns) is the Model's exact Jacobian at t
 (sigma_px) is independent per vertex, but the encoder quantisation error is not: a leg joint's reading error is
 shared by all images of the stance (the leg does not move between head postures) and a head joint's by the 24
 vertices of one image. G holds the Jacobian with respect to those joint readings (6 leg joints + 2 head joints per
-image), Sigma_q = sigma_q^2 I with sigma_q = resolution / sqrt(12). Ignoring this, a design would believe that
-more vertices of one stance keep adding precision; they do not.
+image), Sigma_q = diag(sigma_q^2). Ignoring this, a design would believe that more vertices of one stance keep
+adding precision; they do not.
+
+How large sigma_q is depends on where the servo stands in its step. A servo that sees only its steps rests
+anywhere in the commanded step's cell (sigma_q^2 = step^2 / 12), but gravity pulls it towards one edge: with the
+load torque tau and the servo's stiffness K the rest is u + tau / (K step) steps from the cell's centre, clipped to
+the cell, u uniform in [-1/2, 1/2) (backends/mock_servo.py). The fit takes the error as zero-mean (the reading is
+the cell's centre), so what it meets per joint and stance is the error's second moment about the centre,
+`load_error_moment`: 1/12 of a step squared unloaded, up to 1/4 (the joint always at the edge, a bias shared by
+every stance loaded the same way) once the load pulls a full step. The paper plan's stances lie at 0.1-0.9 of a
+step (realistic mock: K = 1300 N m/rad, loads up to 1.4 N m); a model without the load (1/12 everywhere) predicted
+the optimal plan's worst std 1.6x too small and chose the stances it overrated.
 """
 
 from __future__ import annotations
@@ -19,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 
 from solver.joints import LEG_JOINTS, leg_joints
-from solver.model import Model
+from solver.kinematics import gravity_torques
+from solver.model import LEG_COLUMNS, Model
 from solver.registry import Registry
 from solver.camera import default_intrinsics
 from solver.adapter import make_model_data
@@ -27,8 +38,16 @@ from solver.adapter import make_model_data
 BASE_REGISTRY = Registry()  # the paper's 21 parameters
 
 
+def load_error_moment(load_steps) -> np.ndarray:
+    """E[x^2] of x = clip(u + a, -1/2, 1/2), u uniform in [-1/2, 1/2): the squared rest error (in steps squared) of a
+    servo that rests anywhere in its cell and is pulled `load_steps` = tau / (K step) steps towards one edge."""
+    a = np.minimum(np.abs(np.asarray(load_steps, dtype=float)), 1.0)
+    return (0.125 - (a - 0.5) ** 3) / 3.0 + a / 4.0
+
+
 def stance_information(theta, leg, stance, *, sigma_px=0.1, encoder_resolution_rad=np.radians(0.1),
-                       intrinsics=None, registry: Registry = BASE_REGISTRY) -> np.ndarray:
+                       intrinsics=None, registry: Registry = BASE_REGISTRY,
+                       servo_stiffness_nm_per_rad: float | None = None) -> np.ndarray:
     """Fisher information of each stance, (S, P, P) in scaled parameter units.
 
     Parameters
@@ -36,6 +55,8 @@ def stance_information(theta, leg, stance, *, sigma_px=0.1, encoder_resolution_r
     theta : (M, 14) joint angles of the images, rad; the images of one stance must be consecutive and share
         their leg angles.
     leg, stance : (M,) labels; consecutive images with equal (leg, stance) form one stance (S stances).
+    servo_stiffness_nm_per_rad : K of the load model (module docstring); None: the servo rests anywhere in its
+        cell whatever the load (step^2 / 12).
     """
     theta = np.asarray(theta, dtype=float)
     leg, stance = np.asarray(leg), np.asarray(stance)
@@ -56,27 +77,36 @@ def stance_information(theta, leg, stance, *, sigma_px=0.1, encoder_resolution_r
 
     starts = np.flatnonzero(np.r_[True, (leg[1:] != leg[:-1]) | (stance[1:] != stance[:-1])])
     ends = np.r_[starts[1:], len(theta)]
-    sigma_q = encoder_resolution_rad / np.sqrt(12.0)
+    step = encoder_resolution_rad
     info = np.empty((len(starts), P, P))
     for s, (a, b) in enumerate(zip(starts, ends)):
         n_img = b - a
         Jp = J_params[a:b].reshape(-1, P)
-        leg_cols = [extended.index[f"joint_offset.{j}"] for j in leg_joints(str(leg[a]))]
+        leg_name = str(leg[a])
+        leg_cols = [extended.index[f"joint_offset.{j}"] for j in leg_joints(leg_name)]
         G_leg = J[a:b][..., leg_cols].reshape(-1, 6)
         G_head = np.zeros((n_img * J.shape[1], 2 * n_img))
         for k in range(n_img):
             G_head[k * J.shape[1]:(k + 1) * J.shape[1], 2 * k:2 * k + 2] = J_head[a + k]
         G = np.hstack([G_leg, G_head])
-        info[s] = _gls_information(Jp, G, sigma_px, sigma_q)
+        moment = np.full(G.shape[1], 1.0 / 12.0)
+        if servo_stiffness_nm_per_rad is not None and step > 0:
+            tau = gravity_torques(theta[a:a + 1, LEG_COLUMNS[leg_name]], leg_name)[0]
+            moment[:6] = load_error_moment(tau / (servo_stiffness_nm_per_rad * step))
+        info[s] = _gls_information(Jp, G, sigma_px, step * np.sqrt(moment))
     return info
 
 
 def _gls_information(Jp, G, sigma_px, sigma_q) -> np.ndarray:
-    """J^T (s^2 I + q^2 G G^T)^-1 J by the Woodbury identity (G has few columns)."""
-    if sigma_q <= 0:
+    """J^T (s^2 I + G diag(q^2) G^T)^-1 J by the Woodbury identity (G has few columns); sigma_q a scalar or one per
+    column of G."""
+    sigma_q = np.broadcast_to(np.asarray(sigma_q, dtype=float), (G.shape[1],))
+    if not np.any(sigma_q > 0):
         return Jp.T @ Jp / sigma_px ** 2
+    keep = sigma_q > 0
+    G, sigma_q = G[:, keep], sigma_q[keep]
     GtJ = G.T @ Jp
-    inner = (sigma_px / sigma_q) ** 2 * np.eye(G.shape[1]) + G.T @ G
+    inner = np.diag((sigma_px / sigma_q) ** 2) + G.T @ G
     return (Jp.T @ Jp - GtJ.T @ np.linalg.solve(inner, GtJ)) / sigma_px ** 2
 
 

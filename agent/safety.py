@@ -26,6 +26,8 @@ from solver.limits import command_limits, head_pitch_problem
 REACH_M = 0.5  # farther than any part of the robot from a leg joint's axis (a leg with its sandal: about 0.45 m)
 N_SIGMA = 3.0
 SLACK_M = 0.004  # displacement (3 sigma) the plain check's margins absorb: 8 mm margins against the robot's own 3 mm
+KNOWN_OFFSET_MARGIN_M = 0.008  # every pair's margin where the joints truly stand (the mock refuses at 3 mm); the
+# planner's stances keep it for any plausible offsets (agent.planner.Planner.robust_ok)
 
 
 def worst_case_clearance(checker: CollisionChecker, q14, covariance14) -> tuple[float, str]:
@@ -89,7 +91,7 @@ class SafetyGuard:
 
     def __init__(self, limits: dict, checker: CollisionChecker, speeds: dict, *, margin_rad: float = 0.02,
                  head_pitch_margin_rad: float = 0.01, path_step_rad: float = 0.05, random_detours: int = 40,
-                 known_offset_margin_m: float = 0.008):
+                 known_offset_margin_m: float = KNOWN_OFFSET_MARGIN_M):
         missing = [j for j in JOINTS if j not in limits]
         if missing:
             raise SafetyError(f"the robot reports no limits for {', '.join(missing)}")

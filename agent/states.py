@@ -26,7 +26,7 @@ from agent.planner import PlanSettings, Planner
 from agent.progress import ProgressBar
 from agent.record import CaptureStore
 from agent.robot import Robot, TimingSettings
-from agent.safety import SafetyGuard
+from agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard
 from agent.verify import verify
 from backends.compensated import CompensatedBackend
 from body.nao_body import CollisionChecker, NaoBody
@@ -70,7 +70,7 @@ class AgentSettings:
     command_margin_rad: float = 0.02  # the agent's own margin to the joint limits for every command
     collision_margin_m: float = 0.015  # the agent's own collision check of every command
     ground_margin_m: float = 0.012
-    known_offset_margin_m: float = 0.008  # once the joint offsets are estimated (the mock refuses at 0.003)
+    known_offset_margin_m: float = KNOWN_OFFSET_MARGIN_M  # once the joint offsets are estimated
     resume: bool = False
     save_images: bool = True
     progress_bar: bool = True

@@ -9,7 +9,9 @@ the command line applies it). Then the curve from its own captures: the first fr
 (bottom camera, still; a plan measures the legs one after the other, so a prefix of the run would hold one leg
 only) fitted as the agent fits (solver.fit.identify_dataset, GLS), against the robot time those stances took (each
 leg from its first capture to the end of its last kept stance, on the mock's clock). f = 1 is the whole run: every
-capture, the top camera's too, and the run's whole robot time. Prints a markdown table (docs/AGENT.md quotes it).
+capture, the top camera's too, and the run's whole robot time. Each row also gives the worst std the planner's
+information model predicts for the bottom-camera still captures the row fitted (agent.design, the plan's own
+settings) and realised / predicted. Prints a markdown table (docs/AGENT.md quotes it).
 """
 
 import argparse
@@ -24,6 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.calibrate import calibrate  # noqa: E402
+from agent.design import predicted_std, stance_information  # noqa: E402
 from agent.measure import opencv_detector  # noqa: E402
 from agent.planner import PlanSettings  # noqa: E402
 from agent.states import AgentSettings  # noqa: E402
@@ -31,6 +34,7 @@ from backends.mock import MockBackend  # noqa: E402
 from solver.dataset import Dataset, read_dataset  # noqa: E402
 from solver.fit import identify_dataset  # noqa: E402
 from solver.joints import LEG_JOINTS, LEGS  # noqa: E402
+from solver.registry import Registry  # noqa: E402
 
 
 def worst(result, alpha) -> tuple[float, float]:
@@ -40,7 +44,20 @@ def worst(result, alpha) -> tuple[float, float]:
     return math.degrees(max(errors)), math.degrees(max(stds))
 
 
-def curve(dataset, fractions, alpha, total_robot_s) -> list[dict]:
+def predicted_worst_std_deg(plan, images) -> float:
+    """The planner's predicted worst joint-offset std (deg) for the plan's bottom-camera stills among `images`."""
+    s = PlanSettings.from_dict(plan.settings)
+    registry = Registry(tuple(e for e in s.design_effects.split(",") if e))
+    stills = [st for st in plan.stills() if st.camera == "bottom" and st.image in set(int(i) for i in images)]
+    info = stance_information(np.array([st.angles() for st in stills]), np.array([st.leg for st in stills]),
+                              np.array([st.stance for st in stills]), sigma_px=s.sigma_px,
+                              encoder_resolution_rad=np.radians(s.encoder_resolution_deg), intrinsics=s.intrinsics,
+                              registry=registry, servo_stiffness_nm_per_rad=s.servo_stiffness_nm_per_rad)
+    std = predicted_std(info.sum(axis=0), registry)
+    return math.degrees(max(std[registry.index[f"joint_offset.{j}"]] for j in LEG_JOINTS))
+
+
+def curve(dataset, fractions, alpha, total_robot_s, plan) -> list[dict]:
     cols = dataset.as_v2().columns
     image = np.asarray(cols["image"])
     t = np.asarray(cols["t_image_s"], dtype=float)
@@ -55,7 +72,8 @@ def curve(dataset, fractions, alpha, total_robot_s) -> list[dict]:
             fit = identify_dataset(dataset, gls=True)
             e, s = worst(fit.result, alpha)
             points.append({"fraction": 1.0, "robot_s": total_robot_s, "images": len(np.unique(image)),
-                           "worst_error_deg": e, "worst_std_deg": s})
+                           "worst_error_deg": e, "worst_std_deg": s,
+                           "predicted_std_deg": predicted_worst_std_deg(plan, image[bottom & still])})
             continue
         keep = np.zeros(len(image), bool)
         robot_s = 0.0
@@ -73,7 +91,8 @@ def curve(dataset, fractions, alpha, total_robot_s) -> list[dict]:
             fit = identify_dataset(part, gls=True)
             e, s = worst(fit.result, alpha)
             points.append({"fraction": f, "robot_s": robot_s, "images": len(np.unique(image[keep])),
-                           "worst_error_deg": e, "worst_std_deg": s})
+                           "worst_error_deg": e, "worst_std_deg": s,
+                           "predicted_std_deg": predicted_worst_std_deg(plan, image[keep])})
     return points
 
 
@@ -86,8 +105,9 @@ def main():
     parser.add_argument("--plot", type=Path, help="write the curve as a PNG")
     args = parser.parse_args()
     base = args.out or Path(tempfile.mkdtemp(prefix="naocal_precision_"))
-    print("| plan | seed | stances per leg | images | robot s | worst std deg | worst error deg | run wall s |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| plan | seed | stances per leg | images | robot s | worst std deg | predicted std deg | realised / predicted "
+          "| worst error deg | run wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for plan in args.plans:
         for seed in args.seeds:
@@ -103,17 +123,17 @@ def main():
                 mock.close()
             wall = time.perf_counter() - wall
             if not result.ok:
-                print(f"| {plan} | {seed} | failed: {result.reason} | | | | | {wall:.0f} |", flush=True)
+                print(f"| {plan} | {seed} | failed: {result.reason} | | | | | | | {wall:.0f} |", flush=True)
                 continue
             n_stances = ctx.plan.stats["n_stances"]
-            for p in curve(read_dataset(out / "dataset"), args.fractions, alpha, ctx.measurement["robot_time_s"]):
+            for p in curve(read_dataset(out / "dataset"), args.fractions, alpha, ctx.measurement["robot_time_s"],
+                           ctx.plan):
                 per_leg = "/".join(str(max(1, int(round(p["fraction"] * n_stances[leg])))) for leg in LEGS)
                 rows.append(dict(p, plan=plan, seed=seed))
                 print(f"| {plan} | {seed} | {per_leg} | {p['images']} | {p['robot_s']:.1f} | "
-                      f"{p['worst_std_deg']:.3f} | {p['worst_error_deg']:.3f} | "
-                      f"{wall:.0f} |" if p["fraction"] >= 1.0 else
-                      f"| {plan} | {seed} | {per_leg} | {p['images']} | {p['robot_s']:.1f} | "
-                      f"{p['worst_std_deg']:.3f} | {p['worst_error_deg']:.3f} | |", flush=True)
+                      f"{p['worst_std_deg']:.3f} | {p['predicted_std_deg']:.3f} | "
+                      f"{p['worst_std_deg'] / p['predicted_std_deg']:.2f} | {p['worst_error_deg']:.3f} | "
+                      + (f"{wall:.0f} |" if p["fraction"] >= 1.0 else " |"), flush=True)
     print(f"runs kept in {base}")
     if args.plot and rows:
         plot(rows, args.plot)

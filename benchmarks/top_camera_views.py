@@ -68,7 +68,6 @@ def count(planner: Planner, leg: str, camera: str, Q: np.ndarray, heads: np.ndar
     counts = dict.fromkeys(STAGES, 0)
     counts["any corner"], counts["24 corners"], counts["view rules"] = (
         n_any, int(all24.any(axis=1).sum()), int(rules.any(axis=1).sum()))
-    covariance = planner.offset_covariance(leg, early=False)
     for i in np.flatnonzero(rules.any(axis=1)):
         passed = [False] * 3
         for h in np.flatnonzero(rules[i]):
@@ -80,7 +79,7 @@ def count(planner: Planner, leg: str, camera: str, Q: np.ndarray, heads: np.ndar
             if not planner.occlusion.is_visible(q14, leg, camera):
                 continue
             passed[1] = True
-            if not planner.robust_ok(q14, covariance):
+            if not planner.robust_ok(q14):
                 continue
             passed[2] = True
             accepted.append(q14)
