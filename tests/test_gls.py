@@ -18,13 +18,15 @@ STEP = 2 * np.pi / 4096
 DEG = np.pi / 180
 
 
-def shared_step_dataset(rng, truth, *, n_stances_per_leg=16, pixel_noise_px=0.03):
+def shared_step_dataset(rng, truth, *, n_stances_per_leg=16, pixel_noise_px=0.03, leg_cell=(-0.5, 0.5)):
     """Servos anywhere in their commanded step, one place per command: a leg joint's for all head postures of its
-    stance, a head joint's for one image (the realistic mock's servo); readings the commanded step."""
+    stance, a head joint's for one image (the realistic mock's servo); readings the commanded step. `leg_cell`: where
+    in its cell (in steps from the centre) a leg servo may rest (one side only: a load that pulls it one way)."""
     command, leg, stance, posture = random_plan(rng, n_stances_per_leg, 3)
     reading = np.round(command / STEP) * STEP
     u = rng.uniform(-0.5, 0.5, command.shape)
     legs = [JOINT_INDEX[j] for j in LEG_JOINTS]
+    u[:, legs] = rng.uniform(*leg_cell, (len(u), len(legs)))
     first = np.r_[True, (stance[1:] != stance[:-1]) | (leg[1:] != leg[:-1])]
     u[:, legs] = u[np.maximum.accumulate(np.where(first, np.arange(len(u)), 0))][:, legs]  # one draw per stance
     true = reading + u * STEP
@@ -114,6 +116,26 @@ def test_gls_recovers_the_offsets_ordinary_least_squares_loses_to_shared_step_er
     assert max(z) < 3.5, max(z)
 
 
+def test_a_load_that_holds_every_servo_on_one_side_of_its_cell_is_within_the_standard_deviations():
+    """Leg servos resting in the upper half of their cells in every stance (on its back, gravity loads the pitch
+    joints the same way in all of them): the offsets absorb the shift, which no residual shows; the standard
+    deviations say so (solver.gls.rest_bias_variance). Without that term: z up to 6-7."""
+    z, errors = [], []
+    for seed in range(3):
+        rng = np.random.default_rng(900 + seed)
+        truth = random_truth(rng)
+        fit = identify_dataset(shared_step_dataset(rng, truth, leg_cell=(0.1, 0.5)), gls=True)
+        assert fit.gls
+        err, zz = offset_errors(fit, truth)
+        errors.extend(np.abs(err))
+        z.extend(np.abs(zz))
+    assert max(errors) > 0.2 * STEP  # the shift is there (the data cannot remove it)
+    assert max(z) < 3.5, max(z)
+    registry = fit.result.registry
+    std = fit.result.std[registry.index["joint_offset.LKneePitch"]]
+    assert std >= STEP / np.sqrt(12)  # never below where the servo may rest in its cell
+
+
 def test_gls_in_chunks_equals_gls_in_one_chunk_and_the_dense_jackknife(monkeypatch):
     """Chunks of 8 images (stances cut by chunk edges): the same fit, standard deviations and residuals as one chunk
     to 1e-9, and the jackknife covariance (its left-out systems solved 5 clusters at a time) is the one built from
@@ -154,7 +176,8 @@ def test_gls_in_chunks_equals_gls_in_one_chunk_and_the_dense_jackknife(monkeypat
                        for c in range(C)])
     centred = deltas - deltas.mean(axis=0)
     scales = problem.equations.scales
-    dense = (C - 1) / C * centred.T @ centred * np.outer(scales, scales)
+    dense = (C - 1) / C * centred.T @ centred * np.outer(scales, scales) + np.diag(
+        gls.rest_bias_variance(problem.data, registry, step))
     np.testing.assert_allclose(whole.covariance, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
     # each image's score Js_m^T Sigma^-1 r_m, in chunks
     starts = 2 * np.searchsorted(problem.data.image_of_row, np.arange(problem.data.n_images))
