@@ -101,6 +101,7 @@ def main():
     tally = {(name, c): {"cases": 0, "should": 0, "found": 0, "false": 0, "refused": 0, "missed": 0}
              for name in names for c in categories}
     errors = {name: [] for name in names}
+    by_category = {(name, c): [] for name in names for c in categories}
     seconds = {(name, size): [] for name in names for size in sizes}
     for size in sizes:
         for c_index, category in enumerate(categories):
@@ -119,6 +120,7 @@ def main():
                     t[verdict] += 1
                     if verdict == "found":
                         errors[name].append(extra)
+                        by_category[name, category].append(extra)
                     if args.verbose or (verdict == "false" and name == "naocal"):
                         print(f"  {size[0]}x{size[1]} {category} seed {seed} {case.columns}x{case.rows} {name}: "
                               f"{verdict}{': ' + extra if verdict == 'false' else ''}", flush=True)
@@ -149,6 +151,13 @@ def main():
         e = np.concatenate(errors[name]) if errors[name] else np.zeros(0)
         if len(e):
             print(f"  {name:8s} {np.median(e):.3f} / {np.percentile(e, 95):.3f} / {e.max():.3f} ({len(e)} corners)")
+    print("\ncorner error per category, px: median / p95 (" + ", ".join(names) + ")")
+    for category in categories:
+        cells = []
+        for name in names:
+            e = np.concatenate(by_category[name, category]) if by_category[name, category] else np.zeros(0)
+            cells.append(f"{np.median(e):.2f} / {np.percentile(e, 95):.2f}" if len(e) else "-")
+        print(f"  {category:13s} " + "; ".join(cells))
     print("\nCPU time per image, ms: mean / max")
     for size in sizes:
         parts = [f"{name} {1000 * np.mean(seconds[name, size]):.0f} / {1000 * np.max(seconds[name, size]):.0f}"
