@@ -41,8 +41,12 @@ class Print:
     border: float = 0.5
     border_colour: str = "white"
 
+    @property
+    def border_texels(self) -> int:
+        return int(round(self.border * TEXELS))
+
     def texture(self) -> np.ndarray:
-        b = int(round(self.border * TEXELS))
+        b = self.border_texels
         w, h = self.columns * TEXELS, self.rows * TEXELS
         y, x = np.mgrid[0:h, 0:w] // TEXELS
         first = (x + y) % 2 == 0
@@ -158,8 +162,8 @@ def render(size, boards, lens: Lens, look: Look, rng, clutter: int = 0, foot=Non
         bx = (Hinv[0, 0] * su + Hinv[0, 1] * sv + Hinv[0, 2]) / d
         by = (Hinv[1, 0] * su + Hinv[1, 1] * sv + Hinv[1, 2]) / d
         tex = board.texture()
-        tx = ((bx + board.border) * TEXELS - 0.5).astype(np.float32)
-        ty = ((by + board.border) * TEXELS - 0.5).astype(np.float32)
+        tx = (bx * TEXELS + board.border_texels - 0.5).astype(np.float32)  # the texture's border: whole texels
+        ty = (by * TEXELS + board.border_texels - 0.5).astype(np.float32)
         tx[d <= 0] = -1e6
         seen = (tx >= -0.5) & (tx <= tex.shape[1] - 0.5) & (ty >= -0.5) & (ty <= tex.shape[0] - 0.5)
         sampled = cv2.remap(tex, tx, ty, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
