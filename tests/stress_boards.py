@@ -146,7 +146,8 @@ def _carpet(size, colour: str, rng) -> np.ndarray:
     return base[None, None, :] + texture[..., None]
 
 
-def render(size, boards, lens: Lens, look: Look, rng, clutter: int = 0, foot=None) -> tuple[np.ndarray, list]:
+def render(size, boards, lens: Lens, look: Look, rng, clutter: int = 0, foot=None,
+           shadow=None) -> tuple[np.ndarray, list]:
     """The image of `boards` [(Print, H)] (drawn in order, later ones on top) through `lens` with `look`; returns
     (image, [corners (rows - 1, columns - 1, 2) px per board])."""
     w, h = size
@@ -172,6 +173,12 @@ def render(size, boards, lens: Lens, look: Look, rng, clutter: int = 0, foot=Non
         truths.append(lens.distort(ideal, size).reshape(*board.corners().shape))
     if foot is not None:
         cv2.fillPoly(canvas, [np.round(np.asarray(foot) * s).astype(np.int32)], (200, 200, 205))
+    if shadow is not None:  # (point px, unit normal, darkening factor, edge width px): light cut off beyond a line
+        point, normal, factor, width = shadow
+        yy, xx = np.mgrid[0:h * s, 0:w * s].astype(np.float32)
+        distance = ((xx + 0.5) / s - 0.5 - point[0]) * normal[0] + ((yy + 0.5) / s - 0.5 - point[1]) * normal[1]
+        light = factor + (1 - factor) / (1 + np.exp(np.clip(distance / max(width / 4, 1e-3), -50, 50)))
+        canvas = canvas * light[..., None]
     image = cv2.resize(canvas, (w, h), interpolation=cv2.INTER_AREA)
     return _camera(image, look, rng), truths
 
@@ -258,7 +265,7 @@ def yuyv_round_trip(image: np.ndarray) -> np.ndarray:
 BOARDS = ((7, 5, ("black", "white")), (9, 6, ("black", "white")), (5, 4, ("black", "white")),
           (8, 6, ("white", "black")), (4, 4, ("orange", "blue")))
 CATEGORIES = ("clean", "distortion", "blur", "motion", "sensor", "jpeg", "dark", "bright", "vignetting", "glare",
-              "clutter", "tilt", "small", "large", "no_border", "second_board", "bigger_board", "cut_off", "foot",
+              "shadow", "clutter", "tilt", "small", "large", "no_border", "second_board", "bigger_board", "cut_off", "foot",
               "no_board")
 
 
@@ -280,7 +287,7 @@ def scene(category: str, size=(640, 480), rng=None, seed: int = 0) -> Case:
     tilt = (float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.4, 0.4)))
     turn = float(rng.uniform(-0.4, 0.4)) + (np.pi if rng.random() < 0.2 else 0.0)
     shift = rng.uniform(-0.08, 0.08, 2) * (w, h)
-    clutter, foot, expect, asked, extra = 0, None, "found", (columns, rows), []
+    clutter, foot, shadow, expect, asked, extra = 0, None, None, "found", (columns, rows), []
     if category == "distortion":
         lens.distortion = (float(rng.uniform(-0.35, -0.15)), float(rng.uniform(0.0, 0.12)),
                            float(rng.uniform(-0.004, 0.004)), float(rng.uniform(-0.004, 0.004)), 0.0)
@@ -308,6 +315,10 @@ def scene(category: str, size=(640, 480), rng=None, seed: int = 0) -> Case:
         square_px *= 0.75
     elif category == "glare":
         look.glare = int(rng.integers(1, 3))
+    elif category == "shadow":  # a robot's shadow: a soft edge across the board, 40-70 % of the light beyond
+        angle = float(rng.uniform(0, 2 * np.pi))
+        shadow = ((np.array(size, float) - 1) / 2 + shift + rng.uniform(-0.2, 0.2, 2) * square_px * columns,
+                  np.array([np.cos(angle), np.sin(angle)]), float(rng.uniform(0.3, 0.6)), float(rng.uniform(2, 15)))
     elif category == "clutter":
         clutter = int(rng.integers(3, 8))
     elif category == "tilt":
@@ -366,7 +377,11 @@ def scene(category: str, size=(640, 480), rng=None, seed: int = 0) -> Case:
         d = (b - a) / max(np.linalg.norm(b - a), 1e-9)
         n = np.array([-d[1], d[0]]) * square_px * rng.uniform(0.8, 1.5)
         foot = [a - n, a + n, b + n * 1.5, b - n * 1.5]
-    image, truths = render(size, boards, lens, look, rng, clutter=clutter, foot=foot)
+    image, truths = render(size, boards, lens, look, rng, clutter=clutter, foot=foot, shadow=shadow)
+    outline = np.array([[[0, 0], [columns, 0], [columns, rows], [0, rows]]], float)
+    seen = lens.distort(cv2.perspectiveTransform(outline, H)[0], size)
+    if expect == "found" and not np.all((seen >= 0) & (seen <= np.array(size) - 1)):
+        expect = "either"  # the board runs out of the image (a strong tilt, a large board): it may be refused
     truth = truths[0] if boards and expect != "none" else None
     if category == "no_board":
         truth = None

@@ -67,3 +67,21 @@ def test_stress_images_give_the_board_or_nothing(category):
     shape = (case.rows - 1, case.columns - 1)
     error = np.linalg.norm(found.image_order_px.reshape(*shape, 2) - image_order(case.truth_px, shape), axis=-1)
     assert error.max() < 1.0, f"{category}: corners up to {error.max():.2f} px off ({found.detail})"
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_a_shadow_across_the_board_between_its_corners(seed):
+    """A shadow edge along the middle of a row of squares (65 % of the light cut off beyond it): every corner is a
+    clean X-corner, but a shadowed white square is darker than the board's middle grey; the squares still
+    alternate against their neighbours, and the board is found (one threshold for the board refused it)."""
+    rng = np.random.default_rng(seed)
+    H = board_homography(8, 6, size=(640, 480), square_px=40.0, tilt_x=rng.uniform(-0.3, 0.3),
+                         turn=rng.uniform(-0.2, 0.2), focal_px=550)
+    a, b = cv2.perspectiveTransform(np.array([[[0, 2.5], [8, 2.5]]]), H)[0]
+    along = (b - a) / np.linalg.norm(b - a)
+    image, truths = render((640, 480), [(Print(8, 6), H)], Lens(focal_px=550), Look(), rng,
+                           shadow=(a, np.array([-along[1], along[0]]), 0.35, 4.0))
+    found = detect_board(image, BoardSpec(8, 6))
+    assert _located(found), found.detail
+    error = np.linalg.norm(found.image_order_px.reshape(5, 7, 2) - image_order(truths[0], (5, 7)), axis=-1)
+    assert error.max() < 0.5
