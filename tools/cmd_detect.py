@@ -6,6 +6,7 @@
 (W-1) x (H-1) inner corners (7x5: 6 x 4; 9x6: 8 x 5; 4x4: 3 x 3). OpenCV's patternSize counts inner corners:
 --board is that plus one each way. When no board of the size is found but one of a square more each way is
 there (the inner-corner count passed), the line says so.
+
 The board may be of any two colours, either polarity, in grey or in colour: --channel auto tries grey (black and
 white) and the chroma channels Cr and Cb of YCrCb (colours of similar brightness, e.g. an orange/blue board on
 green carpet) and keeps the detection whose squares differ most for their noise.
@@ -15,7 +16,7 @@ frames (YUV 4:2:2, the NAO camera's V4L2 format: Y0 U Y1 V per pair of pixels, 2
 named *.yuv, *.yuyv or *.raw: --size WxH gives their size, else it is told by the file's length among 160x120,
 320x240, 640x480 and 1280x960. Pixel (0, 0) is the centre of the top-left pixel (OpenCV's).
 
-Corner order (plain and --json): row by row, each row holding COLS - 1 corners. Of the grid's labellings (turns
+Corner order (plain and --json): row by row, each row holding W - 1 corners. Of the grid's labellings (turns
 and mirror images) the one whose rows run most nearly left to right and follow each other most nearly downwards:
 for a board seen roughly upright, row 0 is the row nearest the top of the image and each row runs left to right.
 That is an order in the image, not on the board: a board that looks the same turned (7 x 5, 4 x 4) cannot show
@@ -33,7 +34,7 @@ document (schema naocal.detect/1):
                "width_px": int, "height_px": int,
                "channel": null | "grey" | "cr" | "cb",                   where the corners were found
                "line_rms_px": float | null, "edge_width_px": float | null,
-               "corners_px": [[[u, v], ... W-1 per row], ... H-1 rows] | null}]}   image order, below
+               "corners_px": [[[u, v], ... W-1 per row], ... H-1 rows] | null}]}   in the corner order above
 --overlay OUT draws each image's corners with their order (row 0 in red, index labels, corner 0 circled): OUT is
 a file (.png, .jpg) for one image, or a directory (one IMAGE.corners.png per image); images narrower than 640 px
 are drawn enlarged.
