@@ -98,7 +98,8 @@ def main():
     sizes = [tuple(int(x) for x in s.split("x")) for s in args.sizes.split(",")]
     categories = args.categories.split(",")
     names = args.detectors.split(",")
-    tally = {(name, c): {"cases": 0, "should": 0, "found": 0, "false": 0, "refused": 0, "missed": 0}
+    tally = {(name, c): {"cases": 0, "should": 0, "found": 0, "found_should": 0, "false": 0, "refused": 0,
+                               "missed": 0}
              for name in names for c in categories}
     errors = {name: [] for name in names}
     by_category = {(name, c): [] for name in names for c in categories}
@@ -118,6 +119,7 @@ def main():
                     t["cases"] += 1
                     t["should"] += case.expect == "found"
                     t[verdict] += 1
+                    t["found_should"] += verdict == "found" and case.expect == "found"
                     if verdict == "found":
                         errors[name].append(extra)
                         by_category[name, category].append(extra)
@@ -134,10 +136,12 @@ def main():
         for name in names:
             t = tally[name, category]
             expect_found = t["should"]
-            found_of_should = t["found"] if expect_found else 0
-            text = f"{t['found']}/{expect_found}" if expect_found else f"{t['refused']}/{t['cases']} refused"
-            if expect_found == 0 and t["found"]:
-                text += f", {t['found']} right corners"
+            found_of_should = t["found_should"]
+            text = f"{found_of_should}/{expect_found}" if expect_found else ""
+            if t["cases"] > expect_found:  # cut, covered or no board: refusing is right, or giving the right corners
+                text += (", " if text else "") + f"{t['refused']}/{t['cases'] - expect_found} refused"
+                if t["found"] > found_of_should:
+                    text += f", {t['found'] - found_of_should} right corners"
             if t["false"]:
                 text += f" ({t['false']} false)"
             cells.append(text)

@@ -364,11 +364,12 @@ def scene(category: str, size=(640, 480), rng=None, seed: int = 0) -> Case:
     boards = [] if category == "no_board" else [(board, H)]
     if extra:
         other = extra[0]
-        sq2 = square_px * 0.8
-        H = board_homography(columns, rows, size=size, square_px=square_px * 0.8, tilt_x=tilt[0], turn=turn,
-                             shift_px=(-0.3 * w, 0.0), focal_px=lens.focal_px)
+        # both boards side by side, each in its half of the image
+        sq2 = min(square_px, 0.4 * w / (max(columns, other.columns) + 1), 0.8 * h / (max(rows, other.rows) + 1))
+        H = board_homography(columns, rows, size=size, square_px=sq2, tilt_x=tilt[0], turn=turn,
+                             shift_px=(-0.25 * w, 0.0), focal_px=lens.focal_px)
         H2 = board_homography(other.columns, other.rows, size=size, square_px=sq2, tilt_x=tilt[0], turn=-turn,
-                              shift_px=(0.3 * w, 0.0), focal_px=lens.focal_px)
+                              shift_px=(0.25 * w, 0.0), focal_px=lens.focal_px)
         boards = [(Print(columns, rows, colours, border=0.5), H), (other, H2)]
     if category == "foot":  # a foot over one end of the board, covering a corner or two (or more)
         ideal = cv2.perspectiveTransform(np.array([[[columns * rng.uniform(0.7, 0.95), rows * rng.uniform(-0.5, 0.5)],
