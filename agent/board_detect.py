@@ -544,7 +544,7 @@ def _opencv_board(img: np.ndarray, channel: str, board: BoardSpec) -> _ChannelRe
     cells = np.stack([xs, ys], axis=-1)
     cells_xy = cells.reshape(-1, 2).astype(float)
     # On a large image they search a half-size copy (each halving cuts their time by about 4; a 1280 x 960 frame
-    # took them 4.5 s per channel without a board, and boards of squares under 12 px are our lattices' anyway);
+    # took them 2-4 s per channel without a board, and boards of squares under 12 px are our lattices' anyway);
     # the corners are refined at full size. The classic detector's fast check refuses an image without a board.
     small, scale = img, 1
     while small.shape[1] > OPENCV_MAX_WIDTH_PX:
