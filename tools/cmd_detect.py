@@ -139,6 +139,8 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     from solver.fileio import read_bytes
 
     file = Path(path)
+    if not file.exists():
+        raise DataError(path, "no such file")
     data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
     if file.suffix.lower() in RAW_SUFFIXES:
         for width, height in [raw_size] if raw_size else YUYV_SIZES:
