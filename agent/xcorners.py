@@ -358,9 +358,11 @@ def square_stats_at(channel: np.ndarray, H: np.ndarray, squares: np.ndarray, sam
 
 def alternation(img: np.ndarray, cells: np.ndarray, points: np.ndarray):
     """Whether the squares touching a lattice's corners (cells (k, 2) -> points (k, 2)) alternate like a
-    checkerboard's in both directions: every square between four found corners on its colour's side of the
-    middle, three quarters of those touching the lattice at all, and the two colours at least MIN_CONTRAST and
-    MIN_SQUARE_CNR times the spread within a square apart. Stripes (which alternate in one direction only),
+    checkerboard's in both directions: every square between four found corners on its colour's side of each of
+    its neighbours in view (brighter than all, or darker than all: a shadow across the board darkens a white
+    square below a black one in the light, never below its own dark neighbours; one threshold for the whole board
+    refused such boards), three quarters of those touching the lattice at all, and the two colours at least
+    MIN_CONTRAST and MIN_SQUARE_CNR times the spread within a square apart. Stripes (which alternate in one direction only),
     texture and noise fail. Returns (ok, signed contrast of the squares of even
     lattice parity over the others, their noise: the median spread within a square)."""
     H = quick_homography(cells, points)
@@ -377,7 +379,16 @@ def alternation(img: np.ndarray, cells: np.ndarray, points: np.ndarray):
         return False, 0.0, np.inf
     mean_even, mean_odd = values[even & seen].mean(), values[~even & seen].mean()
     contrast = float(mean_even - mean_odd)
-    agree = np.sign(values - 0.5 * (mean_even + mean_odd)) == np.where(even, 1, -1) * np.sign(contrast)
+    expected = np.where(even, 1, -1) * np.sign(contrast)
+    agree = np.sign(values - 0.5 * (mean_even + mean_odd)) == expected  # a square without neighbours in view
+    index = {square: i for i, square in enumerate(squares)}
+    for i, (x, y) in enumerate(squares):
+        if not seen[i]:
+            continue
+        around = [index.get(n) for n in ((x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1))]
+        around = [j for j in around if j is not None and seen[j]]
+        if around:
+            agree[i] = bool(np.all(np.sign(values[i] - values[around]) == expected[i]))
     noise = float(np.median(spread[seen]))
     ok = (abs(contrast) >= max(MIN_CONTRAST, MIN_SQUARE_CNR * noise) and agree[inner & seen].all()
           and agree[seen].mean() >= 0.75 and (inner & seen).sum() >= 1)

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from agent.board_detect import image_order
 from conftest import ROOT
 from tests.synthetic_boards import board_homography, render
 from tools.cli import main
@@ -22,7 +23,8 @@ def test_json_for_the_six_real_images(capsys):
     out = capsys.readouterr()
     report = json.loads(out.out)
     assert out.err == ""
-    assert report["board"] == {"columns": 4, "rows": 4}
+    assert report["schema"] == "naocal.detect/1"
+    assert report["board"] == {"columns": 4, "rows": 4, "inner_corners": [3, 3]}
     assert [r["path"] for r in report["images"]] == REAL
     for r in report["images"]:
         assert r["found"] is True and r["reason"] is None and r["channel"] in ("cr", "cb")
@@ -44,8 +46,9 @@ def test_plain_lines_and_exit_code_one_naming_the_images_without_a_board(tmp_pat
     lines = out.out.splitlines()
     assert len(lines) == 2
     assert lines[0].startswith(f"{REAL[0]}: found 9 corners (3 rows of 3) in c") and "line fit" in lines[0]
-    assert lines[1].startswith(f"{blank}: not found (missing)")
-    assert out.err.strip() == f"naocal detect: no 4 x 4 board found in 1 of 2 images: {blank}"
+    assert lines[1].startswith(f"{blank}: not found (missing): no 4x4-square board (3x3 inner corners)")
+    assert out.err.strip() == (f"naocal detect: no 4x4-square board (3x3 inner corners) found in 1 of 2 images: "
+                               f"{blank}")
 
 
 def test_default_board_is_the_sandal_and_other_sizes(tmp_path, capsys):
@@ -154,3 +157,57 @@ def test_two_boards_in_view_report_the_largest(tmp_path, capsys):
     assert main(["detect", str(path), "--json"]) == 0
     corners = np.array(json.loads(capsys.readouterr().out)["images"][0]["corners_px"])
     assert corners[..., 0].min() > 300  # the right-hand, larger board
+
+
+def test_ppm_pgm_and_raw_yuyv_of_a_size_given_by_size(tmp_path, capsys):
+    """PPM and PGM (netpbm) read; a raw YUYV frame of a size not among the NAO's is read with --size WxH."""
+    scene = render(7, 5, board_homography(7, 5, size=(400, 300), square_px=30.0, tilt_x=0.3), size=(400, 300),
+                   margin_squares=0.5)
+    ppm, pgm, raw = tmp_path / "board.ppm", tmp_path / "board.pgm", tmp_path / "frame.raw"
+    cv2.imwrite(str(ppm), scene.image)
+    cv2.imwrite(str(pgm), cv2.cvtColor(scene.image, cv2.COLOR_BGR2GRAY))
+    from tests.stress_boards import to_yuyv
+    raw.write_bytes(to_yuyv(scene.image).tobytes())
+    assert main(["detect", str(ppm), str(pgm), str(raw), "--size", "400x300", "--json"]) == 0
+    images = json.loads(capsys.readouterr().out)["images"]
+    for r in images:
+        assert r["found"] and (r["width_px"], r["height_px"]) == (400, 300)
+        corners = np.array(r["corners_px"])
+        assert np.abs(image_order(scene.corners_px, (4, 6)) - corners).max() < 0.3
+    # Without --size the length fits none of the NAO's sizes; with a wrong one it does not fit either.
+    for extra, message in (([], "or give --size WxH"), (["--size", "320x240"], "--size 320x240 needs 153600")):
+        assert main(["detect", str(raw), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"naocal detect: error: {raw}: ") and message in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("size", ["640", "641x480", "0x10", "axb"])
+def test_a_bad_size_is_one_line_and_exit_two(size, capsys):
+    assert main(["detect", REAL[0], "--size", size]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.startswith("naocal detect: error: --size") and len(out.err.splitlines()) == 1
+
+
+def test_a_directory_or_fifo_as_an_image_is_one_line_naming_it(tmp_path, capsys):
+    import os
+
+    fifo = tmp_path / "pipe.png"
+    os.mkfifo(fifo)  # read, it would block for ever
+    for bad in (tmp_path, fifo):
+        assert main(["detect", str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"naocal detect: error: {bad}: ") and len(err.splitlines()) == 1
+
+
+def test_the_inner_corner_count_passed_as_board_is_named(tmp_path, capsys):
+    """OpenCV counts inner corners: --board 6x4 for the 7 x 5 sandal finds no board of 6 x 4 squares; the line
+    says what was tried and that a 7x5-square board is there."""
+    scene = render(7, 5, board_homography(7, 5, square_px=40.0, tilt_x=0.3, turn=0.2), margin_squares=0.5)
+    path = tmp_path / "sandal.png"
+    cv2.imwrite(str(path), scene.image)
+    assert main(["detect", str(path), "--board", "6x4"]) == 1
+    out = capsys.readouterr()
+    assert "no 6x4-square board (5x3 inner corners)" in out.out
+    assert "a 7x5-square board (6x4 inner corners) is there: --board counts squares, not inner corners" in out.out
+    assert main(["detect", str(path), "--board", "7x5"]) == 0
+    capsys.readouterr()

@@ -1,17 +1,22 @@
 """`naocal detect IMAGE...`: find a checkerboard's inner corners in images, to check a board and a camera.
 
-    naocal detect IMAGE... [--board COLSxROWS] [--channel auto|grey|cr|cb] [--json] [--overlay OUT]
+    naocal detect IMAGE... [--board WxH] [--size WxH] [--channel auto|grey|cr|cb] [--json] [--overlay OUT]
 
---board counts squares (default 7x5, the NAO sandal): a 7 x 5 board has 6 x 4 inner corners, a 4 x 4 board 3 x 3.
+--board WxH counts squares, not inner corners (default 7x5, the NAO sandal): a board of W x H squares has
+(W-1) x (H-1) inner corners (7x5: 6 x 4; 9x6: 8 x 5; 4x4: 3 x 3). OpenCV's patternSize counts inner corners:
+--board is that plus one each way. When no board of the size is found but one of a square more each way is
+there (the inner-corner count passed), the line says so.
+
 The board may be of any two colours, either polarity, in grey or in colour: --channel auto tries grey (black and
 white) and the chroma channels Cr and Cb of YCrCb (colours of similar brightness, e.g. an orange/blue board on
 green carpet) and keeps the detection whose squares differ most for their noise.
 
-Images: PNG, JPEG, BMP (anything OpenCV reads), colour or grey, 8 or 16 bit, any size; and raw YUYV (YUV 4:2:2,
-the NAO camera's format) named *.yuv or *.yuyv, at 160x120, 320x240, 640x480 or 1280x960 (told by the file's
-size). Pixel (0, 0) is the centre of the top-left pixel (OpenCV's).
+Images: PNG, JPEG, BMP, PPM, PGM (anything OpenCV reads), colour or grey, 8 or 16 bit, any size; and raw YUYV
+frames (YUV 4:2:2, the NAO camera's V4L2 format: Y0 U Y1 V per pair of pixels, 2 bytes per pixel, no header)
+named *.yuv, *.yuyv or *.raw: --size WxH gives their size, else it is told by the file's length among 160x120,
+320x240, 640x480 and 1280x960. Pixel (0, 0) is the centre of the top-left pixel (OpenCV's).
 
-Corner order (plain and --json): row by row, each row holding COLS - 1 corners. Of the grid's labellings (turns
+Corner order (plain and --json): row by row, each row holding W - 1 corners. Of the grid's labellings (turns
 and mirror images) the one whose rows run most nearly left to right and follow each other most nearly downwards:
 for a board seen roughly upright, row 0 is the row nearest the top of the image and each row runs left to right.
 That is an order in the image, not on the board: a board that looks the same turned (7 x 5, 4 x 4) cannot show
@@ -20,8 +25,16 @@ the largest in the image is reported and the detail says how many there are.
 
 Output: one line per image (found or not, with the reason; the corner count; the refinement quality: how far the
 corners lie from straight lines through each row and column, RMS, and the edge width); --json prints one
-document {"board": {"columns", "rows"}, "images": [{"path", "found", "reason", "detail", "width_px",
-"height_px", "channel", "line_rms_px", "edge_width_px", "corners_px": [[[u, v], ...], ...] or null}]}.
+document (schema naocal.detect/1):
+  {"schema": "naocal.detect/1",
+   "board": {"columns": W, "rows": H, "inner_corners": [W-1, H-1]},    squares, and inner corners per row, column
+   "images": [{"path": str, "found": bool,
+               "reason": null | "missing" | "cut_off" | "blurred",       why not found (null when found)
+               "detail": str,                                            what was found, in words
+               "width_px": int, "height_px": int,
+               "channel": null | "grey" | "cr" | "cb",                   where the corners were found
+               "line_rms_px": float | null, "edge_width_px": float | null,
+               "corners_px": [[[u, v], ... W-1 per row], ... H-1 rows] | null}]}   in the corner order above
 --overlay OUT draws each image's corners with their order (row 0 in red, index labels, corner 0 circled): OUT is
 a file (.png, .jpg) for one image, or a directory (one IMAGE.corners.png per image); images narrower than 640 px
 are drawn enlarged.
@@ -33,7 +46,7 @@ input (an unreadable image, a bad --board) - then nothing is detected.
 import argparse
 
 YUYV_SIZES = ((160, 120), (320, 240), (640, 480), (1280, 960))
-RAW_SUFFIXES = (".yuv", ".yuyv")
+RAW_SUFFIXES = (".yuv", ".yuyv", ".raw")
 OVERLAY_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 
@@ -41,9 +54,13 @@ def register(subparsers):
     p = subparsers.add_parser(
         "detect", help="find a checkerboard's inner corners in images (any board size, colours, polarity)",
         description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("images", nargs="+", metavar="IMAGE", help="image files (PNG, JPEG, BMP, raw YUYV *.yuv)")
-    p.add_argument("--board", default="7x5", metavar="COLSxROWS",
-                   help="squares along a row and along a column (default 7x5, the sandal)")
+    p.add_argument("images", nargs="+", metavar="IMAGE",
+                   help="image files (PNG, JPEG, BMP, PPM, PGM; raw YUYV frames *.yuv, *.yuyv, *.raw)")
+    p.add_argument("--board", default="7x5", metavar="WxH",
+                   help="the board in squares, not inner corners: W x H squares have (W-1) x (H-1) inner corners "
+                        "(default 7x5, the sandal: 6 x 4 inner corners)")
+    p.add_argument("--size", metavar="WxH", help="the pixel size of raw YUYV frames (default: told by the file's "
+                                                 "length among 160x120, 320x240, 640x480, 1280x960)")
     p.add_argument("--channel", default="auto", choices=("auto", "grey", "cr", "cb"),
                    help="image channel to search (default auto: those that separate the squares, the best kept)")
     p.add_argument("--json", action="store_true", help="print one JSON document instead of lines")
@@ -62,14 +79,15 @@ def run(args) -> int:
         board = parse_board(args.board)
     except ValueError as err:
         raise NaocalError(f"--board: {err}") from None
+    raw_size = parse_size(args.size) if args.size else None
     overlay = _overlay_paths(args.overlay, args.images) if args.overlay else None
     for path in args.images:  # every image checked first (and let go: memory): bad input detects nothing
-        if read_image(path).ndim == 2 and args.channel in ("cr", "cb"):
+        if read_image(path, raw_size).ndim == 2 and args.channel in ("cr", "cb"):
             raise DataError(path, f"a grey image has no {args.channel} channel (use --channel auto or grey)")
 
     reports, missing = [], []
     for path in args.images:
-        image = read_image(path)
+        image = read_image(path, raw_size)
         report = detect_one(path, image, board, args.channel)
         reports.append(report)
         if not report["found"]:
@@ -77,39 +95,68 @@ def run(args) -> int:
         if overlay:
             _write_overlay(overlay[path], image, report)
         if not args.json:
-            print(_line(report), flush=True)
+            print(_line(report, board), flush=True)
     if args.json:
-        print(json.dumps({"board": {"columns": board.columns, "rows": board.rows}, "images": reports}))
+        print(json.dumps({"schema": "naocal.detect/1", "board": {"columns": board.columns, "rows": board.rows,
+                                                                 "inner_corners": list(board.shape[::-1])},
+                          "images": reports}))
     if missing:
-        print(f"naocal detect: no {board} board found in {len(missing)} of {len(args.images)} images: "
+        print(f"naocal detect: no {board_words(board)} found in {len(missing)} of {len(args.images)} images: "
               + ", ".join(missing), file=sys.stderr)
         return 1
     return 0
 
 
-def read_image(path: str):
-    """An 8-bit (h, w, 3) BGR or (h, w) grey image from a file; DataError naming the file when it cannot be."""
+def board_words(board) -> str:
+    """'7x5-square board (6x4 inner corners)': both counts, since OpenCV's users count inner corners."""
+    rows, columns = board.shape
+    return f"{board.columns}x{board.rows}-square board ({columns}x{rows} inner corners)"
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """--size 'WxH' -> (width, height) of a raw YUYV frame; NaocalError when malformed."""
+    from solver.errors import NaocalError
+
+    parts = text.lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        raise NaocalError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
+    width, height = (int(p) for p in parts)
+    if not (2 <= width <= 8192 and 2 <= height <= 8192) or width % 2:
+        raise NaocalError(f"--size {text!r}: expected an even width of 2-8192 px and a height of 2-8192 px "
+                          "(YUYV holds pixels in pairs)")
+    return width, height
+
+
+def read_image(path: str, raw_size: tuple[int, int] | None = None):
+    """An 8-bit (h, w, 3) BGR or (h, w) grey image from a file (raw YUYV of `raw_size` (w, h), else told by its
+    length); DataError naming the file when it cannot be."""
     from pathlib import Path
 
     import cv2
     import numpy as np
 
     from solver.errors import DataError
+    from solver.fileio import read_bytes
 
     file = Path(path)
-    if not file.is_file():
+    if not file.exists():
         raise DataError(path, "no such file")
+    data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
     if file.suffix.lower() in RAW_SUFFIXES:
-        data = file.read_bytes()
-        for width, height in YUYV_SIZES:
+        for width, height in [raw_size] if raw_size else YUYV_SIZES:
             if len(data) == 2 * width * height:
                 yuyv = np.frombuffer(data, np.uint8).reshape(height, width, 2)
                 return cv2.cvtColor(yuyv, cv2.COLOR_YUV2BGR_YUYV)
+        if raw_size:
+            raise DataError(path, f"raw YUYV of {len(data)} bytes: --size {raw_size[0]}x{raw_size[1]} needs "
+                                  f"{2 * raw_size[0] * raw_size[1]} (2 bytes per pixel)")
         sizes = ", ".join(f"{w}x{h}" for w, h in YUYV_SIZES)
-        raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes}")
-    image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+        raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes} "
+                              "(or give --size WxH)")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
     if image is None or image.size == 0:
-        raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, ...; raw YUYV as *.yuv)")
+        raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, PPM, PGM; raw YUYV as *.yuv, *.yuyv, "
+                              "*.raw)")
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
@@ -127,17 +174,25 @@ def detect_one(path: str, image, board, channel: str) -> dict:
     """One image's JSON report (module docstring)."""
     import numpy as np
 
-    from agent.board_detect import detect_board
+    from agent.board_detect import BoardSpec, detect_board
 
     found = detect_board(image, board, channel=channel)
     corners = found.image_order_px
     located = corners is not None and found.reason in (None, "ambiguous")
     rows, columns = board.shape
+    detail = found.detail
+    if not located and found.reason == "missing" and max(board.columns, board.rows) < 40:
+        # --board given as OpenCV's inner-corner count? Then the board one square larger each way is there.
+        larger = BoardSpec(board.columns + 1, board.rows + 1)
+        bigger = detect_board(image, larger, channel=channel)
+        if bigger.image_order_px is not None and bigger.reason in (None, "ambiguous"):
+            detail += (f"; a {board_words(larger)} is there: --board counts squares, not inner corners "
+                       f"(--board {larger.columns}x{larger.rows})")
     return {
         "path": path,
         "found": bool(located),
         "reason": None if located else found.reason,
-        "detail": found.detail,
+        "detail": detail,
         "width_px": int(image.shape[1]),
         "height_px": int(image.shape[0]),
         "channel": found.channel or None,
@@ -153,9 +208,9 @@ def _number(value: float):
     return None if value is None or not math.isfinite(value) else round(float(value), 3)
 
 
-def _line(report: dict) -> str:
+def _line(report: dict, board) -> str:
     if not report["found"]:
-        return f"{report['path']}: not found ({report['reason']}): {report['detail']}"
+        return f"{report['path']}: not found ({report['reason']}): no {board_words(board)}: {report['detail']}"
     rows, columns = len(report["corners_px"]), len(report["corners_px"][0])
     text = (f"{report['path']}: found {rows * columns} corners ({rows} rows of {columns}) in {report['channel']}, "
             f"line fit {report['line_rms_px']:.2f} px RMS, edges {report['edge_width_px']:.1f} px wide")
