@@ -6,6 +6,9 @@ What the data decide here, rather than an assumption:
   command) is fitted and the one that explains the images best is used; every hypothesis's RMS is reported;
 - which corners are mis-detections: a corner that no rigid motion of its board explains, far beyond the robust
   (MAD) scale of the others, is set aside and reported by image and vertex with its size;
+- which images are no view of their board at all: before fitting, an image whose corners no homography of its flat
+  board explains (solver.image_check) is set aside whole; after the corner trimming, so is an image that lost more
+  than a third of its corners (the trimming then starts again without it); each is reported with its reason;
 - how precisely the offsets are known: the readings' quantisation joins the standard deviations (solver.identify).
 The robot description's shared motors (the NAO's HipYawPitch pair) take one offset. Captures taken while the
 joints move are fitted only when the model has an effect for them (time_lag); otherwise their angles are off by
@@ -21,6 +24,8 @@ import numpy as np
 from solver.adapter import model_data_from_dataset
 from solver.effects import EFFECTS
 from solver.identify import IdentificationResult, identify
+from solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
+                                 without_images)
 from solver.model import ModelData
 from solver.quantisation import reading_resolution
 from solver.registry import Registry
@@ -36,6 +41,9 @@ ANGLE_MARGIN = 0.01
 OUTLIER_SCALES = 5.0
 OUTLIER_MIN_PX = 1.0
 MAX_TRIM_ROUNDS = 10
+# After the trimming, images that lost too many corners are set aside and the trimming starts again (at most this
+# many times: each time removes at least one image).
+MAX_IMAGE_ROUNDS = 3
 # GLS trusts the board's shape to this noise at least (the realistic mock's detections: 0.028 px robust scale).
 GLS_MIN_SIGMA_PX = 0.02
 MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
@@ -68,6 +76,8 @@ class DatasetFit:
     robust_scale_px: float = float("nan")  # MAD scale of the non-rigid residual (outliers cannot inflate it)
     n_moving_set_aside: int = 0
     gls: bool = False  # refined by generalised least squares (solver.gls), intrinsics free
+    images_set_aside: list = field(default_factory=list)  # [solver.image_check.SetAsideImage], whole images
+    image_check: ImageCheck | None = None  # the check before the fit (None: not robust)
 
     def describe_angles(self) -> str:
         step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
@@ -92,6 +102,10 @@ class DatasetFit:
                 f"board motion, so no physical effect, explains them; beyond {OUTLIER_SCALES:g} x the robust scale "
                 f"{self.robust_scale_px:.3f} px): {listed}" + (" ..." if len(self.outliers) > count else ""))
 
+    def describe_images(self) -> str:
+        """One line naming the whole images set aside ('' when none was)."""
+        return describe_set_aside(self.images_set_aside)
+
     def as_dict(self) -> dict:
         return {
             "angles": {"chosen": self.angles, "description": self.describe_angles(),
@@ -100,6 +114,7 @@ class DatasetFit:
                                       for h in self.hypotheses]},
             "robust_scale_px": self.robust_scale_px,
             "outliers": [{"image": o.image, "vertex": o.vertex, "size_px": o.size_px} for o in self.outliers],
+            "images_set_aside": [s.as_dict() for s in self.images_set_aside],
             "moving_captures_set_aside": self.n_moving_set_aside,
             "generalised_least_squares": self.gls,
         }
@@ -125,26 +140,30 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     modes = ANGLE_HYPOTHESES if angles == "auto" else (angles,)
     if angles != "auto" and angles not in ANGLE_HYPOTHESES:
         raise ValueError(f"unknown angle choice {angles!r}: expected auto or one of {', '.join(ANGLE_HYPOTHESES)}")
-    fits, seen = {}, []
+    fits, seen, check = {}, [], None
     for mode in modes:
         data = model_data_from_dataset(dataset, angles=mode)
         if any(np.array_equal(data.theta, other) for other in seen):
             continue  # the same angles as a hypothesis already fitted (unquantised readings: cell = measured)
         seen.append(data.theta)
+        if robust:  # whole images no view of a flat board explains: the pixels decide, whatever the angles
+            check = check or check_images(data)
+            data = without_images(data, {s.image for s in check.set_aside}, check)
         data, n_moving = _moving_handled(data, effects, moving)
         registry = Registry(effects, setup=setup or data.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
         options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
         fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)
     chosen = _choose(fits)
-    data, result, outliers, scale, n_moving, step = fits[chosen]
-    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
-    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], flagged), len(f[2])) for mode, f in fits.items()]
+    data, result, outliers, scale, dropped, n_moving, step = fits[chosen]
+    flagged = _flagged(fits)
+    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], *flagged), len(f[2])) for mode, f in fits.items()]
     use_gls = gls and chosen == "measured" and bool(np.any(step > 0))
     if use_gls:
         result = _gls_refined(data, result, step, scale, fixed, tie_shared_motors, solver)
+    images = (check.set_aside if check else []) + dropped
     return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving,
-                      use_gls)
+                      use_gls, images, check)
 
 
 def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shared_motors, solver):
@@ -183,14 +202,46 @@ def _reading_step(dataset, data: ModelData) -> np.ndarray:
 
 
 def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict):
-    """(data, result, outliers, robust scale): fit, set aside the corners only a mis-detection explains, refit."""
+    """(data, result, outliers, robust scale, images set aside): fit, set aside the corners only a mis-detection
+    explains, refit; an image that lost more than a third of its corners is set aside whole and the trimming starts
+    again without it (its wrong corners dragged the fit, so the corners trimmed elsewhere may have been good)."""
+    dropped = []
+    result = identify(data, registry, reading_step_rad=step, **options)
+    for _ in range(MAX_IMAGE_ROUNDS if robust else 0):
+        trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
+        ids, n_corners = np.unique(data.image_id[data.image_of_row], return_counts=True)
+        lost = np.array([sum(o.image == i for o in outliers) for i in ids])
+        too_many = lost_too_many(n_corners, lost)
+        if not too_many.any():
+            return trimmed.model.data, trimmed, outliers, scale, dropped
+        dropped += [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections", _rms_of(trimmed, data, i),
+                                  int(n)) for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
+        data = without_images(data, set(ids[too_many].tolist()))
+        result = identify(data, registry, x0=trimmed.values, reading_step_rad=step, **options)
+    if not robust:
+        return data, result, [], float("nan"), dropped
+    trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
+    return trimmed.model.data, trimmed, outliers, scale, dropped
+
+
+def _rms_of(result, data: ModelData, image_id) -> float:
+    """RMS (both coordinates) of one image's corners, all of them, at `result`'s values."""
+    from solver.model import Model
+
+    m = int(np.flatnonzero(data.image_id == image_id)[0])
+    r = Model(data.subset([m]), result.registry).residuals(result.values)
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def _trimmed(data: ModelData, result, registry: Registry, step, options: dict):
+    """(result, outliers, robust scale): from a fit of `data`, set aside the worst corner of each image while it is
+    beyond the robust scale (MAX_TRIM_ROUNDS rounds at most), refitting after each round."""
     from solver.model import Model
     from solver.noisefloor import RigidSplit
 
     first_data = data
-    result = identify(data, registry, reading_step_rad=step, **options)
     outliers, scale = [], float("nan")
-    for _ in range(MAX_TRIM_ROUNDS if robust else 0):
+    for _ in range(MAX_TRIM_ROUNDS):
         nonrigid = RigidSplit(result.model, result.values)(result.residuals_px)[1]
         scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
         size = np.linalg.norm(nonrigid, axis=1)
@@ -211,22 +262,30 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
                for i, (m, v) in enumerate(zip(first_data.image_of_row, first_data.vertex))}
         for o in outliers:
             o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
-    return result.model.data, result, outliers, scale
+    return result, outliers, scale
 
 
-def _rms_without(result, flagged) -> float:
-    """RMS over both coordinates of a hypothesis's fit, on the corners no hypothesis flagged (a fair comparison)."""
+def _flagged(fits) -> tuple[set, set]:
+    """The corners (image, vertex) and the whole images any hypothesis set aside."""
+    return ({(o.image, o.vertex) for f in fits.values() for o in f[2]},
+            {s.image for f in fits.values() for s in f[4]})
+
+
+def _rms_without(result, flagged, images=frozenset()) -> float:
+    """RMS over both coordinates of a hypothesis's fit, on the corners no hypothesis flagged and outside the images
+    any set aside (a fair comparison)."""
     d = result.model.data
-    keep = np.array([(int(d.image_id[m]), int(v)) not in flagged for m, v in zip(d.image_of_row, d.vertex)])
+    keep = np.array([(int(d.image_id[m]), int(v)) not in flagged and int(d.image_id[m]) not in images
+                     for m, v in zip(d.image_of_row, d.vertex)], dtype=bool)
     r = result.residuals_px[keep]
     return float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan")
 
 
 def _choose(fits) -> str:
-    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
+    flagged = _flagged(fits)
     best = None
     for mode, f in fits.items():  # ANGLE_HYPOTHESES order: a later one must be clearly better
-        rms = _rms_without(f[1], flagged)
+        rms = _rms_without(f[1], *flagged)
         if best is None or rms < best[1] * (1.0 - ANGLE_MARGIN):
             best = (mode, rms)
     return best[0]

@@ -119,6 +119,8 @@ def run(args) -> int:
     else:
         print(fit.describe_angles())
         print(fit.describe_outliers())
+        if fit.images_set_aside:
+            print(fit.describe_images())
         if fit.n_moving_set_aside:
             print(f"{fit.n_moving_set_aside} captures taken while moving set aside (only --effects time_lag models "
                   "them)")
