@@ -44,6 +44,14 @@ MAX_TRIM_ROUNDS = 10
 # After the trimming, images that lost too many corners are set aside and the trimming starts again (at most this
 # many times: each time removes at least one image).
 MAX_IMAGE_ROUNDS = 3
+# A still image the fit leaves far beyond all others is a flat board's view in the wrong place (the other sandal, a
+# lattice shifted by a square, a reflection), which the homography check cannot see: its RMS beyond the images'
+# median RMS by IMAGE_SCALES robust (MAD) scales of the images' RMS, and beyond IMAGE_MIN_PX. Measured (base fits,
+# tests/loop_cases.py seed 1): unmodelled elasticity, backlash, three effects, an axis tilt leave their worst image
+# 2.4-6.2 scales above the median, the realistic mock 4.0; one image shifted by 10, 30 or 80 px: 28, 20, 14.
+IMAGE_SCALES = 10.0
+IMAGE_MIN_PX = 1.0
+MIN_IMAGES_FOR_SCALE = 8
 # GLS trusts the board's shape to this noise at least (the realistic mock's detections: 0.028 px robust scale).
 GLS_MIN_SIGMA_PX = 0.02
 MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
@@ -126,7 +134,8 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     """Fit the base model plus `effects` to a read dataset (solver.dataset.Dataset): the routine every caller uses.
 
     angles : 'auto' (every hypothesis of ANGLE_HYPOTHESES is fitted, the best fit chosen) or one of them.
-    robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale.
+    robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale, and whole
+        images no view of their flat board explains or that lost over a third of their corners (solver.image_check).
     moving : 'auto' (captures taken while moving are fitted only if an effect models them), 'all' or 'still'.
     solver, loss, loss_scale_px : as solver.identify.identify's.
     setup : the cameras and targets to parametrise (default: the data's); a target without captures keeps its
@@ -153,7 +162,7 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
         registry = Registry(effects, setup=setup or data.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
         options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
-        fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)
+        fits[mode] = _robust_fit(data, registry, step, robust, options, check and check.rms_px) + (n_moving, step)
     chosen = _choose(fits)
     data, result, outliers, scale, dropped, n_moving, step = fits[chosen]
     flagged = _flagged(fits)
@@ -201,11 +210,12 @@ def _reading_step(dataset, data: ModelData) -> np.ndarray:
     return reading_resolution(readings)
 
 
-def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict):
+def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict, homography_rms=None):
     """(data, result, outliers, robust scale, images set aside): fit, set aside the corners only a mis-detection
     explains, refit; an image that lost more than a third of its corners is set aside whole and the trimming starts
-    again without it (its wrong corners dragged the fit, so the corners trimmed elsewhere may have been good)."""
-    dropped = []
+    again without it (its wrong corners dragged the fit, so the corners trimmed elsewhere may have been good).
+    homography_rms : {image id: its homography RMS} (solver.image_check), for the report."""
+    dropped, homography_rms = [], homography_rms or {}
     result = identify(data, registry, reading_step_rad=step, **options)
     for _ in range(MAX_IMAGE_ROUNDS if robust else 0):
         trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
@@ -213,15 +223,44 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
         lost = np.array([sum(o.image == i for o in outliers) for i in ids])
         too_many = lost_too_many(n_corners, lost)
         if not too_many.any():
-            return trimmed.model.data, trimmed, outliers, scale, dropped
-        dropped += [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections", _rms_of(trimmed, data, i),
-                                  int(n)) for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
+            far = _far_image(trimmed)
+            if far is None:
+                return trimmed.model.data, trimmed, outliers, scale, dropped
+            image, rms, z = far
+            n = int(n_corners[ids == image][0])
+            dropped.append(SetAsideImage(image, f"its board fits {z:.0f} robust scales worse than the other images' "
+                                                "(another board, a shifted lattice or a reflection)",
+                                         homography_rms.get(image, float("nan")), n, rms))
+            data = without_images(data, {image})
+            result = identify(data, registry, x0=trimmed.values, reading_step_rad=step, **options)
+            continue
+        dropped += [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections",
+                                  homography_rms.get(int(i), float("nan")), int(n), _rms_of(trimmed, data, i))
+                    for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
         data = without_images(data, set(ids[too_many].tolist()))
         result = identify(data, registry, x0=trimmed.values, reading_step_rad=step, **options)
     if not robust:
         return data, result, [], float("nan"), dropped
     trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
     return trimmed.model.data, trimmed, outliers, scale, dropped
+
+
+def _far_image(result):
+    """(image id, RMS px, scales) of the still image the fit leaves farthest beyond all others, if it is beyond
+    IMAGE_SCALES robust scales and IMAGE_MIN_PX (else None)."""
+    d, r = result.model.data, result.residuals_px
+    rms = np.sqrt(np.bincount(d.image_of_row, (r ** 2).sum(axis=1), d.n_images)
+                  / np.maximum(2 * np.bincount(d.image_of_row, minlength=d.n_images), 1))
+    still = np.ones(d.n_images, bool) if d.velocity is None else np.all(d.velocity == 0.0, axis=1)
+    if still.sum() < MIN_IMAGES_FOR_SCALE:
+        return None
+    median = float(np.median(rms[still]))
+    scale = MAD_TO_SIGMA * float(np.median(np.abs(rms[still] - median)))
+    worst = int(np.flatnonzero(still)[np.argmax(rms[still])])
+    z = (rms[worst] - median) / scale if scale > 0 else np.inf
+    if rms[worst] > IMAGE_MIN_PX and z > IMAGE_SCALES:
+        return int(d.image_id[worst]), float(rms[worst]), float(z)
+    return None
 
 
 def _rms_of(result, data: ModelData, image_id) -> float:

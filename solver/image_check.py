@@ -53,15 +53,17 @@ class SetAsideImage:
     reason: str  # why, in words (one phrase)
     rms_px: float  # RMS (both coordinates) of its corners about its board's best homography (nan: none fits)
     n_corners: int
+    fit_rms_px: float = float("nan")  # RMS of all its corners at the fit that set it aside (nan: before any fit)
 
     def describe(self) -> str:
         rms = f"homography RMS {self.rms_px:.1f} px" if np.isfinite(self.rms_px) else "no homography"
-        return f"image {self.image} ({self.reason}; {rms})"
+        fit = f", fit RMS {self.fit_rms_px:.1f} px" if np.isfinite(self.fit_rms_px) else ""
+        return f"image {self.image} ({self.reason}; {rms}{fit})"
 
     def as_dict(self) -> dict:
-        return {"image": self.image, "reason": self.reason,
-                "homography_rms_px": float(self.rms_px) if np.isfinite(self.rms_px) else None,
-                "n_corners": self.n_corners}
+        finite = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+        return {"image": self.image, "reason": self.reason, "homography_rms_px": finite(self.rms_px),
+                "fit_rms_px": finite(self.fit_rms_px), "n_corners": self.n_corners}
 
 
 @dataclass
@@ -138,8 +140,8 @@ def describe_set_aside(images, count: int = 8) -> str:
     if not images:
         return ""
     listed = "; ".join(s.describe() for s in images[:count])
-    return (f"images set aside whole: {len(images)} (no view of their flat board, or lost more than a third of their "
-            f"corners as mis-detections): {listed}" + (" ..." if len(images) > count else ""))
+    return (f"images set aside whole as mis-detected boards: {len(images)}: {listed}"
+            + (" ..." if len(images) > count else ""))
 
 
 def without_images(data, image_ids, check: ImageCheck | None = None) -> "ModelData":
