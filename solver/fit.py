@@ -220,7 +220,8 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
     for _ in range(MAX_IMAGE_ROUNDS if robust else 0):
         trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
         ids, n_corners = np.unique(data.image_id[data.image_of_row], return_counts=True)
-        lost = np.array([sum(o.image == i for o in outliers) for i in ids])
+        lost = np.bincount(np.searchsorted(ids, np.array([o.image for o in outliers], dtype=np.int64)),
+                           minlength=len(ids))
         too_many = lost_too_many(n_corners, lost)
         if not too_many.any():
             far = _far_image(trimmed)

@@ -78,7 +78,8 @@ class ImageCheck:
 
 
 def check_images(data) -> ImageCheck:
-    """Check each image of `data` (solver.model.ModelData) against the view of a flat board; see the module."""
+    """Check each image of `data` (solver.model.ModelData) against the view of a flat board; see the module.
+    Vectorised over the images of each corner count (3456 corners: a few ms)."""
     from solver.camera import undistort_points
 
     M = data.n_images
@@ -88,50 +89,47 @@ def check_images(data) -> ImageCheck:
         uv[rows] = undistort_points(data.uv_px[rows], data.cameras[name])
     board = _board_coordinates(data)
     order = np.argsort(data.image_of_row, kind="stable")
-    starts = np.searchsorted(data.image_of_row[order], np.arange(M + 1))
-    rows_of = [order[starts[m]:starts[m + 1]] for m in range(M)]
+    counts = np.bincount(data.image_of_row, minlength=M)
+    starts = np.concatenate([[0], np.cumsum(counts)])
 
-    reasons, fits = {}, {}  # image index -> reason; image index -> (rows, residual distance (n,), H)
-    by_count = {}
-    for m, rows in enumerate(rows_of):
-        n = len(rows)
-        if n < MIN_CORNERS or not np.all(np.isfinite(board[rows])):
-            continue  # too few corners to tell, or off the board's plane: not checked
-        if _spread(board[rows])[1] < MIN_BOARD_SPREAD_M:
-            continue  # one line of the board: any line of pixels is a view of it
-        if _spread(uv[rows])[1] < MIN_SPREAD_PX:  # (still fitted, for its RMS)
-            reasons[m] = "its corners lie on a line or a point, its board's do not"
-        by_count.setdefault(n, []).append(m)
-    for n, images in by_count.items():  # one batched fit per corner count (most images show the whole board)
-        idx = np.array([rows_of[m] for m in images])
-        H = fit_homographies(board[idx], uv[idx])
-        distance = np.linalg.norm(apply_homographies(H, board[idx]) - uv[idx], axis=-1)
-        for k, m in enumerate(images):
-            fits[m] = (idx[k], distance[k], H[k])
+    groups = []  # per corner count n: images (B,), rows (B, n), on a line (B,), distances (B, n), H (B, 3, 3)
+    for n in np.unique(counts[counts >= MIN_CORNERS]):
+        images = np.flatnonzero(counts == n)
+        idx = order[starts[images][:, None] + np.arange(n)]
+        checkable = np.all(np.isfinite(board[idx]), axis=(1, 2))  # off the board's plane: not checked
+        checkable[checkable] = _spread(board[idx[checkable]])[:, 1] >= MIN_BOARD_SPREAD_M  # one line of the board
+        images, idx = images[checkable], idx[checkable]
+        if len(images):
+            on_a_line = _spread(uv[idx])[:, 1] < MIN_SPREAD_PX  # (still fitted, for its RMS)
+            H = fit_homographies(board[idx], uv[idx])
+            distance = np.linalg.norm(apply_homographies(H, board[idx]) - uv[idx], axis=-1)
+            groups.append((images, idx, on_a_line, distance, H))
 
-    components = [d for m, (_, d, _) in fits.items() if m not in reasons]
+    fitting = [d[~line].ravel() for _, _, line, d, _ in groups]
+    fitting = np.concatenate(fitting) if fitting else np.zeros(0)
     # a corner's distance |r| under 2-D Gaussian noise of sigma per coordinate: median sqrt(2 ln 2) sigma
-    scale = (float(np.median(np.concatenate(components))) / RAYLEIGH_MEDIAN if components else float("nan"))
+    scale = float(np.median(fitting)) / RAYLEIGH_MEDIAN if len(fitting) else float("nan")
     threshold = max(HOMOGRAPHY_SCALES * scale, HOMOGRAPHY_MIN_PX) if np.isfinite(scale) else HOMOGRAPHY_MIN_PX
-    rms = {}
-    for m, (rows, distance, H) in fits.items():
-        if m in reasons:
-            rms[m] = float(np.sqrt(np.mean(distance ** 2) / 2.0)) if np.all(np.isfinite(distance)) else float("nan")
-            continue
-        if distance.max() > threshold:  # some corners do not fit: the best homography of the rest
-            H, distance = _robust_homography(board[rows], uv[rows], H, distance)
-        rms[m] = float(np.sqrt(np.mean(distance ** 2) / 2.0))
-        off = int(np.sum(distance > threshold))
-        if off > MAX_LOST_FRACTION * len(rows):
-            reason = (f"no flat board fits it: {off} of {len(rows)} corners beyond {threshold:.1f} px of the best "
-                      "homography")
-        else:
-            reason = _orientation_problem(H, board[rows])
-        if reason:
-            reasons[m] = reason
-    set_aside = [SetAsideImage(int(data.image_id[m]), reasons[m], rms.get(m, float("nan")), len(rows_of[m]))
+    reasons, rms = {}, {}
+    for images, idx, on_a_line, distance, H in groups:
+        n = idx.shape[1]
+        for k in np.flatnonzero(~on_a_line & ~np.all(distance <= threshold, axis=1)):  # the best homography of
+            H[k], distance[k] = _robust_homography(board[idx[k]], uv[idx[k]], H[k], distance[k], threshold)
+        image_rms = np.sqrt(np.mean(distance ** 2, axis=1) / 2.0)
+        off = np.sum(~(distance <= threshold), axis=1)  # (a corner mapped to infinity is off)
+        orientation = _orientation_problems(H, board[idx])
+        for k, m in enumerate(images.tolist()):
+            rms[m] = float(image_rms[k])
+            if on_a_line[k]:
+                reasons[m] = "its corners lie on a line or a point, its board's do not"
+            elif off[k] > MAX_LOST_FRACTION * n:
+                reasons[m] = (f"no flat board fits it: {off[k]} of {n} corners beyond {threshold:.1f} px of the best "
+                              "homography")
+            elif orientation[k]:
+                reasons[m] = orientation[k]
+    set_aside = [SetAsideImage(int(data.image_id[m]), reasons[m], rms.get(m, float("nan")), int(counts[m]))
                  for m in sorted(reasons)]
-    kept = np.array([m for m in range(M) if m not in reasons], dtype=int)
+    kept = np.flatnonzero(~np.isin(np.arange(M), list(reasons)))
     return ImageCheck(kept, set_aside, scale, threshold, {int(data.image_id[m]): r for m, r in rms.items()})
 
 
@@ -144,7 +142,7 @@ def describe_set_aside(images, count: int = 8) -> str:
             + (" ..." if len(images) > count else ""))
 
 
-def without_images(data, image_ids, check: ImageCheck | None = None) -> "ModelData":
+def without_images(data, image_ids, check: ImageCheck | None = None):
     """`data` less the images of the dataset ids `image_ids` (SolveError when none would be left)."""
     if not image_ids:
         return data
@@ -174,9 +172,9 @@ def _board_coordinates(data) -> np.ndarray:
 
 
 def _spread(points) -> np.ndarray:
-    """The RMS spread of points (n, 2) along their two principal directions, largest first."""
-    centred = points - points.mean(axis=0)
-    return np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))
+    """(B, 2) the RMS spread of each set of points (B, n, 2) along its two principal directions, largest first."""
+    centred = points - points.mean(axis=-2, keepdims=True)
+    return np.linalg.svd(centred, compute_uv=False) / np.sqrt(points.shape[-2])
 
 
 def _normaliser(points):
@@ -206,7 +204,9 @@ def fit_homographies(src, dst) -> np.ndarray:
     A[:, 0::2, 6:9] = -b[..., 0:1] * xy1
     A[:, 1::2, 3:6] = xy1
     A[:, 1::2, 6:9] = -b[..., 1:2] * xy1
-    Hn = np.linalg.svd(A)[2][:, -1].reshape(B, 3, 3)
+    # the right singular vector of A's smallest singular value, as the eigenvector of A^T A (9 x 9: batched eigh is
+    # ~10x faster than the SVD of A; the normalisation keeps A^T A well conditioned)
+    Hn = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)[1][:, :, 0].reshape(B, 3, 3)
     return np.linalg.inv(Td) @ Hn @ Ts
 
 
@@ -217,10 +217,17 @@ def apply_homographies(H, points) -> np.ndarray:
         return p[..., :2] / p[..., 2:3]
 
 
-def _robust_homography(src, dst, H, distance):
-    """The least-median-of-squares homography of the corners (OpenCV), when it fits better than least squares."""
+def _robust_homography(src, dst, H, distance, threshold):
+    """The homography of the corners within `threshold` of the least-squares one, refitted; when that still leaves
+    more than MAX_LOST_FRACTION off, the least-median-of-squares one (OpenCV), if it fits better."""
     import cv2
 
+    near = distance <= threshold
+    if near.sum() >= MIN_CORNERS:
+        refit = fit_homographies(src[near][None], dst[near][None])[0]
+        again = np.linalg.norm(apply_homographies(refit, src) - dst, axis=-1)
+        if np.sum(~(again <= threshold)) <= MAX_LOST_FRACTION * len(src):
+            return refit, again
     found, _ = cv2.findHomography(src.astype(np.float64), dst.astype(np.float64), cv2.LMEDS)
     if found is None:
         return H, distance
@@ -230,15 +237,18 @@ def _robust_homography(src, dst, H, distance):
     return found, robust
 
 
-def _orientation_problem(H, board) -> str | None:
-    """Why H is no view of the board's printed face, or None. The map (x, y) -> (u, v) has Jacobian determinant
-    det(H) / w^3 (w the third homogeneous coordinate): w must keep one sign over the board (else the horizon
-    crosses it: folded), and seen from the printed face (+z) with v pointing down the determinant is negative."""
-    if not np.all(np.isfinite(H)):
-        return "its corners fit no homography"
-    w = board @ H[2, :2] + H[2, 2]
-    if not (np.all(w > 0) or np.all(w < 0)):
-        return "its corners fold the board over (no view of a flat board)"
-    if np.linalg.det(H) * np.sign(w[0]) >= 0:
-        return "its corners are mirrored (the board's handedness reversed: a wrong lattice order, or a reflection)"
-    return None
+def _orientation_problems(H, board) -> list:
+    """Per image, why H (B, 3, 3) is no view of the printed face of its board points (B, n, 2), or None. The map
+    (x, y) -> (u, v) has Jacobian determinant det(H) / w^3 (w the third homogeneous coordinate): w must keep one
+    sign over the board (else the horizon crosses it: folded), and seen from the printed face (+z) with v pointing
+    down the determinant is negative."""
+    finite = np.all(np.isfinite(H), axis=(1, 2))
+    Hf = np.where(finite[:, None, None], H, np.eye(3))
+    w = np.einsum("bnk,bk->bn", board, Hf[:, 2, :2]) + Hf[:, 2, 2:3]
+    folded = ~(np.all(w > 0, axis=1) | np.all(w < 0, axis=1))
+    mirrored = np.linalg.det(Hf) * np.sign(w[:, 0]) >= 0
+    return [None if ok and not f and not mi else
+            "its corners fit no homography" if not ok else
+            "its corners fold the board over (no view of a flat board)" if f else
+            "its corners are mirrored (the board's handedness reversed: a wrong lattice order, or a reflection)"
+            for ok, f, mi in zip(finite, folded, mirrored)]
