@@ -212,38 +212,57 @@ def _reading_step(dataset, data: ModelData) -> np.ndarray:
 
 def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict, homography_rms=None):
     """(data, result, outliers, robust scale, images set aside): fit, set aside the corners only a mis-detection
-    explains, refit; an image that lost more than a third of its corners is set aside whole and the trimming starts
-    again without it (its wrong corners dragged the fit, so the corners trimmed elsewhere may have been good).
+    explains (MAX_TRIM_ROUNDS rounds in all), refit; then set aside whole an image that lost more than a third of
+    its corners, or else the still image the fit leaves far beyond all others (_far_image), refit and go on trimming
+    (at most MAX_IMAGE_ROUNDS times; not after a fit that failed: its residuals accuse nothing).
     homography_rms : {image id: its homography RMS} (solver.image_check), for the report."""
+    from solver.model import Model
+
     dropped, homography_rms = [], homography_rms or {}
+    first_data = data
     result = identify(data, registry, reading_step_rad=step, **options)
-    for _ in range(MAX_IMAGE_ROUNDS if robust else 0):
-        trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
-        ids, n_corners = np.unique(data.image_id[data.image_of_row], return_counts=True)
-        lost = np.bincount(np.searchsorted(ids, np.array([o.image for o in outliers], dtype=np.int64)),
-                           minlength=len(ids))
-        too_many = lost_too_many(n_corners, lost)
-        if not too_many.any():
-            far = _far_image(trimmed)
-            if far is None:
-                return trimmed.model.data, trimmed, outliers, scale, dropped
-            image, rms, z = far
-            n = int(n_corners[ids == image][0])
-            dropped.append(SetAsideImage(image, f"its board fits {z:.0f} robust scales worse than the other images' "
-                                                "(another board, a shifted lattice or a reflection)",
-                                         homography_rms.get(image, float("nan")), n, rms))
-            data = without_images(data, {image})
-            result = identify(data, registry, x0=trimmed.values, reading_step_rad=step, **options)
-            continue
-        dropped += [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections",
-                                  homography_rms.get(int(i), float("nan")), int(n), _rms_of(trimmed, data, i))
-                    for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
-        data = without_images(data, set(ids[too_many].tolist()))
-        result = identify(data, registry, x0=trimmed.values, reading_step_rad=step, **options)
-    if not robust:
-        return data, result, [], float("nan"), dropped
-    trimmed, outliers, scale = _trimmed(data, result, registry, step, options)
-    return trimmed.model.data, trimmed, outliers, scale, dropped
+    outliers, scale, rounds = [], float("nan"), MAX_TRIM_ROUNDS
+    for image_round in range(MAX_IMAGE_ROUNDS + 1 if robust else 0):
+        result, new, round_scale, used = _trimmed(result, registry, step, options, rounds)
+        outliers, rounds = outliers + new, rounds - used
+        scale = scale if round_scale is None else round_scale
+        if image_round == MAX_IMAGE_ROUNDS or not result.success:
+            break
+        gone = _images_to_set_aside(result, first_data, outliers, homography_rms)
+        if not gone:
+            break
+        ids = {g.image for g in gone}
+        dropped += gone
+        outliers = [o for o in outliers if o.image not in ids]  # reported as their image
+        result = identify(without_images(result.model.data, ids), registry, x0=result.values, reading_step_rad=step,
+                          **options)
+    if outliers:  # their size at the final fit, predicted from the corners that were kept
+        kept = without_images(first_data, {g.image for g in dropped})
+        original = Model(kept, result.registry).residuals(result.values)
+        row = {(int(kept.image_id[m]), int(v)): i for i, (m, v) in enumerate(zip(kept.image_of_row, kept.vertex))}
+        for o in outliers:
+            o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
+    return result.model.data, result, outliers, scale, dropped
+
+
+def _images_to_set_aside(result, first_data: ModelData, outliers, homography_rms) -> list:
+    """[SetAsideImage]: the images that lost more than a third of their corners to the trimming, or else the one
+    still image the fit leaves far beyond the others (none: [])."""
+    ids, n_corners = np.unique(first_data.image_id[first_data.image_of_row], return_counts=True)
+    lost = np.bincount(np.searchsorted(ids, np.array([o.image for o in outliers], dtype=np.int64)),
+                       minlength=len(ids))
+    too_many = lost_too_many(n_corners, lost)
+    if too_many.any():
+        return [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections",
+                              homography_rms.get(int(i), float("nan")), int(n), _rms_of(result, first_data, i))
+                for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
+    far = _far_image(result)
+    if far is None:
+        return []
+    image, rms, z = far
+    return [SetAsideImage(image, f"its board fits {z:.0f} robust scales worse than the other images' (another "
+                                 "board, a shifted lattice or a reflection)",
+                          homography_rms.get(image, float("nan")), int(n_corners[ids == image][0]), rms)]
 
 
 def _far_image(result):
@@ -273,15 +292,13 @@ def _rms_of(result, data: ModelData, image_id) -> float:
     return float(np.sqrt(np.mean(r ** 2)))
 
 
-def _trimmed(data: ModelData, result, registry: Registry, step, options: dict):
-    """(result, outliers, robust scale): from a fit of `data`, set aside the worst corner of each image while it is
-    beyond the robust scale (MAX_TRIM_ROUNDS rounds at most), refitting after each round."""
-    from solver.model import Model
+def _trimmed(result, registry: Registry, step, options: dict, rounds: int):
+    """(result, outliers, robust scale or None, rounds used): from a fit, set aside the worst corner of each image
+    while it is beyond the robust scale (`rounds` rounds at most), refitting after each round; outliers' sizes 0."""
     from solver.noisefloor import RigidSplit
 
-    first_data = data
-    outliers, scale = [], float("nan")
-    for _ in range(MAX_TRIM_ROUNDS):
+    outliers, scale, used = [], None, 0
+    while used < rounds:
         nonrigid = RigidSplit(result.model, result.values)(result.residuals_px)[1]
         scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
         size = np.linalg.norm(nonrigid, axis=1)
@@ -294,15 +311,9 @@ def _trimmed(data: ModelData, result, registry: Registry, step, options: dict):
         if not len(bad):
             break
         outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]
-        data = d.without_rows(bad)
-        result = identify(data, registry, x0=result.values, reading_step_rad=step, **options)
-    if outliers:  # their size at the final fit, predicted from the corners that were kept
-        original = Model(first_data, result.registry).residuals(result.values)
-        row = {(int(first_data.image_id[m]), int(v)): i
-               for i, (m, v) in enumerate(zip(first_data.image_of_row, first_data.vertex))}
-        for o in outliers:
-            o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
-    return result, outliers, scale
+        result = identify(d.without_rows(bad), registry, x0=result.values, reading_step_rad=step, **options)
+        used += 1
+    return result, outliers, scale, used
 
 
 def _flagged(fits) -> tuple[set, set]:

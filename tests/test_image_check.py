@@ -13,7 +13,7 @@ from sim.synthetic import dataset_parts, random_truth, synthesize
 from solver.adapter import model_data_from_dataset
 from solver.dataset import read_dataset, write_dataset
 from solver.fit import identify_dataset
-from solver.image_check import apply_homographies, check_images, fit_homographies
+from solver.image_check import apply_homographies, check_images, fit_homographies, least_median_homography
 from tools.cli import main
 
 DEG = np.pi / 180
@@ -85,6 +85,18 @@ def test_homographies_are_recovered_from_their_points():
     uv = apply_homographies(H, board)
     fitted = fit_homographies(board, uv)
     np.testing.assert_allclose(fitted / fitted[:, 2:3, 2:3], np.broadcast_to(H, fitted.shape), rtol=1e-8, atol=1e-8)
+
+
+def test_the_least_median_homography_ignores_ten_of_24_corners():
+    rng = np.random.default_rng(1)
+    H = np.array([[600.0, -40.0, 320.0], [25.0, -580.0, 240.0], [0.3, 0.2, 1.0]])
+    board = rng.uniform(-0.1, 0.1, (24, 2))
+    uv = apply_homographies(H, board) + rng.normal(scale=0.1, size=(24, 2))
+    uv[:10] += rng.uniform(20, 60, (10, 2))  # a lattice shifted by a square, for ten of its corners
+    plain = fit_homographies(board[None], uv[None])[0]
+    assert np.median(np.linalg.norm(apply_homographies(plain, board) - uv, axis=1)) > 3.0
+    found, distance = least_median_homography(board, uv)
+    assert np.all(distance[10:] < 0.6) and np.all(distance[:10] > 15)
 
 
 def test_clean_synthetic_data_and_partial_boards_set_nothing_aside(clean, tmp_path):
