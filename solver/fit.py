@@ -8,7 +8,8 @@ What the data decide here, rather than an assumption:
   (MAD) scale of the others, is set aside and reported by image and vertex with its size;
 - which images are no view of their board at all: before fitting, an image whose corners no homography of its flat
   board explains (solver.image_check) is set aside whole; after the corner trimming, so is an image that lost more
-  than a third of its corners (the trimming then starts again without it); each is reported with its reason;
+  than a third of its corners, or else a still image the fit leaves far beyond all others (the trimming then goes on
+  without it, within its one budget of rounds); each is reported with its reason;
 - how precisely the offsets are known: the readings' quantisation joins the standard deviations (solver.identify).
 The robot description's shared motors (the NAO's HipYawPitch pair) take one offset. Captures taken while the
 joints move are fitted only when the model has an effect for them (time_lag); otherwise their angles are off by
@@ -41,8 +42,8 @@ ANGLE_MARGIN = 0.01
 OUTLIER_SCALES = 5.0
 OUTLIER_MIN_PX = 1.0
 MAX_TRIM_ROUNDS = 10
-# After the trimming, images that lost too many corners are set aside and the trimming starts again (at most this
-# many times: each time removes at least one image).
+# After the trimming, images that lost too many corners (or the one far beyond the others) are set aside, the data
+# refitted and the trimming goes on with the rounds it has left (at most this many times: each removes an image).
 MAX_IMAGE_ROUNDS = 3
 # A still image the fit leaves far beyond all others is a flat board's view in the wrong place (the other sandal, a
 # lattice shifted by a square, a reflection), which the homography check cannot see: its RMS beyond the images'
