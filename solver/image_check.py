@@ -148,8 +148,8 @@ def without_images(data, image_ids, check: ImageCheck | None = None):
         return data
     keep = np.flatnonzero(~np.isin(data.image_id, list(image_ids)))
     if not len(keep):
-        why = f": {describe_set_aside(check.set_aside)}" if check and check.set_aside else ""
-        raise SolveError(f"every one of the {data.n_images} images was set aside, nothing to fit{why}")
+        why = f" ({describe_set_aside(check.set_aside, count=2)})" if check and check.set_aside else ""
+        raise SolveError(f"every one of the {data.n_images} images was set aside, nothing to fit{why}; nothing written")
     return data.subset(keep)
 
 
