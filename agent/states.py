@@ -303,6 +303,8 @@ class Identification(State):
         ctx.angle_choice = fit
         log.info("%s", fit.describe_angles())
         log.info("%s", fit.describe_outliers())
+        if fit.images_set_aside:
+            log.info("%s", fit.describe_images())
         result = fit.result
         ctx.identification = result
         why = implausible(result, s.thresholds)

@@ -768,7 +768,31 @@ def read_dataset(path) -> Dataset:
     meta = validate_meta(read_json(meta_path), meta_path)
     obs_path = path / OBSERVATIONS_FILE
     columns, _ = parse_observations(read_text(obs_path), obs_path, meta)
-    return Dataset(meta=meta, columns=columns, path=path)
+    dataset = Dataset(meta=meta, columns=columns, path=path)
+    check_chain_joints(dataset, meta_path)
+    return dataset
+
+
+def check_chain_joints(dataset: Dataset, meta_path) -> None:
+    """DataError naming dataset.json's `joints` unless they hold every joint between the robot description's base
+    and each camera and target the observations use (the model moves those chains by them; version 2 may list any
+    subset of the description's joints, version 1 has all 14)."""
+    if dataset.version != 2 or not len(dataset.columns["image"]):
+        return
+    from solver.robot import load_robot
+
+    robot = load_robot(dataset.meta["robot"]["description"])
+    listed = set(dataset.joints)
+    image = dataset.columns["image"]
+    for kind, chain_of in (("camera", robot.camera_chain), ("target", robot.target_chain)):
+        names, first = np.unique(dataset.columns[kind], return_index=True)
+        for name, i in zip(names.tolist(), first.tolist()):
+            chain = chain_of(name)
+            missing = [j for j in chain.joint_names if j not in listed]
+            if missing:
+                raise DataError(meta_path, f"lacks joint {missing[0]!r}, which moves {kind} {name!r} (seen in image "
+                                           f"{image[i]}; its chain {chain.base} to {chain.tip} needs "
+                                           f"{', '.join(chain.joint_names)})", field="joints")
 
 
 # ---------------------------------------------------------------------------------------------- writing

@@ -6,6 +6,10 @@ What the data decide here, rather than an assumption:
   command) is fitted and the one that explains the images best is used; every hypothesis's RMS is reported;
 - which corners are mis-detections: a corner that no rigid motion of its board explains, far beyond the robust
   (MAD) scale of the others, is set aside and reported by image and vertex with its size;
+- which images are no view of their board at all: before fitting, an image whose corners no homography of its flat
+  board explains (solver.image_check) is set aside whole; after the corner trimming, so is an image that lost more
+  than a third of its corners, or else a still image the fit leaves far beyond all others (the trimming then goes on
+  without it, within its one budget of rounds); each is reported with its reason;
 - how precisely the offsets are known: the readings' quantisation joins the standard deviations (solver.identify).
 The robot description's shared motors (the NAO's HipYawPitch pair) take one offset. Captures taken while the
 joints move are fitted only when the model has an effect for them (time_lag); otherwise their angles are off by
@@ -21,6 +25,8 @@ import numpy as np
 from solver.adapter import model_data_from_dataset
 from solver.effects import EFFECTS
 from solver.identify import IdentificationResult, identify
+from solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
+                                 without_images)
 from solver.model import ModelData
 from solver.quantisation import reading_resolution
 from solver.registry import Registry
@@ -36,6 +42,17 @@ ANGLE_MARGIN = 0.01
 OUTLIER_SCALES = 5.0
 OUTLIER_MIN_PX = 1.0
 MAX_TRIM_ROUNDS = 10
+# After the trimming, images that lost too many corners (or the one far beyond the others) are set aside, the data
+# refitted and the trimming goes on with the rounds it has left (at most this many times: each removes an image).
+MAX_IMAGE_ROUNDS = 3
+# A still image the fit leaves far beyond all others is a flat board's view in the wrong place (the other sandal, a
+# lattice shifted by a square, a reflection), which the homography check cannot see: its RMS beyond the images'
+# median RMS by IMAGE_SCALES robust (MAD) scales of the images' RMS, and beyond IMAGE_MIN_PX. Measured (base fits,
+# tests/loop_cases.py seed 1): unmodelled elasticity, backlash, three effects, an axis tilt leave their worst image
+# 2.4-6.2 scales above the median, the realistic mock 4.0; one image shifted by 10, 30 or 80 px: 28, 20, 14.
+IMAGE_SCALES = 10.0
+IMAGE_MIN_PX = 1.0
+MIN_IMAGES_FOR_SCALE = 8
 # GLS trusts the board's shape to this noise at least (the realistic mock's detections: 0.028 px robust scale).
 GLS_MIN_SIGMA_PX = 0.02
 MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
@@ -68,6 +85,8 @@ class DatasetFit:
     robust_scale_px: float = float("nan")  # MAD scale of the non-rigid residual (outliers cannot inflate it)
     n_moving_set_aside: int = 0
     gls: bool = False  # refined by generalised least squares (solver.gls), intrinsics free
+    images_set_aside: list = field(default_factory=list)  # [solver.image_check.SetAsideImage], whole images
+    image_check: ImageCheck | None = None  # the check before the fit (None: not robust)
 
     def describe_angles(self) -> str:
         step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
@@ -92,6 +111,10 @@ class DatasetFit:
                 f"board motion, so no physical effect, explains them; beyond {OUTLIER_SCALES:g} x the robust scale "
                 f"{self.robust_scale_px:.3f} px): {listed}" + (" ..." if len(self.outliers) > count else ""))
 
+    def describe_images(self) -> str:
+        """One line naming the whole images set aside ('' when none was)."""
+        return describe_set_aside(self.images_set_aside)
+
     def as_dict(self) -> dict:
         return {
             "angles": {"chosen": self.angles, "description": self.describe_angles(),
@@ -100,6 +123,7 @@ class DatasetFit:
                                       for h in self.hypotheses]},
             "robust_scale_px": self.robust_scale_px,
             "outliers": [{"image": o.image, "vertex": o.vertex, "size_px": o.size_px} for o in self.outliers],
+            "images_set_aside": [s.as_dict() for s in self.images_set_aside],
             "moving_captures_set_aside": self.n_moving_set_aside,
             "generalised_least_squares": self.gls,
         }
@@ -111,7 +135,8 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     """Fit the base model plus `effects` to a read dataset (solver.dataset.Dataset): the routine every caller uses.
 
     angles : 'auto' (every hypothesis of ANGLE_HYPOTHESES is fitted, the best fit chosen) or one of them.
-    robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale.
+    robust : set aside corners no rigid board motion explains (mis-detections), found with a robust scale, and whole
+        images no view of their flat board explains or that lost over a third of their corners (solver.image_check).
     moving : 'auto' (captures taken while moving are fitted only if an effect models them), 'all' or 'still'.
     solver, loss, loss_scale_px : as solver.identify.identify's.
     setup : the cameras and targets to parametrise (default: the data's); a target without captures keeps its
@@ -125,26 +150,30 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
     modes = ANGLE_HYPOTHESES if angles == "auto" else (angles,)
     if angles != "auto" and angles not in ANGLE_HYPOTHESES:
         raise ValueError(f"unknown angle choice {angles!r}: expected auto or one of {', '.join(ANGLE_HYPOTHESES)}")
-    fits, seen = {}, []
+    fits, seen, check = {}, [], None
     for mode in modes:
         data = model_data_from_dataset(dataset, angles=mode)
         if any(np.array_equal(data.theta, other) for other in seen):
             continue  # the same angles as a hypothesis already fitted (unquantised readings: cell = measured)
         seen.append(data.theta)
+        if robust:  # whole images no view of a flat board explains: the pixels decide, whatever the angles
+            check = check or check_images(data)
+            data = without_images(data, {s.image for s in check.set_aside}, check)
         data, n_moving = _moving_handled(data, effects, moving)
         registry = Registry(effects, setup=setup or data.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
         options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
-        fits[mode] = _robust_fit(data, registry, step, robust, options) + (n_moving, step)
+        fits[mode] = _robust_fit(data, registry, step, robust, options, check and check.rms_px) + (n_moving, step)
     chosen = _choose(fits)
-    data, result, outliers, scale, n_moving, step = fits[chosen]
-    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
-    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], flagged), len(f[2])) for mode, f in fits.items()]
+    data, result, outliers, scale, dropped, n_moving, step = fits[chosen]
+    flagged = _flagged(fits)
+    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], *flagged), len(f[2])) for mode, f in fits.items()]
     use_gls = gls and chosen == "measured" and bool(np.any(step > 0))
     if use_gls:
         result = _gls_refined(data, result, step, scale, fixed, tie_shared_motors, solver)
+    images = (check.set_aside if check else []) + dropped
     return DatasetFit(data, result, chosen, hypotheses, float(np.max(step, initial=0.0)), outliers, scale, n_moving,
-                      use_gls)
+                      use_gls, images, check)
 
 
 def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shared_motors, solver):
@@ -182,15 +211,95 @@ def _reading_step(dataset, data: ModelData) -> np.ndarray:
     return reading_resolution(readings)
 
 
-def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict):
-    """(data, result, outliers, robust scale): fit, set aside the corners only a mis-detection explains, refit."""
+def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict, homography_rms=None):
+    """(data, result, outliers, robust scale, images set aside): fit, set aside the corners only a mis-detection
+    explains (MAX_TRIM_ROUNDS rounds in all), refit; then set aside whole an image that lost more than a third of
+    its corners, or else the still image the fit leaves far beyond all others (_far_image), refit and go on trimming
+    (at most MAX_IMAGE_ROUNDS times; not after a fit that failed: its residuals accuse nothing).
+    homography_rms : {image id: its homography RMS} (solver.image_check), for the report."""
     from solver.model import Model
-    from solver.noisefloor import RigidSplit
 
+    dropped, homography_rms = [], homography_rms or {}
     first_data = data
     result = identify(data, registry, reading_step_rad=step, **options)
-    outliers, scale = [], float("nan")
-    for _ in range(MAX_TRIM_ROUNDS if robust else 0):
+    outliers, scale, rounds = [], float("nan"), MAX_TRIM_ROUNDS
+    for image_round in range(MAX_IMAGE_ROUNDS + 1 if robust else 0):
+        result, new, round_scale, used = _trimmed(result, registry, step, options, rounds)
+        outliers, rounds = outliers + new, rounds - used
+        scale = scale if round_scale is None else round_scale
+        if image_round == MAX_IMAGE_ROUNDS or not result.success:
+            break
+        gone = _images_to_set_aside(result, first_data, outliers, homography_rms)
+        if not gone:
+            break
+        ids = {g.image for g in gone}
+        dropped += gone
+        outliers = [o for o in outliers if o.image not in ids]  # reported as their image
+        result = identify(without_images(result.model.data, ids), registry, x0=result.values, reading_step_rad=step,
+                          **options)
+    if outliers:  # their size at the final fit, predicted from the corners that were kept
+        kept = without_images(first_data, {g.image for g in dropped})
+        original = Model(kept, result.registry).residuals(result.values)
+        row = {(int(kept.image_id[m]), int(v)): i for i, (m, v) in enumerate(zip(kept.image_of_row, kept.vertex))}
+        for o in outliers:
+            o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
+    return result.model.data, result, outliers, scale, dropped
+
+
+def _images_to_set_aside(result, first_data: ModelData, outliers, homography_rms) -> list:
+    """[SetAsideImage]: the images that lost more than a third of their corners to the trimming, or else the one
+    still image the fit leaves far beyond the others (none: [])."""
+    ids, n_corners = np.unique(first_data.image_id[first_data.image_of_row], return_counts=True)
+    lost = np.bincount(np.searchsorted(ids, np.array([o.image for o in outliers], dtype=np.int64)),
+                       minlength=len(ids))
+    too_many = lost_too_many(n_corners, lost)
+    if too_many.any():
+        return [SetAsideImage(int(i), f"lost {k} of {n} corners as mis-detections",
+                              homography_rms.get(int(i), float("nan")), int(n), _rms_of(result, first_data, i))
+                for i, k, n in zip(ids[too_many], lost[too_many], n_corners[too_many])]
+    far = _far_image(result)
+    if far is None:
+        return []
+    image, rms, z = far
+    return [SetAsideImage(image, f"its board fits {z:.0f} robust scales worse than the other images' (another "
+                                 "board, a shifted lattice or a reflection)",
+                          homography_rms.get(image, float("nan")), int(n_corners[ids == image][0]), rms)]
+
+
+def _far_image(result):
+    """(image id, RMS px, scales) of the still image the fit leaves farthest beyond all others, if it is beyond
+    IMAGE_SCALES robust scales and IMAGE_MIN_PX (else None)."""
+    d, r = result.model.data, result.residuals_px
+    rms = np.sqrt(np.bincount(d.image_of_row, (r ** 2).sum(axis=1), d.n_images)
+                  / np.maximum(2 * np.bincount(d.image_of_row, minlength=d.n_images), 1))
+    still = np.ones(d.n_images, bool) if d.velocity is None else np.all(d.velocity == 0.0, axis=1)
+    if still.sum() < MIN_IMAGES_FOR_SCALE:
+        return None
+    median = float(np.median(rms[still]))
+    scale = MAD_TO_SIGMA * float(np.median(np.abs(rms[still] - median)))
+    worst = int(np.flatnonzero(still)[np.argmax(rms[still])])
+    z = (rms[worst] - median) / scale if scale > 0 else np.inf
+    if rms[worst] > IMAGE_MIN_PX and z > IMAGE_SCALES:
+        return int(d.image_id[worst]), float(rms[worst]), float(z)
+    return None
+
+
+def _rms_of(result, data: ModelData, image_id) -> float:
+    """RMS (both coordinates) of one image's corners, all of them, at `result`'s values."""
+    from solver.model import Model
+
+    m = int(np.flatnonzero(data.image_id == image_id)[0])
+    r = Model(data.subset([m]), result.registry).residuals(result.values)
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def _trimmed(result, registry: Registry, step, options: dict, rounds: int):
+    """(result, outliers, robust scale or None, rounds used): from a fit, set aside the worst corner of each image
+    while it is beyond the robust scale (`rounds` rounds at most), refitting after each round; outliers' sizes 0."""
+    from solver.noisefloor import RigidSplit
+
+    outliers, scale, used = [], None, 0
+    while used < rounds:
         nonrigid = RigidSplit(result.model, result.values)(result.residuals_px)[1]
         scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
         size = np.linalg.norm(nonrigid, axis=1)
@@ -203,30 +312,32 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
         if not len(bad):
             break
         outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]
-        data = d.without_rows(bad)
-        result = identify(data, registry, x0=result.values, reading_step_rad=step, **options)
-    if outliers:  # their size at the final fit, predicted from the corners that were kept
-        original = Model(first_data, result.registry).residuals(result.values)
-        row = {(int(first_data.image_id[m]), int(v)): i
-               for i, (m, v) in enumerate(zip(first_data.image_of_row, first_data.vertex))}
-        for o in outliers:
-            o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
-    return result.model.data, result, outliers, scale
+        result = identify(d.without_rows(bad), registry, x0=result.values, reading_step_rad=step, **options)
+        used += 1
+    return result, outliers, scale, used
 
 
-def _rms_without(result, flagged) -> float:
-    """RMS over both coordinates of a hypothesis's fit, on the corners no hypothesis flagged (a fair comparison)."""
+def _flagged(fits) -> tuple[set, set]:
+    """The corners (image, vertex) and the whole images any hypothesis set aside."""
+    return ({(o.image, o.vertex) for f in fits.values() for o in f[2]},
+            {s.image for f in fits.values() for s in f[4]})
+
+
+def _rms_without(result, flagged, images=frozenset()) -> float:
+    """RMS over both coordinates of a hypothesis's fit, on the corners no hypothesis flagged and outside the images
+    any set aside (a fair comparison)."""
     d = result.model.data
-    keep = np.array([(int(d.image_id[m]), int(v)) not in flagged for m, v in zip(d.image_of_row, d.vertex)])
+    keep = np.array([(int(d.image_id[m]), int(v)) not in flagged and int(d.image_id[m]) not in images
+                     for m, v in zip(d.image_of_row, d.vertex)], dtype=bool)
     r = result.residuals_px[keep]
     return float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan")
 
 
 def _choose(fits) -> str:
-    flagged = {(o.image, o.vertex) for f in fits.values() for o in f[2]}
+    flagged = _flagged(fits)
     best = None
     for mode, f in fits.items():  # ANGLE_HYPOTHESES order: a later one must be clearly better
-        rms = _rms_without(f[1], flagged)
+        rms = _rms_without(f[1], *flagged)
         if best is None or rms < best[1] * (1.0 - ANGLE_MARGIN):
             best = (mode, rms)
     return best[0]

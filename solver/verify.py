@@ -16,6 +16,7 @@ import numpy as np
 
 from solver.diagnostics import compare, locate
 from solver.errors import DataError
+from solver.image_check import check_images, without_images
 from solver.model import Model, ModelData
 from solver.registry import Registry
 
@@ -72,6 +73,7 @@ class Verdict:
     board_summary: str  # solver.diagnostics.locate's comparison of the boards
     uncalibrated: list  # parameters of the model the offsets file has no value for (taken as 0)
     warnings: list = field(default_factory=list)
+    images_set_aside: list = field(default_factory=list)  # [solver.image_check.SetAsideImage]: no view of a board
 
     def as_dict(self) -> dict:
         return {
@@ -82,6 +84,7 @@ class Verdict:
             "drift_ratio": DRIFT_RATIO, "moved": self.moved, "suspects": self.suspects,
             "worst_images": self.worst_images, "board_summary": self.board_summary,
             "uncalibrated": self.uncalibrated, "warnings": self.warnings,
+            "images_set_aside": [s.as_dict() for s in self.images_set_aside],
         }
 
 
@@ -182,7 +185,10 @@ def verdict_text(good: bool, head: str, moved: list, suspects: list, unexplained
 
 def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> Verdict:
     """The residuals of `data` under the calibration `offsets`, compared with the calibration's RMS and the data's
-    noise floor, and the verdict (see the module's docstring)."""
+    noise floor, and the verdict (see the module's docstring). Images no view of a flat board explains are set
+    aside first, as the fit sets them aside (solver.image_check): a mis-detected image is no evidence of drift."""
+    check = check_images(data)
+    data = without_images(data, {s.image for s in check.set_aside}, check)
     effects = tuple(offsets.model.get("effects", ()))
     registry = Registry.for_data(data, effects)
     values, missing = calibration_values(offsets, registry)
@@ -236,4 +242,4 @@ def verify(data: ModelData, offsets, *, pixel_noise_px: float | None = None) -> 
         per_image=per_image, calibration_rms_px=calibration_rms, noise_floor_px=comparison.noise_px,
         noise_source=comparison.noise_source, reference_px=reference, ratio=float(ratio), moved=moved,
         suspects=suspects, worst_images=worst[:WORST_IMAGES], board_summary=board_summary, uncalibrated=missing,
-        warnings=warnings)
+        warnings=warnings, images_set_aside=check.set_aside)

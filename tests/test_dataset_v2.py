@@ -107,6 +107,8 @@ def corrupt_meta(tmp_path, change):
     (lambda m: m["targets"]["R"].update(centre_m=[0.1, 0]), "targets.R.centre_m", "list of 3"),
     (lambda m: m.update(joints=["HeadYaw", "LFinger"]), "joints[1]", "not one of the robot's"),
     (lambda m: m.update(joints=["HeadYaw", "HeadYaw"]), "joints", "listed twice"),
+    (lambda m: m["joints"].remove("RAnkleRoll"), "joints", "lacks joint 'RAnkleRoll', which moves target 'R'"),
+    (lambda m: m["joints"].remove("HeadPitch"), "joints", "lacks joint 'HeadPitch', which moves camera 'bottom'"),
     (lambda m: m["robot"].update(description="../nao"), "robot.description", "name of a robot description"),
     (lambda m: m["robot"].update(description="pepper"), "robot.description", "unknown robot description"),
     (lambda m: m.update(gravity_mps2=[0, 0]), "gravity_mps2", "list of 3"),

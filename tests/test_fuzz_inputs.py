@@ -61,6 +61,26 @@ def test_damaged_offsets_files_fail_cleanly(valid, work):
 
 
 
+def test_a_joint_list_without_a_joint_the_data_need_is_named_by_every_verb(valid, work):
+    """The fuzz harness found `joints` with one entry deleted refused in a line that named neither file nor field
+    (the model's 'the data have no angles of joint ...'): the reader now names dataset.json's `joints`."""
+    import json
+    import shutil
+
+    dataset, offsets = valid
+    copy = work / "no_joint"
+    shutil.copytree(dataset, copy)
+    meta = json.loads((copy / fz.META).read_text())
+    meta["joints"].remove("LAnkleRoll")
+    (copy / fz.META).write_text(json.dumps(meta))
+    argvs = fz.dataset_verbs(copy, work) + [["verify", str(copy), "--offsets", str(offsets / fz.OFFSETS)]]
+    for argv in argvs:
+        outcome = fz.run_forked(argv, deadline_s=DEADLINE_S)
+        assert outcome.returncode == 2, (argv, fz.describe(outcome))
+        assert not fz.problems(outcome, argv[0], str(copy / fz.META), allow_failed_fit=True), fz.describe(outcome)
+        assert "field 'joints'" in outcome.stderr and "LAnkleRoll" in outcome.stderr
+
+
 V1 = Path(__file__).parent / "data" / "v1"  # files of naocal.dataset/1 and naocal.offsets/1 (still read)
 
 

@@ -190,6 +190,8 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
     if fit is not None:
         lines[3:3] = ["  " + fit.describe_angles(), "  " + fit.describe_outliers()
                       + (" (mis-detections, not physics, explain them)" if fit.outliers else "")]
+        if fit.images_set_aside:
+            lines.insert(5, "  " + fit.describe_images())
     lines.append("  per target:       " + ", ".join(
         f"{t} {v['rms_px'][0]:.3f}/{v['rms_px'][1]:.3f} px" for t, v in c.per_target.items()))
     lines.append("  per head posture: " + ", ".join(

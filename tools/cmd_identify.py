@@ -21,7 +21,8 @@ def register(subparsers):
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_tie_option(p)
     p.add_argument("--keep-outliers", action="store_true",
-                   help="fit every corner (default: corners no rigid board motion explains are set aside and listed)")
+                   help="fit every corner and image (default: corners no rigid board motion explains, and images no "
+                        "view of their flat board explains, are set aside and listed)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME",
                    help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw")
     p.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
@@ -119,6 +120,8 @@ def run(args) -> int:
     else:
         print(fit.describe_angles())
         print(fit.describe_outliers())
+        if fit.images_set_aside:
+            print(fit.describe_images())
         if fit.n_moving_set_aside:
             print(f"{fit.n_moving_set_aside} captures taken while moving set aside (only --effects time_lag models "
                   "them)")

@@ -77,5 +77,9 @@ def format_text(result) -> str:
     if result.board_summary:
         lines.append(result.board_summary)
     lines += [f"warning: {w}" for w in result.warnings]
+    if result.images_set_aside:
+        from solver.image_check import describe_set_aside
+
+        lines.append(describe_set_aside(result.images_set_aside))
     lines.append(result.verdict)
     return "\n".join(lines)
