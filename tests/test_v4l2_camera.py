@@ -89,8 +89,10 @@ def test_capture_returns_a_new_frame_each_time():
         stamps = [camera.capture().t_exposure_s for _ in range(4)]
     finally:
         camera.close()
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert np.median(np.diff(stamps)) == pytest.approx(1 / 30, abs=0.01)
+    # each a later frame of the 30 fps stream (a loaded machine may miss a frame between two captures: two
+    # periods apart, never less than one, never off the frame grid)
+    periods = np.diff(stamps) * 30
+    assert np.all(periods > 0.5) and np.allclose(periods, np.round(periods), atol=0.3), periods
 
 
 @pytest.mark.parametrize("fault, dropped", [("freeze_frames", "frozen"), ("stall_frames", "stalled")])
