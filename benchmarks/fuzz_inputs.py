@@ -38,7 +38,7 @@ def main():
         for seed in args.seeds:
             groups = {
                 "dataset": (fz.dataset_cases(valid_ds, seed, args.json_cases, args.csv_cases), valid_ds,
-                            fz.dataset_verbs),
+                            lambda d, out: fz.dataset_verbs(d, out, valid_offsets / fz.OFFSETS)),
                 "offsets": (fz.offsets_cases(valid_offsets / fz.OFFSETS, seed, args.json_cases), valid_offsets,
                             lambda d, out: fz.offsets_verbs(d / fz.OFFSETS, valid_offsets / "reference.json")),
             }

@@ -489,6 +489,9 @@ def problems(outcome: Outcome, verb: str, target: str, *, allow_failed_fit: bool
     `json_out`: stdout is identify's --json report, whose joint offsets must be plausible if it exits 0."""
     found = []
     allowed = (0, 2, 3) if allow_failed_fit else (0, 2)
+    verdict = verb == "verify"  # exit 1 is a verdict (drifted), as exit 0 (still good): a report, no error
+    if verdict:
+        allowed += (1,)
     if outcome.returncode is None:
         return [f"hang: killed after {outcome.seconds:.1f} s"]
     if outcome.returncode not in allowed:
@@ -496,7 +499,7 @@ def problems(outcome: Outcome, verb: str, target: str, *, allow_failed_fit: bool
     if "Traceback" in outcome.stderr:
         found.append("traceback")
     lines = outcome.stderr.splitlines()
-    if outcome.returncode == 0:
+    if outcome.returncode == 0 or (verdict and outcome.returncode == 1):
         # notes are allowed (an export says which values it wrote as 0); errors, warnings and tracebacks are not
         noisy = [line for line in lines if "error" in line.lower() or "warning" in line.lower()]
         if noisy:
@@ -537,14 +540,17 @@ def describe(outcome: Outcome) -> str:
 # ------------------------------------------------------------------------------------------------- verbs
 
 
-def dataset_verbs(dataset: Path, out_dir: Path) -> list[list[str]]:
-    """Every verb that reads a dataset, as argv lists."""
-    return [
+def dataset_verbs(dataset: Path, out_dir: Path, offsets: Path | None = None) -> list[list[str]]:
+    """Every verb that reads a dataset, as argv lists (`offsets`: a valid calibration for `verify` to judge by)."""
+    verbs = [
         ["identify", str(dataset), "--cv-folds", "0"],
         ["identify", str(dataset), "--json", "--cv-folds", "2", "--out", str(out_dir / "identified.json")],
         ["diagnose", str(dataset)],
         ["diagnose", str(dataset), "--json", "--angles", "measured"],
     ]
+    if offsets is not None:
+        verbs.append(["verify", str(dataset), "--offsets", str(offsets), "--json"])
+    return verbs
 
 
 def offsets_verbs(offsets: Path, reference: Path) -> list[list[str]]:
@@ -594,7 +600,7 @@ def run_cases(cases, valid: Path, work: Path, verbs_of, *, every_verb: bool, dea
             # A damaged dataset.json can make observations.csv wrong (a smaller board): any file of the dataset.
             target = str(case_dir / case.target) if case.target != META else str(case_dir)
             verb = argv[0]
-            found = problems(outcome, verb, target, allow_failed_fit=verb in ("identify", "diagnose"),
+            found = problems(outcome, verb, target, allow_failed_fit=verb in ("identify", "diagnose", "verify"),
                              json_out=verb == "identify" and "--json" in argv)
             if found:
                 failures.append(Failure(case.name, argv, found, outcome))

@@ -33,7 +33,8 @@ def report(runs, failures):
 
 def test_valid_inputs_pass_every_verb_silently(valid, work):
     dataset, offsets = valid
-    argvs = fz.dataset_verbs(dataset, work) + fz.offsets_verbs(offsets / fz.OFFSETS, offsets / "reference.json")
+    argvs = fz.dataset_verbs(dataset, work, offsets / fz.OFFSETS) + fz.offsets_verbs(offsets / fz.OFFSETS,
+                                                                                      offsets / "reference.json")
     for argv in argvs:
         outcome = fz.run_forked(argv, deadline_s=DEADLINE_S)
         assert outcome.returncode == 0, (argv, fz.describe(outcome))
@@ -41,9 +42,10 @@ def test_valid_inputs_pass_every_verb_silently(valid, work):
 
 
 def test_damaged_datasets_fail_cleanly(valid, work):
-    dataset, _ = valid
+    dataset, offsets = valid
     cases = fz.dataset_cases(dataset, seed=0, n_json=40, n_csv=80)
-    runs, failures = fz.run_cases(cases, dataset, work / "datasets", fz.dataset_verbs, every_verb=False,
+    runs, failures = fz.run_cases(cases, dataset, work / "datasets",
+                                  lambda d, out: fz.dataset_verbs(d, out, offsets / fz.OFFSETS), every_verb=False,
                                   deadline_s=DEADLINE_S)
     assert runs >= len(cases) - 3  # (permission-denied cases skip the verb that writes)
     assert not failures, report(runs, failures)
@@ -73,7 +75,7 @@ def test_a_joint_list_without_a_joint_the_data_need_is_named_by_every_verb(valid
     meta = json.loads((copy / fz.META).read_text())
     meta["joints"].remove("LAnkleRoll")
     (copy / fz.META).write_text(json.dumps(meta))
-    argvs = fz.dataset_verbs(copy, work) + [["verify", str(copy), "--offsets", str(offsets / fz.OFFSETS)]]
+    argvs = fz.dataset_verbs(copy, work, offsets / fz.OFFSETS)
     for argv in argvs:
         outcome = fz.run_forked(argv, deadline_s=DEADLINE_S)
         assert outcome.returncode == 2, (argv, fz.describe(outcome))
