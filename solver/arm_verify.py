@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver.errors import DataError
-from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, verdict_text
+from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, moved_text, verdict_text
 
 UNIT = {"points": "m", "camera": "px"}
 
@@ -178,9 +178,7 @@ def format_arm_verdict(v: ArmVerdict) -> str:
     if v.worst_poses:
         lines.append("worst poses: " + ", ".join(f"{e['pose']} ({e['rms_reference']:.2f} x the reference)"
                                                  for e in v.worst_poses))
-    for e in v.moved:
-        lines.append(f"moved: {e['parameter']} {e['display'][0]:+.4f} {e['display'][1]} "
-                     f"({e['z']:.0f} standard deviations)")
+    lines += [moved_text(e) for e in v.moved]
     lines += [f"warning: {w}" for w in v.warnings]
     lines.append(v.verdict)
     return "\n".join(lines)

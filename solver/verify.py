@@ -173,6 +173,12 @@ def _group(p) -> str:
     return p.effect
 
 
+def moved_text(entry: dict) -> str:
+    """One `moved` entry as verify prints it (the NAO's and the arm's)."""
+    return (f"moved: {entry['parameter']} {entry['display'][0]:+.4f} {entry['display'][1]} "
+            f"({entry['z']:.0f} standard deviations)")
+
+
 def verdict_text(good: bool, head: str, moved: list, suspects: list, unexplained: str) -> str:
     """The one-line verdict (the NAO's and the arm's): still good, drifted with what moved, or drifted unexplained."""
     if good:

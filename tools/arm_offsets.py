@@ -8,18 +8,10 @@ import sys
 from pathlib import Path
 
 from solver.errors import DataError, NaocalError
+from tools.cmd_offsets import _num, _shown  # the NAO's diff table's columns
 
 ARM_EXPORT_FORMATS = ("urdf", "json")
 
-
-def _shown(value, unit):
-    from solver.effect import shown
-
-    return None if value is None else shown(value, unit)[0]
-
-
-def _num(value, width=11) -> str:
-    return f"{'-':>{width}}" if value is None else f"{value:>{width}.4f}"
 
 
 def format_arm_diff(a, b, name_a: str, name_b: str):
@@ -57,7 +49,8 @@ def format_arm_diff(a, b, name_a: str, name_b: str):
                     mark, marked = " *", marked + 1
             else:
                 mark = " (only in A)" if eb is None else " (only in B)"
-            out.append(f"  {name:<44}{_num(_shown(va, unit))}{_num(_shown(vb, unit))}{_num(_shown(delta, unit))}"
+            out.append(f"  {name:<44}{_num(_shown(va, unit), 11)}{_num(_shown(vb, unit), 11)}"
+                       f"{_num(_shown(delta, unit), 11)}"
                        f"{_num(_shown(sigma, unit), 10)}  {shown(0.0, unit)[1]}{mark}")
     out.append(f"{marked} of {len(arm)} arm parameters differ by more than their combined uncertainty (*)")
     return "\n".join(out) + "\n", marked

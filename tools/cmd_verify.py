@@ -58,6 +58,8 @@ def run(args) -> int:
 
 
 def format_text(result) -> str:
+    from solver.verify import moved_text
+
     def stats(s):
         return (f"RMS {s['rms_px']:.3f} px, median {s['median_px']:.3f}, p95 {s['p95_px']:.3f}, "
                 f"max {s['max_px']:.3f} px ({s['n_vertices']} vertices)")
@@ -71,9 +73,7 @@ def format_text(result) -> str:
     if result.worst_images:
         lines.append("worst images: " + ", ".join(f"{e['image']} ({e['target']}, {e['rms_px']:.2f} px)"
                                                   for e in result.worst_images))
-    for e in result.moved:
-        lines.append(f"moved: {e['parameter']} {e['display'][0]:+.4f} {e['display'][1]} "
-                     f"({e['z']:.0f} standard deviations)")
+    lines += [moved_text(e) for e in result.moved]
     if result.board_summary:
         lines.append(result.board_summary)
     lines += [f"warning: {w}" for w in result.warnings]
