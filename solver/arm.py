@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.camera import project
+from solver.measurement import MEASUREMENTS
 from solver.transforms import rot_axis_angle, skew
 
 # The arm's effects: name -> what it is. The sensor frames are always in the model.
@@ -36,7 +36,7 @@ EFFECTS = {
 DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
 # Which parameters stay free when the data cannot tell some apart (solver.arm_identify): earlier groups win.
 PRIORITY = ("sensor", "joint_offsets", "link_lengths", "points", "link_poses", "elasticity")
-POINT_KINDS = ("points", "camera")
+POINT_KINDS = tuple(MEASUREMENTS)  # the sensors' measurement kinds (solver.measurement)
 AXES = "xyz"
 
 
@@ -326,17 +326,12 @@ class ArmModel:
         y = np.empty_like(p_b)
         for s, rows in enumerate(rows_of):  # one rotation per sensor: one BLAS product each
             y[rows] = p_b[rows] @ R_s[s].T + t_s[s]
-        pred = y.copy()
-        cam_rows = {}
-        for s, sensor in enumerate(self.sensors):
-            if sensor.kind == "camera":
-                rows = np.flatnonzero(obs.sensor == s)
-                k_ = sensor.intrinsics
-                proj = project(y[rows], k_["fx_px"], k_["fy_px"], k_["cx_px"], k_["cy_px"],
-                               tuple((k_.get("distortion") or [0.0] * 5)[:5]))
-                pred[rows, :2] = proj.uv_px
-                pred[rows, 2] = 0.0
-                cam_rows[s] = (rows, proj.point_jacobian())
+        pred = np.empty_like(y)
+        dpred_dy = {}  # per sensor: its rows and d prediction / d y, unless the identity (3-D points)
+        for s, (sensor, rows) in enumerate(zip(self.sensors, rows_of)):
+            pred[rows], D = MEASUREMENTS[sensor.kind].predict(y[rows], sensor)
+            if sensor.kind != "points":
+                dpred_dy[s] = (rows, D)
         if not jacobian:
             return pred
         Jb = np.zeros((N, 3, P))  # d p_b / d x
@@ -372,15 +367,13 @@ class ArmModel:
         for s, rows in enumerate(rows_of):
             turned = np.swapaxes(Jb[rows], 1, 2).reshape(-1, 3) @ R_s[s].T  # (n P, 3): one BLAS product
             J[rows] += np.swapaxes(turned.reshape(len(rows), P, 3), 1, 2)
-        for s, (rows, A) in cam_rows.items():
-            J[rows, :2, :] = np.einsum("nij,njp->nip", A, J[rows])
-            J[rows, 2, :] = 0.0
+        for s, (rows, D) in dpred_dy.items():
+            J[rows] = np.einsum("nij,njp->nip", D, J[rows])
         return pred, J
 
     def component_mask(self, obs: Observations) -> np.ndarray:
         """(N, 3) which components of a prediction are measured (cameras: u, v only)."""
         mask = np.ones((len(obs), 3), dtype=bool)
         for s, sensor in enumerate(self.sensors):
-            if sensor.kind == "camera":
-                mask[obs.sensor == s, 2] = False
+            mask[obs.sensor == s] = MEASUREMENTS[sensor.kind].measured
         return mask

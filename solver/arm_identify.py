@@ -3,31 +3,32 @@
 1. Each sensor's frame is found from the data first (it may be anywhere): a 3-D sensor by the least-squares rigid
    alignment of the nominal points with its readings (Kabsch), a camera by OpenCV's solvePnP; a pose given in
    dataset.json is used as it is.
-2. Parameters the data cannot tell apart are fixed at zero and said so: the columns of the scaled Jacobian are
-   taken in the order of solver.arm.PRIORITY (sensor frames, joint offsets, link lengths, points, link poses,
-   elasticity); a column within `tolerance` of the span of those kept before it is fixed (a QR with the
-   priority as pivot order). The first joint's offset of an arm whose first axis is seen only by external sensors
-   is such a case (a sensor rotation about that axis does the same), and so is a link along the first joint's
-   axis (a sensor translation).
-3. Levenberg-Marquardt (scipy.optimize.least_squares, method 'lm', analytic Jacobian) on residuals divided by each
-   sensor's noise (dataset.json's noise_m / noise_px; when missing, estimated from a first fit and the fit
-   repeated). Standard deviations from the Jacobian at the solution, scaled by the residual; weak directions are
-   the smallest singular values of the scaled Jacobian.
+2. The fit is the NAO's (solver.identify.solve): Levenberg-Marquardt on the normal equations, accumulated over
+   chunks of observations (ArmEquations), or scipy's trust region for a robust loss (`--loss`), on residuals divided
+   by each sensor's noise (dataset.json's noise_m / noise_px; when missing, estimated from a first fit and the fit
+   repeated). The identifiability policy is the NAO's (solver.identify.gauges): one threshold, 1e-6 of the largest
+   singular value; the arm's parameters are gauges in the order of solver.arm.PRIORITY (sensor frames first: they
+   may be anywhere, so they absorb e.g. a turn of the whole arm about its first axis, which makes the first joint's
+   offset redundant, and a link along that axis): those are fixed at their start value and said so; whatever else is
+   undetermined stops the fit. A sensor frame is never a gauge.
+3. Detections no model explains (a marker mistaken for another, a reflection) are set aside as the NAO's corners
+   are (solver.identify.OUTLIER_SCALES robust scales, the worst of a pose each round) and listed.
+4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
+   correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.arm import ArmModel, Observations
+from solver.arm import PRIORITY, ArmModel, Observations
 from solver.errors import DataError, SolveError
-from solver.identify import WeakDirection  # one concept, one class: the NAO's (tests/test_boundaries.py)
+from solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal,
+                             check_identifiable, gauges, solve, worst_of_group_beyond)
 
-TOLERANCE = 1e-5  # relative residual of a Jacobian column below which its parameter is fixed (not identifiable)
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
 
@@ -49,6 +50,10 @@ class ArmFit:
     message: str
     solve_time_s: float
     residual: np.ndarray = field(default=None)  # (N, 3) prediction - measurement, physical units, 0 where unmeasured
+    std_iid: np.ndarray = field(default=None)  # (P,) the classic s^2 (J^T J)^-1 standard deviations, for comparison
+    outliers: list = field(default_factory=list)  # [ArmOutlier]: detections set aside (not in `obs`)
+    loss: str = "linear"
+    weights: np.ndarray = field(default=None)  # (N,) the robust loss's weight of each observation (1: linear)
 
     def rms(self) -> dict:
         """{sensor: RMS per measured component (m or px)}."""
@@ -62,6 +67,41 @@ class ArmFit:
     @property
     def free_names(self):
         return [n for n, f in zip(self.model.names, self.free) if f]
+
+
+@dataclass
+class ArmOutlier:
+    """A detection set aside: its pose (as the file names it), sensor, point, size at the final fit (m or px) and
+    its line in observations.csv (None when unknown)."""
+
+    pose: object
+    sensor: str
+    point: str
+    size: float
+    unit: str
+    line: int | None = None
+
+    def describe(self) -> str:
+        from solver.effect import shown
+
+        value, unit = shown(self.size, self.unit)
+        where = f" (line {self.line})" if self.line is not None else ""
+        return f"pose {self.pose} {self.sensor} {self.point} {value:.3g} {unit}{where}"
+
+    def as_dict(self) -> dict:
+        return {"pose": self.pose, "sensor": self.sensor, "point": self.point, "size": self.size, "unit": self.unit,
+                "line": self.line}
+
+
+def describe_outliers(outliers, count: int = 8) -> str:
+    """One line: the detections set aside ([ArmOutlier]), the largest of each unit first ('outliers: none')."""
+    if not outliers:
+        return "outliers: none"
+    worst = sorted(outliers, key=lambda o: (o.unit, -o.size))[:count]
+    poses = len({o.pose for o in outliers})
+    return (f"outliers: {len(outliers)} detections in {poses} poses set aside (beyond {OUTLIER_SCALES:g} x the "
+            f"robust scale of their sensor's residuals): {', '.join(o.describe() for o in worst)}"
+            + (" ..." if len(outliers) > count else ""))
 
 
 def sensor_rms(model, obs, residual) -> dict:
@@ -167,69 +207,165 @@ def whitened(model, obs, x, sigma, *, jacobian=False):
     return r[mask]
 
 
-def identifiable(model, obs, x, free, sigma, tolerance=TOLERANCE):
-    """(free mask, {name: reason}) keeping, in priority order, only parameters the data can tell apart."""
-    from solver.arm import PRIORITY
+class ArmEquations:
+    """The arm's normal equations for solver.identify.solve, as NormalEquations are the NAO's: residuals divided by
+    their sensor's noise, accumulated over chunks of `chunk_rows` observations (the (N, 3, P) Jacobian is never held
+    whole), each observation's score for the cluster-robust covariance (its cluster: its pose)."""
 
-    _, J = whitened(model, obs, x, sigma, jacobian=True)
-    Js = J * model.scales
-    order = sorted(np.flatnonzero(free), key=lambda i: (PRIORITY.index(model.parameters[i].effect), i))
-    kept, basis, reasons = [], [], {}
-    out = np.zeros(len(free), dtype=bool)
-    for i in order:
-        v = Js[:, i]
-        norm = np.linalg.norm(v)
-        if norm == 0.0:
-            reasons[model.names[i]] = "it changes no prediction of these data"
-            continue
-        u = v / norm
-        for _ in range(2):  # Gram-Schmidt twice: stable to 1e-15
-            for b in basis:
-                u = u - b * (b @ u)
-        rel = np.linalg.norm(u)
-        if rel < tolerance:
-            coef, *_ = np.linalg.lstsq(Js[:, kept] / np.linalg.norm(Js[:, kept], axis=0), v / norm, rcond=None)
-            top = np.argsort(-np.abs(coef))[:3]
-            partners = ", ".join(model.names[kept[j]] for j in top if abs(coef[j]) > 1e-3)
-            reasons[model.names[i]] = (f"the data cannot tell it from {partners} (relative residual {rel:.1e}); "
-                                       "fixed at 0, its effect is absorbed there")
-            continue
-        basis.append(u / rel)
-        kept.append(i)
-        out[i] = True
+    def __init__(self, model: ArmModel, obs: Observations, base, free: np.ndarray, sigma, *,
+                 chunk_rows: int = CHUNK_ROWS):
+        self.model, self.obs, self.sigma = model, obs, np.asarray(sigma, dtype=float)
+        self.base = np.asarray(base, dtype=float)
+        self.index = np.flatnonzero(free)
+        self.scales = model.scales[self.index]
+        self.mask = model.component_mask(obs)
+        self.chunks = [slice(a, min(a + chunk_rows, len(obs))) for a in range(0, max(len(obs), 1), chunk_rows)]
+
+    def values(self, free) -> np.ndarray:
+        x = self.base.copy()
+        x[self.index] = free
+        return x
+
+    def _chunk(self, x, rows, jacobian):
+        sub = self.obs.subset(rows)
+        w = 1.0 / self.sigma[sub.sensor]
+        mask = self.mask[rows]
+        if jacobian:
+            pred, J = self.model.predict(x, sub, jacobian=True)
+            J = J[:, :, self.index] * w[:, None, None]
+            J[~mask] = 0.0
+        else:
+            pred, J = self.model.predict(x, sub), None
+        r = (pred - sub.measured) * w[:, None]
+        r[~mask] = 0.0
+        return r, J
+
+    def __call__(self, free, *, weights=None, jacobian: bool = True) -> Normal:
+        x = self.values(free)
+        p = len(self.index)
+        A, g, rss = np.zeros((p, p)), np.zeros(p), 0.0
+        residuals = np.zeros((len(self.obs), 3))
+        scores = np.zeros((len(self.obs), p))
+        for rows in self.chunks:
+            r, J = self._chunk(x, rows, jacobian)
+            residuals[rows] = r
+            if weights is not None:
+                r = r * np.sqrt(weights[rows])[:, None]
+            rss += float(np.sum(r ** 2))
+            if jacobian:
+                Js = J * self.scales
+                flat = Js.reshape(-1, p)
+                A += flat.T @ flat
+                g += flat.T @ r.reshape(-1)
+                scores[rows] = np.einsum("ncp,nc->np", Js, r)
+        return Normal(0.5 * (A + A.T), g, 0.5 * rss, residuals, scores)
+
+    def dense(self, free):
+        """(r, J) over the measured components, unscaled: for scipy's solvers (robust losses)."""
+        x = self.values(free)
+        rs, Js = [], []
+        for rows in self.chunks:
+            r, J = self._chunk(x, rows, True)
+            rs.append(r[self.mask[rows]])
+            Js.append(J[self.mask[rows]])
+        return np.concatenate(rs), np.concatenate(Js)
+
+
+def _cached(equations):
+    cache = {}
+
+    def normal_at(free):
+        key = free.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = equations(free)
+        return cache[key]
+
+    return normal_at
+
+
+def _solve(model, obs, x0, free, sigma, loss="linear"):
+    """(x, solver.identify.Solution, equations): the free parameters fitted from x0."""
+    equations = ArmEquations(model, obs, x0, free, sigma)
+    if not len(equations.index):
+        raise SolveError("no free parameters to identify")
+    r0 = equations(x0[equations.index], jacobian=False).residuals
+    if not np.all(np.isfinite(r0)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(r0), axis=1))[0])
+        raise SolveError(f"the model's prediction is not finite at the start (observation {bad}: a point behind a "
+                         "camera?)")
+    if len(equations.index) > equations.mask.sum():
+        raise SolveError(f"{len(equations.index)} parameters but only {int(equations.mask.sum())} measured "
+                         "components: too few observations")
+    solution = solve(equations, _cached(equations), x0[equations.index], loss=loss, loss_scale=LOSS_SCALE_SIGMA,
+                     max_iterations=MAX_ITERATIONS, measured=equations.mask)
+    return equations.values(solution.free), solution, equations
+
+
+# The robust loss bends at this many noise standard deviations of the residual's sensor (the residuals are divided
+# by their noise: one scale for pixels and metres).
+LOSS_SCALE_SIGMA = 1.0
+MAX_ITERATIONS = 200
+
+
+def identifiable(model, obs, x, free, sigma):
+    """(free mask, {name: reason}): the gauges of the arm's parametrisation (solver.identify.gauges, in the order of
+    solver.arm.PRIORITY) fixed; raises SolveError (solver.identify.check_identifiable) if anything else is
+    undetermined."""
+    equations = ArmEquations(model, obs, x, free, sigma)
+    A = equations(x[equations.index]).A
+    names = [model.names[i] for i in equations.index]
+    effect = [model.parameters[i].effect for i in equations.index]
+    order = sorted(range(len(names)), key=lambda j: (PRIORITY.index(effect[j]), j))
+    fixable = [e != "sensor" for e in effect]
+    found = gauges(A, order, fixable)
+    reasons = {}
+    for j, partners in found.items():
+        reasons[names[j]] = ("it changes no prediction of these data" if not partners else
+                             f"the data cannot tell it from {', '.join(names[k] for k in partners)}; fixed at its "
+                             "start value, its effect is absorbed there")
+    keep = [j for j in range(len(names)) if j not in found]
+    check_identifiable(A[np.ix_(keep, keep)], [names[j] for j in keep])
+    out = free.copy()
+    out[equations.index[list(found)]] = False
     return out, reasons
 
 
-def _solve(model, obs, x0, free, sigma):
-    from scipy.optimize import least_squares
-
-    idx = np.flatnonzero(free)
-
-    def full(z):
-        x = x0.copy()
-        x[idx] = z
-        return x
-
-    def fun(z):
-        return whitened(model, obs, full(z), sigma)
-
-    def jac(z):
-        return whitened(model, obs, full(z), sigma, jacobian=True)[1][:, idx]
-
-    r0 = fun(x0[idx])
-    if not np.all(np.isfinite(r0)):
-        bad = int(np.flatnonzero(~np.all(np.isfinite(r0.reshape(-1, 1)), axis=1))[0])
-        raise SolveError(f"the model's prediction is not finite at the start (residual {bad}: a point behind a "
-                         "camera?)")
-    if len(idx) > r0.size:
-        raise SolveError(f"{len(idx)} parameters but only {r0.size} measured components: too few observations")
-    result = least_squares(fun, x0[idx], jac=jac, method="lm", x_scale=model.scales[idx], xtol=1e-12, ftol=1e-12,
-                           gtol=1e-12, max_nfev=200 * (len(idx) + 1))
-    return full(result.x), result
+def _estimated_sigma(model, obs, residual, sigma, known, n_free):
+    """Each sensor's noise where the dataset states none: the RMS the fit left, corrected for the parameters."""
+    sigma = sigma.copy()
+    dof = max(1.0, 1.0 - n_free / max(1, model.component_mask(obs).sum()))
+    rms = sensor_rms(model, obs, residual)
+    for s, sensor in enumerate(model.sensors):
+        if not known[s]:
+            sigma[s] = max(rms[sensor.name] / np.sqrt(dof), 1e-12)
+    return sigma
 
 
-def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path="dataset") -> ArmFit:
-    """Fit the free parameters (all but `fixed` names or effects, and those the data cannot tell apart)."""
+def _outlier_rows(model, obs, residual, sigma) -> np.ndarray:
+    """The trimming's round (solver.identify.worst_of_group_beyond): the worst detection of each pose beyond
+    OUTLIER_SCALES robust (MAD) scales of its sensor's residuals."""
+    mask = model.component_mask(obs)
+    size = np.zeros(len(obs))
+    for s in range(len(model.sensors)):
+        rows = obs.sensor == s
+        if not rows.any():
+            continue
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(residual[rows][mask[rows]])))
+        scale = scale if scale > 0 else sigma[s]
+        size[rows] = np.linalg.norm(residual[rows] * mask[rows], axis=1) / scale
+    return worst_of_group_beyond(size, obs.pose, OUTLIER_SCALES)
+
+
+def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path="dataset", loss: str = "linear",
+        robust: bool = True) -> ArmFit:
+    """Fit the free parameters (all but `fixed` names or effects, and the gauges the data cannot tell apart).
+
+    loss : 'linear' or a robust loss (solver.identify.ROBUST_WEIGHT), bending at LOSS_SCALE_SIGMA noise stds.
+    robust : set aside the detections no model explains (`_outlier_rows`), refitting after each round.
+    """
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
     start = time.perf_counter()
     free = np.array([not (p.name in fixed or p.effect in fixed or any(p.name.startswith(f + ".") for f in fixed))
                      for p in model.parameters])
@@ -241,37 +377,47 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
     reasons = {}
     if auto_fix:
         free, reasons = identifiable(model, obs, x0, free, sigma)
-    x, result = _solve(model, obs, x0, free, sigma)
+    all_obs, kept = obs, np.arange(len(obs))
+    x, solution, _ = _solve(model, obs, x0, free, sigma, loss)
     if not known.all():  # weights from what the first fit left, then fit again
-        residual = model.predict(x, obs) - obs.measured
-        dof = max(1.0, 1.0 - free.sum() / max(1, model.component_mask(obs).sum()))
-        rms = sensor_rms(model, obs, residual)
-        for s, sensor in enumerate(model.sensors):
-            if not known[s]:
-                sigma[s] = max(rms[sensor.name] / np.sqrt(dof), 1e-12)
-        x, result = _solve(model, obs, x, free, sigma)
-    r, J = whitened(model, obs, x, sigma, jacobian=True)
-    Jf = J[:, free]
-    dof = max(1, r.size - int(free.sum()))
-    s2 = float(r @ r) / dof
-    std = np.zeros(len(x))
-    weak, cond = [], float("inf")
-    if free.any():
-        Js = Jf * model.scales[free]
-        U, sv, Vt = np.linalg.svd(Js, full_matrices=False)
-        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-        inv = np.where(sv > sv[0] * 1e-14, 1.0 / np.maximum(sv, 1e-300), 0.0)
-        cov = (Vt.T * inv ** 2) @ Vt * s2
-        std[free] = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * model.scales[free]
-        names = [n for n, f in zip(model.names, free) if f]
-        for k in np.argsort(sv)[:3]:
-            coefs = {names[j]: float(Vt[k, j]) for j in np.argsort(-np.abs(Vt[k])) if abs(Vt[k, j]) >= 0.1}
-            std_along = math.sqrt(s2) / sv[k] if sv[k] > 0 else math.inf  # scaled units, as the NAO's
-            weak.append(WeakDirection(float(sv[k] / sv[0]), float(std_along), coefs))
+        sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+    for _ in range(MAX_TRIM_ROUNDS if robust else 0):
+        bad = _outlier_rows(model, obs, solution.final.residuals * sigma[obs.sensor][:, None], sigma)
+        if not len(bad):
+            break
+        kept = np.delete(kept, bad)
+        obs = all_obs.subset(kept)
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+    if len(kept) < len(all_obs) and not known.all():  # the noise from the detections kept
+        sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+    names = [n for n, f in zip(model.names, free) if f]
+    _, cluster = np.unique(obs.pose, return_inverse=True)
+    spread = solution.spread(cluster.reshape(-1), names)
+    std, std_iid = np.zeros(len(x)), np.zeros(len(x))
+    std[free] = np.sqrt(np.clip(np.diag(spread.covariance), 0.0, None))
+    std_iid[free] = np.sqrt(np.clip(np.diag(spread.covariance_iid), 0.0, None))
     residual = model.predict(x, obs) - obs.measured
     residual[~model.component_mask(obs)] = 0.0
-    return ArmFit(model, obs, x, free, std, sigma, known, reasons, weak, cond, int(result.nfev),
-                  bool(result.success), str(result.message), time.perf_counter() - start, residual)
+    outliers = _outliers(model, all_obs, np.setdiff1d(np.arange(len(all_obs)), kept), x)
+    return ArmFit(model, obs, x, free, std, sigma, known, reasons, spread.weak_directions, spread.condition_number,
+                  solution.n_fun, solution.success, solution.message, time.perf_counter() - start, residual,
+                  std_iid, outliers, loss, solution.weights)
+
+
+def _outliers(model, obs, rows, x) -> list:
+    """[ArmOutlier] of the observations `rows`, sized at the final fit's values."""
+    if not len(rows):
+        return []
+    sub = obs.subset(rows)
+    e = (model.predict(x, sub) - sub.measured) * model.component_mask(sub)
+    unit = {"points": "m", "camera": "px"}
+    return [ArmOutlier(sub.pose_name(sub.pose[k]), model.sensors[sub.sensor[k]].name,
+                       model.point_names[sub.point[k]], float(np.linalg.norm(e[k])),
+                       unit[model.sensors[sub.sensor[k]].kind],
+                       None if sub.source_line is None else int(sub.source_line[k]))
+            for k in range(len(sub))]
 
 
 # ------------------------------------------------------------------------------------------------ held-out poses
@@ -301,7 +447,7 @@ def heldout_rms(fit_: ArmFit, n_folds: int = 5) -> dict:
         train = obs.subset(~test)
         held = obs.subset(test)
         for label, free in (("nominal", sensor_only), ("calibrated", fit_.free)):
-            x, _ = _solve(model, train, x_start, free, fit_.sigma)
+            x, _, _ = _solve(model, train, x_start, free, fit_.sigma, fit_.loss)
             errors[label][test] = model.predict(x, held) - held.measured
     mask = model.component_mask(obs)
     for e in errors.values():
@@ -316,8 +462,8 @@ def model_for(dataset, effects) -> ArmModel:
                     dataset.link_names)
 
 
-def identify_dataset(dataset, effects, *, fixed=()) -> ArmFit:
+def identify_dataset(dataset, effects, *, fixed=(), loss: str = "linear", robust: bool = True) -> ArmFit:
     model = model_for(dataset, effects)
     meta_path = dataset.path / "dataset.json"
     x0 = initialise_sensors(model, dataset.observations, meta_path)
-    return fit(model, dataset.observations, x0, fixed=fixed, path=meta_path)
+    return fit(model, dataset.observations, x0, fixed=fixed, path=meta_path, loss=loss, robust=robust)

@@ -24,7 +24,8 @@ import numpy as np
 
 from solver.adapter import model_data_from_dataset
 from solver.effects import EFFECTS
-from solver.identify import IdentificationResult, identify
+from solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, IdentificationResult, identify,
+                             worst_of_group_beyond)
 from solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
                                  without_images)
 from solver.model import ModelData
@@ -37,11 +38,9 @@ HYPOTHESIS_WORDS = {"measured": "the readings", "cell": "the command inside the 
                     "commanded": "the commands"}
 # A hypothesis must fit this much better (relative RMS) than an earlier one in ANGLE_HYPOTHESES to be chosen.
 ANGLE_MARGIN = 0.01
-# Outliers: a corner whose non-rigid residual exceeds OUTLIER_SCALES robust scales (2-D Gaussian: 4e-6 of good
-# corners) and OUTLIER_MIN_PX (mis-detections are a square or a reflection off, several px).
-OUTLIER_SCALES = 5.0
+# Outliers: a corner whose non-rigid residual exceeds OUTLIER_SCALES robust scales (solver.identify's rule for
+# every kind) and OUTLIER_MIN_PX (mis-detections are a square or a reflection off, several px).
 OUTLIER_MIN_PX = 1.0
-MAX_TRIM_ROUNDS = 10
 # After the trimming, images that lost too many corners (or the one far beyond the others) are set aside, the data
 # refitted and the trimming goes on with the rounds it has left (at most this many times: each removes an image).
 MAX_IMAGE_ROUNDS = 3
@@ -55,7 +54,6 @@ IMAGE_MIN_PX = 1.0
 MIN_IMAGES_FOR_SCALE = 8
 # GLS trusts the board's shape to this noise at least (the realistic mock's detections: 0.028 px robust scale).
 GLS_MIN_SIGMA_PX = 0.02
-MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
 
 
 @dataclass
@@ -304,11 +302,7 @@ def _trimmed(result, registry: Registry, step, options: dict, rounds: int):
         scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
         size = np.linalg.norm(nonrigid, axis=1)
         d = result.model.data
-        # the worst corner of each image only: a bad corner drags its image's rigid fit, and so its neighbours
-        worst = np.full(d.n_images, -1)
-        order = np.argsort(size)
-        worst[d.image_of_row[order]] = order
-        bad = np.array([i for i in worst if i >= 0 and size[i] > max(OUTLIER_SCALES * scale, OUTLIER_MIN_PX)], int)
+        bad = worst_of_group_beyond(size, d.image_of_row, max(OUTLIER_SCALES * scale, OUTLIER_MIN_PX))
         if not len(bad):
             break
         outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]

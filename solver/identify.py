@@ -128,20 +128,73 @@ def data_warnings(data: ModelData) -> list[str]:
     return warnings
 
 
-def check_identifiable(As: np.ndarray, registry: Registry):
+def check_identifiable(As: np.ndarray, names):
     """Raise SolveError naming the parameters that the data cannot determine at all (As: the scaled normal matrix
-    of the free parameters)."""
+    of the free parameters `names`, a list or a Registry's free parameters)."""
+    names = list(getattr(names, "free_names", names))
     cond, sv, Vt = identifiability(As)
     bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
     if len(bad):
-        names = registry.free_names
         involved = sorted({names[i] for k in bad for i in np.flatnonzero(np.abs(Vt[k]) > 0.05)})
         combos = "; ".join(_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names).describe() for k in bad[:3])
         raise SolveError(
             f"the data cannot determine {len(bad)} parameter combination(s) ({combos}); involved: "
-            f"{', '.join(involved)}. Measure more varied stances (both legs, several head postures), "
-            f"or fix these parameters (--fix)."
+            f"{', '.join(involved)}. Measure more varied poses, or fix these parameters (--fix)."
         )
+
+
+def gauges(As: np.ndarray, order, fixable) -> dict[int, list[int]]:
+    """The parameters a kind's parametrisation makes redundant by construction: {i: [j, ...]}, each i within
+    UNIDENTIFIABLE_RATIO of the span of the parameters `order` kept before it (j: those it leans on most).
+
+    The one identifiability policy (docs/ARM.md, "Identifiability"): a direction whose relative singular value is
+    below UNIDENTIFIABLE_RATIO is not determined by the data. A kind may name some of its parameters gauges
+    (`fixable[i]`): parameters that other parameters of it absorb whatever the data (an arm's sensor frames, which
+    may be anywhere, absorb a turn of the whole arm about its first axis, so its first joint's offset); taken in the
+    kind's `order`, such a parameter within the threshold of the span of those kept before it is fixed at its start
+    value and reported with its partners (the prediction does not change). Whatever is still undetermined after
+    that stops the fit (check_identifiable): a joint offset fixed at 0 because the data were too poor would be a
+    wrong calibration, written to a robot. The test is the relative residual of the parameter's scaled Jacobian
+    column after projection onto the columns kept before it (the pivots of a Cholesky factorisation of As in that
+    order); the Jacobian itself is never formed (NormalEquations).
+    """
+    d = np.sqrt(np.clip(np.diag(As), 0.0, None))
+    C = As / np.outer(np.where(d > 0, d, 1.0), np.where(d > 0, d, 1.0))  # unit columns
+    kept, out = [], {}
+    for i in order:
+        if d[i] == 0.0:
+            if fixable[i]:
+                out[i] = []
+            continue
+        if kept:
+            coef = np.linalg.lstsq(C[np.ix_(kept, kept)], C[kept, i], rcond=None)[0]
+            residual2 = float(C[i, i] - C[kept, i] @ coef)
+        else:
+            coef, residual2 = np.zeros(0), 1.0
+        if fixable[i] and residual2 < UNIDENTIFIABLE_RATIO ** 2:
+            out[i] = [kept[j] for j in np.argsort(-np.abs(coef))[:3] if abs(coef[j]) > 1e-3]
+            continue
+        kept.append(i)
+    return out
+
+
+# Outliers, for every kind (solver.fit for the NAO's corners, solver.arm_identify for the arm's detections): a
+# measurement whose residual exceeds OUTLIER_SCALES robust (MAD) scales is a mis-detection (2-D Gaussian: 4e-6 of
+# good ones, 3-D: 1.4e-5); only the worst of its group (image, pose) each round, since a bad one drags its group's
+# fit and so its neighbours; at most MAX_TRIM_ROUNDS rounds, refitting after each.
+OUTLIER_SCALES = 5.0
+MAX_TRIM_ROUNDS = 10
+MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the median absolute deviation of a Gaussian, in standard deviations
+
+
+def worst_of_group_beyond(size: np.ndarray, group: np.ndarray, threshold: float) -> np.ndarray:
+    """Indices of the rows that are the largest `size` of their `group` and beyond `threshold` (the trimming's
+    one round)."""
+    group = np.asarray(group, dtype=np.int64)
+    worst = np.full(int(group.max(initial=-1)) + 1, -1)
+    order = np.argsort(size)
+    worst[group[order]] = order
+    return np.array([i for i in worst if i >= 0 and size[i] > threshold], dtype=int)
 
 
 # Vertex rows per chunk of NormalEquations: a chunk's arrays are a few per vertex (its factored Jacobian's F is
@@ -426,6 +479,116 @@ def levenberg_marquardt(normal_at, x0, scales, *, max_iterations=100, ftol=1e-10
     return x, at, 0, TERMINATION_MESSAGES[0], n_jac, n_fun
 
 
+ROBUST_WEIGHT = {  # rho'(z) of scipy.optimize.least_squares's robust losses, z = (r / scale)^2
+    "soft_l1": lambda z: 1 / np.sqrt(1 + z),
+    "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(np.maximum(z, 1.0))),
+    "cauchy": lambda z: 1 / (1 + z),
+}
+LOSSES = ("linear",) + tuple(ROBUST_WEIGHT)
+
+
+@dataclass
+class Spread:
+    """How precisely a solution is known: the cluster-robust and the classic covariance of the free parameters
+    (unscaled units), the scaled Jacobian's singular values and vectors, and its weakest directions."""
+
+    covariance: np.ndarray
+    covariance_iid: np.ndarray
+    condition_number: float
+    sv: np.ndarray
+    Vt: np.ndarray
+    weak_directions: list
+
+    def warnings(self) -> list[str]:
+        return [f"weakly determined combination (relative singular value {d.singular_value:.1e}): {d.describe()}"
+                for d in self.weak_directions if d.singular_value < WEAK_RATIO]
+
+
+@dataclass
+class Solution:
+    """What `solve` found: the free values, the normal equations there (with a robust loss: of the weighted
+    residuals), why it stopped, and each residual row's robust weight (1 without a robust loss)."""
+
+    free: np.ndarray
+    final: Normal
+    scales: np.ndarray
+    status: int
+    message: str
+    n_jac: int
+    n_fun: int
+    success: bool
+    weights: np.ndarray
+    n_measured: int  # residual components that are measurements (the degrees of freedom count these)
+
+    def spread(self, cluster_of_group, names) -> Spread:
+        """The covariance with the errors shared within a cluster (`cluster_of_group` (M,): the cluster of each
+        row of Normal.image_scores: an image's stance for the NAO, an observation's pose for the arm)."""
+        dof = max(self.n_measured - len(self.scales), 1)
+        rss = 2.0 * self.final.cost  # weighted with a robust loss
+        cond, sv, Vt = identifiability(self.final.A)
+        covariance, covariance_iid = parameter_covariance(self.final.A, rss, self.final.image_scores, sv, Vt,
+                                                          self.scales, cluster_of_group, self.n_measured, dof)
+        s = np.sqrt(rss / dof)
+        weak = [_direction(sv[k] / sv[0], float(s / sv[k]) if sv[k] > 0 else np.inf, Vt[k], names)
+                for k in np.argsort(sv)[:3]]
+        return Spread(covariance, covariance_iid, cond, sv, Vt, weak)
+
+
+def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: float = 1.0, solver: str = "lm",
+          max_iterations: int = 100, measured: np.ndarray | None = None) -> Solution:
+    """The one solve of every robot kind: Levenberg-Marquardt on the normal equations (`levenberg_marquardt`), or,
+    for a robust loss or 'minpack', scipy.optimize.least_squares on the whole Jacobian.
+
+    equations : the problem (NormalEquations, or an arm's solver.arm_identify.ArmEquations): `scales`,
+        `equations(free, weights=)` -> Normal and `equations.dense(free)` -> (r over the measured components, J).
+    normal_at : `equations` at a free vector, cached (LM and the checks ask at one x twice).
+    loss, loss_scale : 'linear' or a robust loss of ROBUST_WEIGHT; the residual size (in the residuals' units) where
+        it bends. The weights of each residual row are the mean of rho' over its measured components.
+    measured : (N, C) bool, which components of Normal.residuals are measurements (default: all).
+    """
+    scales = equations.scales
+    with np.errstate(over="raise", invalid="raise", divide="raise"):
+        try:
+            if loss == "linear" and solver == "lm":
+                free, final, status, message, n_jac, n_fun = levenberg_marquardt(
+                    normal_at, free0, scales, max_iterations=max_iterations)
+                success = status > 0
+            else:
+                dense_cache = {}
+
+                def dense(f):
+                    key = f.tobytes()
+                    if key not in dense_cache:
+                        dense_cache.clear()
+                        dense_cache[key] = equations.dense(f)
+                    return dense_cache[key]
+
+                method = "lm" if loss == "linear" else "trf"
+                sol = least_squares(
+                    lambda f: dense(f)[0], free0, jac=lambda f: dense(f)[1], method=method,
+                    x_scale=scales, loss=loss, f_scale=loss_scale,
+                    max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
+                )
+                dense_cache.clear()
+                free, status = sol.x, int(sol.status)
+                message = TERMINATION_MESSAGES.get(status, str(sol.message))
+                n_jac, n_fun, success = int(sol.njev or 0), int(sol.nfev), bool(sol.success)
+                final = normal_at(free)
+        except FloatingPointError as err:
+            raise SolveError(f"the model could not be evaluated during the solve ({err}): is a board behind the "
+                             "camera, or are the start values wildly wrong?") from None
+    residuals = final.residuals
+    mask = np.ones(residuals.shape, dtype=bool) if measured is None else measured
+    weights = np.ones(len(residuals))
+    if loss != "linear":
+        rho1 = ROBUST_WEIGHT[loss]((residuals / loss_scale) ** 2)
+        weights = np.sum(rho1 * mask, axis=1) / np.maximum(mask.sum(axis=1), 1)
+        final = equations(free, weights=weights)  # the covariance's scores of the weighted residuals
+        final.residuals = residuals
+    return Solution(free, final, scales, int(status), message, int(n_jac), int(n_fun),
+                    bool(success) and bool(np.all(np.isfinite(free))), weights, int(mask.sum()))
+
+
 def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",
              loss_scale_px: float = 1.0, max_iterations: int = 100, check: bool = True,
              solver: str = "lm", chunk_rows: int = CHUNK_ROWS, reading_step_rad=None) -> IdentificationResult:
@@ -474,58 +637,17 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     if not len(registry.free_names):
         raise SolveError("no free parameters to identify")
 
-    scales = equations.scales
     free0 = registry.pack(base)
     if check:
-        check_identifiable(normal_at(free0).A, registry)
-    with np.errstate(over="raise", invalid="raise", divide="raise"):
-        try:
-            if loss == "linear" and solver == "lm":
-                free, final, status, message, n_jac, n_fun = levenberg_marquardt(
-                    normal_at, free0, scales, max_iterations=max_iterations)
-                success = status > 0
-            else:
-                dense_cache = {}
-
-                def dense(f):
-                    key = f.tobytes()
-                    if key not in dense_cache:
-                        dense_cache.clear()
-                        dense_cache[key] = equations.dense(f)
-                    return dense_cache[key]
-
-                method = "lm" if loss == "linear" else "trf"
-                sol = least_squares(
-                    lambda f: dense(f)[0], free0, jac=lambda f: dense(f)[1], method=method,
-                    x_scale=scales, loss=loss, f_scale=loss_scale_px,
-                    max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
-                )
-                dense_cache.clear()
-                free, status = sol.x, int(sol.status)
-                message = TERMINATION_MESSAGES.get(status, str(sol.message))
-                n_jac, n_fun, success = int(sol.njev or 0), int(sol.nfev), bool(sol.success)
-                final = normal_at(free)
-        except FloatingPointError as err:
-            raise SolveError(f"the model could not be evaluated during the solve ({err}): is a board behind the "
-                             "camera, or are the start values wildly wrong?") from None
-
+        check_identifiable(normal_at(free0).A, registry.free_names)
+    solution = solve(equations, normal_at, free0, loss=loss, loss_scale=loss_scale_px, solver=solver,
+                     max_iterations=max_iterations)
+    free, final, weights = solution.free, solution.final, solution.weights
+    scales = equations.scales
     values = registry.unpack(free, base)
     residuals = final.residuals
-    weights = np.ones(len(residuals))
-    if loss != "linear":
-        z = (residuals / loss_scale_px) ** 2
-        rho1 = {"soft_l1": lambda z: 1 / np.sqrt(1 + z), "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(z)),
-                "cauchy": lambda z: 1 / (1 + z)}[loss](z)
-        weights = rho1.mean(axis=1)
-        final = equations(free, weights=weights)  # the covariance's scores of the weighted residuals
-    n = residuals.size
-    dof = max(n - len(scales), 1)
-    rss = 2.0 * final.cost  # weighted with a robust loss
-    s2 = rss / dof
-
-    cond, sv, Vt = identifiability(final.A)
-    covariance, covariance_iid = parameter_covariance(final.A, rss, final.image_scores, sv, Vt, scales,
-                                                      stance_cluster_of_image(model.data), n, dof)
+    spread = solution.spread(stance_cluster_of_image(model.data), registry.free_names)
+    covariance, sv, Vt = spread.covariance, spread.sv, spread.Vt
     share = float("nan")
     if reading_step_rad is not None and np.any(np.asarray(reading_step_rad) > 0):
         J_free = equations.dense(free)[1]  # the only tall Jacobian of the linear fit; only when steps are asked
@@ -536,13 +658,11 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(std_free, std_free)
     std = np.abs(registry.expand) @ std_free
-    std_iid = np.abs(registry.expand) @ np.sqrt(np.diag(covariance_iid))
-    weak = [_direction(sv[k] / sv[0], float(np.sqrt(s2) / sv[k]) if sv[k] > 0 else np.inf, Vt[k],
-                       registry.free_names) for k in np.argsort(sv)[:3]]
-    for direction in weak:
-        if direction.singular_value < WEAK_RATIO:
-            warnings.append(f"weakly determined combination (relative singular value {direction.singular_value:.1e}):"
-                            f" {direction.describe()}")
+    std_iid = np.abs(registry.expand) @ np.sqrt(np.diag(spread.covariance_iid))
+    warnings.extend(spread.warnings())
+    cond, weak = spread.condition_number, spread.weak_directions
+    status, message, n_jac, n_fun, success = (solution.status, solution.message, solution.n_jac, solution.n_fun,
+                                              solution.success)
 
     downweighted = []
     if loss != "linear":

@@ -168,8 +168,9 @@ def test_readings_in_the_wrong_unit_are_refused_naming_line_and_column(plain, tm
 
 def test_an_arm_without_hidden_errors_is_reported_honestly(tmp_path, capsys):
     """No error to find: identify succeeds with values within their uncertainty of zero and names its weakest
-    directions; diagnose finds nothing missing."""
-    model, obs, _, sensors = synthetic(("joint_offsets", "link_lengths"), {}, n_poses=30, seed=23)
+    directions; diagnose finds nothing missing. (40 poses, as assert_recovered's tolerances are for: with 30 the
+    per-pose clustered std of the sixth joint's offset is 0.0103 deg, its classic one 0.0082 deg.)"""
+    model, obs, _, sensors = synthetic(("joint_offsets", "link_lengths"), {}, n_poses=40, seed=23)
     d = write(tmp_path / "exact", model, obs, sensors)
     code, report, err = identify(capsys, d)
     assert code == 0, err

@@ -40,8 +40,8 @@ def parse_arm_effects(text: str):
 def _check_nao_only(args) -> None:
     from solver.errors import NaocalError
 
-    if getattr(args, "loss", "linear") != "linear":
-        raise NaocalError("--loss: an arm is fitted with the linear loss only")
+    if getattr(args, "loss_scale_px", 1.0) != 1.0:
+        raise NaocalError("--loss-scale-px is the NAO's: an arm's robust loss bends at its sensors' noise (1 std)")
     if getattr(args, "tie_hip_yaw_pitch", False):
         raise NaocalError("--tie-hip-yaw-pitch is the NAO's")
 
@@ -73,6 +73,8 @@ def result_json(fit, dataset, heldout) -> dict:
             s: dict(v, unit=_unit_of(sensors[s])) for s, v in heldout.items()},
         "parameters": fit.parameters_dict(),
         "fixed": fit.fixed_reasons,
+        "loss": fit.loss,
+        "outliers": [o.as_dict() for o in fit.outliers],
         "condition_number": fit.condition_number,
         "weak_directions": [{"singular_value": w.singular_value, "coefficients": w.coefficients}
                             for w in fit.weak_directions],
@@ -106,6 +108,9 @@ def format_table(report: dict) -> str:
     lines.append("")
     for name, reason in report["fixed"].items():
         lines.append(f"fixed: {name}: {reason}")
+    from solver.arm_identify import ArmOutlier, describe_outliers
+
+    lines.append(describe_outliers([ArmOutlier(**o) for o in report["outliers"]]))
     lines.append(f"condition number (scaled Jacobian): {report['condition_number']:.3g}")
     lines.append("weakest directions (what the data determine least):")
     for w in report["weak_directions"]:
@@ -125,7 +130,7 @@ def run_identify(args) -> int:
 
         check_output_file(args.out)  # before the fit, as the NAO's identify
     dataset = _load(args)
-    fit = identify_dataset(dataset, effects, fixed=tuple(args.fix))
+    fit = identify_dataset(dataset, effects, fixed=tuple(args.fix), loss=args.loss, robust=not args.keep_outliers)
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
     from solver.arm_calibration import LIMITS, implausible
