@@ -277,8 +277,11 @@ class SimulatedArm:
 
 
 def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4, noise_px=0.2,
-                 hidden=("joint_offsets", "link_lengths"), name="arm") -> dict:
-    """Write a naocal.arm_dataset/1 directory `out` (with robot.urdf, the nominal URDF) and out/truth.json."""
+                 hidden=("joint_offsets", "link_lengths"), name="arm", pose_error_rad=0.0) -> dict:
+    """Write a naocal.arm_dataset/1 directory `out` (with robot.urdf, the nominal URDF) and out/truth.json.
+
+    pose_error_rad : the arm's repeatability: at each pose every joint stands off its reading by a random error of
+        this standard deviation, shared by all that pose's observations (errors correlated within a pose)."""
     import json
     import shutil
 
@@ -288,7 +291,9 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
     out = Path(out)
     with SimulatedArm(urdf_path, base, tip, seed, hidden=hidden) as arm:
         thetas = arm.sample_stances(n_poses)
-        obs, sensors = arm.measure(thetas, noise_m, noise_px)
+        off = np.random.default_rng([seed, 1]).normal(0.0, pose_error_rad, thetas.shape) if pose_error_rad else 0.0
+        obs, sensors = arm.measure(thetas + off, noise_m, noise_px)
+        obs.theta = np.asarray(thetas)[obs.pose]  # what the encoders read
         truth = dict(arm.truth)
         points = arm.points
     out.mkdir(parents=True, exist_ok=True)
@@ -302,6 +307,7 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
     }
     write_arm_dataset(out, meta, arm.chain.joint_names, obs, sensors, points)
     truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
-                 "noise": {"tracker_m": noise_m, "camera_px": noise_px}, "hidden": list(hidden)}
+                 "noise": {"tracker_m": noise_m, "camera_px": noise_px, "pose_rad": pose_error_rad},
+                 "hidden": list(hidden)}
     atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
     return {"n_poses": int(len(thetas)), "n_observations": int(len(obs)), "truth": truth}

@@ -320,10 +320,10 @@ def identifiable(model, obs, x, free, sigma):
     fixable = [e != "sensor" for e in effect]
     found = gauges(A, order, fixable)
     reasons = {}
-    for j, partners in found.items():
+    for j, (partners, residual) in found.items():
         reasons[names[j]] = ("it changes no prediction of these data" if not partners else
-                             f"the data cannot tell it from {', '.join(names[k] for k in partners)}; fixed at its "
-                             "start value, its effect is absorbed there")
+                             f"the data cannot tell it from {', '.join(names[k] for k in partners)} (relative "
+                             f"residual {residual:.1e}); fixed at its start value, its effect is absorbed there")
     keep = [j for j in range(len(names)) if j not in found]
     check_identifiable(A[np.ix_(keep, keep)], [names[j] for j in keep])
     out = free.copy()

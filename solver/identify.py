@@ -143,9 +143,10 @@ def check_identifiable(As: np.ndarray, names):
         )
 
 
-def gauges(As: np.ndarray, order, fixable) -> dict[int, list[int]]:
-    """The parameters a kind's parametrisation makes redundant by construction: {i: [j, ...]}, each i within
-    UNIDENTIFIABLE_RATIO of the span of the parameters `order` kept before it (j: those it leans on most).
+def gauges(As: np.ndarray, order, fixable) -> dict[int, tuple[list[int], float]]:
+    """The parameters a kind's parametrisation makes redundant by construction: {i: ([j, ...], relative residual)},
+    each i within UNIDENTIFIABLE_RATIO of the span of the parameters `order` kept before it (j: those it leans on
+    most).
 
     The one identifiability policy (docs/ARM.md, "Identifiability"): a direction whose relative singular value is
     below UNIDENTIFIABLE_RATIO is not determined by the data. A kind may name some of its parameters gauges
@@ -164,7 +165,7 @@ def gauges(As: np.ndarray, order, fixable) -> dict[int, list[int]]:
     for i in order:
         if d[i] == 0.0:
             if fixable[i]:
-                out[i] = []
+                out[i] = ([], 0.0)
             continue
         if kept:
             coef = np.linalg.lstsq(C[np.ix_(kept, kept)], C[kept, i], rcond=None)[0]
@@ -172,7 +173,8 @@ def gauges(As: np.ndarray, order, fixable) -> dict[int, list[int]]:
         else:
             coef, residual2 = np.zeros(0), 1.0
         if fixable[i] and residual2 < UNIDENTIFIABLE_RATIO ** 2:
-            out[i] = [kept[j] for j in np.argsort(-np.abs(coef))[:3] if abs(coef[j]) > 1e-3]
+            out[i] = ([kept[j] for j in np.argsort(-np.abs(coef))[:3] if abs(coef[j]) > 1e-3],
+                      float(np.sqrt(max(residual2, 0.0))))
             continue
         kept.append(i)
     return out

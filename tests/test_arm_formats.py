@@ -166,6 +166,30 @@ def test_readings_in_the_wrong_unit_are_refused_naming_line_and_column(plain, tm
         read_arm_dataset(d)
 
 
+def test_identify_takes_a_robust_loss_and_lists_wrong_detections_by_line(plain, tmp_path, capsys):
+    """`--loss` is the NAO's for an arm too (it was refused); a tracker reading 5 mm off and a marker 30 px off are
+    set aside and listed with their pose, sensor, point and line, in the table and in --json."""
+    directory, truth = plain
+    header, rows = table(directory)
+    tracker = next(k for k, r in enumerate(rows) if r[1] == "tracker" and int(r[0]) == 7)
+    camera = next(k for k, r in enumerate(rows) if r[1] == "camera" and int(r[0]) == 12)
+    rows[tracker][header.index("x_m")] = repr(float(rows[tracker][header.index("x_m")]) + 5e-3)
+    rows[camera][header.index("u_px")] = repr(float(rows[camera][header.index("u_px")]) + 30.0)
+    damaged = copy(directory, tmp_path / "damaged", "\n".join([",".join(header)] + [",".join(r) for r in rows]))
+    for loss in ("linear", "soft_l1"):
+        code, report, err = identify(capsys, damaged, "--loss", loss)
+        assert code == 0, err
+        assert report["loss"] == loss
+        assert {(o["pose"], o["sensor"], o["point"], o["line"]) for o in report["outliers"]} == {
+            (7, "tracker", rows[tracker][2], tracker + 2), (12, "camera", rows[camera][2], camera + 2)}
+        assert_recovered(report, truth, angle_deg=0.02, length_m=2e-4)
+    assert main(["identify", str(damaged), "--loss", "huber"]) == 0
+    out = capsys.readouterr().out
+    assert f"outliers: 2 detections in 2 poses set aside" in out and f"(line {tracker + 2})" in out
+    assert main(["identify", str(damaged), "--loss-scale-px", "3"]) == 2
+    assert "--loss-scale-px is the NAO's" in capsys.readouterr().err
+
+
 def test_an_arm_without_hidden_errors_is_reported_honestly(tmp_path, capsys):
     """No error to find: identify succeeds with values within their uncertainty of zero and names its weakest
     directions; diagnose finds nothing missing. (40 poses, as assert_recovered's tolerances are for: with 30 the
