@@ -28,11 +28,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.joints import LEG_JOINTS, leg_joints
+from solver.joints import LEG_COLUMNS, LEG_JOINTS, leg_joints
 from solver.kinematics import gravity_torques
-from solver.model import LEG_COLUMNS, Model
+from solver.model import Model
 from solver.registry import Registry
-from solver.camera import default_intrinsics
+from solver.robot import default_intrinsics
 from solver.adapter import make_model_data
 
 BASE_REGISTRY = Registry()  # the paper's 21 parameters

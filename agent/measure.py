@@ -30,9 +30,8 @@ from agent.robot import Robot
 from agent.safety import prior_covariance
 from agent.visibility import OcclusionChecker, view_margin_px
 from backends.errors import SafetyError
-from solver.joints import JOINTS
+from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS
 from solver.limits import head_pitch_limits
-from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 
 log = logging.getLogger(__name__)
 

@@ -44,12 +44,11 @@ from agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard, prior_covariance, w
 from agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
 from body.nao_body import CollisionChecker, NaoBody
 from body.pybullet_quiet import pybullet
-from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
+from solver.joints import HEAD_COLUMNS, JOINT_INDEX, JOINTS, LEG_COLUMNS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
 from backends.errors import SafetyError
-from solver.camera import default_intrinsics
+from solver.robot import default_intrinsics
 from solver.limits import command_limits, head_pitch_limits, joint_limits, max_speeds
-from solver.model import HEAD_COLUMNS, LEG_COLUMNS
 from solver.registry import Registry
 from solver.transforms import rot_x, rot_y, rot_z
 

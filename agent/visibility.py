@@ -125,7 +125,7 @@ class OcclusionChecker:
     def hidden_points(self, stance, leg: str, camera: str = "bottom") -> int:
         """How many of the board's probe points (board_probe_points_sole) are hidden from `camera` at `stance` (14
         angles, solver.joints.JOINTS order)."""
-        from solver.model import HEAD_COLUMNS, LEG_COLUMNS
+        from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
 
         stance = np.asarray(stance, dtype=float)
         self.body.set_angles(stance)

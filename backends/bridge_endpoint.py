@@ -17,7 +17,8 @@ import ipaddress
 import re
 import socket
 
-from solver.errors import BridgeError, NaocalError
+from backends.errors import BridgeError
+from solver.errors import NaocalError
 
 LOCAL_TRANSPORTS = ("ipc", "inproc")  # never reachable from another machine
 CLIENT_EXAMPLE = "tcp://HOST:PORT (e.g. tcp://nao.local:7790) or ipc://PATH"

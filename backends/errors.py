@@ -1,11 +1,7 @@
 """Errors of the robot side: a refused command, a robot that does not answer in time, a failed bridge. User-facing
 (NaocalError: one line, exit 2), raised by the backends and the agent."""
 
-from solver.errors import NaocalError
-
-
-class SafetyError(NaocalError):
-    """A command was refused because it would leave the joint limits or collide."""
+from solver.errors import NaocalError, SafetyError  # noqa: F401 (a refused command: the limits' own, solver.limits)
 
 
 class RobotTimeout(NaocalError):

@@ -50,7 +50,8 @@ import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from solver import limits
-from solver.errors import NaocalError, RobotTimeout, SafetyError
+from backends.errors import RobotTimeout
+from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINTS
 
 log = logging.getLogger("naocal.lola")

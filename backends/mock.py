@@ -261,7 +261,7 @@ def default_intrinsics(realism: Realism | str = IDEAL) -> CameraIntrinsics:
     """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json: fx =
     fy = 600 px, centre (320, 240)) with the realism's prior focal length if it has one (realistic: a real NAO
     head's 618 px)."""
-    from solver.camera import default_intrinsics as prior
+    from solver.robot import default_intrinsics as prior
 
     d = prior("bottom")
     f = as_realism(realism).prior_focal_px

@@ -45,7 +45,8 @@ import cv2
 import numpy as np
 
 from backends.base import CameraImage, CameraIntrinsics, nominal_intrinsics
-from solver.errors import NaocalError, RobotTimeout
+from backends.errors import RobotTimeout
+from solver.errors import NaocalError
 
 log = logging.getLogger("naocal.v4l2")
 

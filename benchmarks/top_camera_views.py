@@ -27,10 +27,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.planner import Planner, PlanSettings, with_leg  # noqa: E402
 from agent.visibility import ViewRules, view_matrix  # noqa: E402
-from solver.camera import default_intrinsics  # noqa: E402
+from solver.robot import default_intrinsics  # noqa: E402
 from solver.joints import JOINTS, LEGS, leg_joints  # noqa: E402
 from solver.limits import head_pitch_limits  # noqa: E402
-from solver.model import HEAD_COLUMNS  # noqa: E402
+from solver.joints import HEAD_COLUMNS  # noqa: E402
 
 STAGES = ("any corner", "24 corners", "view rules", "stance rules", "unoccluded", "robust")
 

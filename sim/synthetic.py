@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.camera import default_intrinsics
+from solver.robot import default_intrinsics
 from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS, LEGS, leg_joints
 from solver.kinematics import camera_fk, leg_fk, project_sole_points
 from solver.adapter import make_model_data  # noqa: F401 (its home is solver.adapter; tests import it here too)

@@ -124,7 +124,7 @@ def make_model_data(theta, leg, stance, head_posture, *, direction=None, velocit
     """ModelData of the NAO's bottom camera for every vertex of every image of the sandals `leg` (M,), with zero
     detections (fill uv_px afterwards): what the agent's planner and estimator evaluate the model on for stances it
     plans or has measured. theta (M, 14) in solver.joints.JOINTS order; intrinsics default to the description's."""
-    from solver.camera import default_intrinsics
+    from solver.robot import default_intrinsics
     from solver.joints import JOINTS
     from solver.robot import nao
 

@@ -1,8 +1,8 @@
 """Identification of an arm's parameters (solver.arm) from a naocal.arm_dataset/1 (docs/ARM.md).
 
 1. Each sensor's frame is found from the data first (it may be anywhere): a 3-D sensor by the least-squares rigid
-   alignment of the nominal points with its readings (Kabsch), a camera by OpenCV's solvePnP; a pose given in
-   dataset.json is used as it is.
+   alignment of the nominal points with its readings (Kabsch), a camera by the direct linear transform of its
+   pixels (camera_pose_dlt); a pose given in dataset.json is used as it is.
 2. The fit is the NAO's (solver.identify.solve): Levenberg-Marquardt on the normal equations, accumulated over
    chunks of observations (ArmEquations), or scipy's trust region for a robust loss (`--loss`), on residuals divided
    by each sensor's noise (dataset.json's noise_m / noise_px; when missing, estimated from a first fit and the fit

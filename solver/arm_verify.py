@@ -85,10 +85,11 @@ def verify_arm(dataset, cal) -> ArmVerdict:
         if name in cal.arm_parameters:
             x0[i] = cal.parameters[name]["value"]
     # 1. the calibration as it is; only the sensors' frames found from the new data
-    fixed = fit(model, obs, x0, fixed=tuple(arm_names), path=meta_path)
+    # (every detection kept: a verdict is on all the new data, as the NAO's verify)
+    fixed = fit(model, obs, x0, fixed=tuple(arm_names), path=meta_path, robust=False)
     # 2. a refit of what the calibration fitted: the noise floor (when the data state none) and what moved
     kept_fixed = tuple(n for n in arm_names if n in cal.parameters and cal.parameters[n]["fixed"]) + tuple(missing)
-    refit = fit(model, obs, fixed.x, fixed=kept_fixed, path=meta_path)
+    refit = fit(model, obs, fixed.x, fixed=kept_fixed, path=meta_path, robust=False)
 
     per_sensor, reference = {}, np.zeros(len(model.sensors))
     refit_rms = refit.rms()

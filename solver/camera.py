@@ -7,7 +7,7 @@ exact derivatives. The only place naocal projects a point (the paper's Eq. 1, do
 
 for a point (x, y, z) in the NAO camera frame (x along the optical axis, y left, z up). Intrinsics are a dict
 {"fx_px", "fy_px", "cx_px", "cy_px", "distortion": [k1, k2, p1, p2, k3], "width_px", "height_px"}; the prior of
-each camera is in the robot description (`default_intrinsics`). Every function is pure and vectorised.
+each camera is in the robot description (solver.robot.default_intrinsics). Every function is pure and vectorised.
 """
 
 from __future__ import annotations
@@ -53,14 +53,6 @@ class CameraIntrinsics:
     def undistort_px(self, uv_px) -> np.ndarray:
         """Undistorted pixels (..., 2) of distorted ones (`undistort_points`)."""
         return undistort_points(uv_px, self.intrinsics())
-
-
-def default_intrinsics(camera: str | None = None, robot=None) -> dict:
-    """The prior intrinsics of a camera of the robot description (default: the NAO's first default camera)."""
-    from solver.robot import nao
-
-    robot = robot or nao()
-    return robot.camera(camera or robot.default_cameras[0]).intrinsics()
 
 
 def distortion_of(intrinsics) -> np.ndarray:

@@ -46,11 +46,5 @@ class DiskFullError(NaocalError):
         super().__init__(f"cannot write {self.path}: {reason} ({free})")
 
 
-def __getattr__(name):
-    """The robot-side errors moved to backends.errors (the solver never talks to a robot); their old names import
-    from here until the next release."""
-    if name in ("SafetyError", "RobotTimeout", "BridgeError"):
-        from backends import errors
-
-        return getattr(errors, name)
-    raise AttributeError(f"module 'solver.errors' has no attribute {name!r}")
+class SafetyError(NaocalError):
+    """A command was refused because it would leave the joint limits (solver.limits) or collide (the backends)."""

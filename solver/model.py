@@ -24,7 +24,6 @@ from solver import camera as camera_model
 from solver.effect import CameraTerm, Setup
 from solver.effects import EFFECTS
 from solver.errors import NaocalError
-from solver.joints import HEAD_COLUMNS, LEG_COLUMNS  # noqa: F401 (the NAO's column layout, for old imports)
 from solver.kinematics import chain_frames, chain_gravity_torques, joint_axes_and_origins
 from solver.registry import Registry
 
@@ -663,11 +662,3 @@ class Model:
         table = np.array([[values[c][n] for n in names] for c in layout.cameras])[of_row]  # (N, 9)
         return table[:, 0], table[:, 1], table[:, 2], table[:, 3], tuple(table[:, 4 + i] for i in range(5))
 
-
-def __getattr__(name):
-    """The dataset adapter moved to solver.adapter; these names still import from here."""
-    if name in ("model_data_from_dataset", "choose_angles", "AngleChoice", "encoder_resolution"):
-        from solver import adapter
-
-        return getattr(adapter, name)
-    raise AttributeError(f"module 'solver.model' has no attribute {name!r}")

@@ -405,3 +405,9 @@ def _load(path: str) -> RobotDescription:
 def nao() -> RobotDescription:
     """The NAO (solver/data/nao.json)."""
     return load_robot("nao")
+
+
+def default_intrinsics(camera: str | None = None, robot: RobotDescription | None = None) -> dict:
+    """The prior intrinsics of a camera of a robot description (default: the NAO's first default camera)."""
+    robot = robot or nao()
+    return robot.camera(camera or robot.default_cameras[0]).intrinsics()

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import fdtrc  # F survival function (scipy.stats is slow to import)
 
-from solver.model import ModelData
 
 # A direction of a candidate whose share of its Jacobian left after projecting off the fitted model is below this
 # is numerically inside the model: not counted as a degree of freedom of the test.
@@ -64,7 +63,7 @@ def _project_off(Q: np.ndarray, A: np.ndarray) -> np.ndarray:
     return A - Q @ (Q.T @ A)
 
 
-def stance_clusters(data: ModelData) -> list[np.ndarray]:
+def stance_clusters(data) -> list[np.ndarray]:
     """Residual-coordinate indices (into the flattened (2 N,) residual) of each cluster of the significance tests.
 
     The 24 vertices of one image move together, and so do the images of one stance (leg, stance) taken at several
@@ -92,7 +91,7 @@ def row_ids(a: np.ndarray) -> np.ndarray:
     return ids
 
 
-def stance_cluster_of_image(data: ModelData) -> np.ndarray:
+def stance_cluster_of_image(data) -> np.ndarray:
     """(M,) cluster number of each image, as `stance_clusters` explains: its stance, or itself along a sweep."""
     moving = np.zeros(data.n_images, bool) if data.velocity is None else np.any(data.velocity != 0, axis=1)
     # the stance's readings: every joint but the cameras' (a leg, for the NAO's sandals)
@@ -112,7 +111,7 @@ def stance_cluster_of_image(data: ModelData) -> np.ndarray:
     return np.unique(key, return_inverse=True)[1].reshape(-1)
 
 
-def image_clusters(data: ModelData) -> list[np.ndarray]:
+def image_clusters(data) -> list[np.ndarray]:
     """Residual-coordinate indices of each image: clusters for data whose stances share nothing."""
     element_image = np.repeat(data.image_of_row, 2)
     order = np.argsort(element_image, kind="stable")

@@ -595,7 +595,7 @@ def _robot_main(args) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     # An ideal encoder: LoLA's readings are 32-bit floats, which hide the mock's 0.1 deg grid from naocal's
-    # quantisation detection (solver.model.encoder_resolution); with the grid the fit would use the readings and
+    # quantisation detection (solver.adapter.encoder_resolution); with the grid the fit would use the readings and
     # their quantisation error (0.1-0.2 deg on the knees) would swamp what this test checks.
     mock = MockBackend(args.seed, encoder_resolution_deg=0.0, camera_delay_s=0.04, sensor_period_s=CYCLE_S,
                        sensor_lag_cycles=1, command_delay_s=CYCLE_S)

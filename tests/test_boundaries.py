@@ -1,8 +1,10 @@
-"""The layering (docs/CONVENTIONS.md): solver <- body, sim, backends <- agent <- tools. What each package may import,
-one class per name, and the old names of moved modules still importing for one release (issue 13)."""
+"""The layering (docs/CONVENTIONS.md): solver <- body, sim, backends <- agent <- tools. What each package may import
+(no exceptions), no import cycles, no compatibility shims, one class per name."""
 
 import ast
 import importlib
+import importlib.util
+import sys
 from collections import defaultdict
 
 import pytest
@@ -15,11 +17,9 @@ FORBIDDEN = {
     "solver": ("backends", "agent", "tools", "body", "sim", "pybullet", "zmq", "cv2"),
     "body": ("backends", "agent", "tools", "sim"),
     "sim": ("backends", "agent", "tools"),
-    "agent": ("backends.pybullet_body", "backends.mock", "backends.mock_render", "body.nao_body.NaoBody_",
-              "sim", "solver.synthetic", "tools"),
+    "backends": ("agent", "tools"),
+    "agent": ("backends.mock", "backends.mock_render", "body.nao_body.NaoBody_", "sim", "tools"),
 }
-# Compatibility re-exports of moved names (one release), the only allowed exceptions.
-COMPATIBILITY = {("solver/errors.py", "backends")}
 
 
 def imports_of(path):
@@ -42,31 +42,105 @@ def test_packages_import_only_what_their_layer_may(package):
         relative = str(path.relative_to(ROOT))
         for name in imports_of(path):
             for forbidden in FORBIDDEN[package]:
-                if (name == forbidden or name.startswith(forbidden + ".")) and \
-                        (relative, forbidden) not in COMPATIBILITY:
+                if name == forbidden or name.startswith(forbidden + "."):
                     bad.append(f"{relative} imports {name}")
     assert not bad, bad
 
 
-def test_robot_errors_live_with_the_backends_and_old_names_still_import():
+def test_errors_live_in_one_home_each_without_shims():
+    """A refused command is the joint limits' own (solver.limits raises it; the backends too); the robot-side errors
+    live with the backends; nothing re-exports another module's names under an old name."""
     from backends import errors
     from solver import errors as solver_errors
 
+    assert errors.SafetyError is solver_errors.SafetyError
     source = (ROOT / "solver" / "errors.py").read_text()
-    for name in ("SafetyError", "RobotTimeout", "BridgeError"):
-        assert f"class {name}" not in source
-        assert getattr(solver_errors, name) is getattr(errors, name)
+    for name in ("RobotTimeout", "BridgeError"):
+        assert f"class {name}" not in source and not hasattr(solver_errors, name)
         assert issubclass(getattr(errors, name), solver_errors.NaocalError)
+    for old in ("solver.synthetic", "backends.pybullet_body", "solver.moved"):
+        assert importlib.util.find_spec(old) is None, old
+    for package in PACKAGES:
+        for path in python_files(package):
+            tree = ast.parse(path.read_text())
+            assert not any(isinstance(node, ast.FunctionDef) and node.name == "__getattr__" for node in tree.body), \
+                f"{path.relative_to(ROOT)}: a module-level __getattr__ (a compatibility shim)"
 
 
-def test_moved_modules_import_under_their_old_names():
-    assert importlib.import_module("backends.pybullet_body") is importlib.import_module("body.nao_body")
-    assert importlib.import_module("solver.synthetic") is importlib.import_module("sim.synthetic")
-    from solver.adapter import make_model_data
-    from solver.synthetic import make_model_data as old
+def module_name(path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
-    assert old is make_model_data
-    assert not (ROOT / "solver" / "synthetic.py").exists() and not (ROOT / "backends" / "pybullet_body.py").exists()
+
+def import_graph() -> dict:
+    """{module: the modules of naocal it imports}, at module level or inside functions (a lazy import that dodges a
+    cycle is still one): `from a.b import c` counts as a.b.c when that is a module, else a.b."""
+    modules = {module_name(path): path for package in PACKAGES for path in python_files(package)}
+
+    def resolve(name):
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {}
+    for name, path in modules.items():
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets.update(resolve(alias.name) for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets.update(resolve(f"{node.module}.{alias.name}") or resolve(node.module) for alias in node.names)
+        graph[name] = targets - {None, name}
+    return graph
+
+
+def cycles(graph) -> list:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * len(graph)))
+    try:
+        for v in sorted(graph):
+            if v not in index:
+                visit(v)
+    finally:
+        sys.setrecursionlimit(limit)
+    return found
+
+
+def test_the_cycle_check_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_module_imports_and_no_import_forms_a_cycle():
+    graph = import_graph()
+    assert not cycles(graph), cycles(graph)
+    for name in sorted(graph):
+        if not name.endswith("__main__"):  # (runs the command line)
+            importlib.import_module(name)
 
 
 def test_one_class_per_name():

@@ -20,7 +20,8 @@ from backends import protocol
 from backends.bridge import BridgeBackend
 from backends.bridge_server import BridgeServer, check_bind_address, write_curve_keys
 from backends.protocol import ControlError
-from solver.errors import BridgeError, NaocalError
+from backends.errors import BridgeError
+from solver.errors import NaocalError
 from tests.bridge_fakes import CLI, MOTION_ARGS, ROOT, FakeBackend, RawClient, serving
 
 TARGETS = [{"HeadYaw": 0.01 * k, "LKneePitch": 0.02 * k} for k in range(1, 11)]

@@ -87,10 +87,10 @@ def test_unknown_component_is_refused():
 
 
 def test_default_intrinsics_come_from_the_robot_description():
-    from solver.robot import nao
+    from solver.robot import default_intrinsics, nao
 
-    assert camera.default_intrinsics() == nao().camera("bottom").intrinsics()
-    assert camera.default_intrinsics("top")["height_px"] == 480
+    assert default_intrinsics() == nao().camera("bottom").intrinsics()
+    assert default_intrinsics("top")["height_px"] == 480
 
 
 def test_undistortion_inverts_the_projection_and_agrees_with_opencv():

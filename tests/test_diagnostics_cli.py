@@ -194,7 +194,7 @@ def test_the_verdict_fixes_what_the_data_cannot_tell_and_diagnose_accepts_it(ela
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
+    from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
     from tools.cmd_diagnose import format_text
 
@@ -238,7 +238,7 @@ def test_the_report_without_an_after_has_no_after_and_keeps_untestable_regressor
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
+    from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
     from tools.report import write_report
 

@@ -193,7 +193,7 @@ def test_std_counts_the_error_a_stance_shares_across_its_images():
 
 def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
     from solver.joints import JOINTS
-    from solver.model import choose_angles, encoder_resolution
+    from solver.adapter import choose_angles, encoder_resolution
 
     step = 0.1 * DEG
     sparse = np.array([0, 7, 19, 40, 41 + 12, 90]) * step  # smallest gap 7 steps: a few stances, far apart

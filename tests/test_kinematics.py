@@ -172,7 +172,8 @@ def test_board_vertices_span_documented_area():
 
 def test_projection_of_sole_points_equals_the_models_prediction():
     """The planner's and the agent's projection (no distortion) is the identification model's at zero offsets."""
-    from solver.model import HEAD_COLUMNS, LEG_COLUMNS, Model
+    from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
+    from solver.model import Model
     from solver.registry import Registry
     from sim.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
 

@@ -14,7 +14,8 @@ from backends.lola_driver import (CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_J
                                   LolaBackend, LolaFrame, parse_sensor_message)
 from backends.v4l2_camera import V4L2Camera
 from solver import limits
-from solver.errors import NaocalError, RobotTimeout, SafetyError
+from backends.errors import RobotTimeout
+from solver.errors import NaocalError, SafetyError
 from solver.joints import JOINTS
 from tests.backend_contract import check_backend_contract
 from tests.lola_fakes import (BODY_ID, HEAD_ID, FakeLola, SimpleServos, SyntheticCapture, answer_series,

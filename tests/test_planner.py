@@ -17,7 +17,7 @@ from solver.errors import DataError
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
 from solver.kinematics import camera_fk, leg_fk
 from solver.limits import head_pitch_limits, joint_limits
-from solver.model import HEAD_COLUMNS, LEG_COLUMNS
+from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
 from sim.synthetic import DEFAULT_INTRINSICS
 
 

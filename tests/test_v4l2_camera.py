@@ -11,7 +11,8 @@ import pytest
 from backends.lola_driver import LolaBackend
 from backends.base import nominal_intrinsics
 from backends.v4l2_camera import CAMERAS, V4L2Camera, read_intrinsics, yuyv_problem, yuyv_to_bgr
-from solver.errors import DataError, NaocalError, RobotTimeout
+from backends.errors import RobotTimeout
+from solver.errors import DataError, NaocalError
 from tests.lola_fakes import FakeLola, SyntheticCapture, bgr_to_yuyv
 
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import sys
 
+from solver.fileio import json_safe
+
 
 def add_arm_options(parser, *, simulate=False) -> None:
     """--robot and --chain (argparse only)."""
@@ -147,12 +149,6 @@ def run_identify(args) -> int:
         write_calibration(args.out, report, dataset, args.dataset)
     print(json.dumps(json_safe(report), indent=1) if args.json else format_table(report))
     return 0
-
-
-def json_safe(obj):
-    from tools.cmd_diagnose import json_safe as safe
-
-    return safe(obj)
 
 
 def write_calibration(path, report, dataset, dataset_path) -> None:

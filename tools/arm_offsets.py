@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from solver.errors import DataError, NaocalError
-from tools.cmd_offsets import _num, _shown  # the NAO's diff table's columns
+from tools.columns import number_column as _num, shown_value as _shown  # the NAO's diff table's columns
 
 ARM_EXPORT_FORMATS = ("urdf", "json")
 

@@ -101,7 +101,8 @@ def run_move(args) -> int:
     from backends.bridge import BridgeBackend
     from backends.compensated import CompensatedBackend
     from solver import limits
-    from solver.errors import NaocalError, RobotTimeout, SafetyError
+    from backends.errors import RobotTimeout
+    from solver.errors import NaocalError, SafetyError
     from tools.cmd_offsets import parse_assignment
 
     if not 0.0 < args.speed <= 0.5:

@@ -2,6 +2,7 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
+from solver.fileio import json_safe
 from tools.cmd_identify import add_angles_option, add_tie_option, effect_names
 
 EPILOG = """\
@@ -127,27 +128,6 @@ def capture_times(dataset, result):
     ids, first = np.unique(np.asarray(cols["image"]), return_index=True)
     t = dict(zip(ids.tolist(), np.asarray(cols["t_image_s"], dtype=float)[first].tolist()))
     return np.array([t[int(i)] for i in result.model.data.image_id])
-
-
-def json_safe(obj):
-    """NaN and infinity become null (JSON has neither); numpy scalars become Python numbers."""
-    import math
-
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    return obj
 
 
 def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:

@@ -8,6 +8,8 @@ Every error is one line on stderr and exit code 2.
 import argparse
 import sys
 
+from tools.columns import number_column as _num, shown_value as _shown  # shared with tools/arm_offsets.py
+
 COMMANDS_HELP = """commands:
   show FILE                       offsets (deg, with std), camera rotation, board mount, model effects, fit, source
   diff A B                        per-parameter differences; '*' marks |B - A| > sqrt(std_A^2 + std_B^2)
@@ -149,20 +151,10 @@ def _shown_elsewhere(name: str) -> bool:
 _BOARD_ROWS = (("rot_z_rad", "rot_z", "rad"), ("trans_x_m", "trans_x", "m"), ("trans_y_m", "trans_y", "m"))
 
 
-def _num(value, width=10, digits=4) -> str:
-    return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
-
-
 def _unit(unit) -> str:
     from solver.effect import shown
 
     return shown(0.0, unit)[1]
-
-
-def _shown(value, unit):
-    from solver.effect import shown
-
-    return None if value is None else shown(value, unit)[0]
 
 
 def _joint_std(offsets, joint):
