@@ -34,7 +34,8 @@ EFFECTS = {
     "elasticity": "joint compliance under the static gravity torque of the URDF masses, rad/(N m)",
 }
 DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
-# Which parameters stay free when the data cannot tell some apart (solver.arm_identify): earlier groups win.
+# The gauges' order (solver.identify.gauges, via solver.arm_identify.identifiable): of parameters the data cannot
+# tell apart, the earlier group stays free and the later is fixed; a sensor frame is never fixed.
 PRIORITY = ("sensor", "joint_offsets", "link_lengths", "points", "link_poses", "elasticity")
 POINT_KINDS = tuple(MEASUREMENTS)  # the sensors' measurement kinds (solver.measurement)
 AXES = "xyz"

@@ -130,8 +130,8 @@ def data_warnings(data: ModelData) -> list[str]:
 
 def check_identifiable(As: np.ndarray, names):
     """Raise SolveError naming the parameters that the data cannot determine at all (As: the scaled normal matrix
-    of the free parameters `names`, a list or a Registry's free parameters)."""
-    names = list(getattr(names, "free_names", names))
+    of the free parameters `names`)."""
+    names = list(names)
     cond, sv, Vt = identifiability(As)
     bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
     if len(bad):

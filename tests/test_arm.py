@@ -154,6 +154,27 @@ def test_measurement_kinds_give_their_exact_jacobian():
     assert set(MEASUREMENTS) == {"points", "camera"}
 
 
+def test_the_arm_s_normal_equations_in_chunks_equal_one_pass_and_its_jacobian():
+    """ArmEquations (the arm's side of solver.identify.solve) accumulated over chunks of 7 observations: the same
+    normal matrix, gradient, cost and per-observation scores as one pass, and A = Js^T Js of the dense Jacobian."""
+    from solver.arm_identify import ArmEquations
+
+    model, obs, truth, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=9)
+    x = initialise_sensors(model, obs)
+    free = np.ones(len(x), bool)
+    sigma = np.array([1e-4, 0.2])
+    one, chunked = ArmEquations(model, obs, x, free, sigma), ArmEquations(model, obs, x, free, sigma, chunk_rows=7)
+    assert len(chunked.chunks) > 5
+    weights = np.random.default_rng(2).uniform(0.2, 1.0, len(obs))
+    for w in (None, weights):
+        a, b = one(x, weights=w), chunked(x, weights=w)
+        assert np.allclose(a.A, b.A, rtol=1e-12, atol=1e-9) and np.allclose(a.g, b.g, rtol=1e-12, atol=1e-9)
+        assert a.cost == pytest.approx(b.cost, rel=1e-12) and np.allclose(a.image_scores, b.image_scores)
+    r, J = chunked.dense(x)
+    Js = J * chunked.scales
+    assert np.allclose(Js.T @ Js, one(x).A, rtol=1e-10, atol=1e-9) and r.size == model.component_mask(obs).sum()
+
+
 def test_arm_stds_are_per_pose_and_cover_errors_shared_within_a_pose():
     """An arm that does not return exactly (0.05 deg per joint and pose, shared by the pose's measurements): the
     classic standard deviations (the arm's own, before it used the NAO's identification) claim far more than the
