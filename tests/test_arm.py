@@ -260,6 +260,20 @@ def test_arm_gauges_are_fixed_at_the_nao_s_threshold_and_a_sensor_never_is():
         fit(model, obs, initialise_sensors(model, obs))
 
 
+def test_a_parameter_no_pose_moves_stops_the_fit_naming_it_and_fitting_the_rest_once_it_is_fixed():
+    """The flange's elasticity: the hand's centre of mass lies nearly on its axis, so no pose gives it a gravity
+    torque (its column is 1e-18 of the largest). The arm fitted it to -1e13 deg/(N m) with std 0; under the one
+    policy it stops the fit with the NAO's message naming it, and `--fix` lets the rest be fitted."""
+    from solver.errors import SolveError
+
+    model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=40)
+    with pytest.raises(SolveError, match=r"cannot determine 1 parameter combination.*elasticity\.panda_joint7"):
+        fit(model, obs, initialise_sensors(model, obs))
+    result = fit(model, obs, initialise_sensors(model, obs), fixed=("elasticity.panda_joint7",))
+    assert result.success and not result.free[model.names.index("elasticity.panda_joint7")]
+    assert result.condition_number < 1e6
+
+
 def test_identify_refuses_a_camera_without_enough_observations():
     model, obs, _, _ = synthetic(("joint_offsets",), {}, n_poses=20)
     few = obs.subset((obs.sensor == 0) | (np.arange(len(obs)) < np.flatnonzero(obs.sensor == 1)[3]))
