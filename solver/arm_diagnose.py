@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from solver.arm import EFFECTS, ArmModel
 from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
+from solver.identify import UNIDENTIFIABLE_RATIO
 from solver.scoretest import score_test
 
 FAMILY_LEVEL = 0.001
@@ -41,12 +42,13 @@ class Test:
     significant: bool = False
     noise_rss: float = float("nan")  # what the group removes from the residuals' own errors on average (per pose)
     testable: bool = True  # False: too few poses for its directions (k >= poses - 1): p-value 1, not named
+    inert: tuple = ()  # its parameters no pose moves (solver.identify.UNIDENTIFIABLE_RATIO): to be fixed with it
 
     def as_dict(self):
         return {"label": self.label, "dof": self.k, "drss": self.drss, "noise_rss": self.noise_rss,
                 "p_value": self.p_value,
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
-                "significant": self.significant, "testable": self.testable}
+                "significant": self.significant, "testable": self.testable, "inert": list(self.inert)}
 
 
 def extended(fit: ArmFit, effects=tuple(EFFECTS)):
@@ -75,12 +77,15 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
     sensor_rows = np.broadcast_to(obs.sensor[:, None], mask.shape)[mask]
     pose_rows = np.broadcast_to(obs.pose[:, None], mask.shape)[mask]
     clusters = [np.flatnonzero(pose_rows == pose) for pose in np.unique(obs.pose)]
+    column_norms = np.linalg.norm(J, axis=0)
+    floor = UNIDENTIFIABLE_RATIO * column_norms[free].max(initial=0.0)  # the fit would stop on such a column
     tests = []
     for label, names in groups.items():
         cols = [index[n] for n in names if n in index and not free[index[n]]]
         if not cols:
             continue
         C = J[:, cols]
+        inert = tuple(big.names[c] for c in cols if 0.0 < column_norms[c] < floor)
         Cp = C - Q @ (Q.T @ C)
         total = float(np.sum(C ** 2))
         uniqueness = float(np.sum(Cp ** 2) / total) if total > 0 else 0.0
@@ -88,7 +93,7 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
         ref = max(float(np.linalg.norm(C, axis=0).max()), 1e-300)
         k = int(np.sum(sv > RANK_TOLERANCE * ref))
         if k == 0:
-            tests.append(Test(label, 0, 0.0, 1.0, uniqueness, {}, {}, noise_rss=0.0))
+            tests.append(Test(label, 0, 0.0, 1.0, uniqueness, {}, {}, noise_rss=0.0, inert=inert))
             continue
         Uk = U[:, :k]
         proj = Uk.T @ r
@@ -104,7 +109,7 @@ def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
         values = {big.names[c]: float(d * big.scales[c]) for c, d in zip(cols, delta)}
         tests.append(Test(label, k, drss, p_value, uniqueness, predicted, values,
                           noise_rss=clustered.noise_rss if np.isfinite(clustered.noise_rss) else float(k),
-                          testable=bool(np.isfinite(clustered.p_value))))
+                          testable=bool(np.isfinite(clustered.p_value)), inert=inert))
     return tests
 
 
@@ -192,7 +197,7 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
         values = dict(zip(model.names, fit.x))
         x0 = np.array([values.get(n, 0.0) for n in bigger.names])
         fixed = tuple(n for n in fit.fixed_reasons)
-        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed), n_folds)
+        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert), n_folds)
     return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
@@ -253,7 +258,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                         " among these candidates (the misfit above the noise is something else)."))
     else:
         lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
-                     f"{','.join(model.effects + (best.label,))}")
+                     f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert))
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

@@ -334,15 +334,19 @@ def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
 
 
 def test_diagnose_names_elasticity_under_gravity():
-    from solver.arm_diagnose import diagnose
+    from solver.arm_diagnose import diagnose, format_diagnosis
 
     truth = true_errors(seed=6)
     truth.update({f"elasticity.panda_joint{k}": 2e-3 for k in (2, 4)})  # 2 mrad per N m
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), truth, n_poses=50, seed=7)
     base = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), model.sensors,
                     ("joint_offsets", "link_lengths"), load=model.load, link_names=model.link_names)
-    d = diagnose(fit(base, obs, initialise_sensors(base, obs)), n_folds=0)
+    d = diagnose(fit(base, obs, initialise_sensors(base, obs)), n_folds=2)
     assert d.best is not None and d.best.label == "elasticity"
+    # the flange's elasticity no pose moves is fixed with it (the fit would stop on it), here and in the command
+    assert d.best.inert == ("elasticity.panda_joint7",) and d.heldout_with
+    assert format_diagnosis(d, "arm").splitlines()[-2].endswith(
+        "--effects joint_offsets,link_lengths,elasticity --fix elasticity.panda_joint7")
 
 
 # ------------------------------------------------------------------------------------------------ the format
