@@ -34,7 +34,7 @@ from backends import protocol
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.bridge_endpoint import check_client_endpoint
 from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotFault, RobotTimeout, SafetyError
 from solver.errors import NaocalError
 
 log = logging.getLogger("naocal.bridge.client")
@@ -240,6 +240,8 @@ class BridgeBackend(Backend):
             raise SafetyError(message)
         if error_type == "RobotTimeout":
             raise RobotTimeout(message)
+        if error_type == "RobotFault":
+            raise RobotFault(message)
         if error_type == "ControlError":
             raise ControlError(f"{self.endpoint}: {cmd}: {message}")
         raise BridgeError(f"{self.endpoint}: {cmd}: {error_type}: {message}")

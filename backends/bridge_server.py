@@ -39,7 +39,7 @@ from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
 from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
 from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
-from backends.errors import BridgeError, RobotTimeout, SafetyError
+from backends.errors import BridgeError, RobotFault, RobotTimeout, SafetyError
 from solver.errors import NaocalError
 from solver.fileio import atomic_write_bytes
 
@@ -357,8 +357,8 @@ class BridgeServer:
             reply = protocol.error_reply(request_id, "ControlError", str(err))
         except SafetyError as err:
             reply = protocol.error_reply(request_id, "SafetyError", str(err))
-        except RobotTimeout as err:
-            reply = protocol.error_reply(request_id, "RobotTimeout", str(err))
+        except (RobotTimeout, RobotFault) as err:
+            reply = protocol.error_reply(request_id, type(err).__name__, str(err))
         except NaocalError as err:
             reply = protocol.error_reply(request_id, "NaocalError", f"{type(err).__name__}: {err}")
         except Exception as err:  # a bug or a robot failure behind the backend: report it, keep serving

@@ -14,3 +14,8 @@ class RobotTimeout(NaocalError):
 
 class BridgeError(NaocalError):
     """The network bridge failed after its retries, or the server answered with an error."""
+
+
+class RobotFault(NaocalError):
+    """The robot sent a reading that cannot be trusted (not a number, not finite, beyond the joint's limits): the
+    driver is in its safe state and refuses motion until it is restarted (docs/DEPLOY.md)."""

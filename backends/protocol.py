@@ -35,8 +35,8 @@ REQUEST_ID_PATTERN = re.compile(r"^([A-Za-z0-9_.-]{1,64}):([0-9]{1,18})$")
 SECRET_PATTERN = re.compile(r"^[A-Za-z0-9_-]{22,128}$")  # tokens and nonces: at least 128 bits in base64url
 IMAGE_DTYPES = frozenset({"uint8"})
 
-# Error types on the wire. The client re-raises SafetyError and RobotTimeout as themselves, ControlError as
-# ControlError, everything else as BridgeError.
+# Error types on the wire. The client re-raises SafetyError, RobotTimeout and RobotFault as themselves,
+# ControlError as ControlError, everything else as BridgeError.
 ERROR_TYPES = (
     "ProtocolError",  # not a well-formed request of this protocol
     "UnsupportedVersion",
@@ -46,6 +46,7 @@ ERROR_TYPES = (
     "ControlError",  # no valid lease token: another client controls motion, or this one has not acquired it
     "SafetyError",
     "RobotTimeout",
+    "RobotFault",  # the robot sent a reading that cannot be trusted: the driver is in its safe state
     "NaocalError",
     "InternalError",
 )
