@@ -49,12 +49,16 @@ DEFAULT_BIND = "tcp://127.0.0.1:7790"
 POLL_INTERVAL_S = 0.1  # how often the loop looks at its stop flag
 
 
+MAX_LEASE_TIMEOUT_S = 86400.0  # a day: a silent controller loses the robot within a deadline, however long
+
+
 def check_lease_timeout(lease_timeout_s) -> float:
-    """A finite number of seconds > 0 (NaN would make every lease look expired: anyone could take the robot)."""
+    """A number of seconds in (0, MAX_LEASE_TIMEOUT_S] (NaN would make every lease look expired: anyone could take
+    the robot; 1e308 would let a dead controller hold it for ever)."""
     value = float(lease_timeout_s)
-    if not 0 < value < math.inf:
-        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a finite number of seconds > 0, got "
-                          f"{lease_timeout_s}")
+    if not 0 < value <= MAX_LEASE_TIMEOUT_S:
+        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a number of seconds in "
+                          f"(0, {MAX_LEASE_TIMEOUT_S:g}], got {lease_timeout_s}")
     return value
 
 

@@ -20,7 +20,7 @@ import threading
 import msgpack
 import numpy as np
 
-from backends.base import CameraImage, CameraIntrinsics, JointReading
+from backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
 from backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
@@ -260,12 +260,14 @@ def joint_reading_to_wire(reading: JointReading) -> dict:
     return {"angles_rad": {name: float(v) for name, v in reading.angles_rad.items()}, "t_s": float(reading.t_s)}
 
 
-def joint_reading_from_wire(data) -> JointReading:
+def joint_reading_from_wire(data, limits) -> JointReading:
+    """The server's reading, checked as every driver checks one (backends.base.checked_reading: RobotFault if it
+    cannot be trusted) against `limits`, the joint limits the server reported."""
     try:
-        angles = {str(name): float(v) for name, v in data["angles_rad"].items()}
-        return JointReading(angles_rad=angles, t_s=float(data["t_s"]))
+        angles, t_s = {str(name): v for name, v in data["angles_rad"].items()}, data["t_s"]
     except (TypeError, KeyError, AttributeError, ValueError) as err:
         raise ProtocolError(f"malformed joint reading: {err}") from None
+    return checked_reading(angles, t_s, limits)
 
 
 def image_to_wire(image: CameraImage | None):
