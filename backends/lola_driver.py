@@ -8,7 +8,7 @@ LEDs, which naocal leaves alone), in LoLA's 25-joint order `LOLA_JOINTS` (no RHi
 joints are one motor). Sources: Aldebaran's LoLA page (NAOqi 2.8), B-Human's NaoProvider, HULKs' hula lola.rs.
 
 What this driver does every cycle (`JointControl.step`, pure and tested without a socket):
-- stamps the message with the monotonic clock on receipt (LoLA sends no time);
+- stamps the message with the monotonic clock on receipt (LoLA sends no time) and checks it (below);
 - answers with one Position/Stiffness pair per message received;
 - joints naocal does not calibrate (arms, hands) get stiffness 0 and their own measured angle as position;
   a calibrated joint at stiffness 0 too (so that stiffening it never jumps: B-Human does the same);
@@ -31,7 +31,11 @@ more: see docs/DEPLOY.md for what LoLA and HuLA do then.
 Start-up refuses: no socket at the path, a refused connection, a connection on which nothing arrives within
 `first_message_timeout_s` (LoLA serves one client: another one, the team's framework or HuLA, holds it), and a
 first message that is not a LoLA sensor map (HuLA's /tmp/hula speaks HULKs' own binary frames, not msgpack).
-Once running, `silence_timeout_s` without a message is a fault: motion is refused from then on.
+Once running, `silence_timeout_s` without a trusted reading, or a closed connection, is a fault (RobotTimeout), and so
+is one message that cannot be trusted (RobotFault; `parse_sensor_message` says what is checked): motion is
+refused from then on, every message is still answered with the joints held for `hold_s` and then ramped limp
+(`release_control`'s safe state), and no reading is served older than `silence_timeout_s`. Whatever the robot
+reads, every position sent is inside its joint's limits (`pack_answer`, the one place positions are sent).
 """
 
 from __future__ import annotations

@@ -3,8 +3,10 @@
 Every backend that can move a real joint checks its targets against these before sending anything, with the one
 implementation here: `check_targets` (known joint, finite, inside its box, HeadPitch inside the table for every
 HeadYaw the head may have) and `check_speed_fraction`. The agent's own guard uses `limit_problem` and
-`head_pitch_problem` with its margins. The URDF is `solver/data/nao_v50.urdf` (the nominal model, see
-docs/ROBOT.md; Aldebaran's NAO V6 joint documentation); it is parsed once.
+`head_pitch_problem` with its margins. Every driver checks each joint reading with `readings_problem` before it
+serves or echoes it (a number, finite, within the limits plus READING_MARGIN_RAD; backends.base.checked_reading).
+The URDF is `solver/data/nao_v50.urdf` (the nominal model, see docs/ROBOT.md; Aldebaran's NAO V6 joint
+documentation); it is parsed once.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
   naocal bridge serve --driver mock|naoqi|lola [--seed N] [--naoqi URL] [--lola-socket PATH] --bind URL
                       [--allow-remote] [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
-  naocal bridge ping --endpoint URL [--timeout-s S] [--curve-server-key FILE]
+  naocal bridge ping --endpoint URL [--timeout-s S] [--count N] [--curve-server-key FILE]
   naocal bridge keygen --out DIR [--name NAME]
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...

@@ -3,6 +3,7 @@
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
 
+An offsets file of another body or head than the robot's (what `naocal verify` refuses) is warned about.
 `status` prints the robot's ids and, per joint, the raw reading, the reading corrected by the offsets file
 (reading - c), stiffness, temperature and temperature status. `--json` prints one JSON object (schema in
 docs/DEPLOY.md): a key per joint name with raw_rad, corrected_rad, stiffness, temperature_c, status (null where
@@ -11,8 +12,9 @@ the robot does not report it), and the key "robot" with body_id, head_id, their 
 `move` moves the named joints to the given angles in degrees, through the offsets (the command sent is
 target + c, so the joint truly stands at the target), at a safe default speed (10 % of each joint's maximum),
 after checking every target against the robot's limits and the HeadPitch-vs-HeadYaw table (an unsafe target
-exits with code 2 before anything moves). It stiffens only the named joints, waits until they read their
-targets (deadline: three times the motion time plus --timeout-s), then releases control: the LoLA driver then holds the
+exits with code 2 before anything moves). It stiffens only the named joints, waits on the robot's clock (the
+mock's moves only when asked) until they read their targets (deadline: three times the motion time plus
+--timeout-s), then releases control: the LoLA driver then holds the
 joints for its hold time and ramps their stiffness to 0 (docs/DEPLOY.md). It has no collision model: move one
 joint at a time, in small steps, with the robot where it cannot hurt itself.
 """
