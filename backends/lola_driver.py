@@ -134,14 +134,10 @@ def parse_sensor_message(message, t_s: float) -> LolaFrame:
             continue
         if not isinstance(values, (list, tuple)) or len(values) != length:
             raise ValueError(f"{key} must be an array of {length} numbers")
-        if key == "Position":
-            why = limits.readings_problem(dict(zip(LOLA_JOINTS, values)), LOLA_LIMITS)
-            if why is not None:
-                raise BadReading(f"Position: {why}")
-        else:
-            why = limits.readings_problem(dict(zip(LOLA_JOINTS, values)), {})
-            if why is not None:
-                raise BadReading(f"{key}: {why.replace(' reads ', ' ')}")
+        # Position against the joints' limits; the others (temperature, current, ...) have no box here.
+        why = limits.readings_problem(dict(zip(LOLA_JOINTS, values)), LOLA_LIMITS if key == "Position" else {})
+        if why is not None:
+            raise BadReading(f"{key}: {why}")
         arrays[key] = tuple(float(v) for v in values)
     if any(not (0.0 <= s <= 1.0) for s in arrays["Stiffness"] if not math.isnan(s)):
         raise BadReading("Stiffness outside [0, 1]")

@@ -139,7 +139,7 @@ def reading_problem(joint: str, value, limits: Mapping, *, margin_rad: float = R
         return f"{joint} reads {value!r} ({type(value).__name__}), not a number"
     angle = float(value)
     if not math.isfinite(angle):
-        return f"{joint} reads {angle}, not a finite angle"
+        return f"{joint} reads {angle}, not a finite number"
     if joint in limits:
         lower, upper = (float(v) for v in limits[joint])
         if not lower - margin_rad <= angle <= upper + margin_rad:
