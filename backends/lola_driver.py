@@ -499,8 +499,9 @@ class LolaBackend(Backend):
     def _set_fault_locked(self, reason: str, error=RobotTimeout) -> None:
         """The safe state: motion refused from now on, the joints held for hold_s, then limp (control.release)."""
         if self._fault is None and not self._closed:
-            log.error("%s; motion refused from now on (restart the bridge)", reason)
-            self._fault = error(reason)
+            self._fault = error(f"{reason}; motion is refused until the bridge is restarted (check the robot, "
+                                "restart the bridge, then --resume)")
+            log.error("%s", self._fault)
             self.control.release()
         self._frame_arrived.notify_all()
 
