@@ -29,7 +29,7 @@ from agent.record import CaptureRecord, CaptureStore
 from agent.robot import Robot
 from agent.safety import prior_covariance
 from agent.visibility import OcclusionChecker, view_margin_px
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS
 from solver.limits import head_pitch_limits
 

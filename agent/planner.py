@@ -46,7 +46,7 @@ from body.nao_body import CollisionChecker, NaoBody
 from body.pybullet_quiet import pybullet
 from solver.joints import HEAD_COLUMNS, JOINT_INDEX, JOINTS, LEG_COLUMNS, LEG_JOINTS, LEGS, leg_joints
 from solver.kinematics import camera_fk, gravity_torques, leg_fk
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.robot import default_intrinsics
 from solver.limits import command_limits, head_pitch_limits, joint_limits, max_speeds
 from solver.registry import Registry

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from body.nao_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import JOINT_INDEX, JOINTS
 from solver.limits import command_limits, head_pitch_problem
 

@@ -32,7 +32,7 @@ from backends.compensated import CompensatedBackend
 from body.nao_body import CollisionChecker, NaoBody
 from solver.adapter import model_data_from_dataset
 from solver.dataset import read_dataset
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.errors import NaocalError
 from solver.fileio import atomic_write_text
 from solver.fit import identify_dataset

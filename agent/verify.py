@@ -18,7 +18,7 @@ import numpy as np
 from agent.estimate import FULL, RunningEstimate
 from agent.record import CaptureRecord
 from agent.robot import Robot
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import JOINTS, LEGS
 
 log = logging.getLogger(__name__)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backends.errors import RobotFault
+from solver import limits as joint_limits_module
 from solver.camera import CameraIntrinsics  # noqa: F401  (the backends report the one intrinsics type)
 
 
@@ -22,6 +24,18 @@ class JointReading:
 
     angles_rad: dict[str, float]
     t_s: float  # robot clock time at which the encoders were sampled
+
+
+def checked_reading(angles_rad, t_s, limits) -> JointReading:
+    """A JointReading from what a robot reported, checked as every driver checks a reading before serving it: each
+    angle a number (not a string, not a bool), finite, within its joint's `limits` plus
+    solver.limits.READING_MARGIN_RAD; the time a finite number. RobotFault naming the first problem otherwise."""
+    why = joint_limits_module.readings_problem(angles_rad, limits)
+    if why is None and not (joint_limits_module.is_number(t_s) and math.isfinite(t_s)):
+        why = f"its time {t_s!r} is not a finite number"
+    if why is not None:
+        raise RobotFault(f"the robot sent a reading that cannot be trusted: {why}")
+    return JointReading(angles_rad={str(name): float(v) for name, v in angles_rad.items()}, t_s=float(t_s))
 
 
 @dataclass(frozen=True)
@@ -114,9 +128,13 @@ class Backend(abc.ABC):
 
     def status(self) -> dict:
         """Everything the robot reports, for `naocal bridge status`: {"robot": {...}, "joints": {name: {"raw_rad",
-        "stiffness", "temperature_c", "status"}}, "t_s"}; values a backend cannot read are None."""
-        reading = self.read_joints()
+        "stiffness", "temperature_c", "status"}}, "t_s"}; values a backend cannot read are None. A reading that
+        cannot be trusted is reported as {"robot": {..., "fault": reason}, "joints": {}, "t_s": None}."""
         identity = {str(k): str(v) for k, v in self.robot_identity().items()}
+        try:
+            reading = self.read_joints()
+        except RobotFault as err:
+            return {"robot": {**identity, "fault": str(err)}, "joints": {}, "t_s": None}
         return {
             "robot": identity,
             "joints": {name: {"raw_rad": float(angle), "stiffness": None, "temperature_c": None, "status": None}

@@ -34,11 +34,13 @@ from backends import protocol
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.bridge_endpoint import check_client_endpoint
 from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, RobotTimeout, SafetyError
-from solver.errors import NaocalError
+from backends.errors import BridgeError, RobotFault, RobotTimeout
+from solver.errors import NaocalError, SafetyError
 
 log = logging.getLogger("naocal.bridge.client")
 
+MAX_TIMEOUT_S = 3600.0  # the longest a request may wait for its reply
+FIRST_CONTACT_TIMEOUT_S = 5.0  # check_server_answers: longer than a wall-clock server's longest sleep chunk
 WALL_CLOCK_SLEEP_CHUNK_S = 1.0  # a wall-clock server blocks while it sleeps: keep each sleep short
 HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_AUTH
                       | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
@@ -78,8 +80,10 @@ class BridgeBackend(Backend):
         context: zmq.Context | None = None,
     ):
         check_client_endpoint(endpoint)
-        if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s < math.inf):  # every wait has a deadline
-            raise BridgeError(f"bridge timeout (--timeout-s) must be a finite number of seconds > 0, got {timeout_s}")
+        # Every wait has a deadline, and one libzmq can take (a poll in ms: 1e308 s overflowed).
+        if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s <= MAX_TIMEOUT_S):
+            raise BridgeError(f"bridge timeout (--timeout-s) must be a number of seconds in (0, {MAX_TIMEOUT_S:g}], "
+                              f"got {timeout_s}")
         if not retries >= 0:
             raise ValueError("retries must be >= 0")
         self.endpoint = endpoint
@@ -240,6 +244,8 @@ class BridgeBackend(Backend):
             raise SafetyError(message)
         if error_type == "RobotTimeout":
             raise RobotTimeout(message)
+        if error_type == "RobotFault":
+            raise RobotFault(message)
         if error_type == "ControlError":
             raise ControlError(f"{self.endpoint}: {cmd}: {message}")
         raise BridgeError(f"{self.endpoint}: {cmd}: {error_type}: {message}")
@@ -371,7 +377,7 @@ class BridgeBackend(Backend):
         self._motion_call("command", {"targets_rad": targets, "speed_fraction": float(speed_fraction)})
 
     def read_joints(self) -> JointReading:
-        return protocol.joint_reading_from_wire(self._call("read_joints"))
+        return protocol.joint_reading_from_wire(self._call("read_joints"), self.joint_limits())
 
     def set_stiffness(self, names, stiffness: float) -> None:
         names = [names] if isinstance(names, str) else [str(name) for name in names]
@@ -448,3 +454,14 @@ def _load_client_curve(server_key_file, client_key_file):
         raise BridgeError(f"{client_key_file}: holds no secret key (give the *.key_secret file)")
     warn_if_others_can_read(client_key_file)
     return server_public, client_public, client_secret
+
+
+def check_server_answers(endpoint: str, timeout_s: float = FIRST_CONTACT_TIMEOUT_S) -> dict:
+    """The server's hello, asked once with one deadline: BridgeError at once if no naocal bridge answers at
+    `endpoint` within `timeout_s`. For a command that should not start (nor make a run directory) without a robot;
+    a BridgeBackend's own calls retry, which against a dead endpoint takes (1 + retries) x timeout_s per call."""
+    bridge = BridgeBackend(endpoint, timeout_s=timeout_s, retries=0)
+    try:
+        return bridge.server_info()
+    finally:
+        bridge.close()

@@ -66,9 +66,13 @@ def load_client_keys(directory) -> list[bytes]:
         raise NaocalError(f"{directory}: not a directory of client public keys (*.key)")
     keys = []
     for path in sorted(glob.glob(os.path.join(directory, "*.key"))):
-        public, _ = load_key_file(path, "a CURVE public key")
+        public, secret = load_key_file(path, "a CURVE public key")
         if not is_curve_key(public):
             raise NaocalError(f"{path}: not a CURVE public key (expected a NAME.key written by naocal bridge keygen)")
+        if secret is not None:  # a NAME.key_secret renamed: the client's secret has left the client
+            log.warning("%s: holds a SECRET key too (a *.key_secret renamed?): a client's secret key belongs on the "
+                        "client only; put its public NAME.key here, delete this copy, and make the client a new key "
+                        "pair if others may have read it", path)
         keys.append(public)
     if not keys:
         raise NaocalError(f"{directory}: holds no client public keys (*.key): nobody could connect")

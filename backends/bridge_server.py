@@ -39,8 +39,8 @@ from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
 from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
 from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
 from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
-from backends.errors import BridgeError, RobotTimeout, SafetyError
-from solver.errors import NaocalError
+from backends.errors import BridgeError, RobotFault, RobotTimeout
+from solver.errors import NaocalError, SafetyError
 from solver.fileio import atomic_write_bytes
 
 log = logging.getLogger("naocal.bridge.server")
@@ -49,12 +49,16 @@ DEFAULT_BIND = "tcp://127.0.0.1:7790"
 POLL_INTERVAL_S = 0.1  # how often the loop looks at its stop flag
 
 
+MAX_LEASE_TIMEOUT_S = 86400.0  # a day: a silent controller loses the robot within a deadline, however long
+
+
 def check_lease_timeout(lease_timeout_s) -> float:
-    """A finite number of seconds > 0 (NaN would make every lease look expired: anyone could take the robot)."""
+    """A number of seconds in (0, MAX_LEASE_TIMEOUT_S] (NaN would make every lease look expired: anyone could take
+    the robot; 1e308 would let a dead controller hold it for ever)."""
     value = float(lease_timeout_s)
-    if not 0 < value < math.inf:
-        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a finite number of seconds > 0, got "
-                          f"{lease_timeout_s}")
+    if not 0 < value <= MAX_LEASE_TIMEOUT_S:
+        raise NaocalError(f"lease timeout (--lease-timeout-s) must be a number of seconds in "
+                          f"(0, {MAX_LEASE_TIMEOUT_S:g}], got {lease_timeout_s}")
     return value
 
 
@@ -357,8 +361,8 @@ class BridgeServer:
             reply = protocol.error_reply(request_id, "ControlError", str(err))
         except SafetyError as err:
             reply = protocol.error_reply(request_id, "SafetyError", str(err))
-        except RobotTimeout as err:
-            reply = protocol.error_reply(request_id, "RobotTimeout", str(err))
+        except (RobotTimeout, RobotFault) as err:
+            reply = protocol.error_reply(request_id, type(err).__name__, str(err))
         except NaocalError as err:
             reply = protocol.error_reply(request_id, "NaocalError", f"{type(err).__name__}: {err}")
         except Exception as err:  # a bug or a robot failure behind the backend: report it, keep serving

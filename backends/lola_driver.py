@@ -8,7 +8,7 @@ LEDs, which naocal leaves alone), in LoLA's 25-joint order `LOLA_JOINTS` (no RHi
 joints are one motor). Sources: Aldebaran's LoLA page (NAOqi 2.8), B-Human's NaoProvider, HULKs' hula lola.rs.
 
 What this driver does every cycle (`JointControl.step`, pure and tested without a socket):
-- stamps the message with the monotonic clock on receipt (LoLA sends no time);
+- stamps the message with the monotonic clock on receipt (LoLA sends no time) and checks it (below);
 - answers with one Position/Stiffness pair per message received;
 - joints naocal does not calibrate (arms, hands) get stiffness 0 and their own measured angle as position;
   a calibrated joint at stiffness 0 too (so that stiffening it never jumps: B-Human does the same);
@@ -31,7 +31,11 @@ more: see docs/DEPLOY.md for what LoLA and HuLA do then.
 Start-up refuses: no socket at the path, a refused connection, a connection on which nothing arrives within
 `first_message_timeout_s` (LoLA serves one client: another one, the team's framework or HuLA, holds it), and a
 first message that is not a LoLA sensor map (HuLA's /tmp/hula speaks HULKs' own binary frames, not msgpack).
-Once running, `silence_timeout_s` without a message is a fault: motion is refused from then on.
+Once running, `silence_timeout_s` without a trusted reading, or a closed connection, is a fault (RobotTimeout), and so
+is one message that cannot be trusted (RobotFault; `parse_sensor_message` says what is checked): motion is
+refused from then on, every message is still answered with the joints held for `hold_s` and then ramped limp
+(`release_control`'s safe state), and no reading is served older than `silence_timeout_s`. Whatever the robot
+reads, every position sent is inside its joint's limits (`pack_answer`, the one place positions are sent).
 """
 
 from __future__ import annotations
@@ -49,8 +53,8 @@ import msgpack
 import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from backends.errors import RobotFault, RobotTimeout
 from solver import limits
-from backends.errors import RobotTimeout
 from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINTS
 
@@ -77,6 +81,10 @@ SENSOR_ARRAYS = {"Position": N_LOLA, "Stiffness": N_LOLA, "Temperature": N_LOLA,
 SENSOR_KEYS = ("Accelerometer", "Angles", "Battery", "Current", "FSR", "Gyroscope", "Position", "Sonar",
                "Stiffness", "Temperature", "Touch", "Status", "RobotConfig")
 HOT_STATUS = 2  # LoLA temperature status: 0 ok, 1 warm, 2 hot (naocal pauses), 3 critical (LoLA cuts stiffness)
+STATUS_VALUES = range(4)
+LOLA_LIMITS = {name: limits.joint_limits()[name] for name in LOLA_JOINTS}  # rad (LHand, RHand: 0..1 open)
+LOLA_LOWER = np.array([LOLA_LIMITS[name][0] for name in LOLA_JOINTS])
+LOLA_UPPER = np.array([LOLA_LIMITS[name][1] for name in LOLA_JOINTS])
 MAX_MESSAGE_BYTES = 1 << 16
 DEFAULT_HOLD_S = 5.0
 DEFAULT_RAMP_S = 5.0
@@ -101,11 +109,18 @@ def _printable(text, limit: int = 64) -> str:
     return "".join(ch for ch in str(text) if 32 < ord(ch) < 127)[:limit] or "unknown"
 
 
+class BadReading(ValueError):
+    """A LoLA sensor map whose values cannot be trusted (not numbers, not finite, impossible)."""
+
+
 def parse_sensor_message(message, t_s: float) -> LolaFrame:
-    """A LolaFrame from one decoded LoLA message; ValueError naming the first bad key.
+    """A LolaFrame from one decoded LoLA message; ValueError naming the first bad key (BadReading when the map has
+    LoLA's layout but a value cannot be trusted).
 
     Position is required; Stiffness, Temperature, Current and Status are read when present (NaN, or status 0,
-    when absent: a peer may leave them out) and must then have 25 finite numbers; RobotConfig likewise.
+    when absent: a peer may leave them out) and must then have 25 finite numbers (a string or a bool is not one,
+    even where msgpack decodes it); every Position must lie within its joint's limits plus
+    limits.READING_MARGIN_RAD, Stiffness within [0, 1], Status be 0, 1, 2 or 3; RobotConfig as below.
     """
     if not isinstance(message, dict):
         raise ValueError(f"a LoLA message is a map, got {type(message).__name__}")
@@ -119,19 +134,21 @@ def parse_sensor_message(message, t_s: float) -> LolaFrame:
             continue
         if not isinstance(values, (list, tuple)) or len(values) != length:
             raise ValueError(f"{key} must be an array of {length} numbers")
-        try:
-            numbers = tuple(float(v) for v in values)
-        except (TypeError, ValueError):
-            raise ValueError(f"{key} must hold numbers") from None
-        if not all(math.isfinite(v) for v in numbers):
-            raise ValueError(f"{key} holds a non-finite number")
-        arrays[key] = numbers
+        # Position against the joints' limits; the others (temperature, current, ...) have no box here.
+        why = limits.readings_problem(dict(zip(LOLA_JOINTS, values)), LOLA_LIMITS if key == "Position" else {})
+        if why is not None:
+            raise BadReading(f"{key}: {why}")
+        arrays[key] = tuple(float(v) for v in values)
+    if any(not (0.0 <= s <= 1.0) for s in arrays["Stiffness"] if not math.isnan(s)):
+        raise BadReading("Stiffness outside [0, 1]")
+    if any(s not in STATUS_VALUES for s in arrays["Status"]):
+        raise BadReading(f"Status must be 0, 1, 2 or 3, got {sorted(set(arrays['Status']) - set(STATUS_VALUES))}")
     config = message.get("RobotConfig", ("unknown",) * 4)
     if not isinstance(config, (list, tuple)) or len(config) != 4:
         raise ValueError("RobotConfig must be [body id, body version, head id, head version]")
     return LolaFrame(t_s=float(t_s), position_rad=arrays["Position"], stiffness=arrays["Stiffness"],
                      temperature_c=arrays["Temperature"], current_a=arrays["Current"],
-                     status=tuple(int(round(s)) for s in arrays["Status"]),
+                     status=tuple(int(s) for s in arrays["Status"]),
                      robot_config=tuple(_printable(v) for v in config))
 
 
@@ -141,9 +158,16 @@ def _reported(value: float):
 
 
 def pack_answer(position_rad, stiffness) -> bytes:
-    """The client's answer: {"Position": [25], "Stiffness": [25]} as msgpack with 32-bit floats (LoLA's floats)."""
-    return msgpack.packb({"Position": [float(v) for v in position_rad], "Stiffness": [float(v) for v in stiffness]},
-                         use_single_float=True)
+    """The client's answer: {"Position": [25], "Stiffness": [25]} as msgpack with 32-bit floats (LoLA's floats).
+
+    The one place positions go to the robot: each is clamped into its joint's limits whatever asked for it (a
+    reading echoed, a bug), and a joint whose position or stiffness is not finite is sent limp (stiffness 0)."""
+    position = np.asarray(position_rad, dtype=float)
+    stiffness = np.asarray(stiffness, dtype=float)
+    sane = np.isfinite(position) & np.isfinite(stiffness)
+    position = np.clip(np.where(sane, position, LOLA_LOWER), LOLA_LOWER, LOLA_UPPER)
+    stiffness = np.clip(np.where(sane, stiffness, 0.0), 0.0, 1.0)
+    return msgpack.packb({"Position": position.tolist(), "Stiffness": stiffness.tolist()}, use_single_float=True)
 
 
 class JointControl:
@@ -256,18 +280,26 @@ class JointControl:
             self.stiffness_target[:] = 0.0
 
     # ------------------------------------------------------------------------------------------ one cycle
-    def step(self, frame: LolaFrame) -> tuple[np.ndarray, np.ndarray]:
-        """Advance one cycle given the newest sensor frame; returns (Position[25], Stiffness[25]) to send."""
+    def step(self, frame: LolaFrame | None) -> tuple[np.ndarray, np.ndarray]:
+        """Advance one cycle given the newest sensor frame; returns (Position[25], Stiffness[25]) to send.
+        `frame` None: this cycle's message could not be trusted; every setpoint stays where it is (limp joints
+        included: they follow no measurement) and the temperature pause stays as it was."""
         self.cycles += 1
-        measured = np.asarray(frame.position_rad, dtype=float)
+        if frame is None and self.setpoint is None:
+            raise ValueError("the first cycle needs a frame")
+        # Inside the limits even where the joint reads beyond them (limits.READING_MARGIN_RAD): stiffening a joint
+        # at its stop then pulls it to the limit, never past it.
+        measured = None if frame is None else np.clip(np.asarray(frame.position_rad, dtype=float), LOLA_LOWER,
+                                                      LOLA_UPPER)
         if self.setpoint is None:
             self.setpoint = measured.copy()
-        status = np.asarray(frame.status)
+        if frame is not None:
+            self._check_temperature(frame)
+        self._advance()
+        return self._settle(measured)
 
-        # Mode changes after a release.
-        if self.mode == "holding" and (self.cycles - self._released_cycle) * self.cycle_s >= self.hold_s - 1e-9:
-            self.mode = "ramping"
-            self.stiffness_target[:] = 0.0
+    def _check_temperature(self, frame: LolaFrame) -> None:
+        status = np.asarray(frame.status)
 
         # Temperature: pause all motion while a calibrated joint is hot.
         hot = [i for i in CALIBRATED_MOTORS if status[i] >= HOT_STATUS]
@@ -278,6 +310,12 @@ class JointControl:
                             frame.temperature_c[i], ": motion paused" if status[i] >= HOT_STATUS else "")
         self.paused_reason = None if not hot else ", ".join(
             f"{LOLA_JOINTS[i]} is hot (temperature status {status[i]}, {frame.temperature_c[i]:.0f} C)" for i in hot)
+
+    def _advance(self) -> None:
+        # Mode changes after a release.
+        if self.mode == "holding" and (self.cycles - self._released_cycle) * self.cycle_s >= self.hold_s - 1e-9:
+            self.mode = "ramping"
+            self.stiffness_target[:] = 0.0
 
         # Motion: one cycle further along each joint's straight segment, unless paused or released.
         if self.mode == "active" and self.paused_reason is None and self.moving.any():
@@ -295,6 +333,7 @@ class JointControl:
                     self.setpoint[LOLA_INDEX[name]] = previous[LOLA_INDEX[name]]
                     self.moving[LOLA_INDEX[name]] = False
 
+    def _settle(self, measured: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         # Stiffness: up by at most cycle/stiffen_s, down by at most cycle/ramp_s per cycle; only calibrated motors.
         target = np.where(self.calibrated, np.clip(self.stiffness_target, 0.0, 1.0), 0.0)
         up, down = self.cycle_s / self.stiffen_s, self.cycle_s / self.ramp_s
@@ -305,7 +344,8 @@ class JointControl:
 
         # A joint without stiffness follows its measurement, so that stiffening it never jumps.
         limp = self.stiffness <= 0.0
-        self.setpoint[limp] = measured[limp]
+        if measured is not None:
+            self.setpoint[limp] = measured[limp]
         self.moving[limp] = False
         return self.setpoint.copy(), self.stiffness.copy()
 
@@ -338,7 +378,7 @@ class LolaBackend(Backend):
         self._lock = threading.Lock()
         self._frame_arrived = threading.Condition(self._lock)
         self._frame: LolaFrame | None = None
-        self._fault: str | None = None
+        self._fault: NaocalError | None = None  # the fault (RobotTimeout, RobotFault) that ended motion
         self._closing = False
         self._closed = False
         self.messages_received = 0
@@ -407,14 +447,20 @@ class LolaBackend(Backend):
         message, t_s = messages[-1]
         try:
             frame = parse_sensor_message(message, t_s)
+        except BadReading as err:
+            raise RobotFault(f"{self.socket_path}: LoLA's first message cannot be trusted ({err}); nothing was "
+                             "commanded: check the robot (docs/DEPLOY.md)") from None
         except ValueError as err:
             raise NaocalError(f"{self.socket_path} does not speak LoLA's sensor messages ({err}); HuLA's /tmp/hula "
                               "uses HULKs' binary frames: connect to LoLA's /tmp/robocup") from None
         self._answer(frame)
 
-    def _answer(self, frame: LolaFrame) -> None:
+    def _answer(self, frame: LolaFrame | None) -> None:
+        """Answer one message; `frame` None: it could not be trusted (the fault is set), answer it all the same so
+        that LoLA goes on receiving the hold and the stiffness ramp."""
         with self._lock:
-            self._frame = frame
+            if frame is not None:
+                self._frame = frame
             self.messages_received += 1
             position, stiffness = self.control.step(frame)
             self._frame_arrived.notify_all()
@@ -422,49 +468,62 @@ class LolaBackend(Backend):
         self._sock.sendall(pack_answer(position, stiffness))
 
     def _run(self) -> None:
-        """Receive and answer until closed; a silent, closed or broken LoLA becomes a fault."""
-        last_s = time.monotonic()
-        bad_messages = 0
+        """Receive and answer until closed; a silent, closed or broken LoLA, or one reading that cannot be
+        trusted, becomes a fault."""
         while not self._closed:
             try:
                 messages = self._read_messages(0.1)
             except (OSError, msgpack.UnpackException, ValueError) as err:
                 self._set_fault(f"LoLA connection lost: {err}")
                 return
-            now = time.monotonic()
             if not messages:
-                if now - last_s > self.silence_timeout_s and self._fault is None:
-                    self._set_fault(f"LoLA sent nothing for {now - last_s:.2f} s (more than {self.silence_timeout_s:g} s)")
+                with self._lock:
+                    self._check_fresh()
                 continue
-            last_s = now
             for message, t_s in messages:
                 try:
                     frame = parse_sensor_message(message, t_s)
                 except ValueError as err:
-                    bad_messages += 1
-                    if bad_messages in (1, 10, 100):
-                        log.warning("ignoring a malformed LoLA message (%d so far): %s", bad_messages, err)
-                    continue
+                    frame = None
+                    self._set_fault(f"LoLA sent a reading that cannot be trusted ({err})", RobotFault)
                 try:
                     self._answer(frame)
                 except OSError as err:
                     self._set_fault(f"cannot answer LoLA: {err}")
                     return
 
-    def _set_fault(self, reason: str) -> None:
+    def _set_fault(self, reason: str, error=RobotTimeout) -> None:
         with self._lock:
-            if self._fault is None and not self._closed:
-                log.error("%s; motion refused from now on (restart the bridge)", reason)
-                self._fault = reason
-                self.control.release()
-            self._frame_arrived.notify_all()
+            self._set_fault_locked(reason, error)
+
+    def _set_fault_locked(self, reason: str, error=RobotTimeout) -> None:
+        """The safe state: motion refused from now on, the joints held for hold_s, then limp (control.release)."""
+        if self._fault is None and not self._closed:
+            self._fault = error(f"{reason}; motion is refused until the bridge is restarted (check the robot, "
+                                "restart the bridge, then --resume)")
+            log.error("%s", self._fault)
+            self.control.release()
+        self._frame_arrived.notify_all()
+
+    def _check_fresh(self) -> None:
+        """A fault once the newest trusted reading is older than silence_timeout_s: checked where readings are
+        served too, so a stale one is never served, whatever the receiving thread is doing. Lock held."""
+        age_s = time.monotonic() - self._frame.t_s
+        if age_s > self.silence_timeout_s:
+            self._set_fault_locked(f"LoLA sent no trusted reading for {age_s:.2f} s (more than "
+                                   f"{self.silence_timeout_s:g} s)")
+
+    def _raise_fault(self) -> None:
+        """Raise the fault, if there is one (a fresh exception of its type). Lock held."""
+        self._check_fresh()
+        if self._fault is not None:
+            raise type(self._fault)(str(self._fault))
 
     def _usable(self) -> None:
         """Raise unless motion may go on: closed, faulted or paused by a hot joint. Call with the lock held."""
         if self._closed or self._closing:
             raise NaocalError("the LoLA backend is closed")
-        if self._fault is not None:
-            raise RobotTimeout(self._fault)
+        self._raise_fault()
         if self.control.paused_reason is not None:
             raise NaocalError(f"motion paused: {self.control.paused_reason}; let the robot cool, then --resume")
 
@@ -501,8 +560,9 @@ class LolaBackend(Backend):
         if not 0.0 <= stiffness <= 1.0:
             raise SafetyError(f"stiffness must be in [0, 1], got {stiffness}")
         with self._lock:
-            if self._closed or self._closing or self._fault is not None:
+            if self._closed or self._closing:
                 self._usable()
+            self._raise_fault()  # a hot joint may still be made limp: no _usable()
             self.control.set_stiffness({MOTOR_OF[name] for name in names}, stiffness)
 
     def release_control(self) -> None:
@@ -514,14 +574,18 @@ class LolaBackend(Backend):
 
     def read_joints(self) -> JointReading:
         with self._lock:
-            if self._fault is not None:
-                raise RobotTimeout(self._fault)
+            self._raise_fault()
             frame = self._frame
         return JointReading(angles_rad={name: frame.position_rad[MOTOR_OF[name]] for name in JOINTS}, t_s=frame.t_s)
 
     def status(self) -> dict:
+        """Also after a fault (it names it): the joints are then the last trusted reading, stamped with its own
+        time t_s."""
         with self._lock:
-            frame, mode, paused, fault = self._frame, self.control.mode, self.control.paused_reason, self._fault
+            if not self._closed:
+                self._check_fresh()
+            frame, mode, paused = self._frame, self.control.mode, self.control.paused_reason
+            fault = None if self._fault is None else str(self._fault)
             moving = bool(self.control.moving.any())
         body_id, body_version, head_id, head_version = frame.robot_config
         names = list(LOLA_JOINTS) + [SHARED_MOTOR[1]]
@@ -579,8 +643,7 @@ class LolaBackend(Backend):
         with self._lock:
             goal = self.messages_received + int(n)
             while self.messages_received < goal:
-                if self._fault is not None:
-                    raise RobotTimeout(self._fault)
+                self._raise_fault()
                 remaining_s = deadline - time.monotonic()
                 if remaining_s <= 0:
                     raise RobotTimeout(f"LoLA delivered {goal - self.messages_received} message(s) too few within "

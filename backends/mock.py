@@ -53,8 +53,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.errors import SafetyError
+from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading
+from solver.errors import SafetyError
 from backends.mock_realism import IDEAL, Realism, as_realism
 from backends.mock_render import RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
 from backends.mock_servo import SecondOrder, rest_offset, servo_positions
@@ -500,8 +500,8 @@ class MockBackend(Backend):
         step = self.encoder_resolution_rad
         angles = {}
         for joint, servo in zip(JOINTS, self._servo_q(t_sample)):
-            angles[joint] = round(servo / step) * step if step > 0 else float(servo)
-        return JointReading(angles_rad=angles, t_s=t_sample)
+            angles[joint] = round(servo / step) * step if math.isfinite(servo) and step > 0 else float(servo)
+        return checked_reading(angles, t_sample, self._limits)  # as every driver: never serve what a robot could not read
 
     def command(self, targets_rad: dict, speed_fraction: float) -> None:
         self._check_open()

@@ -24,6 +24,11 @@ readout is not documented, and reporting an exposure too early only makes the ag
 while too late would let it use an image taken while the robot still moved.
 
 Every call to NAOqi has a deadline (`call_timeout_s`); a call past it raises RobotTimeout.
+
+Readings: every joint angle ALMotion.getAngles returns, and DCM/Time, is checked before it is served
+(backends.base.checked_reading: a finite number within the joint's limits plus limits.READING_MARGIN_RAD). One
+that cannot be trusted is a fault: RobotFault now and on every later command, set_stiffness and sleep (the agent
+stops; NAOqi keeps its last targets, docs/DEPLOY.md); restart the bridge once the robot is checked.
 """
 
 from __future__ import annotations
@@ -35,10 +40,10 @@ import time
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, nominal_intrinsics
+from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
 from solver import limits
-from backends.errors import RobotTimeout, SafetyError
-from solver.errors import NaocalError
+from backends.errors import RobotFault, RobotTimeout
+from solver.errors import NaocalError, SafetyError
 from solver.joints import HEAD_JOINTS, JOINTS
 
 log = logging.getLogger("naocal.naoqi")
@@ -96,6 +101,7 @@ class NaoqiBackend(Backend):
         self._top_camera_handle = None  # subscribed when the top camera is first asked for
         self._image_clock_offset_s = None
         self._head_targets: dict[str, float] = {}  # last commanded head angles
+        self._fault: str | None = None  # why motion is refused: a reading that could not be trusted
         self._session = qi.Session()
         try:
             self._wait(self._session.connect(url, _async=True), f"connect to NAOqi at {url}")
@@ -180,7 +186,12 @@ class NaoqiBackend(Backend):
     def max_speeds(self) -> dict[str, float]:
         return dict(self._speeds)
 
+    def _refuse_if_faulted(self) -> None:
+        if self._fault is not None:
+            raise RobotFault(self._fault)
+
     def command(self, targets_rad: dict[str, float], speed_fraction: float) -> None:
+        self._refuse_if_faulted()
         speed_fraction = limits.check_speed_fraction(speed_fraction)
         head_angles = None
         if len(set(HEAD_JOINTS) & set(targets_rad)) == 1:
@@ -194,11 +205,18 @@ class NaoqiBackend(Backend):
             self._head_targets.update({name: targets[name] for name in HEAD_JOINTS if name in targets})
 
     def read_joints(self) -> JointReading:
-        dcm_s = self._dcm_time_s()
+        self._refuse_if_faulted()
+        dcm_ms = self._call(self._memory, "getData", "DCM/Time")
         angles = self._call(self._motion, "getAngles", list(JOINTS), True)
         if len(angles) != len(JOINTS):
             raise NaocalError(f"ALMotion.getAngles returned {len(angles)} angles for {len(JOINTS)} joints")
-        return JointReading(angles_rad=dict(zip(JOINTS, map(float, angles))), t_s=min(dcm_s, self.now()))
+        try:
+            reading = checked_reading(dict(zip(JOINTS, angles)), dcm_ms, self._limits)
+        except RobotFault as err:
+            self._fault = f"NAOqi at {self.url}: {err}; motion refused from now on (restart the bridge)"
+            log.error("%s", self._fault)
+            raise RobotFault(self._fault) from None
+        return JointReading(angles_rad=reading.angles_rad, t_s=min(reading.t_s * 1e-3, self.now()))
 
     def set_stiffness(self, names, stiffness: float) -> None:
         names = [names] if isinstance(names, str) else list(names)
@@ -208,6 +226,7 @@ class NaoqiBackend(Backend):
         stiffness = float(stiffness)
         if not 0.0 <= stiffness <= 1.0:
             raise SafetyError(f"stiffness must be in [0, 1], got {stiffness}")
+        self._refuse_if_faulted()
         self._call(self._motion, "setStiffnesses", names, [stiffness] * len(names))
 
     def capture(self, camera: str = "bottom") -> CameraImage | None:
@@ -282,6 +301,7 @@ class NaoqiBackend(Backend):
         duration_s = float(duration_s)
         if not (math.isfinite(duration_s) and duration_s >= 0):
             raise ValueError(f"sleep: duration_s must be finite and >= 0, got {duration_s}")
+        self._refuse_if_faulted()
         deadline = time.monotonic() + duration_s
         while (remaining_s := deadline - time.monotonic()) > 0:
             time.sleep(remaining_s)

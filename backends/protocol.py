@@ -20,7 +20,7 @@ import threading
 import msgpack
 import numpy as np
 
-from backends.base import CameraImage, CameraIntrinsics, JointReading
+from backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
 from backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
@@ -35,8 +35,8 @@ REQUEST_ID_PATTERN = re.compile(r"^([A-Za-z0-9_.-]{1,64}):([0-9]{1,18})$")
 SECRET_PATTERN = re.compile(r"^[A-Za-z0-9_-]{22,128}$")  # tokens and nonces: at least 128 bits in base64url
 IMAGE_DTYPES = frozenset({"uint8"})
 
-# Error types on the wire. The client re-raises SafetyError and RobotTimeout as themselves, ControlError as
-# ControlError, everything else as BridgeError.
+# Error types on the wire. The client re-raises SafetyError, RobotTimeout and RobotFault as themselves,
+# ControlError as ControlError, everything else as BridgeError.
 ERROR_TYPES = (
     "ProtocolError",  # not a well-formed request of this protocol
     "UnsupportedVersion",
@@ -46,6 +46,7 @@ ERROR_TYPES = (
     "ControlError",  # no valid lease token: another client controls motion, or this one has not acquired it
     "SafetyError",
     "RobotTimeout",
+    "RobotFault",  # the robot sent a reading that cannot be trusted: the driver is in its safe state
     "NaocalError",
     "InternalError",
 )
@@ -259,12 +260,14 @@ def joint_reading_to_wire(reading: JointReading) -> dict:
     return {"angles_rad": {name: float(v) for name, v in reading.angles_rad.items()}, "t_s": float(reading.t_s)}
 
 
-def joint_reading_from_wire(data) -> JointReading:
+def joint_reading_from_wire(data, limits) -> JointReading:
+    """The server's reading, checked as every driver checks one (backends.base.checked_reading: RobotFault if it
+    cannot be trusted) against `limits`, the joint limits the server reported."""
     try:
-        angles = {str(name): float(v) for name, v in data["angles_rad"].items()}
-        return JointReading(angles_rad=angles, t_s=float(data["t_s"]))
+        angles, t_s = {str(name): v for name, v in data["angles_rad"].items()}, data["t_s"]
     except (TypeError, KeyError, AttributeError, ValueError) as err:
         raise ProtocolError(f"malformed joint reading: {err}") from None
+    return checked_reading(angles, t_s, limits)
 
 
 def image_to_wire(image: CameraImage | None):

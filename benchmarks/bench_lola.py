@@ -5,7 +5,9 @@
 1. `JointControl.step` (numpy over the 25 joints) against the same step written joint by joint in plain Python.
 2. The head-path check of a command, which runs while the driver holds the lock LoLA's answer waits for:
    vectorised over 401 samples against one `solver.limits.head_pitch_problem` call per sample.
-3. The answer delay through a real Unix socket: from the moment a sensor message has been received to the moment
+3. `parse_sensor_message` on one whole LoLA message (every value's type, finiteness and limit check), which runs
+   before each answer.
+4. The answer delay through a real Unix socket: from the moment a sensor message has been received to the moment
    its answer is sent (a fake LoLA in this process, `tests/lola_fakes.py`), median and 99th percentile.
 """
 
@@ -97,8 +99,19 @@ def main():
     print(f"head path check (401 samples): vectorised {vec_s * 1e3:.3f} ms, per sample {loop_s * 1e3:.2f} ms "
           f"(ratio {loop_s / vec_s:.1f})")
 
-    # 3. Answer delay through a real socket.
-    from tests.lola_fakes import FakeLola
+    # 3. Parsing and checking one message, as received (msgpack-decoded).
+    import msgpack
+
+    from tests.lola_fakes import FakeLola, sensor_message
+
+    message = msgpack.unpackb(sensor_message(measured, np.ones(N_LOLA), np.full(N_LOLA, 40.0), np.zeros(N_LOLA)))
+    cpu0 = time.process_time()
+    parse_s = best_of(lambda: lola_driver.parse_sensor_message(message, 0.0), args.repeat)
+    cpu_s = (time.process_time() - cpu0) / (5 * args.repeat)
+    print(f"parse_sensor_message: {parse_s * 1e6:.1f} us wall (best of 5), {cpu_s * 1e6:.1f} us CPU (mean); "
+          f"{parse_s / 0.012 * 100:.2f} % of a 12 ms cycle")
+
+    # 4. Answer delay through a real socket.
 
     delays = []
     original = lola_driver.LolaBackend._answer

@@ -3,8 +3,10 @@
 Every backend that can move a real joint checks its targets against these before sending anything, with the one
 implementation here: `check_targets` (known joint, finite, inside its box, HeadPitch inside the table for every
 HeadYaw the head may have) and `check_speed_fraction`. The agent's own guard uses `limit_problem` and
-`head_pitch_problem` with its margins. The URDF is `solver/data/nao_v50.urdf` (the nominal model, see
-docs/ROBOT.md; Aldebaran's NAO V6 joint documentation); it is parsed once.
+`head_pitch_problem` with its margins. Every driver checks each joint reading with `readings_problem` before it
+serves or echoes it (a number, finite, within the limits plus READING_MARGIN_RAD; backends.base.checked_reading).
+The URDF is `solver/data/nao_v50.urdf` (the nominal model, see docs/ROBOT.md; Aldebaran's NAO V6 joint
+documentation); it is parsed once.
 """
 
 from __future__ import annotations
@@ -95,6 +97,12 @@ def max_speeds(urdf_path=URDF_PATH) -> dict[str, float]:
     return {name: speed for name, (_, _, speed) in _urdf_joint_table(str(urdf_path)).items()}
 
 
+# A joint sensor reading this far beyond the joint's limits cannot be right. Wider than the largest encoder offset
+# real robots carry (HipYawPitch up to 12 deg, docs/MOCK.md), so a joint at its stop still reads inside it;
+# narrower than any reading that is plainly wrong (LKneePitch 2.5 rad against its 2.11 rad limit).
+READING_MARGIN_RAD = 0.25
+
+
 # ---------------------------------------------------------------------------------------------- checks
 def _as_angle(value) -> float:
     try:
@@ -115,6 +123,38 @@ def limit_problem(joint: str, angle_rad, limits: Mapping, *, margin_rad: float =
     lower, upper = lower + margin_rad, upper - margin_rad
     if not lower <= angle <= upper:
         return f"{joint} target {angle:.4f} rad outside its limits [{lower:.4f}, {upper:.4f}] rad"
+    return None
+
+
+def is_number(value) -> bool:
+    """A real number, as a sensor or a file gives one: int or float (numpy's too), not a bool, not a string."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def reading_problem(joint: str, value, limits: Mapping, *, margin_rad: float = READING_MARGIN_RAD) -> str | None:
+    """Why `value`, a sensor reading of `joint`, cannot be trusted, or None: not a number (a string or a bool is
+    malformed, even if it would convert), not finite, or beyond the joint's limits by more than `margin_rad`.
+    A joint `limits` does not know is not checked against a box."""
+    if not is_number(value):
+        return f"{joint} reads {value!r} ({type(value).__name__}), not a number"
+    angle = float(value)
+    if not math.isfinite(angle):
+        return f"{joint} reads {angle}, not a finite number"
+    if joint in limits:
+        lower, upper = (float(v) for v in limits[joint])
+        if not lower - margin_rad <= angle <= upper + margin_rad:
+            return (f"{joint} reads {angle:.6g} rad, beyond its limits [{lower:.4f}, {upper:.4f}] rad by more than "
+                    f"{margin_rad:g} rad: an impossible reading")
+    return None
+
+
+def readings_problem(readings: Mapping, limits: Mapping, *, margin_rad: float = READING_MARGIN_RAD) -> str | None:
+    """The first of `readings` ({joint: value}) that cannot be trusted (`reading_problem`), or None. Every
+    driver checks each reading with this before it serves or echoes it."""
+    for joint, value in readings.items():
+        why = reading_problem(joint, value, limits, margin_rad=margin_rad)
+        if why is not None:
+            return why
     return None
 
 

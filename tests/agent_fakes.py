@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import JOINTS, LEG_JOINTS
 from solver.limits import joint_limits, max_speeds
 from solver.model import Model

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import JOINTS
 
 

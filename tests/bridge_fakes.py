@@ -11,7 +11,7 @@ import numpy as np
 from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
 from backends.bridge_server import BridgeServer
 from solver import limits
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.joints import JOINTS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

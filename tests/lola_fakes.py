@@ -68,9 +68,9 @@ def to_lola(angles: dict) -> np.ndarray:
     return out
 
 
-def sensor_message(position, stiffness, temperature, status, current=None) -> bytes:
-    """One LoLA sensor message, packed as LoLA packs it (32-bit floats, Status as ints)."""
-    message = {
+def sensor_map(position, stiffness, temperature, status, current=None) -> dict:
+    """One LoLA sensor message before packing."""
+    return {
         "Accelerometer": [-9.81, 0.0, 0.0], "Angles": [0.0, -1.5708], "Battery": [0.9, -32768.0, -1.0, 30.0],
         "Current": [float(c) for c in (current if current is not None else np.full(N_LOLA, 0.05))],
         "FSR": [0.0] * 8, "Gyroscope": [0.0, 0.0, 0.0],
@@ -78,7 +78,11 @@ def sensor_message(position, stiffness, temperature, status, current=None) -> by
         "Stiffness": [float(s) for s in stiffness], "Temperature": [float(t) for t in temperature],
         "Touch": [0.0] * 14, "Status": [int(s) for s in status], "RobotConfig": list(ROBOT_CONFIG),
     }
-    return msgpack.packb(message, use_single_float=True)
+
+
+def sensor_message(position, stiffness, temperature, status, current=None) -> bytes:
+    """One LoLA sensor message, packed as LoLA packs it (32-bit floats, Status as ints)."""
+    return msgpack.packb(sensor_map(position, stiffness, temperature, status, current), use_single_float=True)
 
 
 # ---------------------------------------------------------------------------------------------- physics
@@ -171,6 +175,8 @@ class FakeLola:
         report) or 'refuse' (the listening socket is closed while a client is served).
     record_path : also append every record to this file (msgpack), for a fake in another process.
     cycle_s : the cycle period (LoLA's is 12 ms).
+    hostile : None, or a function {sensor map} -> what to send instead: a map (packed as LoLA packs it, values of
+        any type), None (send nothing: a frozen LoLA) or "close" (close the connection). Settable while running.
     """
 
     def __init__(self, path, physics=None, *, second_client: str = "silent", record_path=None, cycle_s=CYCLE_S):
@@ -194,6 +200,8 @@ class FakeLola:
         self._last_answer = None  # (position, stiffness)
         self._thread = None
         self.lock = threading.Lock()
+        self.hostile = None
+        self.hostile_sent = 0  # messages the hostile function changed
 
     # lifecycle
     def start(self) -> "FakeLola":
@@ -273,8 +281,18 @@ class FakeLola:
                     self._record_file.write(msgpack.packb(record))
                     self._record_file.flush()
             if self._client is not None:
+                message = sensor_map(position, stiffness, self.temperature, self.status)
+                hostile = self.hostile
+                if hostile is not None:
+                    message = hostile(message)
+                    self.hostile_sent += 1
+                    if message is None:
+                        continue
+                    if message == "close":
+                        self._drop_client("hostile close")
+                        continue
                 try:
-                    self._client.sendall(sensor_message(position, stiffness, self.temperature, self.status))
+                    self._client.sendall(msgpack.packb(message, use_single_float=True))
                     self.messages_sent += 1
                 except OSError:
                     self._drop_client("send failed")

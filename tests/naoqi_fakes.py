@@ -39,6 +39,7 @@ class FakeRobot:
         self.subscribers: set[str] = set()
         self.image_pattern = np.random.default_rng(seed).integers(0, 256, (480, 640, 3), dtype=np.uint8)
         self.block_get_angles_s = 0.0  # make getAngles hang, to test deadlines
+        self.sensor_override: dict = {}  # {joint: what getAngles reports instead (any type: a hostile robot)}
 
     def update(self) -> None:
         now = time.monotonic()
@@ -67,13 +68,13 @@ class FakeMotion:
     def __init__(self, robot: FakeRobot):
         self.robot = robot
 
-    @qi.bind(qi.List(qi.Float), (qi.List(qi.String), qi.Bool))
+    @qi.bind(qi.List(qi.Dynamic), (qi.List(qi.String), qi.Bool))  # dynamic: a hostile robot may send any type
     def getAngles(self, names, useSensors):
         if self.robot.block_get_angles_s:
             time.sleep(self.robot.block_get_angles_s)
         with self.robot.lock:
             self.robot.update()
-            return [self.robot.angles[name] for name in names]
+            return [self.robot.sensor_override.get(name, self.robot.angles[name]) for name in names]
 
     @qi.bind(qi.Void, (qi.List(qi.String), qi.List(qi.Float), qi.Float))
     def setAngles(self, names, angles, fractionMaxSpeed):

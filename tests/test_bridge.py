@@ -16,7 +16,8 @@ from backends.base import CameraImage
 from backends.bridge import BridgeBackend
 from backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
 from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, SafetyError
+from backends.errors import BridgeError, RobotFaultNone
+from solver.errors import SafetyError
 from solver.errors import NaocalError
 from tests.backend_contract import check_backend_contract
 from tests.bridge_fakes import CLI, ROOT, FakeBackend, serving
@@ -299,3 +300,35 @@ def test_the_cli_default_bind_is_the_servers():
     from tools import cmd_bridge
 
     assert cmd_bridge.DEFAULT_BIND == DEFAULT_BIND == "tcp://127.0.0.1:7790"
+
+
+class _HostileReadings(FakeBackend):
+    """A server whose robot reports `value` as LKneePitch (a broken driver, or a server from before the checks)."""
+
+    def __init__(self, value):
+        super().__init__()
+        self.value = value
+
+    def read_joints(self):
+        reading = super().read_joints()
+        return protocol.JointReading(angles_rad={**reading.angles_rad, "LKneePitch": self.value}, t_s=reading.t_s)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, 2.5, 1e30])
+def test_the_client_checks_every_reading_it_is_served(value):
+    with serving(_HostileReadings(value)) as server:
+        client = BridgeBackend(server.endpoint, timeout_s=2.0)
+        try:
+            with pytest.raises(RobotFault, match="LKneePitch reads"):
+                client.read_joints()
+        finally:
+            client.close()
+
+
+def test_a_reading_on_the_wire_as_a_string_or_a_bool_is_not_a_number():
+    limits_rad = {"LKneePitch": (-0.09, 2.11)}
+    for value in ("0.5", True):
+        with pytest.raises(RobotFault, match="not a number"):
+            protocol.joint_reading_from_wire({"angles_rad": {"LKneePitch": value}, "t_s": 1.0}, limits_rad)
+    with pytest.raises(RobotFault, match="time"):
+        protocol.joint_reading_from_wire({"angles_rad": {"LKneePitch": 0.5}, "t_s": "1.0"}, limits_rad)

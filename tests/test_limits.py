@@ -95,3 +95,14 @@ def test_speed_fraction_and_margins():
     assert limits.head_pitch_problem(0.0, 0.515) is None
     assert limits.head_pitch_problem(0.0, 0.515, margin_rad=0.01) is not None
     assert limits.head_pitch_problem(0.0, 0.515 + 5e-10, margin_rad=-1e-9) is None  # a tolerance
+
+
+def test_a_reading_is_a_finite_number_within_the_limits_plus_the_reading_margin():
+    box = {"LKneePitch": (-0.0923279, 2.11255)}
+    assert limits.reading_problem("LKneePitch", np.float32(1.0), box) is None  # LoLA's floats, numpy's too
+    assert limits.reading_problem("LKneePitch", 2.11255 + limits.READING_MARGIN_RAD - 1e-6, box) is None  # its stop
+    for value, why in [(2.5, "impossible"), (1e30, "impossible"), (-0.4, "impossible"), (math.nan, "not a finite"),
+                       (math.inf, "not a finite"), ("0.5", "not a number"), (True, "not a number"),
+                       (np.bool_(False), "not a number"), (None, "not a number")]:
+        assert why in limits.reading_problem("LKneePitch", value, box), value
+    assert limits.readings_problem({"LKneePitch": 0.5, "HeadYaw": "x"}, box).startswith("HeadYaw reads 'x'")

@@ -5,13 +5,15 @@ import socket
 import threading
 import time
 
+import msgpack
 import numpy as np
 import pytest
 
 from backends.bridge import BridgeBackend
 from backends.bridge_server import BridgeServer
-from backends.lola_driver import (CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_JOINTS, MOTOR_OF, N_LOLA, JointControl,
-                                  LolaBackend, LolaFrame, parse_sensor_message)
+from backends.errors import RobotFault
+from backends.lola_driver import (CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_JOINTS, LOLA_LIMITS, MOTOR_OF, N_LOLA,
+                                  BadReading, JointControl, LolaBackend, LolaFrame, pack_answer, parse_sensor_message)
 from backends.v4l2_camera import V4L2Camera
 from solver import limits
 from backends.errors import RobotTimeout
@@ -49,7 +51,7 @@ def last_stiffness(fake) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- mapping
 def test_readings_map_lola_order_to_joint_names_exactly(lola_path):
-    distinct = {name: 0.01 * (i + 1) * (-1) ** i for i, name in enumerate(LOLA_JOINTS)}
+    distinct = {name: sum(LOLA_LIMITS[name]) / 2 + 0.001 * (i + 1) for i, name in enumerate(LOLA_JOINTS)}
     servos = SimpleServos()
     for name, angle in distinct.items():
         servos.q[LOLA_INDEX[name]] = angle
@@ -378,6 +380,155 @@ def test_lola_falling_silent_is_a_fault(lola_path):
         backend.command({"HeadYaw": 0.1}, 0.5)
     backend.close()
     assert fake.answers_received > 0
+
+
+# ---------------------------------------------------------------------------------------------- hostile peer
+def _set(key, joint, value):
+    """A hostile LoLA: every message from now on carries `value` at `joint` in `key`."""
+    def corrupt(message):
+        message[key] = list(message[key])
+        message[key][LOLA_INDEX[joint]] = value
+        return message
+    return corrupt
+
+
+HOSTILE = {  # (what LoLA sends from now on, the error the driver then raises)
+    "nan": (_set("Position", "LKneePitch", math.nan), RobotFault),
+    "inf": (_set("Position", "LKneePitch", math.inf), RobotFault),
+    "temperature-nan": (_set("Temperature", "LKneePitch", math.nan), RobotFault),
+    "string": (_set("Position", "LKneePitch", "0.5"), RobotFault),  # msgpack decodes it as a str
+    "bool": (_set("Position", "LKneePitch", True), RobotFault),
+    "out-of-limit": (_set("Position", "LKneePitch", 2.5), RobotFault),  # its limit is 2.11 rad
+    "huge": (_set("Position", "LKneePitch", 1e30), RobotFault),
+    "frozen": (lambda message: None, RobotTimeout),
+    "closing": (lambda message: "close", RobotTimeout),
+}
+
+
+@pytest.mark.parametrize("kind", list(HOSTILE))
+def test_a_hostile_lola_is_a_fault_at_once_never_a_stale_or_impossible_reading_nor_a_command_outside_limits(
+        fake, lola_path, kind):
+    hostile, error = HOSTILE[kind]
+    timeout_s = 0.25
+    backend = LolaBackend(lola_path, silence_timeout_s=timeout_s, hold_s=0.1, ramp_s=0.2)
+    served, stop = [], threading.Event()
+
+    def poll():  # an agent reading all the time: what it is served, and how old it was when served
+        while not stop.is_set():
+            asked_s = time.monotonic()
+            for call in (backend.read_joints, backend.status):
+                try:
+                    got = call()
+                except NaocalError:
+                    continue
+                if isinstance(got, dict):
+                    if got["robot"]["fault"] is None:
+                        served.append((asked_s - got["t_s"], {j: e["raw_rad"] for j, e in got["joints"].items()}))
+                else:
+                    served.append((asked_s - got.t_s, got.angles_rad))
+            time.sleep(0.001)
+
+    poller = threading.Thread(target=poll, daemon=True)
+    try:
+        backend.set_stiffness(["HeadYaw"], 1.0)  # LKneePitch stays limp: LoLA echoes what it reads
+        backend.wait_cycles(10)
+        backend.command({"HeadYaw": 0.3}, 0.2)
+        poller.start()
+        backend.wait_cycles(5)
+        t_hostile = time.monotonic()
+        with fake.lock:
+            fake.hostile = hostile
+        deadline = t_hostile + timeout_s + 0.1
+        while backend.status()["robot"]["fault"] is None:
+            assert time.monotonic() < deadline, f"{kind}: no fault within {timeout_s} s"
+            time.sleep(0.005)
+        at_once_s = timeout_s + 0.1 if kind == "frozen" else 0.2  # a bad message: within a few cycles
+        assert time.monotonic() - t_hostile <= at_once_s, backend.status()["robot"]["fault"]
+        for motion in (lambda: backend.command({"HeadYaw": 0.0}, 0.2), lambda: backend.sleep(0.01),
+                       lambda: backend.set_stiffness(["LKneePitch"], 1.0), backend.read_joints):
+            with pytest.raises(error):
+                motion()
+        if kind not in ("frozen", "closing"):  # LoLA still talks: it is answered, held, then limp
+            assert fake.wait_for(lambda f: last_stiffness(f).max() == 0.0, timeout_s=2.0), "not limp"
+    finally:
+        stop.set()
+        if poller.is_alive():
+            poller.join(2.0)
+        backend.close()
+    box = limits.joint_limits()
+    assert served, "the poller was served nothing before the fault"
+    for age_s, angles in served:
+        assert age_s <= timeout_s, f"{kind}: a reading {age_s:.3f} s old was served (deadline {timeout_s} s)"
+        assert limits.readings_problem(angles, box) is None
+    _, position, stiffness = answers(fake)
+    assert np.all(np.isfinite(position)) and np.all(np.isfinite(stiffness))
+    lower, upper = np.array([LOLA_LIMITS[n] for n in LOLA_JOINTS]).T
+    assert np.all((position >= lower - 1e-6) & (position <= upper + 1e-6)), \
+        f"{kind}: LoLA was sent a position outside the limits: " + str(position[(position < lower - 1e-6) |
+                                                                               (position > upper + 1e-6)][:5])
+
+
+def test_a_reading_fault_reaches_the_agent_through_the_bridge(fake, lola_path):
+    """`bridge status` names the fault; `command` and `sleep` no longer reply ok; a restarted bridge serves again."""
+    backend = LolaBackend(lola_path, hold_s=0.1, ramp_s=0.1)
+    server = BridgeServer(backend, "tcp://127.0.0.1:0", driver="lola").start_thread()
+    agent = BridgeBackend(server.endpoint, timeout_s=2.0, retries=0)
+    try:
+        agent.set_stiffness(["HeadYaw"], 1.0)
+        with fake.lock:
+            fake.hostile = HOSTILE["nan"][0]
+        assert fake.wait_for(lambda f: f.hostile_sent > 3)
+        assert "cannot be trusted" in agent.status()["robot"]["fault"]
+        with pytest.raises(RobotFault, match="LKneePitch reads nan"):
+            agent.command({"HeadYaw": 0.1}, 0.5)
+        with pytest.raises(RobotFault):
+            agent.sleep(0.05)
+        with pytest.raises(RobotFault):
+            agent.read_joints()
+    finally:
+        agent.close()
+        server.stop()
+        backend.close()
+    with fake.lock:
+        fake.hostile = None
+    assert fake.wait_for(lambda f: not f.connected)
+    again = LolaBackend(lola_path)  # what "restart the bridge" does: a fresh driver, no fault
+    try:
+        assert again.status()["robot"]["fault"] is None and again.read_joints().t_s > 0
+    finally:
+        again.close()
+
+
+def test_a_first_message_that_cannot_be_trusted_refuses_to_start(fake, lola_path):
+    with fake.lock:
+        fake.hostile = HOSTILE["out-of-limit"][0]
+    with pytest.raises(RobotFault, match="first message cannot be trusted.*LKneePitch reads 2.5"):
+        LolaBackend(lola_path)
+
+
+def test_parse_sensor_message_refuses_what_is_not_a_plausible_number():
+    good = {"Position": [0.0] * 25, "Stiffness": [0.0] * 25, "Temperature": [30.0] * 25, "Status": [0] * 25}
+    knee = LOLA_INDEX["LKneePitch"]
+    for key, value, match in [("Position", "0.5", "not a number"), ("Position", True, "not a number"),
+                              ("Position", 2.5, "impossible"), ("Position", 1e30, "impossible"),
+                              ("Position", -math.inf, "not a finite"), ("Temperature", "30", "not a number"),
+                              ("Stiffness", 1.5, r"Stiffness outside \[0, 1\]"), ("Status", 7, "Status must be"),
+                              ("Status", 1.5, "Status must be"), ("Status", False, "not a number")]:
+        message = {k: list(v) for k, v in good.items()}
+        message[key][knee] = value
+        with pytest.raises(BadReading, match=match):
+            parse_sensor_message(message, 1.0)
+    inside = {k: list(v) for k, v in good.items()}
+    inside["Position"][knee] = LOLA_LIMITS["LKneePitch"][1] + limits.READING_MARGIN_RAD - 1e-3  # at its stop
+    assert parse_sensor_message(inside, 1.0).position_rad[knee] == pytest.approx(2.11255 + 0.249)
+
+
+def test_every_position_sent_to_lola_is_inside_its_limits_whatever_the_controller_holds():
+    sent = msgpack.unpackb(pack_answer(np.r_[2.5, 1e30, math.nan, np.zeros(N_LOLA - 3)], np.ones(N_LOLA)))
+    lower, upper = np.array([LOLA_LIMITS[n] for n in LOLA_JOINTS]).T
+    position, stiffness = np.array(sent["Position"]), np.array(sent["Stiffness"])
+    assert np.all((position >= lower - 1e-6) & (position <= upper + 1e-6))
+    assert stiffness[2] == 0.0 and stiffness[0] == 1.0  # a non-finite setpoint goes limp, never stiff
 
 
 # ---------------------------------------------------------------------------------------------- the whole Backend

@@ -37,7 +37,9 @@ class StuckServos(SimpleServos):
 def robot(tmp_path, request):
     """(fake LoLA, endpoint) with `naocal bridge serve --driver lola` running against it."""
     path = str(tmp_path / "robocup")
-    distinct = {name: 0.01 * (i + 1) * (-1) ** i for i, name in enumerate(LOLA_JOINTS)}
+    box = limits.joint_limits()  # distinct, and possible: inside each joint's limits
+    distinct = {name: float(np.clip(0.01 * (i + 1) * (-1) ** i, box[name][0] + 0.01, box[name][1] - 0.01))
+                for i, name in enumerate(LOLA_JOINTS)}
     servos = getattr(request, "param", SimpleServos)()
     for name, angle in distinct.items():
         servos.q[LOLA_INDEX[name]] = angle

@@ -9,7 +9,8 @@ import pytest
 from backends.mock import (
     DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effect_sizes,
 )
-from backends.errors import SafetyError
+from backends.errors import RobotFaultNone
+from solver.errors import SafetyError
 from solver.errors import NaocalError
 from solver.joints import JOINTS, LEG_JOINTS
 from solver.limits import head_pitch_limits
@@ -299,3 +300,15 @@ def test_the_top_camera_sees_a_planned_top_stance_where_its_truth_says():
         assert np.min(np.linalg.norm(bottom_uv - uv, axis=1)) > 20.0  # a different camera, a different view
         with pytest.raises(NaocalError):
             mock.capture("middle")
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, 2.5, 1e30])
+def test_the_mock_never_serves_a_reading_a_robot_could_not_give(value):
+    """The same check as every driver (backends.base.checked_reading); `status` names the fault."""
+    mock = MockBackend(0)
+    servo_q = mock._servo_q
+    knee = JOINTS.index("LKneePitch")
+    mock._servo_q = lambda t: np.where(np.arange(len(JOINTS)) == knee, value, servo_q(t))  # a broken simulation
+    with pytest.raises(RobotFault, match="LKneePitch reads"):
+        mock.read_joints()
+    assert "LKneePitch" in mock.status()["robot"]["fault"]

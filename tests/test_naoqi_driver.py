@@ -11,7 +11,8 @@ pytest.importorskip("qi")
 from backends.bridge import BridgeBackend  # noqa: E402
 from backends.bridge_server import BridgeServer  # noqa: E402
 from backends.naoqi_driver import FRAME_PERIOD_S, NaoqiBackend  # noqa: E402
-from backends.errors import RobotTimeout, SafetyError  # noqa: E402
+from backends.errors import RobotFault, RobotTimeout  # noqa: E402
+from solver.errors import SafetyError
 from solver.errors import NaocalError  # noqa: E402
 from tests.backend_contract import check_backend_contract  # noqa: E402
 from tests.naoqi_fakes import DCM_EPOCH_S, FakeRobot, TextImageVideoDevice, fake_naoqi  # noqa: E402
@@ -209,3 +210,28 @@ def test_a_head_joint_still_on_its_way_is_checked_at_its_target(naoqi):
     with pytest.raises(SafetyError, match="HeadPitch 0.45"):
         backend.command({"HeadYaw": 1.5}, 1.0)  # pitch will be 0.45 where 0.2 is the limit
     backend.close()
+
+
+@pytest.mark.parametrize("kind, value", [("nan", math.nan), ("inf", math.inf), ("string", "0.5"), ("bool", True),
+                                         ("out-of-limit", 2.5), ("huge", 1e30)])
+def test_a_reading_naoqi_cannot_be_trusted_is_a_fault_never_served_and_motion_stops(naoqi, kind, value):
+    """As for LoLA (tests/test_lola_driver.py): refused at once, reported by status, every motion call refused."""
+    url, robot = naoqi
+    backend = NaoqiBackend(url)
+    try:
+        backend.set_stiffness(["HeadYaw"], 1.0)
+        with robot.lock:
+            robot.sensor_override["LKneePitch"] = value
+        with pytest.raises(RobotFault, match="LKneePitch"):
+            backend.read_joints()
+        assert "LKneePitch" in backend.status()["robot"]["fault"]
+        with robot.lock:
+            robot.sensor_override.clear()  # even if it reads well again: restart the bridge once the robot is checked
+        sent = len(robot.calls)
+        for motion in (lambda: backend.command({"HeadYaw": 0.1}, 0.1), lambda: backend.set_stiffness(["HeadYaw"], 1.0),
+                       lambda: backend.sleep(0.01), backend.read_joints):
+            with pytest.raises(RobotFault):
+                motion()
+        assert len(robot.calls) == sent  # nothing reached NAOqi
+    finally:
+        backend.close()

@@ -12,7 +12,7 @@ from agent.planner import PlanSettings, Planner, make_plan, parked_posture
 from agent.safety import SafetyGuard, prior_covariance
 from agent.visibility import OcclusionChecker, views_ok
 from body.nao_body import CollisionChecker, NaoBody
-from backends.errors import SafetyError
+from solver.errors import SafetyError
 from solver.errors import DataError
 from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
 from solver.kinematics import camera_fk, leg_fk

@@ -2,7 +2,7 @@
 
   naocal bridge serve --driver mock|naoqi|lola [--seed N] [--naoqi URL] [--lola-socket PATH] --bind URL
                       [--allow-remote] [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
-  naocal bridge ping --endpoint URL [--timeout-s S] [--curve-server-key FILE]
+  naocal bridge ping --endpoint URL [--timeout-s S] [--count N] [--curve-server-key FILE]
   naocal bridge keygen --out DIR [--name NAME]
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
@@ -17,6 +17,7 @@ import logging
 from tools import cmd_bridge_tools
 
 DEFAULT_BIND = "tcp://127.0.0.1:7790"  # keep in step with backends.bridge_server.DEFAULT_BIND
+MAX_PING_COUNT = 10000
 
 
 def register(subparsers) -> None:
@@ -79,8 +80,9 @@ def register(subparsers) -> None:
 
     ping = actions.add_parser("ping", help="check a server: round-trip time, driver, robot id")
     ping.add_argument("--endpoint", required=True, metavar="URL", help="e.g. tcp://nao.local:7790")
-    ping.add_argument("--timeout-s", type=float, default=2.0, help="give up after this long (default 2)")
-    ping.add_argument("--count", type=int, default=10, help="round trips to time (default 10)")
+    ping.add_argument("--timeout-s", type=float, default=2.0,
+                      help="give up after this long (default 2, at most 3600)")
+    ping.add_argument("--count", type=int, default=10, help=f"round trips to time, 1 to {MAX_PING_COUNT} (default 10)")
     ping.add_argument("--curve-server-key", metavar="FILE", help="the server's public CURVE key file")
     ping.add_argument("--curve-client-key", metavar="FILE", help="this client's CURVE secret key file")
 
@@ -212,13 +214,16 @@ def _ping(args) -> int:
     import time
 
     from backends.bridge import BridgeBackend
+    from solver.errors import NaocalError
 
+    if not 1 <= args.count <= MAX_PING_COUNT:  # a median of no round trips means nothing
+        raise NaocalError(f"--count must be within 1..{MAX_PING_COUNT}, got {args.count}")
     bridge = BridgeBackend(args.endpoint, timeout_s=args.timeout_s, retries=0,
                            curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
         info = bridge.server_info()
         round_trips_s = []
-        for _ in range(max(1, args.count)):
+        for _ in range(args.count):
             start = time.perf_counter()
             bridge.now()
             round_trips_s.append(time.perf_counter() - start)

@@ -3,6 +3,7 @@
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
 
+An offsets file of another body or head than the robot's (what `naocal verify` refuses) is warned about.
 `status` prints the robot's ids and, per joint, the raw reading, the reading corrected by the offsets file
 (reading - c), stiffness, temperature and temperature status. `--json` prints one JSON object (schema in
 docs/DEPLOY.md): a key per joint name with raw_rad, corrected_rad, stiffness, temperature_c, status (null where
@@ -11,13 +12,17 @@ the robot does not report it), and the key "robot" with body_id, head_id, their 
 `move` moves the named joints to the given angles in degrees, through the offsets (the command sent is
 target + c, so the joint truly stands at the target), at a safe default speed (10 % of each joint's maximum),
 after checking every target against the robot's limits and the HeadPitch-vs-HeadYaw table (an unsafe target
-exits with code 2 before anything moves). It stiffens only the named joints, waits until they read their
-targets (deadline: three times the motion time plus --timeout-s), then releases control: the LoLA driver then holds the
+exits with code 2 before anything moves). It stiffens only the named joints, waits on the robot's clock (the
+mock's moves only when asked) until they read their targets (deadline: three times the motion time plus
+--timeout-s), then releases control: the LoLA driver then holds the
 joints for its hold time and ramps their stiffness to 0 (docs/DEPLOY.md). It has no collision model: move one
 joint at a time, in small steps, with the robot where it cannot hurt itself.
 """
 
 DEFAULT_MOVE_SPEED = 0.1
+MAX_MOVE_TIMEOUT_S = 600.0
+MAX_TOLERANCE_DEG = 10.0
+MOVE_POLL_S = 0.05
 
 
 def register(actions) -> None:
@@ -34,16 +39,47 @@ def register(actions) -> None:
     move.add_argument("--speed", type=float, default=DEFAULT_MOVE_SPEED, metavar="F",
                       help=f"fraction of each joint's maximum speed, in (0, 0.5] (default {DEFAULT_MOVE_SPEED})")
     move.add_argument("--timeout-s", type=float, default=5.0,
-                      help="wait for the joints three times the expected motion time plus this (default 5)")
+                      help="wait for the joints three times the expected motion time plus this, in robot time "
+                           f"(default 5, at most {MAX_MOVE_TIMEOUT_S:g})")
     move.add_argument("--tolerance-deg", type=float, default=1.0,
-                      help="a joint has arrived when it reads within this of its target (default 1)")
+                      help="a joint has arrived when it reads within this of its target "
+                           f"(default 1, at most {MAX_TOLERANCE_DEG:g})")
     move.add_argument("angles", nargs="+", metavar="JOINT=DEG", help="e.g. HeadYaw=20 LKneePitch=45.5")
 
 
-def _offsets(path):
+def _read_offsets(path):
+    """The offsets file (None without --offsets), read before anything connects: a bad file stops here."""
     from solver.offsets import read_offsets
 
-    return read_offsets(path).joint_offsets_rad if path else {}
+    return read_offsets(path) if path else None
+
+
+def _offsets_for(robot, offsets, path) -> dict:
+    """{joint: c} of `offsets` for the robot behind `robot` ({} without a file). Warns, as `verify` refuses, when the
+    file names another body or head than the robot reports (solver.verify.check_same_robot)."""
+    import sys
+
+    from solver.errors import DataError
+    from solver.robot import nao
+    from solver.verify import check_same_robot
+
+    if offsets is None:
+        return {}
+    try:
+        check_same_robot(offsets, path, {"robot": robot.robot_identity()}, nao())
+    except DataError as err:
+        print(f"naocal bridge: WARNING: {err}; its offsets do not describe this robot", file=sys.stderr)
+    return offsets.joint_offsets_rad
+
+
+def _identity_text(robot: dict, driver) -> str:
+    """'body ID (VERSION), head ID (VERSION)'; a driver that reports no versions (the mock, NAOqi) says so once
+    rather than print '?'."""
+    ids = f"body {robot.get('body_id', 'unknown')}", f"head {robot.get('head_id', 'unknown')}"
+    versions = robot.get("body_version"), robot.get("head_version")
+    if all(versions):
+        return ", ".join(f"{part} ({version})" for part, version in zip(ids, versions))
+    return f"{ids[0]}, {ids[1]} (the {driver} driver reports no versions)"
 
 
 def run_status(args) -> int:
@@ -53,9 +89,10 @@ def run_status(args) -> int:
     from backends.bridge import BridgeBackend
     from solver.compensation import correct_reading
 
-    offsets = _offsets(args.offsets)
+    offsets_file = _read_offsets(args.offsets)
     bridge = BridgeBackend(args.endpoint, timeout_s=args.timeout_s, retries=1)
     try:
+        offsets = _offsets_for(bridge, offsets_file, args.offsets)
         report = bridge.status()
         driver = bridge.server_info().get("driver")
     finally:
@@ -77,8 +114,7 @@ def run_status(args) -> int:
     def number(value, fmt):
         return "-" if value is None else format(value, fmt)
 
-    print(f"robot: body {robot.get('body_id', '?')} ({robot.get('body_version', '?')}), head "
-          f"{robot.get('head_id', '?')} ({robot.get('head_version', '?')}), driver {driver}"
+    print(f"robot: {_identity_text(robot, driver)}, driver {driver}"
           + (f", control {robot['control']}" if robot.get("control") else "")
           + (f", PAUSED: {robot['paused']}" if robot.get("paused") else "")
           + (f", FAULT: {robot['fault']}" if robot.get("fault") else ""))
@@ -96,7 +132,6 @@ def run_status(args) -> int:
 
 def run_move(args) -> int:
     import math
-    import time
 
     from backends.bridge import BridgeBackend
     from backends.compensated import CompensatedBackend
@@ -107,18 +142,21 @@ def run_move(args) -> int:
 
     if not 0.0 < args.speed <= 0.5:
         raise NaocalError(f"--speed must be within (0, 0.5], got {args.speed}")
-    if not (args.timeout_s > 0 and args.tolerance_deg > 0):
-        raise NaocalError("--timeout-s and --tolerance-deg must be positive")
+    if not 0.0 < args.timeout_s <= MAX_MOVE_TIMEOUT_S:  # every wait has a deadline
+        raise NaocalError(f"--timeout-s must be within (0, {MAX_MOVE_TIMEOUT_S:g}] s, got {args.timeout_s}")
+    if not 0.0 < args.tolerance_deg <= MAX_TOLERANCE_DEG:
+        raise NaocalError(f"--tolerance-deg must be within (0, {MAX_TOLERANCE_DEG:g}], got {args.tolerance_deg}")
     targets = {}
     for text in args.angles:
         joint, angle_deg = parse_assignment(text)
         if joint in targets:
             raise NaocalError(f"{joint} given twice")
         targets[joint] = math.radians(angle_deg)
-    offsets = _offsets(args.offsets)
+    offsets_file = _read_offsets(args.offsets)
 
     bridge = BridgeBackend(args.endpoint, timeout_s=3.0, retries=1)
     try:
+        offsets = _offsets_for(bridge, offsets_file, args.offsets)
         robot = CompensatedBackend(bridge, offsets) if offsets else bridge
         movable = set(robot.joint_names())
         fixed = [joint for joint in targets if joint not in movable]
@@ -135,23 +173,24 @@ def run_move(args) -> int:
         expected_s = max(abs(targets[j] - start[j]) / (args.speed * speeds[j]) for j in targets)
         robot.set_stiffness(list(targets), 1.0)
         robot.command(targets, args.speed)
-        done_s = time.monotonic() + expected_s  # releasing earlier would stop the motion short of its target
+        # Waits on the robot's clock (now/sleep): a simulated one (the mock) moves only when asked to sleep.
+        done_s = robot.now() + expected_s  # releasing earlier would stop the motion short of its target
         # The driver moves one step per LoLA message: allow for a robot slower than its nominal cycle.
         allowed_s = 3.0 * expected_s + args.timeout_s
-        deadline = time.monotonic() + allowed_s
+        deadline_s = robot.now() + allowed_s
         tolerance = math.radians(args.tolerance_deg)
         while True:
             reading = robot.read_joints().angles_rad
             away = {j: reading[j] for j in targets if abs(reading[j] - targets[j]) > tolerance}
             # A driver that interpolates itself (LoLA) says when its motion has ended: on a slow cycle that is
             # later than the nominal motion time, and releasing earlier freezes the joint short of its target.
-            if not away and time.monotonic() >= done_s and not bridge.status()["robot"].get("moving", False):
+            if not away and robot.now() >= done_s and not bridge.status()["robot"].get("moving", False):
                 break
-            if time.monotonic() > deadline:
+            if robot.now() > deadline_s:
                 raise RobotTimeout(f"not there within {allowed_s:.1f} s: " + ", ".join(
                     f"{j} reads {math.degrees(a):.2f} deg, target {math.degrees(targets[j]):.2f} deg"
                     for j, a in away.items()))
-            time.sleep(0.05)
+            robot.sleep(MOVE_POLL_S)
     finally:
         bridge.close()  # releases control: the driver holds, then ramps stiffness down
     for joint, target in targets.items():

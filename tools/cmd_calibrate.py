@@ -179,6 +179,9 @@ def run(args) -> int:
         if args.mock is not None:
             raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
                               "`naocal bridge serve --driver mock --mock realistic`")
+        from backends.bridge import check_server_answers
+
+        check_server_answers(args.endpoint)  # before the run directory exists: a dead endpoint leaves nothing
     elif args.endpoint:
         raise NaocalError("--endpoint is for --backend bridge")
     effects = {}
