@@ -16,7 +16,7 @@ from backends.base import CameraImage
 from backends.bridge import BridgeBackend
 from backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
 from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, RobotFaultNone
+from backends.errors import BridgeError, RobotFault
 from solver.errors import SafetyError
 from solver.errors import NaocalError
 from tests.backend_contract import check_backend_contract

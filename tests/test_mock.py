@@ -9,7 +9,7 @@ import pytest
 from backends.mock import (
     DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effect_sizes,
 )
-from backends.errors import RobotFaultNone
+from backends.errors import RobotFault
 from solver.errors import SafetyError
 from solver.errors import NaocalError
 from solver.joints import JOINTS, LEG_JOINTS
