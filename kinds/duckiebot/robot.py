@@ -15,6 +15,7 @@ calibration files (camera prior: fx 336.5 px, cx 316, cy 233, k1 -0.283, k2 0.05
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -117,3 +118,18 @@ def duckiebot(model: str = "DB21") -> Duckiebot:
         raise NaocalError(f"unknown Duckiebot model {model!r}: expected one of {', '.join(MODELS)}")
     ticks = DB21_TICKS_PER_REVOLUTION if model == "DB21" else None
     return Duckiebot(model, WHEEL_RADIUS_M, BASELINE_M, ticks, prior_camera(), camera_mount())
+
+
+# A Duckiebot's name is its hostname and its ROS namespace, and becomes a file name (<robot>.yaml) and a YAML
+# value: letters, digits and underscores, a letter first (a ROS name), at most 63 characters (a hostname label).
+ROBOT_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
+
+
+def robot_name_problem(name) -> str | None:
+    """Why `name` cannot be a Duckiebot's name (a file name and a YAML value), or None when it can."""
+    if not isinstance(name, str):
+        return f"expected a robot name (text), got {type(name).__name__}"
+    if not ROBOT_NAME.fullmatch(name):
+        return (f"robot name {name[:40]!r} is not a Duckiebot name: letters, digits and underscores, a letter "
+                "first, at most 63 characters")
+    return None
