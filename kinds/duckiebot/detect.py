@@ -42,10 +42,10 @@ def _marker_detector(family: str) -> cv2.aruco.ArucoDetector:
     if family not in MARKER_FAMILIES:
         raise ValueError(f"unsupported marker family {family!r} (expected one of {', '.join(MARKER_FAMILIES)})")
     parameters = cv2.aruco.DetectorParameters()
-    # sub-pixel corners (OpenCV's default refines nothing). On rendered floor markers (tests/
-    # test_duckiebot_render_detect.py) a window of half a marker cell is best: corners of markers whose sides are
-    # all >= 20 px within 0.4 px (0.25 px RMS); 0.3 cells (the default) 1.0 px, 0.7 cells 2.3 px. CORNER_REFINE_
-    # APRILTAG and CONTOUR were worse (1.2 and 0.9 px RMS).
+    # sub-pixel corners (OpenCV's default refines nothing). On rendered floor markers (docs/DUCKIEBOT.md, seed 3)
+    # a window of half a marker cell is best: corners of markers whose sides are all >= 20 px within 0.37 px
+    # (0.25 px RMS); 0.3 cells (OpenCV's default) 1.0 px, 0.7 cells 2.3 px. CORNER_REFINE_APRILTAG and CONTOUR
+    # were worse (1.2 and 0.9 px RMS, seed 1).
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     parameters.cornerRefinementWinSize = 4
     parameters.relativeCornerRefinmentWinSize = 0.5  # (sic: OpenCV's spelling)
