@@ -7,6 +7,7 @@ import pytest
 
 from kinds.duckiebot.detect import detect_boards, detect_markers
 from kinds.duckiebot.drive_log import read_drive_log
+from kinds.duckiebot.intrinsics import Camera, board_points, camera_difference_px, choose_lens
 from kinds.duckiebot.kinematics import wheel_speeds
 from kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, paper_program, render_drive_log,
                                     undistort_exact)
@@ -104,3 +105,21 @@ def test_rendering_is_deterministic_and_geometric():
     # facing away from boards and markers (towards +y): floor and wall only, the floor below the horizon
     empty = renderer.render((0.0, 0.0, np.pi / 2), noise_grey=0.0, blur_px=0.0)
     assert detect_markers(empty) == [] and abs(int(empty[-1, 320]) - 70) <= 1
+
+
+def test_intrinsics_from_the_rendered_boards(rendered):
+    """The boards seen while turning on the spot: the lens model chosen by held-out error (boards held out one at
+    a time) is the truth's, plumb_bob; the camera is judged against the truth over the whole image."""
+    O, I, groups = [], [], []
+    obj = board_points(rendered.log.board_inner_corners, rendered.log.board_square_m)
+    for i in range(len(rendered.log.frame_files)):
+        for sighting in detect_boards(rendered.log.load_frame(i), rendered.log.board_inner_corners):
+            truth = rendered.board_px[i]
+            board = min(truth, key=lambda b: np.abs(sighting.corners_px - truth[b]).max())
+            O.append(obj)
+            I.append(sighting.corners_px.reshape(-1, 2))
+            groups.append(board)
+    best, fits = choose_lens(O, I, (640, 480), groups)
+    assert best.camera.model == "plumb_bob" and best.train_rms_px < 0.1
+    assert fits["fisheye"].held_out_rms_px > best.held_out_rms_px
+    assert camera_difference_px(Camera.from_intrinsics(rendered.robot.camera), best.camera, (640, 480)) < 1.5
