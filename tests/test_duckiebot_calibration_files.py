@@ -134,7 +134,8 @@ def test_the_reader_takes_pyyaml_style_files(tmp_path):
         "camera_matrix:\n  cols: 3\n  data:\n  - 336.5\n  - 0\n  - 316\n  - 0\n  - 336.5\n  - 233\n  - 0\n  - 0\n"
         "  - 1\n  rows: 3\ncamera_name: '/x/camera_node'\ndistortion_coefficients:\n  cols: 5\n"
         "  data: [-0.283, 0.058,\n    0.0, 0.0, 0]\n  rows: 1\ndistortion_model: plumb_bob\nimage_height: 480\n"
-        "image_width: 640\nprojection_matrix:\n  cols: 4\n  data: [230.0, 0, 320.0, 0, 0, 230.0, 240.0, 0, 0, 0, 1, 0]\n"
+        "image_width: 640\nprojection_matrix:\n  cols: 4\n"
+        "  data: [230.0, 0, 320.0, 0, 0, 230.0, 240.0, 0, 0, 0, 1, 0]\n"
         "  rows: 3\nrectification_matrix:\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n  rows: 3\n")
     camera, name, findings = read_intrinsic(tmp_path / "i.yaml")
     assert name == "/x/camera_node" and camera.K[0, 0] == 336.5 and camera.distortion[1] == 0.058

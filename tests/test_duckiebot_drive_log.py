@@ -157,3 +157,18 @@ def test_bad_log_json(log, change, match):
 def test_not_a_directory(tmp_path):
     with pytest.raises(DataError, match="not a directory"):
         read_drive_log(tmp_path / "nothing")
+
+
+def test_the_writer_checks_everything_before_writing(tmp_path):
+    directory = tmp_path / "LOG"
+    write_frame(directory, "f.png", np.zeros((H, W, 3), np.uint8))
+    good = (([0.0, 1.0], [0.0, 0.5], [0.0, 0.5]), ([0.5], ["f.png"]))
+    for wheels, frames, match in [(([0.0, 1.0], [0.0, float("nan")], [0.0, 0.5]), good[1], "wheels.csv, line 3"),
+                                  (good[0], ([0.5], ["../f.png"]), "frames.csv, line 2"),
+                                  (good[0], ([0.5], ["g.png"]), "g.png: file not found")]:
+        with pytest.raises(DataError, match=match):
+            write_drive_log(directory, meta(), wheels, frames)
+        assert sorted(p.name for p in directory.iterdir()) == ["f.png"]
+    with pytest.raises(DataError, match="encoders.csv, line 3"):
+        write_drive_log(directory, meta(), *good, ([0.0, 0.0], [0, 1], [0, 1]))
+    assert write_drive_log(directory, meta(), *good).frame_files == ("f.png",)

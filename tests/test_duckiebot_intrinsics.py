@@ -5,14 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
-from kinds.duckiebot.intrinsics import Camera, board_points, camera_difference_px, choose_lens, fit_camera
+from kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens, fit_camera
 from kinds.duckiebot.render import hidden_robot
 from solver.errors import NaocalError
 
 SIZE = (640, 480)
 
 
-def views(camera: Camera, n=18, noise_px=0.05, seed=0):
+def views(camera: LensCamera, n=18, noise_px=0.05, seed=0):
     """Board views spread over the image at several distances and tilts, projected by `camera`."""
     rng = np.random.default_rng(seed)
     obj = board_points((7, 5), 0.031)
@@ -36,14 +36,14 @@ def views(camera: Camera, n=18, noise_px=0.05, seed=0):
 
 
 def test_camera_difference_is_zero_for_one_camera_and_measures_a_shift():
-    truth = Camera.from_intrinsics(hidden_robot(1).camera)
+    truth = LensCamera.from_intrinsics(hidden_robot(1).camera)
     assert camera_difference_px(truth, truth, SIZE) < 1e-3
-    shifted = Camera("plumb_bob", truth.K + [[0, 0, 2.0], [0, 0, 0], [0, 0, 0]], truth.distortion)
+    shifted = LensCamera("plumb_bob", truth.K + [[0, 0, 2.0], [0, 0, 0], [0, 0, 0]], truth.distortion)
     assert camera_difference_px(truth, shifted, SIZE) == pytest.approx(2.0, abs=1e-3)
 
 
 def test_a_plumb_bob_lens_is_chosen_and_recovered():
-    truth = Camera.from_intrinsics(hidden_robot(4).camera)
+    truth = LensCamera.from_intrinsics(hidden_robot(4).camera)
     O, I, groups = views(truth)
     best, fits = choose_lens(O, I, SIZE, groups)
     assert best.camera.model in ("plumb_bob", "rational") and set(fits) == {"plumb_bob", "rational", "fisheye"}
@@ -53,7 +53,7 @@ def test_a_plumb_bob_lens_is_chosen_and_recovered():
 
 
 def test_a_fisheye_lens_is_chosen_for_fisheye_data():
-    truth = Camera("fisheye", np.array([[300.0, 0, 322], [0, 301.0, 236], [0, 0, 1]]),
+    truth = LensCamera("fisheye", np.array([[300.0, 0, 322], [0, 301.0, 236], [0, 0, 1]]),
                    np.array([0.08, -0.05, 0.02, -0.005]))
     O, I, groups = views(truth, seed=1)
     best, fits = choose_lens(O, I, SIZE, groups)
@@ -63,7 +63,7 @@ def test_a_fisheye_lens_is_chosen_for_fisheye_data():
 
 
 def test_refusals():
-    O, I, _ = views(Camera.from_intrinsics(hidden_robot(1).camera), n=4)
+    O, I, _ = views(LensCamera.from_intrinsics(hidden_robot(1).camera), n=4)
     with pytest.raises(NaocalError, match="lens model"):
         fit_camera(O, I, SIZE, "orthographic")
     with pytest.raises(NaocalError, match="at least 3"):

@@ -7,7 +7,7 @@ import pytest
 
 from kinds.duckiebot.detect import detect_boards, detect_markers
 from kinds.duckiebot.drive_log import read_drive_log
-from kinds.duckiebot.intrinsics import Camera, board_points, camera_difference_px, choose_lens
+from kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens
 from kinds.duckiebot.kinematics import wheel_speeds
 from kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, paper_program, render_drive_log,
                                     undistort_exact)
@@ -122,4 +122,4 @@ def test_intrinsics_from_the_rendered_boards(rendered):
     best, fits = choose_lens(O, I, (640, 480), groups)
     assert best.camera.model == "plumb_bob" and best.train_rms_px < 0.1
     assert fits["fisheye"].held_out_rms_px > best.held_out_rms_px
-    assert camera_difference_px(Camera.from_intrinsics(rendered.robot.camera), best.camera, (640, 480)) < 1.5
+    assert camera_difference_px(LensCamera.from_intrinsics(rendered.robot.camera), best.camera, (640, 480)) < 1.5

@@ -188,10 +188,11 @@ def parse_meta(doc, path) -> dict:
 
 # ------------------------------------------------------------------------------------------------ CSV files
 
-def _rows(path, header: tuple[str, ...]):
-    """(line number, cells) of the data rows of a CSV file whose header must be exactly `header`; blank lines are
-    skipped. At least one data row."""
-    text = read_text(path)  # regular files only, bounded (solver/fileio.py)
+def _rows(path, header: tuple[str, ...], text: str | None = None):
+    """(line number, cells) of the data rows of a CSV file (or of `text`, the content it is about to get) whose
+    header must be exactly `header`; blank lines are skipped. At least one data row."""
+    if text is None:
+        text = read_text(path)  # regular files only, bounded (solver/fileio.py)
     reader = csv.reader(io.StringIO(text, newline=""))
     rows, seen_header = [], False
     try:
@@ -249,18 +250,18 @@ def _times(rows, path) -> np.ndarray:
     return t
 
 
-def read_wheels(path):
+def read_wheels(path, text: str | None = None):
     """(t_s, left_duty, right_duty) of wheels.csv; duties finite and within [-1, 1]."""
-    rows = _rows(path, WHEELS_HEADER)
+    rows = _rows(path, WHEELS_HEADER, text)
     t = _times(rows, path)
     duties = np.array([[_float_cell(cells[c], path, line, WHEELS_HEADER[c], -1.0, 1.0) for c in (1, 2)]
                        for line, cells in rows])
     return t, duties[:, 0], duties[:, 1]
 
 
-def read_encoders(path):
+def read_encoders(path, text: str | None = None):
     """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64)."""
-    rows = _rows(path, ENCODERS_HEADER)
+    rows = _rows(path, ENCODERS_HEADER, text)
     t = _times(rows, path)
     ticks = np.array([[_int_cell(cells[c], path, line, ENCODERS_HEADER[c]) for c in (1, 2)] for line, cells in rows],
                      dtype=np.int64)
@@ -296,10 +297,11 @@ def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray
     return image
 
 
-def read_frames(path, log_dir: Path, width_px: int, height_px: int, *, check_images: bool = True):
+def read_frames(path, log_dir: Path, width_px: int, height_px: int, *, check_images: bool = True,
+                text: str | None = None):
     """(t_s, files) of frames.csv. Each file must name a distinct PNG/JPEG inside LOG; with `check_images` each is
     decoded and must be width_px x height_px (a frame that is not an image is refused before any work)."""
-    rows = _rows(path, FRAMES_HEADER)
+    rows = _rows(path, FRAMES_HEADER, text)
     t = _times(rows, path)
     files, seen = [], {}
     for line, cells in rows:
@@ -352,10 +354,10 @@ def _csv_text(header, rows) -> str:
 def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> DriveLog:
     """Write a drive log's text files atomically and return it as read back (the frames' image files must already
     be in `directory`). meta: the log.json document; wheels: (t_s, left_duty, right_duty) arrays; frames:
-    (t_s, files); encoders: (t_s, left_ticks, right_ticks) or None. Floats as repr(): a round trip is exact. The
-    meta is checked before anything is written (DataError naming log.json)."""
+    (t_s, files); encoders: (t_s, left_ticks, right_ticks) or None. Floats as repr(): a round trip is exact.
+    Every file's content is checked as the reader would before anything is written (DataError naming it)."""
     directory = Path(directory)
-    parse_meta(meta, directory / META_FILE)
+    checked = parse_meta(meta, directory / META_FILE)
     texts = {WHEELS_FILE: _csv_text(WHEELS_HEADER, ([repr(float(t)), repr(float(a)), repr(float(b))]
                                                     for t, a, b in zip(*wheels))),
              FRAMES_FILE: _csv_text(FRAMES_HEADER, ([repr(float(t)), _csv_cell(f)] for t, f in zip(*frames)))}
@@ -363,6 +365,11 @@ def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> Dri
         texts[ENCODERS_FILE] = _csv_text(ENCODERS_HEADER, ([repr(float(t)), str(int(a)), str(int(b))]
                                                            for t, a, b in zip(*encoders)))
     texts[META_FILE] = json.dumps(meta, indent=2) + "\n"
+    read_wheels(directory / WHEELS_FILE, texts[WHEELS_FILE])
+    read_frames(directory / FRAMES_FILE, directory, checked["width_px"], checked["height_px"],
+                text=texts[FRAMES_FILE])
+    if encoders is not None:
+        read_encoders(directory / ENCODERS_FILE, texts[ENCODERS_FILE])
     directory.mkdir(parents=True, exist_ok=True)
     for name, text in texts.items():
         atomic_write_text(directory / name, text)

@@ -27,7 +27,7 @@ _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 
 
 @dataclass(frozen=True)
-class Camera:
+class LensCamera:
     """A fitted camera: lens model, K (3, 3), distortion coefficients in OpenCV's order for the model."""
 
     model: str
@@ -35,7 +35,7 @@ class Camera:
     distortion: np.ndarray
 
     @classmethod
-    def from_intrinsics(cls, camera) -> "Camera":
+    def from_intrinsics(cls, camera) -> "LensCamera":
         """A naocal camera (solver.camera.CameraIntrinsics: OpenCV's pixel convention and plumb_bob)."""
         K = np.array([[camera.fx_px, 0.0, camera.cx_px], [0.0, camera.fy_px, camera.cy_px], [0.0, 0.0, 1.0]])
         return cls("plumb_bob", K, np.asarray(camera.distortion, dtype=float))
@@ -69,7 +69,7 @@ class Camera:
 
 @dataclass(frozen=True)
 class LensFit:
-    camera: Camera
+    camera: LensCamera
     train_rms_px: float  # all views, fitted to all
     held_out_rms_px: float  # each group held out in turn
     n_views: int
@@ -82,7 +82,7 @@ def board_points(inner_corners: tuple[int, int], square_m: float) -> np.ndarray:
     return np.column_stack([c.ravel() * square_m, r.ravel() * square_m, np.zeros(r.size)])
 
 
-def fit_camera(object_points, image_points, size, model: str, K_guess=None) -> tuple[Camera, float]:
+def fit_camera(object_points, image_points, size, model: str, K_guess=None) -> tuple[LensCamera, float]:
     """(camera, training RMS px) of one lens model fitted to views (lists of (n, 3) and (n, 2)); `size` (w, h)."""
     if model not in LENS_MODELS:
         raise NaocalError(f"unknown lens model {model!r}: expected one of {', '.join(LENS_MODELS)}")
@@ -102,10 +102,10 @@ def fit_camera(object_points, image_points, size, model: str, K_guess=None) -> t
         img = [np.asarray(i, np.float32) for i in image_points]
         flags = cv2.CALIB_USE_INTRINSIC_GUESS | (cv2.CALIB_RATIONAL_MODEL if model == "rational" else 0)
         rms, K, D, _, _ = cv2.calibrateCamera(obj, img, (w, h), K0.copy(), None, flags=flags, criteria=_CRITERIA)
-    return Camera(model, K, np.asarray(D, float).ravel()), float(rms)
+    return LensCamera(model, K, np.asarray(D, float).ravel()), float(rms)
 
 
-def view_rms_px(camera: Camera, object_points, image_points) -> float:
+def view_rms_px(camera: LensCamera, object_points, image_points) -> float:
     """RMS (over both coordinates) of one view's corners about their projection at the view's PnP pose."""
     rvec, tvec = camera.pose(object_points, image_points)
     residual = camera.project(object_points, rvec, tvec) - np.asarray(image_points, float)
@@ -146,7 +146,7 @@ def choose_lens(object_points, image_points, size, groups, models=LENS_MODELS, K
     return min(fits.values(), key=lambda f: f.held_out_rms_px), fits
 
 
-def camera_difference_px(a: Camera, b: Camera, size, step_px: float = 8.0) -> float:
+def camera_difference_px(a: LensCamera, b: LensCamera, size, step_px: float = 8.0) -> float:
     """RMS pixel distance over the whole image between where two cameras see the same rays: a grid of a's pixels,
     their rays by a, projected by b."""
     w, h = size

@@ -303,7 +303,7 @@ def hidden_robot(seed: int) -> HiddenRobot:
 # ------------------------------------------------------------------------------------------------ the drive
 
 @dataclass(frozen=True)
-class Step:
+class DriveStep:
     """Hold duties (left, right) for duration_s; then, if `grab`, stand still for settle_s and grab a frame in
     the middle of it."""
 
@@ -317,17 +317,17 @@ class Step:
 
 
 def paper_program(board_steps: int = 4, marker_drives: int = 5, step_duty: float = 0.25,
-                  step_s: float = 0.1, drive_duty: float = 0.3, drive_s: float = 0.25) -> list[Step]:
+                  step_s: float = 0.1, drive_duty: float = 0.3, drive_s: float = 0.25) -> list[DriveStep]:
     """The paper's phases, open loop: look ahead; turn in one-wheel steps (the right wheel turns the robot left
     about the left wheel, then the left wheel right, then back) to see every board; spin in place until facing
     the marker line; drive forward in short stops-and-grabs, then back."""
-    steps = [Step(0.0, 0.0, 0.0)]
-    one_wheel = ([Step(step_s, 0.0, step_duty)] * board_steps + [Step(step_s, step_duty, 0.0)] * (2 * board_steps) +
-                 [Step(step_s, 0.0, step_duty)] * board_steps)
+    steps = [DriveStep(0.0, 0.0, 0.0)]
+    turn_left, turn_right = DriveStep(step_s, 0.0, step_duty), DriveStep(step_s, step_duty, 0.0)
+    one_wheel = [turn_left] * board_steps + [turn_right] * (2 * board_steps) + [turn_left] * board_steps
     steps += one_wheel
-    steps.append(Step(0.0, -0.3, 0.3, face_rad=np.pi))  # spin left until facing the marker line (-x)
-    steps += [Step(drive_s, drive_duty, drive_duty)] * marker_drives
-    steps += [Step(drive_s, -drive_duty, -drive_duty)] * marker_drives
+    steps.append(DriveStep(0.0, -0.3, 0.3, face_rad=np.pi))  # spin left until facing the marker line (-x)
+    steps += [DriveStep(drive_s, drive_duty, drive_duty)] * marker_drives
+    steps += [DriveStep(drive_s, -drive_duty, -drive_duty)] * marker_drives
     return steps
 
 
