@@ -99,6 +99,18 @@ def ground_homography(T_base_camera, P) -> np.ndarray:
     return H / H[2, 2]
 
 
+def duckietown_calibration(robot: str, kinematics: Kinematics, camera, T_base_camera,
+                           calibration_time: str = "") -> DuckietownCalibration:
+    """The three files' content from a calibrated robot: its kinematics, its camera (solver.camera.CameraIntrinsics,
+    plumb_bob) and the camera's pose on the body. The rectified camera is [K | 0] (the undistorted image with the
+    same camera matrix), and the homography is that camera's view of the floor."""
+    K = np.array([[camera.fx_px, 0.0, camera.cx_px], [0.0, camera.fy_px, camera.cy_px], [0.0, 0.0, 1.0]])
+    calibration = CameraCalibration(int(camera.width_px), int(camera.height_px), K,
+                                    np.asarray(camera.distortion, dtype=float))
+    return DuckietownCalibration(robot, kinematics, calibration, ground_homography(T_base_camera, K),
+                                 calibration_time)
+
+
 def apply_homography(H, uv) -> np.ndarray:
     """(..., 2) ground points of pixels (..., 2) under H."""
     uv = np.asarray(uv, dtype=float)
