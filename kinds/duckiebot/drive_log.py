@@ -1,0 +1,391 @@
+"""A Duckiebot's drive log (`naocal.drive_log/1`): the strict reader and the writer (docs/DUCKIEBOT.md).
+
+    LOG/log.json     {"schema": "naocal.drive_log/1", "robot": {"id", "model"}, "camera": {"width_px", "height_px"},
+                      "wheels": {"radius_m", "baseline_m", "k", "limit", "ticks_per_revolution" (optional)},
+                      "markers": {"family": "tag36h11", "size_m"}, "boards": {"inner_corners": [7, 5], "square_m"},
+                      "source"}
+    LOG/wheels.csv   t_s,left_duty,right_duty     every wheel command as sent (duty in [-1, 1], positive drives
+                                                  forward); each holds until the next row
+    LOG/frames.csv   t_s,file                     one row per frame (t_s mid-exposure, the same clock), file
+                                                  relative to LOG (PNG or JPEG)
+    LOG/encoders.csv t_s,left_ticks,right_ticks   optional: cumulative signed ticks
+
+Strict: every problem is one DataError naming the file and the line or field (missing files, unknown or missing
+fields, times not strictly increasing, NaN or out-of-range duties, frames that are not PNG/JPEG images of the
+camera's size, paths that leave LOG). Every file is read through solver.fileio (regular files, bounded size).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import cv2
+import numpy as np
+
+from kinds.duckiebot.robot import robot_name_problem
+from solver.errors import DataError
+from solver.fileio import atomic_write_bytes, atomic_write_text, read_bytes, read_json, read_text
+
+SCHEMA = "naocal.drive_log/1"
+META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE = "log.json", "wheels.csv", "frames.csv", "encoders.csv"
+WHEELS_HEADER = ("t_s", "left_duty", "right_duty")
+FRAMES_HEADER = ("t_s", "file")
+ENCODERS_HEADER = ("t_s", "left_ticks", "right_ticks")
+MARKER_FAMILIES = ("tag36h11",)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+IMAGE_SIGNATURES = {".png": b"\x89PNG\r\n\x1a\n", ".jpg": b"\xff\xd8\xff", ".jpeg": b"\xff\xd8\xff"}
+MAX_IMAGE_BYTES = 16 * 1024 ** 2  # a 640 x 480 PNG is under 1 MB
+MAX_TICKS = 2 ** 53  # cumulative ticks beyond this lose integer precision as floats
+MAX_TIME_S = 1e10  # seconds: any clock (Unix time included) for centuries
+
+
+@dataclass(frozen=True)
+class Wheels:
+    """The log's wheel description: nominal radius and baseline (m), Duckietown's k (rad/s per unit duty) and duty
+    limit, encoder ticks per wheel revolution (None: no encoders)."""
+
+    radius_m: float
+    baseline_m: float
+    k: float
+    limit: float
+    ticks_per_revolution: int | None = None
+
+
+@dataclass(frozen=True)
+class DriveLog:
+    """A drive log read and checked. Times are seconds on the log's one clock; arrays are float64 except ticks."""
+
+    path: Path
+    robot_id: str
+    model: str
+    width_px: int
+    height_px: int
+    wheels: Wheels
+    marker_family: str
+    marker_size_m: float
+    board_inner_corners: tuple[int, int]  # (columns, rows) of inner corners
+    board_square_m: float
+    source: str
+    wheel_t_s: np.ndarray  # (n,) strictly increasing
+    left_duty: np.ndarray  # (n,) in [-1, 1]; each holds until the next row
+    right_duty: np.ndarray
+    frame_t_s: np.ndarray  # (m,) strictly increasing, mid-exposure
+    frame_files: tuple[str, ...]  # relative to `path`, POSIX separators
+    encoder_t_s: np.ndarray | None = None  # (e,) strictly increasing, None without encoders.csv
+    left_ticks: np.ndarray | None = None  # (e,) int64, cumulative signed
+    right_ticks: np.ndarray | None = None
+
+    def meta(self) -> dict:
+        """The log.json document of this log."""
+        wheels = {"radius_m": self.wheels.radius_m, "baseline_m": self.wheels.baseline_m, "k": self.wheels.k,
+                  "limit": self.wheels.limit}
+        if self.wheels.ticks_per_revolution is not None:
+            wheels["ticks_per_revolution"] = self.wheels.ticks_per_revolution
+        return {"schema": SCHEMA, "robot": {"id": self.robot_id, "model": self.model},
+                "camera": {"width_px": self.width_px, "height_px": self.height_px}, "wheels": wheels,
+                "markers": {"family": self.marker_family, "size_m": self.marker_size_m},
+                "boards": {"inner_corners": list(self.board_inner_corners), "square_m": self.board_square_m},
+                "source": self.source}
+
+    def duties_at(self, t_s):
+        """(left, right) duties in force at times t_s (the last command at or before each; 0 before the first)."""
+        index = np.searchsorted(self.wheel_t_s, np.asarray(t_s, dtype=float), side="right") - 1
+        held = index >= 0
+        safe = np.maximum(index, 0)
+        return np.where(held, self.left_duty[safe], 0.0), np.where(held, self.right_duty[safe], 0.0)
+
+    def frame_path(self, i: int) -> Path:
+        return self.path / self.frame_files[i]
+
+    def load_frame(self, i: int, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+        """Frame i decoded (BGR by default); DataError naming the file if it no longer decodes."""
+        return decode_image(read_bytes(self.frame_path(i), max_bytes=MAX_IMAGE_BYTES), self.frame_path(i), flags)
+
+
+# ------------------------------------------------------------------------------------------------ log.json
+
+def _fail(path, problem, field=None, line=None):
+    raise DataError(path, problem, field=field, line=line)
+
+
+def _object(value, path, field, required, optional=()):
+    if not isinstance(value, dict):
+        _fail(path, "expected a JSON object", field)
+    for key in value:
+        if key not in required and key not in optional:
+            _fail(path, f"unknown field (expected {', '.join(required + optional)})", f"{field}.{key}" if field
+                  else key)
+    for key in required:
+        if key not in value:
+            _fail(path, "missing required field", f"{field}.{key}" if field else key)
+    return value
+
+
+def _number(value, path, field, low, high, *, low_open=True):
+    """A finite number in (low, high] (or [low, high] when not low_open)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
+    if value < low or (low_open and value == low) or value > high:
+        _fail(path, f"{value!r} is outside {'(' if low_open else '['}{low:g}, {high:g}]", field)
+    return float(value)
+
+
+def _integer(value, path, field, low, high):
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        _fail(path, f"expected a whole number from {low} to {high}, got {str(value)[:40]!r}", field)
+    return value
+
+
+def _text(value, path, field, max_chars=200):
+    if not isinstance(value, str) or not value or len(value) > max_chars or not value.isprintable():
+        _fail(path, f"expected a non-empty single line of text (at most {max_chars} characters)", field)
+    return value
+
+
+def parse_meta(doc, path) -> dict:
+    """log.json checked: the keyword arguments of DriveLog's description fields. DataError naming the field."""
+    _object(doc, path, "", ("schema", "robot", "camera", "wheels", "markers", "boards", "source"))
+    if doc["schema"] != SCHEMA:
+        _fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
+    robot = _object(doc["robot"], path, "robot", ("id", "model"))
+    problem = robot_name_problem(robot["id"])
+    if problem:
+        _fail(path, problem, "robot.id")
+    camera = _object(doc["camera"], path, "camera", ("width_px", "height_px"))
+    wheels = _object(doc["wheels"], path, "wheels", ("radius_m", "baseline_m", "k", "limit"),
+                     ("ticks_per_revolution",))
+    ticks = wheels.get("ticks_per_revolution")
+    markers = _object(doc["markers"], path, "markers", ("family", "size_m"))
+    if markers["family"] not in MARKER_FAMILIES:
+        _fail(path, f"unsupported marker family {str(markers['family'])[:40]!r} (expected "
+                    f"{', '.join(MARKER_FAMILIES)})", "markers.family")
+    boards = _object(doc["boards"], path, "boards", ("inner_corners", "square_m"))
+    corners = boards["inner_corners"]
+    if not isinstance(corners, list) or len(corners) != 2:
+        _fail(path, "expected [columns, rows] of inner corners", "boards.inner_corners")
+    # agent.board_detect finds boards of 3..40 squares a side: 2..39 inner corners
+    corners = tuple(_integer(c, path, f"boards.inner_corners[{i}]", 2, 39) for i, c in enumerate(corners))
+    return dict(
+        robot_id=robot["id"], model=_text(robot["model"], path, "robot.model", 40),
+        width_px=_integer(camera["width_px"], path, "camera.width_px", 16, 10000),
+        height_px=_integer(camera["height_px"], path, "camera.height_px", 16, 10000),
+        wheels=Wheels(radius_m=_number(wheels["radius_m"], path, "wheels.radius_m", 0.0, 1.0),
+                      baseline_m=_number(wheels["baseline_m"], path, "wheels.baseline_m", 0.0, 2.0),
+                      k=_number(wheels["k"], path, "wheels.k", 0.0, 1000.0),
+                      limit=_number(wheels["limit"], path, "wheels.limit", 0.0, 1.0),
+                      ticks_per_revolution=None if ticks is None else
+                      _integer(ticks, path, "wheels.ticks_per_revolution", 1, 10 ** 6)),
+        marker_family=markers["family"], marker_size_m=_number(markers["size_m"], path, "markers.size_m", 0.0, 1.0),
+        board_inner_corners=corners, board_square_m=_number(boards["square_m"], path, "boards.square_m", 0.0, 1.0),
+        source=_text(doc["source"], path, "source", 1000))
+
+
+# ------------------------------------------------------------------------------------------------ CSV files
+
+def _rows(path, header: tuple[str, ...], text: str | None = None):
+    """(line number, cells) of the data rows of a CSV file (or of `text`, the content it is about to get) whose
+    header must be exactly `header`; blank lines are skipped. At least one data row."""
+    if text is None:
+        text = read_text(path)  # regular files only, bounded (solver/fileio.py)
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows, seen_header = [], False
+    try:
+        for cells in reader:
+            if not cells or all(not c.strip() for c in cells):
+                continue
+            cells = [c.strip() for c in cells]
+            if not seen_header:
+                if tuple(cells) != header:
+                    _fail(path, f"expected the header {','.join(header)}, got {','.join(cells)[:80]!r}",
+                          line=reader.line_num)
+                seen_header = True
+                continue
+            if len(cells) != len(header):
+                _fail(path, f"expected {len(header)} cells ({','.join(header)}), got {len(cells)}",
+                      line=reader.line_num)
+            rows.append((reader.line_num, cells))
+    except csv.Error as err:
+        _fail(path, f"malformed CSV: {err}", line=reader.line_num)
+    if not seen_header:
+        _fail(path, f"empty file: expected the header {','.join(header)}", line=1)
+    if not rows:
+        _fail(path, "no data rows after the header", line=reader.line_num)
+    return rows
+
+
+def _float_cell(text, path, line, field, low=-math.inf, high=math.inf) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        _fail(path, f"expected a number, got {text[:40]!r}", field, line)
+    if not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {text[:40]!r}", field, line)
+    if not low <= value <= high:
+        _fail(path, f"{value!r} is outside [{low:g}, {high:g}]", field, line)
+    return value
+
+
+def _int_cell(text, path, line, field) -> int:
+    if not text.lstrip("+-").isdigit() or len(text) > 20:
+        _fail(path, f"expected a whole number of ticks, got {text[:40]!r}", field, line)
+    value = int(text)
+    if abs(value) >= MAX_TICKS:
+        _fail(path, f"{value} ticks is beyond any drive (at most 2^53 in size)", field, line)
+    return value
+
+
+def _times(rows, path) -> np.ndarray:
+    t = np.empty(len(rows))
+    for i, (line, cells) in enumerate(rows):
+        t[i] = _float_cell(cells[0], path, line, "t_s", -MAX_TIME_S, MAX_TIME_S)
+        if i and t[i] <= t[i - 1]:
+            _fail(path, f"time {t[i]!r} s does not follow the previous row's {t[i - 1]!r} s (times must "
+                        "strictly increase)", "t_s", line)
+    return t
+
+
+def read_wheels(path, text: str | None = None):
+    """(t_s, left_duty, right_duty) of wheels.csv; duties finite and within [-1, 1]."""
+    rows = _rows(path, WHEELS_HEADER, text)
+    t = _times(rows, path)
+    duties = np.array([[_float_cell(cells[c], path, line, WHEELS_HEADER[c], -1.0, 1.0) for c in (1, 2)]
+                       for line, cells in rows])
+    return t, duties[:, 0], duties[:, 1]
+
+
+def read_encoders(path, text: str | None = None):
+    """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64)."""
+    rows = _rows(path, ENCODERS_HEADER, text)
+    t = _times(rows, path)
+    ticks = np.array([[_int_cell(cells[c], path, line, ENCODERS_HEADER[c]) for c in (1, 2)] for line, cells in rows],
+                     dtype=np.int64)
+    return t, ticks[:, 0], ticks[:, 1]
+
+
+def frame_file_problem(name: str, log_dir: Path) -> str | None:
+    """Why a frames.csv `file` cell cannot name a frame inside LOG, or None. Relative POSIX paths only, no '..',
+    and the file (symbolic links followed) must lie inside LOG."""
+    if not name or "\\" in name or "\x00" in name or not name.isprintable():
+        return "expected a relative path with '/' separators"
+    pure = PurePosixPath(name)
+    if pure.is_absolute() or ".." in pure.parts:
+        return f"{name[:60]!r} leaves the log directory (absolute or '..')"
+    if pure.suffix.lower() not in IMAGE_SUFFIXES:
+        return f"{name[:60]!r} is not a PNG or JPEG file name ({', '.join(IMAGE_SUFFIXES)})"
+    real_dir = os.path.realpath(log_dir)
+    real = os.path.realpath(log_dir / pure)
+    if os.path.commonpath([real_dir, real]) != real_dir:
+        return f"{name[:60]!r} leads outside the log directory (a symbolic link)"
+    return None
+
+
+def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """The PNG or JPEG image in `data` (read from `path`), or DataError naming the file."""
+    suffix = Path(path).suffix.lower()
+    signature = IMAGE_SIGNATURES.get(suffix)
+    if signature is None or not data.startswith(signature):
+        _fail(path, f"not a {'PNG' if suffix == '.png' else 'JPEG'} image (its first bytes do not say so)")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if image is None or image.size == 0:
+        _fail(path, "not a readable image (the decoder refused it: damaged or truncated)")
+    return image
+
+
+def read_frames(path, log_dir: Path, width_px: int, height_px: int, *, check_images: bool = True,
+                text: str | None = None):
+    """(t_s, files) of frames.csv. Each file must name a distinct PNG/JPEG inside LOG; with `check_images` each is
+    decoded and must be width_px x height_px (a frame that is not an image is refused before any work)."""
+    rows = _rows(path, FRAMES_HEADER, text)
+    t = _times(rows, path)
+    files, seen = [], {}
+    for line, cells in rows:
+        name = cells[1]
+        problem = frame_file_problem(name, log_dir)
+        if problem:
+            _fail(path, problem, "file", line)
+        key = os.path.normpath(name)
+        if key in seen:
+            _fail(path, f"{name[:60]!r} is already the frame of line {seen[key]}", "file", line)
+        seen[key] = line
+        if check_images:
+            image_path = log_dir / name
+            image = decode_image(read_bytes(image_path, max_bytes=MAX_IMAGE_BYTES), image_path,
+                                 cv2.IMREAD_UNCHANGED)
+            if image.shape[:2] != (height_px, width_px):
+                _fail(image_path, f"image is {image.shape[1]} x {image.shape[0]} px, log.json's camera is "
+                                  f"{width_px} x {height_px}")
+        files.append(str(PurePosixPath(name)))
+    return t, tuple(files)
+
+
+def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
+    """Read and check the drive log in `directory` (module docstring). DataError (one line naming the file and the
+    line or field) on any problem; nothing is written. `check_images`: decode every frame now (default)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        _fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
+    meta = parse_meta(read_json(directory / META_FILE), directory / META_FILE)
+    wheel_t, left, right = read_wheels(directory / WHEELS_FILE)
+    frame_t, files = read_frames(directory / FRAMES_FILE, directory, meta["width_px"], meta["height_px"],
+                                 check_images=check_images)
+    encoders = (None, None, None)
+    encoders_path = directory / ENCODERS_FILE
+    if os.path.lexists(encoders_path):
+        if meta["wheels"].ticks_per_revolution is None:
+            _fail(directory / META_FILE, f"{ENCODERS_FILE} is present but the wheels' ticks_per_revolution is not "
+                                         "given", "wheels.ticks_per_revolution")
+        encoders = read_encoders(encoders_path)
+    return DriveLog(path=directory, **meta, wheel_t_s=wheel_t, left_duty=left, right_duty=right, frame_t_s=frame_t,
+                    frame_files=files, encoder_t_s=encoders[0], left_ticks=encoders[1], right_ticks=encoders[2])
+
+
+# ------------------------------------------------------------------------------------------------ writing
+
+def _csv_text(header, rows) -> str:
+    return ",".join(header) + "\n" + "".join(",".join(cells) + "\n" for cells in rows)
+
+
+def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> DriveLog:
+    """Write a drive log's text files atomically and return it as read back (the frames' image files must already
+    be in `directory`). meta: the log.json document; wheels: (t_s, left_duty, right_duty) arrays; frames:
+    (t_s, files); encoders: (t_s, left_ticks, right_ticks) or None. Floats as repr(): a round trip is exact.
+    Every file's content is checked as the reader would before anything is written (DataError naming it)."""
+    directory = Path(directory)
+    checked = parse_meta(meta, directory / META_FILE)
+    texts = {WHEELS_FILE: _csv_text(WHEELS_HEADER, ([repr(float(t)), repr(float(a)), repr(float(b))]
+                                                    for t, a, b in zip(*wheels))),
+             FRAMES_FILE: _csv_text(FRAMES_HEADER, ([repr(float(t)), _csv_cell(f)] for t, f in zip(*frames)))}
+    if encoders is not None:
+        texts[ENCODERS_FILE] = _csv_text(ENCODERS_HEADER, ([repr(float(t)), str(int(a)), str(int(b))]
+                                                           for t, a, b in zip(*encoders)))
+    texts[META_FILE] = json.dumps(meta, indent=2) + "\n"
+    read_wheels(directory / WHEELS_FILE, texts[WHEELS_FILE])
+    read_frames(directory / FRAMES_FILE, directory, checked["width_px"], checked["height_px"],
+                text=texts[FRAMES_FILE])
+    if encoders is not None:
+        read_encoders(directory / ENCODERS_FILE, texts[ENCODERS_FILE])
+    directory.mkdir(parents=True, exist_ok=True)
+    for name, text in texts.items():
+        atomic_write_text(directory / name, text)
+    return read_drive_log(directory)
+
+
+def _csv_cell(text: str) -> str:
+    buffer = io.StringIO()
+    csv.writer(buffer, lineterminator="").writerow([text])
+    return buffer.getvalue()
+
+
+def write_frame(directory, name: str, image: np.ndarray) -> None:
+    """Write one frame image (PNG or JPEG by `name`'s suffix) atomically into the log directory."""
+    suffix = PurePosixPath(name).suffix.lower()
+    ok, data = cv2.imencode(".png" if suffix == ".png" else ".jpg", image)
+    if not ok:
+        raise ValueError(f"cannot encode {name} as {suffix}")
+    atomic_write_bytes(Path(directory) / name, data.tobytes())

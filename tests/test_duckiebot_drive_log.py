@@ -1,0 +1,174 @@
+"""The drive log reader (kinds/duckiebot/drive_log.py, issue 23): the exact format, and every bad log refused in one
+line naming the file and the line or field, nothing written."""
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from kinds.duckiebot.drive_log import SCHEMA, read_drive_log, write_drive_log, write_frame
+from solver.errors import DataError
+
+W, H = 64, 48  # small frames keep the tests fast; the reader takes the size from log.json
+
+
+def meta(**changes):
+    doc = {"schema": SCHEMA, "robot": {"id": "autobot01", "model": "DB21"},
+           "camera": {"width_px": W, "height_px": H},
+           "wheels": {"radius_m": 0.0318, "baseline_m": 0.1, "k": 27.0, "limit": 1.0, "ticks_per_revolution": 135},
+           "markers": {"family": "tag36h11", "size_m": 0.065}, "boards": {"inner_corners": [7, 5], "square_m": 0.031},
+           "source": "test"}
+    doc.update(changes)
+    return doc
+
+
+@pytest.fixture
+def log(tmp_path):
+    directory = tmp_path / "LOG"
+    directory.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(3):
+        write_frame(directory, f"frames/{i:04d}.png" if i < 2 else "frames/0002.jpg",
+                    rng.integers(0, 255, (H, W, 3), dtype=np.uint8))
+    write_drive_log(directory, meta(), ([0.0, 0.5, 1.0], [0.0, 0.3, -0.2], [0.0, 0.31, 0.2]),
+                    ([0.1, 0.6, 0.9], ["frames/0000.png", "frames/0001.png", "frames/0002.jpg"]),
+                    ([0.0, 0.5, 1.0], [0, 40, -3], [0, 41, 30]))
+    return directory
+
+
+def snapshot(directory):
+    return {p: p.stat().st_mtime_ns for p in directory.rglob("*")}
+
+
+def test_a_good_log_reads_exactly(log):
+    drive = read_drive_log(log)
+    assert drive.robot_id == "autobot01" and drive.model == "DB21" and (drive.width_px, drive.height_px) == (W, H)
+    assert drive.wheels.ticks_per_revolution == 135 and drive.board_inner_corners == (7, 5)
+    np.testing.assert_array_equal(drive.wheel_t_s, [0.0, 0.5, 1.0])
+    np.testing.assert_array_equal(drive.left_duty, [0.0, 0.3, -0.2])
+    np.testing.assert_array_equal(drive.right_ticks, [0, 41, 30])
+    assert drive.frame_files == ("frames/0000.png", "frames/0001.png", "frames/0002.jpg")
+    assert drive.load_frame(0).shape == (H, W, 3)
+    assert drive.meta() == meta()
+    # each command holds until the next one; nothing is commanded before the first
+    left, right = drive.duties_at([-1.0, 0.0, 0.49, 0.5, 0.7, 5.0])
+    np.testing.assert_array_equal(left, [0.0, 0.0, 0.0, 0.3, 0.3, -0.2])
+    np.testing.assert_array_equal(right, [0.0, 0.0, 0.0, 0.31, 0.31, 0.2])
+
+
+def test_encoders_are_optional(log):
+    (log / "encoders.csv").unlink()
+    doc = meta()
+    del doc["wheels"]["ticks_per_revolution"]
+    (log / "log.json").write_text(json.dumps(doc))
+    drive = read_drive_log(log)
+    assert drive.encoder_t_s is None and drive.wheels.ticks_per_revolution is None
+
+
+def refused(log, match):
+    before = snapshot(log.parent)
+    with pytest.raises(DataError, match=match) as err:
+        read_drive_log(log)
+    assert "\n" not in str(err.value)
+    assert snapshot(log.parent) == before  # nothing written
+    return str(err.value)
+
+
+@pytest.mark.parametrize("name", ["log.json", "wheels.csv", "frames.csv"])
+def test_missing_files(log, name):
+    (log / name).unlink()
+    message = refused(log, "file not found")
+    assert message.startswith(str(log / name))
+
+
+def test_encoders_without_ticks_per_revolution(log):
+    doc = meta()
+    del doc["wheels"]["ticks_per_revolution"]
+    (log / "log.json").write_text(json.dumps(doc))
+    refused(log, r"log.json, field 'wheels.ticks_per_revolution': encoders.csv is present")
+
+
+@pytest.mark.parametrize("name, text, match", [
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1,0.2,0.2\n0.5,0,0\n", r"wheels.csv, line 4, field 't_s'.*"
+                                                                             "strictly increase"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n0,0.2,0.2\n", r"wheels.csv, line 3, field 't_s'"),
+    ("frames.csv", "t_s,file\n0.6,frames/0001.png\n0.1,frames/0000.png\n", r"frames.csv, line 3, field 't_s'"),
+    ("encoders.csv", "t_s,left_ticks,right_ticks\n1,0,0\n0,1,1\n", r"encoders.csv, line 3, field 't_s'"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,nan,0\n", r"wheels.csv, line 2, field 'left_duty'.*finite"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,1.01\n", r"wheels.csv, line 2, field 'right_duty'.*outside"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,-inf,0\n", r"line 2, field 'left_duty'"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0\n", r"wheels.csv, line 2: expected 3 cells"),
+    ("wheels.csv", "t_s,right_duty,left_duty\n0,0,0\n", r"wheels.csv, line 1: expected the header"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n", r"wheels.csv.*no data rows"),
+    ("wheels.csv", "", r"wheels.csv, line 1: empty file"),
+    ("encoders.csv", "t_s,left_ticks,right_ticks\n0,1.5,0\n", r"encoders.csv, line 2, field 'left_ticks'"),
+    ("frames.csv", "t_s,file\n0.1,../outside.png\n", r"frames.csv, line 2, field 'file'.*leaves the log"),
+    ("frames.csv", "t_s,file\n0.1,/etc/passwd.png\n", r"line 2, field 'file'.*leaves the log"),
+    ("frames.csv", "t_s,file\n0.1,frames/0000.bmp\n", r"line 2, field 'file'.*not a PNG or JPEG"),
+    ("frames.csv", "t_s,file\n0.1,frames/0000.png\n0.2,frames/./0000.png\n", r"line 3, field 'file'.*already"),
+    ("frames.csv", "t_s,file\n0.1,frames/absent.png\n", r"absent.png: file not found"),
+])
+def test_bad_csv_files(log, name, text, match):
+    (log / name).write_text(text)
+    refused(log, match)
+
+
+def test_frames_that_are_not_images(log):
+    (log / "frames" / "0001.png").write_text("not an image at all")
+    refused(log, r"0001.png: not a PNG image")
+    png = cv2.imencode(".png", np.zeros((H, W), np.uint8))[1].tobytes()
+    (log / "frames" / "0001.png").write_bytes(png[:40])  # truncated
+    refused(log, r"0001.png: not a readable image")
+    (log / "frames" / "0001.png").write_bytes(cv2.imencode(".png", np.zeros((H + 1, W), np.uint8))[1].tobytes())
+    refused(log, r"0001.png: image is 64 x 49 px, log.json's camera is 64 x 48")
+    (log / "frames" / "0001.png").unlink()
+    os.mkfifo(log / "frames" / "0001.png")  # would block a naive reader
+    refused(log, r"0001.png: is a FIFO")
+
+
+def test_a_symbolic_link_out_of_the_log_is_refused(log, tmp_path):
+    outside = tmp_path / "outside.png"
+    outside.write_bytes((log / "frames" / "0000.png").read_bytes())
+    (log / "frames" / "0000.png").unlink()
+    (log / "frames" / "0000.png").symlink_to(outside)
+    refused(log, r"frames.csv, line 2, field 'file'.*outside the log directory")
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(schema="naocal.drive_log/2"), r"field 'schema'"),
+    (dict(extra=1), r"field 'extra': unknown field"),
+    (dict(robot={"id": "../evil", "model": "DB21"}), r"field 'robot.id': robot name"),
+    (dict(robot={"id": "autobot01"}), r"field 'robot.model': missing"),
+    (dict(camera={"width_px": 64.5, "height_px": 48}), r"field 'camera.width_px'"),
+    (dict(wheels={"radius_m": float("nan"), "baseline_m": 0.1, "k": 27, "limit": 1}), r"field 'wheels.radius_m'"),
+    (dict(wheels={"radius_m": 0.03, "baseline_m": 0.1, "k": 27, "limit": 1.5}), r"field 'wheels.limit'.*outside"),
+    (dict(markers={"family": "tag25h9", "size_m": 0.065}), r"field 'markers.family'"),
+    (dict(boards={"inner_corners": [7], "square_m": 0.031}), r"field 'boards.inner_corners'"),
+    (dict(boards={"inner_corners": [7, 1], "square_m": 0.031}), r"field 'boards.inner_corners\[1\]'"),
+    (dict(source=""), r"field 'source'"),
+])
+def test_bad_log_json(log, change, match):
+    (log / "log.json").write_text(json.dumps(meta(**change)))
+    refused(log, r"log.json, " + match)
+
+
+def test_not_a_directory(tmp_path):
+    with pytest.raises(DataError, match="not a directory"):
+        read_drive_log(tmp_path / "nothing")
+
+
+def test_the_writer_checks_everything_before_writing(tmp_path):
+    directory = tmp_path / "LOG"
+    write_frame(directory, "f.png", np.zeros((H, W, 3), np.uint8))
+    good = (([0.0, 1.0], [0.0, 0.5], [0.0, 0.5]), ([0.5], ["f.png"]))
+    for wheels, frames, match in [(([0.0, 1.0], [0.0, float("nan")], [0.0, 0.5]), good[1], "wheels.csv, line 3"),
+                                  (good[0], ([0.5], ["../f.png"]), "frames.csv, line 2"),
+                                  (good[0], ([0.5], ["g.png"]), "g.png: file not found")]:
+        with pytest.raises(DataError, match=match):
+            write_drive_log(directory, meta(), wheels, frames)
+        assert sorted(p.name for p in directory.iterdir()) == ["f.png"]
+    with pytest.raises(DataError, match="encoders.csv, line 3"):
+        write_drive_log(directory, meta(), *good, ([0.0, 0.0], [0, 1], [0, 1]))
+    assert write_drive_log(directory, meta(), *good).frame_files == ("f.png",)
