@@ -86,6 +86,26 @@ def test_a_naocal_error_ends_in_failed_with_its_reason():
     assert [h.state for h in result.history] == ["modelling", "measurement"]
 
 
+class _Interrupted(State):
+    name = "measurement"
+    needs = ("a",)
+
+    def __init__(self, interrupt):
+        self.interrupt = interrupt
+
+    def run(self, ctx):
+        raise self.interrupt
+
+
+@pytest.mark.parametrize("interrupt, cause", [(KeyboardInterrupt(), "Ctrl-C"),  # Python's own, for SIGINT
+                                              (KeyboardInterrupt("SIGTERM"), "SIGTERM")])  # tools.cli's handler
+def test_an_interrupt_ends_in_interrupted_naming_what_stopped_the_run(interrupt, cause):
+    result = Machine([_Produce(), _Interrupted(interrupt)]).run(_Ctx())
+    assert result.final == "interrupted"
+    assert result.reason == f"measurement: interrupted ({cause})"
+    assert (result.history[-1].outcome, result.history[-1].reason) == ("interrupted", cause)
+
+
 def test_a_state_must_produce_what_it_declares_and_get_what_it_needs():
     with pytest.raises(RuntimeError, match="without producing a"):
         Machine([_Lazy(), _Fail()]).run(_Ctx())

@@ -178,7 +178,11 @@ def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
             proc.wait()
     assert proc.returncode == 130, stderr
     assert stderr.strip().startswith("naocal calibrate: interrupted during ") and "Traceback" not in stderr
-    assert (out / "summary.txt").read_text().startswith("naocal calibrate: interrupted")
+    # what stopped it is recorded as it was: SIGTERM, not Ctrl-C
+    assert "(SIGTERM; " in stderr and "Ctrl-C" not in stderr, stderr
+    summary = (out / "summary.txt").read_text()
+    assert summary.startswith("naocal calibrate: interrupted - ") and summary.splitlines()[0].endswith(
+        ": interrupted (SIGTERM)") and "Ctrl-C" not in summary
     assert not (out / LOCK_NAME).exists()
 
 

@@ -255,12 +255,13 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
         return 0
     unsaved = f"; {ctx.summary_error} (the summary is printed above)" if ctx.summary_error else ""
     if result.final == INTERRUPTED:
+        stopped = result.history[-1]  # its reason: what stopped the run (Ctrl-C, SIGTERM, SIGHUP)
         saved = ""
         if ctx.store is not None and ctx.plan is not None:
             n_saved = len(ctx.store.saved_images() & set(ctx.plan.image_indices()))
-            saved = f" ({n_saved} of {ctx.plan.n_images()} images saved)"
-        print(f"naocal calibrate: interrupted during {result.history[-1].state}{saved}{unsaved}; continue with: "
-              f"{resume_hint}", file=sys.stderr)
+            saved = f"; {n_saved} of {ctx.plan.n_images()} images saved"
+        print(f"naocal calibrate: interrupted during {stopped.state} ({stopped.reason}{saved}){unsaved}; continue "
+              f"with: {resume_hint}", file=sys.stderr)
         return 130
     continue_hint = f"; continue with: {resume_hint}" if resumable(result) else ""
     print(f"naocal calibrate: failed: {result.reason}{unsaved}{continue_hint}", file=sys.stderr)
