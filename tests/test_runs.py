@@ -267,6 +267,29 @@ def test_the_printed_resume_command_completes_the_run_with_both_seeds_recorded(i
     assert json.loads((out / "progress.json").read_text())["sessions"] == 2
 
 
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_finished_run_says_so_and_is_not_run_again(tmp_path, capsys, resume):
+    """A finished run's re-run offered --resume, and --resume moved the robot again to re-verify."""
+    fake = FakeBackend(3, resolution_rad=0.0)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=6), progress_bar=False)
+    out = tmp_path / "run"
+    assert calibrate(fake, out, settings, detector=fake.detector)[0].ok
+    before = snapshot(out)
+    code = cli.main(["calibrate", *BASE, "--out", str(out)] + (["--resume"] if resume else []))
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "holds a finished calibration" in err and "nothing was changed" in err
+    assert "--resume" not in err and "continue" not in err, err
+    assert snapshot(out) == before
+    # the check it offers instead runs as printed, and moves nothing: it reads the run's held-out captures
+    check = shlex.split(err.split("without moving the robot (its held-out captures under them): ", 1)[1]
+                        .rsplit(" (nothing was changed)", 1)[0])
+    assert check[:2] == ["naocal", "verify"]
+    assert cli.main(check[1:]) in (0, 1), capsys.readouterr().err  # still good or drifted: a verdict
+    assert "still good" in capsys.readouterr().out
+    assert snapshot(out) == before
+
+
 # --- a dataset directory is not a run directory ---------------------------------------------------------------------
 
 @pytest.mark.parametrize("resume", [False, True])

@@ -25,7 +25,8 @@ def register(subparsers):
                    help="seed of the measurement plan (default 0; the same plan for every robot)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if absent)")
     p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run in DIR: captures already in DIR/dataset are kept, not repeated")
+                   help="continue an interrupted run in DIR: captures already in DIR/dataset are kept, not repeated "
+                        "(a finished run is refused: nothing to continue, and its verification would move the robot)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): any effect the mock simulates, e.g. "
                         "elasticity=0.02 (docs/MOCK.md)")
@@ -132,8 +133,9 @@ def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, n
 
 def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     """Refuse, before anything is written, a directory that is not this run's to write: a dataset (naocal
-    simulate's), another run without --resume, foreign files, or a run started with other options.
+    simulate's), a finished run, another run without --resume, foreign files, or a run started with other options.
     `command(record)` is the command line that resumes the run `record` describes."""
+    from agent.calibrate import check_unfinished
     from agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
     from solver.errors import NaocalError
 
@@ -143,6 +145,7 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     if "dataset.json" in names or "observations.csv" in names:
         raise NaocalError(f"{out} holds a dataset ({out / 'dataset.json'}, e.g. from naocal simulate); calibrate "
                           "writes a run directory of its own: choose another --out (nothing was changed)")
+    check_unfinished(out)  # with or without --resume: a finished run is not run again
     if not resume:
         if any(n in CALIBRATE_ENTRIES for n in names):
             raise NaocalError(f"{out} already holds a calibration run: continue it with --resume, or choose another "
