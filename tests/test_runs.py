@@ -180,10 +180,35 @@ def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
     assert stderr.strip().startswith("naocal calibrate: interrupted during ") and "Traceback" not in stderr
     # what stopped it is recorded as it was: SIGTERM, not Ctrl-C
     assert "(SIGTERM; " in stderr and "Ctrl-C" not in stderr, stderr
+    assert "note:" not in stderr  # the ideal mock has no deliberate errors to explain
     summary = (out / "summary.txt").read_text()
     assert summary.startswith("naocal calibrate: interrupted - ") and summary.splitlines()[0].endswith(
         ": interrupted (SIGTERM)") and "Ctrl-C" not in summary
     assert not (out / LOCK_NAME).exists()
+
+
+def test_the_realistic_mock_says_once_that_its_errors_are_deliberate(tmp_path):
+    """The first run warned of an 11 deg offset, skipped captures and corners set aside, with no word that the
+    realistic mock (the default) has them on purpose."""
+    out = tmp_path / "run"
+    proc = naocal_process("calibrate", "--backend", "mock", "--seed", "1", "--no-progress", "--out", str(out),
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: (out / "plan.json").exists() or proc.poll() is not None, 300, "the plan")
+        assert proc.poll() is None, "the run ended before it could be stopped"
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    notes = [line for line in stderr.splitlines() if "note:" in line]
+    assert len(notes) == 1 and stderr.startswith(notes[0]), stderr  # once, before any warning
+    for words in ("realistic mock", "on purpose", "12 deg", "1.5 % of the corners", "docs/MOCK.md", "--mock ideal"):
+        assert words in notes[0], words
+    robot = next(line for line in (out / "summary.txt").read_text().splitlines() if line.startswith("robot: "))
+    assert robot.endswith("backend mock (seed 1, realistic: real robots' errors on purpose, docs/MOCK.md)"), robot
 
 
 MISMATCHES = [

@@ -163,6 +163,18 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
                           f"the same options (nothing was changed): {command({**record, **recorded})}")
 
 
+def realistic_mock_note(realism) -> str:
+    """The one line a run on the realistic mock prints first: the warnings that follow (a large offset, skipped
+    captures, corners set aside) are the errors it has on purpose, found as they would be on a real robot. Its
+    figures are the mock's own (backends.mock_realism.Realism)."""
+    return (f"naocal calibrate: note: the realistic mock (the default) is a NAO V6 with real robots' errors, built in "
+            f"on purpose: joint offsets up to {realism.hip_yaw_pitch_max_deg:g} deg (HipYawPitch), glare on "
+            f"{100 * realism.glare_rate:g} % of the frames, {100 * realism.corner_fault_rate:g} % of the corners "
+            "mis-detected. The warnings that follow of an unusually large offset and of skipped captures, and the "
+            "corners the summary sets aside, are these errors, found as on a real robot: nothing is wrong "
+            "(docs/MOCK.md, 'The realistic NAO V6'; --mock ideal: the exact teaching robot)")
+
+
 def run(args) -> int:
     from pathlib import Path
 
@@ -233,8 +245,12 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
 
         backend = MockBackend(args.seed, effects=effects, realism=record["mock"])
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
-        label = f"mock (seed {args.seed}, {record['mock']}" + (
+        realism = record["mock"] + (": real robots' errors on purpose, docs/MOCK.md" if record["mock"] == "realistic"
+                                    else "")
+        label = f"mock (seed {args.seed}, {realism}" + (
             ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
+        if record["mock"] == "realistic":
+            print(realistic_mock_note(backend.realism), file=sys.stderr)
         truth = backend.truth_dict()
     else:
         from agent.rundir import BRIDGE_TOKEN_NAME
