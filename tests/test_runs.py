@@ -315,6 +315,34 @@ def test_a_finished_run_says_so_and_is_not_run_again(tmp_path, capsys, resume):
     assert snapshot(out) == before
 
 
+@pytest.mark.slow
+def test_calibrate_report_is_the_diagnose_report_of_its_dataset(tmp_path, capsys):
+    """calibrate had no --report: the report took a second command."""
+    out, report = tmp_path / "run", tmp_path / "report"
+    assert cli.main(["calibrate", *BASE, "--out", str(out), "--report", str(report)]) == 0
+    assert capsys.readouterr().out.rstrip().endswith(f"report: {report / 'index.html'}")
+    assert cli.main(["diagnose", str(out), "--report", str(tmp_path / "diagnosed")]) == 0
+    written = {p.name: p.read_bytes() for p in report.iterdir()}
+    assert "index.html" in written and "vectors.png" in written
+    assert written == {p.name: p.read_bytes() for p in (tmp_path / "diagnosed").iterdir()}
+
+
+@pytest.mark.parametrize("where", ["inside the run", "a file"])
+def test_a_report_directory_that_cannot_be_is_refused_before_the_run(tmp_path, capsys, where):
+    out = tmp_path / "run"
+    report = out / "report" if where == "inside the run" else tmp_path / "notes.txt"
+    if where == "a file":
+        report.write_text("mine")
+    code = cli.main(["calibrate", *BASE, "--out", str(out), "--report", str(report)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and str(report) in err, err
+    assert not out.exists()
+    if where == "a file":
+        assert report.read_text() == "mine"
+    else:
+        assert f"--report {tmp_path / 'run-report'}" in err  # where to put it instead
+
+
 # --- a dataset directory is not a run directory ---------------------------------------------------------------------
 
 @pytest.mark.parametrize("resume", [False, True])

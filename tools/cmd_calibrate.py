@@ -1,13 +1,15 @@
 """`naocal calibrate`: calibrate a robot (the mock, or a NAO behind a bridge) end to end.
 
     naocal calibrate --backend mock|bridge [--endpoint URL] [--seed N] --out DIR [--resume] [--effect NAME=SIZE ...]
+                     [--report REPORT_DIR]
 
 Modelling (plan) -> measurement (DIR/dataset) -> identification -> compensation (DIR/offsets.json) ->
 verification; DIR/summary.txt says what happened, DIR/calibrate.log how, DIR/run.json with which options. With the
-mock, DIR/truth.json holds its hidden truth. One run at a time per DIR; --resume must repeat the run's options.
-Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration failed or the disk is full, 130
-after Ctrl-C, SIGTERM or SIGHUP (the reason is printed; what was measured stays in DIR/dataset, and the last line printed is the
-command that continues the run).
+mock, DIR/truth.json holds its hidden truth. With --report, REPORT_DIR/index.html is naocal diagnose's report of
+DIR's dataset. One run at a time per DIR; --resume must repeat the run's options.
+Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration (or its --report) failed or the disk
+is full, 130 after Ctrl-C, SIGTERM or SIGHUP (the reason is printed; what was measured stays in DIR/dataset, and the
+last line printed is the command that continues the run). A finished run is not run again (nor resumed).
 """
 
 import argparse
@@ -51,6 +53,9 @@ def register(subparsers):
                         "a warning above 7)")
     p.add_argument("--no-images", action="store_true", help="do not keep the captured images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--report", metavar="REPORT_DIR",
+                   help="once the measurement is complete, write the diagnostics report of the run's dataset to "
+                        "REPORT_DIR/index.html, as `naocal diagnose DIR --report REPORT_DIR` does (outside DIR)")
     p.set_defaults(run=run)
 
 
@@ -175,6 +180,40 @@ def realistic_mock_note(realism) -> str:
             "(docs/MOCK.md, 'The realistic NAO V6'; --mock ideal: the exact teaching robot)")
 
 
+def check_report_directory(report, out) -> None:
+    """--report: a directory we may write in, outside the run directory (which holds the run's own files only)."""
+    from solver.errors import NaocalError
+    from solver.fileio import check_output_directory
+
+    check_output_directory(report)
+    if report.resolve() == out.resolve() or out.resolve() in report.resolve().parents:
+        raise NaocalError(f"--report {report} lies in --out {out}, which holds the run's own files only: choose a "
+                          f"directory beside it, e.g. --report {out.with_name(out.name + '-report')}")
+
+
+def write_run_report(report, out, ctx) -> str | None:
+    """The diagnostics report of the run's dataset in `report` (naocal diagnose's, its routine and defaults), once
+    the measurement is complete; prints where it is, or why there is none. Returns the error, if it failed."""
+    import sys
+
+    from agent.rundir import find_dataset
+    from solver.errors import NaocalError
+    from tools.cmd_diagnose import diagnose_dataset
+    from tools.report import write_report
+
+    if ctx.measurement is None:
+        print("naocal calibrate: no report: the measurement did not finish", file=sys.stderr)
+        return None
+    try:
+        dataset_path = find_dataset(out)
+        _, diagnosis = diagnose_dataset(dataset_path)
+        print(f"report: {write_report(report, diagnosis, dataset_path=dataset_path)}")
+    except NaocalError as err:
+        print(f"naocal calibrate: error: report not written: {err}", file=sys.stderr)
+        return str(err)
+    return None
+
+
 def run(args) -> int:
     from pathlib import Path
 
@@ -183,6 +222,8 @@ def run(args) -> int:
 
     check_common(args)
     out = Path(args.out)
+    if args.report:
+        check_report_directory(Path(args.report), out)
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
@@ -220,6 +261,7 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     import json
     import logging
     import sys
+    from pathlib import Path
 
     from agent.rundir import RECORD_NAME, write_record
 
@@ -270,8 +312,9 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     finally:
         backend.close()
     print(ctx.summary, end="")
+    report_error = write_run_report(Path(args.report), out, ctx) if args.report else None
     if result.ok:
-        return 0
+        return 3 if report_error else 0
     unsaved = f"; {ctx.summary_error} (the summary is printed above)" if ctx.summary_error else ""
     if result.final == INTERRUPTED:
         stopped = result.history[-1]  # its reason: what stopped the run (Ctrl-C, SIGTERM, SIGHUP)
