@@ -457,7 +457,7 @@ class MockBackend(Backend):
 
     # --- Backend --------------------------------------------------------------------------------------------------
     def robot_identity(self) -> dict:
-        return {"id": f"mock-{self.seed}", "model": "NAO H25 V5 (naocal PyBullet mock)",
+        return {"id": f"mock-{self.seed}", "model": f"{self.realism.robot_model} (naocal PyBullet mock)",
                 "body_id": f"mock-body-{self.seed}", "head_id": f"mock-head-{self.seed}"}
 
     def joint_names(self) -> tuple[str, ...]:

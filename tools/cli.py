@@ -35,7 +35,8 @@ VERB_MODULES = (
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="naocal",
-        description="Automatic kinematic calibration of the NAO robot's legs and bottom camera.",
+        description="Automatic kinematic calibration of the NAO robot's legs and cameras (top and bottom), and of "
+                    "any serial arm from its URDF.",
     )
     parser.add_argument("--verbose", "-v", action="store_true", help="log more, and show tracebacks of errors")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")

@@ -17,7 +17,7 @@ import argparse
 
 def register(subparsers):
     p = subparsers.add_parser(
-        "calibrate", help="calibrate the legs and bottom camera of a robot (mock or NAO) end to end",
+        "calibrate", help="calibrate a NAO's legs and cameras end to end (the mock, or a robot behind a bridge)",
         description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--backend", choices=("mock", "bridge"), required=True,
                    help="mock: the simulated NAO in this process; bridge: a robot behind `naocal bridge serve`")
