@@ -484,6 +484,7 @@ def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path)
     fake = FakeBackend(3)
     settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False)
     calibrate(fake, tmp_path, settings, detector=fake.detector)
+    (tmp_path / "verification.json").unlink()  # as if stopped during its verification: a run to resume
     before = snapshot(tmp_path)
     other = FakeBackend(3)
     other.robot_identity = lambda: {"id": "another", "model": "NAO H25 V5 (fake)", "body_id": "b2", "head_id": "h2"}
