@@ -5,7 +5,8 @@ can never run on missing inputs or silently leave out its result. A state return
 raised inside it (a timeout, a refused command, a bad file, an implausible fit) ends the run in `failed` with the
 error as the reason. Ctrl-C (KeyboardInterrupt) inside a state ends the run in `interrupted`, so that the caller can
 still say what was done and how to continue; the reason names what stopped it (`interrupt_cause`: Ctrl-C, or the
-signal tools.cli turned into a KeyboardInterrupt, e.g. SIGTERM). Anything else is a bug: it is logged with its traceback and raised.
+signal tools.cli turned into a KeyboardInterrupt, e.g. SIGTERM). Anything else is a bug: it is logged with its
+traceback and raised.
 """
 
 from __future__ import annotations

@@ -280,6 +280,7 @@ def test_the_vector_plots_before_and_after_share_one_scale_and_say_it(elastic_da
         shown = np.arange(0, d.n_rows, max(1, d.n_rows // MAX_ARROWS))
         rows = shown[d.target[d.image_of_row][shown] == d.target[0]]
         ratio = np.hypot(arrows.U, arrows.V) / np.hypot(*fit.residuals_px[rows].T)
-        assert np.allclose(ratio, ratio[0], rtol=1e-9) and ratio[0] == pytest.approx(titled[-1], rel=5e-3)  # the title: 3 digits
+        assert np.allclose(ratio, ratio[0], rtol=1e-9)
+        assert ratio[0] == pytest.approx(titled[-1], rel=5e-3)  # the title gives 3 digits
         drawn_scales.append(ratio[0])
     assert titled[0] == titled[1] and drawn_scales[0] == pytest.approx(drawn_scales[1], rel=1e-12)

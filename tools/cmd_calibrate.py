@@ -287,12 +287,12 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
 
         backend = MockBackend(args.seed, effects=effects, realism=record["mock"])
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
-        realism = record["mock"] + (": real robots' errors on purpose, docs/MOCK.md" if record["mock"] == "realistic"
-                                    else "")
-        label = f"mock (seed {args.seed}, {realism}" + (
-            ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
-        if record["mock"] == "realistic":
+        deliberate = record["mock"] == "realistic"  # errors built in on purpose: say so, first and once
+        if deliberate:
             print(realistic_mock_note(backend.realism), file=sys.stderr)
+        label = f"mock (seed {args.seed}, {record['mock']}" + (
+            ": real robots' errors on purpose, docs/MOCK.md" if deliberate else "") + (
+            ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
     else:
         from agent.rundir import BRIDGE_TOKEN_NAME
