@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import shlex
 from pathlib import Path
 
 from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
-from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, simulate_states
+from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, run_finished, simulate_states
 from agent.summary import summary_text
 from solver.dataset import _COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
-from solver.errors import DataError, DiskFullError
+from solver.errors import DataError, DiskFullError, NaocalError
 from solver.fileio import atomic_write_text, disk_full_as_error
 
 log = logging.getLogger(__name__)
@@ -68,15 +69,30 @@ def check_same_setup(backend, dataset_dir: Path, source: str) -> None:
                             field=key)
 
 
+def check_unfinished(out_dir: Path) -> None:
+    """Refuse to run again in a finished run's DIR (NaocalError; nothing changed): there is nothing to resume, and
+    its verification would move the robot again. Says where the result is and what can be done instead."""
+    out_dir = Path(out_dir)
+    if not run_finished(out_dir):
+        return
+    offsets = out_dir / "offsets.json"
+    check = shlex.join(["naocal", "verify", str(out_dir / "verification" / "raw"), "--offsets", str(offsets)])
+    raise NaocalError(f"{out_dir} holds a finished calibration (offsets {offsets}, summary {out_dir / 'summary.txt'}): "
+                      "there is nothing to resume, and running it again would move the robot to verify once more. "
+                      f"To calibrate again, choose another --out; to check these offsets again without moving the "
+                      f"robot (its held-out captures under them): {check} (nothing was changed)")
+
+
 def calibrate(backend, out_dir, settings: AgentSettings = AgentSettings(), *, detector=None,
               backend_label: str | None = None, truth: dict | None = None) -> tuple[RunResult, Context]:
     """Run modelling -> measurement -> identification -> compensation -> verification on `backend`.
 
     Writes summary.txt even when the run fails or is interrupted (result.final INTERRUPTED). `truth` (mock only)
     adds a comparison to the summary; the agent itself never sees it. On resume, a robot other than the stored
-    dataset's is refused (DataError) before anything is written.
+    dataset's is refused (DataError) before anything is written; so is any run in a finished run's DIR.
     """
     out_dir = Path(out_dir)
+    check_unfinished(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     ctx = Context(backend=backend, settings=settings, out_dir=out_dir, dataset_dir=out_dir / "dataset",
                   progress_path=out_dir / "progress.json", plan_path=out_dir / "plan.json",

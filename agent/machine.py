@@ -4,7 +4,9 @@ Each state declares the context fields it `needs` and the ones it `produces`; th
 can never run on missing inputs or silently leave out its result. A state returns an outcome name; a NaocalError
 raised inside it (a timeout, a refused command, a bad file, an implausible fit) ends the run in `failed` with the
 error as the reason. Ctrl-C (KeyboardInterrupt) inside a state ends the run in `interrupted`, so that the caller can
-still say what was done and how to continue. Anything else is a bug: it is logged with its traceback and raised.
+still say what was done and how to continue; the reason names what stopped it (`interrupt_cause`: Ctrl-C, or the
+signal tools.cli turned into a KeyboardInterrupt, e.g. SIGTERM). Anything else is a bug: it is logged with its
+traceback and raised.
 """
 
 from __future__ import annotations
@@ -93,11 +95,12 @@ class Machine:
                 outcome = state.run(ctx)
             except NaocalError as err:
                 outcome = Outcome("error", f"{current}: {err}")
-            except KeyboardInterrupt:
-                history.append(Step(current, "interrupted", "Ctrl-C", time.perf_counter() - wall0,
+            except KeyboardInterrupt as interrupt:
+                cause = interrupt_cause(interrupt)
+                history.append(Step(current, "interrupted", cause, time.perf_counter() - wall0,
                                     _safe_clock(clock) - robot0))
-                log.info("state %s: interrupted (Ctrl-C)", current)  # the caller says it, once
-                return RunResult(INTERRUPTED, f"{current}: interrupted (Ctrl-C)", history)
+                log.info("state %s: interrupted (%s)", current, cause)  # the caller says it, once
+                return RunResult(INTERRUPTED, f"{current}: interrupted ({cause})", history)
             except Exception:
                 log.exception("state %s: unexpected error (a bug)", current)
                 raise
@@ -118,6 +121,12 @@ class Machine:
                 return RunResult(FAILED, f"{current}: {outcome.reason}", history)
             current = nxt
         return RunResult(DONE, "", history)
+
+
+def interrupt_cause(interrupt: KeyboardInterrupt) -> str:
+    """What stopped the run: the signal's name that tools.cli's handler raised the KeyboardInterrupt with (SIGTERM,
+    SIGHUP), or Ctrl-C (Python raises its own KeyboardInterrupt for SIGINT, with no message)."""
+    return str(interrupt) or "Ctrl-C"
 
 
 def _safe_clock(clock) -> float:

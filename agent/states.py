@@ -42,6 +42,15 @@ from solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_R
 
 log = logging.getLogger(__name__)
 
+# The verification state's last write, so the mark of a finished run: a DIR holding it has nothing left to do.
+VERIFICATION_NAME = "verification.json"
+
+
+def run_finished(out_dir: Path) -> bool:
+    """Did the run in `out_dir` end done? (Every state before verification leaves files a resume continues from;
+    verification.json is written last, once everything else is.)"""
+    return (Path(out_dir) / VERIFICATION_NAME).is_file()
+
 
 @dataclass(frozen=True)
 class Thresholds:
@@ -416,7 +425,7 @@ class Verification(State):
         except SafetyError as err:
             log.warning("could not park the robot after verification: %s", err)
         raw.commanded = compensated.commanded + _offset_vector(ctx.offsets)  # the raw robot's view of where it is
-        atomic_write_text(ctx.out_dir / "verification.json", json.dumps(report.to_dict(), indent=1) + "\n")
+        atomic_write_text(ctx.out_dir / VERIFICATION_NAME, json.dumps(report.to_dict(), indent=1) + "\n")
         ctx.verification = report
         return Outcome("ok")
 

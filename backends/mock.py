@@ -31,13 +31,14 @@ sandal, fixed-point iteration), half play (+ b_j * dir_j, dir_j the sign of the 
 command), longer links (the PyBullet body and the kinematics), the cameras' true intrinsics and distortion, their
 mounts' translation, late image stamps. docs/MOCK.md lists the effects and their sizes.
 
-Realism (`realism="ideal"`, the default, is all of the above; `realism="realistic"` a NAO V6 as teams meet it,
-backends.mock_realism, docs/MOCK.md): readings in 12-bit encoder steps every 12 ms (LoLA); a servo that follows the
-interpolated command as a damped second-order system and rests somewhere in its commanded step, pulled by the
-gravity load (backends.mock_servo); a rolling-shutter camera (rows over 45 ms, boards rendered per band of rows when
-they move) stamped as B-Human relates V4L2 buffer stamps, YUYV 4:2:2 capture, noise, slight defocus, prior fx = fy =
-618 px with true intrinsics a little off; offsets as large as real robots carry; glare spots and a corner fault
-model (backends.mock_faults, applied to the agent's detector through `faulty`).
+Realism (`realism="ideal"`, this class's default, is all of the above; `realism="realistic"`, the default of
+naocal's commands, a NAO V6 as teams meet it, backends.mock_realism, docs/MOCK.md): readings in 12-bit encoder steps
+every 12 ms (LoLA); a servo that follows the interpolated command as a damped second-order system and rests
+somewhere in its commanded step, pulled by the gravity load (backends.mock_servo); a rolling-shutter camera (rows
+over 45 ms, boards rendered per band of rows when they move) stamped as B-Human relates V4L2 buffer stamps, YUYV
+4:2:2 capture, noise, slight defocus, prior fx = fy = 618 px with true intrinsics a little off; offsets as large as
+real robots carry; glare spots and a corner fault model (backends.mock_faults, applied to the agent's detector
+through `faulty`).
 
 Safety: `command` refuses with SafetyError a non-finite or unknown target, a speed outside (0, 1], a target outside
 the joint limits (solver.limits, HeadPitch against HeadYaw included) and a motion whose end or any of the points
@@ -457,7 +458,7 @@ class MockBackend(Backend):
 
     # --- Backend --------------------------------------------------------------------------------------------------
     def robot_identity(self) -> dict:
-        return {"id": f"mock-{self.seed}", "model": "NAO H25 V5 (naocal PyBullet mock)",
+        return {"id": f"mock-{self.seed}", "model": f"{self.realism.robot_model} (naocal PyBullet mock)",
                 "body_id": f"mock-body-{self.seed}", "head_id": f"mock-head-{self.seed}"}
 
     def joint_names(self) -> tuple[str, ...]:

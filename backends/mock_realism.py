@@ -49,12 +49,16 @@ class Realism:
         hip_yaw_pitch_max_deg, leg_offset_max_deg : offset ranges (large_offsets only).
         camera_pitch_range_deg, camera_pitch_outlier_deg, camera_pitch_outlier_rate : camera pitch correction
             uniform in the range, or with this probability an outlier of the given size with random sign.
+    Identity
+        robot_model : the robot the preset plays, as `robot_identity()["model"]` names it (the ideal mock keeps
+            the name it had before the presets: runs record it and a resume compares it).
     Detector
         corner_fault_rate : the share of detected corners the mock's fault model moves (see backends.mock_faults).
         glare_rate : the share of frames with a specular patch on a board.
     """
 
     name: str = "ideal"
+    robot_model: str = "NAO H25 V5"
     encoder_step_rad: float = math.radians(0.1)
     sensor_period_s: float = 0.01
     sensor_lag_cycles: int = 3
@@ -136,6 +140,7 @@ IDEAL = Realism()
 # A NAO V6 as real robots are (figures and sources: docs/MOCK.md).
 REALISTIC = Realism(
     name="realistic",
+    robot_model="NAO H25 V6",
     encoder_step_rad=2.0 * math.pi / 4096,  # 12-bit magnetic rotary encoder
     sensor_period_s=0.012,  # LoLA: 83.3 Hz
     sensor_lag_cycles=3,  # B-Human motionDelay = 3 frames

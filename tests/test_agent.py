@@ -86,6 +86,26 @@ def test_a_naocal_error_ends_in_failed_with_its_reason():
     assert [h.state for h in result.history] == ["modelling", "measurement"]
 
 
+class _Interrupted(State):
+    name = "measurement"
+    needs = ("a",)
+
+    def __init__(self, interrupt):
+        self.interrupt = interrupt
+
+    def run(self, ctx):
+        raise self.interrupt
+
+
+@pytest.mark.parametrize("interrupt, cause", [(KeyboardInterrupt(), "Ctrl-C"),  # Python's own, for SIGINT
+                                              (KeyboardInterrupt("SIGTERM"), "SIGTERM")])  # tools.cli's handler
+def test_an_interrupt_ends_in_interrupted_naming_what_stopped_the_run(interrupt, cause):
+    result = Machine([_Produce(), _Interrupted(interrupt)]).run(_Ctx())
+    assert result.final == "interrupted"
+    assert result.reason == f"measurement: interrupted ({cause})"
+    assert (result.history[-1].outcome, result.history[-1].reason) == ("interrupted", cause)
+
+
 def test_a_state_must_produce_what_it_declares_and_get_what_it_needs():
     with pytest.raises(RuntimeError, match="without producing a"):
         Machine([_Lazy(), _Fail()]).run(_Ctx())
@@ -174,12 +194,31 @@ def test_every_command_the_fake_received_was_safe(fake_run):
         body.close()
 
 
-def test_a_second_run_in_the_same_directory_is_refused_without_resume(fake_run):
-    fake, out, result, ctx = fake_run
-    before = (out / "dataset" / "observations.csv").read_bytes()
-    again, _ = calibrate(FakeBackend(3), out, small_settings(), detector=fake.detector)
+def test_a_second_run_in_the_same_directory_is_refused_without_resume(tmp_path):
+    fake = FakeBackend(3)
+    with pytest.raises(Crash):
+        calibrate(fake, tmp_path, small_settings(), detector=crashing_detector(fake, 3))
+    before = (tmp_path / "dataset" / "observations.csv").read_bytes()
+    again, _ = calibrate(FakeBackend(3), tmp_path, small_settings(), detector=fake.detector)
     assert again.final == FAILED and "--resume" in again.reason
-    assert (out / "dataset" / "observations.csv").read_bytes() == before
+    assert (tmp_path / "dataset" / "observations.csv").read_bytes() == before
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_finished_run_is_not_run_again_and_the_robot_not_moved(fake_run, resume):
+    """A finished run offered --resume, which re-ran the verification: the robot moved again."""
+    from solver.errors import NaocalError
+
+    _, out, _, _ = fake_run
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    robot = FakeBackend(3)
+    with pytest.raises(NaocalError) as refused:
+        calibrate(robot, out, small_settings(resume=resume), detector=robot.detector)
+    message = str(refused.value)
+    assert "finished calibration" in message and "--resume" not in message.replace("nothing to resume", "")
+    assert f"naocal verify {out / 'verification' / 'raw'} --offsets {out / 'offsets.json'}" in message
+    assert robot.command_log == []
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 
 # --- crash and resume -----------------------------------------------------------------------------------------------

@@ -70,6 +70,17 @@ def test_help_lists_the_options():
         assert option in text
 
 
+def test_help_says_what_the_tools_do_today():
+    """--help still described the ideal mock as the default and a calibration of the bottom camera alone."""
+    parser = cli.build_parser()
+    verbs = parser._subparsers._group_actions[0].choices
+    described = " ".join(parser.format_help().split())
+    assert "bottom camera." not in described and "cameras (top and bottom)" in described and "serial arm" in described
+    for verb in ("calibrate", "simulate"):
+        mock = next(a for a in verbs[verb]._actions if a.dest == "mock")
+        assert "realistic (default" in mock.help and "ideal (default" not in mock.help, verb
+
+
 def image_counts(dataset: Path) -> np.ndarray:
     header, *rows = (dataset / "observations.csv").read_text().splitlines()
     column = header.split(",").index("image")

@@ -256,3 +256,31 @@ def test_the_report_without_an_after_has_no_after_and_keeps_untestable_regressor
                           f"<td class=n>{100 * untestable['explained_share']:.1f} %</td>")
     assert "joint_offset." not in page.split("<h2>Parameters</h2>", 1)[1].split("</table>", 1)[0]
     assert "<td>c LHipPitch</td>" in page
+
+
+def test_the_vector_plots_before_and_after_share_one_scale_and_say_it(elastic_dataset):
+    """Each panel had its own scale: the 'after' arrows, drawn as long as the 'before' ones, hid the fall."""
+    from solver.dataset import read_dataset
+    from solver.diagnostics import diagnose_result, registry_with
+    from solver.identify import identify
+    from solver.model import model_data_from_dataset
+    from solver.registry import Registry
+    from tools.report import MAX_ARROWS, _vectors
+
+    data = model_data_from_dataset(read_dataset(elastic_dataset))
+    before = identify(data, Registry())
+    top = next(c for c in diagnose_result(before, pixel_noise_px=NOISE_PX).candidates if c.significant)
+    after = identify(data, registry_with(before.registry, top))
+    assert after.rms_px[0] < before.rms_px[0] / 2  # the two panels differ: one scale matters
+    titled, drawn_scales = [], []
+    for ax, fit in zip(_vectors(before, after, top).axes, (before, after)):
+        titled.append(float(re.search(r"residual x ([0-9.e+-]+) \(both panels\)", ax.get_title()).group(1)))
+        arrows = ax.collections[0]  # the first board's quiver, one arrow per shown vertex of that board
+        d = fit.model.data
+        shown = np.arange(0, d.n_rows, max(1, d.n_rows // MAX_ARROWS))
+        rows = shown[d.target[d.image_of_row][shown] == d.target[0]]
+        ratio = np.hypot(arrows.U, arrows.V) / np.hypot(*fit.residuals_px[rows].T)
+        assert np.allclose(ratio, ratio[0], rtol=1e-9)
+        assert ratio[0] == pytest.approx(titled[-1], rel=5e-3)  # the title gives 3 digits
+        drawn_scales.append(ratio[0])
+    assert titled[0] == titled[1] and drawn_scales[0] == pytest.approx(drawn_scales[1], rel=1e-12)

@@ -238,6 +238,16 @@ def test_ideal_mock_is_unchanged_by_the_realism_option():
     assert a.camera.fx_px == 600.0 and a.camera.cx_px == 320.0
 
 
+def test_each_mock_names_the_robot_it_plays(realistic):
+    """The realistic mock, a NAO V6, called itself a V5; the ideal mock keeps its name (a resume compares it)."""
+    assert realistic.robot_identity()["model"] == "NAO H25 V6 (naocal PyBullet mock)"
+    ideal = MockBackend(seed=SEED)
+    try:
+        assert ideal.robot_identity()["model"] == "NAO H25 V5 (naocal PyBullet mock)"
+    finally:
+        ideal.close()
+
+
 def test_stamps_relate_to_the_rows_as_b_humans_camera_timing_says(realistic):
     mock = realistic
     mock.sleep(0.5)

@@ -6,7 +6,8 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("qi")
+pytest.importorskip("qi", reason="the NAOqi driver's tests need qi (libqi-python, wheels for x86_64 Linux only): "
+                                  "pip install '.[naoqi]'")
 
 from backends.bridge import BridgeBackend  # noqa: E402
 from backends.bridge_server import BridgeServer  # noqa: E402

@@ -178,8 +178,37 @@ def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
             proc.wait()
     assert proc.returncode == 130, stderr
     assert stderr.strip().startswith("naocal calibrate: interrupted during ") and "Traceback" not in stderr
-    assert (out / "summary.txt").read_text().startswith("naocal calibrate: interrupted")
+    # what stopped it is recorded as it was: SIGTERM, not Ctrl-C
+    assert "(SIGTERM; " in stderr and "Ctrl-C" not in stderr, stderr
+    assert "note:" not in stderr  # the ideal mock has no deliberate errors to explain
+    summary = (out / "summary.txt").read_text()
+    assert summary.startswith("naocal calibrate: interrupted - ") and summary.splitlines()[0].endswith(
+        ": interrupted (SIGTERM)") and "Ctrl-C" not in summary
     assert not (out / LOCK_NAME).exists()
+
+
+def test_the_realistic_mock_says_once_that_its_errors_are_deliberate(tmp_path):
+    """The first run warned of an 11 deg offset, skipped captures and corners set aside, with no word that the
+    realistic mock (the default) has them on purpose."""
+    out = tmp_path / "run"
+    proc = naocal_process("calibrate", "--backend", "mock", "--seed", "1", "--no-progress", "--out", str(out),
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: (out / "plan.json").exists() or proc.poll() is not None, 300, "the plan")
+        assert proc.poll() is None, "the run ended before it could be stopped"
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    notes = [line for line in stderr.splitlines() if "note:" in line]
+    assert len(notes) == 1 and stderr.startswith(notes[0]), stderr  # once, before any warning
+    for words in ("realistic mock", "on purpose", "12 deg", "1.5 % of the corners", "docs/MOCK.md", "--mock ideal"):
+        assert words in notes[0], words
+    robot = next(line for line in (out / "summary.txt").read_text().splitlines() if line.startswith("robot: "))
+    assert robot.endswith("backend mock (seed 1, realistic: real robots' errors on purpose, docs/MOCK.md)"), robot
 
 
 MISMATCHES = [
@@ -261,6 +290,57 @@ def test_the_printed_resume_command_completes_the_run_with_both_seeds_recorded(i
     source = json.loads((out / "offsets.json").read_text())["source"]
     assert source["mock_seed"] == 3 and source["plan_seed"] == 0 and "seed" not in source
     assert json.loads((out / "progress.json").read_text())["sessions"] == 2
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_finished_run_says_so_and_is_not_run_again(tmp_path, capsys, resume):
+    """A finished run's re-run offered --resume, and --resume moved the robot again to re-verify."""
+    fake = FakeBackend(3, resolution_rad=0.0)
+    settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=6), progress_bar=False)
+    out = tmp_path / "run"
+    assert calibrate(fake, out, settings, detector=fake.detector)[0].ok
+    before = snapshot(out)
+    code = cli.main(["calibrate", *BASE, "--out", str(out)] + (["--resume"] if resume else []))
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "holds a finished calibration" in err and "nothing was changed" in err
+    assert "--resume" not in err and "continue" not in err, err
+    assert snapshot(out) == before
+    # the check it offers instead runs as printed, and moves nothing: it reads the run's held-out captures
+    check = shlex.split(err.split("without moving the robot (its held-out captures under them): ", 1)[1]
+                        .rsplit(" (nothing was changed)", 1)[0])
+    assert check[:2] == ["naocal", "verify"]
+    assert cli.main(check[1:]) in (0, 1), capsys.readouterr().err  # still good or drifted: a verdict
+    assert "still good" in capsys.readouterr().out
+    assert snapshot(out) == before
+
+
+@pytest.mark.slow
+def test_calibrate_report_is_the_diagnose_report_of_its_dataset(tmp_path, capsys):
+    """calibrate had no --report: the report took a second command."""
+    out, report = tmp_path / "run", tmp_path / "report"
+    assert cli.main(["calibrate", *BASE, "--out", str(out), "--report", str(report)]) == 0
+    assert capsys.readouterr().out.rstrip().endswith(f"report: {report / 'index.html'}")
+    assert cli.main(["diagnose", str(out), "--report", str(tmp_path / "diagnosed")]) == 0
+    written = {p.name: p.read_bytes() for p in report.iterdir()}
+    assert "index.html" in written and "vectors.png" in written
+    assert written == {p.name: p.read_bytes() for p in (tmp_path / "diagnosed").iterdir()}
+
+
+@pytest.mark.parametrize("where", ["inside the run", "a file"])
+def test_a_report_directory_that_cannot_be_is_refused_before_the_run(tmp_path, capsys, where):
+    out = tmp_path / "run"
+    report = out / "report" if where == "inside the run" else tmp_path / "notes.txt"
+    if where == "a file":
+        report.write_text("mine")
+    code = cli.main(["calibrate", *BASE, "--out", str(out), "--report", str(report)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and str(report) in err, err
+    assert not out.exists()
+    if where == "a file":
+        assert report.read_text() == "mine"
+    else:
+        assert f"--report {tmp_path / 'run-report'}" in err  # where to put it instead
 
 
 # --- a dataset directory is not a run directory ---------------------------------------------------------------------
@@ -404,6 +484,7 @@ def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path)
     fake = FakeBackend(3)
     settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False)
     calibrate(fake, tmp_path, settings, detector=fake.detector)
+    (tmp_path / "verification.json").unlink()  # as if stopped during its verification: a run to resume
     before = snapshot(tmp_path)
     other = FakeBackend(3)
     other.robot_identity = lambda: {"id": "another", "model": "NAO H25 V5 (fake)", "body_id": "b2", "head_id": "h2"}

@@ -35,7 +35,8 @@ VERB_MODULES = (
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="naocal",
-        description="Automatic kinematic calibration of the NAO robot's legs and bottom camera.",
+        description="Automatic kinematic calibration of the NAO robot's legs and cameras (top and bottom), and of "
+                    "any serial arm from its URDF.",
     )
     parser.add_argument("--verbose", "-v", action="store_true", help="log more, and show tracebacks of errors")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
@@ -71,8 +72,10 @@ def main(argv=None) -> int:
             raise
         what = "out of memory" if isinstance(err, MemoryError) else "input nested too deeply"
         return _error(args.verb, f"{what} (is an input file damaged or far too large?)", 2)
-    except KeyboardInterrupt:
-        print(f"naocal {args.verb}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as interrupt:
+        from agent.machine import interrupt_cause
+
+        print(f"naocal {args.verb}: interrupted ({interrupt_cause(interrupt)})", file=sys.stderr)
         return 130
 
 
@@ -84,7 +87,7 @@ def _terminate_like_ctrl_c() -> None:
         return
 
     def interrupt(signum, _frame):
-        raise KeyboardInterrupt(f"signal {signum}")
+        raise KeyboardInterrupt(signal.Signals(signum).name)  # the run records it: agent.machine.interrupt_cause
 
     for signum in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(signum) == signal.SIG_DFL:  # an ignored SIGHUP (nohup) stays ignored

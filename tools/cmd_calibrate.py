@@ -1,13 +1,15 @@
 """`naocal calibrate`: calibrate a robot (the mock, or a NAO behind a bridge) end to end.
 
     naocal calibrate --backend mock|bridge [--endpoint URL] [--seed N] --out DIR [--resume] [--effect NAME=SIZE ...]
+                     [--report REPORT_DIR]
 
 Modelling (plan) -> measurement (DIR/dataset) -> identification -> compensation (DIR/offsets.json) ->
 verification; DIR/summary.txt says what happened, DIR/calibrate.log how, DIR/run.json with which options. With the
-mock, DIR/truth.json holds its hidden truth. One run at a time per DIR; --resume must repeat the run's options.
-Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration failed or the disk is full, 130
-after Ctrl-C, SIGTERM or SIGHUP (the reason is printed; what was measured stays in DIR/dataset, and the last line printed is the
-command that continues the run).
+mock, DIR/truth.json holds its hidden truth. With --report, REPORT_DIR/index.html is naocal diagnose's report of
+DIR's dataset. One run at a time per DIR; --resume must repeat the run's options.
+Exit 0 when calibrated, 2 on bad input (nothing changed), 3 when the calibration (or its --report) failed or the disk
+is full, 130 after Ctrl-C, SIGTERM or SIGHUP (the reason is printed; what was measured stays in DIR/dataset, and the
+last line printed is the command that continues the run). A finished run is not run again (nor resumed).
 """
 
 import argparse
@@ -15,7 +17,7 @@ import argparse
 
 def register(subparsers):
     p = subparsers.add_parser(
-        "calibrate", help="calibrate the legs and bottom camera of a robot (mock or NAO) end to end",
+        "calibrate", help="calibrate a NAO's legs and cameras end to end (the mock, or a robot behind a bridge)",
         description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--backend", choices=("mock", "bridge"), required=True,
                    help="mock: the simulated NAO in this process; bridge: a robot behind `naocal bridge serve`")
@@ -25,7 +27,8 @@ def register(subparsers):
                    help="seed of the measurement plan (default 0; the same plan for every robot)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if absent)")
     p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run in DIR: captures already in DIR/dataset are kept, not repeated")
+                   help="continue an interrupted run in DIR: captures already in DIR/dataset are kept, not repeated "
+                        "(a finished run is refused: nothing to continue, and its verification would move the robot)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                    help="mock: inject a physical effect (repeatable): any effect the mock simulates, e.g. "
                         "elasticity=0.02 (docs/MOCK.md)")
@@ -50,6 +53,9 @@ def register(subparsers):
                         "a warning above 7)")
     p.add_argument("--no-images", action="store_true", help="do not keep the captured images")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--report", metavar="REPORT_DIR",
+                   help="once the measurement is complete, write the diagnostics report of the run's dataset to "
+                        "REPORT_DIR/index.html, as `naocal diagnose DIR --report REPORT_DIR` does (outside DIR)")
     p.set_defaults(run=run)
 
 
@@ -132,8 +138,9 @@ def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, n
 
 def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     """Refuse, before anything is written, a directory that is not this run's to write: a dataset (naocal
-    simulate's), another run without --resume, foreign files, or a run started with other options.
+    simulate's), a finished run, another run without --resume, foreign files, or a run started with other options.
     `command(record)` is the command line that resumes the run `record` describes."""
+    from agent.calibrate import check_unfinished
     from agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
     from solver.errors import NaocalError
 
@@ -143,6 +150,7 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     if "dataset.json" in names or "observations.csv" in names:
         raise NaocalError(f"{out} holds a dataset ({out / 'dataset.json'}, e.g. from naocal simulate); calibrate "
                           "writes a run directory of its own: choose another --out (nothing was changed)")
+    check_unfinished(out)  # with or without --resume: a finished run is not run again
     if not resume:
         if any(n in CALIBRATE_ENTRIES for n in names):
             raise NaocalError(f"{out} already holds a calibration run: continue it with --resume, or choose another "
@@ -160,6 +168,52 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
                           f"the same options (nothing was changed): {command({**record, **recorded})}")
 
 
+def realistic_mock_note(realism) -> str:
+    """The one line a run on the realistic mock prints first: the warnings that follow (a large offset, skipped
+    captures, corners set aside) are the errors it has on purpose, found as they would be on a real robot. Its
+    figures are the mock's own (backends.mock_realism.Realism)."""
+    return (f"naocal calibrate: note: the realistic mock (the default) is a NAO V6 with real robots' errors, built in "
+            f"on purpose: joint offsets up to {realism.hip_yaw_pitch_max_deg:g} deg (HipYawPitch), glare on "
+            f"{100 * realism.glare_rate:g} % of the frames, {100 * realism.corner_fault_rate:g} % of the corners "
+            "mis-detected. The warnings that follow of an unusually large offset and of skipped captures, and the "
+            "corners the summary sets aside, are these errors, found as on a real robot: nothing is wrong "
+            "(docs/MOCK.md, 'The realistic NAO V6'; --mock ideal: the exact teaching robot)")
+
+
+def check_report_directory(report, out) -> None:
+    """--report: a directory we may write in, outside the run directory (which holds the run's own files only)."""
+    from solver.errors import NaocalError
+    from solver.fileio import check_output_directory
+
+    check_output_directory(report)
+    if report.resolve() == out.resolve() or out.resolve() in report.resolve().parents:
+        raise NaocalError(f"--report {report} lies in --out {out}, which holds the run's own files only: choose a "
+                          f"directory beside it, e.g. --report {out.with_name(out.name + '-report')}")
+
+
+def write_run_report(report, out, ctx) -> str | None:
+    """The diagnostics report of the run's dataset in `report` (naocal diagnose's, its routine and defaults), once
+    the measurement is complete; prints where it is, or why there is none. Returns the error, if it failed."""
+    import sys
+
+    from agent.rundir import find_dataset
+    from solver.errors import NaocalError
+    from tools.cmd_diagnose import diagnose_dataset
+    from tools.report import write_report
+
+    if ctx.measurement is None:
+        print("naocal calibrate: no report: the measurement did not finish", file=sys.stderr)
+        return None
+    try:
+        dataset_path = find_dataset(out)
+        _, diagnosis = diagnose_dataset(dataset_path)
+        print(f"report: {write_report(report, diagnosis, dataset_path=dataset_path)}")
+    except NaocalError as err:
+        print(f"naocal calibrate: error: report not written: {err}", file=sys.stderr)
+        return str(err)
+    return None
+
+
 def run(args) -> int:
     from pathlib import Path
 
@@ -168,6 +222,8 @@ def run(args) -> int:
 
     check_common(args)
     out = Path(args.out)
+    if args.report:
+        check_report_directory(Path(args.report), out)
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
@@ -208,6 +264,7 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     import json
     import logging
     import sys
+    from pathlib import Path
 
     from agent.rundir import RECORD_NAME, write_record
 
@@ -233,7 +290,11 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
 
         backend = MockBackend(args.seed, effects=effects, realism=record["mock"])
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
+        deliberate = record["mock"] == "realistic"  # errors built in on purpose: say so, first and once
+        if deliberate:
+            print(realistic_mock_note(backend.realism), file=sys.stderr)
         label = f"mock (seed {args.seed}, {record['mock']}" + (
+            ": real robots' errors on purpose, docs/MOCK.md" if deliberate else "") + (
             ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
     else:
@@ -254,16 +315,18 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     finally:
         backend.close()
     print(ctx.summary, end="")
+    report_error = write_run_report(Path(args.report), out, ctx) if args.report else None
     if result.ok:
-        return 0
+        return 3 if report_error else 0
     unsaved = f"; {ctx.summary_error} (the summary is printed above)" if ctx.summary_error else ""
     if result.final == INTERRUPTED:
+        stopped = result.history[-1]  # its reason: what stopped the run (Ctrl-C, SIGTERM, SIGHUP)
         saved = ""
         if ctx.store is not None and ctx.plan is not None:
             n_saved = len(ctx.store.saved_images() & set(ctx.plan.image_indices()))
-            saved = f" ({n_saved} of {ctx.plan.n_images()} images saved)"
-        print(f"naocal calibrate: interrupted during {result.history[-1].state}{saved}{unsaved}; continue with: "
-              f"{resume_hint}", file=sys.stderr)
+            saved = f"; {n_saved} of {ctx.plan.n_images()} images saved"
+        print(f"naocal calibrate: interrupted during {stopped.state} ({stopped.reason}{saved}){unsaved}; continue "
+              f"with: {resume_hint}", file=sys.stderr)
         return 130
     continue_hint = f"; continue with: {resume_hint}" if resumable(result) else ""
     print(f"naocal calibrate: failed: {result.reason}{unsaved}{continue_hint}", file=sys.stderr)

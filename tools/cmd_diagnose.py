@@ -64,32 +64,16 @@ def run(args) -> int:
         return run_diagnose(args)
 
     from agent.rundir import find_dataset
-    from solver.dataset import read_dataset
-    from solver.diagnostics import diagnose_result
-    from solver.errors import NaocalError, SolveError
+    from solver.effects import parse_effect_names
     from solver.fileio import check_output_directory
-    from solver.adapter import model_data_from_dataset
-    from solver.effects import EFFECTS, parse_effect_names
-    from solver.fit import identify_dataset
 
     effects = parse_effect_names(args.effects)
     if args.report:
         check_output_directory(args.report)
     dataset_path = find_dataset(args.dataset)
-    dataset = read_dataset(dataset_path)
-    data = model_data_from_dataset(dataset)
-    for name in effects:
-        reason = EFFECTS[name].untestable_reason(data)
-        if reason:
-            raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
-    # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
-    fit = identify_dataset(dataset, effects, angles=args.angles, moving="all", fixed=args.fix,
-                           tie_shared_motors=args.tie_hip_yaw_pitch is not False)
+    fit, diagnosis = diagnose_dataset(dataset_path, effects, angles=args.angles, fixed=args.fix,
+                                      tied=args.tie_hip_yaw_pitch is not False)
     result = fit.result
-    if not result.success:
-        raise SolveError(f"the fit did not converge ({result.message})")
-    noise = dataset.meta.get("pixel_noise_px")
-    diagnosis = diagnose_result(result, pixel_noise_px=noise, capture_time_s=capture_times(dataset, result))
     report_path = None
     if args.report:
         from tools.report import write_report
@@ -116,6 +100,31 @@ def run(args) -> int:
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
+
+
+def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=True):
+    """(the fit, its diagnosis) of the dataset directory `dataset_path` with the model plus `effects`: what
+    `naocal diagnose` prints and reports (and `naocal calibrate --report` for its run's dataset)."""
+    from solver.adapter import model_data_from_dataset
+    from solver.dataset import read_dataset
+    from solver.diagnostics import diagnose_result
+    from solver.effects import EFFECTS
+    from solver.errors import NaocalError, SolveError
+    from solver.fit import identify_dataset
+
+    dataset = read_dataset(dataset_path)
+    data = model_data_from_dataset(dataset)
+    for name in effects:
+        reason = EFFECTS[name].untestable_reason(data)
+        if reason:
+            raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
+    # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
+    fit = identify_dataset(dataset, effects, angles=angles, moving="all", fixed=fixed, tie_shared_motors=tied)
+    result = fit.result
+    if not result.success:
+        raise SolveError(f"the fit did not converge ({result.message})")
+    noise = dataset.meta.get("pixel_noise_px")
+    return fit, diagnose_result(result, pixel_noise_px=noise, capture_time_s=capture_times(dataset, result))
 
 
 def capture_times(dataset, result):

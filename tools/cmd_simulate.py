@@ -1,6 +1,6 @@
 """`naocal simulate`: record a dataset of the simulated NAO, with its hidden truth beside it.
 
-    naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...]
+    naocal simulate --out DIR [--seed N] [--effect NAME=SIZE ...] [--mock ideal|realistic]
     naocal simulate --robot kuka_iiwa|franka_panda|URDF [--chain BASE:TIP] --out DIR [--seed N] [--poses N]
         a simulated arm instead (docs/ARM.md): naocal.arm_dataset/1 and its hidden truth in DIR/truth.json
 
@@ -24,7 +24,8 @@ def register(subparsers):
                    help="inject a physical effect (repeatable): any effect the mock simulates, e.g. "
                         "elasticity=0.02 or camera_translation=0.004 (docs/MOCK.md)")
     p.add_argument("--mock", choices=("ideal", "realistic"), default=None,
-                   help="ideal (default) or realistic mock robot (docs/MOCK.md)")
+                   help="realistic (default: a NAO V6 as teams meet it, with real robots' errors) or ideal (the "
+                        "exact teaching robot) mock (docs/MOCK.md)")
     p.add_argument("--plan", choices=("paper", "optimal"), default="paper", help="the stance plan (default paper)")
     p.add_argument("--stances-per-leg", type=int, default=24, metavar="N", help="stances per leg (default 24)")
     p.add_argument("--no-probe", action="store_true", help="leave out the lag probe")

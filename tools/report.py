@@ -144,12 +144,14 @@ def _vectors(result, after, top):
     fig = _figure(9 if len(fits) > 1 else 5.5, 3.8)
     cameras = result.model.data.cameras.values()
     width, height = max(c.get("width_px", 640) for c in cameras), max(c.get("height_px", 480) for c in cameras)
+    # One scale for every panel, so that a shorter arrow after adding an effect is a smaller residual: the
+    # largest 95th percentile (the current model's, as a rule) is drawn 30 px long.
+    p95 = max(float(np.percentile(np.hypot(*fit.residuals_px.T), 95)) for _, fit in fits)
+    scale = 30.0 / max(p95, 1e-9)
     for k, (title, fit) in enumerate(fits):
         ax = fig.add_subplot(1, len(fits), k + 1)
         data, r = fit.model.data, fit.residuals_px
         shown = np.arange(0, data.n_rows, max(1, data.n_rows // MAX_ARROWS))  # keep the picture readable
-        length = np.hypot(r[:, 0], r[:, 1])
-        scale = 30.0 / max(float(np.percentile(length, 95)), 1e-9)  # the 95th percentile arrow is 30 px long
         target_of_row = data.target[data.image_of_row]
         for target, colour in target_colours(data.target).items():
             rows = shown[target_of_row[shown] == target]
@@ -158,7 +160,8 @@ def _vectors(result, after, top):
         ax.set_xlim(0, width)
         ax.set_ylim(height, 0)
         ax.set_aspect("equal")
-        ax.set_title(f"{title}: residual x {scale:.3g}\n(predicted - detected, over the image)", fontsize=10)
+        same = " (both panels)" if len(fits) > 1 else ""
+        ax.set_title(f"{title}: residual x {scale:.3g}{same}\n(predicted - detected, over the image)", fontsize=10)
         ax.set_xlabel("u (px)")
         ax.set_ylabel("v (px)")
         ax.legend(loc="lower right", fontsize=8)
