@@ -199,7 +199,7 @@ class Offsets:
     def from_dict(cls, doc, path="<offsets>") -> Offsets:
         """Validate a JSON document of either version (see `validate`) and build the Offsets."""
         if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
-            return _from_v1(_validated_fields(doc, path))
+            return _from_v1(_validated_fields(doc, path), path)
         return cls(**_validated_fields_v2(doc, path))
 
     def joint_offset(self, joint: str) -> float:
@@ -436,7 +436,7 @@ def validate(doc, path="<offsets>") -> None:
     """Raise DataError (naming the field path, e.g. body.joint_offsets_rad.LHipPitch) if `doc` is not a valid file
     of either version."""
     if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
-        _validated_fields(doc, path)
+        _from_v1(_validated_fields(doc, path), path)
     else:
         _validated_fields_v2(doc, path)
 
@@ -469,11 +469,13 @@ def _validated_fields_v2(doc, path) -> dict:
     for section, key in (("body", "joint_offsets_rad"), ("head", "camera_rotation_rad")):
         if key not in sections[section]:
             _fail(path, "missing required field", f"{section}.{key}")
+    model = _validated_model_v2(doc["model"], path, robot)
+    check_one_value(sections, model["parameters"], robot, path)
     return {
         "robot": dict(robot_meta),
         "created": _created(doc["created"], path),
         **sections,
-        "model": _validated_model_v2(doc["model"], path, robot),
+        "model": model,
         "fit": _validated_fit(doc["fit"], path),
         "source": copy.deepcopy(_object(doc["source"], path, "source")),
     }
@@ -513,19 +515,34 @@ def _v1_parameter_name(name: str) -> str:
     return name
 
 
-def _from_v1(fields: dict) -> Offsets:
-    """The Offsets a validated version 1 file stands for (its numbers unchanged; parameters renamed, alpha -> c)."""
+def _from_v1(fields: dict, path=None) -> Offsets:
+    """The Offsets a validated version 1 file stands for (its numbers unchanged; parameters renamed, alpha -> c);
+    with `path`, DataError when its two copies of a value disagree (`check_one_value`)."""
     parameters = {}
     for name, entry in fields["model"]["parameters"].items():
         entry = dict(entry)
         if name.startswith(("joint_offset.", "head_offset.")):
             entry["value"] = -entry["value"]  # version 1 stored the model's alpha; the parameter is now c
         parameters[_v1_parameter_name(name)] = entry
+    sections = {"body": {"joint_offsets_rad": fields["joint_offsets_rad"]},
+                "head": {"camera_rotation_rad": fields["camera_rotation_rad"]},
+                "targets": {"board_mount": fields["board_mount"]}}
+    from solver.effect import Setup
+    from solver.robot import load_robot
+
+    robot = load_robot("nao")
+    if path is not None:
+        v1_names = {_v1_parameter_name(name): name for name in fields["model"]["parameters"]}
+        check_one_value(sections, parameters, robot, path,
+                        section_field=lambda section, keys: ".".join(keys),  # version 1: no section level
+                        parameter_field=lambda name: v1_names.get(name, name), only_keys_held=True)
+    # the sections version 1 did not have (the effects'), as version 2 writes them
+    derived = sections_from_values({name: e["value"] for name, e in parameters.items()}, Setup.everything(robot))
+    for section, content in derived.items():
+        for key, value in content.items():
+            sections[section].setdefault(key, value)
     return Offsets(
-        robot={**fields["robot"], "description": "nao"}, created=fields["created"],
-        body={"joint_offsets_rad": fields["joint_offsets_rad"]},
-        head={"camera_rotation_rad": fields["camera_rotation_rad"]},
-        targets={"board_mount": fields["board_mount"]},
+        robot={**fields["robot"], "description": "nao"}, created=fields["created"], **sections,
         fit=fields["fit"], model={"effects": fields["model"]["effects"], "parameters": parameters},
         source=fields["source"], read_schema=SCHEMA_V1)
 
@@ -576,6 +593,66 @@ def _robot(robot: dict, description: str) -> dict:
     return {**{k: robot.get(k) for k in ROBOT_KEYS}, "description": robot.get("description", description)}
 
 
+def sections_from_values(values: dict, setup) -> dict:
+    """{"body", "head", "targets"}: the sections each effect writes from registry-named values {name: value} (the
+    one derivation of the people's sections from model.parameters: the writer uses it, the reader checks it)."""
+    sections = {"body": {}, "head": {}, "targets": {}}
+    for effect in EFFECTS.values():
+        if effect.offsets_section is None:
+            continue
+        content = effect.write_offsets(values, setup)
+        if content:
+            sections[effect.offsets_section].setdefault(effect.offsets_key, {}).update(content)
+    return sections
+
+
+def _leaves(tree, prefix=()):
+    """{(key, ...): number} of a nested section."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in _leaves(sub, prefix + (key,)).items()}
+    return {prefix: tree}
+
+
+def check_one_value(sections: dict, parameters: dict, robot, path, *, section_field=None, parameter_field=None,
+                    only_keys_held: bool = False):
+    """DataError unless every number the sections hold for a parameter of model.parameters is that parameter's value.
+
+    A file holds each fitted value twice: in model.parameters (with its std) and in the people's sections (body,
+    head, targets), which `sections_from_values` derives from it. An edited file whose two copies disagree (show,
+    export and apply read the sections, verify the parameters) is refused naming both fields, as the arm's file is
+    (solver.arm_calibration). section_field(section, key path) and parameter_field(name) name a field as the
+    file spells it (version 1: no section level, older parameter names); sections: {"body", "head", "targets"}.
+    only_keys_held: compare only the keys the file's sections have (version 1 had no section for the effects).
+    """
+    from solver.effect import Setup
+
+    section_field = section_field or (lambda section, keys: ".".join((section,) + keys))
+    parameter_field = parameter_field or (lambda name: name)
+    setup = Setup.everything(robot)
+    values = {name: float(entry["value"]) for name, entry in parameters.items()}
+    # which parameter each derived number comes from: its own (one number) before a partner it follows (two)
+    source = {}
+    for name in sorted(values, key=lambda n: len(_leaves(sections_from_values({n: 1.0}, setup)))):
+        for section, content in sections_from_values({name: 1.0}, setup).items():
+            for keys in _leaves(content):
+                source.setdefault((section,) + keys, name)
+    derived = sections_from_values(values, setup)
+    for section in ("body", "head", "targets"):
+        held = _leaves(sections.get(section, {}))
+        for keys, value in _leaves(derived[section]).items():
+            if only_keys_held and keys[0] not in sections.get(section, {}):
+                continue
+            name = source[(section,) + keys]
+            where = section_field(section, keys)
+            if keys not in held:
+                _fail(path, f"missing, though model.parameters.{parameter_field(name)} holds its value "
+                            f"({value!r}): the file contradicts itself", where)
+            if abs(float(held[keys]) - value) > 1e-12 * max(1.0, abs(value)):
+                _fail(path, f"{held[keys]!r} disagrees with model.parameters.{parameter_field(name)}.value = "
+                            f"{value!r}: the file contradicts itself (edit both, or write it again with naocal)",
+                      where)
+
+
 def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects=(), source: dict | None = None,
                             created: str | None = None, description: str = "nao") -> Offsets:
     """Build an Offsets from registry-named model parameters {name: {"value", "std", "unit"}}: each effect that owns
@@ -584,19 +661,10 @@ def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects
     model.parameters; `effects` are the extra effects of the model.
     """
     from solver.effect import Setup
-    from solver.effects import EFFECTS
     from solver.robot import load_robot
 
     setup = Setup.everything(load_robot(description))
-    values = {name: float(entry["value"]) for name, entry in parameters.items()}
-    sections = {"body": {}, "head": {}, "targets": {}}
-    for effect in EFFECTS.values():
-        if effect.offsets_section is None:
-            continue
-        content = effect.write_offsets(values, setup)
-        if content:
-            merged = sections[effect.offsets_section].setdefault(effect.offsets_key, {})
-            merged.update(content)
+    sections = sections_from_values({name: float(entry["value"]) for name, entry in parameters.items()}, setup)
     sections["body"].setdefault("joint_offsets_rad", {})
     sections["head"].setdefault("camera_rotation_rad", {})
     model = {"effects": list(effects),

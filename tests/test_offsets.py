@@ -275,7 +275,18 @@ def test_head_offsets_and_joints_not_calibrated_are_optional(offsets_file):
     doc = json.loads(offsets_file.read_text())
     for joint in HEAD_JOINTS + ("LAnkleRoll",):
         del doc["body"]["joint_offsets_rad"][joint]
+        for prefix in ("joint_offset.", "head_offset."):  # not calibrated: in neither copy
+            doc["model"]["parameters"].pop(prefix + joint, None)
     validate(doc)
+
+
+def test_a_joint_left_out_of_one_copy_only_is_refused(offsets_file):
+    """model.parameters still holds LAnkleRoll's value: the section's silence would contradict it."""
+    doc = json.loads(offsets_file.read_text())
+    del doc["body"]["joint_offsets_rad"]["LAnkleRoll"]
+    with pytest.raises(DataError, match=r"body.joint_offsets_rad.LAnkleRoll.*missing.*"
+                                        r"model.parameters.joint_offset.LAnkleRoll"):
+        validate(doc)
 
 
 @pytest.mark.parametrize("cut", [0, 1, 50, 400, -2])
