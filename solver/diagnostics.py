@@ -33,8 +33,9 @@ from solver.scoretest import (RANK_TOLERANCE, _orthonormal_basis, _per_image_sum
 # FAMILY_ALPHA / (number of candidates tested) (Bonferroni). 0.001: a still robot with a complete model should
 # almost never be told to add a term.
 FAMILY_ALPHA = 1e-3
-# Physically plausible size of each candidate's parameters (absolute value, SI; each effect's `plausible_limit`):
-# beyond it a significant candidate is probably standing in for something else.
+# Physically plausible size of each candidate's parameters (absolute value, SI; each effect's `plausible_limit`,
+# and its sign: `plausible_min`, Effect.implausibility): beyond it a significant candidate is probably standing in
+# for something else.
 PLAUSIBLE_LIMITS = {name: e.plausible_limit for name, e in EFFECTS.items() if not e.base}
 # Below this uniqueness the data can hardly tell a candidate from what the model already has.
 LOW_UNIQUENESS = 0.05
@@ -43,7 +44,7 @@ LOW_UNIQUENESS = 0.05
 # axis tilt of 1.5 deg made camera_translation "significant" for 14 % of the misfit; a real hidden camera
 # translation, intrinsics or head offset explains nearly all of it).
 STAND_IN_SHARE = 0.5
-# A predicted value is implausible only when it is beyond the effect's limit by more than this many of its
+# A predicted value is implausible only when it is beyond the effect's range by more than this many of its
 # standard deviations: the one-step prediction of a weakly excited parameter (an ankle roll's compliance, which
 # feels little torque) swings far while a large misfit remains, without saying anything about its size.
 PLAUSIBLE_Z = 3.0
@@ -279,10 +280,9 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
         candidate.statistic, candidate.p_value = test.statistic, test.p_value
         candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
         candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
-        limit = EFFECTS[effect].plausible_limit
         std = np.nan_to_num(test.step_std * live_scales, nan=0.0) if test.step_std is not None else 0 * live_scales
         candidate.implausible = [nm for nm, v, s in zip(live_names, test.step * live_scales, std)
-                                 if abs(v) - PLAUSIBLE_Z * s > limit]
+                                 if EFFECTS[effect].implausibility(float(v), float(s), PLAUSIBLE_Z)]
         candidate.stand_in = bool(candidate.uniqueness < LOW_UNIQUENESS
                                   and candidate.excess_rss_px2 < STAND_IN_SHARE * rss)
         candidate.plausible = not candidate.implausible and not candidate.stand_in
@@ -292,6 +292,14 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
         c.significant = bool(np.isfinite(c.p_value) and c.p_value < threshold)
     scored.sort(key=lambda c: -c.excess_rss_px2)
     return scored + out
+
+
+def implausibility(result, name: str) -> str:
+    """Why a fitted parameter's value is not physics ('' if it may be): its effect's word (a negative compliance, a
+    play beyond any servo's), beyond PLAUSIBLE_Z of its standard deviations (Effect.implausibility)."""
+    p = result.registry.parameter(name)
+    std = float(result.std[result.registry.index[name]])
+    return EFFECTS[p.effect].implausibility(result.value(name), std, PLAUSIBLE_Z)
 
 
 def _no_signal_hint(effect: str) -> str:

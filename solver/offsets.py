@@ -64,8 +64,11 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
         limit = MAX_CAMERA_TRANSLATION_M
     elif group == "board":
         limit = MAX_BOARD_ROT_Z_RAD if member.endswith("rot_z") else MAX_BOARD_TRANS_M
-    else:
+    else:  # the file limit of the effect's section (what write_offsets would refuse), else the unit's
+        owner = _owner(name)
         limit = MAX_PARAMETER_SIZE.get(unit, math.inf)
+        if owner is not None and owner.offsets_section is not None:
+            limit = min(limit, owner.offsets_limit)
     if not math.isfinite(value):
         return f"{name} is not a finite number"
     if not math.isfinite(std):
@@ -75,6 +78,15 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
             return f"{name} = {math.degrees(value):.4g} deg is beyond any NAO's (at most {math.degrees(limit):g} deg)"
         return f"{name} = {value:.4g} {unit} is beyond any NAO's (at most {limit:g} {unit})"
     return None
+
+
+def _owner(name: str):
+    """The effect that owns a registry parameter name of the NAO (every camera and target), or None."""
+    from solver.effect import Setup
+    from solver.effects import owner_of
+    from solver.robot import nao
+
+    return owner_of(name, Setup.everything(nao()))
 
 
 def implausible_parameters(parameters: dict) -> str | None:

@@ -93,7 +93,20 @@ def run(args) -> int:
     if args.report:
         from tools.report import write_report
 
-        report_path = write_report(args.report, diagnosis, dataset_path=dataset_path)
+        def identify_fit(candidate):
+            """What the identify command the verdict prints for `candidate` fits (its options, identify's path)."""
+            from tools.cmd_identify import fit_dataset, parse_options
+
+            return fit_dataset(parse_options(identify_options(
+                diagnosis, candidate, fixed=args.fix, angles=args.angles, tied=args.tie_hip_yaw_pitch is not False)),
+                dataset)
+
+        def identify_command(candidate):
+            return next_commands(diagnosis, candidate, dataset_path=dataset_path, fixed=args.fix,
+                                 angles=args.angles, tied=args.tie_hip_yaw_pitch is not False)[0]
+
+        report_path = write_report(args.report, diagnosis, dataset_path=dataset_path, identify_fit=identify_fit,
+                                   identify_command=identify_command)
     if args.json:
         from tools.cmd_identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
 
@@ -150,12 +163,10 @@ def json_safe(obj):
     return obj
 
 
-def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:
-    """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model:
-    its effects plus the candidate, its fixed parameters plus the candidate's that these data cannot tell from
-    the model, the same --angles and --tie-hip-yaw-pitch."""
-    import shlex
-
+def identify_options(diagnosis, candidate, *, fixed=(), angles="auto", tied=True) -> list[str]:
+    """The model options (after DATASET) that add `candidate` to this run's model: its effects plus the candidate,
+    its fixed parameters plus the candidate's that these data cannot tell from the model, the same --angles and
+    --tie-hip-yaw-pitch. Shared by the commands the verdict prints and the report's fit (the same fit)."""
     res = diagnosis.result
     extra = list(res.registry.extra_effects())
     options = ["--effects", ",".join(extra + [candidate.effect])]
@@ -165,7 +176,21 @@ def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto"
         options += ["--angles", angles]
     if not tied:
         options.append("--no-tie-hip-yaw-pitch")
-    return tuple(shlex.join(["naocal", verb, str(dataset_path), *options]) for verb in ("identify", "diagnose"))
+    return options
+
+
+# where the suggested identify command stores its result (naocal identify prints, and writes only with --out)
+SUGGESTED_OUT = "offsets.json"
+
+
+def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:
+    """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model
+    (`identify_options`); identify's stores the result with --out."""
+    import shlex
+
+    options = identify_options(diagnosis, candidate, fixed=fixed, angles=angles, tied=tied)
+    return (shlex.join(["naocal", "identify", str(dataset_path), *options, "--out", SUGGESTED_OUT]),
+            shlex.join(["naocal", "diagnose", str(dataset_path), *options]))
 
 
 def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles="auto", tied=True) -> str:

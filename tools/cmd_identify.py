@@ -79,7 +79,6 @@ def run(args) -> int:
     from solver.effects import EFFECTS, parse_effect_names
     from solver.errors import NaocalError, SolveError
     from solver.fileio import check_output_file
-    from solver.fit import identify_dataset
     from solver.offsets import implausible_parameters
 
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
@@ -94,9 +93,7 @@ def run(args) -> int:
         reason = EFFECTS[name].untestable_reason(data)
         if reason:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
-    fit = identify_dataset(dataset, effects, angles=args.angles, robust=not args.keep_outliers, fixed=args.fix,
-                           tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
-                           loss_scale_px=args.loss_scale_px, gls=args.gls and args.loss == "linear")
+    fit = fit_dataset(args, dataset)
     result, data = fit.result, fit.data
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
@@ -127,6 +124,25 @@ def run(args) -> int:
                   "them)")
         print(format_table(result, cv_rms))
     return 0
+
+
+def fit_dataset(args, dataset):
+    """The fit `naocal identify` makes of a read dataset with these options (solver.fit.DatasetFit): the one place
+    that turns identify's options into a fit (run, and diagnose's report for the command it suggests)."""
+    from solver.effects import parse_effect_names
+    from solver.fit import identify_dataset
+
+    return identify_dataset(dataset, parse_effect_names(args.effects), angles=args.angles,
+                            robust=not args.keep_outliers, fixed=args.fix,
+                            tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
+                            loss_scale_px=args.loss_scale_px, gls=args.gls and args.loss == "linear")
+
+
+def parse_options(options) -> argparse.Namespace:
+    """identify's options (the words after DATASET, e.g. of a command diagnose suggests) as `run` would see them."""
+    parser = argparse.ArgumentParser(prog="naocal")
+    register(parser.add_subparsers())
+    return parser.parse_args(["identify", "DATASET", *options])
 
 
 def result_json(result, effects, cv_rms) -> dict:
@@ -189,6 +205,7 @@ def format_offsets_c(result) -> list[str]:
 
 def format_table(result, cv_rms) -> str:
     from agent.summary import describe_direction
+    from solver.diagnostics import implausibility
     from solver.offsets import COMPENSATED_PREFIXES
 
     lines = [
@@ -209,7 +226,8 @@ def format_table(result, cv_rms) -> str:
         value, unit = result.registry.display(name, entry["value"])
         std, _ = result.registry.display(name, entry["std"])
         fixed = "  (fixed)" if name in result.registry.fixed else ""
-        lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}")
+        why = implausibility(result, name)
+        lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}" + (f"  {why}" if why else ""))
     lines.append("")
     lines.append(f"condition number (scaled Jacobian): {result.condition_number:.3g}")
     lines.append("weakest directions (what the data determine least; why repeated runs can differ):")
