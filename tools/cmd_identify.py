@@ -122,7 +122,7 @@ def run(args) -> int:
         if fit.n_moving_set_aside:
             print(f"{fit.n_moving_set_aside} captures taken while moving set aside (only --effects time_lag models "
                   "them)")
-        print(format_table(result, cv_rms))
+        print(format_table(result, cv_rms, args.out))
     return 0
 
 
@@ -190,12 +190,13 @@ def joint_offsets_c(result) -> dict:
     return out
 
 
-def format_offsets_c(result) -> list[str]:
-    """The joint offsets as the table every naocal command prints: c, labelled, in degrees."""
+def format_offsets_c(result, out=None) -> list[str]:
+    """The joint offsets as the table every naocal command prints: c, labelled, in degrees; `out` the file they
+    were stored in (None: not stored, and the table says how to)."""
     import math
 
-    lines = ["joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings; "
-             "q_true = theta - c):"]
+    stored = f"stored in {out}" if out else "not stored: --out FILE writes them"
+    lines = [f"joint offsets c ({stored}; ADDED to commands, SUBTRACTED from readings; q_true = theta - c):"]
     for joint, entry in joint_offsets_c(result).items():
         fixed = "  (fixed)" if entry["fixed"] else ""
         lines.append(f"  {joint:14s} c = {math.degrees(entry['c_rad']):+8.4f} deg   "
@@ -203,7 +204,7 @@ def format_offsets_c(result) -> list[str]:
     return lines
 
 
-def format_table(result, cv_rms) -> str:
+def format_table(result, cv_rms, out=None) -> str:
     from agent.summary import describe_direction
     from solver.diagnostics import implausibility
     from solver.offsets import COMPENSATED_PREFIXES
@@ -216,7 +217,7 @@ def format_table(result, cv_rms) -> str:
     if cv_rms is not None:
         lines.append(f"cross-validated (whole stances held out): RMS {cv_rms[0]:.3f} px (x), {cv_rms[1]:.3f} px (y)")
     lines.append("")
-    lines += format_offsets_c(result)
+    lines += format_offsets_c(result, out)
     lines.append("")
     lines.append("other parameters (model values: camera rotation and board mount corrections of Eq. 3-4, effects):")
     lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
