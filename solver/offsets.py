@@ -753,3 +753,88 @@ def shown_name(name: str) -> str:
     """How people see a model parameter: joint_offset.<J> and head_offset.<J> as 'c <J>' (they are the stored
     offset c, value unchanged); every other parameter under its own name."""
     return "c " + name.split(".", 1)[1] if name.startswith(COMPENSATED_PREFIXES) else name
+
+
+# ------------------------------------------------------------------------------------- the simulator's truth
+
+TRUTH_SCHEMAS = ("naocal.truth/2", "naocal.truth/1")  # the mock's hidden truth (backends/mock.py writes /2)
+TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"  # what each injected effect drew, beside truth.json
+# truth_effects.json records that are per-joint values of a model parameter: effect -> the record's key
+TRUTH_EFFECT_RECORDS = {"elasticity": "compliance_rad_per_nm", "backlash": "half_play_rad"}
+
+
+def is_truth_file(path) -> bool:
+    """Whether `path` is a simulator's truth.json (its schema), without failing on anything else."""
+    try:
+        doc = read_json(path)
+    except (DataError, OSError):
+        return False
+    return isinstance(doc, dict) and doc.get("schema") in TRUTH_SCHEMAS
+
+
+def read_truth(path) -> tuple[Offsets, list[str]]:
+    """The simulator's hidden truth (truth.json, and truth_effects.json beside it when there) as an Offsets whose
+    model.parameters are the true values with std 0: joint offsets c = -alpha (the mock's sign), camera rotations,
+    board mounts, and the per-joint effects of TRUTH_EFFECT_RECORDS. Also the notes on what it does not compare
+    (the other injected effects). DataError naming the file and field for anything else."""
+    from solver.effect import Setup
+    from solver.robot import nao
+
+    path = Path(path)
+    doc = _object(read_json(path), path, "(top level)")
+    if doc.get("schema") not in TRUTH_SCHEMAS:
+        _fail(path, f"expected a simulator's truth ({' or '.join(TRUTH_SCHEMAS)})", "schema")
+    setup = Setup.everything(nao())
+    units = {p.name: p.unit for e in EFFECTS.values() for p in e.parameters(setup)}
+    values = {}
+    for joint, alpha in _object(doc.get("alpha_rad"), path, "alpha_rad").items():
+        alpha = _number(alpha, path, f"alpha_rad.{joint}", limit=MAX_JOINT_OFFSET_RAD)
+        for name in (f"joint_offset.{joint}", f"head_offset.{joint}"):
+            if name in units and (alpha != 0.0 or name.startswith("joint_offset.")):
+                values[name] = -alpha  # the mock's alpha: q_true = servo + alpha; c = -alpha
+        if not any(n in units for n in (f"joint_offset.{joint}", f"head_offset.{joint}")):
+            _fail(path, "unknown joint", f"alpha_rad.{joint}")
+    cameras = _object(doc.get("camera_rotation_rad"), path, "camera_rotation_rad")
+    if "pitch" in cameras:  # naocal.truth/1: the bottom camera's
+        cameras = {"bottom": cameras}
+    for camera, angles in cameras.items():
+        for a in CAMERA_ANGLES:
+            where = f"camera_rotation_rad.{camera}.{a}"
+            values[f"camera.{camera}.{a}"] = _number(_object(angles, path, f"camera_rotation_rad.{camera}").get(a),
+                                                     path, where, limit=MAX_CAMERA_ROTATION_RAD)
+    for target, mount in _object(doc.get("board_mount"), path, "board_mount").items():
+        mount = _object(mount, path, f"board_mount.{target}")
+        for key, short, _ in (("rot_z_rad", "rot_z", 0), ("trans_x_m", "trans_x", 0), ("trans_y_m", "trans_y", 0)):
+            values[f"board.{target}.{short}"] = _number(mount.get(key), path, f"board_mount.{target}.{key}",
+                                                        limit=BOARD_LIMITS[key], unit=key.rsplit("_", 1)[1])
+    notes = []
+    injected = _object(doc.get("effects", {}), path, "effects")
+    records_path = path.with_name("truth_effects.json")
+    records = {}
+    if records_path.is_file():
+        records_doc = _object(read_json(records_path), records_path, "(top level)")
+        if records_doc.get("schema") != TRUTH_EFFECTS_SCHEMA:
+            _fail(records_path, f"expected {TRUTH_EFFECTS_SCHEMA!r}", "schema")
+        records = _object(records_doc.get("effects", {}), records_path, "effects")
+        if "realism" in records_doc:
+            notes.append(f"the realistic mock's own errors ({records_path.name}: realism) are not compared")
+    for effect in injected:
+        key = TRUTH_EFFECT_RECORDS.get(effect)
+        if key is None or effect not in records:
+            notes.append(f"the injected {effect} is not compared" + ("" if key is None else
+                                                                     f" ({records_path.name} is missing)"))
+            continue
+        table = _object(_object(records[effect], records_path, f"effects.{effect}").get(key), records_path,
+                        f"effects.{effect}.{key}")
+        for joint, value in table.items():
+            name = f"{EFFECTS[effect].parameters(setup)[0].name.split('.')[0]}.{joint}"
+            if name not in units:
+                _fail(records_path, "unknown joint", f"effects.{effect}.{key}.{joint}")
+            values[name] = _number(value, records_path, f"effects.{effect}.{key}.{joint}",
+                                   limit=MAX_PARAMETER_SIZE[units[name]], unit=units[name])
+    parameters = {name: {"value": v, "std": 0.0, "unit": units[name]} for name, v in values.items()}
+    offsets = offsets_from_parameters(parameters, robot={"id": "simulated", "body_id": None, "head_id": None},
+                                      fit={"rms_px": [0.0, 0.0], "n_vertices": 0, "n_images": 0},
+                                      effects=[e for e in injected if e in TRUTH_EFFECT_RECORDS],
+                                      source={"truth": str(path)}, created=utc_now_iso())
+    return offsets, notes
