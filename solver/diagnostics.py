@@ -168,6 +168,7 @@ class Candidate:
     stand_in: bool = False  # low uniqueness and little of the misfit explained (STAND_IN_SHARE): not named
     no_signal: list = field(default_factory=list)  # parameters the data do not excite at all
     inside_model: list = field(default_factory=list)  # parameters the fitted model already contains (uniqueness 0)
+    assumption: str = ""  # not an effect to add: an assumption of the model the candidate drops (ASSUMPTIONS)
 
     def as_dict(self) -> dict:
         return {
@@ -178,7 +179,7 @@ class Candidate:
             "predicted_rms_xy_px": list(self.predicted_rms_xy_px), "statistic": self.statistic,
             "plausible": self.plausible, "implausible": self.implausible, "stand_in": self.stand_in,
             "no_signal": self.no_signal,
-            "inside_model": self.inside_model,
+            "inside_model": self.inside_model, "assumption": self.assumption or None,
             "predicted_values": self.predicted_values, "parameter_uniqueness": self.parameter_uniqueness,
         }
 
@@ -234,16 +235,17 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
     candidates that cannot be tested come last, with the reason.
     """
     data = result.model.data
-    candidates = candidate_effects(result.registry) if candidates is None else tuple(candidates)
+    if candidates is None:
+        candidates = candidate_effects(result.registry) + candidate_assumptions(result.registry)
+    candidates = tuple(candidates)
+    assumptions = [c for c in candidates if c in ASSUMPTIONS]
+    candidates = tuple(c for c in candidates if c not in ASSUMPTIONS)
     reasons = {e: untestable_reason(e, data) for e in candidates}
     testable = [e for e in candidates if not reasons[e]]
     out = [Candidate(e, False, reason=reasons[e]) for e in candidates if reasons[e]]
-    if not testable:
-        return out
     ext = _Extension(result, testable, clusters)
     r = ext.residual
     rss = float(r @ r)
-    n = len(r)
     free_names = ext.registry.free_names
     J_tilde = _project_off(ext.Q, ext.J[:, [i for e in testable for i in ext.columns[e]]])
     offset = 0
@@ -252,46 +254,103 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
         cols = ext.columns[effect]
         Jk, Jt = ext.J[:, cols], J_tilde[:, offset:offset + len(cols)]
         offset += len(cols)
-        names = [free_names[i] for i in cols]
-        norm2, left2 = np.sum(Jk ** 2, axis=0), np.sum(Jt ** 2, axis=0)
-        excited = norm2 > 1e-24 * max(norm2.max(initial=0.0), 1e-300)
-        # A column the fitted model already contains (e.g. backlash of a joint always approached from one side
-        # is a joint offset) leaves only rounding error after the projection: no information, not tested.
-        live = excited & (left2 > RANK_TOLERANCE * norm2)
-        candidate = Candidate(effect, True, parameters=tuple(names),
-                              no_signal=[n for n, ok in zip(names, excited) if not ok],
-                              inside_model=[n for n, e, ok in zip(names, excited, live) if e and not ok])
-        if not np.any(live):
-            candidate.testable = False
-            candidate.reason = ("no signal in these data (" + _no_signal_hint(effect) + ")" if not np.any(excited)
-                                else "these data cannot tell it from the model's parameters (uniqueness 0)")
-            out.append(candidate)
-            continue
-        test = score_test(Jt[:, live], r, ext.clusters, Q=ext.Q)
-        live_names = [n for n, ok in zip(names, live) if ok]
-        live_scales = ext.scales[np.array(cols)[live]]
-        r_after = r + Jt[:, live] @ test.step
-        candidate.dof = test.dof
-        candidate.delta_rss_px2 = test.delta_rss
-        candidate.excess_rss_px2 = test.delta_rss - test.noise_rss if np.isfinite(test.noise_rss) else test.delta_rss
-        candidate.predicted_rms_px = float(np.sqrt(max(rss - test.delta_rss, 0.0) / n))
-        candidate.predicted_rms_xy_px = (rms(r_after[0::2]), rms(r_after[1::2]))
-        candidate.predicted_values = {nm: float(v) for nm, v in zip(live_names, test.step * live_scales)}
-        candidate.statistic, candidate.p_value = test.statistic, test.p_value
-        candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
-        candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
-        std = np.nan_to_num(test.step_std * live_scales, nan=0.0) if test.step_std is not None else 0 * live_scales
-        candidate.implausible = [nm for nm, v, s in zip(live_names, test.step * live_scales, std)
-                                 if EFFECTS[effect].implausibility(float(v), float(s), PLAUSIBLE_Z)]
-        candidate.stand_in = bool(candidate.uniqueness < LOW_UNIQUENESS
-                                  and candidate.excess_rss_px2 < STAND_IN_SHARE * rss)
-        candidate.plausible = not candidate.implausible and not candidate.stand_in
-        scored.append(candidate)
+        candidate = _scored(Candidate(effect, True), [free_names[i] for i in cols], Jk, Jt, ext.scales[cols], ext,
+                            rss)
+        (scored if candidate.testable else out).append(candidate)
+    for name in assumptions:
+        candidate = ASSUMPTIONS[name].score(result, ext, rss)
+        (scored if candidate.testable else out).append(candidate)
     threshold = family_alpha / max(len(scored), 1)
     for c in scored:
         c.significant = bool(np.isfinite(c.p_value) and c.p_value < threshold)
     scored.sort(key=lambda c: -c.excess_rss_px2)
     return scored + out
+
+
+def _scored(candidate: Candidate, names, Jk, Jt, scales, ext, rss: float) -> Candidate:
+    """`candidate` scored: the score test of the block Jk (its columns at their scales `scales`, named `names`),
+    Jt the block projected off the fitted model (ext.Q), against the fit's residuals (ext.residual)."""
+    r, n = ext.residual, len(ext.residual)
+    effect = candidate.effect
+    norm2, left2 = np.sum(Jk ** 2, axis=0), np.sum(Jt ** 2, axis=0)
+    excited = norm2 > 1e-24 * max(norm2.max(initial=0.0), 1e-300)
+    # A column the fitted model already contains (e.g. backlash of a joint always approached from one side
+    # is a joint offset) leaves only rounding error after the projection: no information, not tested.
+    live = excited & (left2 > RANK_TOLERANCE * norm2)
+    candidate.parameters = tuple(names)
+    candidate.no_signal = [nm for nm, ok in zip(names, excited) if not ok]
+    candidate.inside_model = [nm for nm, e, ok in zip(names, excited, live) if e and not ok]
+    if not np.any(live):
+        candidate.testable = False
+        candidate.reason = ("no signal in these data (" + _no_signal_hint(effect) + ")" if not np.any(excited)
+                            else "these data cannot tell it from the model's parameters (uniqueness 0)")
+        return candidate
+    test = score_test(Jt[:, live], r, ext.clusters, Q=ext.Q)
+    live_names = [nm for nm, ok in zip(names, live) if ok]
+    live_scales = np.asarray(scales)[live]
+    r_after = r + Jt[:, live] @ test.step
+    candidate.dof = test.dof
+    candidate.delta_rss_px2 = test.delta_rss
+    candidate.excess_rss_px2 = test.delta_rss - test.noise_rss if np.isfinite(test.noise_rss) else test.delta_rss
+    candidate.predicted_rms_px = float(np.sqrt(max(rss - test.delta_rss, 0.0) / n))
+    candidate.predicted_rms_xy_px = (rms(r_after[0::2]), rms(r_after[1::2]))
+    candidate.predicted_values = {nm: float(v) for nm, v in zip(live_names, test.step * live_scales)}
+    candidate.statistic, candidate.p_value = test.statistic, test.p_value
+    candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
+    candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
+    std = np.nan_to_num(test.step_std * live_scales, nan=0.0) if test.step_std is not None else 0 * live_scales
+    candidate.implausible = [nm for nm, v, sd in zip(live_names, test.step * live_scales, std)
+                             if _implausible_value(candidate, nm, float(v), float(sd), ext.registry.setup)]
+    candidate.stand_in = bool(candidate.uniqueness < LOW_UNIQUENESS and candidate.excess_rss_px2 < STAND_IN_SHARE * rss)
+    candidate.plausible = not candidate.implausible and not candidate.stand_in
+    return candidate
+
+
+def _implausible_value(candidate: Candidate, name: str, value: float, std: float, setup) -> str:
+    """Why a candidate's predicted value is not physics: its effect's word (an assumption's: the effect that owns
+    the parameter it frees)."""
+    effect = EFFECTS.get(candidate.effect) or owner_of(name, setup)
+    return effect.implausibility(value, std, PLAUSIBLE_Z) if effect is not None else ""
+
+
+# --------------------------------------------------------------------------------------------- assumptions
+
+
+class SharedMotorTie:
+    """The assumption that joints on one motor take one offset (the NAO's LHipYawPitch and RHipYawPitch: one
+    motor, one sensor; Registry(tie_shared_motors=True), the default). Tested as a candidate that unties them: the
+    block is d r / d (each follower's own offset) at the fit, the same score test as every effect's; significant
+    means the data want the two offsets apart (a worn coupling, a team's separate calibration values)."""
+
+    name = "untie_shared_motors"
+    words = "joints on one motor take one offset"
+
+    def applies(self, registry) -> bool:
+        return registry.tie_shared_motors and any(p.tied_to for p in registry.parameters)
+
+    def registry(self, registry) -> Registry:
+        """The model without the assumption: every joint its own offset."""
+        return registry.untied()
+
+    def score(self, result, ext, rss: float) -> Candidate:
+        base = result.registry
+        untied = self.registry(base)
+        values = untied.from_dict(base.as_dict(result.values))
+        r, J = Model(result.model.data, untied).evaluate(values)
+        followers = [p.name for p in base.parameters if p.tied_to]
+        cols = [untied.free_names.index(n) for n in followers]
+        scales = untied.scales[untied.free_index][cols]
+        Jk = untied.free_jacobian(J.reshape(len(ext.residual), -1))[:, cols] * scales
+        return _scored(Candidate(self.name, True, assumption=self.words), followers, Jk, _project_off(ext.Q, Jk),
+                       scales, ext, rss)
+
+
+ASSUMPTIONS = {a.name: a for a in (SharedMotorTie(),)}
+
+
+def candidate_assumptions(registry: Registry) -> tuple[str, ...]:
+    """The assumptions of a model with `registry` that the diagnostics test (each as a candidate that drops it)."""
+    return tuple(name for name, a in ASSUMPTIONS.items() if a.applies(registry))
 
 
 def implausibility(result, name: str) -> str:
@@ -625,7 +684,10 @@ def _without(registry: Registry, effect: str) -> Registry:
 
 
 def registry_with(registry: Registry, candidate: Candidate) -> Registry:
-    """`registry` plus the candidate's effect, its parameters that the data cannot tell from the model fixed."""
+    """`registry` plus the candidate's effect, its parameters that the data cannot tell from the model fixed (an
+    assumption's candidate: the model without the assumption)."""
+    if candidate.effect in ASSUMPTIONS:
+        return ASSUMPTIONS[candidate.effect].registry(registry)
     extended = registry.extended((candidate.effect,))
     return extended.with_fixed(candidate.inside_model) if candidate.inside_model else extended
 

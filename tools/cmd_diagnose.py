@@ -168,13 +168,13 @@ def identify_options(diagnosis, candidate, *, fixed=(), angles="auto", tied=True
     its fixed parameters plus the candidate's that these data cannot tell from the model, the same --angles and
     --tie-hip-yaw-pitch. Shared by the commands the verdict prints and the report's fit (the same fit)."""
     res = diagnosis.result
-    extra = list(res.registry.extra_effects())
-    options = ["--effects", ",".join(extra + [candidate.effect])]
+    effects = list(res.registry.extra_effects()) + ([] if candidate.assumption else [candidate.effect])
+    options = ["--effects", ",".join(effects)] if effects else []
     for name in list(fixed) + [n for n in candidate.inside_model if n not in fixed]:
         options += ["--fix", name]
     if angles != "auto":
         options += ["--angles", angles]
-    if not tied:
+    if not tied or candidate.effect == "untie_shared_motors":  # the option that drops the tie
         options.append("--no-tie-hip-yaw-pitch")
     return options
 
@@ -274,7 +274,13 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
     else:
         identify_command, diagnose_command = next_commands(diagnosis, best, dataset_path=dataset_path, fixed=fixed,
                                                            angles=angles, tied=tied)
-        lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): {identify_command}")
+        if best.assumption:
+            lines.append(f"verdict: the data contradict an assumption of the model: {best.assumption} "
+                         f"({_top_values(best, res.registry)}; predicted RMS without it {best.predicted_rms_px:.3f} "
+                         f"px): {identify_command}")
+        else:
+            lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): "
+                         f"{identify_command}")
         lines.append(f"  then diagnose again: {diagnose_command}")
     for warning in res.warnings:
         lines.append(f"warning: {warning}")
@@ -283,13 +289,17 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
 
 def _top_values(candidate, registry, count=3) -> str:
     """The candidate's largest predicted values, as its effect shows them (degrees, mm, ms ...); offsets named as c."""
+    from solver.diagnostics import registry_with
     from solver.offsets import COMPENSATED_PREFIXES, shown_name
 
-    registry = registry.extended((candidate.effect,))
+    tied_to = {p.name: p.tied_to for p in registry.parameters if p.tied_to}
+    registry = registry_with(registry, candidate)
     items = sorted(candidate.predicted_values.items(), key=lambda kv: -abs(kv[1]))[:count]
     parts = []
     for name, value in items:
         value, unit = registry.display(name, value)
         label = shown_name(name) if name.startswith(COMPENSATED_PREFIXES) else name.split(".", 1)[1]
+        if candidate.assumption and name in tied_to:  # untied: the step is how far it moves from its partner
+            label += " - " + shown_name(tied_to[name])
         parts.append(f"{label} {value:+.3g}{' ' + unit if unit else ''}")
     return "predicted " + ", ".join(parts)

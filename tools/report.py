@@ -83,7 +83,8 @@ def write_report(out_dir, diagnosis, *, identify_fit, identify_command=None, dat
     figures["stances.png"] = _stances(diagnosis)
     for k, cand in enumerate([c for c in diagnosis.candidates if c.testable][:top_count]):
         fit = fit_of(cand)
-        fig = _regressor_view(fit.result, cand.effect) if fit is not None else None
+        # (an assumption's candidate adds no term: no partial residuals to show)
+        fig = _regressor_view(fit.result, cand.effect) if fit is not None and not cand.assumption else None
         if fig is not None:
             figures[f"regressors_{k + 1}.png"] = fig
     figures["correlation.png"] = _correlation(after or result)
@@ -133,7 +134,7 @@ def _figure(width, height):
 
 def _scatter(result, after, top):
     fig = _figure(9, 4.2)
-    fits = [("current model", result)] + ([(f"after adding {top.effect}", after)] if after is not None else [])
+    fits = [("current model", result)] + ([(_after_title(top), after)] if after is not None else [])
     for k, (title, fit) in enumerate(fits):
         ax = fig.add_subplot(1, len(fits), k + 1)
         r = fit.residuals_px
@@ -152,7 +153,7 @@ def _scatter(result, after, top):
 
 
 def _vectors(result, after, top):
-    fits = [("current model", result)] + ([(f"after adding {top.effect}", after)] if after is not None else [])
+    fits = [("current model", result)] + ([(_after_title(top), after)] if after is not None else [])
     fig = _figure(9 if len(fits) > 1 else 5.5, 3.8)
     cameras = result.model.data.cameras.values()
     width, height = max(c.get("width_px", 640) for c in cameras), max(c.get("height_px", 480) for c in cameras)
@@ -285,7 +286,20 @@ def _fmt(value, digits=3):
     return f"{value:.{digits}f}"
 
 
-def _parameter_rows(fit, only_effect=None):
+def _after_title(top) -> str:
+    """'after adding elasticity', or for an assumption's candidate 'without the assumption: ...'."""
+    return f"without: {top.assumption}" if top.assumption else f"after adding {top.effect}"
+
+
+def _shown_effects(fit, top) -> set:
+    """The effects whose parameters the 'after' table shows: the candidate's, or those of the parameters an
+    assumption's candidate frees (the HipYawPitch pair's joint offsets)."""
+    if top.assumption:
+        return {fit.registry.parameter(n).effect for n in top.parameters if n in fit.registry.index}
+    return {top.effect}
+
+
+def _parameter_rows(fit, only_effects=None):
     """Table rows of the fitted parameters: joint and head offsets named as the stored c they are ('c LHipPitch'),
     the others under their own names."""
     from solver.diagnostics import implausibility
@@ -294,7 +308,7 @@ def _parameter_rows(fit, only_effect=None):
     rows = []
     for name, entry in fit.parameters_dict().items():
         effect = fit.registry.parameters[fit.registry.index[name]].effect
-        if only_effect is not None and effect != only_effect:
+        if only_effects is not None and effect not in only_effects:
             continue
         value, unit = fit.registry.display(name, entry["value"])  # as the effect shows it: deg, mm, ms ...
         std, _ = fit.registry.display(name, entry["std"])
@@ -331,7 +345,9 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
              f"<p>Model: base{e(''.join(' + ' + x for x in extra))}. {data.n_rows} vertices in {data.n_images} "
              f"images.</p>"]
     if top is not None and after is not None:
-        verdict = (f"Add <b>{e(top.effect)}</b>: RMS {_fmt(c.rms_total_px)} px &rarr; "
+        what = (f"The data contradict an assumption of the model: <b>{e(top.assumption)}</b>. Without it"
+                if top.assumption else f"Add <b>{e(top.effect)}</b>")
+        verdict = (f"{what}: RMS {_fmt(c.rms_total_px)} px &rarr; "
                    f"{_fmt(_mean_rms(after.rms_px))} px "
                    f"(fit), predicted {_fmt(top.predicted_rms_px)} px; noise floor {_fmt(c.noise_px)} px.")
         if cv_before is not None and cv_after is not None:
@@ -419,10 +435,10 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
     parts.append(_parameter_rows(res))
     parts.append("</table>")
     if after is not None:
-        parts.append(f"<p>After adding {e(top.effect)}: the fit of <code>{e(identify_command or '')}</code> "
+        parts.append(f"<p>{e(_after_title(top)).capitalize()}: the fit of <code>{e(identify_command or '')}</code> "
                      "(naocal identify's: corners and images set aside, angles chosen, generalised least squares "
                      f"where it applies; all parameters refitted):</p><table>{header}"
-                     + _parameter_rows(after, top.effect) + "</table>")
+                     + _parameter_rows(after, _shown_effects(after, top)) + "</table>")
     weak = "".join(f"<li>relative singular value {w.singular_value:.1e}: {e(describe_direction(w))}</li>"
                    for w in (after or res).weak_directions)
     parts.append(f"<p>Weakest parameter combinations:</p><ul>{weak}</ul>")
