@@ -169,6 +169,7 @@ class Candidate:
     no_signal: list = field(default_factory=list)  # parameters the data do not excite at all
     inside_model: list = field(default_factory=list)  # parameters the fitted model already contains (uniqueness 0)
     assumption: str = ""  # not an effect to add: an assumption of the model the candidate drops (ASSUMPTIONS)
+    remedy: str = ""  # what to do when no model can drop the assumption (no command then); '' when a model can
 
     def as_dict(self) -> dict:
         return {
@@ -179,7 +180,7 @@ class Candidate:
             "predicted_rms_xy_px": list(self.predicted_rms_xy_px), "statistic": self.statistic,
             "plausible": self.plausible, "implausible": self.implausible, "stand_in": self.stand_in,
             "no_signal": self.no_signal,
-            "inside_model": self.inside_model, "assumption": self.assumption or None,
+            "inside_model": self.inside_model, "assumption": self.assumption or None, "remedy": self.remedy or None,
             "predicted_values": self.predicted_values, "parameter_uniqueness": self.parameter_uniqueness,
         }
 
@@ -345,7 +346,72 @@ class SharedMotorTie:
                        scales, ext, rss)
 
 
-ASSUMPTIONS = {a.name: a for a in (SharedMotorTie(),)}
+class RigidBoard:
+    """The assumption that each board is flat and as printed: its vertices where the dataset's nominal positions
+    (square size, layout) put them, in every image. Tested as a candidate that lets each board's shape change the
+    same way in every image: stretched along each of its axes (a square size or a printer's scale off) and bowed
+    out of its plane (a sandal bent, quadratic in the board's coordinates: along each side, twisted), 5 parameters
+    per board, each the displacement (m) at the board's edge. The block is d r / d shape at the fit: the model's
+    pixels per vertex displacement (differences of the model itself) times each shape's displacement field. Nothing
+    in the model can take it up: the verdict names the board and what to measure."""
+
+    name = "rigid_board"
+    words = "each board is flat and as printed"
+    SHAPES = ("stretch_long", "stretch_short", "bow_long", "bow_short", "twist")  # along its longer, shorter side
+    SCALE_M = 1e-3  # a typical deformation at the board's edge
+    STEP_M = 1e-6  # the difference step of the vertex positions
+
+    def applies(self, registry) -> bool:
+        return True
+
+    def registry(self, registry) -> Registry:
+        raise ValueError("no model parameter frees a board's shape")
+
+    def score(self, result, ext, rss: float) -> Candidate:
+        import copy
+
+        data, registry = result.model.data, result.registry
+        base = result.model.residuals(result.values)
+        pixels_per_m = []  # (N, 2) per metre of vertex displacement along each axis of the frame it is attached to
+        for axis in range(3):
+            moved = copy.copy(data)
+            moved.p_mount = data.p_mount + self.STEP_M * np.eye(3)[axis]
+            pixels_per_m.append((Model(moved, registry).residuals(result.values) - base) / self.STEP_M)
+        target_of_row = data.target[data.image_of_row]
+        columns, names = [], []
+        for target in dict.fromkeys(data.target.tolist()):
+            rows = target_of_row == target
+            fields = self._fields(data, rows)
+            for shape, field_m in zip(self.SHAPES, fields):
+                column = np.zeros_like(base)
+                column[rows] = sum(pixels_per_m[k][rows] * field_m[:, k:k + 1] for k in range(3))
+                columns.append(column.reshape(-1))
+                names.append(f"board_shape.{target}.{shape}")
+        scales = np.full(len(names), self.SCALE_M)
+        Jk = np.column_stack(columns) * scales
+        candidate = Candidate(self.name, True, assumption=self.words, remedy=self.REMEDY)
+        return _scored(candidate, names, Jk, _project_off(ext.Q, Jk), scales, ext, rss)
+
+    REMEDY = ("measure the board: a stretch is its square size off (dataset.json targets.<target>.square_m), a bow "
+              "a bent board (flatten or replace it); no model parameter takes it up")
+
+    @staticmethod
+    def _fields(data, rows) -> list:
+        """(N_rows, 3) displacement of each row's vertex per metre of each shape at the board's edge, in the frame
+        the target is attached to: the board's axes from its own vertices (principal axes; the normal the third)."""
+        points = data.p_mount[rows]
+        _, first = np.unique(data.vertex[rows], return_index=True)
+        corners = points[first]
+        centre = corners.mean(axis=0)
+        _, _, axes = np.linalg.svd(corners - centre)
+        e1, e2, normal = axes
+        a, b = (points - centre) @ e1, (points - centre) @ e2
+        a, b = a / max(np.abs(a).max(), 1e-9), b / max(np.abs(b).max(), 1e-9)  # -1..1 across the board
+        return [a[:, None] * e1, b[:, None] * e2, (a ** 2)[:, None] * normal, (b ** 2)[:, None] * normal,
+                (a * b)[:, None] * normal]
+
+
+ASSUMPTIONS = {a.name: a for a in (SharedMotorTie(), RigidBoard())}
 
 
 def candidate_assumptions(registry: Registry) -> tuple[str, ...]:
@@ -648,7 +714,8 @@ def forward_selection(data: ModelData, registry: Registry | None = None, *, max_
     tried = set()
     for _ in range(max_steps):
         last = steps[-1]
-        choice = next((c for c in last.candidates if c.significant and c.plausible and c.effect not in tried), None)
+        choice = next((c for c in last.candidates if c.significant and c.plausible and not c.remedy
+                       and c.effect not in tried), None)
         if choice is None:
             last.notes.append("no significant, plausible candidate left: stop")
             break

@@ -84,3 +84,40 @@ def test_untied_already_nothing_to_untie(tmp_path, capsys):
     write_untied(tmp_path / "data", 5, 0.5)
     out = run_json(capsys, "diagnose", tmp_path / "data", "--no-tie-hip-yaw-pitch")
     assert "untie_shared_motors" not in {c["effect"] for c in out["candidates"]}
+
+
+def write_stretched(path, seed, factor):
+    """A robot whose L board is printed `factor` times larger than dataset.json says (a square size off)."""
+    import copy
+
+    from solver.model import Model
+    from solver.registry import Registry
+
+    rng = np.random.default_rng(seed)
+    truth = random_truth(rng)
+    data = synthesize(rng, truth, pixel_noise_px=NOISE_PX)
+    printed = copy.copy(data)
+    rows = data.target[data.image_of_row] == "L"
+    centre = data.p_mount[rows].mean(axis=0)
+    printed.p_mount = data.p_mount.copy()
+    printed.p_mount[rows] = centre + (data.p_mount[rows] - centre) * np.array([factor, factor, 1.0])
+    registry = Registry()
+    values = registry.from_dict(truth)
+    data.uv_px = data.uv_px + Model(printed, registry).residuals(values) - Model(data, registry).residuals(values)
+    write_dataset(dataset_parts(data, pixel_noise_px=NOISE_PX), path)
+
+
+def test_diagnose_names_a_board_that_is_not_as_printed(tmp_path, capsys):
+    write_stretched(tmp_path / "data", 5, 1.01)
+    out = run_json(capsys, "diagnose", tmp_path / "data")
+    top = out["candidates"][0]
+    assert top["effect"] == "rigid_board" and top["significant"] and top["assumption"].startswith("each board")
+    assert top["predicted_rms_px"] < 1.2 * NOISE_PX
+    # the L board's half-length is 62.5 mm: 1 % larger moves its edge by 0.625 mm; the R board stays
+    assert top["predicted_values"]["board_shape.L.stretch_long"] == pytest.approx(0.625e-3, abs=0.05e-3)
+    assert abs(top["predicted_values"]["board_shape.R.stretch_long"]) < 0.05e-3
+    assert out["verdict"]["commands"] == [] and "square_m" in out["verdict"]["remedy"]  # no model takes it up
+    assert main(["diagnose", str(tmp_path / "data")]) == 0
+    verdict = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("verdict:"))
+    assert "contradict an assumption of the model: each board is flat and as printed" in verdict
+    assert "L.stretch_long +0.6" in verdict and "naocal identify" not in verdict

@@ -63,8 +63,9 @@ def test_json_names_the_hidden_effect_and_it_goes_quiet_once_added(elastic_datas
     assert top["predicted_rms_px"] < 0.2 * min(out["rms_px"])
     ranked = [c["excess_rss_px2"] for c in out["candidates"] if c["testable"]]
     assert ranked == sorted(ranked, reverse=True)
-    assert {c["effect"] for c in out["candidates"]} == set(EXTRA_EFFECTS) | {"untie_shared_motors"}  # every
-    # candidate effect, and the default model's tie of the HipYawPitch pair, tested as a candidate that unties it
+    assert {c["effect"] for c in out["candidates"]} == set(EXTRA_EFFECTS) | {"untie_shared_motors", "rigid_board"}
+    # every candidate effect, and the default model's assumptions (the tie of the HipYawPitch pair, the boards as
+    # printed), each tested as a candidate that drops it
 
     after = diagnose_json(capsys, elastic_dataset, "--effects", "elasticity")
     assert max(after["rms_px"]) < 1.2 * NOISE_PX

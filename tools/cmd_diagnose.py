@@ -118,7 +118,8 @@ def run(args) -> int:
         out["report"] = None if report_path is None else str(report_path)
         best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
         out["verdict"] = {"add": None if best is None else best.effect,
-                          "commands": [] if best is None else list(next_commands(
+                          "remedy": None if best is None else best.remedy or None,
+                          "commands": [] if best is None or best.remedy else list(next_commands(
                               diagnosis, best, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
                               tied=args.tie_hip_yaw_pitch is not False))}
         print(json.dumps(json_safe(out), indent=1))
@@ -271,6 +272,10 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
                       "stand-in or of implausible size); the model explains the data")
                      + (" to the noise level." if c.ratio_to_noise < 1.5 else
                         " as far as these candidates go (the remaining misfit is something else)."))
+    elif best.remedy:  # an assumption no model can drop: named, with what to do
+        lines.append(f"verdict: the data contradict an assumption of the model: {best.assumption} "
+                     f"({_top_values(best, res.registry)}; predicted RMS without it {best.predicted_rms_px:.3f} px): "
+                     f"{best.remedy}")
     else:
         identify_command, diagnose_command = next_commands(diagnosis, best, dataset_path=dataset_path, fixed=fixed,
                                                            angles=angles, tied=tied)
@@ -292,12 +297,14 @@ def _top_values(candidate, registry, count=3) -> str:
     from solver.diagnostics import registry_with
     from solver.offsets import COMPENSATED_PREFIXES, shown_name
 
+    from solver.effect import shown
+
     tied_to = {p.name: p.tied_to for p in registry.parameters if p.tied_to}
-    registry = registry_with(registry, candidate)
+    registry = registry if candidate.remedy else registry_with(registry, candidate)
     items = sorted(candidate.predicted_values.items(), key=lambda kv: -abs(kv[1]))[:count]
     parts = []
     for name, value in items:
-        value, unit = registry.display(name, value)
+        value, unit = registry.display(name, value) if name in registry.index else shown(value, "m")
         label = shown_name(name) if name.startswith(COMPENSATED_PREFIXES) else name.split(".", 1)[1]
         if candidate.assumption and name in tied_to:  # untied: the step is how far it moves from its partner
             label += " - " + shown_name(tied_to[name])

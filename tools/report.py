@@ -56,7 +56,9 @@ def write_report(out_dir, diagnosis, *, identify_fit, identify_command=None, dat
     out.mkdir(parents=True, exist_ok=True)
     result = diagnosis.result
     data = result.model.data
-    top = next((c for c in diagnosis.candidates if c.testable and c.significant and c.plausible), None)
+    # the top candidate a model can take (an assumption only a measurement can settle has no 'after' fit)
+    top = next((c for c in diagnosis.candidates if c.testable and c.significant and c.plausible and not c.remedy),
+               None)
     fits = {}
 
     def fit_of(candidate):
@@ -81,7 +83,7 @@ def write_report(out_dir, diagnosis, *, identify_fit, identify_command=None, dat
     figures["scatter.png"] = _scatter(result, after, top)
     figures["vectors.png"] = _vectors(result, after, top)
     figures["stances.png"] = _stances(diagnosis)
-    for k, cand in enumerate([c for c in diagnosis.candidates if c.testable][:top_count]):
+    for k, cand in enumerate([c for c in diagnosis.candidates if c.testable and not c.remedy][:top_count]):
         fit = fit_of(cand)
         # (an assumption's candidate adds no term: no partial residuals to show)
         fig = _regressor_view(fit.result, cand.effect) if fit is not None and not cand.assumption else None
@@ -356,6 +358,11 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
     else:
         verdict = ("No candidate effect is significant: the model explains these data "
                    + ("to the noise level." if c.ratio_to_noise < 1.5 else "as far as the candidates go."))
+    settled = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
+    if settled is not None and settled.remedy and (top is None or settled.excess_rss_px2 > top.excess_rss_px2):
+        verdict = (f"The data contradict an assumption of the model: <b>{e(settled.assumption)}</b> (predicted RMS "
+                   f"without it {_fmt(settled.predicted_rms_px)} px; noise floor {_fmt(c.noise_px)} px): "
+                   f"{e(settled.remedy)}. " + (verdict if top is not None else ""))
     parts.append(f"<p class=verdict>{verdict}</p>")
 
     parts.append("<h2>Compare</h2><table>"
