@@ -121,3 +121,21 @@ def test_diagnose_names_a_board_that_is_not_as_printed(tmp_path, capsys):
     verdict = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("verdict:"))
     assert "contradict an assumption of the model: each board is flat and as printed" in verdict
     assert "L.stretch_long +0.6" in verdict and "naocal identify" not in verdict
+
+
+def test_diagnose_names_an_angle_hypothesis_the_data_contradict(tmp_path, capsys):
+    """--angles measured on a robot whose quantised readings lie (the servo stands at its command): the RMS is
+    within the quantisation floor, so no candidate is significant, but the asked hypothesis is not the data's."""
+    rng = np.random.default_rng(8)
+    data = synthesize(rng, random_truth(rng), pixel_noise_px=NOISE_PX, encoder_resolution_rad=math.radians(0.5))
+    write_dataset(dataset_parts(data, pixel_noise_px=NOISE_PX), tmp_path / "data")
+    out = run_json(capsys, "diagnose", tmp_path / "data", "--angles", "measured")
+    check = out["angles_contradicted"]
+    assert check["assumed"] == "measured" and check["preferred"] == "cell"
+    assert check["rms_px"]["cell"] < 1.2 * NOISE_PX < check["rms_px"]["measured"]
+    assert check["command"].endswith("--angles auto")
+    assert main(["diagnose", str(tmp_path / "data"), "--angles", "measured"]) == 0
+    text = capsys.readouterr().out
+    assert "assumption contradicted: the joint angles are the readings (--angles measured); the data fit the " \
+           "command inside the reading's step better" in text
+    assert run_json(capsys, "diagnose", tmp_path / "data", "--angles", "cell")["angles_contradicted"] is None

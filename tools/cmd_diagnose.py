@@ -89,6 +89,7 @@ def run(args) -> int:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
     diagnosis = diagnose_result(result, pixel_noise_px=noise, capture_time_s=capture_times(dataset, result))
+    angles_contradicted = angle_check(dataset, fit, effects, args, dataset_path)
     report_path = None
     if args.report:
         from tools.report import write_report
@@ -117,6 +118,7 @@ def run(args) -> int:
         out["model_parameters"] = out.pop("parameters")
         out["report"] = None if report_path is None else str(report_path)
         best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
+        out["angles_contradicted"] = angles_contradicted  # None: as asked, or chosen by the fit (--angles auto)
         out["verdict"] = {"add": None if best is None else best.effect,
                           "remedy": None if best is None else best.remedy or None,
                           "commands": [] if best is None or best.remedy else list(next_commands(
@@ -126,9 +128,45 @@ def run(args) -> int:
     else:
         print(format_text(diagnosis, fit, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
                           tied=args.tie_hip_yaw_pitch is not False))
+        if angles_contradicted:
+            print(f"assumption contradicted: {angles_contradicted['text']}: {angles_contradicted['command']}")
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
+
+
+def angle_check(dataset, fit, effects, args, dataset_path) -> dict | None:
+    """The angle hypothesis as an assumption: with --angles given (one hypothesis fitted), fit every hypothesis as
+    `--angles auto` does; when the data prefer another one (solver.fit's choice, its margin), say which, with the
+    RMS of each and the command that lets the data choose. None when the asked one is the data's choice too, or
+    with --angles auto (the fit chose already: its evidence is in the COMPARE section)."""
+    import shlex
+
+    from solver.fit import HYPOTHESIS_WORDS, identify_dataset
+
+    if args.angles == "auto":
+        return None
+    every = identify_dataset(dataset, effects, angles="auto", moving="all", fixed=args.fix,
+                             tie_shared_motors=args.tie_hip_yaw_pitch is not False)
+    if every.angles == fit.angles:
+        return None
+    rms = {h.mode: h.rms_px for h in every.hypotheses}
+    options = model_options(args)
+    return {"assumed": fit.angles, "preferred": every.angles, "rms_px": rms,
+            "text": f"the joint angles are {HYPOTHESIS_WORDS[fit.angles]} (--angles {fit.angles}); the data fit "
+                    f"{HYPOTHESIS_WORDS[every.angles]} better ({rms[every.angles]:.3f} px against "
+                    f"{rms[fit.angles]:.3f} px)",
+            "command": shlex.join(["naocal", "diagnose", str(dataset_path), *options, "--angles", "auto"])}
+
+
+def model_options(args) -> list[str]:
+    """The model options of this diagnose run other than --angles (for the command that lets the data choose)."""
+    options = ["--effects", args.effects] if args.effects else []
+    for name in args.fix:
+        options += ["--fix", name]
+    if args.tie_hip_yaw_pitch is False:
+        options.append("--no-tie-hip-yaw-pitch")
+    return options
 
 
 def capture_times(dataset, result):
