@@ -16,10 +16,14 @@ Sections of the output:
            parameters would fit of pure noise, with the RMS predicted after adding it, a significance test
            clustered by stance (images of one stance share their errors; Bonferroni over the candidates,
            family-wise level 0.001) and its uniqueness (share of its signature the model cannot already produce;
-           near 0: these data can hardly tell it apart, whatever its p-value).
-Add the top significant candidate with `naocal identify DATASET --effects NAME` (its cv_rms_px shows the error on
-stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both commands, ready to
-paste (with --fix for the candidate's parameters these data cannot tell from the model).
+           near 0: these data can hardly tell it apart, whatever its p-value). The default model's assumptions
+           are candidates too, each dropped by its candidate: untie_shared_motors (the HipYawPitch pair's one
+           offset; dropped by --no-tie-hip-yaw-pitch) and rigid_board (each board flat and as printed; no model
+           drops it: the verdict says what to measure). With --angles X, the other angle hypotheses are fitted
+           too and a better one is named ("assumption contradicted").
+Add the top significant candidate with `naocal identify DATASET --effects NAME --out offsets.json` (its cv_rms_px
+shows the error on stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both
+commands, ready to paste (with --fix for the candidate's parameters these data cannot tell from the model).
 DATASET is a dataset directory or a `naocal calibrate --out` directory (its dataset/ is used).
 Exit 0 on success, 2 on bad input, 3 if the fit fails.
 """
