@@ -428,6 +428,8 @@ def implausibility(result, name: str) -> str:
 
 
 def _no_signal_hint(effect: str) -> str:
+    if effect in ASSUMPTIONS:  # e.g. the tie when only one leg's board was seen
+        return "the data do not excite the parameters dropping it frees"
     return EFFECTS[effect].no_signal_hint
 
 

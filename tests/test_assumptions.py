@@ -46,6 +46,7 @@ def test_diagnose_names_the_tie_and_its_command_fits_to_the_noise_floor(tmp_path
     assert top["predicted_rms_px"] < 1.2 * NOISE_PX
     step = top["predicted_values"]["joint_offset.RHipYawPitch"]  # how far R moves from L
     assert math.degrees(step) == pytest.approx(difference_deg, abs=0.05)
+    assert out["verdict"]["add"] is None and out["verdict"]["drop_assumption"] == "untie_shared_motors"
     identify_command, diagnose_command = out["verdict"]["commands"]
     assert identify_command.endswith("--no-tie-hip-yaw-pitch --out offsets.json")
 
@@ -117,6 +118,7 @@ def test_diagnose_names_a_board_that_is_not_as_printed(tmp_path, capsys):
     assert top["predicted_values"]["board_shape.L.stretch_long"] == pytest.approx(0.625e-3, abs=0.05e-3)
     assert abs(top["predicted_values"]["board_shape.R.stretch_long"]) < 0.05e-3
     assert out["verdict"]["commands"] == [] and "square_m" in out["verdict"]["remedy"]  # no model takes it up
+    assert out["verdict"]["add"] is None and out["verdict"]["drop_assumption"] == "rigid_board"
     assert main(["diagnose", str(tmp_path / "data")]) == 0
     verdict = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("verdict:"))
     assert "contradict an assumption of the model: each board is flat and as printed" in verdict

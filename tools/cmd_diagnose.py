@@ -123,7 +123,8 @@ def run(args) -> int:
         out["report"] = None if report_path is None else str(report_path)
         best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
         out["angles_contradicted"] = angles_contradicted  # None: as asked, or chosen by the fit (--angles auto)
-        out["verdict"] = {"add": None if best is None else best.effect,
+        out["verdict"] = {"add": None if best is None or best.assumption else best.effect,  # an effect to add
+                          "drop_assumption": best.effect if best is not None and best.assumption else None,
                           "remedy": None if best is None else best.remedy or None,
                           "commands": [] if best is None or best.remedy else list(next_commands(
                               diagnosis, best, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
