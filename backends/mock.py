@@ -72,9 +72,10 @@ from solver.transforms import invert_transform, rot_x, rot_y, rot_z
 # The effects the mock simulates (solver/effects/ modules with a mock injection) and the unit of their size.
 EFFECT_UNITS = {name: e.mock_size_unit for name, e in MODEL_EFFECTS.items() if e.mock_size_unit is not None}
 EFFECTS = tuple(EFFECT_UNITS)
-TRUTH_SCHEMA = "naocal.truth/2"  # /1 had one camera_rotation_rad {roll, pitch, yaw}: the bottom camera's
+from solver.offsets import TRUTH_EFFECTS_SCHEMA, TRUTH_SCHEMAS  # noqa: E402 (their reader's home)
+
+TRUTH_SCHEMA = TRUTH_SCHEMAS[0]  # /1 had one camera_rotation_rad {roll, pitch, yaw}: the bottom camera's
 CAMERAS = ("bottom", "top")
-TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"
 MOCK_SETUP = Setup.everything()  # what the effects' injections are drawn for: the NAO, both cameras, its targets
 FRAME_PERIOD_S = 1.0 / 30.0
 FRAME_PHASE_S = 0.004  # exposure times are FRAME_PHASE_S + k * FRAME_PERIOD_S

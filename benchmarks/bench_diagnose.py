@@ -62,26 +62,29 @@ def main():
           f"{result.rms_px[0]:.3f} / {result.rms_px[1]:.3f} px (hidden elasticity)")
 
     rank_candidates(result)  # warm-up
-    times = []
+    times, cpu = [], []
     for _ in range(args.repeats):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         ranking = rank_candidates(result)
         times.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
     fast = statistics.median(times)
 
     start = time.perf_counter()
-    refit = refit_every_candidate(result, [c.effect for c in ranking if c.testable])
+    # the effects (the model's assumptions are candidates too: untie_shared_motors is only tested on a tied model,
+    # rigid_board has no model to refit)
+    refit = refit_every_candidate(result, [c.effect for c in ranking if c.testable and not c.assumption])
     slow = time.perf_counter() - start
 
     print(f"\n{'candidate':18s} {'predicted RMS':>14s} {'refit RMS':>10s} {'p-value':>9s} {'uniqueness':>10s}")
     for c in ranking:
-        print(f"{c.effect:18s} {c.predicted_rms_px:11.3f} px {refit[c.effect]:7.3f} px {c.p_value:9.1e} "
-              f"{c.uniqueness:10.3f}")
-    order_fast = [c.effect for c in ranking]
+        print(f"{c.effect:18s} {c.predicted_rms_px:11.3f} px {refit.get(c.effect, float('nan')):7.3f} px "
+              f"{c.p_value:9.1e} {c.uniqueness:10.3f}")
+    order_fast = [c.effect for c in ranking if c.effect in refit]
     order_slow = sorted(refit, key=refit.get)
     print(f"\nbest candidate: score test {order_fast[0]}, refitting {order_slow[0]}")
-    print(f"naocal rank_candidates ({len(ranking)} candidates): median {fast * 1e3:.1f} ms over {args.repeats} runs "
-          f"(target < 1000 ms)")
+    print(f"naocal rank_candidates ({len(ranking)} candidates): median {fast * 1e3:.1f} ms wall, "
+          f"{statistics.median(cpu) * 1e3:.1f} ms CPU over {args.repeats} runs (target < 1000 ms)")
     print(f"straightforward (refit each, finite differences): {slow:.2f} s")
     print(f"speed-up: {slow / fast:.0f}x")
 

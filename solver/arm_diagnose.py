@@ -258,7 +258,8 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                         " among these candidates (the misfit above the noise is something else)."))
     else:
         lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
-                     f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert))
+                     f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert)
+                     + " --out calibration.json")  # identify writes with --out
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

@@ -33,8 +33,9 @@ from solver.scoretest import (RANK_TOLERANCE, _orthonormal_basis, _per_image_sum
 # FAMILY_ALPHA / (number of candidates tested) (Bonferroni). 0.001: a still robot with a complete model should
 # almost never be told to add a term.
 FAMILY_ALPHA = 1e-3
-# Physically plausible size of each candidate's parameters (absolute value, SI; each effect's `plausible_limit`):
-# beyond it a significant candidate is probably standing in for something else.
+# Physically plausible size of each candidate's parameters (absolute value, SI; each effect's `plausible_limit`,
+# and its sign: `plausible_min`, Effect.implausibility): beyond it a significant candidate is probably standing in
+# for something else.
 PLAUSIBLE_LIMITS = {name: e.plausible_limit for name, e in EFFECTS.items() if not e.base}
 # Below this uniqueness the data can hardly tell a candidate from what the model already has.
 LOW_UNIQUENESS = 0.05
@@ -43,7 +44,7 @@ LOW_UNIQUENESS = 0.05
 # axis tilt of 1.5 deg made camera_translation "significant" for 14 % of the misfit; a real hidden camera
 # translation, intrinsics or head offset explains nearly all of it).
 STAND_IN_SHARE = 0.5
-# A predicted value is implausible only when it is beyond the effect's limit by more than this many of its
+# A predicted value is implausible only when it is beyond the effect's range by more than this many of its
 # standard deviations: the one-step prediction of a weakly excited parameter (an ankle roll's compliance, which
 # feels little torque) swings far while a large misfit remains, without saying anything about its size.
 PLAUSIBLE_Z = 3.0
@@ -167,6 +168,8 @@ class Candidate:
     stand_in: bool = False  # low uniqueness and little of the misfit explained (STAND_IN_SHARE): not named
     no_signal: list = field(default_factory=list)  # parameters the data do not excite at all
     inside_model: list = field(default_factory=list)  # parameters the fitted model already contains (uniqueness 0)
+    assumption: str = ""  # not an effect to add: an assumption of the model the candidate drops (ASSUMPTIONS)
+    remedy: str = ""  # what to do when no model can drop the assumption (no command then); '' when a model can
 
     def as_dict(self) -> dict:
         return {
@@ -177,7 +180,7 @@ class Candidate:
             "predicted_rms_xy_px": list(self.predicted_rms_xy_px), "statistic": self.statistic,
             "plausible": self.plausible, "implausible": self.implausible, "stand_in": self.stand_in,
             "no_signal": self.no_signal,
-            "inside_model": self.inside_model,
+            "inside_model": self.inside_model, "assumption": self.assumption or None, "remedy": self.remedy or None,
             "predicted_values": self.predicted_values, "parameter_uniqueness": self.parameter_uniqueness,
         }
 
@@ -233,16 +236,17 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
     candidates that cannot be tested come last, with the reason.
     """
     data = result.model.data
-    candidates = candidate_effects(result.registry) if candidates is None else tuple(candidates)
+    if candidates is None:
+        candidates = candidate_effects(result.registry) + candidate_assumptions(result.registry)
+    candidates = tuple(candidates)
+    assumptions = [c for c in candidates if c in ASSUMPTIONS]
+    candidates = tuple(c for c in candidates if c not in ASSUMPTIONS)
     reasons = {e: untestable_reason(e, data) for e in candidates}
     testable = [e for e in candidates if not reasons[e]]
     out = [Candidate(e, False, reason=reasons[e]) for e in candidates if reasons[e]]
-    if not testable:
-        return out
     ext = _Extension(result, testable, clusters)
     r = ext.residual
     rss = float(r @ r)
-    n = len(r)
     free_names = ext.registry.free_names
     J_tilde = _project_off(ext.Q, ext.J[:, [i for e in testable for i in ext.columns[e]]])
     offset = 0
@@ -251,42 +255,12 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
         cols = ext.columns[effect]
         Jk, Jt = ext.J[:, cols], J_tilde[:, offset:offset + len(cols)]
         offset += len(cols)
-        names = [free_names[i] for i in cols]
-        norm2, left2 = np.sum(Jk ** 2, axis=0), np.sum(Jt ** 2, axis=0)
-        excited = norm2 > 1e-24 * max(norm2.max(initial=0.0), 1e-300)
-        # A column the fitted model already contains (e.g. backlash of a joint always approached from one side
-        # is a joint offset) leaves only rounding error after the projection: no information, not tested.
-        live = excited & (left2 > RANK_TOLERANCE * norm2)
-        candidate = Candidate(effect, True, parameters=tuple(names),
-                              no_signal=[n for n, ok in zip(names, excited) if not ok],
-                              inside_model=[n for n, e, ok in zip(names, excited, live) if e and not ok])
-        if not np.any(live):
-            candidate.testable = False
-            candidate.reason = ("no signal in these data (" + _no_signal_hint(effect) + ")" if not np.any(excited)
-                                else "these data cannot tell it from the model's parameters (uniqueness 0)")
-            out.append(candidate)
-            continue
-        test = score_test(Jt[:, live], r, ext.clusters, Q=ext.Q)
-        live_names = [n for n, ok in zip(names, live) if ok]
-        live_scales = ext.scales[np.array(cols)[live]]
-        r_after = r + Jt[:, live] @ test.step
-        candidate.dof = test.dof
-        candidate.delta_rss_px2 = test.delta_rss
-        candidate.excess_rss_px2 = test.delta_rss - test.noise_rss if np.isfinite(test.noise_rss) else test.delta_rss
-        candidate.predicted_rms_px = float(np.sqrt(max(rss - test.delta_rss, 0.0) / n))
-        candidate.predicted_rms_xy_px = (rms(r_after[0::2]), rms(r_after[1::2]))
-        candidate.predicted_values = {nm: float(v) for nm, v in zip(live_names, test.step * live_scales)}
-        candidate.statistic, candidate.p_value = test.statistic, test.p_value
-        candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
-        candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
-        limit = EFFECTS[effect].plausible_limit
-        std = np.nan_to_num(test.step_std * live_scales, nan=0.0) if test.step_std is not None else 0 * live_scales
-        candidate.implausible = [nm for nm, v, s in zip(live_names, test.step * live_scales, std)
-                                 if abs(v) - PLAUSIBLE_Z * s > limit]
-        candidate.stand_in = bool(candidate.uniqueness < LOW_UNIQUENESS
-                                  and candidate.excess_rss_px2 < STAND_IN_SHARE * rss)
-        candidate.plausible = not candidate.implausible and not candidate.stand_in
-        scored.append(candidate)
+        candidate = _scored(Candidate(effect, True), [free_names[i] for i in cols], Jk, Jt, ext.scales[cols], ext,
+                            rss)
+        (scored if candidate.testable else out).append(candidate)
+    for name in assumptions:
+        candidate = ASSUMPTIONS[name].score(result, ext, rss)
+        (scored if candidate.testable else out).append(candidate)
     threshold = family_alpha / max(len(scored), 1)
     for c in scored:
         c.significant = bool(np.isfinite(c.p_value) and c.p_value < threshold)
@@ -294,7 +268,168 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
     return scored + out
 
 
+def _scored(candidate: Candidate, names, Jk, Jt, scales, ext, rss: float) -> Candidate:
+    """`candidate` scored: the score test of the block Jk (its columns at their scales `scales`, named `names`),
+    Jt the block projected off the fitted model (ext.Q), against the fit's residuals (ext.residual)."""
+    r, n = ext.residual, len(ext.residual)
+    effect = candidate.effect
+    norm2, left2 = np.sum(Jk ** 2, axis=0), np.sum(Jt ** 2, axis=0)
+    excited = norm2 > 1e-24 * max(norm2.max(initial=0.0), 1e-300)
+    # A column the fitted model already contains (e.g. backlash of a joint always approached from one side
+    # is a joint offset) leaves only rounding error after the projection: no information, not tested.
+    live = excited & (left2 > RANK_TOLERANCE * norm2)
+    candidate.parameters = tuple(names)
+    candidate.no_signal = [nm for nm, ok in zip(names, excited) if not ok]
+    candidate.inside_model = [nm for nm, e, ok in zip(names, excited, live) if e and not ok]
+    if not np.any(live):
+        candidate.testable = False
+        candidate.reason = ("no signal in these data (" + _no_signal_hint(effect) + ")" if not np.any(excited)
+                            else "these data cannot tell it from the model's parameters (uniqueness 0)")
+        return candidate
+    test = score_test(Jt[:, live], r, ext.clusters, Q=ext.Q)
+    live_names = [nm for nm, ok in zip(names, live) if ok]
+    live_scales = np.asarray(scales)[live]
+    r_after = r + Jt[:, live] @ test.step
+    candidate.dof = test.dof
+    candidate.delta_rss_px2 = test.delta_rss
+    candidate.excess_rss_px2 = test.delta_rss - test.noise_rss if np.isfinite(test.noise_rss) else test.delta_rss
+    candidate.predicted_rms_px = float(np.sqrt(max(rss - test.delta_rss, 0.0) / n))
+    candidate.predicted_rms_xy_px = (rms(r_after[0::2]), rms(r_after[1::2]))
+    candidate.predicted_values = {nm: float(v) for nm, v in zip(live_names, test.step * live_scales)}
+    candidate.statistic, candidate.p_value = test.statistic, test.p_value
+    candidate.uniqueness = float(left2[excited].sum() / norm2[excited].sum())
+    candidate.parameter_uniqueness = {nm: float(a / b) for nm, a, b in zip(live_names, left2[live], norm2[live])}
+    std = np.nan_to_num(test.step_std * live_scales, nan=0.0) if test.step_std is not None else 0 * live_scales
+    candidate.implausible = [nm for nm, v, sd in zip(live_names, test.step * live_scales, std)
+                             if _implausible_value(candidate, nm, float(v), float(sd), ext.registry.setup)]
+    candidate.stand_in = bool(candidate.uniqueness < LOW_UNIQUENESS and candidate.excess_rss_px2 < STAND_IN_SHARE * rss)
+    candidate.plausible = not candidate.implausible and not candidate.stand_in
+    return candidate
+
+
+def _implausible_value(candidate: Candidate, name: str, value: float, std: float, setup) -> str:
+    """Why a candidate's predicted value is not physics: its effect's word (an assumption's: the effect that owns
+    the parameter it frees)."""
+    effect = EFFECTS.get(candidate.effect) or owner_of(name, setup)
+    return effect.implausibility(value, std, PLAUSIBLE_Z) if effect is not None else ""
+
+
+# --------------------------------------------------------------------------------------------- assumptions
+
+
+class SharedMotorTie:
+    """The assumption that joints on one motor take one offset (the NAO's LHipYawPitch and RHipYawPitch: one
+    motor, one sensor; Registry(tie_shared_motors=True), the default). Tested as a candidate that unties them: the
+    block is d r / d (each follower's own offset) at the fit, the same score test as every effect's; significant
+    means the data want the two offsets apart (a worn coupling, a team's separate calibration values)."""
+
+    name = "untie_shared_motors"
+    words = "joints on one motor take one offset"
+
+    def applies(self, registry) -> bool:
+        return registry.tie_shared_motors and any(p.tied_to for p in registry.parameters)
+
+    def registry(self, registry) -> Registry:
+        """The model without the assumption: every joint its own offset."""
+        return registry.untied()
+
+    def score(self, result, ext, rss: float) -> Candidate:
+        base = result.registry
+        untied = self.registry(base)
+        values = untied.from_dict(base.as_dict(result.values))
+        r, J = Model(result.model.data, untied).evaluate(values)
+        followers = [p.name for p in base.parameters if p.tied_to]
+        cols = [untied.free_names.index(n) for n in followers]
+        scales = untied.scales[untied.free_index][cols]
+        Jk = untied.free_jacobian(J.reshape(len(ext.residual), -1))[:, cols] * scales
+        return _scored(Candidate(self.name, True, assumption=self.words), followers, Jk, _project_off(ext.Q, Jk),
+                       scales, ext, rss)
+
+
+class RigidBoard:
+    """The assumption that each board is flat and as printed: its vertices where the dataset's nominal positions
+    (square size, layout) put them, in every image. Tested as a candidate that lets each board's shape change the
+    same way in every image: stretched along each of its axes (a square size or a printer's scale off) and bowed
+    out of its plane (a sandal bent, quadratic in the board's coordinates: along each side, twisted), 5 parameters
+    per board, each the displacement (m) at the board's edge. The block is d r / d shape at the fit: the model's
+    pixels per vertex displacement (differences of the model itself) times each shape's displacement field. Nothing
+    in the model can take it up: the verdict names the board and what to measure."""
+
+    name = "rigid_board"
+    words = "each board is flat and as printed"
+    SHAPES = ("stretch_long", "stretch_short", "bow_long", "bow_short", "twist")  # along its longer, shorter side
+    SCALE_M = 1e-3  # a typical deformation at the board's edge
+    STEP_M = 1e-6  # the difference step of the vertex positions
+
+    def applies(self, registry) -> bool:
+        return True
+
+    def registry(self, registry) -> Registry:
+        raise ValueError("no model parameter frees a board's shape")
+
+    def score(self, result, ext, rss: float) -> Candidate:
+        import copy
+
+        data, registry = result.model.data, result.registry
+        base = result.model.residuals(result.values)
+        pixels_per_m = []  # (N, 2) per metre of vertex displacement along each axis of the frame it is attached to
+        for axis in range(3):
+            moved = copy.copy(data)
+            moved.p_mount = data.p_mount + self.STEP_M * np.eye(3)[axis]
+            pixels_per_m.append((Model(moved, registry).residuals(result.values) - base) / self.STEP_M)
+        target_of_row = data.target[data.image_of_row]
+        columns, names = [], []
+        for target in dict.fromkeys(data.target.tolist()):
+            rows = target_of_row == target
+            fields = self._fields(data, rows)
+            for shape, field_m in zip(self.SHAPES, fields):
+                column = np.zeros_like(base)
+                column[rows] = sum(pixels_per_m[k][rows] * field_m[:, k:k + 1] for k in range(3))
+                columns.append(column.reshape(-1))
+                names.append(f"board_shape.{target}.{shape}")
+        scales = np.full(len(names), self.SCALE_M)
+        Jk = np.column_stack(columns) * scales
+        candidate = Candidate(self.name, True, assumption=self.words, remedy=self.REMEDY)
+        return _scored(candidate, names, Jk, _project_off(ext.Q, Jk), scales, ext, rss)
+
+    REMEDY = ("measure the board: a stretch is its square size off (dataset.json targets.<target>.square_m), a bow "
+              "a bent board (flatten or replace it); no model parameter takes it up")
+
+    @staticmethod
+    def _fields(data, rows) -> list:
+        """(N_rows, 3) displacement of each row's vertex per metre of each shape at the board's edge, in the frame
+        the target is attached to: the board's axes from its own vertices (principal axes; the normal the third)."""
+        points = data.p_mount[rows]
+        _, first = np.unique(data.vertex[rows], return_index=True)
+        corners = points[first]
+        centre = corners.mean(axis=0)
+        _, _, axes = np.linalg.svd(corners - centre)
+        e1, e2, normal = axes
+        a, b = (points - centre) @ e1, (points - centre) @ e2
+        a, b = a / max(np.abs(a).max(), 1e-9), b / max(np.abs(b).max(), 1e-9)  # -1..1 across the board
+        return [a[:, None] * e1, b[:, None] * e2, (a ** 2)[:, None] * normal, (b ** 2)[:, None] * normal,
+                (a * b)[:, None] * normal]
+
+
+ASSUMPTIONS = {a.name: a for a in (SharedMotorTie(), RigidBoard())}
+
+
+def candidate_assumptions(registry: Registry) -> tuple[str, ...]:
+    """The assumptions of a model with `registry` that the diagnostics test (each as a candidate that drops it)."""
+    return tuple(name for name, a in ASSUMPTIONS.items() if a.applies(registry))
+
+
+def implausibility(result, name: str) -> str:
+    """Why a fitted parameter's value is not physics ('' if it may be): its effect's word (a negative compliance, a
+    play beyond any servo's), beyond PLAUSIBLE_Z of its standard deviations (Effect.implausibility)."""
+    p = result.registry.parameter(name)
+    std = float(result.std[result.registry.index[name]])
+    return EFFECTS[p.effect].implausibility(result.value(name), std, PLAUSIBLE_Z)
+
+
 def _no_signal_hint(effect: str) -> str:
+    if effect in ASSUMPTIONS:  # e.g. the tie when only one leg's board was seen
+        return "the data do not excite the parameters dropping it frees"
     return EFFECTS[effect].no_signal_hint
 
 
@@ -581,7 +716,8 @@ def forward_selection(data: ModelData, registry: Registry | None = None, *, max_
     tried = set()
     for _ in range(max_steps):
         last = steps[-1]
-        choice = next((c for c in last.candidates if c.significant and c.plausible and c.effect not in tried), None)
+        choice = next((c for c in last.candidates if c.significant and c.plausible and not c.remedy
+                       and c.effect not in tried), None)
         if choice is None:
             last.notes.append("no significant, plausible candidate left: stop")
             break
@@ -617,7 +753,10 @@ def _without(registry: Registry, effect: str) -> Registry:
 
 
 def registry_with(registry: Registry, candidate: Candidate) -> Registry:
-    """`registry` plus the candidate's effect, its parameters that the data cannot tell from the model fixed."""
+    """`registry` plus the candidate's effect, its parameters that the data cannot tell from the model fixed (an
+    assumption's candidate: the model without the assumption)."""
+    if candidate.effect in ASSUMPTIONS:
+        return ASSUMPTIONS[candidate.effect].registry(registry)
     extended = registry.extended((candidate.effect,))
     return extended.with_fixed(candidate.inside_model) if candidate.inside_model else extended
 

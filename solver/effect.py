@@ -211,6 +211,8 @@ class Effect:
     base: bool = False  # part of the paper's base model
     summary: str = ""  # one line for --help and docs
     plausible_limit: float = math.inf  # |value| beyond it (SI) a candidate is probably standing in for something else
+    plausible_min: float = -math.inf  # the smallest value that is physics (SI; a play or a compliance is never < 0)
+    plausible_min_why: str = ""  # why, for people ("a compliance is never negative")
     non_rigid: bool = False  # it changes the projection, not the targets' poses: the noise floor removes it
     reading_offsets: bool = False  # its parameters are offsets of the joints' readings (d r / d theta_j = -d r / dc)
     uses_velocity: bool = False  # it models captures taken while the joints move (solver.fit fits them only then)
@@ -222,8 +224,12 @@ class Effect:
     # The mock: the unit of `--effect NAME=SIZE` (None: the mock does not simulate this effect), and the number of
     # its random stream (None: one derived from the name; the older effects keep the numbers they had).
     mock_size_unit: str | None = None
-    mock_size_min: float = -math.inf  # the smallest size that is physics (a play or a compliance is never negative)
     mock_stream: int | None = None
+
+    @property
+    def mock_size_min(self) -> float:
+        """The smallest `--effect NAME=SIZE` the mock takes: the smallest value that is physics."""
+        return self.plausible_min
 
     # -- parameters
 
@@ -252,6 +258,20 @@ class Effect:
         return []
 
     # -- diagnostics
+
+    def implausibility(self, value: float, std: float = 0.0, z: float = 3.0) -> str:
+        """Why a fitted value (SI) of one of this effect's parameters is not physics, '' when it may be: below
+        plausible_min, or beyond plausible_limit, by more than z of its standard deviations (a weakly determined
+        value may stray that far by chance)."""
+        std = std if math.isfinite(std) else 0.0
+        if value + z * std < self.plausible_min:
+            return f"implausible: below {self.plausible_min:g}" + (f" ({self.plausible_min_why})"
+                                                                   if self.plausible_min_why else "")
+        if abs(value) - z * std > self.plausible_limit:
+            params = self.parameters(Setup.default())
+            limit, unit = self.display(params[0], self.plausible_limit) if params else (self.plausible_limit, "")
+            return f"implausible: beyond +-{limit:.3g} {unit}".rstrip()
+        return ""
 
     def untestable_reason(self, data) -> str:
         """Why the effect cannot be tested (or fitted) on these data ('' if it can)."""

@@ -64,8 +64,11 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
         limit = MAX_CAMERA_TRANSLATION_M
     elif group == "board":
         limit = MAX_BOARD_ROT_Z_RAD if member.endswith("rot_z") else MAX_BOARD_TRANS_M
-    else:
+    else:  # the file limit of the effect's section (what write_offsets would refuse), else the unit's
+        owner = _owner(name)
         limit = MAX_PARAMETER_SIZE.get(unit, math.inf)
+        if owner is not None and owner.offsets_section is not None:
+            limit = min(limit, owner.offsets_limit)
     if not math.isfinite(value):
         return f"{name} is not a finite number"
     if not math.isfinite(std):
@@ -75,6 +78,15 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
             return f"{name} = {math.degrees(value):.4g} deg is beyond any NAO's (at most {math.degrees(limit):g} deg)"
         return f"{name} = {value:.4g} {unit} is beyond any NAO's (at most {limit:g} {unit})"
     return None
+
+
+def _owner(name: str):
+    """The effect that owns a registry parameter name of the NAO (every camera and target), or None."""
+    from solver.effect import Setup
+    from solver.effects import owner_of
+    from solver.robot import nao
+
+    return owner_of(name, Setup.everything(nao()))
 
 
 def implausible_parameters(parameters: dict) -> str | None:
@@ -199,7 +211,7 @@ class Offsets:
     def from_dict(cls, doc, path="<offsets>") -> Offsets:
         """Validate a JSON document of either version (see `validate`) and build the Offsets."""
         if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
-            return _from_v1(_validated_fields(doc, path))
+            return _from_v1(_validated_fields(doc, path), path)
         return cls(**_validated_fields_v2(doc, path))
 
     def joint_offset(self, joint: str) -> float:
@@ -436,7 +448,7 @@ def validate(doc, path="<offsets>") -> None:
     """Raise DataError (naming the field path, e.g. body.joint_offsets_rad.LHipPitch) if `doc` is not a valid file
     of either version."""
     if isinstance(doc, dict) and doc.get("schema") == SCHEMA_V1:
-        _validated_fields(doc, path)
+        _from_v1(_validated_fields(doc, path), path)
     else:
         _validated_fields_v2(doc, path)
 
@@ -469,11 +481,13 @@ def _validated_fields_v2(doc, path) -> dict:
     for section, key in (("body", "joint_offsets_rad"), ("head", "camera_rotation_rad")):
         if key not in sections[section]:
             _fail(path, "missing required field", f"{section}.{key}")
+    model = _validated_model_v2(doc["model"], path, robot)
+    check_one_value(sections, model["parameters"], robot, path)
     return {
         "robot": dict(robot_meta),
         "created": _created(doc["created"], path),
         **sections,
-        "model": _validated_model_v2(doc["model"], path, robot),
+        "model": model,
         "fit": _validated_fit(doc["fit"], path),
         "source": copy.deepcopy(_object(doc["source"], path, "source")),
     }
@@ -513,19 +527,34 @@ def _v1_parameter_name(name: str) -> str:
     return name
 
 
-def _from_v1(fields: dict) -> Offsets:
-    """The Offsets a validated version 1 file stands for (its numbers unchanged; parameters renamed, alpha -> c)."""
+def _from_v1(fields: dict, path=None) -> Offsets:
+    """The Offsets a validated version 1 file stands for (its numbers unchanged; parameters renamed, alpha -> c);
+    with `path`, DataError when its two copies of a value disagree (`check_one_value`)."""
     parameters = {}
     for name, entry in fields["model"]["parameters"].items():
         entry = dict(entry)
         if name.startswith(("joint_offset.", "head_offset.")):
             entry["value"] = -entry["value"]  # version 1 stored the model's alpha; the parameter is now c
         parameters[_v1_parameter_name(name)] = entry
+    sections = {"body": {"joint_offsets_rad": fields["joint_offsets_rad"]},
+                "head": {"camera_rotation_rad": fields["camera_rotation_rad"]},
+                "targets": {"board_mount": fields["board_mount"]}}
+    from solver.effect import Setup
+    from solver.robot import load_robot
+
+    robot = load_robot("nao")
+    if path is not None:
+        v1_names = {_v1_parameter_name(name): name for name in fields["model"]["parameters"]}
+        check_one_value(sections, parameters, robot, path,
+                        section_field=lambda section, keys: ".".join(keys),  # version 1: no section level
+                        parameter_field=lambda name: v1_names.get(name, name), only_keys_held=True)
+    # the sections version 1 did not have (the effects'), as version 2 writes them
+    derived = sections_from_values({name: e["value"] for name, e in parameters.items()}, Setup.everything(robot))
+    for section, content in derived.items():
+        for key, value in content.items():
+            sections[section].setdefault(key, value)
     return Offsets(
-        robot={**fields["robot"], "description": "nao"}, created=fields["created"],
-        body={"joint_offsets_rad": fields["joint_offsets_rad"]},
-        head={"camera_rotation_rad": fields["camera_rotation_rad"]},
-        targets={"board_mount": fields["board_mount"]},
+        robot={**fields["robot"], "description": "nao"}, created=fields["created"], **sections,
         fit=fields["fit"], model={"effects": fields["model"]["effects"], "parameters": parameters},
         source=fields["source"], read_schema=SCHEMA_V1)
 
@@ -576,6 +605,66 @@ def _robot(robot: dict, description: str) -> dict:
     return {**{k: robot.get(k) for k in ROBOT_KEYS}, "description": robot.get("description", description)}
 
 
+def sections_from_values(values: dict, setup) -> dict:
+    """{"body", "head", "targets"}: the sections each effect writes from registry-named values {name: value} (the
+    one derivation of the people's sections from model.parameters: the writer uses it, the reader checks it)."""
+    sections = {"body": {}, "head": {}, "targets": {}}
+    for effect in EFFECTS.values():
+        if effect.offsets_section is None:
+            continue
+        content = effect.write_offsets(values, setup)
+        if content:
+            sections[effect.offsets_section].setdefault(effect.offsets_key, {}).update(content)
+    return sections
+
+
+def _leaves(tree, prefix=()):
+    """{(key, ...): number} of a nested section."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in _leaves(sub, prefix + (key,)).items()}
+    return {prefix: tree}
+
+
+def check_one_value(sections: dict, parameters: dict, robot, path, *, section_field=None, parameter_field=None,
+                    only_keys_held: bool = False):
+    """DataError unless every number the sections hold for a parameter of model.parameters is that parameter's value.
+
+    A file holds each fitted value twice: in model.parameters (with its std) and in the people's sections (body,
+    head, targets), which `sections_from_values` derives from it. An edited file whose two copies disagree (show,
+    export and apply read the sections, verify the parameters) is refused naming both fields, as the arm's file is
+    (solver.arm_calibration). section_field(section, key path) and parameter_field(name) name a field as the
+    file spells it (version 1: no section level, older parameter names); sections: {"body", "head", "targets"}.
+    only_keys_held: compare only the keys the file's sections have (version 1 had no section for the effects).
+    """
+    from solver.effect import Setup
+
+    section_field = section_field or (lambda section, keys: ".".join((section,) + keys))
+    parameter_field = parameter_field or (lambda name: name)
+    setup = Setup.everything(robot)
+    values = {name: float(entry["value"]) for name, entry in parameters.items()}
+    # which parameter each derived number comes from: its own (one number) before a partner it follows (two)
+    source = {}
+    for name in sorted(values, key=lambda n: len(_leaves(sections_from_values({n: 1.0}, setup)))):
+        for section, content in sections_from_values({name: 1.0}, setup).items():
+            for keys in _leaves(content):
+                source.setdefault((section,) + keys, name)
+    derived = sections_from_values(values, setup)
+    for section in ("body", "head", "targets"):
+        held = _leaves(sections.get(section, {}))
+        for keys, value in _leaves(derived[section]).items():
+            if only_keys_held and keys[0] not in sections.get(section, {}):
+                continue
+            name = source[(section,) + keys]
+            where = section_field(section, keys)
+            if keys not in held:
+                _fail(path, f"missing, though model.parameters.{parameter_field(name)} holds its value "
+                            f"({value!r}): the file contradicts itself", where)
+            if abs(float(held[keys]) - value) > 1e-12 * max(1.0, abs(value)):
+                _fail(path, f"{held[keys]!r} disagrees with model.parameters.{parameter_field(name)}.value = "
+                            f"{value!r}: the file contradicts itself (edit both, or write it again with naocal)",
+                      where)
+
+
 def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects=(), source: dict | None = None,
                             created: str | None = None, description: str = "nao") -> Offsets:
     """Build an Offsets from registry-named model parameters {name: {"value", "std", "unit"}}: each effect that owns
@@ -584,19 +673,10 @@ def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects
     model.parameters; `effects` are the extra effects of the model.
     """
     from solver.effect import Setup
-    from solver.effects import EFFECTS
     from solver.robot import load_robot
 
     setup = Setup.everything(load_robot(description))
-    values = {name: float(entry["value"]) for name, entry in parameters.items()}
-    sections = {"body": {}, "head": {}, "targets": {}}
-    for effect in EFFECTS.values():
-        if effect.offsets_section is None:
-            continue
-        content = effect.write_offsets(values, setup)
-        if content:
-            merged = sections[effect.offsets_section].setdefault(effect.offsets_key, {})
-            merged.update(content)
+    sections = sections_from_values({name: float(entry["value"]) for name, entry in parameters.items()}, setup)
     sections["body"].setdefault("joint_offsets_rad", {})
     sections["head"].setdefault("camera_rotation_rad", {})
     model = {"effects": list(effects),
@@ -673,3 +753,88 @@ def shown_name(name: str) -> str:
     """How people see a model parameter: joint_offset.<J> and head_offset.<J> as 'c <J>' (they are the stored
     offset c, value unchanged); every other parameter under its own name."""
     return "c " + name.split(".", 1)[1] if name.startswith(COMPENSATED_PREFIXES) else name
+
+
+# ------------------------------------------------------------------------------------- the simulator's truth
+
+TRUTH_SCHEMAS = ("naocal.truth/2", "naocal.truth/1")  # the mock's hidden truth (backends/mock.py writes /2)
+TRUTH_EFFECTS_SCHEMA = "naocal.truth_effects/1"  # what each injected effect drew, beside truth.json
+# truth_effects.json records that are per-joint values of a model parameter: effect -> the record's key
+TRUTH_EFFECT_RECORDS = {"elasticity": "compliance_rad_per_nm", "backlash": "half_play_rad"}
+
+
+def is_truth_file(path) -> bool:
+    """Whether `path` is a simulator's truth.json (its schema), without failing on anything else."""
+    try:
+        doc = read_json(path)
+    except (DataError, OSError):
+        return False
+    return isinstance(doc, dict) and doc.get("schema") in TRUTH_SCHEMAS
+
+
+def read_truth(path) -> tuple[Offsets, list[str]]:
+    """The simulator's hidden truth (truth.json, and truth_effects.json beside it when there) as an Offsets whose
+    model.parameters are the true values with std 0: joint offsets c = -alpha (the mock's sign), camera rotations,
+    board mounts, and the per-joint effects of TRUTH_EFFECT_RECORDS. Also the notes on what it does not compare
+    (the other injected effects). DataError naming the file and field for anything else."""
+    from solver.effect import Setup
+    from solver.robot import nao
+
+    path = Path(path)
+    doc = _object(read_json(path), path, "(top level)")
+    if doc.get("schema") not in TRUTH_SCHEMAS:
+        _fail(path, f"expected a simulator's truth ({' or '.join(TRUTH_SCHEMAS)})", "schema")
+    setup = Setup.everything(nao())
+    units = {p.name: p.unit for e in EFFECTS.values() for p in e.parameters(setup)}
+    values = {}
+    for joint, alpha in _object(doc.get("alpha_rad"), path, "alpha_rad").items():
+        alpha = _number(alpha, path, f"alpha_rad.{joint}", limit=MAX_JOINT_OFFSET_RAD)
+        for name in (f"joint_offset.{joint}", f"head_offset.{joint}"):
+            if name in units and (alpha != 0.0 or name.startswith("joint_offset.")):
+                values[name] = -alpha  # the mock's alpha: q_true = servo + alpha; c = -alpha
+        if not any(n in units for n in (f"joint_offset.{joint}", f"head_offset.{joint}")):
+            _fail(path, "unknown joint", f"alpha_rad.{joint}")
+    cameras = _object(doc.get("camera_rotation_rad"), path, "camera_rotation_rad")
+    if "pitch" in cameras:  # naocal.truth/1: the bottom camera's
+        cameras = {"bottom": cameras}
+    for camera, angles in cameras.items():
+        for a in CAMERA_ANGLES:
+            where = f"camera_rotation_rad.{camera}.{a}"
+            values[f"camera.{camera}.{a}"] = _number(_object(angles, path, f"camera_rotation_rad.{camera}").get(a),
+                                                     path, where, limit=MAX_CAMERA_ROTATION_RAD)
+    for target, mount in _object(doc.get("board_mount"), path, "board_mount").items():
+        mount = _object(mount, path, f"board_mount.{target}")
+        for key, short, _ in (("rot_z_rad", "rot_z", 0), ("trans_x_m", "trans_x", 0), ("trans_y_m", "trans_y", 0)):
+            values[f"board.{target}.{short}"] = _number(mount.get(key), path, f"board_mount.{target}.{key}",
+                                                        limit=BOARD_LIMITS[key], unit=key.rsplit("_", 1)[1])
+    notes = []
+    injected = _object(doc.get("effects", {}), path, "effects")
+    records_path = path.with_name("truth_effects.json")
+    records = {}
+    if records_path.is_file():
+        records_doc = _object(read_json(records_path), records_path, "(top level)")
+        if records_doc.get("schema") != TRUTH_EFFECTS_SCHEMA:
+            _fail(records_path, f"expected {TRUTH_EFFECTS_SCHEMA!r}", "schema")
+        records = _object(records_doc.get("effects", {}), records_path, "effects")
+        if "realism" in records_doc:
+            notes.append(f"the realistic mock's own errors ({records_path.name}: realism) are not compared")
+    for effect in injected:
+        key = TRUTH_EFFECT_RECORDS.get(effect)
+        if key is None or effect not in records:
+            notes.append(f"the injected {effect} is not compared" + ("" if key is None else
+                                                                     f" ({records_path.name} is missing)"))
+            continue
+        table = _object(_object(records[effect], records_path, f"effects.{effect}").get(key), records_path,
+                        f"effects.{effect}.{key}")
+        for joint, value in table.items():
+            name = f"{EFFECTS[effect].parameters(setup)[0].name.split('.')[0]}.{joint}"
+            if name not in units:
+                _fail(records_path, "unknown joint", f"effects.{effect}.{key}.{joint}")
+            values[name] = _number(value, records_path, f"effects.{effect}.{key}.{joint}",
+                                   limit=MAX_PARAMETER_SIZE[units[name]], unit=units[name])
+    parameters = {name: {"value": v, "std": 0.0, "unit": units[name]} for name, v in values.items()}
+    offsets = offsets_from_parameters(parameters, robot={"id": "simulated", "body_id": None, "head_id": None},
+                                      fit={"rms_px": [0.0, 0.0], "n_vertices": 0, "n_images": 0},
+                                      effects=[e for e in injected if e in TRUTH_EFFECT_RECORDS],
+                                      source={"truth": str(path)}, created=utc_now_iso())
+    return offsets, notes

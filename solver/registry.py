@@ -77,6 +77,10 @@ class Registry:
         return Registry(self.effects + tuple(e for e in effects if e not in self.effects), setup=self.setup,
                         tie_shared_motors=self.tie_shared_motors, fixed=sorted(self.fixed))
 
+    def untied(self) -> "Registry":
+        """A copy whose shared motors' joints each have their own offset (the same effects and fixed parameters)."""
+        return Registry(self.effects, setup=self.setup, tie_shared_motors=False, fixed=sorted(self.fixed))
+
     def with_fixed(self, more) -> "Registry":
         """A copy with more parameters fixed (used to drop unidentifiable ones)."""
         return Registry(self.effects, setup=self.setup, tie_shared_motors=self.tie_shared_motors,

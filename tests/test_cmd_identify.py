@@ -56,6 +56,9 @@ def test_table_output_names_the_weak_pitch_chain(synthetic_dataset, capsys):
     assert main(["identify", str(path), "--cv-folds", "0"]) == 0
     text = capsys.readouterr().out
     assert "c LKneePitch" in text and "weakest directions" in text
+    # without --out nothing is written, and the table does not say otherwise (it said "stored in offsets.json")
+    assert "joint offsets c (not stored: --out FILE writes them; ADDED to commands" in text
+    assert "stored in" not in text
 
 
 def test_the_table_prints_the_stored_offset_c_labelled_as_everywhere(synthetic_dataset, tmp_path, capsys):
@@ -64,7 +67,7 @@ def test_the_table_prints_the_stored_offset_c_labelled_as_everywhere(synthetic_d
     out = tmp_path / "offsets.json"
     assert main(["identify", str(path), "--cv-folds", "0", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings" in text
+    assert f"joint offsets c (stored in {out}; ADDED to commands, SUBTRACTED from readings" in text
     assert "joint_offset." not in text  # the model's alpha names stay inside the model (and --json)
     stored = read_offsets(out).joint_offsets_rad
     for joint, c in stored.items():
@@ -139,3 +142,25 @@ def test_the_command_line_uses_one_blas_thread_unless_told(preset, expected):
     code = "import os, tools.cli, numpy; print(os.environ['OPENBLAS_NUM_THREADS'])"
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stdout.strip() == expected, proc.stderr
+
+
+@pytest.mark.parametrize("effects", [",,,", "elasticity,,backlash", "elasticity,", " , "])
+@pytest.mark.parametrize("verb", ["identify", "diagnose"])
+def test_a_list_option_with_an_empty_name_is_refused_not_the_default(synthetic_dataset, capsys, verb, effects):
+    """`--effects ,,,` silently fitted the base model (issue 21): a list that says nothing is bad input."""
+    path, _ = synthetic_dataset
+    assert main([verb, str(path), "--effects", effects]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and "Traceback" not in captured.err
+    assert f"--effects {effects!r}: an empty name" in captured.err
+
+
+def test_the_arms_list_options_refuse_an_empty_name_too(tmp_path, capsys):
+    from solver.errors import NaocalError
+    from tools.arm_cli import parse_arm_effects
+
+    with pytest.raises(NaocalError, match="--effects ',,': an empty name"):
+        parse_arm_effects(",,")
+    assert main(["simulate", "--robot", "kuka_iiwa", "--out", str(tmp_path / "x"), "--hidden", ",,"]) == 2
+    assert "--hidden ',,': an empty name" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

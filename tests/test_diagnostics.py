@@ -222,6 +222,9 @@ def test_stepwise_selection_drops_a_stand_in(monkeypatch):
         calls.append(1)
         if len(calls) == 1:
             ranking.sort(key=lambda c: c.effect != "elasticity")
+            # (a stand-in compliance comes out negative on some joint, so it is implausible now that effects say
+            # their sign (issue 21) and would never get in: forced plausible, to test how it is dropped)
+            ranking[0].plausible, ranking[0].significant = True, True
         return ranking
 
     monkeypatch.setattr(diagnostics, "rank_candidates", elasticity_first)
@@ -246,7 +249,8 @@ def test_untestable_candidates_are_listed_with_the_reason():
     ranking = rank_candidates(identify(still, Registry()))
     lag = next(c for c in ranking if c.effect == "time_lag")
     assert not lag.testable and "vel_" in lag.reason
-    assert ranking[-1] is lag and {c.effect for c in ranking} == set(EXTRA_EFFECTS)
+    assert ranking[-1] is lag and {c.effect for c in ranking} == set(EXTRA_EFFECTS) | {"rigid_board"}  # (and
+    # the default model's assumptions: Registry() does not tie the HipYawPitch pair; the boards are always assumed)
     # Velocities recorded but all zero: testable in principle, no signal.
     still.velocity = np.zeros((still.n_images, 14))
     lag = next(c for c in rank_candidates(identify(still, Registry())) if c.effect == "time_lag")

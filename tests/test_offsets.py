@@ -275,7 +275,18 @@ def test_head_offsets_and_joints_not_calibrated_are_optional(offsets_file):
     doc = json.loads(offsets_file.read_text())
     for joint in HEAD_JOINTS + ("LAnkleRoll",):
         del doc["body"]["joint_offsets_rad"][joint]
+        for prefix in ("joint_offset.", "head_offset."):  # not calibrated: in neither copy
+            doc["model"]["parameters"].pop(prefix + joint, None)
     validate(doc)
+
+
+def test_a_joint_left_out_of_one_copy_only_is_refused(offsets_file):
+    """model.parameters still holds LAnkleRoll's value: the section's silence would contradict it."""
+    doc = json.loads(offsets_file.read_text())
+    del doc["body"]["joint_offsets_rad"]["LAnkleRoll"]
+    with pytest.raises(DataError, match=r"body.joint_offsets_rad.LAnkleRoll.*missing.*"
+                                        r"model.parameters.joint_offset.LAnkleRoll"):
+        validate(doc)
 
 
 @pytest.mark.parametrize("cut", [0, 1, 50, 400, -2])
@@ -341,3 +352,12 @@ def test_a_fit_the_file_could_not_hold_is_implausible():
     assert implausible_parameter("camera.top.yaw", MAX_CAMERA_ROTATION_RAD * 0.99, 1e-4, "rad") is None
     assert "joint_offset.LHipPitch" in implausible_parameter("joint_offset.LHipPitch", MAX_JOINT_OFFSET_RAD * 1.5,
                                                              1e-4, "rad")
+
+
+def test_a_result_beyond_a_sections_file_limit_is_implausible_not_a_write_error():
+    """identify checks a result with implausible_parameter before writing: it must hold the file's own limits (an
+    elasticity of 1.47 rad/(N m) passed it, then failed as bad input while being written)."""
+    from solver.offsets import implausible_parameter
+
+    assert "at most 1 rad/(N m)" in implausible_parameter("elasticity.RAnkleRoll", 1.47, 0.1, "rad/(N m)")
+    assert implausible_parameter("elasticity.RAnkleRoll", 0.5, 0.1, "rad/(N m)") is None

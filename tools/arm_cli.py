@@ -28,11 +28,12 @@ def wants_arm(args) -> bool:
 
 def parse_arm_effects(text: str):
     from solver.arm import DEFAULT_EFFECTS, EFFECTS
+    from solver.effects import comma_list
     from solver.errors import NaocalError
 
     if not text:
         return DEFAULT_EFFECTS
-    names = [n.strip() for n in text.split(",") if n.strip()]
+    names = comma_list(text, "--effects")
     for name in names:
         if name not in EFFECTS:
             raise NaocalError(f"--effects: unknown arm effect {name!r} (expected {', '.join(EFFECTS)})")
@@ -256,7 +257,9 @@ def run_simulate(args) -> int:
     from solver.arm_dataset import PYBULLET_ARMS, resolve_robot
     from solver.errors import NaocalError
 
-    hidden = tuple(h for h in args.hidden.split(",") if h)
+    from solver.effects import comma_list
+
+    hidden = tuple(comma_list(args.hidden, "--hidden")) if args.hidden else ()
     for h in hidden:
         if h not in ("joint_offsets", "link_lengths"):
             raise NaocalError(f"--hidden: unknown error {h!r} (expected joint_offsets, link_lengths)")

@@ -198,16 +198,15 @@ def write_run_report(report, out, ctx) -> str | None:
 
     from agent.rundir import find_dataset
     from solver.errors import NaocalError
-    from tools.cmd_diagnose import diagnose_dataset
-    from tools.report import write_report
+    from tools.cmd_diagnose import diagnose_dataset, write_diagnosis_report
 
     if ctx.measurement is None:
         print("naocal calibrate: no report: the measurement did not finish", file=sys.stderr)
         return None
     try:
         dataset_path = find_dataset(out)
-        _, diagnosis = diagnose_dataset(dataset_path)
-        print(f"report: {write_report(report, diagnosis, dataset_path=dataset_path)}")
+        dataset, _, diagnosis = diagnose_dataset(dataset_path)
+        print(f"report: {write_diagnosis_report(report, diagnosis, dataset, dataset_path)}")
     except NaocalError as err:
         print(f"naocal calibrate: error: report not written: {err}", file=sys.stderr)
         return str(err)

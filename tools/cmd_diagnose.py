@@ -3,6 +3,7 @@
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
 from solver.fileio import json_safe
+
 from tools.cmd_identify import add_angles_option, add_tie_option, effect_names
 
 EPILOG = """\
@@ -17,10 +18,14 @@ Sections of the output:
            parameters would fit of pure noise, with the RMS predicted after adding it, a significance test
            clustered by stance (images of one stance share their errors; Bonferroni over the candidates,
            family-wise level 0.001) and its uniqueness (share of its signature the model cannot already produce;
-           near 0: these data can hardly tell it apart, whatever its p-value).
-Add the top significant candidate with `naocal identify DATASET --effects NAME` (its cv_rms_px shows the error on
-stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both commands, ready to
-paste (with --fix for the candidate's parameters these data cannot tell from the model).
+           near 0: these data can hardly tell it apart, whatever its p-value). The default model's assumptions
+           are candidates too, each dropped by its candidate: untie_shared_motors (the HipYawPitch pair's one
+           offset; dropped by --no-tie-hip-yaw-pitch) and rigid_board (each board flat and as printed; no model
+           drops it: the verdict says what to measure). With --angles X, the other angle hypotheses are fitted
+           too and a better one is named ("assumption contradicted").
+Add the top significant candidate with `naocal identify DATASET --effects NAME --out offsets.json` (its cv_rms_px
+shows the error on stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both
+commands, ready to paste (with --fix for the candidate's parameters these data cannot tell from the model).
 DATASET is a dataset directory or a `naocal calibrate --out` directory (its dataset/ is used).
 Exit 0 on success, 2 on bad input, 3 if the fit fails.
 """
@@ -71,14 +76,14 @@ def run(args) -> int:
     if args.report:
         check_output_directory(args.report)
     dataset_path = find_dataset(args.dataset)
-    fit, diagnosis = diagnose_dataset(dataset_path, effects, angles=args.angles, fixed=args.fix,
-                                      tied=args.tie_hip_yaw_pitch is not False)
+    tied = args.tie_hip_yaw_pitch is not False
+    dataset, fit, diagnosis = diagnose_dataset(dataset_path, effects, angles=args.angles, fixed=args.fix, tied=tied)
     result = fit.result
+    angles_contradicted = angle_check(dataset, fit, effects, args, dataset_path)
     report_path = None
     if args.report:
-        from tools.report import write_report
-
-        report_path = write_report(args.report, diagnosis, dataset_path=dataset_path)
+        report_path = write_diagnosis_report(args.report, diagnosis, dataset, dataset_path, fixed=args.fix,
+                                             angles=args.angles, tied=tied)
     if args.json:
         from tools.cmd_identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
 
@@ -89,22 +94,27 @@ def run(args) -> int:
         out["model_parameters"] = out.pop("parameters")
         out["report"] = None if report_path is None else str(report_path)
         best = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
-        out["verdict"] = {"add": None if best is None else best.effect,
-                          "commands": [] if best is None else list(next_commands(
+        out["angles_contradicted"] = angles_contradicted  # None: as asked, or chosen by the fit (--angles auto)
+        out["verdict"] = {"add": None if best is None or best.assumption else best.effect,  # an effect to add
+                          "drop_assumption": best.effect if best is not None and best.assumption else None,
+                          "remedy": None if best is None else best.remedy or None,
+                          "commands": [] if best is None or best.remedy else list(next_commands(
                               diagnosis, best, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
                               tied=args.tie_hip_yaw_pitch is not False))}
         print(json.dumps(json_safe(out), indent=1))
     else:
         print(format_text(diagnosis, fit, dataset_path=dataset_path, fixed=args.fix, angles=args.angles,
                           tied=args.tie_hip_yaw_pitch is not False))
+        if angles_contradicted:
+            print(f"assumption contradicted: {angles_contradicted['text']}: {angles_contradicted['command']}")
         if report_path is not None:
             print(f"\nreport: {report_path}")
     return 0
 
 
 def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=True):
-    """(the fit, its diagnosis) of the dataset directory `dataset_path` with the model plus `effects`: what
-    `naocal diagnose` prints and reports (and `naocal calibrate --report` for its run's dataset)."""
+    """(the dataset, the fit, its diagnosis) of the dataset directory `dataset_path` with the model plus `effects`:
+    what `naocal diagnose` prints and reports (and `naocal calibrate --report` for its run's dataset)."""
     from solver.adapter import model_data_from_dataset
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result
@@ -124,7 +134,61 @@ def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=
     if not result.success:
         raise SolveError(f"the fit did not converge ({result.message})")
     noise = dataset.meta.get("pixel_noise_px")
-    return fit, diagnose_result(result, pixel_noise_px=noise, capture_time_s=capture_times(dataset, result))
+    return dataset, fit, diagnose_result(result, pixel_noise_px=noise,
+                                         capture_time_s=capture_times(dataset, result))
+
+
+def write_diagnosis_report(report_dir, diagnosis, dataset, dataset_path, *, fixed=(), angles="auto", tied=True):
+    """Write the HTML report of `diagnosis` into `report_dir`; its "after" tables are the fits of the identify
+    commands the verdict prints (identify's own options and path). Returns the report's path."""
+    from tools.report import write_report
+
+    def identify_fit(candidate):
+        from tools.cmd_identify import fit_dataset, parse_options
+
+        return fit_dataset(parse_options(identify_options(diagnosis, candidate, fixed=fixed, angles=angles,
+                                                          tied=tied)), dataset)
+
+    def identify_command(candidate):
+        return next_commands(diagnosis, candidate, dataset_path=dataset_path, fixed=fixed, angles=angles,
+                             tied=tied)[0]
+
+    return write_report(report_dir, diagnosis, dataset_path=dataset_path, identify_fit=identify_fit,
+                        identify_command=identify_command)
+
+
+def angle_check(dataset, fit, effects, args, dataset_path) -> dict | None:
+    """The angle hypothesis as an assumption: with --angles given (one hypothesis fitted), fit every hypothesis as
+    `--angles auto` does; when the data prefer another one (solver.fit's choice, its margin), say which, with the
+    RMS of each and the command that lets the data choose. None when the asked one is the data's choice too, or
+    with --angles auto (the fit chose already: its evidence is in the COMPARE section)."""
+    import shlex
+
+    from solver.fit import HYPOTHESIS_WORDS, identify_dataset
+
+    if args.angles == "auto":
+        return None
+    every = identify_dataset(dataset, effects, angles="auto", moving="all", fixed=args.fix,
+                             tie_shared_motors=args.tie_hip_yaw_pitch is not False)
+    if every.angles == fit.angles:
+        return None
+    rms = {h.mode: h.rms_px for h in every.hypotheses}
+    options = model_options(args)
+    return {"assumed": fit.angles, "preferred": every.angles, "rms_px": rms,
+            "text": f"the joint angles are {HYPOTHESIS_WORDS[fit.angles]} (--angles {fit.angles}); the data fit "
+                    f"{HYPOTHESIS_WORDS[every.angles]} better ({rms[every.angles]:.3f} px against "
+                    f"{rms[fit.angles]:.3f} px)",
+            "command": shlex.join(["naocal", "diagnose", str(dataset_path), *options, "--angles", "auto"])}
+
+
+def model_options(args) -> list[str]:
+    """The model options of this diagnose run other than --angles (for the command that lets the data choose)."""
+    options = ["--effects", args.effects] if args.effects else []
+    for name in args.fix:
+        options += ["--fix", name]
+    if args.tie_hip_yaw_pitch is False:
+        options.append("--no-tie-hip-yaw-pitch")
+    return options
 
 
 def capture_times(dataset, result):
@@ -139,22 +203,34 @@ def capture_times(dataset, result):
     return np.array([t[int(i)] for i in result.model.data.image_id])
 
 
-def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:
-    """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model:
-    its effects plus the candidate, its fixed parameters plus the candidate's that these data cannot tell from
-    the model, the same --angles and --tie-hip-yaw-pitch."""
-    import shlex
-
+def identify_options(diagnosis, candidate, *, fixed=(), angles="auto", tied=True) -> list[str]:
+    """The model options (after DATASET) that add `candidate` to this run's model: its effects plus the candidate,
+    its fixed parameters plus the candidate's that these data cannot tell from the model, the same --angles and
+    --tie-hip-yaw-pitch. Shared by the commands the verdict prints and the report's fit (the same fit)."""
     res = diagnosis.result
-    extra = list(res.registry.extra_effects())
-    options = ["--effects", ",".join(extra + [candidate.effect])]
+    effects = list(res.registry.extra_effects()) + ([] if candidate.assumption else [candidate.effect])
+    options = ["--effects", ",".join(effects)] if effects else []
     for name in list(fixed) + [n for n in candidate.inside_model if n not in fixed]:
         options += ["--fix", name]
     if angles != "auto":
         options += ["--angles", angles]
-    if not tied:
+    if not tied or candidate.effect == "untie_shared_motors":  # the option that drops the tie
         options.append("--no-tie-hip-yaw-pitch")
-    return tuple(shlex.join(["naocal", verb, str(dataset_path), *options]) for verb in ("identify", "diagnose"))
+    return options
+
+
+# where the suggested identify command stores its result (naocal identify prints, and writes only with --out)
+SUGGESTED_OUT = "offsets.json"
+
+
+def next_commands(diagnosis, candidate, *, dataset_path, fixed=(), angles="auto", tied=True) -> tuple[str, str]:
+    """The identify and diagnose commands (shell-quoted, ready to paste) that add `candidate` to this run's model
+    (`identify_options`); identify's stores the result with --out."""
+    import shlex
+
+    options = identify_options(diagnosis, candidate, fixed=fixed, angles=angles, tied=tied)
+    return (shlex.join(["naocal", "identify", str(dataset_path), *options, "--out", SUGGESTED_OUT]),
+            shlex.join(["naocal", "diagnose", str(dataset_path), *options]))
 
 
 def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles="auto", tied=True) -> str:
@@ -235,10 +311,20 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
                       "stand-in or of implausible size); the model explains the data")
                      + (" to the noise level." if c.ratio_to_noise < 1.5 else
                         " as far as these candidates go (the remaining misfit is something else)."))
+    elif best.remedy:  # an assumption no model can drop: named, with what to do
+        lines.append(f"verdict: the data contradict an assumption of the model: {best.assumption} "
+                     f"({_top_values(best, res.registry)}; predicted RMS without it {best.predicted_rms_px:.3f} px): "
+                     f"{best.remedy}")
     else:
         identify_command, diagnose_command = next_commands(diagnosis, best, dataset_path=dataset_path, fixed=fixed,
                                                            angles=angles, tied=tied)
-        lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): {identify_command}")
+        if best.assumption:
+            lines.append(f"verdict: the data contradict an assumption of the model: {best.assumption} "
+                         f"({_top_values(best, res.registry)}; predicted RMS without it {best.predicted_rms_px:.3f} "
+                         f"px): {identify_command}")
+        else:
+            lines.append(f"verdict: add {best.effect} (predicted RMS {best.predicted_rms_px:.3f} px): "
+                         f"{identify_command}")
         lines.append(f"  then diagnose again: {diagnose_command}")
     for warning in res.warnings:
         lines.append(f"warning: {warning}")
@@ -247,13 +333,19 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
 
 def _top_values(candidate, registry, count=3) -> str:
     """The candidate's largest predicted values, as its effect shows them (degrees, mm, ms ...); offsets named as c."""
+    from solver.diagnostics import registry_with
     from solver.offsets import COMPENSATED_PREFIXES, shown_name
 
-    registry = registry.extended((candidate.effect,))
+    from solver.effect import shown
+
+    tied_to = {p.name: p.tied_to for p in registry.parameters if p.tied_to}
+    registry = registry if candidate.remedy else registry_with(registry, candidate)
     items = sorted(candidate.predicted_values.items(), key=lambda kv: -abs(kv[1]))[:count]
     parts = []
     for name, value in items:
-        value, unit = registry.display(name, value)
+        value, unit = registry.display(name, value) if name in registry.index else shown(value, "m")
         label = shown_name(name) if name.startswith(COMPENSATED_PREFIXES) else name.split(".", 1)[1]
+        if candidate.assumption and name in tied_to:  # untied: the step is how far it moves from its partner
+            label += " - " + shown_name(tied_to[name])
         parts.append(f"{label} {value:+.3g}{' ' + unit if unit else ''}")
     return "predicted " + ", ".join(parts)

@@ -79,7 +79,6 @@ def run(args) -> int:
     from solver.effects import EFFECTS, parse_effect_names
     from solver.errors import NaocalError, SolveError
     from solver.fileio import check_output_file
-    from solver.fit import identify_dataset
     from solver.offsets import implausible_parameters
 
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
@@ -94,9 +93,7 @@ def run(args) -> int:
         reason = EFFECTS[name].untestable_reason(data)
         if reason:
             raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
-    fit = identify_dataset(dataset, effects, angles=args.angles, robust=not args.keep_outliers, fixed=args.fix,
-                           tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
-                           loss_scale_px=args.loss_scale_px, gls=args.gls and args.loss == "linear")
+    fit = fit_dataset(args, dataset)
     result, data = fit.result, fit.data
     if not result.success:
         raise SolveError(f"the solve did not converge ({result.message}); nothing written")
@@ -125,8 +122,27 @@ def run(args) -> int:
         if fit.n_moving_set_aside:
             print(f"{fit.n_moving_set_aside} captures taken while moving set aside (only --effects time_lag models "
                   "them)")
-        print(format_table(result, cv_rms))
+        print(format_table(result, cv_rms, args.out))
     return 0
+
+
+def fit_dataset(args, dataset):
+    """The fit `naocal identify` makes of a read dataset with these options (solver.fit.DatasetFit): the one place
+    that turns identify's options into a fit (run, and diagnose's report for the command it suggests)."""
+    from solver.effects import parse_effect_names
+    from solver.fit import identify_dataset
+
+    return identify_dataset(dataset, parse_effect_names(args.effects), angles=args.angles,
+                            robust=not args.keep_outliers, fixed=args.fix,
+                            tie_shared_motors=args.tie_hip_yaw_pitch is not False, solver=args.solver, loss=args.loss,
+                            loss_scale_px=args.loss_scale_px, gls=args.gls and args.loss == "linear")
+
+
+def parse_options(options) -> argparse.Namespace:
+    """identify's options (the words after DATASET, e.g. of a command diagnose suggests) as `run` would see them."""
+    parser = argparse.ArgumentParser(prog="naocal")
+    register(parser.add_subparsers())
+    return parser.parse_args(["identify", "DATASET", *options])
 
 
 def result_json(result, effects, cv_rms) -> dict:
@@ -174,12 +190,13 @@ def joint_offsets_c(result) -> dict:
     return out
 
 
-def format_offsets_c(result) -> list[str]:
-    """The joint offsets as the table every naocal command prints: c, labelled, in degrees."""
+def format_offsets_c(result, out=None) -> list[str]:
+    """The joint offsets as the table every naocal command prints: c, labelled, in degrees; `out` the file they
+    were stored in (None: not stored, and the table says how to)."""
     import math
 
-    lines = ["joint offsets c (stored in offsets.json; ADDED to commands, SUBTRACTED from readings; "
-             "q_true = theta - c):"]
+    stored = f"stored in {out}" if out else "not stored: --out FILE writes them"
+    lines = [f"joint offsets c ({stored}; ADDED to commands, SUBTRACTED from readings; q_true = theta - c):"]
     for joint, entry in joint_offsets_c(result).items():
         fixed = "  (fixed)" if entry["fixed"] else ""
         lines.append(f"  {joint:14s} c = {math.degrees(entry['c_rad']):+8.4f} deg   "
@@ -187,8 +204,9 @@ def format_offsets_c(result) -> list[str]:
     return lines
 
 
-def format_table(result, cv_rms) -> str:
+def format_table(result, cv_rms, out=None) -> str:
     from agent.summary import describe_direction
+    from solver.diagnostics import implausibility
     from solver.offsets import COMPENSATED_PREFIXES
 
     lines = [
@@ -199,7 +217,7 @@ def format_table(result, cv_rms) -> str:
     if cv_rms is not None:
         lines.append(f"cross-validated (whole stances held out): RMS {cv_rms[0]:.3f} px (x), {cv_rms[1]:.3f} px (y)")
     lines.append("")
-    lines += format_offsets_c(result)
+    lines += format_offsets_c(result, out)
     lines.append("")
     lines.append("other parameters (model values: camera rotation and board mount corrections of Eq. 3-4, effects):")
     lines.append(f"{'parameter':30s} {'value':>12s} {'std':>10s}  unit")
@@ -209,7 +227,8 @@ def format_table(result, cv_rms) -> str:
         value, unit = result.registry.display(name, entry["value"])
         std, _ = result.registry.display(name, entry["std"])
         fixed = "  (fixed)" if name in result.registry.fixed else ""
-        lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}")
+        why = implausibility(result, name)
+        lines.append(f"{name:30s} {value:12.4f} {std:10.4f}  {unit}{fixed}" + (f"  {why}" if why else ""))
     lines.append("")
     lines.append(f"condition number (scaled Jacobian): {result.condition_number:.3g}")
     lines.append("weakest directions (what the data determine least; why repeated runs can differ):")

@@ -13,6 +13,8 @@ from tools.columns import number_column as _num, shown_value as _shown  # shared
 COMMANDS_HELP = """commands:
   show FILE                       offsets (deg, with std), camera rotation, board mount, model effects, fit, source
   diff A B                        per-parameter differences; '*' marks |B - A| > sqrt(std_A^2 + std_B^2)
+  diff RESULT RUN/truth.json      a result against the simulator's hidden truth: each parameter's error and
+                                  error / std (z); '*' marks |z| > 3
   validate FILE                   schema, names, units, finite values, plausible sizes: prints 'ok' (exit 0)
                                   or one line with the reason (exit 2)
   export FILE --format FORMAT     bhuman | hulks | naodevils | urdf | json, to stdout or --out; team formats
@@ -82,6 +84,9 @@ def register(subparsers):
         "diff", help="compare two files parameter by parameter",
         description="Per-parameter differences B - A. A '*' marks a difference larger than the combined "
                     "uncertainty sqrt(std_A^2 + std_B^2) (std from model.parameters; 0 where a file has none). "
+                    "One of A, B may be a simulator's truth.json (naocal simulate or calibrate --backend mock; "
+                    "truth_effects.json beside it is read too): then each parameter's error (result - truth) and "
+                    "z = error / the result's std, '*' where |z| > 3. "
                     "Exit code 0 unless --fail-on-difference is given and something is marked (then 1).")
     diff.add_argument("file_a", metavar="A")
     diff.add_argument("file_b", metavar="B")
@@ -280,7 +285,7 @@ def run_show(args, out) -> int:
 
 
 def run_diff(args, out) -> int:
-    from solver.offsets import read_offsets
+    from solver.offsets import is_truth_file, read_offsets, read_truth
     from tools.arm_cli import is_calibration_file
 
     if is_calibration_file(args.file_a) or is_calibration_file(args.file_b):  # an arm's (docs/ARM.md)
@@ -288,9 +293,52 @@ def run_diff(args, out) -> int:
 
         return run_arm_diff(args, out)
 
-    text, marked = format_diff(read_offsets(args.file_a), read_offsets(args.file_b), args.file_a, args.file_b)
+    truth_a, truth_b = is_truth_file(args.file_a), is_truth_file(args.file_b)
+    if truth_a or truth_b:  # a result against the simulator's truth
+        from solver.errors import NaocalError
+
+        if truth_a and truth_b:
+            raise NaocalError(f"{args.file_a}, {args.file_b}: both are a simulator's truth; give a result and a truth")
+        result_path, truth_path = (args.file_b, args.file_a) if truth_a else (args.file_a, args.file_b)
+        truth, notes = read_truth(truth_path)
+        text, marked = format_truth_diff(read_offsets(result_path), truth, result_path, truth_path, notes)
+    else:
+        text, marked = format_diff(read_offsets(args.file_a), read_offsets(args.file_b), args.file_a, args.file_b)
     out.write(text)
     return 1 if (marked and args.fail_on_difference) else 0
+
+
+TRUTH_Z = 3.0  # an error beyond this many of the result's standard deviations is marked against the truth
+
+
+def format_truth_diff(result, truth, result_name: str, truth_name: str, notes=()):
+    """(text, number marked): each parameter's error (result - truth) and z = error / the result's std, '*' where
+    |z| > TRUTH_Z; parameters in one file only listed as such."""
+    rows_r = {label: (unit, value, std) for label, unit, value, std in parameter_rows(result)}
+    rows_t = {label: (unit, value) for label, unit, value, _ in parameter_rows(truth)}
+    out = [f"result = {result_name}", f"truth  = {truth_name} (the simulator's hidden values; joint offsets as c = "
+                                      "-alpha)", f"  {'parameter':<28}{'result':>11}{'truth':>11}{'error':>11}"
+                                                 f"{'std':>10}{'z':>8}  unit"]
+    marked = compared = 0
+    for label in list(rows_r) + [label for label in rows_t if label not in rows_r]:
+        unit = (rows_r.get(label) or rows_t[label])[0]
+        value, std = rows_r[label][1:] if label in rows_r else (None, None)
+        true = rows_t[label][1] if label in rows_t else None
+        error = z = None
+        mark = " (not in the truth)" if true is None else (" (not in the result)" if value is None else "")
+        if value is not None and true is not None:
+            compared += 1
+            error = value - true
+            z = error / std if std else None
+            if z is not None and abs(z) > TRUTH_Z:
+                mark, marked = " *", marked + 1
+        z_text = f"{'-':>8}" if z is None else f"{z:>+8.2f}"
+        out.append(f"  {label:<28}{_num(_shown(value, unit), 11)}{_num(_shown(true, unit), 11)}"
+                   f"{_num(_shown(error, unit), 11)}{_num(_shown(std, unit), 10)}{z_text}  {_unit(unit)}{mark}")
+    out.append(f"{marked} of {compared} parameters are off the truth by more than {TRUTH_Z:g} standard deviations "
+               "(*)")
+    out += [f"note: {n}" for n in notes]
+    return "\n".join(out) + "\n", marked
 
 
 def run_validate(args, out) -> int:

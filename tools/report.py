@@ -37,43 +37,56 @@ def find_image(images_dir: Path, image_id: int) -> Path | None:
     return None
 
 
-def write_report(out_dir, diagnosis, *, dataset_path=None, top_count: int = 2) -> Path:
-    """Write DIR/index.html and its PNGs; returns the path of index.html."""
+def write_report(out_dir, diagnosis, *, identify_fit, identify_command=None, dataset_path=None,
+                 top_count: int = 2) -> Path:
+    """Write DIR/index.html and its PNGs; returns the path of index.html.
+
+    identify_fit(candidate) -> solver.fit.DatasetFit: the fit of the identify command the verdict suggests for
+    the candidate (tools.cmd_diagnose: its options through naocal identify's own path: trimming, angle choice,
+    GLS), so that the page shows the numbers that command prints, not a fit of its own; identify_command(candidate)
+    -> that command's text, shown beside its numbers.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     from solver.crossval import grouped_cv_rms
-    from solver.diagnostics import registry_with
     from solver.errors import NaocalError
-    from solver.identify import identify
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = diagnosis.result
     data = result.model.data
-    top = next((c for c in diagnosis.candidates if c.testable and c.significant and c.plausible), None)
-    after = None
-    if top is not None:
-        after = identify(data, registry_with(result.registry, top))
-        if not after.success:
-            after = None
+    # the top candidate a model can take (an assumption only a measurement can settle has no 'after' fit)
+    top = next((c for c in diagnosis.candidates if c.testable and c.significant and c.plausible and not c.remedy),
+               None)
+    fits = {}
+
+    def fit_of(candidate):
+        """identify's fit with the candidate (None when these data cannot fit it), each made once."""
+        if candidate.effect not in fits:
+            try:
+                fit = identify_fit(candidate)
+            except NaocalError:  # a candidate these data cannot fit: no picture
+                fit = None
+            fits[candidate.effect] = fit if fit is not None and fit.result.success else None
+        return fits[candidate.effect]
+
+    after_fit = fit_of(top) if top is not None else None
+    after = after_fit.result if after_fit is not None else None
     cv_before = cv_after = None
     if len({(t, s) for t, s in zip(data.target, data.stance)}) >= 2:
         cv_before = grouped_cv_rms(data, result.registry)
-        if after is not None:
-            cv_after = grouped_cv_rms(data, after.registry)
+        if after is not None:  # as naocal identify computes its cv_rms_px
+            cv_after = grouped_cv_rms(after_fit.data, after.registry)
 
     figures = {}
     figures["scatter.png"] = _scatter(result, after, top)
     figures["vectors.png"] = _vectors(result, after, top)
     figures["stances.png"] = _stances(diagnosis)
-    for k, cand in enumerate([c for c in diagnosis.candidates if c.testable][:top_count]):
-        try:
-            fit = after if (top is not None and cand.effect == top.effect) else identify(
-                data, registry_with(result.registry, cand))
-        except NaocalError:  # a candidate these data cannot fit: no picture
-            fit = None
-        fig = _regressor_view(fit, cand.effect) if fit is not None and fit.success else None
+    for k, cand in enumerate([c for c in diagnosis.candidates if c.testable and not c.remedy][:top_count]):
+        fit = fit_of(cand)
+        # (an assumption's candidate adds no term: no partial residuals to show)
+        fig = _regressor_view(fit.result, cand.effect) if fit is not None and not cand.assumption else None
         if fig is not None:
             figures[f"regressors_{k + 1}.png"] = fig
     figures["correlation.png"] = _correlation(after or result)
@@ -91,7 +104,9 @@ def write_report(out_dir, diagnosis, *, dataset_path=None, top_count: int = 2) -
         atomic_write_bytes(out / name, png_bytes(fig))
         plt.close(fig)
     index = out / "index.html"
-    atomic_write_text(index, _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path))
+    command = identify_command(top) if identify_command is not None and top is not None else None
+    atomic_write_text(index, _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path,
+                                   command))
     for path in [index] + [out / name for name in figures]:
         path.chmod(0o644)  # a report is for reading and sharing
     return index
@@ -121,7 +136,7 @@ def _figure(width, height):
 
 def _scatter(result, after, top):
     fig = _figure(9, 4.2)
-    fits = [("current model", result)] + ([(f"after adding {top.effect}", after)] if after is not None else [])
+    fits = [("current model", result)] + ([(_after_title(top), after)] if after is not None else [])
     for k, (title, fit) in enumerate(fits):
         ax = fig.add_subplot(1, len(fits), k + 1)
         r = fit.residuals_px
@@ -140,7 +155,7 @@ def _scatter(result, after, top):
 
 
 def _vectors(result, after, top):
-    fits = [("current model", result)] + ([(f"after adding {top.effect}", after)] if after is not None else [])
+    fits = [("current model", result)] + ([(_after_title(top), after)] if after is not None else [])
     fig = _figure(9 if len(fits) > 1 else 5.5, 3.8)
     cameras = result.model.data.cameras.values()
     width, height = max(c.get("width_px", 640) for c in cameras), max(c.get("height_px", 480) for c in cameras)
@@ -255,7 +270,7 @@ def _overlay(path, result, after, top, image_id):
     ax.plot(detected[:, 0], detected[:, 1], "o", mfc="none", mec="lime", ms=7, label="detected")
     predicted = detected + result.residuals_px[rows]
     ax.plot(predicted[:, 0], predicted[:, 1], "+", color="red", ms=8, label="predicted (current model)")
-    if after is not None:
+    if after is not None and np.any(after.model.data.image_id == image_id):  # (identify may set it aside)
         m_after = int(np.flatnonzero(after.model.data.image_id == image_id)[0])
         rows_after = after.model.data.rows_of_images([m_after])
         predicted_after = after.model.data.uv_px[rows_after] + after.residuals_px[rows_after]
@@ -276,21 +291,37 @@ def _fmt(value, digits=3):
     return f"{value:.{digits}f}"
 
 
-def _parameter_rows(fit, only_effect=None):
+def _after_title(top) -> str:
+    """'after adding elasticity', or for an assumption's candidate 'without the assumption: ...'."""
+    return f"without: {top.assumption}" if top.assumption else f"after adding {top.effect}"
+
+
+def _shown_effects(fit, top) -> set:
+    """The effects whose parameters the 'after' table shows: the candidate's, or those of the parameters an
+    assumption's candidate frees (the HipYawPitch pair's joint offsets)."""
+    if top.assumption:
+        return {fit.registry.parameter(n).effect for n in top.parameters if n in fit.registry.index}
+    return {top.effect}
+
+
+def _parameter_rows(fit, only_effects=None):
     """Table rows of the fitted parameters: joint and head offsets named as the stored c they are ('c LHipPitch'),
     the others under their own names."""
+    from solver.diagnostics import implausibility
     from solver.offsets import shown_name
 
     rows = []
     for name, entry in fit.parameters_dict().items():
         effect = fit.registry.parameters[fit.registry.index[name]].effect
-        if only_effect is not None and effect != only_effect:
+        if only_effects is not None and effect not in only_effects:
             continue
         value, unit = fit.registry.display(name, entry["value"])  # as the effect shows it: deg, mm, ms ...
         std, _ = fit.registry.display(name, entry["std"])
         fixed = " (fixed)" if name in fit.registry.fixed else ""
-        rows.append(f"<tr><td>{html.escape(shown_name(name))}</td><td class=n>{value:+.4f}</td>"
-                    f"<td class=n>{std:.4f}</td><td>{html.escape(unit)}{fixed}</td></tr>")
+        why = implausibility(fit, name)
+        rows.append(f"<tr{' class=bad' if why else ''}><td>{html.escape(shown_name(name))}</td>"
+                    f"<td class=n>{value:+.4f}</td><td class=n>{std:.4f}</td><td>{html.escape(unit)}{fixed}</td>"
+                    f"<td>{html.escape(why)}</td></tr>")
     return "\n".join(rows)
 
 
@@ -300,12 +331,13 @@ h1 { font-size: 1.6em; } h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; 
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
 td, th { border: 1px solid #ccc; padding: 0.2em 0.6em; } th { background: #f0f0f0; }
 td.n { text-align: right; font-family: monospace; } tr.sig td { background: #eaf6ea; }
+tr.bad td { background: #fbe3e3; }
 img { max-width: 100%; border: 1px solid #ddd; margin: 0.3em 0; }
 .verdict { background: #fff7e0; border-left: 4px solid #e0a000; padding: 0.6em 1em; }
 """
 
 
-def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path) -> str:
+def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path, identify_command) -> str:
     from agent.summary import describe_direction
 
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
@@ -318,7 +350,9 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
              f"<p>Model: base{e(''.join(' + ' + x for x in extra))}. {data.n_rows} vertices in {data.n_images} "
              f"images.</p>"]
     if top is not None and after is not None:
-        verdict = (f"Add <b>{e(top.effect)}</b>: RMS {_fmt(c.rms_total_px)} px &rarr; "
+        what = (f"The data contradict an assumption of the model: <b>{e(top.assumption)}</b>. Without it"
+                if top.assumption else f"Add <b>{e(top.effect)}</b>")
+        verdict = (f"{what}: RMS {_fmt(c.rms_total_px)} px &rarr; "
                    f"{_fmt(_mean_rms(after.rms_px))} px "
                    f"(fit), predicted {_fmt(top.predicted_rms_px)} px; noise floor {_fmt(c.noise_px)} px.")
         if cv_before is not None and cv_after is not None:
@@ -327,6 +361,11 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
     else:
         verdict = ("No candidate effect is significant: the model explains these data "
                    + ("to the noise level." if c.ratio_to_noise < 1.5 else "as far as the candidates go."))
+    settled = next((x for x in diagnosis.candidates if x.significant and x.plausible), None)
+    if settled is not None and settled.remedy and (top is None or settled.excess_rss_px2 > top.excess_rss_px2):
+        verdict = (f"The data contradict an assumption of the model: <b>{e(settled.assumption)}</b> (predicted RMS "
+                   f"without it {_fmt(settled.predicted_rms_px)} px; noise floor {_fmt(c.noise_px)} px): "
+                   f"{e(settled.remedy)}. " + (verdict if top is not None else ""))
     parts.append(f"<p class=verdict>{verdict}</p>")
 
     parts.append("<h2>Compare</h2><table>"
@@ -399,14 +438,17 @@ def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset
                      f"<td class=n>{cand.dof}</td><td>{e(note)}</td></tr>")
     parts.append("</table>")
 
+    header = "<tr><th>parameter</th><th>value</th><th>std</th><th>unit</th><th>note</th></tr>"
     parts.append("<h2>Parameters</h2><p>Joint offsets as stored: c (added to commands, subtracted from readings; "
                  "q_true = theta - c); camera rotation, board mount and effects as the model's values.</p>"
-                 "<table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>")
+                 f"<table>{header}")
     parts.append(_parameter_rows(res))
     parts.append("</table>")
     if after is not None:
-        parts.append(f"<p>After adding {e(top.effect)} (all parameters refitted):</p><table><tr><th>parameter</th>"
-                     "<th>value</th><th>std</th><th>unit</th></tr>" + _parameter_rows(after, top.effect) + "</table>")
+        parts.append(f"<p>{e(_after_title(top)).capitalize()}: the fit of <code>{e(identify_command or '')}</code> "
+                     "(naocal identify's: corners and images set aside, angles chosen, generalised least squares "
+                     f"where it applies; all parameters refitted):</p><table>{header}"
+                     + _parameter_rows(after, _shown_effects(after, top)) + "</table>")
     weak = "".join(f"<li>relative singular value {w.singular_value:.1e}: {e(describe_direction(w))}</li>"
                    for w in (after or res).weak_directions)
     parts.append(f"<p>Weakest parameter combinations:</p><ul>{weak}</ul>")

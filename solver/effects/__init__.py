@@ -42,12 +42,22 @@ def effect(name: str):
         raise NaocalError(f"unknown effect '{name}' (known: {', '.join(ALL_EFFECTS)})") from None
 
 
+def comma_list(text: str, option: str) -> list[str]:
+    """'a,b' -> ['a', 'b'] (spaces trimmed); NaocalError for an empty name (',,,', 'a,,b', 'a,'): a list that says
+    nothing must not silently mean the default."""
+    names = [n.strip() for n in text.split(",")]
+    if not all(names):
+        raise NaocalError(f"{option} {text!r}: an empty name in the list (names are comma separated, e.g. "
+                          "elasticity,backlash)")
+    return names
+
+
 def parse_effect_names(text) -> tuple[str, ...]:
     """'elasticity,backlash' (or a list of names) -> ('elasticity', 'backlash'): the candidate effects to add to the
     base model; NaocalError for unknown names and for the base model's own effects."""
     if text is None or text == "":
         return ()
-    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text) if n.strip()]
+    names = comma_list(text, "--effects") if isinstance(text, str) else [n.strip() for n in text]
     for name in names:
         if name not in EXTRA_EFFECTS:
             hint = " (it is part of the base model)" if name in BASE_EFFECTS else ""

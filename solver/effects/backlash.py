@@ -22,7 +22,7 @@ class Backlash(Effect):
     offsets_section, offsets_key = "body", "backlash_rad"
     offsets_limit = math.radians(10.0)
     mock_size_unit, mock_stream = "rad", 2
-    mock_size_min = 0.0
+    plausible_min, plausible_min_why = 0.0, "a play is never negative"
 
     def parameters(self, setup):
         return per_joint(self, "backlash", setup.target_joints(), "rad", 0.01)

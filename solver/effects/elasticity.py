@@ -25,7 +25,7 @@ class Elasticity(Effect):
     offsets_section, offsets_key = "body", "elasticity_rad_per_nm"
     offsets_limit = 1.0
     mock_size_unit, mock_stream = "rad/(N m)", 1
-    mock_size_min = 0.0
+    plausible_min, plausible_min_why = 0.0, "a compliance is never negative"
 
     def parameters(self, setup):
         return per_joint(self, "elasticity", setup.target_joints(), "rad/(N m)", 0.02)
