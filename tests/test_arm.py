@@ -346,7 +346,7 @@ def test_diagnose_names_elasticity_under_gravity():
     # the flange's elasticity no pose moves is fixed with it (the fit would stop on it), here and in the command
     assert d.best.inert == ("elasticity.panda_joint7",) and d.heldout_with
     assert format_diagnosis(d, "arm").splitlines()[-2].endswith(
-        "--effects joint_offsets,link_lengths,elasticity --fix elasticity.panda_joint7")
+        "--effects joint_offsets,link_lengths,elasticity --fix elasticity.panda_joint7 --out calibration.json")
 
 
 # ------------------------------------------------------------------------------------------------ the format
