@@ -427,3 +427,42 @@ def test_unexpected_errors_still_give_one_line(monkeypatch, capsys, offsets, err
     assert main(["offsets", "validate", str(offsets)]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"naocal offsets: error: {words}")
+
+
+# --------------------------------------------------------------------- files never destroyed (issue 21)
+
+
+def test_bridge_journal_that_is_not_a_journal_is_refused_untouched(tmp_path):
+    from backends.bridge_lease import LeaseJournal
+    from solver.errors import NaocalError
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    with pytest.raises(NaocalError, match=f"journal {notes}: not a naocal bridge journal"):
+        LeaseJournal(notes).load(replies_kept=32)
+    assert notes.read_text() == "keep me\n"
+    png = tmp_path / "photo.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    with pytest.raises(NaocalError, match="not a naocal bridge journal"):
+        LeaseJournal(png).load(replies_kept=32)
+    assert len(png.read_bytes()) == 108
+
+
+def test_bridge_journal_torn_in_its_first_record_is_still_a_journal(tmp_path):
+    import msgpack
+
+    from backends.bridge_lease import LeaseJournal
+
+    path = tmp_path / "j"
+    path.write_bytes(msgpack.packb({"lease": bytes(32)}, use_bin_type=True)[:12])  # power lost while writing
+    assert LeaseJournal(path).load(replies_kept=32) is None
+    assert path.read_bytes() == b""
+
+
+def test_bridge_serve_journal_onto_a_text_file_is_one_line(tmp_path):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    outcome = fz.run_forked(["bridge", "serve", "--driver", "mock", "--bind", "tcp://127.0.0.1:0", "--journal",
+                             str(notes)], deadline_s=60)
+    assert "not a naocal bridge journal" in one_line_error(outcome, "bridge")
+    assert notes.read_text() == "keep me\n"
