@@ -249,6 +249,13 @@ def _read_json(path: Path):
 # ------------------------------------------------------------------------------------------------- datasets
 
 
+def dataset_files(path) -> list[Path]:
+    """The files a dataset reader reads in the dataset directory `path` (an output must not replace them)."""
+    from solver.dataset import META_FILE, OBSERVATIONS_FILE
+
+    return [Path(path) / META_FILE, Path(path) / OBSERVATIONS_FILE]
+
+
 def find_dataset(path) -> Path:
     """The dataset directory `path` means: `path` itself (dataset.json inside, e.g. from `naocal simulate`) or
     `path`/dataset (a `naocal calibrate --out` directory). NaocalError naming both places looked at."""

@@ -330,7 +330,7 @@ def read_json(path, *, max_bytes: int = MAX_JSON_BYTES):
 
 # ------------------------------------------------------------------------------------------ output paths
 # Checked before any work, so that a run does not compute for a minute and then fail to save, and so that
-# nothing that is not ours (a directory, a FIFO, a device) is replaced.
+# nothing that is not ours (a directory, a FIFO, a device) nor any of the command's inputs is replaced.
 
 
 def _existing_ancestor(path: Path) -> Path:
@@ -348,9 +348,31 @@ def _check_can_create_in(path: Path) -> None:
         raise DataError(path, f"cannot be created: no permission to write in {ancestor}")
 
 
-def check_output_file(path) -> Path:
-    """Raise DataError unless `path` can be written as a file (replacing an existing regular file only)."""
+def check_not_an_input(path, inputs) -> None:
+    """Raise DataError if the output `path` is one of the files `inputs` read: the same file (device and inode)
+    under whatever name, symlink or hard link leads to it. An output never replaces what it is made from."""
+    try:
+        written = os.stat(path)
+    except OSError:
+        return  # not there (or not reachable): it replaces nothing; check_output_file names other problems
+    for source in inputs:
+        if source is None:
+            continue
+        try:
+            same = os.path.samestat(written, os.stat(source))
+        except OSError:
+            continue
+        if same:
+            shown = "" if os.fspath(source) == os.fspath(path) else f" ({source})"
+            raise DataError(path, f"is an input of this command{shown}: refusing to write over it; give another "
+                                  "output name (nothing was changed)")
+
+
+def check_output_file(path, *, inputs=()) -> Path:
+    """Raise DataError unless `path` can be written as a file (replacing an existing regular file only, and never
+    one of the files `inputs` the command reads: check_not_an_input)."""
     path = Path(path)
+    check_not_an_input(path, inputs)
     if os.path.lexists(path):
         try:
             mode = os.stat(path).st_mode

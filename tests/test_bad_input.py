@@ -466,3 +466,53 @@ def test_bridge_serve_journal_onto_a_text_file_is_one_line(tmp_path):
                              str(notes)], deadline_s=60)
     assert "not a naocal bridge journal" in one_line_error(outcome, "bridge")
     assert notes.read_text() == "keep me\n"
+
+
+REAL_IMAGE = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009" / "image_0.png"
+
+
+@pytest.mark.parametrize("how", ["same path", "other path", "symlink", "hard link", "directory"])
+def test_detect_overlay_never_writes_over_an_input_image(tmp_path, how):
+    image = tmp_path / "img.png"
+    shutil.copy(REAL_IMAGE, image)
+    before = image.read_bytes()
+    images, overlay = [str(image)], str(image)
+    if how == "other path":
+        overlay = str(tmp_path / "sub" / ".." / "img.png")
+        (tmp_path / "sub").mkdir()
+    elif how == "symlink":
+        overlay = str(tmp_path / "link.png")
+        os.symlink(image, overlay)
+    elif how == "hard link":
+        overlay = str(tmp_path / "second.png")
+        os.link(image, overlay)
+    elif how == "directory":  # two images, the overlay of the first named like the second
+        shutil.copy(image, tmp_path / "img.corners.png")
+        images, overlay = [str(image), str(tmp_path / "img.corners.png")], str(tmp_path)
+    outcome = fz.run_forked(["detect", *images, "--overlay", overlay], deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "detect")
+    assert image.read_bytes() == before and all(Path(p).read_bytes() == before for p in images)
+
+
+def test_identify_out_onto_its_own_dataset_is_refused(dataset):
+    meta = dataset / "dataset.json"
+    before = meta.read_bytes()
+    outcome = fz.run_forked(["identify", str(dataset), "--out", str(meta)], deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "identify")
+    assert meta.read_bytes() == before and not meta.with_name("dataset.json.bak").exists()
+
+
+@pytest.mark.parametrize("fmt", ["json", "urdf"])
+def test_offsets_export_onto_its_own_source_is_refused(offsets, tmp_path, fmt):
+    before = offsets.read_bytes()
+    out = offsets if fmt == "json" else tmp_path / "nao.urdf"
+    argv = ["offsets", "export", str(offsets), "--format", fmt, "--out", str(out)]
+    if fmt == "urdf":
+        from tools.export.urdf import NOMINAL_URDF
+
+        shutil.copy(NOMINAL_URDF, out)
+        argv += ["--nominal-urdf", str(out)]
+    nominal = out.read_bytes()
+    outcome = fz.run_forked(argv, deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "offsets")
+    assert offsets.read_bytes() == before and out.read_bytes() == nominal

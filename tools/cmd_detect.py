@@ -37,7 +37,7 @@ document (schema naocal.detect/1):
                "corners_px": [[[u, v], ... W-1 per row], ... H-1 rows] | null}]}   in the corner order above
 --overlay OUT draws each image's corners with their order (row 0 in red, index labels, corner 0 circled): OUT is
 a file (.png, .jpg) for one image, or a directory (one IMAGE.corners.png per image); images narrower than 640 px
-are drawn enlarged.
+are drawn enlarged. An overlay never replaces an input image (by any name or link): that is refused.
 
 Exit codes: 0 when the board was found in every image, 1 when it was not in some (listed on stderr), 2 for bad
 input (an unreadable image, a bad --board) - then nothing is detected.
@@ -74,6 +74,7 @@ def run(args) -> int:
 
     from agent.board_detect import parse_board
     from solver.errors import DataError, NaocalError
+    from solver.fileio import check_output_file
 
     try:
         board = parse_board(args.board)
@@ -81,6 +82,8 @@ def run(args) -> int:
         raise NaocalError(f"--board: {err}") from None
     raw_size = parse_size(args.size) if args.size else None
     overlay = _overlay_paths(args.overlay, args.images) if args.overlay else None
+    for out in (overlay or {}).values():  # before any work; never over an image (by any name or link)
+        check_output_file(out, inputs=args.images)
     for path in args.images:  # every image checked first (and let go: memory): bad input detects nothing
         if read_image(path, raw_size).ndim == 2 and args.channel in ("cr", "cb"):
             raise DataError(path, f"a grey image has no {args.channel} channel (use --channel auto or grey)")
