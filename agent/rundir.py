@@ -3,7 +3,7 @@
 - `RunLock`: an exclusive lock on DIR (fcntl.flock on DIR/.naocal.lock; the OS releases it when the process ends,
   however it ends). A second run on DIR is refused at once, naming the holder written into the lock file.
 - DIR/run.json (`naocal.run/1`): the options that define a calibration run (backend, mock seed and effects, plan
-  and plan seed, stances, probe), written before anything else. `--resume` must repeat them: every mismatch is
+  and plan seed, stances, probe, speed, images kept or not), written before anything else. `--resume` must repeat them: every mismatch is
   refused before anything is written. Runs from before run.json existed are compared with what their plan.json,
   truth.json and dataset/dataset.json say.
 - `find_dataset`: a dataset directory, or a calibration run directory holding one in DIR/dataset.
@@ -148,16 +148,28 @@ def entries(directory: Path) -> list[str]:
 
 
 def calibrate_record(*, backend: str, mock_seed: int | None, effects: dict, plan: str, plan_seed: int,
-                     stances_per_leg: int, probe: bool, mock: str | None = None) -> dict:
+                     stances_per_leg: int, probe: bool, speed: float, images: bool, mock: str | None = None) -> dict:
     """The options that define a calibration run (DIR/run.json); `mock` the mock's realism (None: no mock)."""
     return {"schema": RECORD_SCHEMA, "verb": "calibrate", "backend": backend, "mock_seed": mock_seed, "mock": mock,
             "effects": {k: float(v) for k, v in sorted(effects.items())}, "plan": plan, "plan_seed": plan_seed,
-            "stances_per_leg": stances_per_leg, "probe": probe}
+            "stances_per_leg": stances_per_leg, "probe": probe, "speed": float(speed), "images": bool(images)}
 
 
+# Every option of `naocal calibrate` is in one of these two tables (tests/test_runs.py checks it), so that a new
+# option cannot be forgotten: either it defines what is captured and how, and --resume must repeat it, or it may
+# change from one session of a run to the next.
 RECORD_OPTIONS = {  # record key -> how the command line says it
     "backend": "--backend", "mock_seed": "--seed", "mock": "--mock", "effects": "--effect", "plan": "--plan",
-    "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe"}
+    "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe",
+    "speed": "--speed",  # the motion blur and servo lag of every capture
+    "images": "--no-images"}  # a dataset has its images for every capture or for none
+NEGATED_FLAGS = {"probe": "with the lag probe", "images": "with its images"}  # recorded True: the flag not given
+SESSION_OPTIONS = {  # options free to change on --resume, and why
+    "--out": "names the run", "--resume": "continues it", "--help": "prints help",
+    "--endpoint": "the robot's address may change between sessions",
+    "--max-joint-offset-deg": "a limit on the result, checked after the identification of the whole dataset",
+    "--max-camera-rotation-deg": "a limit on the result, checked after the identification of the whole dataset",
+    "--no-progress": "what stderr shows", "--verbose": "what stderr shows"}
 
 
 def write_record(directory: Path, record: dict) -> None:
@@ -221,9 +233,9 @@ def mismatches(recorded: dict, wanted: dict) -> list[str]:
     for key, option in RECORD_OPTIONS.items():
         if key not in recorded or recorded[key] == wanted.get(key):
             continue
-        if key == "probe":
-            out.append("--no-probe (the run: with the lag probe)" if recorded[key] else
-                       "no --no-probe (the run: --no-probe)")
+        if key in NEGATED_FLAGS:
+            out.append(f"{option} (the run: {NEGATED_FLAGS[key]})" if recorded[key] else
+                       f"no {option} (the run: {option})")
         else:
             out.append(f"{option} {_shown(key, wanted.get(key))} (the run: {_shown(key, recorded[key])})")
     return out

@@ -10,6 +10,7 @@ import errno
 import json
 import os
 import re
+import secrets
 import shutil
 import signal
 import stat
@@ -105,6 +106,30 @@ def _new_file_mode(path: Path) -> int:
         return 0o666 & ~_umask()
 
 
+# The temporary files of atomic writes: ".NAME.XXXXXXXX.tmp" beside NAME (mkstemp's 8 random characters). A process
+# killed between creating one and the rename leaves it behind: remove_stale_temporaries clears them.
+TEMPORARY_NAME = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp\Z")
+
+
+def is_temporary(name: str) -> bool:
+    """Whether the file name `name` is one of an atomic write's temporary files."""
+    return TEMPORARY_NAME.match(name) is not None
+
+
+def remove_stale_temporaries(directory) -> list[Path]:
+    """Remove the atomic writes' temporary files (regular files named as TEMPORARY_NAME) under `directory`, left by
+    a process killed mid-write; the removed paths. Only for a directory this process holds the lock of: a write
+    in progress there would lose its temporary file."""
+    removed = []
+    for parent, _, names in os.walk(directory):  # symlinks to directories are not followed
+        for name in names:
+            path = Path(parent) / name
+            if is_temporary(name) and stat.S_ISREG(os.lstat(path).st_mode):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
 def _atomic_write(path: Path, data: bytes, backup_suffix: str | None, mode: int | None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     mode = _new_file_mode(path) if mode is None else mode
@@ -117,9 +142,7 @@ def _atomic_write(path: Path, data: bytes, backup_suffix: str | None, mode: int 
             os.fsync(tmp.fileno())
         if backup_suffix and path.exists():
             backup = path.with_name(path.name + backup_suffix)
-            backup_tmp = backup.with_name(backup.name + ".tmp")
-            if backup_tmp.exists():
-                backup_tmp.unlink()
+            backup_tmp = backup.with_name(f".{backup.name}.{secrets.token_hex(4)}.tmp")  # a TEMPORARY_NAME
             os.link(path, backup_tmp)
             os.replace(backup_tmp, backup)
         os.replace(tmp_name, path)
