@@ -421,3 +421,82 @@ def check_output_directory(path) -> Path:
         return path
     _check_can_create_in(path)
     return path
+
+
+# -------------------------------------------------------------------------------------------------- images
+# An image's size is read from its header before it is decoded: a 400 KB PNG can claim 20000 x 20000 pixels
+# (1.2 GB decoded, minutes of corner search) or 60000 x 60000 (beyond OpenCV's own limit: a cv2.error).
+
+MAX_IMAGE_PIXELS = 4096 * 4096  # 16.8 Mpx: a 12-Mpx phone photo of a board fits, the NAO's cameras give 1.2 Mpx;
+# `naocal detect` of a 4096 x 4096 board: 4.0 s CPU, 664 MiB peak (benchmarks/bench_image_budget.py)
+IMAGE_FORMATS = "PNG, JPEG, BMP, PPM, PGM, PBM, PAM"
+_JPEG_FRAMES = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # start-of-frame markers (not DHT, JPG, DAC)
+_PNM_MAGIC = re.compile(rb"P[1-6]")
+
+
+def image_header_size(data: bytes) -> tuple[str, int, int] | None:
+    """(format, width, height) as the header of the image file `data` claims it, None if no header of
+    IMAGE_FORMATS is there; nothing is decoded."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR" and len(data) >= 24:
+        return "PNG", int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    if data[:2] == b"BM" and len(data) >= 26:
+        if int.from_bytes(data[14:18], "little") == 12:  # BITMAPCOREHEADER: 16-bit sizes
+            return "BMP", int.from_bytes(data[18:20], "little"), int.from_bytes(data[20:22], "little")
+        width, height = (int.from_bytes(data[k:k + 4], "little", signed=True) for k in (18, 22))
+        return "BMP", abs(width), abs(height)  # a negative height: rows stored top-down
+    if _PNM_MAGIC.match(data[:2]):
+        fields = re.sub(rb"#[^\n\r]*", b" ", data[2:4096]).split()[:2]  # comments anywhere in the header
+        if len(fields) == 2 and all(f.isdigit() and len(f) <= 12 for f in fields):
+            return "PNM", int(fields[0]), int(fields[1])
+        return None
+    if data[:3] == b"P7\n":
+        header = data[:4096].split(b"ENDHDR", 1)[0]
+        size = dict(re.findall(rb"^(WIDTH|HEIGHT)[ \t]+(\d{1,12})\s*$", header, re.M))
+        return ("PAM", int(size[b"WIDTH"]), int(size[b"HEIGHT"])) if len(size) == 2 else None
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[str, int, int] | None:
+    """The size in a JPEG's first start-of-frame segment (markers walked by their lengths), None if none."""
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            return None
+        marker = data[offset + 1]
+        if marker == 0xFF:  # fill byte
+            offset += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a segment
+            offset += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image, start of scan: no frame header before
+            return None
+        length = int.from_bytes(data[offset + 2:offset + 4], "big")
+        if marker in _JPEG_FRAMES:
+            if offset + 9 > len(data):
+                return None
+            height = int.from_bytes(data[offset + 5:offset + 7], "big")
+            width = int.from_bytes(data[offset + 7:offset + 9], "big")
+            return ("JPEG", width, height) if height else None  # height 0: given later (DNL), not supported
+        if length < 2:
+            return None
+        offset += 2 + length
+    return None
+
+
+def read_image_bytes(path) -> tuple[bytes, tuple[int, int]]:
+    """The bytes of the image file `path` and its (width, height) from its header, checked before any decoding:
+    one of IMAGE_FORMATS, at least 1 x 1 and at most MAX_IMAGE_PIXELS; DataError naming the file otherwise."""
+    data = read_bytes(path)
+    header = image_header_size(data)
+    if header is None:
+        raise DataError(path, f"not an image naocal reads: no {IMAGE_FORMATS} header")
+    kind, width, height = header
+    if width < 1 or height < 1:
+        raise DataError(path, f"{kind} header claims {width} x {height} pixels: an empty image")
+    if width * height > MAX_IMAGE_PIXELS:
+        raise DataError(path, f"{kind} header claims {width} x {height} pixels ({width * height / 1e6:.0f} Mpx): "
+                              f"at most {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx are read (4096 x 4096; docs/CONVENTIONS.md)")
+    return data, (width, height)

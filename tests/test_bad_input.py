@@ -516,3 +516,93 @@ def test_offsets_export_onto_its_own_source_is_refused(offsets, tmp_path, fmt):
     outcome = fz.run_forked(argv, deadline_s=60)
     assert "is an input of this command" in one_line_error(outcome, "offsets")
     assert offsets.read_bytes() == before and out.read_bytes() == nominal
+
+
+# ------------------------------------------------------------------------------ images: the pixel budget
+
+
+def png_claiming(width, height, *, whole=False) -> bytes:
+    """A grey PNG whose header says width x height; `whole`: with all its (black) rows, else with none."""
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    packer = zlib.compressobj(9)
+    row = bytes(width + 1)  # filter byte 0, black pixels
+    idat = b"".join(packer.compress(row) for _ in range(height if whole else 0)) + packer.flush()
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def image_bombs(work):
+    """A 20000 x 20000 PNG of about 400 KB (whole: 400 Mpx decoded) and a header claiming 60000 x 60000."""
+    bombs = work / "bombs"
+    bombs.mkdir()
+    (bombs / "big.png").write_bytes(png_claiming(20000, 20000, whole=True))
+    (bombs / "huge.png").write_bytes(png_claiming(60000, 60000))
+    return bombs
+
+
+@pytest.mark.parametrize("name, claim", [("big.png", "20000 x 20000"), ("huge.png", "60000 x 60000")])
+def test_detect_refuses_an_image_beyond_the_pixel_budget_from_its_header(image_bombs, name, claim):
+    assert (image_bombs / "big.png").stat().st_size < 1024 ** 2
+    outcome = fz.run_forked(["detect", str(image_bombs / name)], deadline_s=20)
+    line = one_line_error(outcome, "detect")
+    assert name in line and f"claims {claim} pixels" in line and "16.8 Mpx" in line
+    assert outcome.seconds < 10
+
+
+@pytest.mark.parametrize("kind", ["jpeg", "bmp", "bmp top-down", "ppm", "pgm with comments", "pam"])
+def test_every_image_format_has_its_size_read_from_its_header(tmp_path, kind):
+    import cv2
+    import numpy as np
+
+    from solver.errors import DataError
+    from solver.fileio import read_image_bytes
+
+    ext = {"jpeg": ".jpg", "bmp": ".bmp", "bmp top-down": ".bmp", "ppm": ".ppm", "pgm with comments": ".pgm",
+           "pam": ".pam"}[kind]
+    pixels = np.zeros((30, 50, 3) if ext == ".ppm" else (30, 50), np.uint8)
+    data = cv2.imencode(ext, pixels)[1].tobytes()
+    if kind == "pgm with comments":
+        data = data.replace(b"\n", b"\n# a comment 99999 99999\n", 1)
+    if kind == "bmp top-down":
+        data = data[:22] + (-30).to_bytes(4, "little", signed=True) + data[26:]
+    small = tmp_path / f"small{ext}"
+    small.write_bytes(data)
+    assert read_image_bytes(small)[1] == (50, 30)
+    claims = {".jpg": lambda d: d.replace(b"\xff\xc0\x00\x0b\x08\x00\x1e\x00\x32", b"\xff\xc0\x00\x0b\x08\xea\x60\xea\x60"),
+              ".bmp": lambda d: d[:18] + (60000).to_bytes(4, "little") + (-60000).to_bytes(4, "little", signed=True)
+              + d[26:],
+              ".ppm": lambda d: d.replace(b"50 30", b"60000 60000", 1),
+              ".pgm": lambda d: d.replace(b"50 30", b"60000 60000", 1),
+              ".pam": lambda d: d.replace(b"WIDTH 50", b"WIDTH 60000").replace(b"HEIGHT 30", b"HEIGHT 60000")}
+    big = tmp_path / f"big{ext}"
+    big.write_bytes(claims[ext](data))
+    with pytest.raises(DataError, match=r"claims 60000 x 60000 pixels"):
+        read_image_bytes(big)
+
+
+def test_import_mrlspl_refuses_an_image_beyond_the_pixel_budget(image_bombs, tmp_path):
+    source = tmp_path / "mrlspl"
+    shutil.copytree(REAL_IMAGE.parent, source)
+    shutil.copy(image_bombs / "huge.png", source / "image_3.png")
+    outcome = fz.run_forked(["import", "mrlspl", str(source), "--out", str(tmp_path / "ds")], deadline_s=60)
+    line = one_line_error(outcome, "import")
+    assert "image_3.png" in line and "claims 60000 x 60000 pixels" in line
+    assert not (tmp_path / "ds").exists() or not any((tmp_path / "ds").iterdir())
+
+
+def test_a_report_reads_its_images_through_the_pixel_budget(tmp_path):
+    """diagnose --report draws the worst images of a dataset: read through solver.fileio.read_image_bytes (a bomb
+    among them was decoded by matplotlib whole)."""
+    import tools.report as report
+    from solver.errors import DataError
+
+    path = tmp_path / "000001.png"
+    path.write_bytes(png_claiming(60000, 60000))
+    with pytest.raises(DataError, match="000001.png: PNG header claims 60000 x 60000 pixels"):
+        report._overlay(path, None, None, None, 1)

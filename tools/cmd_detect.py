@@ -11,7 +11,8 @@ The board may be of any two colours, either polarity, in grey or in colour: --ch
 white) and the chroma channels Cr and Cb of YCrCb (colours of similar brightness, e.g. an orange/blue board on
 green carpet) and keeps the detection whose squares differ most for their noise.
 
-Images: PNG, JPEG, BMP, PPM, PGM (anything OpenCV reads), colour or grey, 8 or 16 bit, any size; and raw YUYV
+Images: PNG, JPEG, BMP, PPM, PGM, PBM, PAM, colour or grey, 8 or 16 bit, up to 16.8 Mpx (4096 x 4096; the size
+in the file's header is checked before anything is decoded: docs/CONVENTIONS.md); and raw YUYV
 frames (YUV 4:2:2, the NAO camera's V4L2 format: Y0 U Y1 V per pair of pixels, 2 bytes per pixel, no header)
 named *.yuv, *.yuyv or *.raw: --size WxH gives their size, else it is told by the file's length among 160x120,
 320x240, 640x480 and 1280x960. Pixel (0, 0) is the centre of the top-left pixel (OpenCV's).
@@ -123,10 +124,15 @@ def parse_size(text: str) -> tuple[int, int]:
     parts = text.lower().replace(" ", "").split("x")
     if len(parts) != 2 or not all(p.isdigit() for p in parts):
         raise NaocalError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
+    from solver.fileio import MAX_IMAGE_PIXELS
+
     width, height = (int(p) for p in parts)
     if not (2 <= width <= 8192 and 2 <= height <= 8192) or width % 2:
         raise NaocalError(f"--size {text!r}: expected an even width of 2-8192 px and a height of 2-8192 px "
                           "(YUYV holds pixels in pairs)")
+    if width * height > MAX_IMAGE_PIXELS:
+        raise NaocalError(f"--size {text!r}: at most {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx are read (4096 x 4096; "
+                          "docs/CONVENTIONS.md)")
     return width, height
 
 
@@ -139,13 +145,13 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     import numpy as np
 
     from solver.errors import DataError
-    from solver.fileio import read_bytes
+    from solver.fileio import read_bytes, read_image_bytes
 
     file = Path(path)
     if not file.exists():
         raise DataError(path, "no such file")
-    data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
     if file.suffix.lower() in RAW_SUFFIXES:
+        data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
         for width, height in [raw_size] if raw_size else YUYV_SIZES:
             if len(data) == 2 * width * height:
                 yuyv = np.frombuffer(data, np.uint8).reshape(height, width, 2)
@@ -156,7 +162,11 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
         sizes = ", ".join(f"{w}x{h}" for w, h in YUYV_SIZES)
         raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes} "
                               "(or give --size WxH)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    data, _ = read_image_bytes(file)  # its header's size within the pixel budget before anything is decoded
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as err:  # a header OpenCV refuses after ours passed it
+        raise DataError(path, f"not an image OpenCV can read: {str(err).strip().splitlines()[-1][:200]}") from None
     if image is None or image.size == 0:
         raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, PPM, PGM; raw YUYV as *.yuv, *.yuyv, "
                               "*.raw)")
