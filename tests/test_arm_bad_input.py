@@ -89,3 +89,30 @@ def test_arm_identify_out_onto_its_dataset_is_refused(arm):
     before = meta.read_bytes()
     line = one_line_error(fz.run_forked(["identify", str(dataset), "--out", str(meta)], deadline_s=60), "identify")
     assert "is an input of this command" in line and meta.read_bytes() == before
+
+
+URDF_DAMAGE = [  # (what is replaced in panda_joint3 or panda_link4, by what, the words of the refusal)
+    ('xyz="0 -0.316 0"', 'xyz="nan -0.316 0"', "joint 'panda_joint3': origin xyz 'nan -0.316 0': expected 3 finite"),
+    ('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>', "joint 'panda_joint3': axis xyz '0 0 0': no direction"),
+    ('rpy="1.57079632679 0 0" xyz="0 -0.316 0"', 'rpy="inf 0 0" xyz="0 -0.316 0"',
+     "joint 'panda_joint3': origin rpy 'inf 0 0': expected 3 finite"),
+    ('effort="87" lower="-2.9671" upper="2.9671"', 'effort="87" lower="nan" upper="2.9671"',
+     "joint 'panda_joint3': limit lower 'nan': expected a finite number"),
+    ('xyz="0 -0.316 0"', 'xyz="0 -316 0"', "joint 'panda_joint3': origin xyz '0 -316 0': beyond 100"),
+    ('<mass value="2.08"/>', '<mass value="-2.08"/>', "link 'panda_link4': inertial mass '-2.08': expected a finite"),
+]
+
+
+@pytest.mark.parametrize("old, new, words", URDF_DAMAGE)
+def test_an_arm_urdf_with_a_non_finite_or_degenerate_attribute_is_refused_when_read(arm, tmp_path, old, new, words):
+    from solver.arm_dataset import read_arm_dataset
+
+    text = read_arm_dataset(arm[0]).urdf_path.read_text()
+    start = text.index('<link name="panda_link4">' if "mass" in old else '<joint name="panda_joint3"')
+    end = text.index("</link>" if "mass" in old else "</joint>", start)
+    assert text[start:end].count(old) == 1
+    bad = tmp_path / "panda.urdf"
+    bad.write_text(text[:start] + text[start:end].replace(old, new) + text[end:])
+    outcome = fz.run_forked(["identify", str(arm[0]), "--robot", str(bad)], deadline_s=20)
+    line = one_line_error(outcome, "identify")
+    assert str(bad) in line and words in line, line
