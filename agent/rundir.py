@@ -20,7 +20,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from solver.errors import NaocalError
+from solver.errors import DataError, NaocalError
 from solver.fileio import atomic_write_text, disk_full_as_error
 
 LOCK_NAME = ".naocal.lock"
@@ -261,6 +261,20 @@ def _read_json(path: Path):
 # ------------------------------------------------------------------------------------------------- datasets
 
 
+def _there(path: Path) -> bool:
+    """Whether `path` exists (a dangling symlink too); DataError when that cannot be told (a directory we may not
+    search is "permission denied", not "no dataset here")."""
+    try:
+        os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except OSError as err:
+        from solver.fileio import os_problem
+
+        raise DataError(path, os_problem(err)) from None
+    return True
+
+
 def dataset_files(path) -> list[Path]:
     """The files a dataset reader reads in the dataset directory `path` (an output must not replace them)."""
     from solver.dataset import META_FILE, OBSERVATIONS_FILE
@@ -272,11 +286,11 @@ def find_dataset(path) -> Path:
     """The dataset directory `path` means: `path` itself (dataset.json inside, e.g. from `naocal simulate`) or
     `path`/dataset (a `naocal calibrate --out` directory). NaocalError naming both places looked at."""
     path = Path(path)
-    # lexists, not is_file: a dataset.json that is a FIFO or a directory is read_dataset's to refuse by name
-    if os.path.lexists(path / "dataset.json") or not path.is_dir():
+    # there at all, not is_file: a dataset.json that is a FIFO or a directory is read_dataset's to refuse by name
+    if _there(path / "dataset.json") or not path.is_dir():
         return path  # read_dataset names what is wrong with it
     inner = path / DATASET_SUBDIR
-    if os.path.lexists(inner / "dataset.json"):
+    if _there(inner / "dataset.json"):
         return inner
     raise NaocalError(f"{path}: no dataset here: looked for {path / 'dataset.json'} (a dataset directory) and "
                       f"{inner / 'dataset.json'} (a naocal calibrate run)")

@@ -190,7 +190,7 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
 
 
-def _os_problem(err: OSError) -> str:
+def os_problem(err: OSError) -> str:
     if isinstance(err, FileNotFoundError):
         return "file not found"
     if isinstance(err, PermissionError):
@@ -204,13 +204,13 @@ def read_bytes(path, *, max_bytes: int = MAX_TEXT_BYTES) -> bytes:
     try:
         mode = os.stat(path).st_mode
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     if not stat.S_ISREG(mode):
         raise DataError(path, f"is {_kind(mode)}, expected a regular file")
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):  # replaced between the stat and the open
@@ -228,7 +228,7 @@ def read_bytes(path, *, max_bytes: int = MAX_TEXT_BYTES) -> bytes:
                 raise DataError(path, f"too large: more than {max_bytes} bytes")
         return b"".join(chunks)
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     finally:
         os.close(fd)
 
@@ -400,7 +400,7 @@ def check_output_file(path, *, inputs=()) -> Path:
         try:
             mode = os.stat(path).st_mode
         except OSError as err:
-            raise DataError(path, _os_problem(err)) from None
+            raise DataError(path, os_problem(err)) from None
         if not stat.S_ISREG(mode):
             raise DataError(path, f"is {_kind(mode)}; expected a file name (an existing file is replaced)")
         if not os.access(path.parent, os.W_OK | os.X_OK):

@@ -606,3 +606,30 @@ def test_a_report_reads_its_images_through_the_pixel_budget(tmp_path):
     path.write_bytes(png_claiming(60000, 60000))
     with pytest.raises(DataError, match="000001.png: PNG header claims 60000 x 60000 pixels"):
         report._overlay(path, None, None, None, 1)
+
+
+# --------------------------------------------------------------------------------- implausible numbers
+
+
+@pytest.mark.parametrize("verb", ["simulate", "calibrate"])
+@pytest.mark.parametrize("effect, words", [("elasticity=1e308", "plausible range 0..1 rad/(N m)"),
+                                           ("intrinsics=-1e9", "plausible range -200..200 px"),
+                                           ("backlash=0.5", "plausible range 0..0.174533 rad")])
+def test_an_implausible_effect_size_is_refused_at_once_naming_its_range(tmp_path, verb, effect, words):
+    argv = [verb, "--out", str(tmp_path / "out"), "--effect", effect]
+    if verb == "calibrate":
+        argv += ["--backend", "mock"]
+    outcome = fz.run_forked(argv, deadline_s=20)
+    line = one_line_error(outcome, verb)
+    assert repr(effect.split("=")[0]) in line and words in line, line
+    assert outcome.seconds < 10 and not (tmp_path / "out").exists()
+
+
+def test_a_dataset_directory_nobody_may_read_is_permission_denied_not_missing(dataset):
+    dataset.chmod(0)
+    try:
+        outcome = fz.run_forked(["identify", str(dataset)], deadline_s=20, as_nobody=True)
+    finally:
+        dataset.chmod(0o755)
+    line = one_line_error(outcome, "identify")
+    assert "permission denied" in line and str(dataset) in line and "no dataset here" not in line, line
