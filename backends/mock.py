@@ -122,8 +122,10 @@ def check_effects(effects) -> dict[str, float]:
             raise NaocalError(f"effect {name!r}: size must be finite, got {size}")
         low, high = mock_size_range(name)
         if not low <= size <= high:
-            raise NaocalError(f"effect {name!r}: size {size:g} {EFFECT_UNITS[name]} is outside its plausible range "
-                              f"{low:g}..{high:g} {EFFECT_UNITS[name]} (beyond it no offsets file holds the result)")
+            unit = EFFECT_UNITS[name]
+            bound = f"at least {low:g} {unit}" if size < low else f"at most {high:g} {unit}"
+            raise NaocalError(f"effect {name!r}: size must be {bound}, got {size:g} (its plausible range: "
+                              f"{low:g}..{high:g} {unit}; beyond it no offsets file holds the result)")
         checked[name] = size
     return checked
 

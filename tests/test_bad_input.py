@@ -574,7 +574,8 @@ def test_every_image_format_has_its_size_read_from_its_header(tmp_path, kind):
     small = tmp_path / f"small{ext}"
     small.write_bytes(data)
     assert read_image_bytes(small)[1] == (50, 30)
-    claims = {".jpg": lambda d: d.replace(b"\xff\xc0\x00\x0b\x08\x00\x1e\x00\x32", b"\xff\xc0\x00\x0b\x08\xea\x60\xea\x60"),
+    claims = {".jpg": lambda d: d.replace(b"\xff\xc0\x00\x0b\x08\x00\x1e\x00\x32",  # SOF0: 8 bit, 30 x 50
+                                          b"\xff\xc0\x00\x0b\x08\xea\x60\xea\x60"),
               ".bmp": lambda d: d[:18] + (60000).to_bytes(4, "little") + (-60000).to_bytes(4, "little", signed=True)
               + d[26:],
               ".ppm": lambda d: d.replace(b"50 30", b"60000 60000", 1),
@@ -612,9 +613,11 @@ def test_a_report_reads_its_images_through_the_pixel_budget(tmp_path):
 
 
 @pytest.mark.parametrize("verb", ["simulate", "calibrate"])
-@pytest.mark.parametrize("effect, words", [("elasticity=1e308", "plausible range 0..1 rad/(N m)"),
-                                           ("intrinsics=-1e9", "plausible range -200..200 px"),
-                                           ("backlash=0.5", "plausible range 0..0.174533 rad")])
+@pytest.mark.parametrize("effect, words", [("elasticity=1e308", "at most 1 rad/(N m), got 1e+308 (its plausible "
+                                                               "range: 0..1 rad/(N m)"),
+                                           ("intrinsics=-1e9", "at least -200 px, got -1e+09 (its plausible range: "
+                                                               "-200..200 px"),
+                                           ("backlash=0.5", "plausible range: 0..0.174533 rad")])
 def test_an_implausible_effect_size_is_refused_at_once_naming_its_range(tmp_path, verb, effect, words):
     argv = [verb, "--out", str(tmp_path / "out"), "--effect", effect]
     if verb == "calibrate":
