@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import json
+import math
 import os
 import socket
 import time
@@ -183,6 +184,9 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
 
     plan_path = directory / "plan.json"
     plan = read_plan(plan_path) if plan_path.exists() else None  # a damaged plan is refused here, not mid-run
+    from agent.record import read_progress
+
+    read_progress(directory / "progress.json")  # so is a damaged progress file
     record_path = directory / RECORD_NAME
     if record_path.exists():
         doc = _read_json(record_path)
@@ -205,7 +209,12 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
         record["backend"] = "mock"
         record["mock"] = _recorded_realism(directory)
         if isinstance(truth, dict) and isinstance(truth.get("effects"), dict):
-            record["effects"] = {k: float(v) for k, v in sorted(truth["effects"].items())}
+            effects = dict(sorted(truth["effects"].items()))
+            for name, size in effects.items():  # compared with --effect's (finite) sizes
+                if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size):
+                    raise DataError(truth_path, f"expected a finite effect size, got {str(size)[:40]!r}",
+                                    field=f"effects.{name}")
+            record["effects"] = {k: float(v) for k, v in effects.items()}
         sources.append(str(truth_path))
     meta_path = directory / DATASET_SUBDIR / "dataset.json"
     if record.get("backend") == "mock" and meta_path.exists():

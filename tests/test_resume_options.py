@@ -91,3 +91,25 @@ def test_a_backup_link_left_by_a_killed_write_is_a_temporary_file(tmp_path, monk
     atomic_write_text(path, "2", backup_suffix=".bak")
     assert names and all(is_temporary(n) for n in names)
     assert (tmp_path / "offsets.json.bak").read_text() == "1"
+
+
+@pytest.mark.parametrize("name, field, value", [
+    ("progress.json", "robot_time_s", "soon"), ("progress.json", "robot_time_s", 1e308),
+    ("progress.json", "sessions", -1), ("progress.json", "skipped", ["3"]),
+    ("truth.json", "effects", {"elasticity": "much"})])
+def test_resume_names_a_damaged_value_of_the_run_it_continues(tmp_path, name, field, value):
+    """progress.json and (runs from before run.json) truth.json are read on --resume: a value a run cannot have
+    written is one line naming the field (was a ValueError or AttributeError traceback)."""
+    out = started_run(tmp_path / "run")
+    if name == "truth.json":
+        (out / "run.json").unlink()
+        (out / "truth.json").write_text(json.dumps({"effects": value}))
+    else:
+        (out / "progress.json").write_text(json.dumps({"schema": "naocal.progress/1", "robot_time_s": 1.0,
+                                                       "skipped": {}, "sessions": 1, field: value}))
+    before = snapshot(out)
+    outcome = fz.run_forked([*BASE, "--no-images", "--out", str(out), "--resume"], deadline_s=120)
+    line = outcome.stderr.strip()
+    assert outcome.returncode == 2 and "\n" not in line and "Traceback" not in line, fz.describe(outcome)
+    assert f"{out / name}" in line and f"field '{field}" in line, line
+    assert snapshot(out) == before
