@@ -638,7 +638,7 @@ def run_cases(cases, valid: Path, work: Path, verbs_of, *, every_verb: bool, dea
         all_verbs = verbs_of(case_dir, out_dir)
         chosen = all_verbs if every_verb else [all_verbs[k % len(all_verbs)]]
         for argv in chosen:
-            if case.as_nobody and "--out" in argv:
+            if case.as_nobody and ("--out" in argv or "--overlay" in argv):  # outputs are checked first
                 continue
             outcome = run_forked(argv, deadline_s=deadline_s, as_nobody=case.as_nobody)
             runs += 1

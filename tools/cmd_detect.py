@@ -163,10 +163,15 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
         raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes} "
                               "(or give --size WxH)")
     data, _ = read_image_bytes(file)  # its header's size within the pixel budget before anything is decoded
+    log = cv2.utils.logging
+    previous = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # a damaged file is our one line, not OpenCV's log lines besides it
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:  # a header OpenCV refuses after ours passed it
         raise DataError(path, f"not an image OpenCV can read: {str(err).strip().splitlines()[-1][:200]}") from None
+    finally:
+        log.setLogLevel(previous)
     if image is None or image.size == 0:
         raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, PPM, PGM; raw YUYV as *.yuv, *.yuyv, "
                               "*.raw)")
