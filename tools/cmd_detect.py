@@ -45,6 +45,7 @@ input (an unreadable image, a bad --board) - then nothing is detected.
 """
 
 import argparse
+import contextlib
 
 YUYV_SIZES = ((160, 120), (320, 240), (640, 480), (1280, 960))
 RAW_SUFFIXES = (".yuv", ".yuyv", ".raw")
@@ -163,18 +164,21 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
         raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes} "
                               "(or give --size WxH)")
     data, _ = read_image_bytes(file)  # its header's size within the pixel budget before anything is decoded
+    said = []  # what libpng, libjpeg ... printed: a damaged file is our one line, with their words in it
     log = cv2.utils.logging
     previous = log.getLogLevel()
-    log.setLogLevel(log.LOG_LEVEL_SILENT)  # a damaged file is our one line, not OpenCV's log lines besides it
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # OpenCV's own log lines say what the None below says
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        with native_stderr_held(said):
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:  # a header OpenCV refuses after ours passed it
         raise DataError(path, f"not an image OpenCV can read: {str(err).strip().splitlines()[-1][:200]}") from None
     finally:
         log.setLogLevel(previous)
     if image is None or image.size == 0:
-        raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, PPM, PGM; raw YUYV as *.yuv, *.yuyv, "
-                              "*.raw)")
+        why = " ".join(said[0].split())[:160] if said and said[0].strip() else ""
+        raise DataError(path, "not an image OpenCV can read" + (f" ({why})" if why else " (PNG, JPEG, BMP, PPM, PGM; "
+                                                                         "raw YUYV as *.yuv, *.yuyv, *.raw)"))
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
@@ -186,6 +190,27 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
         raise DataError(path, f"{image.shape} pixels: expected grey or colour")
     return np.ascontiguousarray(image)
+
+
+@contextlib.contextmanager
+def native_stderr_held(said: list):
+    """Hold what C libraries write to file descriptor 2 during the block (libpng's 'libpng error: ...' on a damaged
+    file) and append it to `said`, so that the user sees one line; Python's sys.stderr is flushed first."""
+    import os
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            said.append(held.read(4096).decode("utf-8", "replace"))
 
 
 def detect_one(path: str, image, board, channel: str) -> dict:
