@@ -26,6 +26,41 @@ log = logging.getLogger(__name__)
 PROGRESS_SCHEMA = "naocal.progress/1"
 
 
+MAX_ROBOT_TIME_S = 1e6  # 11 days of measuring: a calibration takes minutes
+MAX_COUNT = 2 ** 53
+
+
+def read_progress(path) -> dict:
+    """A run's progress.json (a fresh progress when `path` is None or absent); DataError naming the field unless its
+    values are what a run writes (check_progress). agent.rundir reads it before a resumed run starts."""
+    progress = {"schema": PROGRESS_SCHEMA, "robot_time_s": 0.0, "skipped": {}, "sessions": 0}
+    if path is not None and Path(path).exists():
+        doc = parse_json_text(read_text(path), path)
+        if not isinstance(doc, dict) or doc.get("schema") != PROGRESS_SCHEMA:
+            raise DataError(path, f"expected schema {PROGRESS_SCHEMA!r}", field="schema")
+        progress.update(doc)
+        check_progress(progress, path)
+    return progress
+
+
+def check_progress(progress: dict, path) -> None:
+    """DataError naming the field unless progress.json's values are what a run writes: robot_time_s a number of
+    seconds within MAX_ROBOT_TIME_S, sessions a count, skipped {image number: reason}."""
+    time_s = progress["robot_time_s"]
+    if isinstance(time_s, bool) or not isinstance(time_s, (int, float)) or not 0 <= time_s <= MAX_ROBOT_TIME_S:
+        raise DataError(path, f"expected seconds of robot time within 0..{MAX_ROBOT_TIME_S:g}, got "
+                              f"{str(time_s)[:40]!r}", field="robot_time_s")
+    if type(progress["sessions"]) is not int or not 0 <= progress["sessions"] < MAX_COUNT:
+        raise DataError(path, f"expected a count of sessions, got {str(progress['sessions'])[:40]!r}",
+                        field="sessions")
+    skipped = progress["skipped"]
+    if not isinstance(skipped, dict):
+        raise DataError(path, "expected {image number: reason}", field="skipped")
+    for image, reason in skipped.items():
+        if not (image.isdigit() and len(image) <= 15 and isinstance(reason, str)):
+            raise DataError(path, "expected an image number and the reason it was skipped", field=f"skipped.{image}")
+
+
 @dataclass
 class CaptureRecord:
     """One capture, ready to be saved. Angles (14,) in solver.joints.JOINTS order, rad; velocities rad/s."""
@@ -76,12 +111,7 @@ class CaptureStore:
         self.appender = DatasetAppender(self.dataset_dir, meta)
         self.save_images = save_images
         self.progress_path = Path(progress_path) if progress_path else None
-        self.progress = {"schema": PROGRESS_SCHEMA, "robot_time_s": 0.0, "skipped": {}, "sessions": 0}
-        if self.progress_path and self.progress_path.exists():
-            doc = parse_json_text(read_text(self.progress_path), self.progress_path)
-            if not isinstance(doc, dict) or doc.get("schema") != PROGRESS_SCHEMA:
-                raise DataError(self.progress_path, f"expected schema {PROGRESS_SCHEMA!r}", field="schema")
-            self.progress.update(doc)
+        self.progress = read_progress(self.progress_path)
         self.progress["sessions"] = int(self.progress["sessions"]) + 1
         self._robot_time_before = float(self.progress["robot_time_s"])
 

@@ -3,7 +3,7 @@
 - `RunLock`: an exclusive lock on DIR (fcntl.flock on DIR/.naocal.lock; the OS releases it when the process ends,
   however it ends). A second run on DIR is refused at once, naming the holder written into the lock file.
 - DIR/run.json (`naocal.run/1`): the options that define a calibration run (backend, mock seed and effects, plan
-  and plan seed, stances, probe), written before anything else. `--resume` must repeat them: every mismatch is
+  and plan seed, stances, probe, speed, images kept or not), written before anything else. `--resume` must repeat them: every mismatch is
   refused before anything is written. Runs from before run.json existed are compared with what their plan.json,
   truth.json and dataset/dataset.json say.
 - `find_dataset`: a dataset directory, or a calibration run directory holding one in DIR/dataset.
@@ -14,13 +14,14 @@ from __future__ import annotations
 import errno
 import fcntl
 import json
+import math
 import os
 import socket
 import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from solver.errors import NaocalError
+from solver.errors import DataError, NaocalError
 from solver.fileio import atomic_write_text, disk_full_as_error
 
 LOCK_NAME = ".naocal.lock"
@@ -148,16 +149,28 @@ def entries(directory: Path) -> list[str]:
 
 
 def calibrate_record(*, backend: str, mock_seed: int | None, effects: dict, plan: str, plan_seed: int,
-                     stances_per_leg: int, probe: bool, mock: str | None = None) -> dict:
+                     stances_per_leg: int, probe: bool, speed: float, images: bool, mock: str | None = None) -> dict:
     """The options that define a calibration run (DIR/run.json); `mock` the mock's realism (None: no mock)."""
     return {"schema": RECORD_SCHEMA, "verb": "calibrate", "backend": backend, "mock_seed": mock_seed, "mock": mock,
             "effects": {k: float(v) for k, v in sorted(effects.items())}, "plan": plan, "plan_seed": plan_seed,
-            "stances_per_leg": stances_per_leg, "probe": probe}
+            "stances_per_leg": stances_per_leg, "probe": probe, "speed": float(speed), "images": bool(images)}
 
 
+# Every option of `naocal calibrate` is in one of these two tables (tests/test_runs.py checks it), so that a new
+# option cannot be forgotten: either it defines what is captured and how, and --resume must repeat it, or it may
+# change from one session of a run to the next.
 RECORD_OPTIONS = {  # record key -> how the command line says it
     "backend": "--backend", "mock_seed": "--seed", "mock": "--mock", "effects": "--effect", "plan": "--plan",
-    "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe"}
+    "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe",
+    "speed": "--speed",  # the motion blur and servo lag of every capture
+    "images": "--no-images"}  # a dataset has its images for every capture or for none
+NEGATED_FLAGS = {"probe": "with the lag probe", "images": "with its images"}  # recorded True: the flag not given
+SESSION_OPTIONS = {  # options free to change on --resume, and why
+    "--out": "names the run", "--resume": "continues it", "--help": "prints help",
+    "--endpoint": "the robot's address may change between sessions",
+    "--max-joint-offset-deg": "a limit on the result, checked after the identification of the whole dataset",
+    "--max-camera-rotation-deg": "a limit on the result, checked after the identification of the whole dataset",
+    "--no-progress": "what stderr shows", "--verbose": "what stderr shows"}
 
 
 def write_record(directory: Path, record: dict) -> None:
@@ -171,6 +184,9 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
 
     plan_path = directory / "plan.json"
     plan = read_plan(plan_path) if plan_path.exists() else None  # a damaged plan is refused here, not mid-run
+    from agent.record import read_progress
+
+    read_progress(directory / "progress.json")  # so is a damaged progress file
     record_path = directory / RECORD_NAME
     if record_path.exists():
         doc = _read_json(record_path)
@@ -193,7 +209,12 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
         record["backend"] = "mock"
         record["mock"] = _recorded_realism(directory)
         if isinstance(truth, dict) and isinstance(truth.get("effects"), dict):
-            record["effects"] = {k: float(v) for k, v in sorted(truth["effects"].items())}
+            effects = dict(sorted(truth["effects"].items()))
+            for name, size in effects.items():  # compared with --effect's (finite) sizes
+                if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size):
+                    raise DataError(truth_path, f"expected a finite effect size, got {str(size)[:40]!r}",
+                                    field=f"effects.{name}")
+            record["effects"] = {k: float(v) for k, v in effects.items()}
         sources.append(str(truth_path))
     meta_path = directory / DATASET_SUBDIR / "dataset.json"
     if record.get("backend") == "mock" and meta_path.exists():
@@ -221,9 +242,9 @@ def mismatches(recorded: dict, wanted: dict) -> list[str]:
     for key, option in RECORD_OPTIONS.items():
         if key not in recorded or recorded[key] == wanted.get(key):
             continue
-        if key == "probe":
-            out.append("--no-probe (the run: with the lag probe)" if recorded[key] else
-                       "no --no-probe (the run: --no-probe)")
+        if key in NEGATED_FLAGS:
+            out.append(f"{option} (the run: {NEGATED_FLAGS[key]})" if recorded[key] else
+                       f"no {option} (the run: {option})")
         else:
             out.append(f"{option} {_shown(key, wanted.get(key))} (the run: {_shown(key, recorded[key])})")
     return out
@@ -249,15 +270,36 @@ def _read_json(path: Path):
 # ------------------------------------------------------------------------------------------------- datasets
 
 
+def _there(path: Path) -> bool:
+    """Whether `path` exists (a dangling symlink too); DataError when that cannot be told (a directory we may not
+    search is "permission denied", not "no dataset here")."""
+    try:
+        os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except OSError as err:
+        from solver.fileio import os_problem
+
+        raise DataError(path, os_problem(err)) from None
+    return True
+
+
+def dataset_files(path) -> list[Path]:
+    """The files a dataset reader reads in the dataset directory `path` (an output must not replace them)."""
+    from solver.dataset import META_FILE, OBSERVATIONS_FILE
+
+    return [Path(path) / META_FILE, Path(path) / OBSERVATIONS_FILE]
+
+
 def find_dataset(path) -> Path:
     """The dataset directory `path` means: `path` itself (dataset.json inside, e.g. from `naocal simulate`) or
     `path`/dataset (a `naocal calibrate --out` directory). NaocalError naming both places looked at."""
     path = Path(path)
-    # lexists, not is_file: a dataset.json that is a FIFO or a directory is read_dataset's to refuse by name
-    if os.path.lexists(path / "dataset.json") or not path.is_dir():
+    # there at all, not is_file: a dataset.json that is a FIFO or a directory is read_dataset's to refuse by name
+    if _there(path / "dataset.json") or not path.is_dir():
         return path  # read_dataset names what is wrong with it
     inner = path / DATASET_SUBDIR
-    if os.path.lexists(inner / "dataset.json"):
+    if _there(inner / "dataset.json"):
         return inner
     raise NaocalError(f"{path}: no dataset here: looked for {path / 'dataset.json'} (a dataset directory) and "
                       f"{inner / 'dataset.json'} (a naocal calibrate run)")

@@ -105,6 +105,7 @@ class LeaseJournal:
     motion reply, {"lease", "released": true}. On start the last lease is restored (its controller keeps it for
     the lease timeout from then) with its replies, and the file is rewritten compacted to that. A torn last record
     (power lost while writing) is ignored; records of the format before the lease (3-element arrays) too.
+    A file that is not a journal (it starts with neither record) is refused, never compacted to nothing.
     """
 
     MIN_FREE_BYTES = 1 << 20  # below this, motion commands are refused rather than run without a record
@@ -138,6 +139,8 @@ class LeaseJournal:
             raise NaocalError(f"journal {self.path}: not a regular file")
         lease, skipped = None, 0
         with open(self.path, "rb") as file:
+            _check_is_journal(self.path, file.read(len(FIRST_RECORD_START)), info.st_size)
+            file.seek(0)
             unpacker = msgpack.Unpacker(file, raw=False, strict_map_key=True, max_buffer_size=64 << 20)
             try:
                 for record in unpacker:
@@ -195,6 +198,23 @@ class LeaseJournal:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+# Every journal starts with a lease record ({"lease": digest}: the first event of a lease, and what compaction
+# writes first), msgpack-packed as a map of one key "lease"; a journal of the format before the lease with a
+# [client, seq, reply] array; an empty journal is empty. Anything else is someone else's file.
+FIRST_RECORD_START = msgpack.packb({"lease": b""}, use_bin_type=True)[:7]  # fixmap(1), "lease"
+OLD_FORMAT_START = msgpack.packb(["", 0, b""], use_bin_type=True)[:1]  # fixarray(3)
+
+
+def _check_is_journal(path: str, head: bytes, size: int) -> None:
+    """Refuse (NaocalError) a file that does not start as a journal: load() would compact it to nothing."""
+    if size == 0 or head.startswith(OLD_FORMAT_START):
+        return
+    if head == FIRST_RECORD_START[:len(head)]:  # a whole first record, or one torn as power was lost
+        return
+    raise NaocalError(f"journal {path}: not a naocal bridge journal (it does not start with a lease record); "
+                      "refusing to overwrite it: give a new file name or an existing journal (nothing was changed)")
 
 
 def _reply_record(record: dict) -> bool:

@@ -113,7 +113,8 @@ def parse_effect_sizes(items) -> dict[str, float]:
 
 
 def check_effects(effects) -> dict[str, float]:
-    """A validated copy of {name: size}: known names, finite sizes, none below its effect's mock_size_min."""
+    """A validated copy of {name: size}: known names, finite sizes within the effect's plausible range
+    (mock_size_range)."""
     checked = {}
     for name, size in dict(effects or {}).items():
         if name not in EFFECT_UNITS:
@@ -121,11 +122,22 @@ def check_effects(effects) -> dict[str, float]:
         size = float(size)
         if not math.isfinite(size):
             raise NaocalError(f"effect {name!r}: size must be finite, got {size}")
-        if size < MODEL_EFFECTS[name].mock_size_min:
-            raise NaocalError(f"effect {name!r}: size must be at least {MODEL_EFFECTS[name].mock_size_min:g} "
-                              f"{EFFECT_UNITS[name]}, got {size:g}")
+        low, high = mock_size_range(name)
+        if not low <= size <= high:
+            unit = EFFECT_UNITS[name]
+            bound = f"at least {low:g} {unit}" if size < low else f"at most {high:g} {unit}"
+            raise NaocalError(f"effect {name!r}: size must be {bound}, got {size:g} (its plausible range: "
+                              f"{low:g}..{high:g} {unit}; beyond it no offsets file holds the result)")
         checked[name] = size
     return checked
+
+
+def mock_size_range(name: str) -> tuple[float, float]:
+    """The sizes `--effect NAME=SIZE` takes: from the effect's mock_size_min (or minus its offsets file's limit) up
+    to that limit: an effect larger than any calibration file holds is no robot's (1e308 ran 33 s, then crashed)."""
+    effect = MODEL_EFFECTS[name]
+    low = effect.mock_size_min if math.isfinite(effect.mock_size_min) else -effect.offsets_limit
+    return low, effect.offsets_limit
 
 
 @dataclass(frozen=True)

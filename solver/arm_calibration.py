@@ -12,14 +12,18 @@ from dataclasses import dataclass
 
 from solver.errors import DataError
 from solver.fileio import read_json
+from solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
 
 SCHEMA = "naocal.arm_calibration/1"
 # The units a parameter of each kind is stored in (solver/arm.py), by the first part of its name.
 UNITS = {"joint_offset": "rad", "link_length": "m", "point": "m", "elasticity": "rad/(N m)"}
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
 # limit), 0.1 m of link length or point position.
-LIMITS = {"rad": math.radians(20.0), "m": 0.1}
+LIMITS = {"rad": math.radians(20.0), "m": 0.1, "rad/(N m)": MAX_PARAMETER_SIZE["rad/(N m)"]}
 SENSOR_LIMITS = {"rad": 2 * math.pi, "m": 100.0}  # a sensor's frame: anywhere within 100 m
+FIT_LIMITS = {"m": MAX_PARAMETER_SIZE["m"], "px": MAX_PARAMETER_SIZE["px"]}  # an RMS error beyond: no calibration
+MAX_COUNT = 2 ** 53  # an integer a JSON reader holds exactly
+AXES = "xyz"
 
 
 def implausible(parameters: dict) -> list:
@@ -54,6 +58,13 @@ def _number(value, path, field):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
     return float(value)
+
+
+def _plausible(value, limit, unit, path, field):
+    if abs(value) > limit:
+        _fail(path, f"|value| {abs(value):.4g} {unit} is beyond any plausible calibration ({limit:.4g} {unit}): "
+                    "a damaged file or a unit mix-up", field)
+    return value
 
 
 def _text(value, path, field):
@@ -120,10 +131,7 @@ def read_arm_calibration(path) -> ArmCalibration:
                         "sensor.)", where)
         if unit != expected:
             _fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
-        limit = (SENSOR_LIMITS if kind == "sensor" else LIMITS).get(unit, math.inf)
-        if abs(value) > limit:
-            _fail(path, f"|value| {abs(value):.4g} {unit} is beyond any plausible calibration ({limit:.4g} {unit}): "
-                        "a damaged file or a unit mix-up", f"{where}.value")
+        _plausible(value, (SENSOR_LIMITS if kind == "sensor" else LIMITS)[unit], unit, path, f"{where}.value")
         if std < 0:
             _fail(path, "a standard deviation cannot be negative", f"{where}.std")
         parameters[name] = {"value": value, "std": std, "unit": unit, "fixed": bool(entry.get("fixed", False))}
@@ -137,6 +145,7 @@ def read_arm_calibration(path) -> ArmCalibration:
             entry = parameters.get(prefix + key)
             if entry is None or abs(entry["value"] - value) > 1e-12 * max(1.0, abs(value)):
                 _fail(path, f"disagrees with model.parameters.{prefix}{key}", f"{section}.{key}")
+    _check_sensors(doc.get("sensors", {}), parameters, path)
     fit = doc.get("fit", {})
     if not isinstance(fit, dict):
         _fail(path, "expected a JSON object", "fit")
@@ -148,10 +157,20 @@ def read_arm_calibration(path) -> ArmCalibration:
         for sensor, entry in table.items():
             if not isinstance(entry, dict) or entry.get("unit") not in ("m", "px"):
                 _fail(path, "expected {value, unit: m | px}", f"fit.{section}.{sensor}")
-            value = _number(entry.get("value"), path, f"fit.{section}.{sensor}.value")
-            if value < 0:
-                _fail(path, "cannot be negative", f"fit.{section}.{sensor}.value")
-            out[sensor] = (value, entry["unit"])
+            out[sensor] = (_fit_size(entry.get("value"), entry["unit"], path, f"fit.{section}.{sensor}.value"),
+                           entry["unit"])
+    heldout = fit.get("heldout") or {}
+    if not isinstance(heldout, dict):
+        _fail(path, "expected a JSON object or null", "fit.heldout")
+    for sensor, entry in heldout.items():
+        if not isinstance(entry, dict) or entry.get("unit") not in ("m", "px"):
+            _fail(path, "expected {nominal, calibrated, unit: m | px}", f"fit.heldout.{sensor}")
+        for key in ("nominal", "calibrated"):
+            _fit_size(entry.get(key), entry["unit"], path, f"fit.heldout.{sensor}.{key}")
+    if "n_observations" in fit:
+        count = fit["n_observations"]
+        if type(count) is not int or not 0 <= count <= MAX_COUNT:
+            _fail(path, f"expected a count of observations, got {str(count)[:40]!r}", "fit.n_observations")
     reasons = model.get("fixed", {})
     if not isinstance(reasons, dict):
         _fail(path, "expected a JSON object", "model.fixed")
@@ -159,3 +178,33 @@ def read_arm_calibration(path) -> ArmCalibration:
     return ArmCalibration(str(path), robot, tuple(effects), parameters,
                           {str(k): str(v) for k, v in reasons.items()}, rms, noise,
                           _text(created, path, "created") if created != "?" else "?")
+
+
+def _fit_size(value, unit, path, field) -> float:
+    """An RMS error of the fit: finite, not negative, within FIT_LIMITS."""
+    value = _number(value, path, field)
+    if value < 0:
+        _fail(path, "cannot be negative", field)
+    return _plausible(value, FIT_LIMITS[unit], unit, path, field)
+
+
+def _check_sensors(sensors, parameters: dict, path) -> None:
+    """The `sensors` section: per sensor rotation_rad and translation_m, 3 finite numbers each within SENSOR_LIMITS,
+    saying what model.parameters' sensor.<name>.rotation/translation.<axis> say."""
+    if not isinstance(sensors, dict):
+        _fail(path, "expected a JSON object", "sensors")
+    for name, frame in sensors.items():
+        if not isinstance(frame, dict):
+            _fail(path, "expected {rotation_rad, translation_m}", f"sensors.{name}")
+        for key, part, unit in (("rotation_rad", "rotation", "rad"), ("translation_m", "translation", "m")):
+            where = f"sensors.{name}.{key}"
+            values = frame.get(key)
+            if not isinstance(values, list) or len(values) != 3:
+                _fail(path, "expected 3 numbers (x, y, z)", where)
+            for axis, value in zip(AXES, values):
+                value = _plausible(_number(value, path, f"{where}[{AXES.index(axis)}]"), SENSOR_LIMITS[unit], unit,
+                                   path, f"{where}[{AXES.index(axis)}]")
+                entry = parameters.get(f"sensor.{name}.{part}.{axis}")
+                if entry is None or abs(entry["value"] - value) > 1e-12 * max(1.0, abs(value)):
+                    _fail(path, f"disagrees with model.parameters.sensor.{name}.{part}.{axis}",
+                          f"{where}[{AXES.index(axis)}]")

@@ -10,6 +10,7 @@ import errno
 import json
 import os
 import re
+import secrets
 import shutil
 import signal
 import stat
@@ -105,6 +106,30 @@ def _new_file_mode(path: Path) -> int:
         return 0o666 & ~_umask()
 
 
+# The temporary files of atomic writes: ".NAME.XXXXXXXX.tmp" beside NAME (mkstemp's 8 random characters). A process
+# killed between creating one and the rename leaves it behind: remove_stale_temporaries clears them.
+TEMPORARY_NAME = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp\Z")
+
+
+def is_temporary(name: str) -> bool:
+    """Whether the file name `name` is one of an atomic write's temporary files."""
+    return TEMPORARY_NAME.match(name) is not None
+
+
+def remove_stale_temporaries(directory) -> list[Path]:
+    """Remove the atomic writes' temporary files (regular files named as TEMPORARY_NAME) under `directory`, left by
+    a process killed mid-write; the removed paths. Only for a directory this process holds the lock of: a write
+    in progress there would lose its temporary file."""
+    removed = []
+    for parent, _, names in os.walk(directory):  # symlinks to directories are not followed
+        for name in names:
+            path = Path(parent) / name
+            if is_temporary(name) and stat.S_ISREG(os.lstat(path).st_mode):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
 def _atomic_write(path: Path, data: bytes, backup_suffix: str | None, mode: int | None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     mode = _new_file_mode(path) if mode is None else mode
@@ -117,9 +142,7 @@ def _atomic_write(path: Path, data: bytes, backup_suffix: str | None, mode: int 
             os.fsync(tmp.fileno())
         if backup_suffix and path.exists():
             backup = path.with_name(path.name + backup_suffix)
-            backup_tmp = backup.with_name(backup.name + ".tmp")
-            if backup_tmp.exists():
-                backup_tmp.unlink()
+            backup_tmp = backup.with_name(f".{backup.name}.{secrets.token_hex(4)}.tmp")  # a TEMPORARY_NAME
             os.link(path, backup_tmp)
             os.replace(backup_tmp, backup)
         os.replace(tmp_name, path)
@@ -167,7 +190,7 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
 
 
-def _os_problem(err: OSError) -> str:
+def os_problem(err: OSError) -> str:
     if isinstance(err, FileNotFoundError):
         return "file not found"
     if isinstance(err, PermissionError):
@@ -181,13 +204,13 @@ def read_bytes(path, *, max_bytes: int = MAX_TEXT_BYTES) -> bytes:
     try:
         mode = os.stat(path).st_mode
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     if not stat.S_ISREG(mode):
         raise DataError(path, f"is {_kind(mode)}, expected a regular file")
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):  # replaced between the stat and the open
@@ -205,7 +228,7 @@ def read_bytes(path, *, max_bytes: int = MAX_TEXT_BYTES) -> bytes:
                 raise DataError(path, f"too large: more than {max_bytes} bytes")
         return b"".join(chunks)
     except OSError as err:
-        raise DataError(path, _os_problem(err)) from None
+        raise DataError(path, os_problem(err)) from None
     finally:
         os.close(fd)
 
@@ -330,7 +353,7 @@ def read_json(path, *, max_bytes: int = MAX_JSON_BYTES):
 
 # ------------------------------------------------------------------------------------------ output paths
 # Checked before any work, so that a run does not compute for a minute and then fail to save, and so that
-# nothing that is not ours (a directory, a FIFO, a device) is replaced.
+# nothing that is not ours (a directory, a FIFO, a device) nor any of the command's inputs is replaced.
 
 
 def _existing_ancestor(path: Path) -> Path:
@@ -348,14 +371,36 @@ def _check_can_create_in(path: Path) -> None:
         raise DataError(path, f"cannot be created: no permission to write in {ancestor}")
 
 
-def check_output_file(path) -> Path:
-    """Raise DataError unless `path` can be written as a file (replacing an existing regular file only)."""
+def check_not_an_input(path, inputs) -> None:
+    """Raise DataError if the output `path` is one of the files `inputs` read: the same file (device and inode)
+    under whatever name, symlink or hard link leads to it. An output never replaces what it is made from."""
+    try:
+        written = os.stat(path)
+    except OSError:
+        return  # not there (or not reachable): it replaces nothing; check_output_file names other problems
+    for source in inputs:
+        if source is None:
+            continue
+        try:
+            same = os.path.samestat(written, os.stat(source))
+        except OSError:
+            continue
+        if same:
+            shown = "" if os.fspath(source) == os.fspath(path) else f" ({source})"
+            raise DataError(path, f"is an input of this command{shown}: refusing to write over it; give another "
+                                  "output name (nothing was changed)")
+
+
+def check_output_file(path, *, inputs=()) -> Path:
+    """Raise DataError unless `path` can be written as a file (replacing an existing regular file only, and never
+    one of the files `inputs` the command reads: check_not_an_input)."""
     path = Path(path)
+    check_not_an_input(path, inputs)
     if os.path.lexists(path):
         try:
             mode = os.stat(path).st_mode
         except OSError as err:
-            raise DataError(path, _os_problem(err)) from None
+            raise DataError(path, os_problem(err)) from None
         if not stat.S_ISREG(mode):
             raise DataError(path, f"is {_kind(mode)}; expected a file name (an existing file is replaced)")
         if not os.access(path.parent, os.W_OK | os.X_OK):
@@ -397,3 +442,81 @@ def json_safe(obj):
     if isinstance(obj, (float, np.floating)):
         return float(obj) if math.isfinite(obj) else None
     return obj
+
+# -------------------------------------------------------------------------------------------------- images
+# An image's size is read from its header before it is decoded: a 400 KB PNG can claim 20000 x 20000 pixels
+# (1.2 GB decoded, minutes of corner search) or 60000 x 60000 (beyond OpenCV's own limit: a cv2.error).
+
+MAX_IMAGE_PIXELS = 4096 * 4096  # 16.8 Mpx: a 12-Mpx phone photo of a board fits, the NAO's cameras give 1.2 Mpx;
+# `naocal detect` of a 4096 x 4096 board: 4.0 s CPU, 664 MiB peak (benchmarks/bench_image_budget.py)
+IMAGE_FORMATS = "PNG, JPEG, BMP, PPM, PGM, PBM, PAM"
+_JPEG_FRAMES = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # start-of-frame markers (not DHT, JPG, DAC)
+_PNM_MAGIC = re.compile(rb"P[1-6]")
+
+
+def image_header_size(data: bytes) -> tuple[str, int, int] | None:
+    """(format, width, height) as the header of the image file `data` claims it, None if no header of
+    IMAGE_FORMATS is there; nothing is decoded."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR" and len(data) >= 24:
+        return "PNG", int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    if data[:2] == b"BM" and len(data) >= 26:
+        if int.from_bytes(data[14:18], "little") == 12:  # BITMAPCOREHEADER: 16-bit sizes
+            return "BMP", int.from_bytes(data[18:20], "little"), int.from_bytes(data[20:22], "little")
+        width, height = (int.from_bytes(data[k:k + 4], "little", signed=True) for k in (18, 22))
+        return "BMP", abs(width), abs(height)  # a negative height: rows stored top-down
+    if _PNM_MAGIC.match(data[:2]):
+        fields = re.sub(rb"#[^\n\r]*", b" ", data[2:4096]).split()[:2]  # comments anywhere in the header
+        if len(fields) == 2 and all(f.isdigit() and len(f) <= 12 for f in fields):
+            return "PNM", int(fields[0]), int(fields[1])
+        return None
+    if data[:3] == b"P7\n":
+        header = data[:4096].split(b"ENDHDR", 1)[0]
+        size = dict(re.findall(rb"^(WIDTH|HEIGHT)[ \t]+(\d{1,12})\s*$", header, re.M))
+        return ("PAM", int(size[b"WIDTH"]), int(size[b"HEIGHT"])) if len(size) == 2 else None
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[str, int, int] | None:
+    """The size in a JPEG's first start-of-frame segment (markers walked by their lengths), None if none."""
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            return None
+        marker = data[offset + 1]
+        if marker == 0xFF:  # fill byte
+            offset += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a segment
+            offset += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image, start of scan: no frame header before
+            return None
+        length = int.from_bytes(data[offset + 2:offset + 4], "big")
+        if marker in _JPEG_FRAMES:
+            if offset + 9 > len(data):
+                return None
+            height = int.from_bytes(data[offset + 5:offset + 7], "big")
+            width = int.from_bytes(data[offset + 7:offset + 9], "big")
+            return ("JPEG", width, height) if height else None  # height 0: given later (DNL), not supported
+        if length < 2:
+            return None
+        offset += 2 + length
+    return None
+
+
+def read_image_bytes(path) -> tuple[bytes, tuple[int, int]]:
+    """The bytes of the image file `path` and its (width, height) from its header, checked before any decoding:
+    one of IMAGE_FORMATS, at least 1 x 1 and at most MAX_IMAGE_PIXELS; DataError naming the file otherwise."""
+    data = read_bytes(path)
+    header = image_header_size(data)
+    if header is None:
+        raise DataError(path, f"not an image naocal reads: no {IMAGE_FORMATS} header")
+    kind, width, height = header
+    if width < 1 or height < 1:
+        raise DataError(path, f"{kind} header claims {width} x {height} pixels: an empty image")
+    if width * height > MAX_IMAGE_PIXELS:
+        raise DataError(path, f"{kind} header claims {width} x {height} pixels ({width * height / 1e6:.0f} Mpx): "
+                              f"at most {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx are read (4096 x 4096; docs/CONVENTIONS.md)")
+    return data, (width, height)

@@ -6,6 +6,7 @@ Only kinematics and inertias are used; the URDF's meshes are not available and a
 from __future__ import annotations
 
 import functools
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,8 +52,45 @@ class Urdf:
         raise KeyError(child)
 
 
+MOVING_TYPES = ("revolute", "continuous", "prismatic")  # those whose axis the kinematics use
+MAX_LENGTH_M = 100.0  # an origin or centre of mass farther away: a damaged file or a unit mix-up (mm as m)
+MAX_MASS_KG = 1e4
+MIN_AXIS_NORM = 1e-6  # the axis is normalised here: below this it has no direction
+
+
 def _floats(text: str | None, default: str) -> tuple[float, ...]:
     return tuple(float(x) for x in (text or default).split())
+
+
+def _vector(element, attribute: str, default: str, what: str, *, bound: float = math.inf) -> tuple:
+    """The 3 finite numbers of `element`'s `attribute` (default when absent), within +-bound; ValueError naming
+    `what` otherwise."""
+    text = element.get(attribute) if element is not None else None
+    try:
+        values = _floats(text, default)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{what} {text!r}: expected 3 finite numbers")
+    if max(abs(v) for v in values) > bound:
+        raise ValueError(f"{what} {text!r}: beyond {bound:g} (a damaged file or a unit mix-up)")
+    return values
+
+
+def _scalar(element, attribute: str, what: str, *, low: float = -math.inf, high: float = math.inf) -> float:
+    """`element`'s number `attribute` (NaN when absent: not given); ValueError naming `what` unless finite and within
+    [low, high]."""
+    text = element.get(attribute)
+    if text is None:
+        return float("nan")
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"{what} {text!r}: expected a finite number" + (
+            f" within {low:g}..{high:g}" if math.isfinite(low) or math.isfinite(high) else ""))
+    return value
 
 
 def parse_urdf(path=NOMINAL_URDF) -> Urdf:
@@ -69,35 +107,46 @@ def parse_urdf(path=NOMINAL_URDF) -> Urdf:
         try:
             joints[element.get("name")] = _parse_joint(element)
         except (AttributeError, TypeError, ValueError) as err:
-            raise DataError(path, f"malformed joint: {err}", field=element.get("name")) from None
+            raise DataError(path, f"malformed joint {element.get('name')!r}: {err}", field=element.get("name")) \
+                from None
     links = {}
     for element in root.findall("link"):
         try:
             link = _parse_link(element)
         except (AttributeError, TypeError, ValueError) as err:
-            raise DataError(path, f"malformed link: {err}", field=element.get("name")) from None
+            raise DataError(path, f"malformed link {element.get('name')!r}: {err}", field=element.get("name")) \
+                from None
         if link is not None:
             links[link.name] = link
     return Urdf(joints=joints, links=links)
 
 
 def _parse_joint(element) -> UrdfJoint:
+    """One joint, every attribute the kinematics use checked: origin finite and within MAX_LENGTH_M, a moving
+    joint's axis finite with a direction, limits finite (velocity and effort >= 0)."""
+    kind = element.get("type")
     origin = element.find("origin")
+    xyz = _vector(origin, "xyz", "0 0 0", "origin xyz", bound=MAX_LENGTH_M)
+    rpy = _vector(origin, "rpy", "0 0 0", "origin rpy")
     axis_element = element.find("axis")
-    axis = np.array(_floats(axis_element.get("xyz") if axis_element is not None else None, "1 0 0"))
-    norm = np.linalg.norm(axis)
+    axis = np.array(_vector(axis_element, "xyz", "1 0 0", "axis xyz"))
+    norm = float(np.linalg.norm(axis))
+    if kind in MOVING_TYPES and norm < MIN_AXIS_NORM:  # a fixed joint's axis is not used
+        raise ValueError(f"axis xyz {axis_element.get('xyz')!r}: no direction (a zero vector)")
     axis = tuple(float(a) for a in axis / norm) if norm > 0 else (0.0, 0.0, 0.0)
     limit = element.find("limit")
     limits = {}
     if limit is not None:
-        limits = {key: float(limit.get(key, "nan")) for key in ("lower", "upper", "velocity", "effort")}
+        limits = {key: _scalar(limit, key, f"limit {key}") for key in ("lower", "upper")}
+        limits.update({key: _scalar(limit, key, f"limit {key}", low=0.0) for key in ("velocity", "effort")})
+        # lower > upper is kept: PyBullet's files write it for "no limit"
     return UrdfJoint(
         name=element.get("name"),
-        kind=element.get("type"),
+        kind=kind,
         parent=element.find("parent").get("link"),
         child=element.find("child").get("link"),
-        xyz=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
-        rpy=_floats(origin.get("rpy") if origin is not None else None, "0 0 0"),
+        xyz=xyz,
+        rpy=rpy,
         axis=axis,
         **limits,
     )
@@ -107,11 +156,13 @@ def _parse_link(element) -> UrdfLink | None:
     inertial = element.find("inertial")
     if inertial is None or inertial.find("mass") is None:
         return None
-    origin = inertial.find("origin")
+    mass = _scalar(inertial.find("mass"), "value", "inertial mass", low=0.0, high=MAX_MASS_KG)
+    if math.isnan(mass):
+        raise ValueError("inertial mass: no value")
     return UrdfLink(
         name=element.get("name"),
-        mass=float(inertial.find("mass").get("value")),
-        com=_floats(origin.get("xyz") if origin is not None else None, "0 0 0"),
+        mass=mass,
+        com=_vector(inertial.find("origin"), "xyz", "0 0 0", "inertial origin xyz", bound=MAX_LENGTH_M),
     )
 
 

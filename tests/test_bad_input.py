@@ -427,3 +427,232 @@ def test_unexpected_errors_still_give_one_line(monkeypatch, capsys, offsets, err
     assert main(["offsets", "validate", str(offsets)]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"naocal offsets: error: {words}")
+
+
+# --------------------------------------------------------------------- files never destroyed (issue 21)
+
+
+def test_bridge_journal_that_is_not_a_journal_is_refused_untouched(tmp_path):
+    from backends.bridge_lease import LeaseJournal
+    from solver.errors import NaocalError
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    with pytest.raises(NaocalError, match=f"journal {notes}: not a naocal bridge journal"):
+        LeaseJournal(notes).load(replies_kept=32)
+    assert notes.read_text() == "keep me\n"
+    png = tmp_path / "photo.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    with pytest.raises(NaocalError, match="not a naocal bridge journal"):
+        LeaseJournal(png).load(replies_kept=32)
+    assert len(png.read_bytes()) == 108
+
+
+def test_bridge_journal_torn_in_its_first_record_is_still_a_journal(tmp_path):
+    import msgpack
+
+    from backends.bridge_lease import LeaseJournal
+
+    path = tmp_path / "j"
+    path.write_bytes(msgpack.packb({"lease": bytes(32)}, use_bin_type=True)[:12])  # power lost while writing
+    assert LeaseJournal(path).load(replies_kept=32) is None
+    assert path.read_bytes() == b""
+
+
+def test_bridge_serve_journal_onto_a_text_file_is_one_line(tmp_path):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    outcome = fz.run_forked(["bridge", "serve", "--driver", "mock", "--bind", "tcp://127.0.0.1:0", "--journal",
+                             str(notes)], deadline_s=60)
+    assert "not a naocal bridge journal" in one_line_error(outcome, "bridge")
+    assert notes.read_text() == "keep me\n"
+
+
+REAL_IMAGE = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009" / "image_0.png"
+
+
+@pytest.mark.parametrize("how", ["same path", "other path", "symlink", "hard link", "directory"])
+def test_detect_overlay_never_writes_over_an_input_image(tmp_path, how):
+    image = tmp_path / "img.png"
+    shutil.copy(REAL_IMAGE, image)
+    before = image.read_bytes()
+    images, overlay = [str(image)], str(image)
+    if how == "other path":
+        overlay = str(tmp_path / "sub" / ".." / "img.png")
+        (tmp_path / "sub").mkdir()
+    elif how == "symlink":
+        overlay = str(tmp_path / "link.png")
+        os.symlink(image, overlay)
+    elif how == "hard link":
+        overlay = str(tmp_path / "second.png")
+        os.link(image, overlay)
+    elif how == "directory":  # two images, the overlay of the first named like the second
+        shutil.copy(image, tmp_path / "img.corners.png")
+        images, overlay = [str(image), str(tmp_path / "img.corners.png")], str(tmp_path)
+    outcome = fz.run_forked(["detect", *images, "--overlay", overlay], deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "detect")
+    assert image.read_bytes() == before and all(Path(p).read_bytes() == before for p in images)
+
+
+def test_identify_out_onto_its_own_dataset_is_refused(dataset):
+    meta = dataset / "dataset.json"
+    before = meta.read_bytes()
+    outcome = fz.run_forked(["identify", str(dataset), "--out", str(meta)], deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "identify")
+    assert meta.read_bytes() == before and not meta.with_name("dataset.json.bak").exists()
+
+
+@pytest.mark.parametrize("fmt", ["json", "urdf"])
+def test_offsets_export_onto_its_own_source_is_refused(offsets, tmp_path, fmt):
+    before = offsets.read_bytes()
+    out = offsets if fmt == "json" else tmp_path / "nao.urdf"
+    argv = ["offsets", "export", str(offsets), "--format", fmt, "--out", str(out)]
+    if fmt == "urdf":
+        from tools.export.urdf import NOMINAL_URDF
+
+        shutil.copy(NOMINAL_URDF, out)
+        argv += ["--nominal-urdf", str(out)]
+    nominal = out.read_bytes()
+    outcome = fz.run_forked(argv, deadline_s=60)
+    assert "is an input of this command" in one_line_error(outcome, "offsets")
+    assert offsets.read_bytes() == before and out.read_bytes() == nominal
+
+
+# ------------------------------------------------------------------------------ images: the pixel budget
+
+
+def png_claiming(width, height, *, whole=False) -> bytes:
+    """A grey PNG whose header says width x height; `whole`: with all its (black) rows, else with none."""
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    packer = zlib.compressobj(9)
+    row = bytes(width + 1)  # filter byte 0, black pixels
+    idat = b"".join(packer.compress(row) for _ in range(height if whole else 0)) + packer.flush()
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def image_bombs(work):
+    """A 20000 x 20000 PNG of about 400 KB (whole: 400 Mpx decoded) and a header claiming 60000 x 60000."""
+    bombs = work / "bombs"
+    bombs.mkdir()
+    (bombs / "big.png").write_bytes(png_claiming(20000, 20000, whole=True))
+    (bombs / "huge.png").write_bytes(png_claiming(60000, 60000))
+    return bombs
+
+
+@pytest.mark.parametrize("name, claim", [("big.png", "20000 x 20000"), ("huge.png", "60000 x 60000")])
+def test_detect_refuses_an_image_beyond_the_pixel_budget_from_its_header(image_bombs, name, claim):
+    assert (image_bombs / "big.png").stat().st_size < 1024 ** 2
+    outcome = fz.run_forked(["detect", str(image_bombs / name)], deadline_s=20)
+    line = one_line_error(outcome, "detect")
+    assert name in line and f"claims {claim} pixels" in line and "16.8 Mpx" in line
+    assert outcome.seconds < 10
+
+
+@pytest.mark.parametrize("kind", ["jpeg", "bmp", "bmp top-down", "ppm", "pgm with comments", "pam"])
+def test_every_image_format_has_its_size_read_from_its_header(tmp_path, kind):
+    import cv2
+    import numpy as np
+
+    from solver.errors import DataError
+    from solver.fileio import read_image_bytes
+
+    ext = {"jpeg": ".jpg", "bmp": ".bmp", "bmp top-down": ".bmp", "ppm": ".ppm", "pgm with comments": ".pgm",
+           "pam": ".pam"}[kind]
+    pixels = np.zeros((30, 50, 3) if ext == ".ppm" else (30, 50), np.uint8)
+    data = cv2.imencode(ext, pixels)[1].tobytes()
+    if kind == "pgm with comments":
+        data = data.replace(b"\n", b"\n# a comment 99999 99999\n", 1)
+    if kind == "bmp top-down":
+        data = data[:22] + (-30).to_bytes(4, "little", signed=True) + data[26:]
+    small = tmp_path / f"small{ext}"
+    small.write_bytes(data)
+    assert read_image_bytes(small)[1] == (50, 30)
+    claims = {".jpg": lambda d: d.replace(b"\xff\xc0\x00\x0b\x08\x00\x1e\x00\x32",  # SOF0: 8 bit, 30 x 50
+                                          b"\xff\xc0\x00\x0b\x08\xea\x60\xea\x60"),
+              ".bmp": lambda d: d[:18] + (60000).to_bytes(4, "little") + (-60000).to_bytes(4, "little", signed=True)
+              + d[26:],
+              ".ppm": lambda d: d.replace(b"50 30", b"60000 60000", 1),
+              ".pgm": lambda d: d.replace(b"50 30", b"60000 60000", 1),
+              ".pam": lambda d: d.replace(b"WIDTH 50", b"WIDTH 60000").replace(b"HEIGHT 30", b"HEIGHT 60000")}
+    big = tmp_path / f"big{ext}"
+    big.write_bytes(claims[ext](data))
+    with pytest.raises(DataError, match=r"claims 60000 x 60000 pixels"):
+        read_image_bytes(big)
+
+
+def test_import_mrlspl_refuses_an_image_beyond_the_pixel_budget(image_bombs, tmp_path):
+    source = tmp_path / "mrlspl"
+    shutil.copytree(REAL_IMAGE.parent, source)
+    shutil.copy(image_bombs / "huge.png", source / "image_3.png")
+    outcome = fz.run_forked(["import", "mrlspl", str(source), "--out", str(tmp_path / "ds")], deadline_s=60)
+    line = one_line_error(outcome, "import")
+    assert "image_3.png" in line and "claims 60000 x 60000 pixels" in line
+    assert not (tmp_path / "ds").exists() or not any((tmp_path / "ds").iterdir())
+
+
+def test_a_report_reads_its_images_through_the_pixel_budget(tmp_path):
+    """diagnose --report draws the worst images of a dataset: read through solver.fileio.read_image_bytes (a bomb
+    among them was decoded by matplotlib whole)."""
+    import tools.report as report
+    from solver.errors import DataError
+
+    path = tmp_path / "000001.png"
+    path.write_bytes(png_claiming(60000, 60000))
+    with pytest.raises(DataError, match="000001.png: PNG header claims 60000 x 60000 pixels"):
+        report._overlay(path, None, None, None, 1)
+
+
+# --------------------------------------------------------------------------------- implausible numbers
+
+
+@pytest.mark.parametrize("verb", ["simulate", "calibrate"])
+@pytest.mark.parametrize("effect, words", [("elasticity=1e308", "at most 1 rad/(N m), got 1e+308 (its plausible "
+                                                               "range: 0..1 rad/(N m)"),
+                                           ("intrinsics=-1e9", "at least -200 px, got -1e+09 (its plausible range: "
+                                                               "-200..200 px"),
+                                           ("backlash=0.5", "plausible range: 0..0.174533 rad")])
+def test_an_implausible_effect_size_is_refused_at_once_naming_its_range(tmp_path, verb, effect, words):
+    argv = [verb, "--out", str(tmp_path / "out"), "--effect", effect]
+    if verb == "calibrate":
+        argv += ["--backend", "mock"]
+    outcome = fz.run_forked(argv, deadline_s=20)
+    line = one_line_error(outcome, verb)
+    assert repr(effect.split("=")[0]) in line and words in line, line
+    assert outcome.seconds < 10 and not (tmp_path / "out").exists()
+
+
+def test_a_dataset_directory_nobody_may_read_is_permission_denied_not_missing(dataset):
+    dataset.chmod(0)
+    try:
+        outcome = fz.run_forked(["identify", str(dataset)], deadline_s=20, as_nobody=True)
+    finally:
+        dataset.chmod(0o755)
+    line = one_line_error(outcome, "identify")
+    assert "permission denied" in line and str(dataset) in line and "no dataset here" not in line, line
+
+
+@pytest.mark.parametrize("kind, words", [("bmp", "not an image OpenCV can read (PNG, JPEG"),
+                                         ("png", "not an image OpenCV can read (libpng error: ")])
+def test_a_damaged_image_is_one_line_without_the_libraries_own_lines(tmp_path, kind, words):
+    """Found by benchmarks/fuzz_inputs.py --groups images: OpenCV logged '[ERROR:...] imdecode_ ...' and libpng
+    printed 'libpng error: ...' beside naocal's line; libpng's words are now in it."""
+    import cv2
+    import numpy as np
+
+    if kind == "png":
+        data = bytearray(REAL_IMAGE.read_bytes())
+        data[63] = 0  # in the deflate stream
+    else:
+        data = bytearray(cv2.imencode(".bmp", np.zeros((30, 50, 3), np.uint8))[1].tobytes())
+        data[30] = 127  # the compression field: no such compression
+    path = tmp_path / f"board.{kind}"
+    path.write_bytes(bytes(data))
+    line = one_line_error(fz.run_forked(["detect", str(path)], deadline_s=20), "detect")
+    assert str(path) in line and words in line, line

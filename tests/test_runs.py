@@ -247,7 +247,7 @@ def test_the_mock_realism_is_recorded_and_another_refused(tmp_path):
 
     def record(mock):
         return calibrate_record(backend="mock", mock_seed=3, mock=mock, effects={}, plan="paper", plan_seed=0,
-                                stances_per_leg=5, probe=True)
+                                stances_per_leg=5, probe=True, speed=0.4, images=True)
 
     write_record(tmp_path, record("realistic"))
     recorded, source = recorded_run(tmp_path)

@@ -128,11 +128,12 @@ def run_identify(args) -> int:
 
     _check_nao_only(args)
     effects = parse_arm_effects(args.effects)
+    dataset = _load(args)
     if args.out:
+        from agent.rundir import dataset_files
         from solver.fileio import check_output_file
 
-        check_output_file(args.out)  # before the fit, as the NAO's identify
-    dataset = _load(args)
+        check_output_file(args.out, inputs=[*dataset_files(args.dataset), dataset.urdf_path])  # before the fit
     fit = identify_dataset(dataset, effects, fixed=tuple(args.fix), loss=args.loss, robust=not args.keep_outliers)
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")

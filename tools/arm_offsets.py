@@ -97,7 +97,8 @@ def _urdf_of(cal, args) -> Path:
 
 
 def build_export(args):
-    """(file name, text) of an arm's export; NaocalError for what an arm's file cannot be exported to."""
+    """(file name, text, the files it was made from) of an arm's export; NaocalError for what an arm's file cannot
+    be exported to."""
     import json
 
     from solver.arm_calibration import read_arm_calibration
@@ -112,11 +113,12 @@ def build_export(args):
     if args.format == "json":
         from solver.fileio import read_json
 
-        return "calibration.json", json.dumps(read_json(args.file), indent=1, allow_nan=False) + "\n"
+        return "calibration.json", json.dumps(read_json(args.file), indent=1, allow_nan=False) + "\n", [args.file]
     from tools.export.arm_urdf import export_arm_urdf
 
-    return "calibrated.urdf", export_arm_urdf(cal, _urdf_of(cal, args), source_name=Path(args.file).name,
-                                              strip_meshes=args.strip_meshes)
+    urdf = _urdf_of(cal, args)
+    return "calibrated.urdf", export_arm_urdf(cal, urdf, source_name=Path(args.file).name,
+                                              strip_meshes=args.strip_meshes), [args.file, urdf]
 
 
 def run_export(args, out) -> int:
@@ -125,9 +127,12 @@ def run_export(args, out) -> int:
     if args.out is None:
         out.write(build_export(args)[1])
         return 0
+    from solver.fileio import check_not_an_input
+
     target = Path(args.out)
     with locked(target.parent):
-        _, text = build_export(args)  # built before anything is written
+        _, text, inputs = build_export(args)  # built before anything is written
+        check_not_an_input(target, inputs)
         print(_write(_target(target, "", True), text), file=sys.stderr)
     return 0
 

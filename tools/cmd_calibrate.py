@@ -104,8 +104,7 @@ def settings_from_args(args, *, seed: int, source: str):
                          thresholds=thresholds)
 
 
-def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, no_images: bool = False,
-                      no_progress: bool = False, resume: bool = True) -> str:
+def calibrate_command(record: dict, out, *, endpoint=None, no_progress: bool = False, resume: bool = True) -> str:
     """The shell command (quoted) that runs, or with `resume` continues, the run `record` describes in `out`."""
     import shlex
 
@@ -126,9 +125,9 @@ def calibrate_command(record: dict, out, *, endpoint=None, speed: float = 0.4, n
         parts += ["--stances-per-leg", str(record["stances_per_leg"])]
     if not record["probe"]:
         parts.append("--no-probe")
-    if speed != 0.4:
-        parts += ["--speed", repr(speed)]
-    if no_images:
+    if record.get("speed", 0.4) != 0.4:
+        parts += ["--speed", repr(record["speed"])]
+    if not record.get("images", True):
         parts.append("--no-images")
     if no_progress:
         parts.append("--no-progress")
@@ -143,6 +142,7 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     from agent.calibrate import check_unfinished
     from agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
     from solver.errors import NaocalError
+    from solver.fileio import is_temporary
 
     names = entries(out)
     if not names:
@@ -157,7 +157,7 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
                               "--out (nothing was changed)")
         raise NaocalError(f"{out} is not empty (it holds {names[0]}): choose a new or empty directory for --out "
                           "(nothing was changed)")
-    foreign = [n for n in names if n not in CALIBRATE_ENTRIES and not (n.startswith(".") and n.endswith(".tmp"))]
+    foreign = [n for n in names if n not in CALIBRATE_ENTRIES and not is_temporary(n)]
     if foreign:
         raise NaocalError(f"{out} holds {foreign[0]}, which a calibration run does not write: is it the right "
                           "directory? (nothing was changed)")
@@ -214,6 +214,7 @@ def write_run_report(report, out, ctx) -> str | None:
 
 
 def run(args) -> int:
+    import logging
     from pathlib import Path
 
     from agent.rundir import RunLock, calibrate_record
@@ -247,14 +248,21 @@ def run(args) -> int:
     realism = (args.mock or "realistic") if args.backend == "mock" else None
     record = calibrate_record(backend=args.backend, mock_seed=args.seed if args.backend == "mock" else None,
                               mock=realism, effects=effects, plan=args.plan,
-                              plan_seed=args.plan_seed, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
+                              plan_seed=args.plan_seed, stances_per_leg=args.stances_per_leg, probe=not args.no_probe,
+                              speed=args.speed, images=not args.no_images)
 
     def command(the_record, resume=True):
-        return calibrate_command(the_record, out, endpoint=args.endpoint, speed=args.speed,
-                                 no_images=args.no_images, no_progress=args.no_progress, resume=resume)
+        return calibrate_command(the_record, out, endpoint=args.endpoint, no_progress=args.no_progress,
+                                 resume=resume)
 
     with RunLock(out, command(record, args.resume)):
         check_out_dir(out, resume=args.resume, record=record, command=command)
+        if args.resume:  # a session killed mid-write left temporary files: ours (we hold the lock), never used
+            from solver.fileio import remove_stale_temporaries
+
+            for path in remove_stale_temporaries(out):
+                logging.getLogger("naocal.calibrate").info("removed %s, left by a session killed while writing it",
+                                                           path)
         return _calibrate(args, out, record, effects, resume_hint=command(record))
 
 

@@ -11,7 +11,8 @@ The board may be of any two colours, either polarity, in grey or in colour: --ch
 white) and the chroma channels Cr and Cb of YCrCb (colours of similar brightness, e.g. an orange/blue board on
 green carpet) and keeps the detection whose squares differ most for their noise.
 
-Images: PNG, JPEG, BMP, PPM, PGM (anything OpenCV reads), colour or grey, 8 or 16 bit, any size; and raw YUYV
+Images: PNG, JPEG, BMP, PPM, PGM, PBM, PAM, colour or grey, 8 or 16 bit, up to 16.8 Mpx (4096 x 4096; the size
+in the file's header is checked before anything is decoded: docs/CONVENTIONS.md); and raw YUYV
 frames (YUV 4:2:2, the NAO camera's V4L2 format: Y0 U Y1 V per pair of pixels, 2 bytes per pixel, no header)
 named *.yuv, *.yuyv or *.raw: --size WxH gives their size, else it is told by the file's length among 160x120,
 320x240, 640x480 and 1280x960. Pixel (0, 0) is the centre of the top-left pixel (OpenCV's).
@@ -37,13 +38,14 @@ document (schema naocal.detect/1):
                "corners_px": [[[u, v], ... W-1 per row], ... H-1 rows] | null}]}   in the corner order above
 --overlay OUT draws each image's corners with their order (row 0 in red, index labels, corner 0 circled): OUT is
 a file (.png, .jpg) for one image, or a directory (one IMAGE.corners.png per image); images narrower than 640 px
-are drawn enlarged.
+are drawn enlarged. An overlay never replaces an input image (by any name or link): that is refused.
 
 Exit codes: 0 when the board was found in every image, 1 when it was not in some (listed on stderr), 2 for bad
 input (an unreadable image, a bad --board) - then nothing is detected.
 """
 
 import argparse
+import contextlib
 
 YUYV_SIZES = ((160, 120), (320, 240), (640, 480), (1280, 960))
 RAW_SUFFIXES = (".yuv", ".yuyv", ".raw")
@@ -74,6 +76,7 @@ def run(args) -> int:
 
     from agent.board_detect import parse_board
     from solver.errors import DataError, NaocalError
+    from solver.fileio import check_output_file
 
     try:
         board = parse_board(args.board)
@@ -81,6 +84,8 @@ def run(args) -> int:
         raise NaocalError(f"--board: {err}") from None
     raw_size = parse_size(args.size) if args.size else None
     overlay = _overlay_paths(args.overlay, args.images) if args.overlay else None
+    for out in (overlay or {}).values():  # before any work; never over an image (by any name or link)
+        check_output_file(out, inputs=args.images)
     for path in args.images:  # every image checked first (and let go: memory): bad input detects nothing
         if read_image(path, raw_size).ndim == 2 and args.channel in ("cr", "cb"):
             raise DataError(path, f"a grey image has no {args.channel} channel (use --channel auto or grey)")
@@ -120,10 +125,15 @@ def parse_size(text: str) -> tuple[int, int]:
     parts = text.lower().replace(" ", "").split("x")
     if len(parts) != 2 or not all(p.isdigit() for p in parts):
         raise NaocalError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
+    from solver.fileio import MAX_IMAGE_PIXELS
+
     width, height = (int(p) for p in parts)
     if not (2 <= width <= 8192 and 2 <= height <= 8192) or width % 2:
         raise NaocalError(f"--size {text!r}: expected an even width of 2-8192 px and a height of 2-8192 px "
                           "(YUYV holds pixels in pairs)")
+    if width * height > MAX_IMAGE_PIXELS:
+        raise NaocalError(f"--size {text!r}: at most {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx are read (4096 x 4096; "
+                          "docs/CONVENTIONS.md)")
     return width, height
 
 
@@ -136,13 +146,13 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     import numpy as np
 
     from solver.errors import DataError
-    from solver.fileio import read_bytes
+    from solver.fileio import read_bytes, read_image_bytes
 
     file = Path(path)
     if not file.exists():
         raise DataError(path, "no such file")
-    data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
     if file.suffix.lower() in RAW_SUFFIXES:
+        data = read_bytes(file)  # a regular file of at most 64 MiB (a FIFO or directory is refused unread)
         for width, height in [raw_size] if raw_size else YUYV_SIZES:
             if len(data) == 2 * width * height:
                 yuyv = np.frombuffer(data, np.uint8).reshape(height, width, 2)
@@ -153,10 +163,22 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
         sizes = ", ".join(f"{w}x{h}" for w, h in YUYV_SIZES)
         raise DataError(path, f"raw YUYV of {len(data)} bytes: expected 2 bytes per pixel at {sizes} "
                               "(or give --size WxH)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    data, _ = read_image_bytes(file)  # its header's size within the pixel budget before anything is decoded
+    said = []  # what libpng, libjpeg ... printed: a damaged file is our one line, with their words in it
+    log = cv2.utils.logging
+    previous = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # OpenCV's own log lines say what the None below says
+    try:
+        with native_stderr_held(said):
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as err:  # a header OpenCV refuses after ours passed it
+        raise DataError(path, f"not an image OpenCV can read: {str(err).strip().splitlines()[-1][:200]}") from None
+    finally:
+        log.setLogLevel(previous)
     if image is None or image.size == 0:
-        raise DataError(path, "not an image OpenCV can read (PNG, JPEG, BMP, PPM, PGM; raw YUYV as *.yuv, *.yuyv, "
-                              "*.raw)")
+        why = " ".join(said[0].split())[:160] if said and said[0].strip() else ""
+        raise DataError(path, "not an image OpenCV can read" + (f" ({why})" if why else " (PNG, JPEG, BMP, PPM, PGM; "
+                                                                         "raw YUYV as *.yuv, *.yuyv, *.raw)"))
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
@@ -168,6 +190,27 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
         raise DataError(path, f"{image.shape} pixels: expected grey or colour")
     return np.ascontiguousarray(image)
+
+
+@contextlib.contextmanager
+def native_stderr_held(said: list):
+    """Hold what C libraries write to file descriptor 2 during the block (libpng's 'libpng error: ...' on a damaged
+    file) and append it to `said`, so that the user sees one line; Python's sys.stderr is flushed first."""
+    import os
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            said.append(held.read(4096).decode("utf-8", "replace"))
 
 
 def detect_one(path: str, image, board, channel: str) -> dict:

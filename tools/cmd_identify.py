@@ -73,7 +73,7 @@ def run(args) -> int:
     if wants_arm(args):
         return run_identify(args)
 
-    from agent.rundir import find_dataset
+    from agent.rundir import dataset_files, find_dataset
     from solver.adapter import model_data_from_dataset
     from solver.dataset import read_dataset
     from solver.effects import EFFECTS, parse_effect_names
@@ -84,9 +84,9 @@ def run(args) -> int:
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
         raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
     effects = parse_effect_names(args.effects)
-    if args.out:
-        check_output_file(args.out)
     dataset_path = find_dataset(args.dataset)
+    if args.out:
+        check_output_file(args.out, inputs=dataset_files(dataset_path))
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset)
     for name in effects:

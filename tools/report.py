@@ -256,9 +256,13 @@ def _correlation(fit):
 
 
 def _overlay(path, result, after, top, image_id):
+    import io
+
     import matplotlib.image as mpimg
 
-    picture = mpimg.imread(str(path))
+    from solver.fileio import read_image_bytes
+
+    picture = mpimg.imread(io.BytesIO(read_image_bytes(path)[0]))  # its size checked before it is decoded
     data = result.model.data
     m = int(np.flatnonzero(data.image_id == image_id)[0])
     rows = data.rows_of_images([m])

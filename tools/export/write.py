@@ -112,7 +112,15 @@ def _write(target: Path, text: str) -> str:
     return f"wrote {target}" + ("" if previous is None else f" (previous version kept as {target.name}{BACKUP_SUFFIX})")
 
 
+def export_inputs(args) -> list:
+    """The files an export is made from (an export never replaces them)."""
+    from tools.export import urdf
+
+    return [args.file, args.nominal_urdf or (urdf.NOMINAL_URDF if args.format == "urdf" else None)]
+
+
 def run_export(args, out) -> int:
+    from solver.fileio import check_not_an_input
     from solver.offsets import read_offsets
 
     offsets = read_offsets(args.file)
@@ -132,6 +140,8 @@ def run_export(args, out) -> int:
     with locked(target_dir if team else target_dir.parent):
         files = build(args, offsets)  # everything is built before anything is written
         targets = [(_target(target_dir, file.path, not team), file) for file in files]
+        for target, _ in targets:  # a team's files (--merge-from) are merged into on purpose, its sources never
+            check_not_an_input(target, export_inputs(args))
         for target, file in targets:
             print(_write(target, file.text), file=sys.stderr)
             for note in file.notes:
