@@ -170,7 +170,8 @@ SESSION_OPTIONS = {  # options free to change on --resume, and why
     "--endpoint": "the robot's address may change between sessions",
     "--max-joint-offset-deg": "a limit on the result, checked after the identification of the whole dataset",
     "--max-camera-rotation-deg": "a limit on the result, checked after the identification of the whole dataset",
-    "--no-progress": "what stderr shows", "--verbose": "what stderr shows"}
+    "--no-progress": "what stderr shows", "--verbose": "what stderr shows",
+    "--report": "a report of the dataset written after the run: it changes no capture"}
 
 
 def write_record(directory: Path, record: dict) -> None:

@@ -281,7 +281,7 @@ def test_the_vector_plots_before_and_after_share_one_scale_and_say_it(elastic_da
     from solver.dataset import read_dataset
     from solver.diagnostics import diagnose_result, registry_with
     from solver.identify import identify
-    from solver.model import model_data_from_dataset
+    from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
     from tools.report import MAX_ARROWS, _vectors
 
