@@ -40,16 +40,16 @@ def run(args) -> int:
         return run_verify(args)
 
     from agent.rundir import find_dataset
-    from solver.adapter import model_data_from_dataset
     from solver.dataset import read_dataset
     from solver.offsets import read_offsets
-    from solver.verify import check_same_robot, verify
+    from solver.robot import load_robot
+    from solver.verify import check_same_robot, verify_dataset
 
     offsets = read_offsets(args.offsets)
     dataset = read_dataset(find_dataset(args.dataset))  # (both read through solver.fileio: regular files, capped)
-    data = model_data_from_dataset(dataset, angles=args.angles)
-    check_same_robot(offsets, args.offsets, dataset.meta, data.robot)
-    result = verify(data, offsets, pixel_noise_px=dataset.meta.get("pixel_noise_px"))
+    check_same_robot(offsets, args.offsets, dataset.meta,
+                     load_robot(dataset.as_v2().meta["robot"].get("description", "nao")))
+    result = verify_dataset(dataset, offsets, angles=args.angles, pixel_noise_px=dataset.meta.get("pixel_noise_px"))
     if args.json:
         print(json.dumps({"dataset": str(args.dataset), "offsets": str(args.offsets), **result.as_dict()}, indent=1))
     else:
@@ -65,6 +65,8 @@ def format_text(result) -> str:
                 f"max {s['max_px']:.3f} px ({s['n_vertices']} vertices)")
 
     lines = [f"overall: {stats(result.overall)}"]
+    if result.outliers or result.images_set_aside or result.n_moving_set_aside:
+        lines.append(f"before anything was set aside: {stats(result.all_corners)}")
     if result.calibration_rms_px is not None:
         lines.append(f"the calibration's own fit: RMS {result.calibration_rms_px:.3f} px")
     lines.append(f"noise floor of these data: {result.noise_floor_px:.3f} px ({result.noise_source})")
@@ -77,9 +79,16 @@ def format_text(result) -> str:
     if result.board_summary:
         lines.append(result.board_summary)
     lines += [f"warning: {w}" for w in result.warnings]
-    if result.images_set_aside:
-        from solver.image_check import describe_set_aside
+    if result.angles:
+        lines.append(result.angles)
+    from solver.fit import describe_outliers
+    from solver.image_check import describe_set_aside
 
+    lines.append(describe_outliers(result.outliers, result.robust_scale_px) + " (as identify sets them aside)")
+    if result.images_set_aside:
         lines.append(describe_set_aside(result.images_set_aside))
+    if result.n_moving_set_aside:
+        lines.append(f"{result.n_moving_set_aside} captures taken while moving set aside (the calibration has no "
+                     "time_lag: as identify)")
     lines.append(result.verdict)
     return "\n".join(lines)
