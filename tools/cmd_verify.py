@@ -1,4 +1,4 @@
-"""`naocal verify DATASET --offsets FILE`: is a calibration still good on new data? (no refit)"""
+"""`naocal verify DATASET --offsets FILE`: is a calibration still good on new data? (its values are not refitted)"""
 
 EXIT_GOOD, EXIT_DRIFTED = 0, 1
 
@@ -9,11 +9,13 @@ def register(subparsers):
         help="the residuals of new data under a fixed calibration: still good, or drifted (and what moved)",
         description=(
             "Evaluate a naocal.dataset/2 (or /1) under the calibration of a naocal.offsets/2 (or /1) file without "
-            "refitting: RMS, median, 95th percentile and maximum pixel error overall, per camera, per target and per "
-            "image, against the calibration's own RMS and the data's noise floor. Verdict 'still good' or 'drifted', "
-            "naming the joints, cameras or boards whose calibrated values the new data say have moved. Exit 0 still "
-            "good, 1 drifted, 2 bad input (docs/DIAGNOSTICS.md). An arm's naocal.arm_dataset/1 under its "
-            "naocal.arm_calibration/1: the same, per sensor and pose (docs/ARM.md)."
+            "refitting it, after setting aside what identify sets aside (moving captures, mis-detected corners and "
+            "images): RMS, median, 95th percentile and maximum pixel error overall, per camera, per target and per "
+            "image, against the calibration's own RMS and the data's noise floor. Verdict 'still good' or 'drifted' "
+            "(the RMS beyond 1.5 x both, or a calibrated value moved by 5 standard deviations), naming the joints, "
+            "cameras or boards whose calibrated values the new data say have moved. Exit 0 still good, 1 drifted, "
+            "2 bad input (docs/DIAGNOSTICS.md). An arm's naocal.arm_dataset/1 under its naocal.arm_calibration/1: "
+            "per sensor and pose, drifted on the RMS (docs/ARM.md)."
         ),
     )
     p.add_argument("dataset", metavar="DATASET",
