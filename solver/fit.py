@@ -233,8 +233,8 @@ def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homograp
     corners, or else the still image the fit leaves far beyond all others (_far_image), refit and go on trimming
     (at most MAX_IMAGE_ROUNDS times; not after a fit that failed: its residuals accuse nothing).
     refit(data, x0) : a fit of `data` from the full parameter vector x0 (None: the start), with .model, .values,
-        .residuals_px and .success: identify's least squares; for a fixed calibration, Gauss-Newton steps from it
-        (solver.verify.refit_from). Outliers are decided against this refit, never against fixed values: a corner
+        .residuals_px and .success: identify's least squares (for a fixed calibration started from its values:
+        solver.verify.refit_from). Outliers are decided against this refit, never against fixed values: a corner
         is judged by what no rigid motion of its board explains, and an image by how far the best refit leaves it,
         so a joint, camera or board that moved (which moves whole boards, and which the refit follows) is never
         set aside as a mis-detection.
@@ -269,19 +269,13 @@ def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homograp
 
 @dataclass
 class SetAside:
-    """What set_aside_mis_detections kept and set aside (fields as robust_fit's, plus the image check)."""
+    """What set_aside_mis_detections kept and set aside (robust_fit's results; `images` with the image check's)."""
 
     data: ModelData  # the corners kept
     fit: object  # the last refit, on `data`
     outliers: list  # [Outlier]: single corners
     robust_scale_px: float
     images: list  # [SetAsideImage]: whole images, the image check's and the fit's
-    check: ImageCheck
-
-    @property
-    def corners(self) -> set:
-        """{(image id, vertex)} of every corner set aside, singly or with its image."""
-        return {(o.image, o.vertex) for o in self.outliers}
 
     def describe(self) -> str:
         """The outliers' and the images' lines, as identify prints them."""
@@ -295,7 +289,7 @@ def set_aside_mis_detections(data: ModelData, refit, x0=None) -> SetAside:
     check = check_images(data)
     data = without_images(data, {s.image for s in check.set_aside}, check)
     kept, fit, outliers, scale, dropped = robust_fit(data, refit, x0, homography_rms=check.rms_px)
-    return SetAside(kept, fit, outliers, scale, check.set_aside + dropped, check)
+    return SetAside(kept, fit, outliers, scale, check.set_aside + dropped)
 
 
 def _images_to_set_aside(result, first_data: ModelData, outliers, homography_rms) -> list:
