@@ -27,7 +27,7 @@ from agent.progress import ProgressBar
 from agent.record import CaptureStore
 from agent.robot import Robot, TimingSettings
 from agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard
-from agent.verify import verify
+from agent.verify import identified_intrinsics, verify
 from backends.compensated import CompensatedBackend
 from body.nao_body import CollisionChecker, NaoBody
 from solver.adapter import model_data_from_dataset
@@ -418,7 +418,8 @@ class Verification(State):
         stores = {name: CaptureStore(folder / name, ctx.meta, save_images=s.save_images)
                   for name in ("raw", "compensated")}
         compensated.commanded = raw.commanded - _offset_vector(ctx.offsets)
-        report = verify(raw, compensated, ctx.plan.verification, values, ctx.estimate.intrinsics, ctx.detector,
+        report = verify(raw, compensated, ctx.plan.verification, values,
+                        identified_intrinsics(ctx.estimate.intrinsics, ctx.identification), ctx.detector,
                         _offset_vector(ctx.offsets), stores=stores)
         try:
             compensated.move(ctx.plan.parked())

@@ -63,6 +63,28 @@ class Outlier:
     size_px: float  # |residual| of the corner at the final fit
 
 
+def describe_angles(chosen: str, hypotheses, reading_step_rad: float) -> str:
+    """One line: the joint angles used, and each hypothesis's RMS when the fit chose among them."""
+    step = (f"readings quantised to {np.degrees(reading_step_rad):.4g} deg" if reading_step_rad > 0
+            else "readings not quantised")
+    if len(hypotheses) < 2:
+        return f"joint angles: {HYPOTHESIS_WORDS[chosen]} (as asked); {step}"
+    evidence = ", ".join(f"{HYPOTHESIS_WORDS[h.mode]} {h.rms_px:.3f} px" for h in hypotheses)
+    return f"joint angles: {HYPOTHESIS_WORDS[chosen]}, chosen by the fit ({evidence}); {step}"
+
+
+def describe_outliers(outliers, robust_scale_px: float, count: int = 8) -> str:
+    """One line naming the corners set aside as mis-detections ([Outlier]), worst first."""
+    if not outliers:
+        return f"outliers: none (robust scale {robust_scale_px:.3f} px)"
+    worst = sorted(outliers, key=lambda o: -o.size_px)[:count]
+    listed = ", ".join(f"image {o.image} vertex {o.vertex} {o.size_px:.1f} px" for o in worst)
+    images = len({o.image for o in outliers})
+    return (f"outliers: {len(outliers)} corners in {images} images set aside as mis-detections (no rigid "
+            f"board motion, so no physical effect, explains them; beyond {OUTLIER_SCALES:g} x the robust scale "
+            f"{robust_scale_px:.3f} px): {listed}" + (" ..." if len(outliers) > count else ""))
+
+
 @dataclass
 class AngleHypothesis:
     mode: str
@@ -87,12 +109,7 @@ class DatasetFit:
     image_check: ImageCheck | None = None  # the check before the fit (None: not robust)
 
     def describe_angles(self) -> str:
-        step = (f"readings quantised to {np.degrees(self.reading_step_rad):.4g} deg" if self.reading_step_rad > 0
-                else "readings not quantised")
-        if len(self.hypotheses) < 2:
-            return f"joint angles: {HYPOTHESIS_WORDS[self.angles]} (as asked); {step}"
-        evidence = ", ".join(f"{HYPOTHESIS_WORDS[h.mode]} {h.rms_px:.3f} px" for h in self.hypotheses)
-        return f"joint angles: {HYPOTHESIS_WORDS[self.angles]}, chosen by the fit ({evidence}); {step}"
+        return describe_angles(self.angles, self.hypotheses, self.reading_step_rad)
 
     def describe(self) -> str:
         method = ("\n  fitted by generalised least squares: the images of one held command share its error in the "
@@ -100,14 +117,7 @@ class DatasetFit:
         return f"{self.describe_angles()}\n  {self.describe_outliers()}{method}"
 
     def describe_outliers(self, count: int = 8) -> str:
-        if not self.outliers:
-            return f"outliers: none (robust scale {self.robust_scale_px:.3f} px)"
-        worst = sorted(self.outliers, key=lambda o: -o.size_px)[:count]
-        listed = ", ".join(f"image {o.image} vertex {o.vertex} {o.size_px:.1f} px" for o in worst)
-        images = len({o.image for o in self.outliers})
-        return (f"outliers: {len(self.outliers)} corners in {images} images set aside as mis-detections (no rigid "
-                f"board motion, so no physical effect, explains them; beyond {OUTLIER_SCALES:g} x the robust scale "
-                f"{self.robust_scale_px:.3f} px): {listed}" + (" ..." if len(self.outliers) > count else ""))
+        return describe_outliers(self.outliers, self.robust_scale_px, count)
 
     def describe_images(self) -> str:
         """One line naming the whole images set aside ('' when none was)."""
@@ -157,15 +167,17 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
         if robust:  # whole images no view of a flat board explains: the pixels decide, whatever the angles
             check = check or check_images(data)
             data = without_images(data, {s.image for s in check.set_aside}, check)
-        data, n_moving = _moving_handled(data, effects, moving)
+        data, n_moving = moving_handled(data, effects, moving)
         registry = Registry(effects, setup=setup or data.setup, tie_shared_motors=tie_shared_motors, fixed=fixed)
         step = _reading_step(dataset, data)
         options = dict(solver=solver, loss=loss, loss_scale_px=loss_scale_px)
-        fits[mode] = _robust_fit(data, registry, step, robust, options, check and check.rms_px) + (n_moving, step)
-    chosen = _choose(fits)
+
+        def refit(data, x0, registry=registry, step=step, options=options):
+            return identify(data, registry, x0=x0, reading_step_rad=step, **options)
+
+        fits[mode] = robust_fit(data, refit, robust=robust, homography_rms=check and check.rms_px) + (n_moving, step)
+    chosen, hypotheses = choose_angles(fits)
     data, result, outliers, scale, dropped, n_moving, step = fits[chosen]
-    flagged = _flagged(fits)
-    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], *flagged), len(f[2])) for mode, f in fits.items()]
     use_gls = gls and chosen == "measured" and bool(np.any(step > 0))
     if use_gls:
         result = _gls_refined(data, result, step, scale, fixed, tie_shared_motors, solver)
@@ -188,7 +200,9 @@ def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shar
     return identify_gls(start.model.data, registry, start.values, step, sigma_px)
 
 
-def _moving_handled(data: ModelData, effects, moving: str):
+def moving_handled(data: ModelData, effects, moving: str):
+    """(data, number set aside): the captures taken while moving set aside unless `effects` model them (or `moving`
+    is 'all'): without time_lag their angles are off by velocity x lag (identify and verify alike)."""
     if data.velocity is None or moving == "all":
         return data, 0
     still = np.flatnonzero(np.all(data.velocity == 0.0, axis=1))
@@ -209,20 +223,28 @@ def _reading_step(dataset, data: ModelData) -> np.ndarray:
     return reading_resolution(readings)
 
 
-def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options: dict, homography_rms=None):
-    """(data, result, outliers, robust scale, images set aside): fit, set aside the corners only a mis-detection
-    explains (MAX_TRIM_ROUNDS rounds in all), refit; then set aside whole an image that lost more than a third of
-    its corners, or else the still image the fit leaves far beyond all others (_far_image), refit and go on trimming
+def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homography_rms=None):
+    """(data, fit, outliers, robust scale, images set aside): the one rule for which corners and images are
+    mis-detections, used by identify, diagnose, verify and the agent's verification (after solver.image_check's
+    whole-image check: `set_aside_mis_detections`). Fit, set aside the corners only a mis-detection explains
+    (MAX_TRIM_ROUNDS rounds in all), refit; then set aside whole an image that lost more than a third of its
+    corners, or else the still image the fit leaves far beyond all others (_far_image), refit and go on trimming
     (at most MAX_IMAGE_ROUNDS times; not after a fit that failed: its residuals accuse nothing).
+    refit(data, x0) : a fit of `data` from the full parameter vector x0 (None: the start), with .model, .values,
+        .residuals_px and .success: identify's least squares (for a fixed calibration started from its values:
+        solver.verify.refit_from). Outliers are decided against this refit, never against fixed values: a corner
+        is judged by what no rigid motion of its board explains, and an image by how far the best refit leaves it,
+        so a joint, camera or board that moved (which moves whole boards, and which the refit follows) is never
+        set aside as a mis-detection.
     homography_rms : {image id: its homography RMS} (solver.image_check), for the report."""
     from solver.model import Model
 
     dropped, homography_rms = [], homography_rms or {}
     first_data = data
-    result = identify(data, registry, reading_step_rad=step, **options)
+    result = refit(data, x0)
     outliers, scale, rounds = [], float("nan"), MAX_TRIM_ROUNDS
     for image_round in range(MAX_IMAGE_ROUNDS + 1 if robust else 0):
-        result, new, round_scale, used = _trimmed(result, registry, step, options, rounds)
+        result, new, round_scale, used = _trimmed(result, refit, rounds)
         outliers, rounds = outliers + new, rounds - used
         scale = scale if round_scale is None else round_scale
         if image_round == MAX_IMAGE_ROUNDS or not result.success:
@@ -233,8 +255,7 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
         ids = {g.image for g in gone}
         dropped += gone
         outliers = [o for o in outliers if o.image not in ids]  # reported as their image
-        result = identify(without_images(result.model.data, ids), registry, x0=result.values, reading_step_rad=step,
-                          **options)
+        result = refit(without_images(result.model.data, ids), result.values)
     if outliers:  # their size at the final fit, predicted from the corners that were kept
         kept = without_images(first_data, {g.image for g in dropped})
         original = Model(kept, result.registry).residuals(result.values)
@@ -242,6 +263,31 @@ def _robust_fit(data: ModelData, registry: Registry, step, robust: bool, options
         for o in outliers:
             o.size_px = float(np.linalg.norm(original[row[(o.image, o.vertex)]]))
     return result.model.data, result, outliers, scale, dropped
+
+
+@dataclass
+class SetAside:
+    """What set_aside_mis_detections kept and set aside (robust_fit's results; `images` with the image check's)."""
+
+    data: ModelData  # the corners kept
+    fit: object  # the last refit, on `data`
+    outliers: list  # [Outlier]: single corners
+    robust_scale_px: float
+    images: list  # [SetAsideImage]: whole images, the image check's and the fit's
+
+    def describe(self) -> str:
+        """The outliers' and the images' lines, as identify prints them."""
+        return "\n".join(line for line in (describe_outliers(self.outliers, self.robust_scale_px),
+                                            describe_set_aside(self.images)) if line)
+
+
+def set_aside_mis_detections(data: ModelData, refit, x0=None) -> SetAside:
+    """The images no view of a flat board explains (solver.image_check), then robust_fit's corners and images: what
+    identify sets aside, for data a caller evaluates under values of its own (verify, the agent's verification)."""
+    check = check_images(data)
+    data = without_images(data, {s.image for s in check.set_aside}, check)
+    kept, fit, outliers, scale, dropped = robust_fit(data, refit, x0, homography_rms=check.rms_px)
+    return SetAside(kept, fit, outliers, scale, check.set_aside + dropped)
 
 
 def _images_to_set_aside(result, first_data: ModelData, outliers, homography_rms) -> list:
@@ -291,7 +337,7 @@ def _rms_of(result, data: ModelData, image_id) -> float:
     return float(np.sqrt(np.mean(r ** 2)))
 
 
-def _trimmed(result, registry: Registry, step, options: dict, rounds: int):
+def _trimmed(result, refit, rounds: int):
     """(result, outliers, robust scale or None, rounds used): from a fit, set aside the worst corner of each image
     while it is beyond the robust scale (`rounds` rounds at most), refitting after each round; outliers' sizes 0."""
     from solver.noisefloor import RigidSplit
@@ -306,7 +352,7 @@ def _trimmed(result, registry: Registry, step, options: dict, rounds: int):
         if not len(bad):
             break
         outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]
-        result = identify(d.without_rows(bad), registry, x0=result.values, reading_step_rad=step, **options)
+        result = refit(d.without_rows(bad), result.values)
         used += 1
     return result, outliers, scale, used
 
@@ -327,11 +373,13 @@ def _rms_without(result, flagged, images=frozenset()) -> float:
     return float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan")
 
 
-def _choose(fits) -> str:
+def choose_angles(fits) -> tuple[str, list[AngleHypothesis]]:
+    """(the hypothesis chosen, [AngleHypothesis]) from {mode: robust_fit's (data, fit, outliers, scale, images, ...)}:
+    each compared on the corners none set aside; a later one in ANGLE_HYPOTHESES must be clearly better."""
     flagged = _flagged(fits)
+    hypotheses = [AngleHypothesis(mode, _rms_without(f[1], *flagged), len(f[2])) for mode, f in fits.items()]
     best = None
-    for mode, f in fits.items():  # ANGLE_HYPOTHESES order: a later one must be clearly better
-        rms = _rms_without(f[1], *flagged)
-        if best is None or rms < best[1] * (1.0 - ANGLE_MARGIN):
-            best = (mode, rms)
-    return best[0]
+    for h in hypotheses:
+        if best is None or h.rms_px < best.rms_px * (1.0 - ANGLE_MARGIN):
+            best = h
+    return best.mode, hypotheses

@@ -12,7 +12,8 @@ pixels undistorted by the data's own intrinsics:
   some corners do not fit, the least-median one, which ignores up to half of them): the threshold is
   HOMOGRAPHY_SCALES robust scales of all images' homography residuals, never below HOMOGRAPHY_MIN_PX.
 A failing image is set aside whole and reported (image id, reason, homography RMS) by identify, diagnose,
-verify and the agent: this module is the one place that decides it (solver.fit and solver.verify call it).
+verify and the agent: this module is the one place that decides it (called by solver.fit.set_aside_mis_detections,
+the one rule for every mis-detection, which identify, diagnose, verify and the agent's verification share).
 Images of fewer than 4 corners, or whose corners lie on one line of the board, cannot be checked and are kept.
 """
 
