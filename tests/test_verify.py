@@ -209,7 +209,7 @@ def test_the_agents_verification_sets_aside_mis_detected_corners_as_identify_doe
     from agent.verify import _set_aside
     from sim.synthetic import random_plan
     from solver.adapter import make_model_data
-    from solver.camera import default_intrinsics
+    from solver.robot import default_intrinsics
     from solver.model import Model
 
     rng = np.random.default_rng(5)
@@ -229,7 +229,7 @@ def test_the_agents_verification_sets_aside_mis_detected_corners_as_identify_doe
 
 def test_the_agent_predicts_held_out_captures_with_the_fitted_intrinsics():
     from agent.verify import identified_intrinsics
-    from solver.camera import default_intrinsics
+    from solver.robot import default_intrinsics
 
     class Fit:  # an identification whose GLS freed the bottom camera's fx and cy
         registry = type("R", (), {"index": {"intrinsics.bottom.fx": 0, "intrinsics.bottom.cy": 1}})()
