@@ -32,16 +32,16 @@ class Kind(Protocol):
         Every kind adds its options before parsing; the chosen kind refuses another kind's options it was given."""
 
 
-# The order of asking (and of the options in --help): the arm first, so that a pair of an arm's file and a NAO's
-# reaches the arm's reader, which names the mismatch. DEFAULT reads what no kind claims (its readers name what is
-# wrong with it).
+# The order of asking: the arm first, so that a pair of an arm's file and a NAO's reaches the arm's reader, which
+# names the mismatch. DEFAULT reads what no kind claims (its readers name what is wrong with it); its options come
+# first in --help.
 KINDS: tuple[Kind, ...] = (arm.KIND, nao.KIND)
 DEFAULT: Kind = nao.KIND
 
 
 def add_options(parser, verb: str) -> None:
-    """Every kind's options of `verb`."""
-    for kind in KINDS:
+    """Every kind's options of `verb`, the default kind's first."""
+    for kind in (DEFAULT, *(k for k in KINDS if k is not DEFAULT)):
         kind.add_options(parser, verb)
 
 
