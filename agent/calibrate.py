@@ -18,7 +18,7 @@ from agent.machine import Machine, RunResult
 from agent.measure import opencv_detector
 from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, run_finished, simulate_states
 from agent.summary import summary_text
-from solver.dataset import _COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
+from solver.dataset import COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
 from solver.errors import DataError, DiskFullError, NaocalError
 from solver.fileio import atomic_write_text, disk_full_as_error
 
@@ -62,7 +62,7 @@ def check_same_setup(backend, dataset_dir: Path, source: str) -> None:
         return
     stored = validate_meta(parse_json_text(read_text(meta_path), meta_path), meta_path)
     now = validate_meta(dataset_meta(backend, source), "<this robot>")
-    for key in _COMPARED_META_KEYS:
+    for key in COMPARED_META_KEYS:
         if stored.get(key) != now.get(key):
             raise DataError(meta_path, f"this run measured another set-up ({key} {stored.get(key)!r}, now "
                                        f"{now.get(key)!r}): resume it with the same robot (nothing was changed)",

@@ -29,7 +29,7 @@ from solver.dataset import read_dataset  # noqa: E402
 from solver.joints import LEG_JOINTS  # noqa: E402
 from solver.offsets import read_offsets  # noqa: E402
 from solver.verify import verify_dataset  # noqa: E402
-from tools.cmd_verify import EXIT_DRIFTED, EXIT_GOOD  # noqa: E402
+from kinds.nao.verify import EXIT_DRIFTED, EXIT_GOOD  # noqa: E402
 
 SEARCH_DEG = (0.03, 0.05, 0.07, 0.1)
 MIN_CHANGE_DEG = 0.1

@@ -48,3 +48,27 @@ def compensate_command(requested_rad, offsets, joint: str | None = None):
 def correct_reading(measured_rad, offsets, joint: str | None = None):
     """True joint angle from an encoder reading: measured - c. Same forms as `compensate_command`."""
     return _apply(measured_rad, offsets, joint, -1.0)
+
+
+def parse_assignment(text: str):
+    """'LHipPitch=-20.5' -> ('LHipPitch', -20.5); NaocalError for anything else."""
+    import math
+
+    from solver.errors import NaocalError
+    from solver.joints import JOINTS
+
+    joint, sep, value = text.partition("=")
+    joint = joint.strip()
+    if not sep or not joint:
+        raise NaocalError(f"expected JOINT=ANGLE, got {text!r}")
+    try:
+        angle = float(value)
+    except ValueError:
+        raise NaocalError(f"{joint}: not a number: {value!r}") from None
+    if not math.isfinite(angle):
+        raise NaocalError(f"{joint}: non-finite angle {value!r}")
+    known = set(JOINTS) | {"LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw", "LHand",
+                           "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw", "RHand"}
+    if joint not in known:
+        raise NaocalError(f"unknown joint {joint!r}")
+    return joint, angle

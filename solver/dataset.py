@@ -882,7 +882,7 @@ def write_dataset(dataset_or_parts, path) -> Dataset:
 
 
 ROWS_IN_IMAGE_COLUMN = "rows_in_image"  # written by the appender: lets a resume tell a complete image from a torn one
-_COMPARED_META_KEYS = ("schema", "robot", "camera", "board", "gravity_torso_mps2",  # version 1
+COMPARED_META_KEYS = ("schema", "robot", "camera", "board", "gravity_torso_mps2",  # version 1
                        "cameras", "targets", "joints", "gravity_mps2")  # version 2
 
 
@@ -937,7 +937,7 @@ class DatasetAppender:
             raise DataError(self.meta_path, f"existing dataset is {existing.get('schema')}, this run writes "
                                             f"{meta.get('schema')}: finish it with the naocal that began it, or "
                                             "start a new one", field="schema")
-        for key in _COMPARED_META_KEYS:
+        for key in COMPARED_META_KEYS:
             if existing.get(key) != meta.get(key):
                 raise DataError(self.meta_path, f"existing dataset has a different {key!r} "
                                                 f"({existing.get(key)!r} != {meta.get(key)!r}): "

@@ -26,7 +26,7 @@ from solver.model import Model, ModelData
 from solver.noisefloor import RigidSplit, encoder_noise_px, noise_floor_estimate
 from solver.quantisation import reading_resolution
 from solver.registry import Registry
-from solver.scoretest import (RANK_TOLERANCE, _orthonormal_basis, _per_image_sum, _project_off, rms, score_test,
+from solver.scoretest import (RANK_TOLERANCE, orthonormal_basis, per_image_sum, project_off, rms, score_test,
                               stance_clusters)
 
 # Family-wise false-positive rate of the candidate ranking: a candidate is significant when its p-value is below
@@ -115,7 +115,7 @@ def compare(result, *, pixel_noise_px: float | None = None, split: RigidSplit | 
     noise = float(math.hypot(detector, encoder))
     noise_xy = tuple(float(math.hypot(detector, e)) for e in encoder_xy)
     total = rms(r)
-    per_image_rms = np.sqrt(_per_image_sum(r ** 2, data.image_of_row, data.n_images)
+    per_image_rms = np.sqrt(per_image_sum(r ** 2, data.image_of_row, data.n_images)
                             / np.bincount(data.image_of_row, minlength=data.n_images)[:, None])
     stance_keys = np.array([f"{t}{s}" for t, s in zip(data.target, data.stance)])
     return Comparison(
@@ -217,7 +217,7 @@ class _Extension:
         effect_of = [registry.parameters[registry.index[n]].effect for n in registry.free_names]
         self.columns = {e: [i for i, x in enumerate(effect_of) if x == e] for e in registry.effects}
         base_columns = [i for i, n in enumerate(registry.free_names) if n in set(base.free_names)]
-        self.Q = _orthonormal_basis(self.J[:, base_columns])
+        self.Q = orthonormal_basis(self.J[:, base_columns])
         self.model, self.values = model, values
 
 
@@ -248,7 +248,7 @@ def rank_candidates(result, candidates=None, *, family_alpha: float = FAMILY_ALP
     r = ext.residual
     rss = float(r @ r)
     free_names = ext.registry.free_names
-    J_tilde = _project_off(ext.Q, ext.J[:, [i for e in testable for i in ext.columns[e]]])
+    J_tilde = project_off(ext.Q, ext.J[:, [i for e in testable for i in ext.columns[e]]])
     offset = 0
     scored = []
     for effect in testable:
@@ -342,7 +342,7 @@ class SharedMotorTie:
         cols = [untied.free_names.index(n) for n in followers]
         scales = untied.scales[untied.free_index][cols]
         Jk = untied.free_jacobian(J.reshape(len(ext.residual), -1))[:, cols] * scales
-        return _scored(Candidate(self.name, True, assumption=self.words), followers, Jk, _project_off(ext.Q, Jk),
+        return _scored(Candidate(self.name, True, assumption=self.words), followers, Jk, project_off(ext.Q, Jk),
                        scales, ext, rss)
 
 
@@ -390,7 +390,7 @@ class RigidBoard:
         scales = np.full(len(names), self.SCALE_M)
         Jk = np.column_stack(columns) * scales
         candidate = Candidate(self.name, True, assumption=self.words, remedy=self.REMEDY)
-        return _scored(candidate, names, Jk, _project_off(ext.Q, Jk), scales, ext, rss)
+        return _scored(candidate, names, Jk, project_off(ext.Q, Jk), scales, ext, rss)
 
     REMEDY = ("measure the board: a stretch is its square size off (dataset.json targets.<target>.square_m), a bow "
               "a bent board (flatten or replace it); no model parameter takes it up")
@@ -521,7 +521,7 @@ def locate(result, *, capture_time_s=None, worst: int = 5, split: RigidSplit | N
     split = split or RigidSplit(model, result.values)
     rigid, nonrigid = split(r)
     counts = np.bincount(data.image_of_row, minlength=data.n_images)
-    ms = lambda a: _per_image_sum(np.sum(a ** 2, axis=1), data.image_of_row, data.n_images) / (2 * counts)  # noqa
+    ms = lambda a: per_image_sum(np.sum(a ** 2, axis=1), data.image_of_row, data.n_images) / (2 * counts)  # noqa
     total_ms, rigid_ms, nonrigid_ms = ms(r), ms(rigid), ms(nonrigid)
     per_image = [{"image": int(data.image_id[m]), "target": str(data.target[m]), "stance": int(data.stance[m]),
                   "head_posture": int(data.head_posture[m]), "rms_total_px": float(np.sqrt(total_ms[m])),
@@ -579,11 +579,11 @@ def regressor_scan(result, split: RigidSplit, capture_time_s=None) -> list[dict]
     J = J * registry.scales[registry.free_index]
     L_flat = split.twist_columns.reshape(len(r), 6)
     constant = [L_flat * np.repeat((data.target == t)[data.image_of_row], 2)[:, None] for t in np.unique(data.target)]
-    Q = _orthonormal_basis(np.hstack([J] + constant))
+    Q = orthonormal_basis(np.hstack([J] + constant))
     clusters = stance_clusters(data)
     out = []
     for name, kind, block in _regressor_blocks(data, L_flat, capture_time_s):
-        test = score_test(_project_off(Q, block), r, clusters, Q=Q)
+        test = score_test(project_off(Q, block), r, clusters, Q=Q)
         if test.dof == 0:
             continue
         out.append({"regressor": name, "kind": kind, "explained_share": test.delta_rss / rss if rss > 0 else 0.0,
@@ -614,8 +614,8 @@ def apparent_errors(result, names, residuals=None) -> np.ndarray:
     out = np.full((data.n_images, len(names)), np.nan)
     for k, name in enumerate(names):
         column = J[:, :, ext_registry.index[name]]
-        num = _per_image_sum(np.sum(column * r, axis=1), data.image_of_row, data.n_images)
-        den = _per_image_sum(np.sum(column ** 2, axis=1), data.image_of_row, data.n_images)
+        num = per_image_sum(np.sum(column * r, axis=1), data.image_of_row, data.n_images)
+        den = per_image_sum(np.sum(column ** 2, axis=1), data.image_of_row, data.n_images)
         ok = den > 1e-12 * max(den.max(initial=0.0), 1e-300)
         out[ok, k] = -num[ok] / den[ok]  # residual = predicted - detected: the change that removes it
     return out

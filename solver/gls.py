@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from solver.identify import (CHUNK_ROWS, UNIDENTIFIABLE_RATIO, WEAK_RATIO, IdentificationResult, Normal,
-                             NormalEquations, _direction, identifiability, levenberg_marquardt)
+                             NormalEquations, weak_direction, identifiability, levenberg_marquardt)
 from solver.model import Model, ModelData
 from solver.registry import Registry
 from solver.scoretest import stance_cluster_of_image
@@ -195,7 +195,7 @@ def identify_gls(data: ModelData, registry: Registry, x0: np.ndarray, step_rad, 
         correlation = covariance / np.outer(std_free, std_free)
     residuals = final.residuals
     rms = np.sqrt(np.mean(residuals ** 2, axis=0))
-    weak = [_direction(sv[k] / sv[0], float(inv_sv[k]), Vt[k], registry.free_names) for k in np.argsort(sv)[:3]]
+    weak = [weak_direction(sv[k] / sv[0], float(inv_sv[k]), Vt[k], registry.free_names) for k in np.argsort(sv)[:3]]
     warnings = [f"weakly determined combination (relative singular value {w.singular_value:.1e}): {w.describe()}"
                 for w in weak if w.singular_value < WEAK_RATIO]
     return IdentificationResult(

@@ -106,7 +106,7 @@ def identifiability(As: np.ndarray):
     return float(sv[0] / sv[-1]), sv, Vt
 
 
-def _direction(sv_rel, std_along, vector, names) -> WeakDirection:
+def weak_direction(sv_rel, std_along, vector, names) -> WeakDirection:
     coefficients = {n: float(c) for n, c in zip(names, vector) if abs(c) > 0.05}
     return WeakDirection(float(sv_rel), float(std_along), coefficients)
 
@@ -136,7 +136,7 @@ def check_identifiable(As: np.ndarray, names):
     bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
     if len(bad):
         involved = sorted({names[i] for k in bad for i in np.flatnonzero(np.abs(Vt[k]) > 0.05)})
-        combos = "; ".join(_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names).describe() for k in bad[:3])
+        combos = "; ".join(weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names).describe() for k in bad[:3])
         raise SolveError(
             f"the data cannot determine {len(bad)} parameter combination(s) ({combos}); involved: "
             f"{', '.join(involved)}. Measure more varied poses, or fix these parameters (--fix)."
@@ -531,7 +531,7 @@ class Solution:
         covariance, covariance_iid = parameter_covariance(self.final.A, rss, self.final.image_scores, sv, Vt,
                                                           self.scales, cluster_of_group, self.n_measured, dof)
         s = np.sqrt(rss / dof)
-        weak = [_direction(sv[k] / sv[0], float(s / sv[k]) if sv[k] > 0 else np.inf, Vt[k], names)
+        weak = [weak_direction(sv[k] / sv[0], float(s / sv[k]) if sv[k] > 0 else np.inf, Vt[k], names)
                 for k in np.argsort(sv)[:3]]
         return Spread(covariance, covariance_iid, cond, sv, Vt, weak)
 

@@ -15,7 +15,7 @@ from solver.effects import EFFECTS
 from solver.model import Model
 from solver.registry import Registry
 from solver.quantisation import reading_resolution  # noqa: F401 (its home is solver.quantisation)
-from solver.scoretest import _orthonormal_basis, _project_off
+from solver.scoretest import orthonormal_basis, project_off
 
 
 class RigidSplit:
@@ -69,8 +69,8 @@ def noise_floor_estimate(model: Model, values, residuals, n_nonrigid_parameters:
     J = Model(data, camera).evaluate(camera.from_dict(model.registry.as_dict(values)))[1]
     columns = [split(J[:, :, camera.index[p.name]])[1].reshape(-1)
                for p in camera.parameters if EFFECTS[p.effect].non_rigid]
-    Q = _orthonormal_basis(np.stack(columns, axis=1))
-    rest = _project_off(Q, nonrigid.reshape(-1))
+    Q = orthonormal_basis(np.stack(columns, axis=1))
+    rest = project_off(Q, nonrigid.reshape(-1))
     counts = np.bincount(data.image_of_row, minlength=data.n_images)
     dof = int(np.sum(np.maximum(2 * counts - 6, 0))) - Q.shape[1] - n_nonrigid_parameters
     return float(np.sqrt(rest @ rest / dof)) if dof > 0 else float("nan")

@@ -24,7 +24,7 @@ def rms(a) -> float:
     return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
 
 
-def _per_image_sum(values: np.ndarray, image_of_element: np.ndarray, n_images: int) -> np.ndarray:
+def per_image_sum(values: np.ndarray, image_of_element: np.ndarray, n_images: int) -> np.ndarray:
     """(M, ...) sums of `values` (n, ...) over the elements of each image."""
     values = np.asarray(values, dtype=float)
     if len(image_of_element) and np.all(np.diff(image_of_element) >= 0):
@@ -39,7 +39,7 @@ def _per_image_sum(values: np.ndarray, image_of_element: np.ndarray, n_images: i
     return out
 
 
-def _orthonormal_basis(J: np.ndarray, tolerance=1e-7) -> np.ndarray:
+def orthonormal_basis(J: np.ndarray, tolerance=1e-7) -> np.ndarray:
     """Orthonormal basis (n, rank) of the column space of J (n, p), p small.
 
     From the eigen-decomposition of the small Gram matrix of the column-normalised J, repeated once on the result
@@ -58,7 +58,7 @@ def _orthonormal_basis(J: np.ndarray, tolerance=1e-7) -> np.ndarray:
     return U
 
 
-def _project_off(Q: np.ndarray, A: np.ndarray) -> np.ndarray:
+def project_off(Q: np.ndarray, A: np.ndarray) -> np.ndarray:
     """A minus its projection on the orthonormal columns Q."""
     return A - Q @ (Q.T @ A)
 

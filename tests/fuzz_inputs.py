@@ -295,7 +295,7 @@ def make_valid_inputs(directory: Path, seed: int = 3) -> tuple[Path, Path]:
     from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
     from sim.synthetic import dataset_parts, random_truth, synthesize
-    from tools.cmd_identify import write_offsets_file
+    from kinds.nao.identify import write_offsets_file
 
     rng = np.random.default_rng(seed)
     data = synthesize(rng, random_truth(rng), n_stances_per_leg=8, n_head_postures=2, pixel_noise_px=0.2)

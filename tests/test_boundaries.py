@@ -1,5 +1,6 @@
-"""The layering (docs/CONVENTIONS.md): solver <- body, sim, backends <- agent <- tools. What each package may import
-(no exceptions), no import cycles, no compatibility shims, one class per name."""
+"""The layering (docs/CONVENTIONS.md, docs/ARCHITECTURE.md): solver <- body, sim, backends <- agent <- kinds <- tools.
+What each package may import (no exceptions), no import cycles, no compatibility shims, one class per name, no
+private name imported from another module, and command modules that name no robot kind."""
 
 import ast
 import importlib
@@ -11,14 +12,16 @@ import pytest
 
 from conftest import ROOT
 
-PACKAGES = ("solver", "body", "sim", "backends", "agent", "tools")
+PACKAGES = ("solver", "body", "sim", "backends", "agent", "kinds", "tools")
 # What each package must never import (module-level or inside functions).
 FORBIDDEN = {
     "solver": ("backends", "agent", "tools", "body", "sim", "pybullet", "zmq", "cv2"),
     "body": ("backends", "agent", "tools", "sim"),
     "sim": ("backends", "agent", "tools"),
     "backends": ("agent", "tools"),
-    "agent": ("backends.mock", "backends.mock_render", "body.nao_body.NaoBody_", "sim", "tools"),
+    "agent": ("backends.mock", "backends.mock_render", "body.nao_body.NaoBody_", "sim", "kinds", "tools"),
+    # a kind uses tools' output helpers (tables, exports, reports) but never a command module nor the command line
+    "kinds": ("tools.cli", "tools.__main__", *(f"tools.{p.stem}" for p in (ROOT / "tools").glob("cmd_*.py"))),
 }
 
 
@@ -154,3 +157,28 @@ def test_one_class_per_name():
                     homes[node.name].append(str(path.relative_to(ROOT)))
     twice = {name: files for name, files in homes.items() if len(files) > 1}
     assert not twice, twice
+
+
+def test_command_modules_name_no_kind():
+    """Each verb finds the robot kind once (kinds.for_data / kinds.for_args) and runs its body: a command module
+    imports the registry `kinds` only, never a kind's package nor a kind's modules (the arm's or the NAO's)."""
+    bad = []
+    for path in sorted((ROOT / "tools").glob("cmd_*.py")):
+        for name in imports_of(path):
+            parts = name.split(".")
+            if (parts[0] == "kinds" and len(parts) > 1) or any(p.startswith("arm") for p in parts[1:]):
+                bad.append(f"tools/{path.name} imports {name}")
+    assert not bad, bad
+    assert not list((ROOT / "tools").glob("arm*.py")), "an arm module among the command modules"
+
+
+def test_no_private_name_is_imported_from_another_module():
+    """`from a import _b` reaches into another module's insides: what is shared gets a public name."""
+    bad = []
+    for package in PACKAGES:
+        for path in python_files(package):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+                    bad += [f"{path.relative_to(ROOT)} imports {node.module}.{alias.name}" for alias in node.names
+                            if alias.name.startswith("_")]
+    assert not bad, bad

@@ -157,7 +157,7 @@ def test_a_list_option_with_an_empty_name_is_refused_not_the_default(synthetic_d
 
 def test_the_arms_list_options_refuse_an_empty_name_too(tmp_path, capsys):
     from solver.errors import NaocalError
-    from tools.arm_cli import parse_arm_effects
+    from kinds.arm.verbs import parse_arm_effects
 
     with pytest.raises(NaocalError, match="--effects ',,': an empty name"):
         parse_arm_effects(",,")

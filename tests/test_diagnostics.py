@@ -149,10 +149,10 @@ def test_stance_clustering_is_needed_with_quantised_encoders():
     ext_ranking = rank_candidates(result)
     assert not any(c.significant for c in ext_ranking)
     from solver.diagnostics import _Extension  # the same projection, classic statistic
-    from solver.scoretest import _project_off
+    from solver.scoretest import project_off
 
     ext = _Extension(result, candidate_effects(result.registry))
-    J_tilde = _project_off(ext.Q, ext.J[:, ext.columns["elasticity"]])
+    J_tilde = project_off(ext.Q, ext.J[:, ext.columns["elasticity"]])
     test = score_test(J_tilde, ext.residual, ext.clusters, Q=ext.Q)
     classic = test.delta_rss / NOISE_PX ** 2  # chi-square(12) if the pixels were independent with sigma 0.1
     assert classic > 100  # hopelessly "significant"

@@ -210,7 +210,7 @@ def test_the_verdict_fixes_what_the_data_cannot_tell_and_diagnose_accepts_it(ela
     from solver.identify import identify
     from solver.adapter import model_data_from_dataset
     from solver.registry import Registry
-    from tools.cmd_diagnose import format_text
+    from kinds.nao.diagnose import format_text
 
     # (not the camera's yaw: held at 0 against its truth, it made the ankles' compliance 1.5 rad/(N m), a result
     # identify refuses to write since it checks the file's limits)

@@ -136,9 +136,9 @@ def run_move(args) -> int:
     from backends.bridge import BridgeBackend
     from backends.compensated import CompensatedBackend
     from solver import limits
+    from solver.compensation import parse_assignment
     from backends.errors import RobotTimeout
     from solver.errors import NaocalError, SafetyError
-    from tools.cmd_offsets import parse_assignment
 
     if not 0.0 < args.speed <= 0.5:
         raise NaocalError(f"--speed must be within (0, 0.5], got {args.speed}")

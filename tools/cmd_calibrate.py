@@ -59,51 +59,6 @@ def register(subparsers):
     p.set_defaults(run=run)
 
 
-def check_common(args) -> None:
-    """Argument checks shared with `naocal simulate`: NaocalError (exit 2) for bad values."""
-    from solver.errors import NaocalError
-
-    if args.seed < 0:
-        raise NaocalError(f"--seed must not be negative, got {args.seed}")
-    if getattr(args, "plan_seed", 0) < 0:
-        raise NaocalError(f"--plan-seed must not be negative, got {args.plan_seed}")
-    if not 1 <= args.stances_per_leg <= 200:
-        raise NaocalError(f"--stances-per-leg must be within 1..200, got {args.stances_per_leg}")
-    if not 0.0 < args.speed <= 1.0:
-        raise NaocalError(f"--speed must be within (0, 1], got {args.speed}")
-    for option, limit in _file_limits_deg().items():
-        value = getattr(args, option, None)
-        if value is not None and not 0.0 < value <= limit:
-            raise NaocalError(f"--{option.replace('_', '-')} must be within (0, {limit:g}] (the offsets file's limit), "
-                              f"got {value}")
-
-
-def _file_limits_deg() -> dict:
-    """{option: the largest value the offsets file holds, deg}: the effects' own limits (solver/effects/)."""
-    import math
-
-    from solver.effects import EFFECTS
-
-    return {"max_joint_offset_deg": round(math.degrees(EFFECTS["joint_offsets"].offsets_limit), 9),
-            "max_camera_rotation_deg": round(math.degrees(EFFECTS["camera_rotation"].offsets_limit), 9)}
-
-
-def settings_from_args(args, *, seed: int, source: str):
-    from agent.planner import PlanSettings
-    from agent.states import AgentSettings
-
-    import math
-
-    from agent.states import Thresholds
-
-    plan = PlanSettings(kind=args.plan, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
-    given = {name: getattr(args, f"{name}_deg", None) for name in ("max_joint_offset", "max_camera_rotation")}
-    thresholds = Thresholds(**{f"{name}_rad": math.radians(v) for name, v in given.items() if v is not None})
-    return AgentSettings(seed=seed, plan=plan, speed_fraction=args.speed, resume=getattr(args, "resume", False),
-                         save_images=not args.no_images, progress_bar=not args.no_progress, source=source,
-                         thresholds=thresholds)
-
-
 def calibrate_command(record: dict, out, *, endpoint=None, no_progress: bool = False, resume: bool = True) -> str:
     """The shell command (quoted) that runs, or with `resume` continues, the run `record` describes in `out`."""
     import shlex
@@ -198,15 +153,14 @@ def write_run_report(report, out, ctx) -> str | None:
 
     from agent.rundir import find_dataset
     from solver.errors import NaocalError
-    from tools.cmd_diagnose import diagnose_dataset, write_diagnosis_report
+    from kinds import for_data
 
     if ctx.measurement is None:
         print("naocal calibrate: no report: the measurement did not finish", file=sys.stderr)
         return None
     try:
         dataset_path = find_dataset(out)
-        dataset, _, diagnosis = diagnose_dataset(dataset_path)
-        print(f"report: {write_diagnosis_report(report, diagnosis, dataset, dataset_path)}")
+        print(f"report: {for_data(dataset_path).diagnosis_report(dataset_path, report)}")
     except NaocalError as err:
         print(f"naocal calibrate: error: report not written: {err}", file=sys.stderr)
         return str(err)
@@ -218,6 +172,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from agent.rundir import RunLock, calibrate_record
+    from agent.options import check_common
     from solver.errors import NaocalError
 
     check_common(args)
@@ -283,6 +238,7 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
 
     from agent.calibrate import calibrate
     from agent.machine import INTERRUPTED
+    from agent.options import settings_from_args
     from agent.summary import resumable
     from solver.fileio import atomic_write_text
 

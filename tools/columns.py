@@ -1,5 +1,5 @@
-"""Columns of naocal's text tables, shared by the NAO's and the arm's `offsets` verbs (tools/cmd_offsets.py,
-tools/arm_offsets.py): a number right-aligned ('-' when missing), a value in the unit people read."""
+"""Columns of naocal's text tables, shared by the NAO's and the arm's `offsets` verbs (kinds/nao/offsets.py,
+kinds/arm/offsets.py): a number right-aligned ('-' when missing), a value in the unit people read."""
 
 from __future__ import annotations
 

@@ -80,7 +80,7 @@ def locked(directory: Path):
         os.close(fd)
 
 
-def _target(out: Path, relative: str, single_file: bool) -> Path:
+def export_target(out: Path, relative: str, single_file: bool) -> Path:
     if single_file:
         if out.is_dir():
             raise DataError(out, "--out is a directory; give a file name")
@@ -95,7 +95,7 @@ def _target(out: Path, relative: str, single_file: bool) -> Path:
     return target
 
 
-def _write(target: Path, text: str) -> str:
+def write_export(target: Path, text: str) -> str:
     from solver.fileio import atomic_write_text
 
     previous = None
@@ -139,11 +139,11 @@ def run_export(args, out) -> int:
                                     "files)")
     with locked(target_dir if team else target_dir.parent):
         files = build(args, offsets)  # everything is built before anything is written
-        targets = [(_target(target_dir, file.path, not team), file) for file in files]
+        targets = [(export_target(target_dir, file.path, not team), file) for file in files]
         for target, _ in targets:  # a team's files (--merge-from) are merged into on purpose, its sources never
             check_not_an_input(target, export_inputs(args))
         for target, file in targets:
-            print(_write(target, file.text), file=sys.stderr)
+            print(write_export(target, file.text), file=sys.stderr)
             for note in file.notes:
                 print(f"  {note}", file=sys.stderr)
     return 0

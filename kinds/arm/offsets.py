@@ -1,5 +1,5 @@
 """`naocal offsets diff | validate | export | apply` of an arm's calibration file (naocal.arm_calibration/1,
-docs/ARM.md). The NAO's verbs (tools/cmd_offsets.py) hand an arm's file here."""
+docs/ARM.md): the arm kind's `offsets` bodies."""
 
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ def build_export(args):
 
 
 def run_export(args, out) -> int:
-    from tools.export.write import _target, _write, locked
+    from tools.export.write import export_target, locked, write_export
 
     if args.out is None:
         out.write(build_export(args)[1])
@@ -133,7 +133,7 @@ def run_export(args, out) -> int:
     with locked(target.parent):
         _, text, inputs = build_export(args)  # built before anything is written
         check_not_an_input(target, inputs)
-        print(_write(_target(target, "", True), text), file=sys.stderr)
+        print(write_export(export_target(target, "", True), text), file=sys.stderr)
     return 0
 
 

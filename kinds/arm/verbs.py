@@ -1,5 +1,6 @@
-"""The arm's side of `naocal identify`, `diagnose`, `verify`, `simulate` and `offsets` (docs/ARM.md): chosen when
-the command gets --robot / --chain, a naocal.arm_dataset/1 directory or a naocal.arm_calibration/1 file."""
+"""The arm's bodies of `naocal identify`, `diagnose`, `verify` and `simulate`, and `offsets show` (docs/ARM.md); the
+kind (kinds/arm/__init__.py) claims --robot / --chain, a naocal.arm_dataset/1 directory or a
+naocal.arm_calibration/1 file."""
 
 from __future__ import annotations
 
@@ -17,13 +18,6 @@ def add_arm_options(parser, *, simulate=False) -> None:
     parser.add_argument("--chain", metavar="BASE_LINK:TIP_LINK",
                         help="the arm's serial chain by its URDF base and tip links (default: the dataset's, or "
                              "the named arm's flange / hand)")
-
-
-def wants_arm(args) -> bool:
-    from solver.arm_dataset import is_arm_dataset
-
-    return bool(getattr(args, "robot", None) or getattr(args, "chain", None)
-                or is_arm_dataset(getattr(args, "dataset", "")))
 
 
 def parse_arm_effects(text: str):
@@ -183,12 +177,6 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
     atomic_write_text(path, json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n", backup_suffix=".bak")
 
 
-def is_calibration_file(path) -> bool:
-    from solver.arm_calibration import is_arm_calibration
-
-    return is_arm_calibration(path)
-
-
 def format_calibration(path) -> str:
     """`naocal offsets show` of an arm calibration file; DataError naming the field when it is damaged."""
     from solver.arm_calibration import read_arm_calibration
@@ -205,9 +193,10 @@ def format_calibration(path) -> str:
     for name, reason in cal.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     if cal.rms:
-        from solver.arm_verify import _shown as shown_rms
+        from solver.arm_diagnose import shown_rms
 
-        lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, u)} per axis" for s, (v, u) in cal.rms.items())]
+        lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, 'points' if u == 'm' else 'camera')} per axis"
+                                          for s, (v, u) in cal.rms.items())]
     return "\n".join(lines) + "\n"
 
 

@@ -1,0 +1,67 @@
+"""The serial arm as a robot kind (docs/ARM.md): any arm described by a URDF; its data are naocal.arm_dataset/1
+directories and naocal.arm_calibration/1 files. The bodies live in kinds/arm/verbs.py and kinds/arm/offsets.py."""
+
+from __future__ import annotations
+
+import argparse
+
+
+class ArmKind:
+    name = "arm"
+
+    def claims(self, source) -> bool:
+        if isinstance(source, argparse.Namespace):  # --robot / --chain exist only for an arm
+            return bool(getattr(source, "robot", None) or getattr(source, "chain", None))
+        from solver.arm_calibration import is_arm_calibration
+        from solver.arm_dataset import is_arm_dataset
+
+        return is_arm_dataset(source) or is_arm_calibration(source)
+
+    def add_options(self, parser, verb: str) -> None:
+        from kinds.arm.verbs import add_arm_options
+
+        if verb in ("identify", "diagnose", "verify"):
+            add_arm_options(parser)  # DATASET a naocal.arm_dataset/1; --effects then names the arm's effects
+        elif verb == "simulate":
+            add_arm_options(parser, simulate=True)  # an arm instead of the NAO
+            parser.add_argument("--poses", type=int, default=60, metavar="N", help="arm: stances (default 60)")
+            parser.add_argument("--noise-m", type=float, default=1e-4,
+                                help="arm: the 3-D sensor's noise per axis (default 1e-4 m)")
+            parser.add_argument("--noise-px", type=float, default=0.2,
+                                help="arm: the camera's noise per axis (default 0.2 px)")
+            parser.add_argument("--hidden", default="joint_offsets,link_lengths",
+                                help="arm: the hidden errors (default joint_offsets,link_lengths)")
+
+    def identify(self, args) -> int:
+        from kinds.arm.verbs import run_identify
+
+        return run_identify(args)
+
+    def diagnose(self, args) -> int:
+        from kinds.arm.verbs import run_diagnose
+
+        return run_diagnose(args)
+
+    def verify(self, args) -> int:
+        from kinds.arm.verbs import run_verify
+
+        return run_verify(args)
+
+    def simulate(self, args) -> int:
+        from kinds.arm.verbs import run_simulate
+
+        return run_simulate(args)
+
+    def offsets(self, args, action: str, out) -> int:
+        from kinds.arm import offsets
+
+        if action == "show":
+            from kinds.arm.verbs import format_calibration
+
+            out.write(format_calibration(args.file))
+            return 0
+        return {"diff": offsets.run_diff, "validate": offsets.run_validate, "export": offsets.run_export,
+                "apply": offsets.run_apply}[action](args, out)
+
+
+KIND = ArmKind()

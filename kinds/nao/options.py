@@ -1,0 +1,55 @@
+"""The NAO's options of each verb (argparse only, no heavy imports: `naocal --help` stays instant)."""
+
+import argparse
+
+
+def add_tie_option(parser) -> None:
+    """--tie-hip-yaw-pitch, shared by identify and diagnose."""
+    # default None (on for the NAO) so that an arm can refuse the option only when it is given
+    parser.add_argument("--tie-hip-yaw-pitch", action=argparse.BooleanOptionalAction, default=None,
+                        help="joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
+
+
+def add_angles_option(parser) -> None:
+    """--angles, shared by identify, diagnose and verify (each must read a dataset the same way)."""
+    parser.add_argument("--angles", default="auto", choices=("auto", "measured", "cell", "commanded"),
+                        help="joint angles used as theta: measured readings (the paper), cell (a still joint whose "
+                             "readings are quantised and whose command lies inside its reading's step uses the "
+                             "command), commanded, or auto (default): each is fitted and the best fit chosen")
+
+
+def add_options(parser, verb: str) -> None:
+    """The NAO's options of `verb` (kinds.Kind.add_options)."""
+    if verb == "identify":
+        add_tie_option(parser)
+        parser.add_argument("--loss-scale-px", type=float, default=1.0,
+                            help="residual where the robust loss bends (px)")
+        parser.add_argument("--solver", default="lm", choices=("lm", "minpack"),
+                            help="lm: naocal's Levenberg-Marquardt (fast); minpack: "
+                                 "scipy.optimize.least_squares(method='lm')")
+        add_angles_option(parser)
+        parser.add_argument("--gls", action=argparse.BooleanOptionalAction, default=True,
+                            help="when the readings fit best and are quantised, refine by generalised least squares: "
+                                 "the images of one held command share its error in the step, intrinsics free "
+                                 "(docs/AGENT.md; the agent does the same; default: on)")
+    elif verb == "diagnose":
+        add_angles_option(parser)
+        add_tie_option(parser)
+    elif verb == "verify":
+        add_angles_option(parser)
+    elif verb == "simulate":
+        parser.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
+                            help="inject a physical effect (repeatable): any effect the mock simulates, e.g. "
+                                 "elasticity=0.02 or camera_translation=0.004 (docs/MOCK.md)")
+        parser.add_argument("--mock", choices=("ideal", "realistic"), default=None,
+                            help="realistic (default: a NAO V6 as teams meet it, with real robots' errors) or ideal "
+                                 "(the exact teaching robot) mock (docs/MOCK.md)")
+        parser.add_argument("--plan", choices=("paper", "optimal"), default="paper",
+                            help="the stance plan (default paper)")
+        parser.add_argument("--stances-per-leg", type=int, default=24, metavar="N",
+                            help="stances per leg (default 24)")
+        parser.add_argument("--no-probe", action="store_true", help="leave out the lag probe")
+        parser.add_argument("--speed", type=float, default=0.4, metavar="F",
+                            help="speed fraction of moves (default 0.4)")
+        parser.add_argument("--no-images", action="store_true", help="do not keep the rendered images")
+        parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

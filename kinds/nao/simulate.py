@@ -1,0 +1,59 @@
+"""The NAO's `naocal simulate` (the verb and its help: tools/cmd_simulate.py): record a dataset of the simulated
+NAO, with its hidden truth beside it."""
+
+
+def run(args) -> int:
+    import json
+    import logging
+    import shlex
+    import sys
+    from pathlib import Path
+
+    from agent.options import check_common, settings_from_args
+    from agent.rundir import RunLock, entries
+    from solver.errors import NaocalError
+
+    check_common(args)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
+    from backends.mock import MockBackend, parse_effect_sizes
+
+    effects = parse_effect_sizes(args.effect)
+    command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
+                         + (["--mock", args.mock] if args.mock else [])
+                         + [f"--effect={k}={v!r}" for k, v in effects.items()])
+    with RunLock(out, command):
+        if entries(out):
+            raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
+        if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
+            console = logging.StreamHandler(sys.stderr)
+            console.setLevel(logging.INFO if args.verbose else logging.WARNING)
+            console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
+            logging.getLogger().addHandler(console)
+
+        from agent.calibrate import simulate
+        from agent.machine import INTERRUPTED
+        from agent.measure import opencv_detector
+        from solver.fileio import atomic_write_text
+
+        settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
+        backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")
+        try:
+            atomic_write_text(out / "truth.json", json.dumps(backend.truth_dict(), indent=1) + "\n")
+            if effects:  # what each injected effect drew, as `naocal calibrate` writes it
+                atomic_write_text(out / "truth_effects.json", json.dumps(backend.effect_values_dict(), indent=1) + "\n")
+            result, ctx = simulate(backend, out, settings, detector=backend.faulty(opencv_detector))
+        finally:
+            backend.close()
+    if result.final == INTERRUPTED:
+        print(f"naocal simulate: interrupted; {out} holds the captures made so far (a dataset of its own; "
+              "simulate does not resume)", file=sys.stderr)
+        return 130
+    if not result.ok:
+        print(f"naocal simulate: failed: {result.reason}", file=sys.stderr)
+        return 3
+    m = ctx.measurement
+    print(f"naocal simulate: wrote {out}: {m['n_saved']} of {m['n_planned']} images "
+          f"({m['n_skipped']} skipped), {m['robot_time_s']:.1f} s of robot time; hidden truth in {out / 'truth.json'}")
+    return 0

@@ -1,0 +1,26 @@
+"""The options of `naocal identify` every kind shares (argparse only), in their own module so that a kind can parse
+identify's options (the NAO's diagnose parses the identify command it suggests) without importing the verb."""
+
+
+def effect_names() -> str:
+    """The candidate effects, for --help (solver/effects/, one module each)."""
+    from solver.effects import EXTRA_EFFECTS
+
+    return ", ".join(EXTRA_EFFECTS)
+
+
+def add_identify_options(p) -> None:
+    p.add_argument("dataset", metavar="DATASET",
+                   help="naocal.dataset/2 (or /1) directory, or a naocal calibrate --out directory (uses its dataset/)")
+    p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
+    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/2 file (atomic, old one kept as .bak)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--keep-outliers", action="store_true",
+                   help="fit every corner and image (default: corners no rigid board motion explains, and images no "
+                        "view of their flat board explains, are set aside and listed)")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME",
+                   help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw")
+    p.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
+                   help="robust loss; images it down-weights are reported (default: linear)")
+    p.add_argument("--cv-folds", type=int, default=5,
+                   help="folds of grouped cross-validation (whole stances held out) for cv_rms_px; 0 to skip")
