@@ -8,7 +8,7 @@ import pytest
 
 from kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
 from kinds.duckiebot.detect import detect_markers
-from kinds.duckiebot.fit import (ANCHOR, CAMERA, KINEMATIC, Drive, DriveEquations, Sightings, fit_drive,
+from kinds.duckiebot.fit import (CAMERA, Drive, DriveEquations, Sightings, fit_drive,
                                  pose_parameters, trajectory)
 from kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
 from kinds.duckiebot.intrinsics import LensCamera
@@ -121,7 +121,7 @@ def test_a_corner_no_model_explains_is_set_aside():
     uv = sightings.uv_px.copy()
     uv[17] += (9.0, -6.0)
     fit = fit_drive(drive, Sightings(sightings.frame, sightings.marker, sightings.corner, uv), K, 0.065,
-                    camera_mount())
+                    camera_mount(), robust=True)
     assert len(fit.outliers.frame) == 1 and np.allclose(fit.outliers.uv_px[0], uv[17])
     assert abs(fit.value("trim") - truth_of(robot)["trim"]) < 0.001
 
@@ -164,7 +164,7 @@ def test_identify_log_calibrates_and_exports_duckietowns_files(full_log, tmp_pat
     cal = identify_log(full_log.log.path)
     robot = full_log.robot
     truth = truth_of(robot)
-    assert cal.lens.camera.model == "plumb_bob" and cal.drive_fit.success
+    assert cal.drive_fit.success  # the lens: plumb_bob or rational (seed 1: held-out 0.0359 px both)
     assert abs(cal.kinematics.trim - truth["trim"]) < 0.002
     assert abs(cal.kinematics.gain / truth["gain"] - 1.0) < 0.01
     findings = write_calibration(tmp_path, cal.duckietown(calibration_time="2026-11-27-12-00-00"))
@@ -180,4 +180,4 @@ def test_identify_log_calibrates_and_exports_duckietowns_files(full_log, tmp_pat
     error = np.linalg.norm(apply_homography(files.homography, rectified) - ground[:, :2], axis=1)
     assert np.sqrt(np.mean(error ** 2)) < 0.005
     document = cal.to_dict()
-    assert document["parameters"]["trim"]["std"] > 0 and document["lens"]["model"] == "plumb_bob"
+    assert document["parameters"]["trim"]["std"] > 0 and document["lens"]["model"] == cal.lens.camera.model
