@@ -331,6 +331,26 @@ def paper_program(board_steps: int = 4, marker_drives: int = 5, step_duty: float
     return steps
 
 
+def joint_program(board_steps: int = 4, marker_drives: int = 5, wiggles: int = 2, returns: int = 3,
+                  step_duty: float = 0.25, step_s: float = 0.05, drive_duty: float = 0.3,
+                  drive_s: float = 0.25) -> list[DriveStep]:
+    """The paper's program, better where the data allow (kinds.duckiebot.fit): along the forward drive, at `wiggles`
+    places, one-wheel steps left, right, right, left (about 6 deg each: without turns in view of the markers the
+    baseline cannot be told from trim); then, after driving back, `returns` short drives each forward and straight
+    back (a robot with a large trim curves off the marker line on the long drive: seed 3's trim of -0.12 lost it
+    after two stretches; one stretch out and back keeps it in view)."""
+    steps = paper_program(board_steps, 0, step_duty, step_s * 2, drive_duty, drive_s)
+    left, right = DriveStep(step_s, 0.0, step_duty), DriveStep(step_s, step_duty, 0.0)
+    forward, back = DriveStep(drive_s, drive_duty, drive_duty), DriveStep(drive_s, -drive_duty, -drive_duty)
+    at = set(np.linspace(0, marker_drives - 1, wiggles).round().astype(int).tolist()) if wiggles else set()
+    for i in range(marker_drives):
+        steps.append(forward)
+        if i in at:
+            steps += [left, right, right, left]
+    steps += [back] * marker_drives + [forward, back] * returns
+    return steps
+
+
 @dataclass(frozen=True)
 class Drive:
     """A simulated drive: the commands as sent, the frames' times and true poses, the encoders' samples."""

@@ -1,0 +1,472 @@
+"""The Duckiebot's joint fit (issue 23): wheels, camera pose on the body and floor markers from every frame of
+every drive of a drive log, through the core's one identification path (solver.identify.solve).
+
+Unknowns (`DriveFit.names`):
+- `gain`, `trim`: Duckietown's (kinds.duckiebot.kinematics), with k and the wheel radius known from the log (each
+  scales the wheel speeds like gain does, so they cannot be told from it: gain absorbs them);
+- `baseline_m`;
+- the camera's pose on the body, `camera.x_m .y_m .z_m .roll_rad .pitch_rad .yaw_rad`
+  (T_base_camera = translation, then R = Rz(yaw) Ry(pitch) Rx(roll): kinds.duckiebot.robot.camera_mount);
+- `anchor.x_m .y_m .theta_rad`: the robot's pose at the first frame with a marker in view (the start of the
+  observed drive). Anchored there, not at the log's first row: no frame before it sees a marker, so a free pose at
+  the log's start would absorb all motion before the anchor exactly; anchoring at the first seen frame is the same
+  model without the long lever arm of the turns before it;
+- `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
+- `marker<id>.x_m .y_m .yaw_rad` of every marker seen but one, the reference (the gauge): the floor's frame is
+  arbitrary (a planar rigid motion, 3 DoF), so the reference marker's pose is the world frame (0, 0, 0). The
+  reference is the marker seen in the most frames (ties: the smallest id): it is the best tied to the drive, so the
+  other markers' and the anchor's stds are relative to the best-known frame.
+
+Observations: the detected marker corners, rectified (undistorted with the calibrated lens, whatever its model,
+and re-projected with its camera matrix K), in pixels. The robot's pose at each frame is integrated from the wheel
+commands (each held until the next row) with Duckietown's forward kinematics, exact arcs; the Jacobian of each
+pose with respect to the kinematics and the anchor is propagated exactly through every arc (forward mode).
+
+Clusters of the cluster-robust covariance: the frame. What a frame's corners share is that frame's pose (slip,
+lag, what the kinematics lack at that instant) and its detection (blur, lighting); drive segments would leave 2-4
+clusters for 20-50 parameters, far too few for the sandwich.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.camera import project
+from solver.errors import SolveError
+from solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable, solve,
+                             worst_of_group_beyond)
+from solver.transforms import d_rot_x, d_rot_y, d_rot_z, make_transform, rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
+
+KINEMATIC = ("gain", "trim", "baseline_m")
+# The detector's corners lie inside the marker's true ones, the more the smaller the marker (a rendered log, seed 1:
+# 0.20 px for sides of 30-100 px, 0.36 px at 20-30, 0.41 px at 15-20, 0.70 px below 15; ArUco's sub-pixel refinement
+# on a blurred L-corner). Unmodelled, the markers look smaller, so farther, and the gain came out 0.7 % off (8 stds).
+# Fitted: one bias, each corner moved along its marker's image diagonal by corner_bias_px (a second term, px^2 over
+# the half-diagonal, made the gain worse on the same log: 0.40 % off against 0.30 %).
+BIAS = "corner_bias_px"
+CAMERA = ("camera.x_m", "camera.y_m", "camera.z_m", "camera.roll_rad", "camera.pitch_rad", "camera.yaw_rad")
+ANCHOR = ("anchor.x_m", "anchor.y_m", "anchor.theta_rad")
+# The variables' scales (solver.identify.levenberg_marquardt conditions on them; the identifiability policy judges
+# the columns scaled by them): about the prior uncertainty of each.
+SCALES = {"gain": 0.1, "trim": 0.05, "baseline_m": 0.003, "camera.x_m": 0.005, "camera.y_m": 0.005,
+          "camera.z_m": 0.005, "camera.roll_rad": 0.02, "camera.pitch_rad": 0.03, "camera.yaw_rad": 0.03,
+          "anchor.x_m": 0.05, "anchor.y_m": 0.05, "anchor.theta_rad": 0.05, BIAS: 0.1}
+MARKER_SCALES = (0.05, 0.05, 0.05)  # x, y, yaw
+MAX_ITERATIONS = 100
+
+
+def marker_offsets(size_m: float) -> np.ndarray:
+    """(4, 2) corners of a marker's black square about its centre, in its own frame, in the detector's order
+    (clockwise from the marker image's top-left; the image's top along the marker's +x)."""
+    h = size_m / 2.0
+    return np.array([[h, h], [h, -h], [-h, -h], [-h, h]])
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """The detected marker corners of a log, one row per corner: frame index, marker id, corner (0-3), the
+    rectified pixel (u, v) (undistorted, on the lens's K) and its expected noise (px; None: 1 px for all)."""
+
+    frame: np.ndarray  # (N,) int
+    marker: np.ndarray  # (N,) int: marker id
+    corner: np.ndarray  # (N,) int
+    uv_px: np.ndarray  # (N, 2)
+    noise_px: np.ndarray | None = None  # (N,)
+
+    @property
+    def sigma_px(self) -> np.ndarray:
+        return np.ones(len(self.frame)) if self.noise_px is None else np.asarray(self.noise_px, dtype=float)
+
+    def subset(self, rows) -> "Sightings":
+        return Sightings(self.frame[rows], self.marker[rows], self.corner[rows], self.uv_px[rows],
+                         None if self.noise_px is None else self.noise_px[rows])
+
+
+@dataclass(frozen=True)
+class Drive:
+    """What the fit needs of a drive log: the commands as sent, the frames' times, k, the wheel radius, limit."""
+
+    wheel_t_s: np.ndarray
+    left_duty: np.ndarray
+    right_duty: np.ndarray
+    frame_t_s: np.ndarray
+    k: float
+    radius_m: float
+    baseline_m: float  # the log's nominal: the start value
+    limit: float = 1.0
+
+    @classmethod
+    def of_log(cls, log) -> "Drive":
+        return cls(log.wheel_t_s, log.left_duty, log.right_duty, log.frame_t_s, log.wheels.k, log.wheels.radius_m,
+                   log.wheels.baseline_m, log.wheels.limit)
+
+
+def pose_parameters(T_base_camera) -> np.ndarray:
+    """(x, y, z, roll, pitch, yaw) of a camera pose on the body (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    T = np.asarray(T_base_camera, dtype=float)
+    return np.array([*T[:3, 3], *rpy_from_rot(T[:3, :3])])
+
+
+def camera_transform(p) -> np.ndarray:
+    """T_base_camera of (x, y, z, roll, pitch, yaw)."""
+    return make_transform(rot_rpy(p[3], p[4], p[5]), p[:3])
+
+
+# ------------------------------------------------------------------------------------------------ the trajectory
+
+def _sinc_and_derivative(a):
+    """(sin a / a, its derivative), accurate near 0."""
+    a = float(a)
+    if abs(a) < 1e-4:
+        return 1.0 - a * a / 6.0, -a / 3.0 + a ** 3 / 30.0
+    s, c = math.sin(a), math.cos(a)
+    return s / a, (a * c - s) / (a * a)
+
+
+def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor, anchor_t_s: float, times_s):
+    """Poses (m, 3) at `times_s` (each at or after anchor_t_s, increasing) of a robot at `anchor` (x, y, theta) at
+    anchor_t_s, driven by the log's commands (each held until the next row; 0 before the first) through
+    Duckietown's forward kinematics, and their exact Jacobian (m, 3, 6) with respect to
+    (gain, trim, baseline, anchor x, y, theta)."""
+    times_s = np.asarray(times_s, dtype=float)
+    knots = np.union1d(drive.wheel_t_s[drive.wheel_t_s > anchor_t_s], times_s)
+    pose = np.asarray(anchor, dtype=float).copy()
+    J = np.zeros((3, 6))
+    J[:, 3:] = np.eye(3)
+    poses, jacobians = np.zeros((len(times_s), 3)), np.zeros((len(times_s), 3, 6))
+    want = {float(t): i for i, t in enumerate(times_s)}
+    r, k, t_prev = drive.radius_m, drive.k, float(anchor_t_s)
+    if t_prev in want:
+        poses[want[t_prev]], jacobians[want[t_prev]] = pose, J
+    for t in knots:
+        dt = float(t) - t_prev
+        if dt > 0:
+            row = np.searchsorted(drive.wheel_t_s, t_prev, side="right") - 1
+            u_l, u_r = (drive.left_duty[row], drive.right_duty[row]) if row >= 0 else (0.0, 0.0)
+            if u_l != 0.0 or u_r != 0.0:
+                pose, J = _arc(pose, J, u_l, u_r, gain, trim, baseline_m, k, r, dt)
+        t_prev = float(t)
+        if t_prev in want:
+            poses[want[t_prev]], jacobians[want[t_prev]] = pose, J
+    return poses, jacobians
+
+
+def _arc(pose, J, u_l, u_r, gain, trim, b, k, r, dt):
+    """One held command: the pose after it (exact arc) and the propagated Jacobian (3, 6)."""
+    w_l, w_r = u_l * k / (gain - trim), u_r * k / (gain + trim)
+    dwl = np.array([-w_l / (gain - trim), w_l / (gain - trim), 0.0])  # d w_l / d (gain, trim, baseline)
+    dwr = np.array([-w_r / (gain + trim), -w_r / (gain + trim), 0.0])
+    v, omega = r * (w_r + w_l) / 2.0, r * (w_r - w_l) / b
+    dv = r * (dwr + dwl) / 2.0
+    domega = r * (dwr - dwl) / b
+    domega[2] = -omega / b
+    a = omega * dt / 2.0
+    S, dS = _sinc_and_derivative(a)
+    chord = v * dt * S
+    heading = pose[2] + a
+    ch, sh = math.cos(heading), math.sin(heading)
+    new = np.array([pose[0] + chord * ch, pose[1] + chord * sh, pose[2] + 2.0 * a])
+    Phi = np.array([[1.0, 0.0, -chord * sh], [0.0, 1.0, chord * ch], [0.0, 0.0, 1.0]])
+    dchord_dv, dchord_domega = dt * S, v * dt * dS * dt / 2.0
+    G = np.array([[dchord_dv * ch, dchord_domega * ch - chord * sh * dt / 2.0],
+                  [dchord_dv * sh, dchord_domega * sh + chord * ch * dt / 2.0],
+                  [0.0, dt]])  # d new / d (v, omega)
+    J_new = Phi @ J
+    J_new[:, :3] += G @ np.vstack([dv, domega])
+    return new, J_new
+
+
+# ------------------------------------------------------------------------------------------------ the equations
+
+class DriveEquations:
+    """The joint fit's normal equations for solver.identify.solve (as solver.arm_identify.ArmEquations are the
+    arm's): residuals = (predicted - detected rectified pixels) / the corner's expected noise (N, 2), one row per
+    corner, each row's score for the cluster-robust covariance (its cluster: its frame)."""
+
+    def __init__(self, drive: Drive, sightings: Sightings, K, marker_size_m: float, reference: int,
+                 names, base, free):
+        self.drive, self.obs = drive, sightings
+        self.K = np.asarray(K, dtype=float)
+        self.offsets = marker_offsets(marker_size_m)
+        self.reference = int(reference)
+        self.names = list(names)
+        self.base = np.asarray(base, dtype=float)
+        self.index = np.flatnonzero(free)
+        self.scales = parameter_scales(self.names)[self.index]
+        self.column = {n: i for i, n in enumerate(self.names)}
+        self.frames = np.unique(sightings.frame)
+        self.anchor_t_s = float(drive.frame_t_s[self.frames[0]])
+        self.row_frame = np.searchsorted(self.frames, sightings.frame)
+        self.inverse_sigma = 1.0 / sightings.sigma_px
+
+    def values(self, free) -> np.ndarray:
+        x = self.base.copy()
+        x[self.index] = free
+        return x
+
+    def predict(self, x, *, jacobian=True):
+        """(pixels (N, 2), d pixels / d x (N, 2, P) or None) at the full vector x: each corner's projection moved
+        outward along its marker's image diagonal by corner_bias_px (BIAS)."""
+        corner_uv, corner_J = self._project(x, self.offsets[self.obs.corner], jacobian)
+        centre_uv, centre_J = self._project(x, np.zeros((len(self.obs.frame), 2)), jacobian)
+        d = corner_uv - centre_uv
+        L = np.linalg.norm(d, axis=1)
+        b = x[self.column[BIAS]]
+        uv = corner_uv + b * d / L[:, None]
+        if not jacobian:
+            return uv, None
+        # d (d / L) = (I / L - d d^T / L^3) d d
+        M = np.eye(2)[None] / L[:, None, None] - d[:, :, None] * d[:, None, :] / (L ** 3)[:, None, None]
+        J = corner_J + b * M @ (corner_J - centre_J)
+        J[:, :, self.column[BIAS]] = d / L[:, None]
+        return uv, J
+
+    def _project(self, x, o, jacobian):
+        """(pixels (N, 2), d pixels / d x) of the points at offsets o (N, 2) in each row's marker frame."""
+        c = self.column
+        obs, N, P = self.obs, len(self.obs.frame), len(self.names)
+        poses, dposes = trajectory(self.drive, x[c["gain"]], x[c["trim"]], x[c["baseline_m"]],
+                                   x[[c[n] for n in ANCHOR]], self.anchor_t_s, self.drive.frame_t_s[self.frames])
+        pose, dpose = poses[self.row_frame], dposes[self.row_frame]
+        # markers: the reference at the origin, the others from x
+        m_xy, m_yaw = np.zeros((N, 2)), np.zeros(N)
+        m_cols = np.full((N, 3), -1)
+        others = obs.marker != self.reference
+        for i in np.flatnonzero(others):
+            m_cols[i] = [c[f"marker{obs.marker[i]}.x_m"], c[f"marker{obs.marker[i]}.y_m"],
+                         c[f"marker{obs.marker[i]}.yaw_rad"]]
+        m_xy[others] = x[m_cols[others, :2]]
+        m_yaw[others] = x[m_cols[others, 2]]
+        cy, sy = np.cos(m_yaw), np.sin(m_yaw)
+        world = m_xy + np.stack([cy * o[:, 0] - sy * o[:, 1], sy * o[:, 0] + cy * o[:, 1]], axis=1)
+        ct, st = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        rel = world - pose[:, :2]
+        base_xy = np.stack([ct * rel[:, 0] + st * rel[:, 1], -st * rel[:, 0] + ct * rel[:, 1]], axis=1)
+        cam = x[[c[n] for n in CAMERA]]
+        R = rot_rpy(cam[3], cam[4], cam[5])
+        d = np.column_stack([base_xy, np.zeros(N)]) - cam[:3]
+        p_cam = d @ R  # R^T d per row
+        K = self.K
+        proj = project(p_cam, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+        if not jacobian:
+            return proj.uv_px, None
+        A = proj.point_jacobian()  # (N, 2, 3)
+        Jx = np.zeros((N, 2, P))
+        AR = A @ R.T  # d uv / d base point (N, 2, 3)
+        for j, name in enumerate(CAMERA[:3]):
+            Jx[:, :, c[name]] = -AR[:, :, j]
+        dR = (rot_z(cam[5]) @ rot_y(cam[4]) @ d_rot_x(cam[3]), rot_z(cam[5]) @ d_rot_y(cam[4]) @ rot_x(cam[3]),
+              d_rot_z(cam[5]) @ rot_y(cam[4]) @ rot_x(cam[3]))
+        for name, D in zip(CAMERA[3:], dR):
+            Jx[:, :, c[name]] = np.einsum("nij,nj->ni", A, d @ D)
+        B = AR[:, :, :2]  # d uv / d base xy
+        RT = np.stack([np.stack([ct, st], -1), np.stack([-st, ct], -1)], axis=1)  # (N, 2, 2) R(theta)^T
+        dRT = np.stack([np.stack([-st, ct], -1), np.stack([-ct, -st], -1)], axis=1)
+        d_base_d_pose = np.concatenate([-RT, np.einsum("nij,nj->ni", dRT, rel)[:, :, None]], axis=2)  # (N, 2, 3)
+        through_pose = B @ d_base_d_pose @ dpose  # (N, 2, 6)
+        for j, name in enumerate(KINEMATIC + ANCHOR):
+            Jx[:, :, c[name]] += through_pose[:, :, j]
+        BR = B @ RT  # d uv / d world xy
+        d_world_d_yaw = np.stack([-sy * o[:, 0] - cy * o[:, 1], cy * o[:, 0] - sy * o[:, 1]], axis=1)
+        rows = np.flatnonzero(others)
+        Jx[rows, :, m_cols[rows, 0]] = BR[rows, :, 0]
+        Jx[rows, :, m_cols[rows, 1]] = BR[rows, :, 1]
+        Jx[rows, :, m_cols[rows, 2]] = np.einsum("nij,nj->ni", BR[rows], d_world_d_yaw[rows])
+        return proj.uv_px, Jx
+
+    def __call__(self, free, *, weights=None, jacobian: bool = True) -> Normal:
+        uv, Jx = self.predict(self.values(free), jacobian=jacobian)
+        r = (uv - self.obs.uv_px) * self.inverse_sigma[:, None]
+        rw = r if weights is None else r * np.sqrt(weights)[:, None]
+        p = len(self.index)
+        if not jacobian:
+            return Normal(np.zeros((p, p)), np.zeros(p), 0.5 * float(np.sum(rw ** 2)), r, np.zeros((len(r), p)))
+        Js = Jx[:, :, self.index] * self.scales * self.inverse_sigma[:, None, None]
+        flat = Js.reshape(-1, p)
+        A = flat.T @ flat
+        return Normal(0.5 * (A + A.T), flat.T @ rw.reshape(-1), 0.5 * float(np.sum(rw ** 2)), r,
+                      np.einsum("ncp,nc->np", Js, rw))
+
+    def dense(self, free):
+        """(r, J) flattened, unscaled: for scipy's solvers (robust losses)."""
+        uv, Jx = self.predict(self.values(free))
+        w = self.inverse_sigma[:, None]
+        return ((uv - self.obs.uv_px) * w).reshape(-1), (Jx[:, :, self.index] * w[:, :, None]).reshape(
+            -1, len(self.index))
+
+
+def parameter_scales(names) -> np.ndarray:
+    return np.array([SCALES[n] if n in SCALES else MARKER_SCALES[("x_m", "y_m", "yaw_rad").index(n.split(".")[1])]
+                     for n in names])
+
+
+# ------------------------------------------------------------------------------------------------ start values
+
+def _floor_points(uv_px, K, T_base_camera) -> np.ndarray:
+    """Where rectified pixels' rays meet the floor (z = 0), in the base frame (N, 2)."""
+    xn = (uv_px[:, 0] - K[0, 2]) / K[0, 0]
+    yn = (uv_px[:, 1] - K[1, 2]) / K[1, 1]
+    rays = np.column_stack([np.ones(len(xn)), -xn, -yn]) @ T_base_camera[:3, :3].T
+    o = T_base_camera[:3, 3]
+    s = -o[2] / np.minimum(rays[:, 2], -1e-6)
+    return o[:2] + s[:, None] * rays[:, :2]
+
+
+def marker_on_floor(uv_px, corners, K, T_base_camera, marker_size_m) -> np.ndarray:
+    """(x, y, yaw) of a marker in the body frame from its rectified corner pixels (`corners`: which of the four each
+    is), the rays meeting the floor under the camera pose T_base_camera (2-D Procrustes of the corners)."""
+    floor = _floor_points(np.asarray(uv_px, dtype=float), K, T_base_camera)
+    o = marker_offsets(marker_size_m)[np.asarray(corners)]
+    a, b = o - o.mean(axis=0), floor - floor.mean(axis=0)
+    yaw = math.atan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b))
+    c, s = math.cos(yaw), math.sin(yaw)
+    mean = o.mean(axis=0)
+    return np.array([*(floor.mean(axis=0) - np.array([c * mean[0] - s * mean[1], s * mean[0] + c * mean[1]])), yaw])
+
+
+def _compose(a, b):
+    """Planar pose a (x, y, theta) composed with b (expressed in a)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
+
+
+def _inverse(a):
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
+
+
+def start_values(drive: Drive, obs: Sightings, K, marker_size_m, T_base_camera, reference):
+    """(frame poses {frame: (x, y, theta)}, marker poses {id: (x, y, yaw)}, gain) from the detections alone: each
+    marker's pose in the body frame from its corners' floor points under the nominal camera pose, chained from the
+    reference marker through the frames that see two; gain from the distances driven between seen frames."""
+    seen = {}  # (frame, marker) -> marker pose in the body frame
+    for f, m in {(int(f), int(m)) for f, m in zip(obs.frame, obs.marker)}:
+        rows = np.flatnonzero((obs.frame == f) & (obs.marker == m))
+        seen[(f, m)] = marker_on_floor(obs.uv_px[rows], obs.corner[rows], K, T_base_camera, marker_size_m)
+    markers, frames = {int(reference): np.zeros(3)}, {}
+    changed = True
+    while changed:
+        changed = False
+        for (f, m), body_marker in sorted(seen.items()):
+            if m in markers and f not in frames:
+                frames[f] = _compose(markers[m], _inverse(body_marker))
+                changed = True
+            elif f in frames and m not in markers:
+                markers[m] = _compose(frames[f], body_marker)
+                changed = True
+    ordered = sorted(frames)
+    nominal, _ = trajectory(drive, 1.0, 0.0, drive.baseline_m, np.zeros(3), drive.frame_t_s[ordered[0]],
+                            drive.frame_t_s[ordered])
+    driven = np.sum(np.linalg.norm(np.diff(nominal[:, :2], axis=0), axis=1))
+    seen_moved = np.sum(np.linalg.norm(np.diff(np.array([frames[f][:2] for f in ordered]), axis=0), axis=1))
+    gain = driven / seen_moved if seen_moved > 1e-3 and driven > 1e-3 else 1.0
+    return frames, markers, gain
+
+
+# ------------------------------------------------------------------------------------------------ the fit
+
+@dataclass
+class DriveFit:
+    names: list
+    x: np.ndarray  # full vector (names)
+    std: np.ndarray  # cluster-robust (frame clusters), 0 for fixed
+    std_iid: np.ndarray
+    free: np.ndarray
+    reference_marker: int
+    residuals_px: np.ndarray  # (N, 2) of the corners kept, px (not divided by their noise)
+    sightings: Sightings  # the corners kept
+    outliers: Sightings  # corners set aside
+    rms_px: float
+    success: bool
+    message: str
+    iterations: int
+    condition_number: float
+    weak_directions: list
+    anchor_t_s: float
+    warnings: list = field(default_factory=list)
+
+    def value(self, name: str) -> float:
+        return float(self.x[self.names.index(name)])
+
+    def stdev(self, name: str) -> float:
+        return float(self.std[self.names.index(name)])
+
+    @property
+    def T_base_camera(self) -> np.ndarray:
+        return camera_transform(self.x[[self.names.index(n) for n in CAMERA]])
+
+    def parameters_dict(self) -> dict:
+        return {n: {"value": float(v), "std": float(s)} for n, v, s in zip(self.names, self.x, self.std)}
+
+
+def _reference_marker(obs: Sightings) -> int:
+    pairs = np.unique(np.column_stack([obs.frame, obs.marker]), axis=0)
+    ids, counts = np.unique(pairs[:, 1], return_counts=True)
+    return int(ids[np.argmax(counts)])  # argmax takes the first of the ties: the smallest id
+
+
+def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_base_camera_start, *,
+              fixed=(), loss: str = "linear", loss_scale_px: float = 1.0, robust: bool = False) -> DriveFit:
+    """The joint fit (module docstring) of the rectified corners `sightings` seen through camera matrix K, from the
+    nominal camera pose `T_base_camera_start`. `fixed`: names kept at their start values. `robust`: set aside the
+    corners no model explains (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by
+    default: on rendered logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-
+    tailed, not mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
+    SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
+    if len(sightings.frame) == 0:
+        raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
+    reference = _reference_marker(sightings)
+    K = np.asarray(K, dtype=float)
+    frames, markers, gain0 = start_values(drive, sightings, K, marker_size_m, np.asarray(T_base_camera_start),
+                                          reference)
+    ids = sorted(m for m in markers if m != reference)
+    names = list(KINEMATIC + CAMERA + ANCHOR) + [BIAS] + [f"marker{m}.{a}" for m in ids
+                                                          for a in ("x_m", "y_m", "yaw_rad")]
+    first = int(np.min(sightings.frame))
+    x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0]] +
+                        [markers[m] for m in ids])
+    for name in fixed:
+        if name not in names:
+            raise ValueError(f"unknown parameter {name!r} to fix")
+    free = np.array([n not in fixed for n in names])
+    all_obs, kept = sightings, np.arange(len(sightings.frame))
+    x = x0
+    for _ in range(1 + (MAX_TRIM_ROUNDS if robust else 0)):
+        obs = all_obs.subset(kept)
+        equations = DriveEquations(drive, obs, K, marker_size_m, reference, names, x, free)
+        if 2 * len(kept) <= len(equations.index):
+            raise SolveError(f"{len(equations.index)} parameters but only {2 * len(kept)} corner coordinates")
+        check_identifiable(equations(x[equations.index]).A, [names[i] for i in equations.index])
+        cache = {}
+
+        def normal_at(f, equations=equations, cache=cache):
+            key = f.tobytes()
+            if key not in cache:
+                cache.clear()
+                cache[key] = equations(f)
+            return cache[key]
+
+        solution = solve(equations, normal_at, x[equations.index], loss=loss, loss_scale=loss_scale_px,
+                         max_iterations=MAX_ITERATIONS)
+        x = equations.values(solution.free)
+        if not robust:
+            break
+        r = solution.final.residuals
+        size = np.linalg.norm(r, axis=1)
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(r)))
+        bad = worst_of_group_beyond(size / max(scale, 1e-12), obs.frame, OUTLIER_SCALES)
+        if not len(bad):
+            break
+        kept = np.delete(kept, bad)
+    spread = solution.spread(equations.row_frame, [names[i] for i in equations.index])
+    std, std_iid = np.zeros(len(x)), np.zeros(len(x))
+    std[free] = np.sqrt(np.clip(np.diag(spread.covariance), 0.0, None))
+    std_iid[free] = np.sqrt(np.clip(np.diag(spread.covariance_iid), 0.0, None))
+    residuals = solution.final.residuals * obs.sigma_px[:, None]
+    outliers = all_obs.subset(np.setdiff1d(np.arange(len(all_obs.frame)), kept))
+    return DriveFit(names, x, std, std_iid, free, reference, residuals, obs, outliers,
+                    float(np.sqrt(np.mean(residuals ** 2))), solution.success, solution.message, solution.n_jac,
+                    spread.condition_number, spread.weak_directions, equations.anchor_t_s, spread.warnings())

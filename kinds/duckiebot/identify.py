@@ -1,0 +1,147 @@
+"""A drive log to a Duckiebot's calibration (issue 23): read, detect, fit the camera's intrinsics, then the joint fit
+(kinds.duckiebot.fit). `identify_log(LOG)` is what `naocal identify LOG --out CAL.json` will call once the CLI's
+dispatch is redesigned (issue 22); it writes nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
+from kinds.duckiebot.detect import detect_boards, detect_markers
+from kinds.duckiebot.drive_log import DriveLog, read_drive_log
+from kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive
+from kinds.duckiebot.intrinsics import LensCamera, LensFit, board_points, choose_lens
+from kinds.duckiebot.robot import Kinematics, duckiebot
+from solver.camera import CameraIntrinsics
+from solver.errors import NaocalError
+
+# A marker corner's detection noise grows fast as the marker shrinks in the image: measured on a rendered log (seed
+# 1, detected vs true corners, after their common inward bias) 0.04 px sd for sides of 30-100 px, 0.32 px at 20-30,
+# 0.34 px at 15-20, 0.64 px below 15: about (UNIT_NOISE_SIDE_PX / side)^2 px, never below MIN_NOISE_PX.
+UNIT_NOISE_SIDE_PX = 10.0
+MIN_NOISE_PX = 0.15
+HELD_OUT_GROUPS = 3  # board views split into this many runs of consecutive views, each held out in turn
+MIN_BOARD_VIEWS = 6  # two per group at least, so that each fit without one group still has 4 views
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Per frame: the markers (kinds.duckiebot.detect.MarkerSighting) and boards (BoardSighting) found."""
+
+    markers: list
+    boards: list
+
+
+def detect_log(log: DriveLog) -> Detections:
+    markers, boards = [], []
+    for i in range(len(log.frame_files)):
+        image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
+        markers.append(detect_markers(image, log.marker_family))
+        boards.append(detect_boards(image, log.board_inner_corners, log.board_square_m))
+    return Detections(markers, boards)
+
+
+def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict]:
+    """(chosen LensFit, {model: LensFit}) from every board view, the lens model by held-out error
+    (kinds.duckiebot.intrinsics.choose_lens). A board seen is not told from the others (they are identical), so the
+    held-out groups are runs of consecutive views: the robot turns in steps, so a run is one stretch of the turn."""
+    obj = board_points(log.board_inner_corners, log.board_square_m)
+    views = [sighting.corners_px.reshape(-1, 2) for boards in detections.boards for sighting in boards]
+    if len(views) < MIN_BOARD_VIEWS:
+        raise NaocalError(f"{log.path}: {len(views)} board views found, at least {MIN_BOARD_VIEWS} are needed to "
+                          "fit the camera's intrinsics")
+    groups = np.arange(len(views)) * HELD_OUT_GROUPS // len(views)
+    prior = duckiebot(log.model).camera
+    K_guess = [[prior.fx_px, 0.0, prior.cx_px], [0.0, prior.fy_px, prior.cy_px], [0.0, 0.0, 1.0]]
+    return choose_lens([obj] * len(views), views, (log.width_px, log.height_px), groups, K_guess=K_guess)
+
+
+def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings:
+    """Every detected marker corner, undistorted with `camera` and re-projected with its K (rectified pixels), with
+    its expected noise from the marker's smallest side in the image."""
+    frame, marker, corner, uv, noise = [], [], [], [], []
+    for f, sightings in enumerate(detections.markers):
+        for s in sightings:
+            frame += [f] * 4
+            marker += [s.id] * 4
+            corner += [0, 1, 2, 3]
+            uv.append(s.corners_px)
+            side = np.linalg.norm(np.roll(s.corners_px, -1, axis=0) - s.corners_px, axis=1).min()
+            noise += [max(MIN_NOISE_PX, (UNIT_NOISE_SIDE_PX / max(side, 1.0)) ** 2)] * 4
+    if not uv:
+        return Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+    normalised = camera.normalised(np.concatenate(uv))
+    K = camera.K
+    rect = np.column_stack([K[0, 0] * normalised[:, 0] + K[0, 1] * normalised[:, 1] + K[0, 2],
+                            K[1, 1] * normalised[:, 1] + K[1, 2]])
+    return Sightings(np.array(frame), np.array(marker), np.array(corner), rect, np.array(noise))
+
+
+@dataclass
+class DuckiebotCalibration:
+    """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
+    camera (the chosen lens; its plumb_bob fit for Duckietown's files), the camera's pose on the body, the floor
+    markers, with the joint fit's cluster-robust stds."""
+
+    robot_id: str
+    kinematics: Kinematics
+    lens: LensFit  # chosen by held-out error
+    lens_fits: dict  # {model: LensFit}
+    drive_fit: DriveFit
+
+    @property
+    def T_base_camera(self) -> np.ndarray:
+        return self.drive_fit.T_base_camera
+
+    def plumb_bob_camera(self, width_px: int, height_px: int) -> CameraIntrinsics:
+        """The camera as Duckietown's camera_intrinsic file holds it (plumb_bob only)."""
+        fit = self.lens_fits["plumb_bob"].camera
+        K = fit.K
+        return CameraIntrinsics(width_px, height_px, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                                tuple(float(d) for d in fit.distortion[:5]))
+
+    def duckietown(self, width_px: int = 640, height_px: int = 480,
+                   calibration_time: str = "") -> DuckietownCalibration:
+        """Duckietown's three files' content (kinds.duckiebot.calibration_files.write_calibration writes them): the
+        homography follows from the fitted camera pose and the plumb_bob camera's K."""
+        return duckietown_calibration(self.robot_id, self.kinematics, self.plumb_bob_camera(width_px, height_px),
+                                      self.T_base_camera, calibration_time)
+
+    def to_dict(self) -> dict:
+        fit = self.drive_fit
+        return {"robot": self.robot_id,
+                "kinematics": {"gain": self.kinematics.gain, "trim": self.kinematics.trim,
+                               "baseline_m": self.kinematics.baseline_m, "k": self.kinematics.k,
+                               "radius_m": self.kinematics.radius_m, "limit": self.kinematics.limit},
+                "lens": {"model": self.lens.camera.model, "K": self.lens.camera.K.tolist(),
+                         "distortion": self.lens.camera.distortion.tolist(),
+                         "held_out_rms_px": {m: f.held_out_rms_px for m, f in self.lens_fits.items()}},
+                "T_base_camera": self.T_base_camera.tolist(),
+                "parameters": fit.parameters_dict(), "reference_marker": fit.reference_marker,
+                "rms_px": fit.rms_px, "corners": int(len(fit.sightings.frame)),
+                "outliers": int(len(fit.outliers.frame)), "warnings": list(fit.warnings)}
+
+
+def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: dict, **fit_options):
+    """The joint fit of a log's detections through a fitted lens, as a DuckiebotCalibration."""
+    sightings = rectified_sightings(detections, lens.camera)
+    drive_fit = fit_drive(Drive.of_log(log), sightings, lens.camera.K, log.marker_size_m,
+                          duckiebot(log.model).T_base_camera, **fit_options)
+    kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
+                     gain=drive_fit.value("gain"), trim=drive_fit.value("trim"), k=log.wheels.k,
+                     limit=log.wheels.limit)
+    return DuckiebotCalibration(log.robot_id, kin, lens, lens_fits, drive_fit)
+
+
+def identify_log(log_dir, **fit_options) -> DuckiebotCalibration:
+    """Read the drive log at `log_dir`, detect markers and boards in every frame, fit the intrinsics (lens model by
+    held-out error), then the joint fit. DataError for a bad log, NaocalError / SolveError when the data cannot
+    calibrate (too few board views, no marker seen, something undetermined)."""
+    log = read_drive_log(log_dir)
+    detections = detect_log(log)
+    lens, fits = fit_intrinsics(log, detections)
+    return calibrate(log, detections, lens, fits, **fit_options)

