@@ -352,7 +352,7 @@ def joint_program(board_steps: int = 4, marker_drives: int = 5, wiggles: int = 2
 
 
 @dataclass(frozen=True)
-class Drive:
+class SimulatedDrive:
     """A simulated drive: the commands as sent, the frames' times and true poses, the encoders' samples."""
 
     wheel_t_s: np.ndarray
@@ -366,7 +366,7 @@ class Drive:
 
 
 def simulate_drive(steps, truth: Kinematics, start_pose=(0.0, 0.0, 0.0), t0_s: float = 0.0,
-                   ticks_per_revolution: int = 135, encoder_period_s: float = 0.05) -> Drive:
+                   ticks_per_revolution: int = 135, encoder_period_s: float = 0.05) -> SimulatedDrive:
     """Run a program on a robot whose true parameters are `truth` (Duckietown's forward kinematics, exact arcs)."""
     t, pose = t0_s, np.asarray(start_pose, dtype=float)
     wheel_rows, frames, poses = [], [], []
@@ -406,7 +406,7 @@ def simulate_drive(steps, truth: Kinematics, start_pose=(0.0, 0.0, 0.0), t0_s: f
                        for i, ts in zip(index, sample_t)])
     ticks = np.floor(angles * ticks_per_revolution / (2.0 * np.pi)).astype(np.int64)
     rows = np.array(wheel_rows)
-    return Drive(rows[:, 0], rows[:, 1], rows[:, 2], np.array(frames), np.array(poses), sample_t, ticks[:, 0],
+    return SimulatedDrive(rows[:, 0], rows[:, 1], rows[:, 2], np.array(frames), np.array(poses), sample_t, ticks[:, 0],
                  ticks[:, 1])
 
 
@@ -419,7 +419,7 @@ class RenderedLog:
     log: DriveLog
     robot: HiddenRobot
     scene: Scene
-    drive: Drive
+    drive: SimulatedDrive
     marker_px: list  # per frame: {marker id: (4, 2) true corners in the detector's order}
     board_px: list  # per frame: {board index: (rows, columns, 2) true inner corners in image order}
 
