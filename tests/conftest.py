@@ -8,6 +8,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+# numpy in the tests as in the command line: one BLAS thread (tools/cli.py sets it before numpy is imported), so two
+# test workers on two cores do not start four threads.
+import tools.cli  # noqa: E402,F401
+
 
 def pytest_collection_modifyitems(config, items):
     """Two things for `pytest -n 2 --dist loadgroup` (README's test command):
