@@ -14,7 +14,7 @@ import tools.cli  # noqa: E402,F401
 
 
 def pytest_collection_modifyitems(config, items):
-    """Two things for `pytest -n 2 --dist loadgroup` (README's test command):
+    """Two things for `pytest -n 2` (README's test command; pyproject.toml adds --dist=loadgroup):
 
     - the tests that share a module- or session-scoped fixture of this directory (a simulated dataset, a whole
       calibration run) run on one worker, so the fixture is made once, not once per worker;
