@@ -12,6 +12,8 @@ if str(ROOT) not in sys.path:
 # test workers on two cores do not start four threads.
 import tools.cli  # noqa: E402,F401
 
+MOCK_RUN_SEED = 5  # the shared calibration run's mock (mock_run below)
+
 
 def pytest_collection_modifyitems(config, items):
     """Two things for `pytest -n 2` (README's test command; pyproject.toml adds --dist=loadgroup):
@@ -38,3 +40,23 @@ def shared_fixture_group(item):
         for definition in definitions:
             if definition.scope != "function" and definition.baseid:
                 yield definition.baseid if definition.baseid.endswith(".py") else f"fixture:{name}"
+
+
+@pytest.fixture(scope="session")
+def mock_run(tmp_path_factory):
+    """One whole calibration of the ideal mock (seed 5, default plan, as `naocal calibrate --backend mock --mock
+    ideal --seed 5` runs it), shared: tests/test_agent_mock.py checks the run, tests/test_diagnostics_mock.py
+    diagnoses its dataset. (mock, DIR, result, context, number of commands the calibration sent)."""
+    from agent.calibrate import calibrate
+    from agent.states import AgentSettings
+    from backends.mock import MockBackend
+
+    out = tmp_path_factory.mktemp("mock_calibration")
+    mock = MockBackend(MOCK_RUN_SEED)
+    try:
+        result, ctx = calibrate(mock, out, AgentSettings(seed=0, progress_bar=False),
+                                backend_label=f"mock {MOCK_RUN_SEED}", truth=mock.truth_dict())
+        yield mock, out, result, ctx, len(mock.command_log)
+    finally:
+        mock.close()
+
