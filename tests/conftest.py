@@ -16,30 +16,12 @@ MOCK_RUN_SEED = 5  # the shared calibration run's mock (mock_run below)
 
 
 def pytest_collection_modifyitems(config, items):
-    """Two things for `pytest -n 2` (README's test command; pyproject.toml adds --dist=loadgroup):
-
-    - the tests that share a module- or session-scoped fixture of this directory (a simulated dataset, a whole
-      calibration run) run on one worker, so the fixture is made once, not once per worker;
-    - the modules with end-to-end (slow) tests come first: the long tests start early and the short ones fill the
-      end, instead of one long test running alone at the end. Modules stay whole, so without -n a module's
-      fixtures are still made once.
-    """
-    for item in items:
-        shared = sorted(shared_fixture_group(item))
-        if shared:
-            item.add_marker(pytest.mark.xdist_group(shared[0]))
+    """For `pytest -n 2` (README's test command; pyproject.toml adds --dist=loadfile, so that a module's fixtures
+    are made once, on the worker that runs the module): the modules with end-to-end (slow) tests come first, so
+    the long tests start early and the short ones fill the end instead of one long module running alone at the
+    end. Modules stay whole and keep their order."""
     slow_modules = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow_modules)  # stable: each module's order kept
-
-
-def shared_fixture_group(item):
-    """The groups of the non-function-scoped fixtures the test uses that this directory defines (pytest's own,
-    such as tmp_path_factory, are left out): a test module's fixture is that module's, a conftest's its name's."""
-    info = getattr(item, "_fixtureinfo", None)
-    for name, definitions in (info.name2fixturedefs.items() if info else ()):
-        for definition in definitions:
-            if definition.scope != "function" and definition.baseid:
-                yield definition.baseid if definition.baseid.endswith(".py") else f"fixture:{name}"
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow_modules)  # stable
 
 
 @pytest.fixture(scope="session")
