@@ -11,14 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.cli_runner import naocal_process as naocal
 from tools import cli
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def naocal(*argv, **kw):
-    return subprocess.run([sys.executable, "-m", "tools", *argv], cwd=ROOT, capture_output=True, text=True,
-                          timeout=600, **kw)
 
 
 def run_in_process(argv, capsys):

@@ -1,5 +1,5 @@
-"""The agent on the PyBullet mock: one full calibration shared by the tests (session fixture), checked against the
-mock's hidden truth; a run that does not wait out the image delay; the command log."""
+"""The agent on the PyBullet mock: one full calibration shared by the tests (tests/conftest.py's mock_run), checked
+against the mock's hidden truth; a run that does not wait out the image delay; the command log."""
 
 import json
 import math
@@ -9,10 +9,8 @@ import pytest
 
 pytest.importorskip("backends.mock")
 
-from agent.calibrate import calibrate  # noqa: E402
 from agent.planner import PlanSettings  # noqa: E402
 from agent.robot import TimingSettings  # noqa: E402
-from agent.states import AgentSettings  # noqa: E402
 from backends.compensated import CompensatedBackend  # noqa: E402
 from backends.mock import SHARED_MOTOR, MockBackend  # noqa: E402
 from body.nao_body import CollisionChecker, NaoBody  # noqa: E402
@@ -30,17 +28,6 @@ from agent.safety import SafetyGuard  # noqa: E402
 pytestmark = pytest.mark.slow
 SEED = 5
 DEG = math.radians(1.0)
-
-
-@pytest.fixture(scope="session")
-def mock_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("mock_calibration")
-    mock = MockBackend(SEED)
-    result, ctx = calibrate(mock, out, AgentSettings(seed=0, progress_bar=False), backend_label=f"mock {SEED}",
-                            truth=mock.truth_dict())
-    n_commands = len(mock.command_log)
-    yield mock, out, result, ctx, n_commands
-    mock.close()
 
 
 def test_calibration_finds_the_hidden_offsets(mock_run):

@@ -4,8 +4,6 @@ simulated PyBullet arm against naocal's kinematics (docs/ARM.md)."""
 import json
 import math
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,6 +12,7 @@ from solver.arm import EFFECTS, ArmModel, Observations, Sensor, exp_so3, left_ja
 from solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
 from solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
 from solver.errors import DataError
+from tests.cli_runner import naocal as naocal_in_process, naocal_process
 
 CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
           "distortion": [0.02, -0.01, 0.001, -0.0005, 0.0]}
@@ -449,16 +448,14 @@ def test_cli_bad_chain_is_one_line_exit_2(tmp_path):
     for extra, message in ((["--chain", "panda_link0:nowhere"], "no link 'nowhere'"),
                            (["--chain", "panda_link0"], "BASE_LINK:TIP_LINK"),
                            (["--effects", "gravity"], "unknown arm effect")):
-        run = subprocess.run([sys.executable, "-m", "tools", "identify", str(d), *extra], capture_output=True,
-                             text=True, timeout=120)
+        run = naocal_in_process("identify", d, *extra)
         assert run.returncode == 2, run.stderr
         assert message in run.stderr and run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
 
 
-def naocal(*argv, timeout=60):
+def naocal(*argv):
     """naocal in a child process: a read that blocks fails the test (TimeoutExpired) instead of hanging it."""
-    return subprocess.run([sys.executable, "-m", "tools", *map(str, argv)], capture_output=True, text=True,
-                          timeout=timeout)
+    return naocal_process(*argv, timeout=60)
 
 
 @pytest.mark.parametrize("name", ["dataset.json", "observations.csv", "robot.urdf"])

@@ -8,9 +8,11 @@ import sys
 
 import pytest
 
+from tests import cli_runner
+
 
 def naocal(*args):
-    run = subprocess.run([sys.executable, "-m", "tools", *args], capture_output=True, text=True, timeout=600)
+    run = cli_runner.naocal(*args)
     assert run.returncode == 0, run.stderr
     return run.stdout
 

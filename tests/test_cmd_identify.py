@@ -10,6 +10,7 @@ import pytest
 from conftest import ROOT
 from solver.dataset import write_dataset
 from solver.offsets import read_offsets
+from tests.cli_runner import naocal
 from sim.synthetic import dataset_parts, random_truth, synthesize
 from tools.cli import main
 
@@ -77,26 +78,22 @@ def test_the_table_prints_the_stored_offset_c_labelled_as_everywhere(synthetic_d
     assert f"  {'LHipPitch':<16}{np.degrees(stored['LHipPitch']):>10.4f}" in shown
 
 
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "tools", *args], capture_output=True, text=True, cwd=ROOT)
-
-
 def test_unknown_effect_is_one_clear_line(synthetic_dataset):
     path, _ = synthetic_dataset
-    proc = run_cli("identify", str(path), "--effects", "gremlins")
+    proc = naocal("identify", str(path), "--effects", "gremlins")
     assert proc.returncode == 2
     assert "unknown effect 'gremlins'" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_missing_dataset_is_one_clear_line(tmp_path):
-    proc = run_cli("identify", str(tmp_path / "nothing"))
+    proc = naocal("identify", str(tmp_path / "nothing"))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "nothing" in proc.stderr
 
 
 def test_time_lag_without_velocities_is_refused(synthetic_dataset):
     path, _ = synthetic_dataset
-    proc = run_cli("identify", str(path), "--effects", "time_lag")
+    proc = naocal("identify", str(path), "--effects", "time_lag")
     assert proc.returncode == 2 and "vel_" in proc.stderr
 
 
@@ -106,7 +103,7 @@ def test_degenerate_dataset_exits_3_and_writes_nothing(tmp_path):
     path = tmp_path / "dataset"
     write_dataset(dataset_parts(data), path)
     out = tmp_path / "offsets.json"
-    proc = run_cli("identify", str(path), "--out", str(out))
+    proc = naocal("identify", str(path), "--out", str(out))
     assert proc.returncode == 3, proc.stderr
     assert "cannot determine" in proc.stderr and not out.exists()
 

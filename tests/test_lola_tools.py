@@ -15,6 +15,7 @@ import pytest
 
 from backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS
 from solver import limits
+from tests.cli_runner import naocal_process
 from tests.lola_fakes import BODY_ID, HEAD_ID, FakeLola, SimpleServos, answer_series
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -22,8 +23,7 @@ SPEEDS = limits.max_speeds()
 
 
 def naocal(*argv, timeout=60):
-    return subprocess.run([sys.executable, "-m", "tools", *argv], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+    return naocal_process(*argv, timeout=timeout)
 
 
 class StuckServos(SimpleServos):

@@ -1,26 +1,20 @@
 """`naocal simulate`: a naocal.dataset/2 directory plus truth.json from the mock; bad input refused."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from solver.dataset import read_dataset
 from solver.joints import JOINTS
+from tests.cli_runner import naocal
 from tools import cli
-
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.mark.slow
 def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):
     out = tmp_path / "sim"
-    done = subprocess.run([sys.executable, "-m", "tools", "simulate", "--out", str(out), "--seed", "4",
-                           "--stances-per-leg", "3", "--effect", "time_lag=0.02", "--no-progress", "--mock", "ideal"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    done = naocal("simulate", "--out", out, "--seed", "4", "--stances-per-leg", "3", "--effect", "time_lag=0.02",
+                  "--no-progress", "--mock", "ideal")
     assert done.returncode == 0, done.stderr
     assert "naocal simulate: wrote" in done.stdout
     assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "images", "observations.csv", "truth.json",
