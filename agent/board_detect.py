@@ -46,9 +46,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agent.xcorners import (Candidates, alternation, apply_homography, find_lattices, homography, inside,
+from naocal.agent.xcorners import (Candidates, alternation, apply_homography, find_lattices, homography, inside,
                             quick_homography, saddle_candidates, square_stats_at, symmetry_and_contrast)
-from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
+from naocal.solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
 
 REASONS = ("missing", "cut_off", "blurred", "ambiguous")
 CHANNELS = ("grey", "cr", "cb")

@@ -14,13 +14,13 @@ import logging
 import shlex
 from pathlib import Path
 
-from agent.machine import Machine, RunResult
-from agent.measure import opencv_detector
-from agent.states import AgentSettings, Context, calibrate_states, dataset_meta, run_finished, simulate_states
-from agent.summary import summary_text
-from solver.dataset import COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
-from solver.errors import DataError, DiskFullError, NaocalError
-from solver.fileio import atomic_write_text, disk_full_as_error
+from naocal.agent.machine import Machine, RunResult
+from naocal.agent.measure import opencv_detector
+from naocal.agent.states import AgentSettings, Context, calibrate_states, dataset_meta, run_finished, simulate_states
+from naocal.agent.summary import summary_text
+from naocal.solver.dataset import COMPARED_META_KEYS, META_FILE, parse_json_text, read_text, validate_meta
+from naocal.solver.errors import DataError, DiskFullError, NaocalError
+from naocal.solver.fileio import atomic_write_text, disk_full_as_error
 
 log = logging.getLogger(__name__)
 

@@ -12,14 +12,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from agent.estimate import FULL
-from solver.adapter import make_model_data
-from solver.effect import Setup
-from solver.errors import SolveError
-from solver.identify import identify
-from solver.model import Model
-from solver.registry import Registry
-from solver.robot import nao
+from naocal.agent.estimate import FULL
+from naocal.solver.adapter import make_model_data
+from naocal.solver.effect import Setup
+from naocal.solver.errors import SolveError
+from naocal.solver.identify import identify
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.robot import nao
 
 log = logging.getLogger(__name__)
 

@@ -46,10 +46,10 @@ from math import nan
 import cv2
 import numpy as np
 
-from agent.board_detect import (REASONS, SANDAL, BoardDetection, BoardSpec, channel_image, channels_to_try,
+from naocal.agent.board_detect import (REASONS, SANDAL, BoardDetection, BoardSpec, channel_image, channels_to_try,
                                  corner_asymmetry, detect_board, failure, image_order, polarity, refine_clean)
-from agent.board_detect import edge_width_px as _grid_edge_width_px
-from agent.xcorners import inside as _inside
+from naocal.agent.board_detect import edge_width_px as _grid_edge_width_px
+from naocal.agent.xcorners import inside as _inside
 
 __all__ = ["REASONS", "SANDAL", "BoardDetection", "BoardSpec", "corner_asymmetry", "detect_board_vertices",
            "edge_width_px", "find_grid", "find_grid_near", "grid_xy", "order_like_prediction"]

@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.joints import LEG_COLUMNS, LEG_JOINTS, leg_joints
-from solver.kinematics import gravity_torques
-from solver.model import Model
-from solver.registry import Registry
-from solver.robot import default_intrinsics
-from solver.adapter import make_model_data
+from naocal.solver.joints import LEG_COLUMNS, LEG_JOINTS, leg_joints
+from naocal.solver.kinematics import gravity_torques
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.robot import default_intrinsics
+from naocal.solver.adapter import make_model_data
 
 BASE_REGISTRY = Registry()  # the paper's 21 parameters
 

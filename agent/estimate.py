@@ -15,13 +15,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from solver.effects import EFFECTS
-from solver.errors import SolveError
-from solver.identify import identify
-from solver.joints import JOINTS, LEGS, leg_joints
-from solver.model import Model
-from solver.registry import Registry
-from solver.adapter import make_model_data
+from naocal.solver.effects import EFFECTS
+from naocal.solver.errors import SolveError
+from naocal.solver.identify import identify
+from naocal.solver.joints import JOINTS, LEGS, leg_joints
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.adapter import make_model_data
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 log = logging.getLogger(__name__)
 

@@ -19,19 +19,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.camera_estimate import CameraEstimate
-from agent.corners import detect_board_vertices
-from agent.estimate import RunningEstimate
-from agent.plan import Plan, Still, Sweep
-from agent.planner import PlanSettings
-from agent.progress import ProgressBar
-from agent.record import CaptureRecord, CaptureStore
-from agent.robot import Robot
-from agent.safety import prior_covariance
-from agent.visibility import OcclusionChecker, view_margin_px
-from solver.errors import SafetyError
-from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS
-from solver.limits import head_pitch_limits
+from naocal.agent.camera_estimate import CameraEstimate
+from naocal.agent.corners import detect_board_vertices
+from naocal.agent.estimate import RunningEstimate
+from naocal.agent.plan import Plan, Still, Sweep
+from naocal.agent.planner import PlanSettings
+from naocal.agent.progress import ProgressBar
+from naocal.agent.record import CaptureRecord, CaptureStore
+from naocal.agent.robot import Robot
+from naocal.agent.safety import prior_covariance
+from naocal.agent.visibility import OcclusionChecker, view_margin_px
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS
+from naocal.solver.limits import head_pitch_limits
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ Detector = Callable
 
 
 def opencv_detector(image, predicted_px, leg, search_margin_px):
-    """agent.corners' guided detection; if the prediction's shape is too far off for it (a leg whose offsets the
+    """naocal.agent.corners' guided detection; if the prediction's shape is too far off for it (a leg whose offsets the
     estimate does not know yet, an effect the model lacks), OpenCV's whole-board detector finds the board, and the
     guided detection runs again from what it found (so its checks - hidden vertices, square pattern - still apply)."""
     first = detect_board_vertices(image.pixels, predicted_px, search_margin_px=search_margin_px)

@@ -4,7 +4,7 @@
 
 def check_common(args) -> None:
     """Argument checks shared with `naocal simulate`: NaocalError (exit 2) for bad values."""
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     if args.seed < 0:
         raise NaocalError(f"--seed must not be negative, got {args.seed}")
@@ -25,19 +25,19 @@ def _file_limits_deg() -> dict:
     """{option: the largest value the offsets file holds, deg}: the effects' own limits (solver/effects/)."""
     import math
 
-    from solver.effects import EFFECTS
+    from naocal.solver.effects import EFFECTS
 
     return {"max_joint_offset_deg": round(math.degrees(EFFECTS["joint_offsets"].offsets_limit), 9),
             "max_camera_rotation_deg": round(math.degrees(EFFECTS["camera_rotation"].offsets_limit), 9)}
 
 
 def settings_from_args(args, *, seed: int, source: str):
-    from agent.planner import PlanSettings
-    from agent.states import AgentSettings
+    from naocal.agent.planner import PlanSettings
+    from naocal.agent.states import AgentSettings
 
     import math
 
-    from agent.states import Thresholds
+    from naocal.agent.states import Thresholds
 
     plan = PlanSettings(kind=args.plan, stances_per_leg=args.stances_per_leg, probe=not args.no_probe)
     given = {name: getattr(args, f"{name}_deg", None) for name in ("max_joint_offset", "max_camera_rotation")}

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.dataset import parse_json_text, read_text
-from solver.errors import DataError
-from solver.fileio import atomic_write_text
-from solver.joints import JOINTS
+from naocal.solver.dataset import parse_json_text, read_text
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import atomic_write_text
+from naocal.solver.joints import JOINTS
 
 SCHEMA = "naocal.plan/1"
 

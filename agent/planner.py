@@ -38,19 +38,19 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from agent.design import greedy_d_optimal, log_det, matching_count, predicted_std, reaching_count, stance_information
-from agent.plan import Plan, Still, Sweep
-from agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard, prior_covariance, worst_case_clearance
-from agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
-from body.nao_body import CollisionChecker, NaoBody
-from body.pybullet_quiet import pybullet
-from solver.joints import HEAD_COLUMNS, JOINT_INDEX, JOINTS, LEG_COLUMNS, LEG_JOINTS, LEGS, leg_joints
-from solver.kinematics import camera_fk, gravity_torques, leg_fk
-from solver.errors import SafetyError
-from solver.robot import default_intrinsics
-from solver.limits import command_limits, head_pitch_limits, joint_limits, max_speeds
-from solver.registry import Registry
-from solver.transforms import rot_x, rot_y, rot_z
+from naocal.agent.design import greedy_d_optimal, log_det, matching_count, predicted_std, reaching_count, stance_information
+from naocal.agent.plan import Plan, Still, Sweep
+from naocal.agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard, prior_covariance, worst_case_clearance
+from naocal.agent.visibility import OcclusionChecker, ViewRules, view_matrix, views_ok
+from naocal.body.nao_body import CollisionChecker, NaoBody
+from naocal.body.pybullet_quiet import pybullet
+from naocal.solver.joints import HEAD_COLUMNS, JOINT_INDEX, JOINTS, LEG_COLUMNS, LEG_JOINTS, LEGS, leg_joints
+from naocal.solver.kinematics import camera_fk, gravity_torques, leg_fk
+from naocal.solver.errors import SafetyError
+from naocal.solver.robot import default_intrinsics
+from naocal.solver.limits import command_limits, head_pitch_limits, joint_limits, max_speeds
+from naocal.solver.registry import Registry
+from naocal.solver.transforms import rot_x, rot_y, rot_z
 
 log = logging.getLogger(__name__)
 

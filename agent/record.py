@@ -15,11 +15,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from solver.dataset import IMAGES_DIR, DatasetAppender, parse_json_text, read_text
-from solver.errors import DataError
-from solver.fileio import atomic_write_bytes, atomic_write_text
-from solver.joints import JOINTS
-from solver.nao_model import board_vertices_sole
+from naocal.solver.dataset import IMAGES_DIR, DatasetAppender, parse_json_text, read_text
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import atomic_write_bytes, atomic_write_text
+from naocal.solver.joints import JOINTS
+from naocal.solver.nao_model import board_vertices_sole
 
 log = logging.getLogger(__name__)
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.safety import SafetyGuard
-from backends.base import Backend, CameraImage
-from backends.errors import RobotTimeout
-from solver.joints import JOINTS
+from naocal.agent.safety import SafetyGuard
+from naocal.backends.base import Backend, CameraImage
+from naocal.backends.errors import RobotTimeout
+from naocal.solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from solver.errors import DataError, NaocalError
-from solver.fileio import atomic_write_text, disk_full_as_error
+from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.fileio import atomic_write_text, disk_full_as_error
 
 LOCK_NAME = ".naocal.lock"
 RECORD_NAME = "run.json"
@@ -181,11 +181,11 @@ def write_record(directory: Path, record: dict) -> None:
 def recorded_run(directory: Path) -> tuple[dict, str]:
     """What the run in `directory` was started with, and where that was read: run.json, or for a run from before
     run.json the parts its plan.json, truth.json and dataset/dataset.json tell."""
-    from agent.plan import read_plan
+    from naocal.agent.plan import read_plan
 
     plan_path = directory / "plan.json"
     plan = read_plan(plan_path) if plan_path.exists() else None  # a damaged plan is refused here, not mid-run
-    from agent.record import read_progress
+    from naocal.agent.record import read_progress
 
     read_progress(directory / "progress.json")  # so is a damaged progress file
     record_path = directory / RECORD_NAME
@@ -260,7 +260,7 @@ def _shown(key, value) -> str:
 
 
 def _read_json(path: Path):
-    from solver.fileio import read_json  # the safe reader: a regular file only (a FIFO would block), size capped
+    from naocal.solver.fileio import read_json  # the safe reader: a regular file only (a FIFO would block), size capped
 
     try:
         return read_json(path)
@@ -279,7 +279,7 @@ def _there(path: Path) -> bool:
     except (FileNotFoundError, NotADirectoryError):
         return False
     except OSError as err:
-        from solver.fileio import os_problem
+        from naocal.solver.fileio import os_problem
 
         raise DataError(path, os_problem(err)) from None
     return True
@@ -287,7 +287,7 @@ def _there(path: Path) -> bool:
 
 def dataset_files(path) -> list[Path]:
     """The files a dataset reader reads in the dataset directory `path` (an output must not replace them)."""
-    from solver.dataset import META_FILE, OBSERVATIONS_FILE
+    from naocal.solver.dataset import META_FILE, OBSERVATIONS_FILE
 
     return [Path(path) / META_FILE, Path(path) / OBSERVATIONS_FILE]
 

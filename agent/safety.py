@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from body.nao_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
-from solver.errors import SafetyError
-from solver.joints import JOINT_INDEX, JOINTS
-from solver.limits import command_limits, head_pitch_problem
+from naocal.body.nao_body import BodyGeometry, BoardMount, CollisionChecker, NaoBody
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import JOINT_INDEX, JOINTS
+from naocal.solver.limits import command_limits, head_pitch_problem
 
 
 REACH_M = 0.5  # farther than any part of the robot from a leg joint's axis (a leg with its sandal: about 0.45 m)

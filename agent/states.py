@@ -18,26 +18,26 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.estimate import FULL, RunningEstimate
-from agent.machine import Outcome, State
-from agent.measure import Measurement, MeasureSettings, opencv_detector
-from agent.plan import read_plan, write_plan
-from agent.planner import PlanSettings, Planner
-from agent.progress import ProgressBar
-from agent.record import CaptureStore
-from agent.robot import Robot, TimingSettings
-from agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard
-from agent.verify import identified_intrinsics, verify
-from backends.compensated import CompensatedBackend
-from body.nao_body import CollisionChecker, NaoBody
-from solver.adapter import model_data_from_dataset
-from solver.dataset import read_dataset
-from solver.errors import SafetyError
-from solver.errors import NaocalError
-from solver.fileio import atomic_write_text
-from solver.fit import identify_dataset
-from solver.joints import JOINTS, LEGS
-from solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD,
+from naocal.agent.estimate import FULL, RunningEstimate
+from naocal.agent.machine import Outcome, State
+from naocal.agent.measure import Measurement, MeasureSettings, opencv_detector
+from naocal.agent.plan import read_plan, write_plan
+from naocal.agent.planner import PlanSettings, Planner
+from naocal.agent.progress import ProgressBar
+from naocal.agent.record import CaptureStore
+from naocal.agent.robot import Robot, TimingSettings
+from naocal.agent.safety import KNOWN_OFFSET_MARGIN_M, SafetyGuard
+from naocal.agent.verify import identified_intrinsics, verify
+from naocal.backends.compensated import CompensatedBackend
+from naocal.body.nao_body import CollisionChecker, NaoBody
+from naocal.solver.adapter import model_data_from_dataset
+from naocal.solver.dataset import read_dataset
+from naocal.solver.errors import SafetyError
+from naocal.solver.errors import NaocalError
+from naocal.solver.fileio import atomic_write_text
+from naocal.solver.fit import identify_dataset
+from naocal.solver.joints import JOINTS, LEGS
+from naocal.solver.offsets import (MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD,
                             offsets_from_result, write_offsets)
 
 log = logging.getLogger(__name__)
@@ -134,7 +134,7 @@ class Context:
 def dataset_meta(backend, source: str) -> dict:
     """dataset.json (naocal.dataset/2) of a run: the robot's identity, its camera's prior intrinsics, the sandals
     as the robot description has them, its gravity."""
-    from solver.robot import nao
+    from naocal.solver.robot import nao
 
     identity = backend.robot_identity()
     camera = backend.intrinsics().to_dict()
@@ -282,7 +282,7 @@ def _still_images(data) -> np.ndarray:
 
 def _identification_setup(data_setup):
     """The robot's default cameras and targets plus those the data use, in the description's order."""
-    from solver.effect import Setup
+    from naocal.solver.effect import Setup
 
     default = Setup.default(data_setup.robot)
     cameras, targets = set(default.cameras + data_setup.cameras), set(default.targets + data_setup.targets)
@@ -432,7 +432,7 @@ class Verification(State):
 
 
 def _offset_vector(offsets) -> np.ndarray:
-    from solver.joints import JOINTS
+    from naocal.solver.joints import JOINTS
 
     return np.array([offsets.joint_offset(j) for j in JOINTS])
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from solver.joints import LEG_JOINTS, LEGS
+from naocal.solver.joints import LEG_JOINTS, LEGS
 
 PAPER_ROBOT_TIME_S = 590.0  # Kastner, Roefer, Laue: the real robot's measurement phase
 
@@ -17,7 +17,7 @@ def _deg(x) -> float:
 
 def describe_direction(direction, top=4) -> str:
     """A weak direction in the words of the tables: offsets named as c (the parameters are c)."""
-    from solver.offsets import shown_name
+    from naocal.solver.offsets import shown_name
 
     terms = sorted(direction.coefficients.items(), key=lambda kv: -abs(kv[1]))[:top]
     return " ".join(f"{c:+.2f} {shown_name(n)}" for n, c in terms)

@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agent.estimate import FULL, RunningEstimate
-from agent.record import CaptureRecord
-from agent.robot import Robot
-from solver.errors import SafetyError
-from solver.joints import JOINTS, LEGS
+from naocal.agent.estimate import FULL, RunningEstimate
+from naocal.agent.record import CaptureRecord
+from naocal.agent.robot import Robot
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import JOINTS, LEGS
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +65,9 @@ def identified_intrinsics(prior: dict, identification, camera: str | None = None
 def _set_aside(captures, values, intrinsics):
     """(kept (K, 24) bool per capture and vertex, solver.fit.SetAside) of one phase's captures [(leg, stance,
     theta, uv)]: what identify would set aside, decided on the identified model at the readings `theta`."""
-    from solver.adapter import make_model_data
-    from solver.fit import set_aside_mis_detections
-    from solver.verify import refit_from
+    from naocal.solver.adapter import make_model_data
+    from naocal.solver.fit import set_aside_mis_detections
+    from naocal.solver.verify import refit_from
 
     data = make_model_data(np.array([c[2] for c in captures]), np.array([c[0] for c in captures]),
                            np.array([c[1] for c in captures]), np.zeros(len(captures), dtype=int),

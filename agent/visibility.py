@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from body.nao_body import T_WORLD_TORSO, NaoBody
-from body.pybullet_quiet import pybullet
-from solver.camera import project_points
-from solver.kinematics import camera_fk, leg_fk, project_sole_points
-from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole
-from solver.transforms import transform_points
+from naocal.body.nao_body import T_WORLD_TORSO, NaoBody
+from naocal.body.pybullet_quiet import pybullet
+from naocal.solver.camera import project_points
+from naocal.solver.kinematics import camera_fk, leg_fk, project_sole_points
+from naocal.solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, board_vertices_sole
+from naocal.solver.transforms import transform_points
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,7 @@ class OcclusionChecker:
     def hidden_points(self, stance, leg: str, camera: str = "bottom") -> int:
         """How many of the board's probe points (board_probe_points_sole) are hidden from `camera` at `stance` (14
         angles, solver.joints.JOINTS order)."""
-        from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
+        from naocal.solver.joints import HEAD_COLUMNS, LEG_COLUMNS
 
         stance = np.asarray(stance, dtype=float)
         self.body.set_angles(stance)

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.arm import Observations, Sensor, exp_so3, log_so3
-from solver.arm_dataset import arm_chain
-from solver.errors import NaocalError
+from naocal.solver.arm import Observations, Sensor, exp_so3, log_so3
+from naocal.solver.arm_dataset import arm_chain
+from naocal.solver.errors import NaocalError
 
 LIMIT_MARGIN_RAD = 0.1
 LIMIT_MARGIN_FRACTION = 0.1
@@ -121,7 +121,7 @@ class SimulatedArm:
     """A PyBullet arm with hidden errors. Use as a context manager (it owns a PyBullet connection)."""
 
     def __init__(self, urdf_path, base, tip, seed=0, *, hidden=("joint_offsets", "link_lengths")):
-        from body.pybullet_quiet import c_output_silenced, pybullet  # without its banner on naocal's output
+        from naocal.body.pybullet_quiet import c_output_silenced, pybullet  # without its banner on naocal's output
 
         self.urdf_path = Path(urdf_path)
         self.base, self.tip = base, tip
@@ -173,7 +173,7 @@ class SimulatedArm:
         return out
 
     def chain_urdf_joint(self, joint):
-        from solver.urdf import parse_urdf
+        from naocal.solver.urdf import parse_urdf
 
         if not hasattr(self, "_urdf"):
             self._urdf = parse_urdf(self.urdf_path)
@@ -238,7 +238,7 @@ class SimulatedArm:
 
     def measure(self, thetas, noise_m=1e-4, noise_px=0.2):
         """Observations of the tracker (t1..t3) and the camera (m1..m4 where it sees them) at readings thetas."""
-        from solver.camera import project_points
+        from naocal.solver.camera import project_points
 
         sensors = [Sensor("tracker", "points", noise=noise_m), Sensor("camera", "camera", dict(CAMERA), noise_px)]
         names = list(self.points)
@@ -285,8 +285,8 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
     import json
     import shutil
 
-    from solver.arm_dataset import write_arm_dataset
-    from solver.fileio import atomic_write_text
+    from naocal.solver.arm_dataset import write_arm_dataset
+    from naocal.solver.fileio import atomic_write_text
 
     out = Path(out)
     with SimulatedArm(urdf_path, base, tip, seed, hidden=hidden) as arm:

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backends.errors import RobotFault
-from solver import limits as joint_limits_module
-from solver.camera import CameraIntrinsics  # noqa: F401  (the backends report the one intrinsics type)
+from naocal.backends.errors import RobotFault
+from naocal.solver import limits as joint_limits_module
+from naocal.solver.camera import CameraIntrinsics  # noqa: F401  (the backends report the one intrinsics type)
 
 
 @dataclass(frozen=True)

@@ -30,12 +30,12 @@ import numpy as np
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
-from backends import protocol
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.bridge_endpoint import check_client_endpoint
-from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, RobotFault, RobotTimeout
-from solver.errors import NaocalError, SafetyError
+from naocal.backends import protocol
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.backends.bridge_endpoint import check_client_endpoint
+from naocal.backends.protocol import ControlError, ProtocolError
+from naocal.backends.errors import BridgeError, RobotFault, RobotTimeout
+from naocal.solver.errors import NaocalError, SafetyError
 
 log = logging.getLogger("naocal.bridge.client")
 
@@ -333,7 +333,7 @@ class BridgeBackend(Backend):
         return text
 
     def _write_lease_file(self, token: str) -> None:
-        from solver.fileio import atomic_write_bytes
+        from naocal.solver.fileio import atomic_write_bytes
 
         try:
             atomic_write_bytes(self.lease_file, f"{token}\n".encode("ascii"), mode=0o600)  # a secret
@@ -440,7 +440,7 @@ class BridgeBackend(Backend):
 
 def _load_client_curve(server_key_file, client_key_file):
     """(server public, client public, client secret) from key files written by `naocal bridge keygen`."""
-    from backends.bridge_keys import load_key_file, warn_if_others_can_read
+    from naocal.backends.bridge_keys import load_key_file, warn_if_others_can_read
 
     try:
         server_public, _ = load_key_file(server_key_file, "the server's CURVE public key")

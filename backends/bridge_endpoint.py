@@ -17,8 +17,8 @@ import ipaddress
 import re
 import socket
 
-from backends.errors import BridgeError
-from solver.errors import NaocalError
+from naocal.backends.errors import BridgeError
+from naocal.solver.errors import NaocalError
 
 LOCAL_TRANSPORTS = ("ipc", "inproc")  # never reachable from another machine
 CLIENT_EXAMPLE = "tcp://HOST:PORT (e.g. tcp://nao.local:7790) or ipc://PATH"

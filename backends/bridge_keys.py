@@ -9,7 +9,7 @@ import stat
 
 from zmq.utils import z85
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 log = logging.getLogger("naocal.bridge")
 

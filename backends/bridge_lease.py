@@ -26,8 +26,8 @@ import time
 
 import msgpack
 
-from solver.errors import NaocalError
-from solver.fileio import atomic_write_bytes
+from naocal.solver.errors import NaocalError
+from naocal.solver.fileio import atomic_write_bytes
 
 log = logging.getLogger("naocal.bridge.server")
 

@@ -31,17 +31,17 @@ import time
 import numpy as np
 import zmq
 
-from backends import protocol
-from backends.base import Backend
-from backends.bridge_endpoint import (check_bind_address, check_bound_endpoint, is_local_endpoint, split_endpoint,
+from naocal.backends import protocol
+from naocal.backends.base import Backend
+from naocal.backends.bridge_endpoint import (check_bind_address, check_bound_endpoint, is_local_endpoint, split_endpoint,
                                       tcp_listen_hosts)
-from backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
-from backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
-from backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
-from backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
-from backends.errors import BridgeError, RobotFault, RobotTimeout
-from solver.errors import NaocalError, SafetyError
-from solver.fileio import atomic_write_bytes
+from naocal.backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
+from naocal.backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
+from naocal.backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
+from naocal.backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
+from naocal.backends.errors import BridgeError, RobotFault, RobotTimeout
+from naocal.solver.errors import NaocalError, SafetyError
+from naocal.solver.fileio import atomic_write_bytes
 
 log = logging.getLogger("naocal.bridge.server")
 

@@ -9,8 +9,8 @@ compensated side (a raw limit L is reached by requesting L - c), so checks again
 
 from __future__ import annotations
 
-from backends.base import Backend, JointReading
-from solver.compensation import compensate_command, correct_reading
+from naocal.backends.base import Backend, JointReading
+from naocal.solver.compensation import compensate_command, correct_reading
 
 
 class CompensatedBackend(Backend):

@@ -1,7 +1,7 @@
 """Errors of the robot side: a refused command, a robot that does not answer in time, a failed bridge. User-facing
 (NaocalError: one line, exit 2), raised by the backends and the agent."""
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 
 class RobotTimeout(NaocalError):

@@ -52,11 +52,11 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.errors import RobotFault, RobotTimeout
-from solver import limits
-from solver.errors import NaocalError, SafetyError
-from solver.joints import HEAD_JOINTS, JOINTS
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.backends.errors import RobotFault, RobotTimeout
+from naocal.solver import limits
+from naocal.solver.errors import NaocalError, SafetyError
+from naocal.solver.joints import HEAD_JOINTS, JOINTS
 
 log = logging.getLogger("naocal.lola")
 

@@ -54,25 +54,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading
-from solver.errors import SafetyError
-from backends.mock_realism import IDEAL, Realism, as_realism
-from backends.mock_render import RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
-from backends.mock_servo import SecondOrder, rest_offset, servo_positions
-from body.nao_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
-from solver.effect import MockPerturbation, Setup, signed_uniform
-from solver.effects import EFFECTS as MODEL_EFFECTS
-from solver.errors import NaocalError
-from solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
-from solver.kinematics import chain_frames, leg_fk
-from solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds
-from solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole, head_chain
-from solver.transforms import invert_transform, rot_x, rot_y, rot_z
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading
+from naocal.solver.errors import SafetyError
+from naocal.backends.mock_realism import IDEAL, Realism, as_realism
+from naocal.backends.mock_render import RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
+from naocal.backends.mock_servo import SecondOrder, rest_offset, servo_positions
+from naocal.body.nao_body import T_WORLD_TORSO, BodyGeometry, BoardMount, CollisionChecker, NaoBody, T_sole_board
+from naocal.solver.effect import MockPerturbation, Setup, signed_uniform
+from naocal.solver.effects import EFFECTS as MODEL_EFFECTS
+from naocal.solver.errors import NaocalError
+from naocal.solver.joints import HEAD_JOINTS, JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS, leg_joints
+from naocal.solver.kinematics import chain_frames, leg_fk
+from naocal.solver.limits import check_speed_fraction, check_targets, head_pitch_problem, joint_limits, max_speeds
+from naocal.solver.nao_model import BOARD_CENTER_X_M, N_VERTICES, board_vertices_sole, head_chain
+from naocal.solver.transforms import invert_transform, rot_x, rot_y, rot_z
 
 # The effects the mock simulates (solver/effects/ modules with a mock injection) and the unit of their size.
 EFFECT_UNITS = {name: e.mock_size_unit for name, e in MODEL_EFFECTS.items() if e.mock_size_unit is not None}
 EFFECTS = tuple(EFFECT_UNITS)
-from solver.offsets import TRUTH_EFFECTS_SCHEMA, TRUTH_SCHEMAS  # noqa: E402 (their reader's home)
+from naocal.solver.offsets import TRUTH_EFFECTS_SCHEMA, TRUTH_SCHEMAS  # noqa: E402 (their reader's home)
 
 TRUTH_SCHEMA = TRUTH_SCHEMAS[0]  # /1 had one camera_rotation_rad {roll, pitch, yaw}: the bottom camera's
 CAMERAS = ("bottom", "top")
@@ -275,7 +275,7 @@ def default_intrinsics(realism: Realism | str = IDEAL) -> CameraIntrinsics:
     """The bottom camera's prior intrinsics the mock reports: the robot description's (solver/data/nao.json: fx =
     fy = 600 px, centre (320, 240)) with the realism's prior focal length if it has one (realistic: a real NAO
     head's 618 px)."""
-    from solver.robot import default_intrinsics as prior
+    from naocal.solver.robot import default_intrinsics as prior
 
     d = prior("bottom")
     f = as_realism(realism).prior_focal_px
@@ -560,7 +560,7 @@ class MockBackend(Backend):
     def faulty(self, detector):
         """`detector` with this mock's corner fault model (Realism.corner_fault_rate; backends.mock_faults), or
         `detector` itself when the rate is 0 (the ideal mock)."""
-        from backends.mock_faults import FaultyDetector
+        from naocal.backends.mock_faults import FaultyDetector
 
         rate = self.realism.corner_fault_rate
         return FaultyDetector(detector, rate, self.seed) if rate > 0 else detector

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.nao_model import BOARD_COLUMNS
+from naocal.solver.nao_model import BOARD_COLUMNS
 
 SHIFT_RANGE_PX = (3.0, 20.0)
 GRID_COLUMNS = BOARD_COLUMNS - 1  # vertices per row (index = row * 6 + col)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 SERVO_REST_MODES = ("command", "centre", "uniform", "load")
 REALISM_NAMES = ("ideal", "realistic")

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from body.nao_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
-from body.pybullet_quiet import pybullet
-from solver.camera import CameraIntrinsics, plane_homography
-from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
-from solver.transforms import invert_transform
+from naocal.body.nao_body import BOARD_BORDER_M, BOARD_HALF_X_M, BOARD_HALF_Y_M, NaoBody
+from naocal.body.pybullet_quiet import pybullet
+from naocal.solver.camera import CameraIntrinsics, plane_homography
+from naocal.solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M
+from naocal.solver.transforms import invert_transform
 
 BLACK = 0.08  # reflectance of the printed squares, 0..1
 WHITE = 0.90

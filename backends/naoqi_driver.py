@@ -40,11 +40,11 @@ import time
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
-from solver import limits
-from backends.errors import RobotFault, RobotTimeout
-from solver.errors import NaocalError, SafetyError
-from solver.joints import HEAD_JOINTS, JOINTS
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
+from naocal.solver import limits
+from naocal.backends.errors import RobotFault, RobotTimeout
+from naocal.solver.errors import NaocalError, SafetyError
+from naocal.solver.joints import HEAD_JOINTS, JOINTS
 
 log = logging.getLogger("naocal.naoqi")
 

@@ -20,8 +20,8 @@ import threading
 import msgpack
 import numpy as np
 
-from backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
-from backends.errors import BridgeError
+from naocal.backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
+from naocal.backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply

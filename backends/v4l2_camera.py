@@ -44,9 +44,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backends.base import CameraImage, CameraIntrinsics, nominal_intrinsics
-from backends.errors import RobotTimeout
-from solver.errors import NaocalError
+from naocal.backends.base import CameraImage, CameraIntrinsics, nominal_intrinsics
+from naocal.backends.errors import RobotTimeout
+from naocal.solver.errors import NaocalError
 
 log = logging.getLogger("naocal.v4l2")
 
@@ -87,7 +87,7 @@ def read_intrinsics(path) -> CameraIntrinsics:
     distortion as OpenCV's k1, k2, p1, p2, k3). DataError naming the file and field."""
     import json
 
-    from solver.errors import DataError
+    from naocal.solver.errors import DataError
 
     try:
         with open(path, encoding="utf-8") as file:

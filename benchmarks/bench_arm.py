@@ -25,9 +25,9 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.arm import ArmModel, Observations, Sensor, exp_so3  # noqa: E402
-from solver.arm_dataset import arm_chain, resolve_robot  # noqa: E402
-from solver.arm_identify import fit, initialise_sensors, whitened  # noqa: E402
+from naocal.solver.arm import ArmModel, Observations, Sensor, exp_so3  # noqa: E402
+from naocal.solver.arm_dataset import arm_chain, resolve_robot  # noqa: E402
+from naocal.solver.arm_identify import fit, initialise_sensors, whitened  # noqa: E402
 
 CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
           "distortion": [0.0] * 5}

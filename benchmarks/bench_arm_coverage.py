@@ -23,9 +23,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from backends.arm_sim import simulate_arm  # noqa: E402
-from solver.arm_dataset import read_arm_dataset, resolve_robot  # noqa: E402
-from solver.arm_identify import identify_dataset  # noqa: E402
+from naocal.backends.arm_sim import simulate_arm  # noqa: E402
+from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot  # noqa: E402
+from naocal.solver.arm_identify import identify_dataset  # noqa: E402
 
 ROBOTS = ("kuka_iiwa", "franka_panda")
 POSE_ERROR_DEG = 0.02

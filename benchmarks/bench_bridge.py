@@ -19,8 +19,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading  # noqa: E402
-from solver.joints import JOINTS  # noqa: E402
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading  # noqa: E402
+from naocal.solver.joints import JOINTS  # noqa: E402
 
 
 class InstantBackend(Backend):
@@ -68,7 +68,7 @@ class InstantBackend(Backend):
 
 
 def serve(endpoint_queue, stop_event, tune_malloc):
-    from backends.bridge_server import BridgeServer, keep_large_buffers_in_heap
+    from naocal.backends.bridge_server import BridgeServer, keep_large_buffers_in_heap
 
     if tune_malloc:
         keep_large_buffers_in_heap()  # as `naocal bridge serve` does
@@ -95,8 +95,8 @@ def describe(name, samples_s):
 
 
 def run_config(label, tune_server, tune_client, args):
-    from backends.bridge import BridgeBackend
-    from backends.bridge_server import keep_large_buffers_in_heap
+    from naocal.backends.bridge import BridgeBackend
+    from naocal.backends.bridge_server import keep_large_buffers_in_heap
 
     context = multiprocessing.get_context("spawn")
     endpoint_queue, stop_event = context.Queue(), context.Event()

@@ -15,7 +15,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.dataset import (  # noqa: E402
+from naocal.solver.dataset import (  # noqa: E402
     INT_COLUMNS, OBSERVATIONS_FILE, PER_IMAGE_COLUMNS, REQUIRED_COLUMNS, read_dataset, write_dataset,
 )
 from tests.test_dataset import make_columns, make_meta  # noqa: E402

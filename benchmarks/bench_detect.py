@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from agent.board_detect import BoardSpec, channel_image, detect_board, image_order, labellings, line_rms_px  # noqa
+from naocal.agent.board_detect import BoardSpec, channel_image, detect_board, image_order, labellings, line_rms_px  # noqa
 from tests.synthetic_boards import board_homography, render  # noqa: E402
 
 SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE

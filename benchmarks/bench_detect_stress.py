@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from agent.board_detect import BoardSpec, channel_image, detect_board, image_order, labellings  # noqa: E402
+from naocal.agent.board_detect import BoardSpec, channel_image, detect_board, image_order, labellings  # noqa: E402
 from tests.stress_boards import CATEGORIES, scene  # noqa: E402
 
 TOLERANCE_PX = 2.0

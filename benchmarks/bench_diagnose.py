@@ -21,12 +21,12 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.diagnostics import rank_candidates  # noqa: E402
-from solver.identify import identify  # noqa: E402
-from solver.joints import LEG_JOINTS  # noqa: E402
-from solver.model import Model  # noqa: E402
-from solver.registry import Registry  # noqa: E402
-from sim.synthetic import random_truth, synthesize  # noqa: E402
+from naocal.solver.diagnostics import rank_candidates  # noqa: E402
+from naocal.solver.identify import identify  # noqa: E402
+from naocal.solver.joints import LEG_JOINTS  # noqa: E402
+from naocal.solver.model import Model  # noqa: E402
+from naocal.solver.registry import Registry  # noqa: E402
+from naocal.sim.synthetic import random_truth, synthesize  # noqa: E402
 
 
 def refit_every_candidate(result, candidates):

@@ -39,16 +39,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from kinds.duckiebot.calibration_files import apply_homography, ground_homography  # noqa: E402
-from kinds.duckiebot.detect import detect_markers  # noqa: E402
-from kinds.duckiebot.fit import marker_on_floor, pose_parameters  # noqa: E402
-from kinds.duckiebot.identify import identify_log  # noqa: E402
-from kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, inverse_kinematics  # noqa: E402
-from kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, joint_program,  # noqa: E402
+from naocal.kinds.duckiebot.calibration_files import apply_homography, ground_homography  # noqa: E402
+from naocal.kinds.duckiebot.detect import detect_markers  # noqa: E402
+from naocal.kinds.duckiebot.fit import marker_on_floor, pose_parameters  # noqa: E402
+from naocal.kinds.duckiebot.identify import identify_log  # noqa: E402
+from naocal.kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, inverse_kinematics  # noqa: E402
+from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, joint_program,  # noqa: E402
                                     paper_program, render_drive_log, simulate_drive)
-from kinds.duckiebot.robot import Kinematics, duckiebot  # noqa: E402
-from solver.camera import undistort_points  # noqa: E402
-from solver.transforms import invert_transform, transform_points  # noqa: E402
+from naocal.kinds.duckiebot.robot import Kinematics, duckiebot  # noqa: E402
+from naocal.solver.camera import undistort_points  # noqa: E402
+from naocal.solver.transforms import invert_transform, transform_points  # noqa: E402
 
 LOG_K = 27.0
 SPEED_MPS = 0.3

@@ -25,12 +25,12 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.identify import identify  # noqa: E402
-from solver.kinematics import camera_fk, leg_fk  # noqa: E402
-from solver.joints import HEAD_COLUMNS, LEG_COLUMNS, LEG_JOINTS  # noqa: E402
-from solver.registry import Registry  # noqa: E402
-from sim.synthetic import random_truth, synthesize  # noqa: E402
-from solver.transforms import rot_x, rot_y, rot_z  # noqa: E402
+from naocal.solver.identify import identify  # noqa: E402
+from naocal.solver.kinematics import camera_fk, leg_fk  # noqa: E402
+from naocal.solver.joints import HEAD_COLUMNS, LEG_COLUMNS, LEG_JOINTS  # noqa: E402
+from naocal.solver.registry import Registry  # noqa: E402
+from naocal.sim.synthetic import random_truth, synthesize  # noqa: E402
+from naocal.solver.transforms import rot_x, rot_y, rot_z  # noqa: E402
 
 
 def straightforward_residuals(x, data):

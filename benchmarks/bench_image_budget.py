@@ -4,7 +4,7 @@ a third of the image, PNG), then the same for files whose header claims more tha
 
     python benchmarks/bench_image_budget.py [--sizes 640x480,1280x960,2048x1536,4096x3072,4096x4096]
 
-Each run is a fresh `python -m tools detect` (import time included: about 1 s of it).
+Each run is a fresh `python -m naocal detect` (import time included: about 1 s of it).
 """
 
 import argparse
@@ -51,7 +51,7 @@ def run_detect(path: Path) -> tuple[float, float, float, int, str]:
     """(wall s, CPU s, peak RSS MiB, exit code, last output line) of one `naocal detect path` process."""
     with tempfile.TemporaryFile() as out:
         start = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-m", "tools", "detect", str(path)], cwd=ROOT, stdout=out,
+        proc = subprocess.Popen([sys.executable, "-m", "naocal", "detect", str(path)], cwd=ROOT, stdout=out,
                                 stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(proc.pid, 0)  # this child's own rusage
         proc.returncode = os.waitstatus_to_exitcode(status)

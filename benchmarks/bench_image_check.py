@@ -27,8 +27,8 @@ def straightforward(data):
     import cv2
     import numpy as np
 
-    from solver.camera import undistort_points
-    from solver.image_check import _board_coordinates
+    from naocal.solver.camera import undistort_points
+    from naocal.solver.image_check import _board_coordinates
 
     board = _board_coordinates(data)
     bad = []
@@ -62,9 +62,9 @@ def main():
 
     import numpy as np
 
-    from sim.synthetic import dataset_parts, random_truth, synthesize
-    from solver.fit import identify_dataset
-    from solver.image_check import check_images
+    from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+    from naocal.solver.fit import identify_dataset
+    from naocal.solver.image_check import check_images
 
     for stances in (int(s) for s in args.stances.split(",")):
         rng = np.random.default_rng(0)
@@ -75,7 +75,7 @@ def main():
         line = (f"{data.n_rows} vertices, {data.n_images} images: check_images {ours * 1e3:.1f} ms "
                 f"({ours / data.n_rows * 1e6:.2f} us/vertex), image by image {plain * 1e3:.1f} ms (x{plain / ours:.1f})")
         if stances <= 24:
-            from solver.dataset import Dataset
+            from naocal.solver.dataset import Dataset
 
             meta, columns = dataset_parts(data, pixel_noise_px=0.1)
             dataset = Dataset(meta, columns)

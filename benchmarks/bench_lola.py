@@ -22,9 +22,9 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from backends import lola_driver  # noqa: E402
-from backends.lola_driver import CALIBRATED_MOTORS, LOLA_INDEX, N_LOLA, JointControl, LolaFrame  # noqa: E402
-from solver import limits  # noqa: E402
+from naocal.backends import lola_driver  # noqa: E402
+from naocal.backends.lola_driver import CALIBRATED_MOTORS, LOLA_INDEX, N_LOLA, JointControl, LolaFrame  # noqa: E402
+from naocal.solver import limits  # noqa: E402
 
 
 def frame(position):

@@ -24,15 +24,15 @@ import pybullet
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.corners import detect_board_vertices, find_grid, order_like_prediction  # noqa: E402
-from backends.mock import MockBackend  # noqa: E402
-from backends.mock_render import BLACK, WHITE  # noqa: E402
-from body.nao_body import BOARD_HALF_X_M, BOARD_HALF_Y_M, CollisionChecker  # noqa: E402
-from solver.joints import JOINTS, LEGS  # noqa: E402
-from solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M  # noqa: E402
-from solver.transforms import make_transform  # noqa: E402
+from naocal.agent.corners import detect_board_vertices, find_grid, order_like_prediction  # noqa: E402
+from naocal.backends.mock import MockBackend  # noqa: E402
+from naocal.backends.mock_render import BLACK, WHITE  # noqa: E402
+from naocal.body.nao_body import BOARD_HALF_X_M, BOARD_HALF_Y_M, CollisionChecker  # noqa: E402
+from naocal.solver.joints import JOINTS, LEGS  # noqa: E402
+from naocal.solver.nao_model import BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M  # noqa: E402
+from naocal.solver.transforms import make_transform  # noqa: E402
 from tests.mock_stances import move_and_settle, visible_stances  # noqa: E402
-from backends.mock import DEFAULT_POSTURE  # noqa: E402
+from naocal.backends.mock import DEFAULT_POSTURE  # noqa: E402
 
 SHEET_TOP_M = 0.0004  # the straightforward boards: a white sheet on the plate, black squares on the sheet
 SQUARES_TOP_M = 0.0006

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.planner import PlanSettings, make_plan  # noqa: E402
-from solver.joints import LEG_JOINTS  # noqa: E402
+from naocal.agent.planner import PlanSettings, make_plan  # noqa: E402
+from naocal.solver.joints import LEG_JOINTS  # noqa: E402
 
 
 def design_part(seeds):
@@ -53,10 +53,10 @@ def design_part(seeds):
 
 
 def mock_part(seeds):
-    from agent.calibrate import calibrate
-    from agent.summary import truth_errors
-    from agent.states import AgentSettings
-    from backends.mock import MockBackend
+    from naocal.agent.calibrate import calibrate
+    from naocal.agent.summary import truth_errors
+    from naocal.agent.states import AgentSettings
+    from naocal.backends.mock import MockBackend
 
     print("\nmock (measured): the same robot calibrated with each plan")
     print(f"{'mock seed':>9} {'plan':>8} {'stances':>8} {'images':>7} {'robot s':>8} {'wall s':>7} "

@@ -25,16 +25,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.calibrate import calibrate  # noqa: E402
-from agent.design import predicted_std, stance_information  # noqa: E402
-from agent.measure import opencv_detector  # noqa: E402
-from agent.planner import PlanSettings  # noqa: E402
-from agent.states import AgentSettings  # noqa: E402
-from backends.mock import MockBackend  # noqa: E402
-from solver.dataset import Dataset, read_dataset  # noqa: E402
-from solver.fit import identify_dataset  # noqa: E402
-from solver.joints import LEG_JOINTS, LEGS  # noqa: E402
-from solver.registry import Registry  # noqa: E402
+from naocal.agent.calibrate import calibrate  # noqa: E402
+from naocal.agent.design import predicted_std, stance_information  # noqa: E402
+from naocal.agent.measure import opencv_detector  # noqa: E402
+from naocal.agent.planner import PlanSettings  # noqa: E402
+from naocal.agent.states import AgentSettings  # noqa: E402
+from naocal.backends.mock import MockBackend  # noqa: E402
+from naocal.solver.dataset import Dataset, read_dataset  # noqa: E402
+from naocal.solver.fit import identify_dataset  # noqa: E402
+from naocal.solver.joints import LEG_JOINTS, LEGS  # noqa: E402
+from naocal.solver.registry import Registry  # noqa: E402
 
 
 def worst(result, alpha) -> tuple[float, float]:

@@ -34,8 +34,8 @@ def make_data(n_vertices: int, seed: int = 0):
     """The paper-size synthetic plan, repeated until it has at least `n_vertices` vertices; fresh 0.1 px noise."""
     import numpy as np
 
-    from solver.model import ModelData
-    from sim.synthetic import random_truth, synthesize
+    from naocal.solver.model import ModelData
+    from naocal.sim.synthetic import random_truth, synthesize
 
     rng = np.random.default_rng(seed)
     truth = random_truth(rng)
@@ -57,9 +57,9 @@ def dense_identify(data, registry, max_iterations=100):
     """The straightforward solve: the whole Jacobian at every evaluation, LM on J^T J, clustered covariance."""
     import numpy as np
 
-    from solver.identify import UNIDENTIFIABLE_RATIO
-    from solver.model import Model
-    from solver.scoretest import stance_cluster_of_image
+    from naocal.solver.identify import UNIDENTIFIABLE_RATIO
+    from naocal.solver.model import Model
+    from naocal.solver.scoretest import stance_cluster_of_image
 
     model = Model(data, registry)
     scales = registry.scales
@@ -104,12 +104,12 @@ def dense_gls(data, registry, x0, step_rad, sigma_px, max_iterations=50):
     from scipy.sparse import csc_matrix, diags
     from scipy.sparse.linalg import splu
 
-    from solver.effects import EFFECTS
-    from solver.gls import angle_error_groups
-    from solver.identify import Normal, levenberg_marquardt
-    from solver.model import Model
-    from solver.registry import Registry
-    from solver.scoretest import stance_cluster_of_image
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.gls import angle_error_groups
+    from naocal.solver.identify import Normal, levenberg_marquardt
+    from naocal.solver.model import Model
+    from naocal.solver.registry import Registry
+    from naocal.solver.scoretest import stance_cluster_of_image
 
     model = Model(data, registry)
     data, scales, s2 = model.data, registry.scales[registry.free_index], sigma_px ** 2
@@ -177,12 +177,12 @@ def measure(n_vertices: int, method: str, repeats: int) -> dict:
 
     import numpy as np
 
-    from solver.identify import identify
-    from solver.registry import Registry
+    from naocal.solver.identify import identify
+    from naocal.solver.registry import Registry
 
     data, truth = make_data(n_vertices)
     if method.startswith("gls"):  # as `naocal identify` refines: intrinsics free, from the ordinary fit's values
-        from solver.gls import identify_gls
+        from naocal.solver.gls import identify_gls
 
         registry = Registry(("intrinsics",))
         ordinary = identify(data, registry)

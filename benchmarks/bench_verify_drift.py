@@ -24,12 +24,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.rundir import find_dataset  # noqa: E402
-from solver.dataset import read_dataset  # noqa: E402
-from solver.joints import LEG_JOINTS  # noqa: E402
-from solver.offsets import read_offsets  # noqa: E402
-from solver.verify import verify_dataset  # noqa: E402
-from kinds.nao.verify import EXIT_DRIFTED, EXIT_GOOD  # noqa: E402
+from naocal.agent.rundir import find_dataset  # noqa: E402
+from naocal.solver.dataset import read_dataset  # noqa: E402
+from naocal.solver.joints import LEG_JOINTS  # noqa: E402
+from naocal.solver.offsets import read_offsets  # noqa: E402
+from naocal.solver.verify import verify_dataset  # noqa: E402
+from naocal.kinds.nao.verify import EXIT_DRIFTED, EXIT_GOOD  # noqa: E402
 
 SEARCH_DEG = (0.03, 0.05, 0.07, 0.1)
 MIN_CHANGE_DEG = 0.1

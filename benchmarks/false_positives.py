@@ -16,10 +16,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.diagnostics import diagnose_result  # noqa: E402
-from solver.identify import identify  # noqa: E402
-from solver.registry import Registry  # noqa: E402
-from sim.synthetic import random_truth, synthesize  # noqa: E402
+from naocal.solver.diagnostics import diagnose_result  # noqa: E402
+from naocal.solver.identify import identify  # noqa: E402
+from naocal.solver.registry import Registry  # noqa: E402
+from naocal.sim.synthetic import random_truth, synthesize  # noqa: E402
 
 
 def main():

@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tools.cli import main  # noqa: E402
+from naocal.tools.cli import main  # noqa: E402
 
 SIZES = {"elasticity": 0.03, "backlash": 0.012, "link_lengths": 0.0025, "head_offsets": 0.017,
          "intrinsics": 10.0, "distortion": 0.08, "time_lag": 0.04}

@@ -19,11 +19,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.calibrate import calibrate  # noqa: E402
-from agent.measure import opencv_detector  # noqa: E402
-from agent.states import AgentSettings  # noqa: E402
-from backends.mock import MockBackend  # noqa: E402
-from solver.joints import LEG_JOINTS  # noqa: E402
+from naocal.agent.calibrate import calibrate  # noqa: E402
+from naocal.agent.measure import opencv_detector  # noqa: E402
+from naocal.agent.states import AgentSettings  # noqa: E402
+from naocal.backends.mock import MockBackend  # noqa: E402
+from naocal.solver.joints import LEG_JOINTS  # noqa: E402
 
 
 def run(mock_kind: str, seed: int, out: Path) -> dict:

@@ -25,12 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.planner import Planner, PlanSettings, with_leg  # noqa: E402
-from agent.visibility import ViewRules, view_matrix  # noqa: E402
-from solver.robot import default_intrinsics  # noqa: E402
-from solver.joints import JOINTS, LEGS, leg_joints  # noqa: E402
-from solver.limits import head_pitch_limits  # noqa: E402
-from solver.joints import HEAD_COLUMNS  # noqa: E402
+from naocal.agent.planner import Planner, PlanSettings, with_leg  # noqa: E402
+from naocal.agent.visibility import ViewRules, view_matrix  # noqa: E402
+from naocal.solver.robot import default_intrinsics  # noqa: E402
+from naocal.solver.joints import JOINTS, LEGS, leg_joints  # noqa: E402
+from naocal.solver.limits import head_pitch_limits  # noqa: E402
+from naocal.solver.joints import HEAD_COLUMNS  # noqa: E402
 
 STAGES = ("any corner", "24 corners", "view rules", "stance rules", "unoccluded", "robust")
 
@@ -51,8 +51,8 @@ def count(planner: Planner, leg: str, camera: str, Q: np.ndarray, heads: np.ndar
     seen = np.zeros((len(Q), len(heads)), dtype=bool)
     for chunk in np.array_split(np.arange(len(Q)), max(len(Q) // 2000, 1)):
         # 'any corner': project and count corners inside the image for boards in front and facing the camera
-        from solver.kinematics import camera_fk, leg_fk, project_sole_points
-        from solver.nao_model import board_vertices_sole
+        from naocal.solver.kinematics import camera_fk, leg_fk, project_sole_points
+        from naocal.solver.nao_model import board_vertices_sole
 
         T_sole = leg_fk(Q[chunk], leg)
         facing = view_matrix(Q[chunk], leg, heads, K, loose, camera=camera)
@@ -92,9 +92,9 @@ def count(planner: Planner, leg: str, camera: str, Q: np.ndarray, heads: np.ndar
 def render_check(views: list, n: int) -> None:
     """Render `n` accepted top-camera views on the ideal mock (no offsets known to the planner: the mock's own
     truth moves the board by its offsets) and detect the board."""
-    from agent.measure import opencv_detector
-    from backends.mock import MockBackend
-    from solver.joints import JOINTS
+    from naocal.agent.measure import opencv_detector
+    from naocal.backends.mock import MockBackend
+    from naocal.solver.joints import JOINTS
 
     found = []
     for leg, q14 in views[:n]:

@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from body.pybullet_quiet import pybullet
-from solver.joints import HEAD_JOINTS, JOINTS, LEGS, leg_joints
-from solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG, SOLE_JOINTS
-from solver.transforms import make_transform, rot_z, rpy_from_rot
-from solver.urdf import Urdf, nominal_urdf
+from naocal.body.pybullet_quiet import pybullet
+from naocal.solver.joints import HEAD_JOINTS, JOINTS, LEGS, leg_joints
+from naocal.solver.nao_model import BOARD_CENTER_X_M, BOARD_COLUMNS, BOARD_ROWS, BOARD_SQUARE_M, SANDAL_MASS_KG, SOLE_JOINTS
+from naocal.solver.transforms import make_transform, rot_z, rpy_from_rot
+from naocal.solver.urdf import Urdf, nominal_urdf
 
 # --- Placement -------------------------------------------------------------------------------------------------
 R_WORLD_TORSO = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])  # torso x -> up, torso z -> world x
@@ -143,7 +143,7 @@ def _joint(name, kind, parent, child, T_origin, axis=(1.0, 0.0, 0.0), limits=Non
 def _urdf_joint_origin(urdf: Urdf, name: str, length_delta_m: float = 0.0) -> np.ndarray:
     """The joint's origin; a length delta lengthens its translation along its own direction (as in
     solver.kinematics.chain_frames)."""
-    from solver.transforms import rot_rpy
+    from naocal.solver.transforms import rot_rpy
 
     joint = urdf.joints[name]
     t = np.array(joint.xyz, dtype=float)

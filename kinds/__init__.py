@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from kinds import arm, nao
+from naocal.kinds import arm, nao
 
 
 class Kind(Protocol):

@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.robot import default_intrinsics
-from solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS, LEGS, leg_joints
-from solver.kinematics import camera_fk, leg_fk, project_sole_points
-from solver.adapter import make_model_data  # noqa: F401 (its home is solver.adapter; tests import it here too)
-from solver.model import Model, ModelData
-from solver.nao_model import board_vertices_sole
-from solver.registry import Registry
-from solver.urdf import nominal_urdf
+from naocal.solver.robot import default_intrinsics
+from naocal.solver.joints import HEAD_COLUMNS, JOINTS, LEG_COLUMNS, LEGS, leg_joints
+from naocal.solver.kinematics import camera_fk, leg_fk, project_sole_points
+from naocal.solver.adapter import make_model_data  # noqa: F401 (its home is solver.adapter; tests import it here too)
+from naocal.solver.model import Model, ModelData
+from naocal.solver.nao_model import board_vertices_sole
+from naocal.solver.registry import Registry
+from naocal.solver.urdf import nominal_urdf
 
 DEFAULT_INTRINSICS = default_intrinsics()  # the NAO bottom camera's prior (solver/data/nao.json)
 
@@ -88,8 +88,8 @@ def random_views(rng, setup, n_stances=12, n_postures=2, *, within_limits=True, 
     Stances are drawn within the URDF's joint limits (0.05 rad inside); camera chains too unless not
     `within_limits` (+-pi/2 then: views a real robot may not reach, for tests of the model's mathematics).
     """
-    from solver.camera import project_points, transform_to_camera
-    from solver.kinematics import chain_frames
+    from naocal.solver.camera import project_points, transform_to_camera
+    from naocal.solver.kinematics import chain_frames
 
     robot = setup.robot
     joints = robot.joints

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.model import ModelData
-from solver.quantisation import reading_resolution
-from solver.robot import load_robot
+from naocal.solver.model import ModelData
+from naocal.solver.quantisation import reading_resolution
+from naocal.solver.robot import load_robot
 
 
 @dataclass
@@ -40,7 +40,7 @@ def choose_angles(measured, commanded, velocity, mode="auto", *, joints=None, st
     every image of a stance, otherwise dominates the leg offsets). 'commanded' uses the commands throughout.
     joints : the J column names (default: the NAO's), for AngleChoice.resolution_rad.
     """
-    from solver.joints import JOINTS
+    from naocal.solver.joints import JOINTS
 
     measured = np.asarray(measured, dtype=float)
     commanded = np.asarray(commanded, dtype=float)
@@ -124,9 +124,9 @@ def make_model_data(theta, leg, stance, head_posture, *, direction=None, velocit
     """ModelData of the NAO's bottom camera for every vertex of every image of the sandals `leg` (M,), with zero
     detections (fill uv_px afterwards): what the agent's planner and estimator evaluate the model on for stances it
     plans or has measured. theta (M, 14) in solver.joints.JOINTS order; intrinsics default to the description's."""
-    from solver.robot import default_intrinsics
-    from solver.joints import JOINTS
-    from solver.robot import nao
+    from naocal.solver.robot import default_intrinsics
+    from naocal.solver.joints import JOINTS
+    from naocal.solver.robot import nao
 
     intrinsics = default_intrinsics() if intrinsics is None else intrinsics
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.measurement import MEASUREMENTS
-from solver.transforms import rot_axis_angle, skew
+from naocal.solver.measurement import MEASUREMENTS
+from naocal.solver.transforms import rot_axis_angle, skew
 
 # The arm's effects: name -> what it is. The sensor frames are always in the model.
 EFFECTS = {
@@ -261,7 +261,7 @@ class ArmModel:
 
     def gravity_torques(self, theta) -> np.ndarray:
         """(N, n) static gravity torques about each joint at the readings (nominal URDF geometry and masses)."""
-        from solver.kinematics import chain_gravity_torques
+        from naocal.solver.kinematics import chain_gravity_torques
 
         return chain_gravity_torques(self.chain, theta, self.gravity_mps2, load_mass_kg=self.load[0],
                                      load_com_m=self.load[1])

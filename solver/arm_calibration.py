@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from solver.errors import DataError
-from solver.fileio import read_json
-from solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import read_json
+from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
 
 SCHEMA = "naocal.arm_calibration/1"
 # The units a parameter of each kind is stored in (solver/arm.py), by the first part of its name.
@@ -101,7 +101,7 @@ def read_arm_calibration(path) -> ArmCalibration:
     effects = model.get("effects", [])
     if not isinstance(effects, list):
         _fail(path, "expected a list of effect names", "model.effects")
-    from solver.arm import EFFECTS
+    from naocal.solver.arm import EFFECTS
 
     for i, e in enumerate(effects):
         if e not in EFFECTS:

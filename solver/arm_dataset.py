@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.arm import POINT_KINDS, Observations, Sensor
-from solver.errors import DataError
-from solver.fileio import read_json, read_text
+from naocal.solver.arm import POINT_KINDS, Observations, Sensor
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import read_json, read_text
 
 SCHEMA = "naocal.arm_dataset/1"
 JOINT_UNITS = {"_rad": 1.0, "_deg": math.pi / 180.0}
@@ -60,7 +60,7 @@ class ArmDataset:
 def resolve_robot(robot: str | None, chain: str | None):
     """(URDF path, base, tip) from --robot (a URDF file, or kuka_iiwa / franka_panda from pybullet_data) and
     --chain BASE_LINK:TIP_LINK (default for the named arms: their flange or hand). None for what was not given."""
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     base = tip = None
     if chain is not None:
@@ -82,7 +82,7 @@ def resolve_robot(robot: str | None, chain: str | None):
 
 def is_arm_dataset(path) -> bool:
     """Whether `path` is a directory whose dataset.json says naocal.arm_dataset/1 (anything unreadable: no)."""
-    from solver.fileio import read_json
+    from naocal.solver.fileio import read_json
 
     try:  # a regular file only: a FIFO here must not block the check; the whole file (the key may come last)
         doc = read_json(Path(path) / "dataset.json")
@@ -93,8 +93,8 @@ def is_arm_dataset(path) -> bool:
 
 def arm_chain(urdf_path, base, tip, where_path):
     """(chain, link names, load) of a URDF's serial chain base -> tip, DataError naming the file otherwise."""
-    from solver.robot import serial_chain
-    from solver.urdf import parse_urdf
+    from naocal.solver.robot import serial_chain
+    from naocal.solver.urdf import parse_urdf
 
     urdf = parse_urdf(urdf_path)
     links = {j.child for j in urdf.joints.values()} | {j.parent for j in urdf.joints.values()}
@@ -249,7 +249,7 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
 
 def joint_limits(urdf_path, joints) -> dict:
     """{joint: (lower, upper)} rad of the URDF's revolute joints among `joints` (continuous ones have none)."""
-    from solver.urdf import parse_urdf
+    from naocal.solver.urdf import parse_urdf
 
     urdf = parse_urdf(urdf_path)
     return {j: (urdf.joints[j].lower, urdf.joints[j].upper) for j in joints
@@ -412,7 +412,7 @@ def _cell(text, path, line, field) -> float:
 
 def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points) -> None:
     """Write dataset.json and observations.csv (joints in rad, points in m, pixels) atomically."""
-    from solver.fileio import atomic_write_text
+    from naocal.solver.fileio import atomic_write_text
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

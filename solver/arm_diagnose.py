@@ -21,10 +21,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from solver.arm import EFFECTS, ArmModel
-from solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
-from solver.identify import UNIDENTIFIABLE_RATIO
-from solver.scoretest import score_test
+from naocal.solver.arm import EFFECTS, ArmModel
+from naocal.solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
+from naocal.solver.identify import UNIDENTIFIABLE_RATIO
+from naocal.solver.scoretest import score_test
 
 FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
@@ -209,7 +209,7 @@ def shown_rms(value, kind) -> str:
 
 
 def _shown_value(name, value, units) -> str:
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     v, unit = shown(value, units.get(name, "1"))
     return f"{v:+.4g} {unit}".rstrip()

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.arm import PRIORITY, ArmModel, Observations
-from solver.errors import DataError, SolveError
-from solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal,
+from naocal.solver.arm import PRIORITY, ArmModel, Observations
+from naocal.solver.errors import DataError, SolveError
+from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal,
                              check_identifiable, gauges, solve, worst_of_group_beyond)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
@@ -82,7 +82,7 @@ class ArmOutlier:
     line: int | None = None
 
     def describe(self) -> str:
-        from solver.effect import shown
+        from naocal.solver.effect import shown
 
         value, unit = shown(self.size, self.unit)
         where = f" (line {self.line})" if self.line is not None else ""

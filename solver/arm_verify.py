@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.errors import DataError
-from solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, moved_text, verdict_text
+from naocal.solver.errors import DataError
+from naocal.solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, moved_text, verdict_text
 
 UNIT = {"points": "m", "camera": "px"}
 
@@ -68,7 +68,7 @@ def check_same_arm(cal, dataset) -> None:
 
 def verify_arm(dataset, cal) -> ArmVerdict:
     """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset)."""
-    from solver.arm_identify import fit, initialise_sensors, model_for
+    from naocal.solver.arm_identify import fit, initialise_sensors, model_for
 
     check_same_arm(cal, dataset)
     model = model_for(dataset, cal.effects)
@@ -129,7 +129,7 @@ def verify_arm(dataset, cal) -> ArmVerdict:
         std = float(refit.std[i])
         z = abs(change) / std if std > 0 else math.inf
         if z >= DRIFT_Z and abs(change) >= DRIFT_MIN_SCALE * p.scale:
-            from solver.effect import shown
+            from naocal.solver.effect import shown
 
             moved.append({"parameter": p.name, "group": _group(p.name), "change": change, "std": std, "z": z,
                           "unit": p.unit, "display": list(shown(change, p.unit)), "size": abs(change) / p.scale})
@@ -161,7 +161,7 @@ def _group(name: str) -> str:
 
 
 def _shown(value, unit) -> str:
-    from solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_diagnose import shown_rms
 
     return shown_rms(value, "points" if unit == "m" else "camera")
 

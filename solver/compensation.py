@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from solver.offsets import Offsets
+from naocal.solver.offsets import Offsets
 
 
 def _offset_table(offsets) -> Mapping:
@@ -54,8 +54,8 @@ def parse_assignment(text: str):
     """'LHipPitch=-20.5' -> ('LHipPitch', -20.5); NaocalError for anything else."""
     import math
 
-    from solver.errors import NaocalError
-    from solver.joints import JOINTS
+    from naocal.solver.errors import NaocalError
+    from naocal.solver.joints import JOINTS
 
     joint, sep, value = text.partition("=")
     joint = joint.strip()

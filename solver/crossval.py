@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.errors import NaocalError, SolveError
-from solver.identify import identify
-from solver.model import Model, ModelData
-from solver.registry import Registry
+from naocal.solver.errors import NaocalError, SolveError
+from naocal.solver.identify import identify
+from naocal.solver.model import Model, ModelData
+from naocal.solver.registry import Registry
 
 
 def stance_folds(data: ModelData, n_folds: int = 5, seed: int = 0) -> list[np.ndarray]:

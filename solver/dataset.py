@@ -34,12 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.errors import DataError
-from solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
     atomic_write_text, decode_text, disk_full_as_error, fsync_directory, interrupts_deferred, parse_json_text,
     read_bytes, read_json, read_text,
 )
-from solver.joints import JOINTS
+from naocal.solver.joints import JOINTS
 
 log = logging.getLogger(__name__)
 
@@ -341,7 +341,7 @@ _NAME = re.compile(r"^[a-z0-9_]{1,64}$")
 def validate_meta_v2(meta, path) -> dict:
     """Check a version 2 dataset.json and return a copy with defaults filled in (robot.description 'nao', the
     description's gravity). Names of cameras, targets and joints must be the robot description's."""
-    from solver.robot import load_robot
+    from naocal.solver.robot import load_robot
 
     meta = _check_object(meta, path, "(top level)")
     bad = find_non_finite(meta)
@@ -649,7 +649,7 @@ def plausible_ranges(meta: dict) -> dict:
     """
     ranges = {"t_image_s": (-MAX_TIME_S, MAX_TIME_S, "s"), "t_joints_s": (-MAX_TIME_S, MAX_TIME_S, "s")}
     if meta.get("schema") == SCHEMA_V2:
-        from solver.robot import load_robot
+        from naocal.solver.robot import load_robot
 
         robot = load_robot(meta["robot"].get("description", "nao"))
         joints = meta["joints"]
@@ -661,7 +661,7 @@ def plausible_ranges(meta: dict) -> dict:
         for name in lengths:
             ranges[name] = (-MAX_MOUNT_M, MAX_MOUNT_M, "m")
     else:
-        from solver.limits import joint_limits
+        from naocal.solver.limits import joint_limits
 
         joints, limits = JOINTS, joint_limits()
         cameras = {meta["camera"]["name"]: meta["camera"]}
@@ -779,7 +779,7 @@ def check_chain_joints(dataset: Dataset, meta_path) -> None:
     subset of the description's joints, version 1 has all 14)."""
     if dataset.version != 2 or not len(dataset.columns["image"]):
         return
-    from solver.robot import load_robot
+    from naocal.solver.robot import load_robot
 
     robot = load_robot(dataset.meta["robot"]["description"])
     listed = set(dataset.joints)

@@ -21,12 +21,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.effects import EFFECTS, EXTRA_EFFECTS, owner_of
-from solver.model import Model, ModelData
-from solver.noisefloor import RigidSplit, encoder_noise_px, noise_floor_estimate
-from solver.quantisation import reading_resolution
-from solver.registry import Registry
-from solver.scoretest import (RANK_TOLERANCE, orthonormal_basis, per_image_sum, project_off, rms, score_test,
+from naocal.solver.effects import EFFECTS, EXTRA_EFFECTS, owner_of
+from naocal.solver.model import Model, ModelData
+from naocal.solver.noisefloor import RigidSplit, encoder_noise_px, noise_floor_estimate
+from naocal.solver.quantisation import reading_resolution
+from naocal.solver.registry import Registry
+from naocal.solver.scoretest import (RANK_TOLERANCE, orthonormal_basis, per_image_sum, project_off, rms, score_test,
                               stance_clusters)
 
 # Family-wise false-positive rate of the candidate ranking: a candidate is significant when its p-value is below
@@ -705,8 +705,8 @@ def forward_selection(data: ModelData, registry: Registry | None = None, *, max_
     out; that addition is then reported, not kept). Each step notes new parameters that are not clearly
     determined (|value| / std < 3) or correlate with another parameter above 0.95.
     """
-    from solver.crossval import grouped_cv_rms
-    from solver.identify import identify
+    from naocal.solver.crossval import grouped_cv_rms
+    from naocal.solver.identify import identify
 
     registry = registry or Registry.for_data(data)
     given = _extra(registry)

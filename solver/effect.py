@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.errors import DataError
+from naocal.solver.errors import DataError
 
 ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
 SECTIONS = ("body", "head", "targets")
@@ -65,7 +65,7 @@ class Setup:
     @classmethod
     def default(cls, robot=None) -> "Setup":
         """The robot's default cameras and targets (the NAO: the bottom camera and both sandals)."""
-        from solver.robot import nao
+        from naocal.solver.robot import nao
 
         robot = robot or nao()
         return cls(robot, tuple(robot.default_cameras), tuple(robot.default_targets))
@@ -73,7 +73,7 @@ class Setup:
     @classmethod
     def everything(cls, robot=None) -> "Setup":
         """Every camera and every target of the robot: the names any file of this robot may hold."""
-        from solver.robot import nao
+        from naocal.solver.robot import nao
 
         robot = robot or nao()
         return cls(robot, tuple(robot.cameras), tuple(robot.targets))

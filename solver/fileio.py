@@ -18,7 +18,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from solver.errors import DataError, DiskFullError
+from naocal.solver.errors import DataError, DiskFullError
 
 DISK_FULL_ERRNOS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded"}
 

@@ -22,15 +22,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.adapter import model_data_from_dataset
-from solver.effects import EFFECTS
-from solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, IdentificationResult, identify,
+from naocal.solver.adapter import model_data_from_dataset
+from naocal.solver.effects import EFFECTS
+from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, IdentificationResult, identify,
                              worst_of_group_beyond)
-from solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
+from naocal.solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
                                  without_images)
-from solver.model import ModelData
-from solver.quantisation import reading_resolution
-from solver.registry import Registry
+from naocal.solver.model import ModelData
+from naocal.solver.quantisation import reading_resolution
+from naocal.solver.registry import Registry
 
 # The angle hypotheses, in the order a tie is broken (the paper's choice first).
 ANGLE_HYPOTHESES = ("measured", "cell", "commanded")
@@ -189,7 +189,7 @@ def identify_dataset(dataset, effects=(), *, angles: str = "auto", robust: bool 
 def _gls_refined(data: ModelData, result, step, scale_px: float, fixed, tie_shared_motors, solver):
     """The GLS fit (solver.gls) from the ordinary one, intrinsics free; detector noise the robust scale of the
     non-rigid residual (at least GLS_MIN_SIGMA_PX)."""
-    from solver.gls import identify_gls
+    from naocal.solver.gls import identify_gls
 
     registry = result.registry
     effects = tuple(dict.fromkeys(registry.effects + ("intrinsics",)))
@@ -237,7 +237,7 @@ def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homograp
         so a joint, camera or board that moved (which moves whole boards, and which the refit follows) is never
         set aside as a mis-detection.
     homography_rms : {image id: its homography RMS} (solver.image_check), for the report."""
-    from solver.model import Model
+    from naocal.solver.model import Model
 
     dropped, homography_rms = [], homography_rms or {}
     first_data = data
@@ -330,7 +330,7 @@ def _far_image(result):
 
 def _rms_of(result, data: ModelData, image_id) -> float:
     """RMS (both coordinates) of one image's corners, all of them, at `result`'s values."""
-    from solver.model import Model
+    from naocal.solver.model import Model
 
     m = int(np.flatnonzero(data.image_id == image_id)[0])
     r = Model(data.subset([m]), result.registry).residuals(result.values)
@@ -340,7 +340,7 @@ def _rms_of(result, data: ModelData, image_id) -> float:
 def _trimmed(result, refit, rounds: int):
     """(result, outliers, robust scale or None, rounds used): from a fit, set aside the worst corner of each image
     while it is beyond the robust scale (`rounds` rounds at most), refitting after each round; outliers' sizes 0."""
-    from solver.noisefloor import RigidSplit
+    from naocal.solver.noisefloor import RigidSplit
 
     outliers, scale, used = [], None, 0
     while used < rounds:

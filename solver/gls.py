@@ -28,11 +28,11 @@ from scipy.sparse import csc_matrix, csr_matrix, diags, vstack
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from solver.identify import (CHUNK_ROWS, UNIDENTIFIABLE_RATIO, WEAK_RATIO, IdentificationResult, Normal,
+from naocal.solver.identify import (CHUNK_ROWS, UNIDENTIFIABLE_RATIO, WEAK_RATIO, IdentificationResult, Normal,
                              NormalEquations, weak_direction, identifiability, levenberg_marquardt)
-from solver.model import Model, ModelData
-from solver.registry import Registry
-from solver.scoretest import stance_cluster_of_image
+from naocal.solver.model import Model, ModelData
+from naocal.solver.registry import Registry
+from naocal.solver.scoretest import stance_cluster_of_image
 
 
 def angle_error_groups(data: ModelData, step_rad) -> list[tuple[int, np.ndarray]]:
@@ -65,7 +65,7 @@ class GLSProblem:
 
     def __init__(self, data: ModelData, registry: Registry, x0: np.ndarray, step_rad, sigma_px: float, *,
                  chunk_rows: int = CHUNK_ROWS):
-        from solver.effects import EFFECTS
+        from naocal.solver.effects import EFFECTS
 
         self.equations = equations = NormalEquations(data, registry, x0, chunk_rows=chunk_rows)
         self.registry, self.sigma2 = registry, float(sigma_px) ** 2
@@ -219,7 +219,7 @@ def rest_bias_variance(data: ModelData, registry: Registry, step_rad) -> np.ndar
     readings are quantised (the largest step of the joints a tied offset drives). Measured on the realistic mock
     (paper plan, seeds 1-4, 8 runs with two plans): HipYawPitch's error was negative in all 8, down to -4.0 std
     without this term; the same robot with the load's pull switched off: -1.4 std."""
-    from solver.effects import EFFECTS
+    from naocal.solver.effects import EFFECTS
 
     step_rad = np.asarray(step_rad, dtype=float)
     full = np.zeros(len(registry.names))

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from solver.errors import SolveError
-from solver.model import Model, ModelData
-from solver.registry import Registry
-from solver.scoretest import stance_cluster_of_image
+from naocal.solver.errors import SolveError
+from naocal.solver.model import Model, ModelData
+from naocal.solver.registry import Registry
+from naocal.solver.scoretest import stance_cluster_of_image
 
 # A direction whose singular value (of the column-scaled Jacobian) is below this fraction of the largest is
 # treated as unidentifiable: the data cannot fix that combination of parameters.
@@ -394,9 +394,9 @@ def quantisation_covariance(model, values, registry, J_free, sv, Vt, scales, ste
     its excess over the detector noise (estimated from the non-rigid part) divided by what the full error would
     leave there scales the term (between 0 and 1).
     """
-    from solver.noisefloor import RigidSplit
-    from solver.effects import EFFECTS
-    from solver.model import Model
+    from naocal.solver.noisefloor import RigidSplit
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.model import Model
 
     data = model.data
     offsets = tuple(name for name, e in EFFECTS.items() if e.reading_offsets)

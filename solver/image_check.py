@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.errors import SolveError
+from naocal.solver.errors import SolveError
 
 # Threshold on a corner's distance from its image's homography: HOMOGRAPHY_SCALES x the robust (median) scale of all
 # images' homography residuals, per coordinate, at least HOMOGRAPHY_MIN_PX. The floor is measured, not guessed: the
@@ -81,7 +81,7 @@ class ImageCheck:
 def check_images(data) -> ImageCheck:
     """Check each image of `data` (solver.model.ModelData) against the view of a flat board; see the module.
     Vectorised over the images of each corner count (3456 corners: a few ms)."""
-    from solver.camera import undistort_points
+    from naocal.solver.camera import undistort_points
 
     M = data.n_images
     uv = np.empty_like(data.uv_px, dtype=float)

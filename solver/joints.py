@@ -4,7 +4,7 @@ the robot description a dataset names."""
 
 import numpy as np
 
-from solver.robot import nao
+from naocal.solver.robot import nao
 
 _NAO = nao()
 JOINTS = _NAO.joints  # the dataset's 14 joints, in the dataset's order

@@ -12,11 +12,11 @@ import functools
 
 import numpy as np
 
-from solver.camera import project_points, transform_to_camera
-from solver.nao_model import (
+from naocal.solver.camera import project_points, transform_to_camera
+from naocal.solver.nao_model import (
     BOARD_CENTER_X_M, SANDAL_MASS_KG, THIGH_JOINT_INDEX, TIBIA_JOINT_INDEX, Chain, head_chain, leg_chain,
 )
-from solver.transforms import rot_axis_angle, rot_x, rot_y, rot_z
+from naocal.solver.transforms import rot_axis_angle, rot_x, rot_y, rot_z
 
 
 def chain_frames(chain: Chain, q, *, length_deltas_m=None, origin_shifts_m=None, end_shift_m=None):

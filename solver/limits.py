@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.errors import DataError, SafetyError
-from solver.urdf import NOMINAL_URDF, nominal_urdf, parse_urdf
+from naocal.solver.errors import DataError, SafetyError
+from naocal.solver.urdf import NOMINAL_URDF, nominal_urdf, parse_urdf
 
 URDF_PATH = NOMINAL_URDF
 
@@ -83,7 +83,7 @@ def command_limits(robot=None) -> dict[str, tuple[float, float]]:
     """(lower, upper) in rad that the agent commands each joint within: `joint_limits` narrowed by the robot
     description's `command_limits_rad` (the NAO: HeadYaw +-0.7 rad). The planner, the measurement's head moves and
     the safety guard all take it from here."""
-    from solver.robot import nao
+    from naocal.solver.robot import nao
 
     limits = dict(joint_limits())
     for joint, (lower, upper) in (robot or nao()).command_limits.items():

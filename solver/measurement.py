@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.camera import project
+from naocal.solver.camera import project
 
 
 class PointMeasurement:

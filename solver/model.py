@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver import camera as camera_model
-from solver.effect import CameraTerm, Setup
-from solver.effects import EFFECTS
-from solver.errors import NaocalError
-from solver.kinematics import chain_frames, chain_gravity_torques, joint_axes_and_origins
-from solver.registry import Registry
+from naocal.solver import camera as camera_model
+from naocal.solver.effect import CameraTerm, Setup
+from naocal.solver.effects import EFFECTS
+from naocal.solver.errors import NaocalError
+from naocal.solver.kinematics import chain_frames, chain_gravity_torques, joint_axes_and_origins
+from naocal.solver.registry import Registry
 
 
 @dataclass
@@ -57,7 +57,7 @@ class ModelData:
     commanded: np.ndarray | None = None  # (M, J) commanded angles, when known
 
     def __post_init__(self):
-        from solver.robot import nao
+        from naocal.solver.robot import nao
 
         self.robot = self.robot or nao()
         M = len(self.target)
@@ -390,7 +390,7 @@ class Model:
         targets whose images share configurations (the head postures of one stance): without elasticity a chain's
         angles are theta plus the joint terms' regressors times values, so images equal in both are equal at every
         parameter vector and their chain is computed once."""
-        from solver.scoretest import row_ids
+        from naocal.solver.scoretest import row_ids
 
         layout, out = self.layout, {}
         for t in layout.targets:

@@ -9,7 +9,7 @@ import functools
 
 import numpy as np
 
-from solver.robot import Board, Chain, nao  # noqa: F401 (Chain: the type of leg_chain and head_chain)
+from naocal.solver.robot import Board, Chain, nao  # noqa: F401 (Chain: the type of leg_chain and head_chain)
 
 _NAO = nao()
 _SANDAL = _NAO.target("L")

@@ -11,11 +11,11 @@ import math
 
 import numpy as np
 
-from solver.effects import EFFECTS
-from solver.model import Model
-from solver.registry import Registry
-from solver.quantisation import reading_resolution  # noqa: F401 (its home is solver.quantisation)
-from solver.scoretest import orthonormal_basis, project_off
+from naocal.solver.effects import EFFECTS
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.quantisation import reading_resolution  # noqa: F401 (its home is solver.quantisation)
+from naocal.solver.scoretest import orthonormal_basis, project_off
 
 
 class RigidSplit:

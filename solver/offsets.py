@@ -26,11 +26,11 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from solver.dataset import find_non_finite
-from solver.effects import EFFECTS
-from solver.errors import DataError
-from solver.fileio import atomic_write_text, read_json
-from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
+from naocal.solver.dataset import find_non_finite
+from naocal.solver.effects import EFFECTS
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import atomic_write_text, read_json
+from naocal.solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, LEGS
 
 SCHEMA_V1 = "naocal.offsets/1"
 SCHEMA = SCHEMA_V2 = "naocal.offsets/2"  # what naocal writes
@@ -82,9 +82,9 @@ def implausible_parameter(name: str, value: float, std: float, unit: str) -> str
 
 def _owner(name: str):
     """The effect that owns a registry parameter name of the NAO (every camera and target), or None."""
-    from solver.effect import Setup
-    from solver.effects import owner_of
-    from solver.robot import nao
+    from naocal.solver.effect import Setup
+    from naocal.solver.effects import owner_of
+    from naocal.solver.robot import nao
 
     return owner_of(name, Setup.everything(nao()))
 
@@ -230,7 +230,7 @@ class Offsets:
         """(roll, pitch, yaw) correction of the camera (default: the robot description's first default camera, the
         NAO's bottom camera), rad (zeros if absent)."""
         if camera is None:
-            from solver.robot import load_robot
+            from naocal.solver.robot import load_robot
 
             camera = load_robot(self.robot.get("description") or "nao").default_cameras[0]
         angles = self.camera_rotation_rad.get(camera, {})
@@ -244,7 +244,7 @@ TOP_LEVEL_KEYS_V2 = ("schema", "robot", "created", "body", "head", "targets", "m
 
 def _section_keys(section: str) -> dict:
     """{key: the effect that writes and checks it} of one section of a version 2 file, in the effects' order."""
-    from solver.effects import EFFECTS
+    from naocal.solver.effects import EFFECTS
 
     keys = {}
     for effect in EFFECTS.values():
@@ -455,7 +455,7 @@ def validate(doc, path="<offsets>") -> None:
 
 def _validated_fields_v2(doc, path) -> dict:
     """The fields of Offsets from a version 2 document; DataError naming the file and field otherwise."""
-    from solver.robot import load_robot
+    from naocal.solver.robot import load_robot
 
     doc = _document(doc, path, SCHEMA, f"{SCHEMA!r} (or {SCHEMA_V1!r})", TOP_LEVEL_KEYS_V2)
     robot_meta = _object(doc["robot"], path, "robot")
@@ -494,8 +494,8 @@ def _validated_fields_v2(doc, path) -> dict:
 
 
 def _validated_model_v2(model, path, robot) -> dict:
-    from solver.effect import Setup
-    from solver.effects import ALL_EFFECTS, EFFECTS
+    from naocal.solver.effect import Setup
+    from naocal.solver.effects import ALL_EFFECTS, EFFECTS
 
     model = _object(model, path, "model")
     _keys(model, ("effects", "parameters"), (), path, "model")
@@ -539,8 +539,8 @@ def _from_v1(fields: dict, path=None) -> Offsets:
     sections = {"body": {"joint_offsets_rad": fields["joint_offsets_rad"]},
                 "head": {"camera_rotation_rad": fields["camera_rotation_rad"]},
                 "targets": {"board_mount": fields["board_mount"]}}
-    from solver.effect import Setup
-    from solver.robot import load_robot
+    from naocal.solver.effect import Setup
+    from naocal.solver.robot import load_robot
 
     robot = load_robot("nao")
     if path is not None:
@@ -636,7 +636,7 @@ def check_one_value(sections: dict, parameters: dict, robot, path, *, section_fi
     file spells it (version 1: no section level, older parameter names); sections: {"body", "head", "targets"}.
     only_keys_held: compare only the keys the file's sections have (version 1 had no section for the effects).
     """
-    from solver.effect import Setup
+    from naocal.solver.effect import Setup
 
     section_field = section_field or (lambda section, keys: ".".join((section,) + keys))
     parameter_field = parameter_field or (lambda name: name)
@@ -672,8 +672,8 @@ def offsets_from_parameters(parameters: dict, *, robot: dict, fit: dict, effects
     shared motor follows its partner when only the partner is estimated). All parameters are kept in
     model.parameters; `effects` are the extra effects of the model.
     """
-    from solver.effect import Setup
-    from solver.robot import load_robot
+    from naocal.solver.effect import Setup
+    from naocal.solver.robot import load_robot
 
     setup = Setup.everything(load_robot(description))
     sections = sections_from_values({name: float(entry["value"]) for name, entry in parameters.items()}, setup)
@@ -777,8 +777,8 @@ def read_truth(path) -> tuple[Offsets, list[str]]:
     model.parameters are the true values with std 0: joint offsets c = -alpha (the mock's sign), camera rotations,
     board mounts, and the per-joint effects of TRUTH_EFFECT_RECORDS. Also the notes on what it does not compare
     (the other injected effects). DataError naming the file and field for anything else."""
-    from solver.effect import Setup
-    from solver.robot import nao
+    from naocal.solver.effect import Setup
+    from naocal.solver.robot import nao
 
     path = Path(path)
     doc = _object(read_json(path), path, "(top level)")

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.effect import ALLOWED_UNITS, Parameter, Setup  # noqa: F401 (re-exported: the registry's vocabulary)
-from solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, effect, parse_effect_names  # noqa: F401
-from solver.errors import NaocalError
+from naocal.solver.effect import ALLOWED_UNITS, Parameter, Setup  # noqa: F401 (re-exported: the registry's vocabulary)
+from naocal.solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, effect, parse_effect_names  # noqa: F401
+from naocal.solver.errors import NaocalError
 
 
 class Registry:

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.camera import CameraIntrinsics
-from solver.errors import DataError
-from solver.transforms import make_transform, rot_rpy
-from solver.urdf import Urdf, parse_urdf
+from naocal.solver.camera import CameraIntrinsics
+from naocal.solver.errors import DataError
+from naocal.solver.transforms import make_transform, rot_rpy
+from naocal.solver.urdf import Urdf, parse_urdf
 
 SCHEMA = "naocal.robot/1"
 DATA_DIR = Path(__file__).with_name("data")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.errors import DataError
+from naocal.solver.errors import DataError
 
 NOMINAL_URDF = Path(__file__).with_name("data") / "nao_v50.urdf"
 
@@ -95,7 +95,7 @@ def _scalar(element, attribute: str, what: str, *, low: float = -math.inf, high:
 
 def parse_urdf(path=NOMINAL_URDF) -> Urdf:
     """Joints and link inertias of a URDF file; a malformed file raises DataError naming it and the element."""
-    from solver.fileio import read_bytes
+    from naocal.solver.fileio import read_bytes
 
     data = read_bytes(path)  # a regular file only (a FIFO would block the parser), size capped
     try:

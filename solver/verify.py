@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.diagnostics import compare, locate
-from solver.errors import DataError
-from solver.fit import GLS_MIN_SIGMA_PX, describe_angles, moving_handled, set_aside_mis_detections
-from solver.model import Model, ModelData
-from solver.quantisation import reading_resolution
-from solver.registry import Registry
+from naocal.solver.diagnostics import compare, locate
+from naocal.solver.errors import DataError
+from naocal.solver.fit import GLS_MIN_SIGMA_PX, describe_angles, moving_handled, set_aside_mis_detections
+from naocal.solver.model import Model, ModelData
+from naocal.solver.quantisation import reading_resolution
+from naocal.solver.registry import Registry
 
 # The new data's RMS may exceed max(calibration RMS, noise floor) by this factor and still be "good": new data of
 # the same robot with the same noise give a ratio near 1.0 (1.00 to 1.05 on the mock and synthetic data; 1.04 on a
@@ -130,7 +130,7 @@ def calibration_values(offsets, registry: Registry) -> tuple[np.ndarray, list[st
     """The full parameter vector an offsets file (solver.offsets.Offsets) stands for, and the registry's parameters
     it has no value for (0 then). model.parameters first (every fitted parameter by its registry name); for files
     without them, the base model's sections (joint_offsets_rad, camera_rotation_rad, board_mount)."""
-    from solver.effects.board_mount import FILE_KEYS
+    from naocal.solver.effects.board_mount import FILE_KEYS
 
     stored = {name: float(entry["value"]) for name, entry in offsets.model.get("parameters", {}).items()}
     values, missing = registry.zeros(), []
@@ -185,11 +185,11 @@ def apparent_changes(model: Model, registry: Registry, values: np.ndarray, step_
         reading's error, which moves whole boards as a changed offset would; weighted as if independent (W = I)
         those shared errors pass for a change (realistic mock seed 1, the run's own data under its own offsets:
         LHipRoll +0.06 deg at 5.0 standard deviations; with W nothing above 0.5)."""
-    from solver.identify import NormalEquations, identifiability, parameter_covariance
-    from solver.scoretest import stance_cluster_of_image
+    from naocal.solver.identify import NormalEquations, identifiability, parameter_covariance
+    from naocal.solver.scoretest import stance_cluster_of_image
 
     if step_rad is not None and np.any(np.asarray(step_rad) > 0):
-        from solver.gls import GLSProblem
+        from naocal.solver.gls import GLSProblem
 
         normal_at = GLSProblem(model.data, registry, values, step_rad, sigma_px)
         equations = normal_at.equations
@@ -264,7 +264,7 @@ def refit_from(registry: Registry):
     where the calibration put them). The mis-detections are decided against this refit, as identify decides them
     against its fit: a joint that moved moves its boards, the refit follows it, and so a drift is never set aside
     as mis-detected corners or far-off images. The verdict stays on the calibration's values."""
-    from solver.identify import identify
+    from naocal.solver.identify import identify
 
     def refit(data: ModelData, x0):
         return identify(data, registry, x0=x0, check=False)
@@ -297,8 +297,8 @@ def verify_dataset(dataset, offsets, *, angles: str = "auto", pixel_noise_px: fl
     """verify() of a read dataset (solver.dataset.Dataset). angles 'auto': as identify chooses them, each hypothesis
     (solver.fit.ANGLE_HYPOTHESES) is tried and the one whose refit explains the images best is used (the offsets
     file does not say which the calibration used; the calibration's own data choose the same)."""
-    from solver.adapter import model_data_from_dataset
-    from solver.fit import ANGLE_HYPOTHESES, choose_angles
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.fit import ANGLE_HYPOTHESES, choose_angles
 
     tried, seen = {}, []
     for mode in (ANGLE_HYPOTHESES if angles == "auto" else (angles,)):

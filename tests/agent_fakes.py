@@ -12,13 +12,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from solver.errors import SafetyError
-from solver.joints import JOINTS, LEG_JOINTS
-from solver.limits import joint_limits, max_speeds
-from solver.model import Model
-from solver.registry import Registry
-from sim.synthetic import DEFAULT_INTRINSICS, make_model_data
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import JOINTS, LEG_JOINTS
+from naocal.solver.limits import joint_limits, max_speeds
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.sim.synthetic import DEFAULT_INTRINSICS, make_model_data
 
 FULL = Registry()
 _BLANK = np.zeros((480, 640, 3), dtype=np.uint8)

@@ -7,9 +7,9 @@ safe range around the backend's current posture.
 import numpy as np
 import pytest
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from solver.errors import SafetyError
-from solver.joints import JOINTS
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import JOINTS
 
 
 def check_backend_contract(backend: Backend, *, settle_s: float = 2.0, tolerance_rad: float = 0.02) -> None:

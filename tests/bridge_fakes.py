@@ -8,15 +8,15 @@ import os
 
 import numpy as np
 
-from backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
-from backends.bridge_server import BridgeServer
-from solver import limits
-from solver.errors import SafetyError
-from solver.joints import JOINTS
+from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.backends.bridge_server import BridgeServer
+from naocal.solver import limits
+from naocal.solver.errors import SafetyError
+from naocal.solver.joints import JOINTS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # `naocal` with only the bridge verb, for subprocess tests that must not depend on the other verbs.
-CLI = "import sys, tools.cli as cli; cli.VERB_MODULES = ('tools.cmd_bridge',); sys.exit(cli.main(sys.argv[1:]))"
+CLI = "import sys, naocal.tools.cli as cli; cli.VERB_MODULES = ('naocal.tools.cmd_bridge',); sys.exit(cli.main(sys.argv[1:]))"
 
 SENSOR_PERIOD_S = 0.01
 SENSOR_LAG_S = 0.03
@@ -137,7 +137,7 @@ class RawClient:
 
     def send(self, payload: bytes, timeout_s: float = 2.0):
         """Send one payload frame; the decoded reply, or None if none came in time."""
-        from backends import protocol
+        from naocal.backends import protocol
 
         self.socket.send_multipart([b"", payload])
         if not self.socket.poll(timeout_s * 1000):
@@ -145,7 +145,7 @@ class RawClient:
         return protocol.unpack(self.socket.recv_multipart()[-1], max_bytes=protocol.MAX_REPLY_BYTES)
 
     def request(self, request_id: str, cmd: str, args: dict | None = None, token: str | None = None, **kwargs):
-        from backends import protocol
+        from naocal.backends import protocol
 
         message = protocol.make_request(request_id, cmd, args)
         if token is not None:

@@ -21,7 +21,7 @@ _HANDLED = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)  # cli.main installs i
 
 def naocal(*argv) -> subprocess.CompletedProcess:
     """`naocal ARGV...` in this process: its exit code, stdout and stderr, as a child process would give them."""
-    from tools import cli
+    from naocal.tools import cli
 
     argv = [str(a) for a in argv]
     out, err = io.StringIO(), io.StringIO()
@@ -42,4 +42,4 @@ def naocal_process(*argv, timeout=600, **kw) -> subprocess.CompletedProcess:
     """`naocal ARGV...` in a child process, run to its end (a test fails, not hangs, after `timeout` s)."""
     kw.setdefault("cwd", ROOT)
     kw.setdefault("capture_output", True)
-    return subprocess.run([sys.executable, "-m", "tools", *map(str, argv)], text=True, timeout=timeout, **kw)
+    return subprocess.run([sys.executable, "-m", "naocal", *map(str, argv)], text=True, timeout=timeout, **kw)

@@ -29,9 +29,9 @@ def mock_run(tmp_path_factory):
     """One whole calibration of the ideal mock (seed 5, default plan, as `naocal calibrate --backend mock --mock
     ideal --seed 5` runs it), shared: tests/test_agent_mock.py checks the run, tests/test_diagnostics_mock.py
     diagnoses its dataset. (mock, DIR, result, context, number of commands the calibration sent)."""
-    from agent.calibrate import calibrate
-    from agent.states import AgentSettings
-    from backends.mock import MockBackend
+    from naocal.agent.calibrate import calibrate
+    from naocal.agent.states import AgentSettings
+    from naocal.backends.mock import MockBackend
 
     out = tmp_path_factory.mktemp("mock_calibration")
     mock = MockBackend(MOCK_RUN_SEED)

@@ -290,12 +290,12 @@ def make_valid_inputs(directory: Path, seed: int = 3) -> tuple[Path, Path]:
     """(dataset directory, directory holding offsets.json and reference.json): small, valid, identifiable."""
     import numpy as np
 
-    from solver.dataset import read_dataset, write_dataset
-    from solver.identify import identify
-    from solver.adapter import model_data_from_dataset
-    from solver.registry import Registry
-    from sim.synthetic import dataset_parts, random_truth, synthesize
-    from kinds.nao.identify import write_offsets_file
+    from naocal.solver.dataset import read_dataset, write_dataset
+    from naocal.solver.identify import identify
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.registry import Registry
+    from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+    from naocal.kinds.nao.identify import write_offsets_file
 
     rng = np.random.default_rng(seed)
     data = synthesize(rng, random_truth(rng), n_stances_per_leg=8, n_head_postures=2, pixel_noise_px=0.2)
@@ -471,7 +471,7 @@ def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
     in a fresh interpreter), `memory_headroom_bytes` of address space beyond what it inherits (so that reading
     /dev/zero ends in MemoryError, not in the machine's swap), and, with `as_nobody`, root's rights dropped.
     """
-    from tools.cli import main
+    from naocal.tools.cli import main
 
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         sys.stdout.flush(), sys.stderr.flush()

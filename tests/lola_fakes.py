@@ -42,9 +42,9 @@ import cv2
 import msgpack
 import numpy as np
 
-from backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS, MOTOR_OF, N_LOLA
-from solver import limits
-from solver.joints import JOINTS
+from naocal.backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS, MOTOR_OF, N_LOLA
+from naocal.solver import limits
+from naocal.solver.joints import JOINTS
 
 BODY_ID, HEAD_ID = "P0000074A05S94700111", "P0000073A07S93Z00046"  # 20 characters, like LoLA's
 ROBOT_CONFIG = [BODY_ID, "6.0.0.0", HEAD_ID, "6.0.0.0"]
@@ -90,7 +90,7 @@ class SimpleServos:
     """Each joint with stiffness > 0 moves toward its command at its maximum speed; a limp joint stays put."""
 
     def __init__(self, posture: dict | None = None):
-        from backends.mock import DEFAULT_POSTURE
+        from naocal.backends.mock import DEFAULT_POSTURE
 
         self.q = to_lola({**DEFAULT_POSTURE, **(posture or {})})
         self.command = self.q.copy()
@@ -115,10 +115,10 @@ class SimpleServos:
 
 
 class MockPhysics:
-    """backends.mock.MockBackend in real time: mock time = START_TIME_S + (monotonic - start)."""
+    """naocal.backends.mock.MockBackend in real time: mock time = START_TIME_S + (monotonic - start)."""
 
     def __init__(self, mock, start_mono_s: float):
-        from backends.mock import START_TIME_S
+        from naocal.backends.mock import START_TIME_S
 
         self.mock = mock
         self.offset_s = START_TIME_S - start_mono_s  # mock time minus monotonic time
@@ -146,7 +146,7 @@ class MockPhysics:
             return to_lola(self.mock.read_joints().angles_rad)
 
     def apply(self, position, stiffness) -> None:
-        from solver.errors import SafetyError
+        from naocal.solver.errors import SafetyError
 
         position, stiffness = np.asarray(position, dtype=float), np.asarray(stiffness, dtype=float)
         with self.lock:
@@ -485,7 +485,7 @@ class CameraServer:
     """
 
     def __init__(self, path, physics: MockPhysics, *, stamp_error_s: float = 0.004, missing: bool = False):
-        from backends.v4l2_camera import CAMERAS
+        from naocal.backends.v4l2_camera import CAMERAS
 
         self.path = os.fspath(path)
         self.physics = physics
@@ -510,7 +510,7 @@ class CameraServer:
             threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
 
     def _serve(self, conn) -> None:
-        from backends.mock import FRAME_PERIOD_S, FRAME_PHASE_S
+        from naocal.backends.mock import FRAME_PERIOD_S, FRAME_PHASE_S
 
         mock = self.physics.mock
         unpacker = msgpack.Unpacker(raw=False)
@@ -607,7 +607,7 @@ def _robot_main(args) -> int:
     """The fake robot: FakeLola with MockPhysics and a CameraServer, until SIGTERM."""
     import signal
 
-    from backends.mock import MockBackend
+    from naocal.backends.mock import MockBackend
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -636,8 +636,8 @@ def _robot_main(args) -> int:
 
 def _bridge_main(camera_socket, naocal_argv) -> int:
     """`naocal` with the V4L2 device replaced by the fake robot's camera."""
-    import backends.v4l2_camera as v4l2_camera
-    from tools import cli
+    import naocal.backends.v4l2_camera as v4l2_camera
+    from naocal.tools import cli
 
     v4l2_camera.open_v4l2 = lambda device: RemoteCapture(device, cv2.CAP_V4L2, camera_socket=camera_socket)
     v4l2_camera.device_present = lambda device: True  # the fake robot serves both cameras

@@ -391,7 +391,7 @@ def _write(out_dir, images, reading, cmd, direction, velocity, uv, keep, source)
 
 def naocal_json(*args) -> dict:
     """Run a naocal verb in this process (its command line: tools.cli.main) with --json; its output."""
-    from tools.cli import main
+    from naocal.tools.cli import main
 
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):

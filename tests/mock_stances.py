@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from backends.mock import DEFAULT_POSTURE
-from solver.joints import JOINT_INDEX, JOINTS, LEGS, leg_joints
-from solver.kinematics import camera_fk, leg_fk
-from solver.limits import head_pitch_limits
-from solver.nao_model import BOARD_SQUARE_M
+from naocal.backends.mock import DEFAULT_POSTURE
+from naocal.solver.joints import JOINT_INDEX, JOINTS, LEGS, leg_joints
+from naocal.solver.kinematics import camera_fk, leg_fk
+from naocal.solver.limits import head_pitch_limits
+from naocal.solver.nao_model import BOARD_SQUARE_M
 
 RING_M = 0.2 * BOARD_SQUARE_M  # clearance around each vertex (in the board plane) that must be in sight
 

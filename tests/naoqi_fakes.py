@@ -14,8 +14,8 @@ import time
 import numpy as np
 import qi
 
-from solver import limits
-from solver.joints import JOINTS
+from naocal.solver import limits
+from naocal.solver.joints import JOINTS
 
 DCM_EPOCH_S = 12345.678  # DCM time minus monotonic time on the fake robot
 FRAME_PERIOD_S = 1.0 / 30.0

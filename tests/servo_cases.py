@@ -12,11 +12,11 @@ servo:
 
 import numpy as np
 
-from sim.synthetic import dataset_parts, random_plan
-from solver.adapter import make_model_data
-from solver.dataset import Dataset
-from solver.model import Model
-from solver.registry import Registry
+from naocal.sim.synthetic import dataset_parts, random_plan
+from naocal.solver.adapter import make_model_data
+from naocal.solver.dataset import Dataset
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
 
 STEP_RAD = 2 * np.pi / 4096  # the NAO's 12-bit encoders
 

@@ -5,19 +5,19 @@ import json
 import numpy as np
 import pytest
 
-from agent.calibrate import calibrate
-from agent.machine import DONE, FAILED, TRANSITIONS, Machine, Outcome, State
-from agent.planner import PlanSettings, parked_posture
-from agent.progress import ProgressBar
-from agent.robot import Robot, TimingSettings
-from agent.safety import SafetyGuard
-from agent.states import AgentSettings, calibrate_states
-from backends.compensated import CompensatedBackend
-from body.nao_body import CollisionChecker, NaoBody
-from solver.dataset import read_dataset
-from backends.errors import RobotTimeout
-from solver.joints import JOINTS, LEG_JOINTS
-from solver.offsets import read_offsets
+from naocal.agent.calibrate import calibrate
+from naocal.agent.machine import DONE, FAILED, TRANSITIONS, Machine, Outcome, State
+from naocal.agent.planner import PlanSettings, parked_posture
+from naocal.agent.progress import ProgressBar
+from naocal.agent.robot import Robot, TimingSettings
+from naocal.agent.safety import SafetyGuard
+from naocal.agent.states import AgentSettings, calibrate_states
+from naocal.backends.compensated import CompensatedBackend
+from naocal.body.nao_body import CollisionChecker, NaoBody
+from naocal.solver.dataset import read_dataset
+from naocal.backends.errors import RobotTimeout
+from naocal.solver.joints import JOINTS, LEG_JOINTS
+from naocal.solver.offsets import read_offsets
 from tests.agent_fakes import FakeBackend
 
 SMALL = PlanSettings(stances_per_leg=6)
@@ -207,7 +207,7 @@ def test_a_second_run_in_the_same_directory_is_refused_without_resume(tmp_path):
 @pytest.mark.parametrize("resume", [False, True])
 def test_a_finished_run_is_not_run_again_and_the_robot_not_moved(fake_run, resume):
     """A finished run offered --resume, which re-ran the verification: the robot moved again."""
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     _, out, _, _ = fake_run
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
@@ -376,8 +376,8 @@ def test_bad_settings_and_bad_resume_state_are_naocal_errors(tmp_path):
 def test_running_estimate_keeps_the_first_leg_when_the_second_begins():
     """The second leg's first capture must not throw away the first leg's offsets (nor make the guard believe the
     second leg's are known)."""
-    from agent.estimate import RunningEstimate
-    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from naocal.agent.estimate import RunningEstimate
+    from naocal.sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(40)
     truth = random_truth(rng)

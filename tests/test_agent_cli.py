@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tests.cli_runner import naocal_process as naocal
-from tools import cli
+from naocal.tools import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -96,7 +96,7 @@ def test_killed_during_measurement_and_resumed_holds_every_capture_once(tmp_path
     args = ["calibrate", "--backend", "mock", "--mock", "ideal", "--seed", "2", "--stances-per-leg", "4",
             "--no-progress", "--no-images"]
     killed = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "tools", *args, "--out", str(killed)], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "naocal", *args, "--out", str(killed)], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     obs = killed / "dataset" / "observations.csv"
     deadline = time.monotonic() + 300

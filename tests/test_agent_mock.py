@@ -7,23 +7,23 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("backends.mock")
+pytest.importorskip("naocal.backends.mock")
 
-from agent.planner import PlanSettings  # noqa: E402
-from agent.robot import TimingSettings  # noqa: E402
-from backends.compensated import CompensatedBackend  # noqa: E402
-from backends.mock import SHARED_MOTOR, MockBackend  # noqa: E402
-from body.nao_body import CollisionChecker, NaoBody  # noqa: E402
-from solver.dataset import read_dataset  # noqa: E402
-from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS  # noqa: E402
-from solver.limits import head_pitch_limits  # noqa: E402
-from solver.offsets import read_offsets  # noqa: E402
-from solver.registry import Registry  # noqa: E402
-from solver.model import Model  # noqa: E402
-from sim.synthetic import make_model_data  # noqa: E402
-from agent.planner import make_plan  # noqa: E402
-from agent.robot import Robot  # noqa: E402
-from agent.safety import SafetyGuard  # noqa: E402
+from naocal.agent.planner import PlanSettings  # noqa: E402
+from naocal.agent.robot import TimingSettings  # noqa: E402
+from naocal.backends.compensated import CompensatedBackend  # noqa: E402
+from naocal.backends.mock import SHARED_MOTOR, MockBackend  # noqa: E402
+from naocal.body.nao_body import CollisionChecker, NaoBody  # noqa: E402
+from naocal.solver.dataset import read_dataset  # noqa: E402
+from naocal.solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS  # noqa: E402
+from naocal.solver.limits import head_pitch_limits  # noqa: E402
+from naocal.solver.offsets import read_offsets  # noqa: E402
+from naocal.solver.registry import Registry  # noqa: E402
+from naocal.solver.model import Model  # noqa: E402
+from naocal.sim.synthetic import make_model_data  # noqa: E402
+from naocal.agent.planner import make_plan  # noqa: E402
+from naocal.agent.robot import Robot  # noqa: E402
+from naocal.agent.safety import SafetyGuard  # noqa: E402
 
 pytestmark = pytest.mark.slow
 SEED = 5

@@ -8,10 +8,10 @@ import os
 import numpy as np
 import pytest
 
-from solver.arm import EFFECTS, ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
-from solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
-from solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
-from solver.errors import DataError
+from naocal.solver.arm import EFFECTS, ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
+from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
+from naocal.solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
+from naocal.solver.errors import DataError
 from tests.cli_runner import naocal as naocal_in_process, naocal_process
 
 CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
@@ -19,14 +19,14 @@ CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0,
 
 
 def panda():
-    from solver.arm_dataset import arm_chain
+    from naocal.solver.arm_dataset import arm_chain
 
     urdf, base, tip = resolve_robot("franka_panda", None)
     return (urdf, base, tip) + arm_chain(urdf, base, tip, urdf)
 
 
 def tool():
-    from backends.arm_sim import tool_points
+    from naocal.backends.arm_sim import tool_points
 
     return tool_points()
 
@@ -133,7 +133,7 @@ def test_identify_recovers_link_lengths_and_joint_offsets_and_fixes_what_is_not_
 def test_measurement_kinds_give_their_exact_jacobian():
     """Pixels (with lens distortion) and 3-D points: d residual / d y against central differences; the components a
     kind does not measure are 0."""
-    from solver.measurement import MEASUREMENTS, residual
+    from naocal.solver.measurement import MEASUREMENTS, residual
 
     rng = np.random.default_rng(4)
     y = np.column_stack([rng.uniform(1.0, 3.0, 20), rng.uniform(-0.5, 0.5, 20), rng.uniform(-0.5, 0.5, 20)])
@@ -156,7 +156,7 @@ def test_measurement_kinds_give_their_exact_jacobian():
 def test_the_arm_s_normal_equations_in_chunks_equal_one_pass_and_its_jacobian():
     """ArmEquations (the arm's side of solver.identify.solve) accumulated over chunks of 7 observations: the same
     normal matrix, gradient, cost and per-observation scores as one pass, and A = Js^T Js of the dense Jacobian."""
-    from solver.arm_identify import ArmEquations
+    from naocal.solver.arm_identify import ArmEquations
 
     model, obs, truth, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=9)
     x = initialise_sensors(model, obs)
@@ -226,15 +226,15 @@ def test_two_percent_wrong_detections_are_set_aside_listed_and_change_nothing(lo
             assert abs(values[name] - truth[name]) < 3.5 * result.std[i], name
             if loss == "linear":  # the same fit less the wrong detections
                 assert abs(result.x[i] - clean.x[i]) < 0.5 * clean.std[i], name
-    assert "set aside" in __import__("solver.arm_identify", fromlist=["x"]).describe_outliers(result.outliers)
+    assert "set aside" in __import__("naocal.solver.arm_identify", fromlist=["x"]).describe_outliers(result.outliers)
 
 
 def test_arm_gauges_are_fixed_at_the_nao_s_threshold_and_a_sensor_never_is():
     """One identifiability policy (solver.identify.gauges): 1e-6, the NAO's. A parameter within it of the span of
     those before it in the kind's order is fixed and said so; one that may not be fixed (a sensor frame) stops the
     fit with the NAO's message instead."""
-    from solver.errors import SolveError
-    from solver.identify import UNIDENTIFIABLE_RATIO, gauges
+    from naocal.solver.errors import SolveError
+    from naocal.solver.identify import UNIDENTIFIABLE_RATIO, gauges
 
     rng = np.random.default_rng(5)
     J = rng.normal(size=(50, 4))
@@ -263,7 +263,7 @@ def test_a_parameter_no_pose_moves_stops_the_fit_naming_it_and_fitting_the_rest_
     """The flange's elasticity: the hand's centre of mass lies nearly on its axis, so no pose gives it a gravity
     torque (its column is 1e-18 of the largest). The arm fitted it to -1e13 deg/(N m) with std 0; under the one
     policy it stops the fit with the NAO's message naming it, and `--fix` lets the rest be fitted."""
-    from solver.errors import SolveError
+    from naocal.solver.errors import SolveError
 
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=40)
     with pytest.raises(SolveError, match=r"cannot determine 1 parameter combination.*elasticity\.panda_joint7"):
@@ -284,7 +284,7 @@ def test_identify_refuses_a_camera_without_enough_observations():
 
 
 def test_diagnose_names_link_lengths_when_missing_and_nothing_when_complete():
-    from solver.arm_diagnose import diagnose
+    from naocal.solver.arm_diagnose import diagnose
 
     truth = true_errors(seed=4)
     complete, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=40, seed=5)
@@ -302,7 +302,7 @@ def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate()
     readings share a random 0.3 mm shift (the camera's a 0.6 px one) beyond the stated 0.1 mm / 0.2 px noise, and
     the model is complete. Counted per measurement, the misfit above the noise makes some candidate significant;
     judged per pose (the poses are the independent units), none is. A real missing effect is still named."""
-    from solver.arm_diagnose import diagnose
+    from naocal.solver.arm_diagnose import diagnose
 
     truth = true_errors(seed=12)
     complete, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=60, seed=13)
@@ -323,7 +323,7 @@ def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate()
 def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
     """Significance counts poses: 12 poses cannot judge link poses (13 directions) or points (19); they are marked
     n/a and not named, the 5-parameter elasticity is still tested."""
-    from solver.arm_diagnose import diagnose, format_diagnosis
+    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
 
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=3), n_poses=12, seed=4)
     d = diagnose(fit(model, obs, initialise_sensors(model, obs)), n_folds=0)
@@ -333,7 +333,7 @@ def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
 
 
 def test_diagnose_names_elasticity_under_gravity():
-    from solver.arm_diagnose import diagnose, format_diagnosis
+    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
 
     truth = true_errors(seed=6)
     truth.update({f"elasticity.panda_joint{k}": 2e-3 for k in (2, 4)})  # 2 mrad per N m
@@ -483,8 +483,8 @@ def test_an_arm_calibration_file_that_is_a_fifo_is_refused_by_offsets_show(tmp_p
 
 
 def test_arm_simulate_takes_its_directory_s_lock_and_only_a_new_or_empty_one(tmp_path, capsys):
-    from agent.rundir import RunLock
-    from tools.cli import main
+    from naocal.agent.rundir import RunLock
+    from naocal.tools.cli import main
 
     out = tmp_path / "out"
     with RunLock(out, "naocal simulate (another run)"):
@@ -505,7 +505,7 @@ def test_arm_simulate_takes_its_directory_s_lock_and_only_a_new_or_empty_one(tmp
 @pytest.mark.parametrize("robot", ["kuka_iiwa", "franka_panda"])
 def test_simulated_arm_agrees_with_the_model_at_its_hidden_truth(robot):
     """PyBullet's forward kinematics of the perturbed URDF equals naocal's model at the truth (to 1 um)."""
-    from backends.arm_sim import SimulatedArm
+    from naocal.backends.arm_sim import SimulatedArm
 
     urdf, base, tip = resolve_robot(robot, None)
     with SimulatedArm(urdf, base, tip, seed=2) as arm:

@@ -14,7 +14,7 @@ from test_arm import synthetic, true_errors, write
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
     """(dataset directory, calibration file) of a simulated Franka Panda."""
-    from tools.cli import main
+    from naocal.tools.cli import main
 
     root = tmp_path_factory.mktemp("arm")
     model, obs, _, sensors = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=8), n_poses=30, seed=9)
@@ -71,8 +71,8 @@ def test_an_implausible_number_anywhere_in_an_arm_calibration_is_named_by_every_
 
 
 def test_an_implausible_compliance_is_refused(arm, tmp_path):
-    from solver.arm_calibration import read_arm_calibration
-    from solver.errors import DataError
+    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.solver.errors import DataError
 
     doc = json.loads(arm[1].read_text())
     doc["model"]["parameters"]["elasticity.panda_joint2"] = {"value": 1e308, "std": 0.0, "unit": "rad/(N m)",
@@ -105,7 +105,7 @@ URDF_DAMAGE = [  # (what is replaced in panda_joint3 or panda_link4, by what, th
 
 @pytest.mark.parametrize("old, new, words", URDF_DAMAGE)
 def test_an_arm_urdf_with_a_non_finite_or_degenerate_attribute_is_refused_when_read(arm, tmp_path, old, new, words):
-    from solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_dataset import read_arm_dataset
 
     text = read_arm_dataset(arm[0]).urdf_path.read_text()
     start = text.index('<link name="panda_link4">' if "mass" in old else '<joint name="panda_joint3"')

@@ -31,7 +31,7 @@ def valid(work):
     """(dataset directory with robot.urdf inside, directory holding the calibration and a reference copy)."""
     import json
 
-    from tools.cli import main
+    from naocal.tools.cli import main
 
     model, obs, _, sensors = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=31), n_poses=14, seed=32)
     dataset = write(work / "valid" / "dataset", model, obs, sensors)

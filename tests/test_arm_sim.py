@@ -60,7 +60,7 @@ def test_a_user_urdf_without_inertial_data_leaves_naocal_s_output_clean(tmp_path
     """PyBullet warns from C, on stdout, for each link without <inertial>: not in naocal's output."""
     urdf = tmp_path / "two.urdf"
     urdf.write_text(TWO_LINKS_WITHOUT_INERTIA)
-    run = subprocess.run([sys.executable, "-m", "tools", "simulate", "--robot", str(urdf), "--chain", "base:tip",
+    run = subprocess.run([sys.executable, "-m", "naocal", "simulate", "--robot", str(urdf), "--chain", "base:tip",
                           "--seed", "1", "--poses", "12", "--out", str(tmp_path / "out")],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr

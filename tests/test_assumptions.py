@@ -15,9 +15,9 @@ import shlex
 import numpy as np
 import pytest
 
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from solver.dataset import write_dataset
-from tools.cli import main
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.solver.dataset import write_dataset
+from naocal.tools.cli import main
 
 NOISE_PX = 0.1
 
@@ -91,8 +91,8 @@ def write_stretched(path, seed, factor):
     """A robot whose L board is printed `factor` times larger than dataset.json says (a square size off)."""
     import copy
 
-    from solver.model import Model
-    from solver.registry import Registry
+    from naocal.solver.model import Model
+    from naocal.solver.registry import Registry
 
     rng = np.random.default_rng(seed)
     truth = random_truth(rng)

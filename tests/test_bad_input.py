@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
-from solver.dataset import OBSERVATIONS_FILE, DatasetAppender, read_dataset
-from solver.errors import DataError
-from solver.offsets import read_offsets
+from naocal.solver.dataset import OBSERVATIONS_FILE, DatasetAppender, read_dataset
+from naocal.solver.errors import DataError
+from naocal.solver.offsets import read_offsets
 from tests import fuzz_inputs as fz
-from tools.cli import main
+from naocal.tools.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -423,7 +423,7 @@ def test_unexpected_errors_still_give_one_line(monkeypatch, capsys, offsets, err
     def fail(*_args, **_kwargs):
         raise error
 
-    monkeypatch.setattr("solver.offsets.read_offsets", fail)
+    monkeypatch.setattr("naocal.solver.offsets.read_offsets", fail)
     assert main(["offsets", "validate", str(offsets)]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"naocal offsets: error: {words}")
@@ -433,8 +433,8 @@ def test_unexpected_errors_still_give_one_line(monkeypatch, capsys, offsets, err
 
 
 def test_bridge_journal_that_is_not_a_journal_is_refused_untouched(tmp_path):
-    from backends.bridge_lease import LeaseJournal
-    from solver.errors import NaocalError
+    from naocal.backends.bridge_lease import LeaseJournal
+    from naocal.solver.errors import NaocalError
 
     notes = tmp_path / "notes.txt"
     notes.write_text("keep me\n")
@@ -451,7 +451,7 @@ def test_bridge_journal_that_is_not_a_journal_is_refused_untouched(tmp_path):
 def test_bridge_journal_torn_in_its_first_record_is_still_a_journal(tmp_path):
     import msgpack
 
-    from backends.bridge_lease import LeaseJournal
+    from naocal.backends.bridge_lease import LeaseJournal
 
     path = tmp_path / "j"
     path.write_bytes(msgpack.packb({"lease": bytes(32)}, use_bin_type=True)[:12])  # power lost while writing
@@ -508,7 +508,7 @@ def test_offsets_export_onto_its_own_source_is_refused(offsets, tmp_path, fmt):
     out = offsets if fmt == "json" else tmp_path / "nao.urdf"
     argv = ["offsets", "export", str(offsets), "--format", fmt, "--out", str(out)]
     if fmt == "urdf":
-        from tools.export.urdf import NOMINAL_URDF
+        from naocal.tools.export.urdf import NOMINAL_URDF
 
         shutil.copy(NOMINAL_URDF, out)
         argv += ["--nominal-urdf", str(out)]
@@ -560,8 +560,8 @@ def test_every_image_format_has_its_size_read_from_its_header(tmp_path, kind):
     import cv2
     import numpy as np
 
-    from solver.errors import DataError
-    from solver.fileio import read_image_bytes
+    from naocal.solver.errors import DataError
+    from naocal.solver.fileio import read_image_bytes
 
     ext = {"jpeg": ".jpg", "bmp": ".bmp", "bmp top-down": ".bmp", "ppm": ".ppm", "pgm with comments": ".pgm",
            "pam": ".pam"}[kind]
@@ -600,8 +600,8 @@ def test_import_mrlspl_refuses_an_image_beyond_the_pixel_budget(image_bombs, tmp
 def test_a_report_reads_its_images_through_the_pixel_budget(tmp_path):
     """diagnose --report draws the worst images of a dataset: read through solver.fileio.read_image_bytes (a bomb
     among them was decoded by matplotlib whole)."""
-    import tools.report as report
-    from solver.errors import DataError
+    import naocal.tools.report as report
+    from naocal.solver.errors import DataError
 
     path = tmp_path / "000001.png"
     path.write_bytes(png_claiming(60000, 60000))

@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from agent import board_detect
-from agent.board_detect import (SANDAL, BoardSpec, channels_to_try, detect_board, image_order, labellings,
+from naocal.agent import board_detect
+from naocal.agent.board_detect import (SANDAL, BoardSpec, channels_to_try, detect_board, image_order, labellings,
                                 line_rms_px, parse_board, polarity)
 from tests.synthetic_boards import board_homography, inner_corners, render
 

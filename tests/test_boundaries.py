@@ -19,9 +19,9 @@ FORBIDDEN = {
     "body": ("backends", "agent", "tools", "sim"),
     "sim": ("backends", "agent", "tools"),
     "backends": ("agent", "tools"),
-    "agent": ("backends.mock", "backends.mock_render", "body.nao_body.NaoBody_", "sim", "kinds", "tools"),
+    "agent": ("naocal.backends.mock", "naocal.backends.mock_render", "naocal.body.nao_body.NaoBody_", "sim", "kinds", "tools"),
     # a kind uses tools' output helpers (tables, exports, reports) but never a command module nor the command line
-    "kinds": ("tools.cli", "tools.__main__", *(f"tools.{p.stem}" for p in (ROOT / "tools").glob("cmd_*.py"))),
+    "kinds": ("naocal.tools.cli", "naocal.tools.__main__", *(f"tools.{p.stem}" for p in (ROOT / "tools").glob("cmd_*.py"))),
 }
 
 
@@ -53,8 +53,8 @@ def test_packages_import_only_what_their_layer_may(package):
 def test_errors_live_in_one_home_each_without_shims():
     """A refused command is the joint limits' own (solver.limits raises it; the backends too); the robot-side errors
     live with the backends; nothing re-exports another module's names under an old name."""
-    from backends import errors
-    from solver import errors as solver_errors
+    from naocal.backends import errors
+    from naocal.solver import errors as solver_errors
 
     assert not hasattr(errors, "SafetyError")  # raised by the limits and the backends alike: solver.errors'
     source = (ROOT / "solver" / "errors.py").read_text()

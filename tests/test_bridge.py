@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import zmq
 
-from backends import protocol
-from backends.base import CameraImage
-from backends.bridge import BridgeBackend
-from backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
-from backends.protocol import ControlError, ProtocolError
-from backends.errors import BridgeError, RobotFault
-from solver.errors import SafetyError
-from solver.errors import NaocalError
+from naocal.backends import protocol
+from naocal.backends.base import CameraImage
+from naocal.backends.bridge import BridgeBackend
+from naocal.backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
+from naocal.backends.protocol import ControlError, ProtocolError
+from naocal.backends.errors import BridgeError, RobotFault
+from naocal.solver.errors import SafetyError
+from naocal.solver.errors import NaocalError
 from tests.backend_contract import check_backend_contract
 from tests.bridge_fakes import CLI, ROOT, FakeBackend, serving
 
@@ -246,9 +246,8 @@ def test_serve_refuses_a_remote_bind_without_the_flag():
 
 
 def test_ping_reports_round_trip_driver_and_robot(capsys, monkeypatch):
-    import tools.cli as cli
-
-    monkeypatch.setattr(cli, "VERB_MODULES", ("tools.cmd_bridge",))
+    import naocal.tools.cli as cli
+    monkeypatch.setattr(cli, "VERB_MODULES", ("naocal.tools.cmd_bridge",))
     with serving(FakeBackend(seed=4), driver="fake") as server:
         code = cli.main(["bridge", "ping", "--endpoint", server.endpoint, "--count", "3"])
     out = capsys.readouterr().out
@@ -297,7 +296,7 @@ def test_bad_server_settings_are_one_line_errors(tmp_path):
 
 
 def test_the_cli_default_bind_is_the_servers():
-    from tools import cmd_bridge
+    from naocal.tools import cmd_bridge
 
     assert cmd_bridge.DEFAULT_BIND == DEFAULT_BIND == "tcp://127.0.0.1:7790"
 

@@ -16,9 +16,9 @@ import time
 import pytest
 
 from tests.cli_runner import naocal as naocal_in_process
-from tools import cli  # noqa: E402
+from naocal.tools import cli  # noqa: E402
 
-pytest.importorskip("backends.mock")
+pytest.importorskip("naocal.backends.mock")
 for verb_module in cli.VERB_MODULES:  # `naocal` runs only once every verb exists
     pytest.importorskip(verb_module)
 
@@ -28,7 +28,7 @@ SMALL_PLAN = ("--stances-per-leg", "6", "--no-probe", "--no-progress")
 
 
 def naocal(*argv):
-    return [sys.executable, "-m", "tools", *argv]
+    return [sys.executable, "-m", "naocal", *argv]
 
 
 def start_server(seed, *options):
@@ -78,10 +78,10 @@ def test_a_server_restarted_in_the_middle_of_a_calibration_fails_cleanly_and_res
     """The robot-side server dies mid-measurement and comes back on the same endpoint (a fresh mock: same seed,
     same hidden truth, new state). The agent must not take it for the robot it was talking to: it stops with a
     clear reason, nothing saved is lost, and `--resume` finishes with every capture exactly once."""
-    from agent.plan import read_plan
-    from backends.mock import draw_truth
-    from solver.dataset import read_dataset
-    from solver.joints import LEG_JOINTS
+    from naocal.agent.plan import read_plan
+    from naocal.backends.mock import draw_truth
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.joints import LEG_JOINTS
 
     out = tmp_path / "run"
     server, endpoint = start_server(SEED)
@@ -136,9 +136,9 @@ def start_server_at(seed, endpoint):
 def test_an_agent_killed_with_sigkill_resumes_at_once_under_its_own_lease(tmp_path):
     """SIGKILL sends no `release`: the server keeps the lease for its timeout, here an hour. The resumed run takes
     it back with the token in DIR/bridge.token instead of failing or waiting; a stranger still cannot."""
-    from backends.bridge import BridgeBackend
-    from backends.protocol import ControlError
-    from solver.dataset import read_dataset
+    from naocal.backends.bridge import BridgeBackend
+    from naocal.backends.protocol import ControlError
+    from naocal.solver.dataset import read_dataset
 
     out = tmp_path / "run"
     server, endpoint = start_server(SEED, "--lease-timeout-s", "3600")

@@ -12,10 +12,10 @@ import zmq
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from backends import protocol
-from backends.bridge import BridgeBackend
-from backends.bridge_server import BridgeServer, FaultInjector
-from backends.errors import BridgeError
+from naocal.backends import protocol
+from naocal.backends.bridge import BridgeBackend
+from naocal.backends.bridge_server import BridgeServer, FaultInjector
+from naocal.backends.errors import BridgeError
 from tests.bridge_fakes import FakeBackend, serving
 
 TIMEOUT_S = 0.2

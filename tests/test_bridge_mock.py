@@ -2,10 +2,10 @@
 
 import pytest
 
-mock = pytest.importorskip("backends.mock")
+mock = pytest.importorskip("naocal.backends.mock")
 
-from backends.bridge import BridgeBackend  # noqa: E402
-from backends.bridge_server import BridgeServer  # noqa: E402
+from naocal.backends.bridge import BridgeBackend  # noqa: E402
+from naocal.backends.bridge_server import BridgeServer  # noqa: E402
 from tests.backend_contract import check_backend_contract  # noqa: E402
 
 

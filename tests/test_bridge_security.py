@@ -16,12 +16,12 @@ import time
 
 import pytest
 
-from backends import protocol
-from backends.bridge import BridgeBackend
-from backends.bridge_server import BridgeServer, check_bind_address, write_curve_keys
-from backends.protocol import ControlError
-from backends.errors import BridgeError
-from solver.errors import NaocalError
+from naocal.backends import protocol
+from naocal.backends.bridge import BridgeBackend
+from naocal.backends.bridge_server import BridgeServer, check_bind_address, write_curve_keys
+from naocal.backends.protocol import ControlError
+from naocal.backends.errors import BridgeError
+from naocal.solver.errors import NaocalError
 from tests.bridge_fakes import CLI, MOTION_ARGS, ROOT, FakeBackend, RawClient, serving
 
 TARGETS = [{"HeadYaw": 0.01 * k, "LKneePitch": 0.02 * k} for k in range(1, 11)]
@@ -105,7 +105,7 @@ def test_a_retried_motion_runs_once_whatever_300_other_clients_sent_meanwhile(mo
 
 
 def test_exactly_once_memory_is_bounded_by_the_lease_not_by_what_strangers_send():
-    from backends import bridge_lease
+    from naocal.backends import bridge_lease
 
     with serving(FakeBackend(), replies_kept_per_client=8) as server:
         stranger = RawClient(server.endpoint)
@@ -130,7 +130,7 @@ import resource, sys
 resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))  # so a few hundred connections exhaust it
 sys.path.insert(0, {ROOT!r})
 from tests.bridge_fakes import FakeBackend
-from backends.bridge_server import BridgeServer
+from naocal.backends.bridge_server import BridgeServer
 server = BridgeServer(FakeBackend(), "tcp://127.0.0.1:0", driver="fake", clock="simulated").start()
 print(server.endpoint, flush=True)
 server.serve_forever()
@@ -200,7 +200,7 @@ def test_bind_addresses_are_read_the_way_libzmq_reads_them_and_refused_unless_lo
 
 
 def test_loopback_in_any_spelling_libzmq_accepts_passes():
-    from backends.bridge_endpoint import tcp_listen_hosts
+    from naocal.backends.bridge_endpoint import tcp_listen_hosts
 
     for bind in ("tcp://127.0.0.1:0", "tcp://127.1:7790", "tcp://0x7f.1:7790", "tcp://2130706433:7790",
                  "tcp://127.0.0.1%lo:7790", "tcp://[::1]:7790", "tcp://[::ffff:127.0.0.1]:7790", "tcp://localhost:*",
@@ -212,8 +212,7 @@ def test_loopback_in_any_spelling_libzmq_accepts_passes():
 
 
 def test_the_bound_address_is_checked_again_after_binding(monkeypatch):
-    import backends.bridge_server as bridge_server
-
+    import naocal.backends.bridge_server as bridge_server
     monkeypatch.setattr(bridge_server, "check_bind_address", lambda bind, allow_remote: None)  # a parser bug
     server = BridgeServer(FakeBackend(), "tcp://0.0.0.0:0")
     with pytest.raises(NaocalError, match="ended up listening on tcp://0.0.0.0:.*refused"):
@@ -231,12 +230,12 @@ def test_serve_refuses_the_source_address_forms_in_one_line():
 @pytest.mark.parametrize("endpoint", ["http://nao.local:7790", "tcp://nao.local", "tcp://nao.local:port",
                                       "tcp://nao.local:70000", "nao.local:7790", "tcp://::1:7790", "tcp://a b:1"])
 def test_a_bad_client_endpoint_is_one_line_and_exit_2(endpoint, capsys):
-    import tools.cli as cli
-    from backends.bridge_endpoint import check_client_endpoint
+    import naocal.tools.cli as cli
+    from naocal.backends.bridge_endpoint import check_client_endpoint
 
     with pytest.raises(BridgeError, match="expected tcp://HOST:PORT|IPv6"):
         check_client_endpoint(endpoint)
-    cli.VERB_MODULES, saved = ("tools.cmd_bridge",), cli.VERB_MODULES
+    cli.VERB_MODULES, saved = ("naocal.tools.cmd_bridge",), cli.VERB_MODULES
     try:
         code = cli.main(["bridge", "ping", "--endpoint", endpoint, "--timeout-s", "0.2"])
     finally:
@@ -246,9 +245,8 @@ def test_a_bad_client_endpoint_is_one_line_and_exit_2(endpoint, capsys):
 
 
 def test_calibrate_refuses_a_bad_endpoint_before_writing_anything(tmp_path, capsys):
-    pytest.importorskip("tools.cmd_calibrate")
-    import tools.cli as cli
-
+    pytest.importorskip("naocal.tools.cmd_calibrate")
+    import naocal.tools.cli as cli
     code = cli.main(["calibrate", "--backend", "bridge", "--endpoint", "tcp://nao.local", "--out",
                      str(tmp_path / "run")])
     err = capsys.readouterr().err
@@ -309,9 +307,8 @@ def test_the_start_lines_say_whether_curve_is_on(tmp_path):
 
 
 def test_keygen_does_not_tell_a_client_to_keep_its_secret_on_the_server(tmp_path, capsys):
-    import tools.cli as cli
-
-    cli.VERB_MODULES, saved = ("tools.cmd_bridge",), cli.VERB_MODULES
+    import naocal.tools.cli as cli
+    cli.VERB_MODULES, saved = ("naocal.tools.cmd_bridge",), cli.VERB_MODULES
     try:
         assert cli.main(["bridge", "keygen", "--out", str(tmp_path), "--name", "agent"]) == 0
     finally:
@@ -352,7 +349,7 @@ def test_a_full_disk_under_the_journal_is_an_error_reply_naming_the_file_and_the
         monkeypatch.undo()
         agent.command(TARGETS[3], 0.2)
     assert sent_targets(fake) == [TARGETS[0], TARGETS[1], TARGETS[3]]
-    from backends.bridge_lease import LeaseJournal
+    from naocal.backends.bridge_lease import LeaseJournal
 
     restored = LeaseJournal(journal).load(replies_kept=32)  # readable: no torn record inside
     assert restored is not None and restored.entries() == 2
@@ -371,7 +368,7 @@ def test_a_journal_that_cannot_be_written_at_start_is_one_line(tmp_path, monkeyp
 AGENT = f"""
 import sys, time
 sys.path.insert(0, {ROOT!r})
-from backends.bridge import BridgeBackend
+from naocal.backends.bridge import BridgeBackend
 agent = BridgeBackend(sys.argv[1], timeout_s=2.0, lease_file=sys.argv[2])
 agent.command({{"HeadYaw": 0.1}}, 0.2)
 print("moved", flush=True)
@@ -486,7 +483,7 @@ def test_a_journal_key_or_token_that_is_not_a_regular_file_is_refused_without_ha
 def test_journal_records_of_the_wrong_types_are_ignored(tmp_path):
     import msgpack
 
-    from backends.bridge_lease import LeaseJournal, digest
+    from naocal.backends.bridge_lease import LeaseJournal, digest
 
     lease = digest("T" * 43)
     good = protocol.pack(protocol.ok_reply("agent:1", None))

@@ -7,11 +7,11 @@ import time
 
 import pytest
 
-mock = pytest.importorskip("backends.mock")
+mock = pytest.importorskip("naocal.backends.mock")
 
-from backends.bridge_keys import load_client_keys  # noqa: E402
-from backends.bridge_server import BridgeServer, write_curve_keys  # noqa: E402
-from tools import cli  # noqa: E402
+from naocal.backends.bridge_keys import load_client_keys  # noqa: E402
+from naocal.backends.bridge_server import BridgeServer, write_curve_keys  # noqa: E402
+from naocal.tools import cli  # noqa: E402
 
 LEG = ("LHipYawPitch", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch", "LAnkleRoll", "RHipYawPitch", "RHipRoll",
        "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll", "HeadYaw", "HeadPitch")
@@ -37,7 +37,7 @@ def naocal(argv, capsys):
 
 
 def offsets_of(tmp_path, body_id, head_id, c_rad=0.0):
-    from solver.offsets import offsets_from_alpha, write_offsets
+    from naocal.solver.offsets import offsets_from_alpha, write_offsets
 
     offsets = offsets_from_alpha({j: -c_rad for j in LEG}, (0.0, 0.0, 0.0), {leg: (0.0, 0.0, 0.0) for leg in "LR"},
                                  robot={"body_id": body_id, "head_id": head_id},

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from solver import camera
+from naocal.solver import camera
 
 K = (-0.08, 0.03, 0.002, -0.001, 0.01)
 INTR = {"fx_px": 610.0, "fy_px": 605.0, "cx_px": 318.0, "cy_px": 243.0, "distortion": list(K),
@@ -87,7 +87,7 @@ def test_unknown_component_is_refused():
 
 
 def test_default_intrinsics_come_from_the_robot_description():
-    from solver.robot import default_intrinsics, nao
+    from naocal.solver.robot import default_intrinsics, nao
 
     assert default_intrinsics() == nao().camera("bottom").intrinsics()
     assert default_intrinsics("top")["height_px"] == 480
@@ -111,7 +111,7 @@ def test_undistortion_inverts_the_projection_and_agrees_with_opencv():
 
 
 def test_plane_homography_maps_a_plane_as_the_projection_does():
-    from solver.transforms import make_transform, rot_rpy
+    from naocal.solver.transforms import make_transform, rot_rpy
 
     intrinsics = {"fx_px": 600.0, "fy_px": 610.0, "cx_px": 320.0, "cy_px": 240.0}
     T_cam_plane = make_transform(rot_rpy(0.2, -0.3, 0.1) @ np.array([[0, 0, -1.0], [0, 1, 0], [1, 0, 0]]),

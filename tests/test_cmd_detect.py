@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from agent.board_detect import image_order
+from naocal.agent.board_detect import image_order
 from conftest import ROOT
 from tests.synthetic_boards import board_homography, render
-from tools.cli import main
+from naocal.tools.cli import main
 
 DATA = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009"
 REAL = [str(DATA / f"image_{i}.png") for i in range(6)]
@@ -139,7 +139,7 @@ def test_a_chroma_channel_of_a_grey_image_is_bad_input(tmp_path, capsys):
 def test_no_traceback_from_the_installed_command(tmp_path):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"\x89PNG garbage")
-    run = subprocess.run([sys.executable, "-m", "tools", "detect", str(bad)], cwd=ROOT, capture_output=True,
+    run = subprocess.run([sys.executable, "-m", "naocal", "detect", str(bad)], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 2 and "Traceback" not in run.stderr and run.stdout == ""
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from solver.dataset import write_dataset
-from solver.offsets import read_offsets
+from naocal.solver.dataset import write_dataset
+from naocal.solver.offsets import read_offsets
 from tests.cli_runner import naocal
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from tools.cli import main
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.tools.cli import main
 
 DEG = np.pi / 180
 
@@ -153,8 +153,8 @@ def test_a_list_option_with_an_empty_name_is_refused_not_the_default(synthetic_d
 
 
 def test_the_arms_list_options_refuse_an_empty_name_too(tmp_path, capsys):
-    from solver.errors import NaocalError
-    from kinds.arm.verbs import parse_arm_effects
+    from naocal.solver.errors import NaocalError
+    from naocal.kinds.arm.verbs import parse_arm_effects
 
     with pytest.raises(NaocalError, match="--effects ',,': an empty name"):
         parse_arm_effects(",,")

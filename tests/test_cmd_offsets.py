@@ -14,13 +14,15 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-import tools.cli
-from solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, leg_joints
-from solver.offsets import read_offsets, write_offsets
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.joints import HEAD_JOINTS, JOINTS, LEG_JOINTS, leg_joints
+from naocal.solver.offsets import read_offsets, write_offsets
 from tests.test_offsets import make_offsets
 from tests.cfg_reader import parse_cfg
-from tools.export.bhuman import joint_keys
-from tools.export.urdf import export_urdf
+from naocal.tools.export.bhuman import joint_keys
+from naocal.tools.export.urdf import export_urdf
 
 ROOT = tools.cli.__file__.rsplit("/tools/", 1)[0]
 ALL_VERB_MODULES = tools.cli.VERB_MODULES
@@ -114,9 +116,9 @@ def test_missing_file_is_refused(capsys, tmp_path):
 
 
 def test_exit_codes_through_a_real_process(tmp_path, offsets_file):
-    command = [sys.executable, "-m", "tools"]
+    command = [sys.executable, "-m", "naocal"]
     if any(importlib.util.find_spec(m) is None for m in ALL_VERB_MODULES):  # other verbs not written yet
-        command = [sys.executable, "-c", "import sys, tools.cli as c; c.VERB_MODULES = ('tools.cmd_offsets',); "
+        command = [sys.executable, "-c", "import sys, naocal.tools.cli as c; c.VERB_MODULES = ('naocal.tools.cmd_offsets',); "
                                          "sys.exit(c.main())"]
     run = lambda *argv: subprocess.run([*command, "offsets", *map(str, argv)],  # noqa: E731
                                        cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -350,7 +352,7 @@ def _limits(text):
 
 def model_pose(link, theta, offsets):
     """naocal's model at encoder readings theta with the file's alphas (alpha = -c), T_torso_<link>."""
-    from solver.kinematics import camera_fk, leg_fk
+    from naocal.solver.kinematics import camera_fk, leg_fk
 
     alpha = {j: -offsets.joint_offset(j) for j in JOINTS}
     if link in ("l_sole", "r_sole"):

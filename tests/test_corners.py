@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from agent.corners import REASONS, detect_board_vertices, order_like_prediction
-from backends.mock import MockBackend
+from naocal.agent.corners import REASONS, detect_board_vertices, order_like_prediction
+from naocal.backends.mock import MockBackend
 from tests.mock_stances import capture_at, visible_stances
 
 N_STANCES = 100

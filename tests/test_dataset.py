@@ -6,14 +6,14 @@ import os
 import numpy as np
 import pytest
 
-from solver.dataset import (
+from naocal.solver.dataset import (
     COMMANDED_COLUMNS, FLOAT_COLUMNS, META_FILE, OBSERVATIONS_FILE, REQUIRED_COLUMNS,
     ROWS_IN_IMAGE_COLUMN, SCHEMA, VELOCITY_COLUMNS, Dataset, DatasetAppender, format_rows, read_dataset,
     write_dataset,
 )
-from solver.errors import DataError
-from solver.joints import JOINTS
-from solver.limits import joint_limits
+from naocal.solver.errors import DataError
+from naocal.solver.joints import JOINTS
+from naocal.solver.limits import joint_limits
 
 
 def make_meta(**changes):

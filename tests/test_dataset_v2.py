@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from solver.dataset import (GRAVITY_COLUMNS, META_FILE, OBSERVATIONS_FILE, SCHEMA_V2, DatasetAppender,
+from naocal.solver.dataset import (GRAVITY_COLUMNS, META_FILE, OBSERVATIONS_FILE, SCHEMA_V2, DatasetAppender,
                             read_dataset, upgrade_v1, write_dataset)
-from solver.errors import DataError
+from naocal.solver.errors import DataError
 
 JOINTS = ("HeadYaw", "HeadPitch", "RHipYawPitch", "RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll")
 
@@ -70,7 +70,7 @@ def test_round_trip_with_two_cameras_two_targets_a_joint_subset_and_gravity(tmp_
 
 
 def test_the_model_sees_both_cameras_the_targets_and_per_image_gravity(tmp_path):
-    from solver.adapter import model_data_from_dataset
+    from naocal.solver.adapter import model_data_from_dataset
 
     write_dataset((make_meta(), make_columns(gravity=True)), tmp_path / "ds")
     data = model_data_from_dataset(read_dataset(tmp_path / "ds"))

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from agent.board_detect import BoardSpec, channel_image, corner_asymmetry, detect_board, labellings
-from agent.corners import detect_board_vertices
+from naocal.agent.board_detect import BoardSpec, channel_image, corner_asymmetry, detect_board, labellings
+from naocal.agent.corners import detect_board_vertices
 
 DATA = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009"
 BOARD = BoardSpec(4, 4, square_m=0.1, colours=("orange", "blue"))

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from agent.board_detect import BoardSpec, detect_board, image_order
+from naocal.agent.board_detect import BoardSpec, detect_board, image_order
 from tests.stress_boards import CATEGORIES, Lens, Look, Print, render, scene
 from tests.synthetic_boards import board_homography
 

@@ -11,18 +11,18 @@ import itertools
 import numpy as np
 import pytest
 
-from solver.crossval import grouped_cv_rms, stance_folds
-from solver.diagnostics import (
+from naocal.solver.crossval import grouped_cv_rms, stance_folds
+from naocal.solver.diagnostics import (
     apparent_errors, candidate_effects, compare, diagnose_result, forward_selection, locate, partial_residuals,
     rank_candidates,
 )
-from solver.noisefloor import RigidSplit, noise_floor_estimate, reading_resolution
-from solver.scoretest import effective_clusters, score_test, stance_clusters
-from solver.identify import identify
-from solver.joints import HEAD_JOINTS, LEG_JOINTS
-from solver.model import Model
-from solver.registry import EXTRA_EFFECTS, Registry
-from sim.synthetic import random_truth, synthesize
+from naocal.solver.noisefloor import RigidSplit, noise_floor_estimate, reading_resolution
+from naocal.solver.scoretest import effective_clusters, score_test, stance_clusters
+from naocal.solver.identify import identify
+from naocal.solver.joints import HEAD_JOINTS, LEG_JOINTS
+from naocal.solver.model import Model
+from naocal.solver.registry import EXTRA_EFFECTS, Registry
+from naocal.sim.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
 NOISE_PX = 0.1
@@ -148,8 +148,8 @@ def test_stance_clustering_is_needed_with_quantised_encoders():
     result = base_fit(310, (), 0.1)
     ext_ranking = rank_candidates(result)
     assert not any(c.significant for c in ext_ranking)
-    from solver.diagnostics import _Extension  # the same projection, classic statistic
-    from solver.scoretest import project_off
+    from naocal.solver.diagnostics import _Extension  # the same projection, classic statistic
+    from naocal.solver.scoretest import project_off
 
     ext = _Extension(result, candidate_effects(result.registry))
     J_tilde = project_off(ext.Q, ext.J[:, ext.columns["elasticity"]])
@@ -211,8 +211,7 @@ def test_two_hidden_effects_near_tie_for_raw_drss():
 def test_stepwise_selection_drops_a_stand_in(monkeypatch):
     """If a stand-in gets in first (here forced: elasticity for hidden link lengths + intrinsics), it is dropped
     once the true effects are in, because it no longer explains anything significant."""
-    import solver.diagnostics as diagnostics
-
+    import naocal.solver.diagnostics as diagnostics
     data, _ = make(21, ("link_lengths", "intrinsics"))
     real = diagnostics.rank_candidates
     calls = []
@@ -369,7 +368,7 @@ def test_apparent_and_partial_residuals_show_the_fitted_term():
     error = apparent_errors(fit, [f"joint_offset.{joint}"], partial_residuals(fit, [f"elasticity.{joint}"]))[:, 0]
     ok = np.isfinite(error)
     assert np.all(data.leg[ok] == "R")
-    from solver.joints import JOINT_INDEX
+    from naocal.solver.joints import JOINT_INDEX
 
     slope = np.polyfit(data.tau[ok, JOINT_INDEX[joint]], error[ok], 1)[0]
     # the sag C tau, switched off, reads as an offset c = -C tau (q = theta - c)

@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from solver.dataset import write_dataset
-from solver.effects import EXTRA_EFFECTS
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from tools.cli import build_parser, main
+from naocal.solver.dataset import write_dataset
+from naocal.solver.effects import EXTRA_EFFECTS
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.tools.cli import build_parser, main
 
 NOISE_PX = 0.1
 
@@ -205,12 +205,12 @@ def test_the_verdict_prints_commands_that_run_as_pasted(elastic_dataset, tmp_pat
 
 
 def test_the_verdict_fixes_what_the_data_cannot_tell_and_diagnose_accepts_it(elastic_dataset, capsys):
-    from solver.dataset import read_dataset
-    from solver.diagnostics import diagnose_result
-    from solver.identify import identify
-    from solver.adapter import model_data_from_dataset
-    from solver.registry import Registry
-    from kinds.nao.diagnose import format_text
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.diagnostics import diagnose_result
+    from naocal.solver.identify import identify
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.registry import Registry
+    from naocal.kinds.nao.diagnose import format_text
 
     # (not the camera's yaw: held at 0 against its truth, it made the ankles' compliance 1.5 rad/(N m), a result
     # identify refuses to write since it checks the file's limits)
@@ -253,12 +253,12 @@ def test_the_report_without_an_after_has_no_after_and_keeps_untestable_regressor
     """No significant candidate: no before/after wording; a regressor too few images carry keeps its row."""
     import html as html_lib
 
-    from solver.dataset import read_dataset
-    from solver.diagnostics import diagnose_result
-    from solver.identify import identify
-    from solver.adapter import model_data_from_dataset
-    from solver.registry import Registry
-    from tools.report import write_report
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.diagnostics import diagnose_result
+    from naocal.solver.identify import identify
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.registry import Registry
+    from naocal.tools.report import write_report
 
     write_synthetic(tmp_path / "plain", 5)
     diagnosis = diagnose_result(identify(model_data_from_dataset(read_dataset(tmp_path / "plain")), Registry()),
@@ -278,12 +278,12 @@ def test_the_report_without_an_after_has_no_after_and_keeps_untestable_regressor
 
 def test_the_vector_plots_before_and_after_share_one_scale_and_say_it(elastic_dataset):
     """Each panel had its own scale: the 'after' arrows, drawn as long as the 'before' ones, hid the fall."""
-    from solver.dataset import read_dataset
-    from solver.diagnostics import diagnose_result, registry_with
-    from solver.identify import identify
-    from solver.adapter import model_data_from_dataset
-    from solver.registry import Registry
-    from tools.report import MAX_ARROWS, _vectors
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.diagnostics import diagnose_result, registry_with
+    from naocal.solver.identify import identify
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.registry import Registry
+    from naocal.tools.report import MAX_ARROWS, _vectors
 
     data = model_data_from_dataset(read_dataset(elastic_dataset))
     before = identify(data, Registry())
@@ -330,10 +330,10 @@ def test_the_report_shows_the_fit_of_the_identify_command_it_suggests(elastic_da
 
 def test_an_implausible_value_is_flagged_as_such_in_the_report(elastic_dataset):
     """A negative compliance is no physics: the effect says so (Effect.plausible_min), the report's row shows it."""
-    from solver.dataset import read_dataset
-    from solver.effects import EFFECTS
-    from solver.fit import identify_dataset
-    from tools.report import _parameter_rows
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.fit import identify_dataset
+    from naocal.tools.report import _parameter_rows
 
     elasticity = EFFECTS["elasticity"]
     assert "a compliance is never negative" in elasticity.implausibility(-0.05, 0.01)

@@ -17,10 +17,10 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-if importlib.util.find_spec("tools.cmd_simulate") is None:
+if importlib.util.find_spec("naocal.tools.cmd_simulate") is None:
     pytest.skip("naocal simulate is not available yet", allow_module_level=True)
 
-from tools.cli import main  # noqa: E402
+from naocal.tools.cli import main  # noqa: E402
 
 SEED = 7
 # Realistic sizes, in the mock's units (see backends/mock.py).
@@ -55,7 +55,7 @@ def simulated(tmp_path_factory):
 
 
 def _images_of_leg(dataset, leg):
-    from solver.dataset import read_dataset
+    from naocal.solver.dataset import read_dataset
 
     columns = read_dataset(dataset).as_v2().columns
     return [int(i) for i, g in zip(columns["image"], columns["target"]) if g == leg]

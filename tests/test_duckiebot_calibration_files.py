@@ -6,12 +6,12 @@ import re
 import numpy as np
 import pytest
 
-from kinds.duckiebot.calibration_files import (CameraCalibration, DuckietownCalibration, apply_homography,
+from naocal.kinds.duckiebot.calibration_files import (CameraCalibration, DuckietownCalibration, apply_homography,
                                                check_calibration, ground_homography, parse_simple_yaml,
                                                read_calibration, read_extrinsic, read_intrinsic, read_kinematics,
                                                write_calibration, yaml_float)
-from kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
-from solver.errors import DataError, NaocalError
+from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
+from naocal.solver.errors import DataError, NaocalError
 
 # The YAML 1.1 float pattern (yaml.org/type/float.html), which PyYAML (Duckietown's reader) resolves floats by:
 # without a '.', '1e-05' is a string to it.

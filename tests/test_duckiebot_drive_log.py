@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from kinds.duckiebot.drive_log import SCHEMA, read_drive_log, write_drive_log, write_frame
-from solver.errors import DataError
+from naocal.kinds.duckiebot.drive_log import SCHEMA, read_drive_log, write_drive_log, write_frame
+from naocal.solver.errors import DataError
 
 W, H = 64, 48  # small frames keep the tests fast; the reader takes the size from log.json
 

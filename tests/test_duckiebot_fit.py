@@ -6,18 +6,18 @@ import cv2
 import numpy as np
 import pytest
 
-from kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
-from kinds.duckiebot.detect import detect_markers
-from kinds.duckiebot.fit import (CAMERA, Drive, DriveEquations, Sightings, fit_drive,
+from naocal.kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
+from naocal.kinds.duckiebot.detect import detect_markers
+from naocal.kinds.duckiebot.fit import (CAMERA, Drive, DriveEquations, Sightings, fit_drive,
                                  pose_parameters, trajectory)
-from kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
-from kinds.duckiebot.intrinsics import LensCamera
-from kinds.duckiebot.render import (calibration_scene, hidden_robot, joint_program, paper_program,
+from naocal.kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
+from naocal.kinds.duckiebot.intrinsics import LensCamera
+from naocal.kinds.duckiebot.render import (calibration_scene, hidden_robot, joint_program, paper_program,
                                     render_drive_log, simulate_drive)
-from kinds.duckiebot.robot import camera_mount
-from solver.camera import project, undistort_points
-from solver.errors import NaocalError, SolveError
-from solver.transforms import invert_transform, make_transform, rot_z, transform_points
+from naocal.kinds.duckiebot.robot import camera_mount
+from naocal.solver.camera import project, undistort_points
+from naocal.solver.errors import NaocalError, SolveError
+from naocal.solver.transforms import invert_transform, make_transform, rot_z, transform_points
 
 LOG_K = 27.0  # the k the logs state (Duckietown's default): the fitted gain and trim are in its units
 Z_LIMIT = 3.5

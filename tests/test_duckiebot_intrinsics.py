@@ -5,9 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
-from kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens, fit_camera
-from kinds.duckiebot.render import hidden_robot
-from solver.errors import NaocalError
+from naocal.kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens, fit_camera
+from naocal.kinds.duckiebot.render import hidden_robot
+from naocal.solver.errors import NaocalError
 
 SIZE = (640, 480)
 

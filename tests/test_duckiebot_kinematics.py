@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from kinds.duckiebot.kinematics import (body_velocity, duty_to_pwm, forward_kinematics, integrate_pose,
+from naocal.kinds.duckiebot.kinematics import (body_velocity, duty_to_pwm, forward_kinematics, integrate_pose,
                                         inverse_kinematics, wheel_speeds)
-from kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
-from solver.camera import project_points
-from solver.errors import NaocalError
-from solver.transforms import invert_transform, transform_points
+from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
+from naocal.solver.camera import project_points
+from naocal.solver.errors import NaocalError
+from naocal.solver.transforms import invert_transform, transform_points
 
 
 def test_db21_and_db18_descriptions():

@@ -5,16 +5,16 @@ import cv2
 import numpy as np
 import pytest
 
-from kinds.duckiebot.calibration_files import (apply_homography, duckietown_calibration, read_calibration,
+from naocal.kinds.duckiebot.calibration_files import (apply_homography, duckietown_calibration, read_calibration,
                                                write_calibration)
-from kinds.duckiebot.detect import detect_boards, detect_markers
-from kinds.duckiebot.drive_log import read_drive_log
-from kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens
-from kinds.duckiebot.kinematics import wheel_speeds
-from kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, paper_program, render_drive_log,
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
+from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.intrinsics import LensCamera, board_points, camera_difference_px, choose_lens
+from naocal.kinds.duckiebot.kinematics import wheel_speeds
+from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, paper_program, render_drive_log,
                                     undistort_exact)
-from solver.camera import project_points
-from solver.transforms import invert_transform, make_transform, rot_z, transform_points
+from naocal.solver.camera import project_points
+from naocal.solver.transforms import invert_transform, make_transform, rot_z, transform_points
 
 MIN_MARKER_SIDE_PX = 20.0  # markers whose every side is at least this long are held to the sub-pixel bound
 

@@ -8,15 +8,17 @@ import json
 import numpy as np
 import pytest
 
-import tools.cli
-from solver.crossval import grouped_cv_rms
-from solver.dataset import write_dataset
-from solver.diagnostics import rank_candidates
-from solver.errors import DataError
-from solver.identify import identify
-from solver.offsets import read_offsets
-from solver.registry import Registry
-from sim.synthetic import dataset_parts, random_truth, synthesize
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.crossval import grouped_cv_rms
+from naocal.solver.dataset import write_dataset
+from naocal.solver.diagnostics import rank_candidates
+from naocal.solver.errors import DataError
+from naocal.solver.identify import identify
+from naocal.solver.offsets import read_offsets
+from naocal.solver.registry import Registry
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
 
 NOISE_PX = 0.1
 SHIFT = ("camera.bottom.trans_x", "camera.bottom.trans_y", "camera.bottom.trans_z")
@@ -87,7 +89,7 @@ def test_identify_writes_it_to_the_heads_section(tmp_path, capsys):
 
 def test_offsets_show_lists_it(tmp_path, capsys):
     """`naocal offsets show` shows every fitted parameter that has no table of its own (the camera's rotation has)."""
-    from solver.offsets import offsets_from_parameters, write_offsets
+    from naocal.solver.offsets import offsets_from_parameters, write_offsets
 
     params = {f"camera.bottom.{a}": {"value": -0.05, "std": 1e-4, "unit": "rad"} for a in ("roll", "pitch", "yaw")}
     params.update({f"camera.bottom.trans_{a}": {"value": v, "std": 1e-5, "unit": "m"}
@@ -105,12 +107,12 @@ def test_offsets_show_lists_it(tmp_path, capsys):
 def test_the_mock_simulates_it_from_its_own_module(tmp_path):
     """Its mock injection is its module's `mock_perturbation`: the mock moves each camera's mount in the head frame
     by what it drew, renders the boards there, and says so in its truth; nothing else names the effect."""
-    from agent.corners import detect_board_vertices
-    from backends.mock import EFFECTS, MockBackend, parse_effect_sizes
-    from body.nao_body import T_WORLD_TORSO
-    from solver.effects import EFFECTS as MODEL_EFFECTS
-    from solver.kinematics import chain_frames
-    from solver.nao_model import head_chain
+    from naocal.agent.corners import detect_board_vertices
+    from naocal.backends.mock import EFFECTS, MockBackend, parse_effect_sizes
+    from naocal.body.nao_body import T_WORLD_TORSO
+    from naocal.solver.effects import EFFECTS as MODEL_EFFECTS
+    from naocal.solver.kinematics import chain_frames
+    from naocal.solver.nao_model import head_chain
     from tests.mock_stances import settle_and_capture, visible_stances
 
     assert "camera_translation" in EFFECTS

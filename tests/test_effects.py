@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from solver.effect import Effect, Setup
-from solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, owner_of, parse_effect_names
-from solver.errors import NaocalError
-from solver.identify import identify
-from solver.model import Model
-from solver.registry import Registry
-from solver.robot import nao
-from sim.synthetic import random_truth, synthesize_views
+from naocal.solver.effect import Effect, Setup
+from naocal.solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, owner_of, parse_effect_names
+from naocal.solver.errors import NaocalError
+from naocal.solver.identify import identify
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.robot import nao
+from naocal.sim.synthetic import random_truth, synthesize_views
 
 # Two cameras and three targets: the sandals on hanging legs and a floor board under a supporting leg; irregular
 # vertex counts (24 and 9). Views beyond the joint limits are fine for the mathematics.
@@ -55,7 +55,7 @@ def test_each_effect_is_complete(name):
     else:  # its mock injection: a plain description, drawn from the stream it is given, zero at size 0
         import json
 
-        from solver.effect import MockPerturbation
+        from naocal.solver.effect import MockPerturbation
 
         first = effect.mock_perturbation(np.random.default_rng(7), 1e-3, Setup.everything())
         again = effect.mock_perturbation(np.random.default_rng(7), 1e-3, Setup.everything())
@@ -70,7 +70,7 @@ def test_each_effect_is_complete(name):
 
 @pytest.mark.parametrize("name", ALL_EFFECTS)
 def test_each_effect_writes_and_checks_its_section(name):
-    from solver.errors import DataError
+    from naocal.solver.errors import DataError
 
     effect = EFFECTS[name]
     setup = Setup.everything()
@@ -200,12 +200,12 @@ class _Shift(Effect):
     summary = "test"
 
     def parameters(self, setup):
-        from solver.effect import Parameter
+        from naocal.solver.effect import Parameter
 
         return [Parameter(f"shift.{c}", self.name, "m", 0.002, camera=c) for c in setup.cameras]
 
     def camera_terms(self, layout, values):
-        from solver.effect import CameraTerm
+        from naocal.solver.effect import CameraTerm
 
         return [CameraTerm(p.camera, translation=np.array([values[i], 0.0, 0.0]),
                            translation_params=[(i, np.array([1.0, 0.0, 0.0]))])
@@ -215,8 +215,8 @@ class _Shift(Effect):
 def test_camera_terms_of_two_effects_combine(monkeypatch):
     """A second effect may move a camera that camera_rotation turns: the translation and the rotation compose, and
     the Jacobian stays exact."""
-    import solver.effects
-
+    import naocal.solver.effects  # noqa
+    from naocal import solver
     monkeypatch.setitem(solver.effects.EFFECTS, "test_shift", _Shift())
     data = wide_data(velocity=0.0)
     registry = Registry(("test_shift",), setup=WIDE)
@@ -238,7 +238,7 @@ def test_camera_terms_of_two_effects_combine(monkeypatch):
 @pytest.mark.parametrize("name", EXTRA_EFFECTS)
 def test_each_effects_report_picture_is_well_formed(name):
     """partial_residual_panels of a fit with the effect: points and the fitted line, finite, one group per point."""
-    from sim.synthetic import synthesize
+    from naocal.sim.synthetic import synthesize
 
     rng = np.random.default_rng(6)
     velocity = np.zeros((48, 14))

@@ -11,9 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import tools.cli
-from solver.joints import HEAD_JOINTS, LEG_JOINTS
-from solver.offsets import offsets_from_alpha, write_offsets
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.joints import HEAD_JOINTS, LEG_JOINTS
+from naocal.solver.offsets import offsets_from_alpha, write_offsets
 from tests.cfg_reader import parse_cfg, rad
 
 DATA = Path(__file__).parent / "data" / "export"

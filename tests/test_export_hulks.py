@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import tools.cli
+import naocal.tools.cli  # noqa
+
+from naocal import tools
 from tests.test_export_bhuman import offsets_file
-from tools.export.hulks import hulks_correction, naocal_camera_rpy
+from naocal.tools.export.hulks import hulks_correction, naocal_camera_rpy
 
 DATA = Path(__file__).parent / "data" / "export" / "hulks"
 BODY, HEAD = "P0000073A19S31T00003", "P0000074A09S31T00003"

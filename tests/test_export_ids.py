@@ -5,9 +5,11 @@ import json
 
 import pytest
 
-import tools.cli
-from solver.errors import DataError
-from solver.offsets import read_offsets, write_offsets
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.errors import DataError
+from naocal.solver.offsets import read_offsets, write_offsets
 from tests.test_offsets import make_offsets
 
 BAD_IDS = {
@@ -68,12 +70,12 @@ def unchecked_offsets(**robot):
 
 @pytest.mark.parametrize("key", ["id", "body_id", "head_id"])
 def test_every_writer_refuses_an_unsafe_id(key):
-    from solver.errors import NaocalError
-    from tools.export.bhuman import export_bhuman
-    from tools.export.common import calibrated
-    from tools.export.hulks import export_hulks
-    from tools.export.naodevils import export_naodevils
-    from tools.export.urdf import export_urdf
+    from naocal.solver.errors import NaocalError
+    from naocal.tools.export.bhuman import export_bhuman
+    from naocal.tools.export.common import calibrated
+    from naocal.tools.export.hulks import export_hulks
+    from naocal.tools.export.naodevils import export_naodevils
+    from naocal.tools.export.urdf import export_urdf
 
     offsets = unchecked_offsets(**{key: BAD_IDS["newline"]})
     cal = calibrated(offsets)

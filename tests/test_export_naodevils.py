@@ -8,8 +8,10 @@ from pathlib import Path
 
 import pytest
 
-import tools.cli
-from solver.limits import joint_limits
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.limits import joint_limits
 from tests.cfg_reader import parse_cfg, rad
 from tests.test_export_bhuman import KEYS_2024, key_of, offsets_file
 

@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from solver.errors import DataError
+from naocal.solver.errors import DataError
 from tests.cfg_reader import parse_cfg as read_cfg
-from tools.export import cfgtext, jsontext
+from naocal.tools.export import cfgtext, jsontext
 
 CFG = """// team comment: keep me
 offsets = {

@@ -8,10 +8,10 @@ import stat
 import numpy as np
 import pytest
 
-from solver.dataset import DatasetAppender, read_dataset
-from solver.errors import DiskFullError, NaocalError
-from solver.fileio import atomic_write_bytes, atomic_write_text
-from sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.solver.dataset import DatasetAppender, read_dataset
+from naocal.solver.errors import DiskFullError, NaocalError
+from naocal.solver.fileio import atomic_write_bytes, atomic_write_text
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
 
 
 def failing(real, code=errno.ENOSPC):

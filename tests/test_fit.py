@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from servo_cases import STEP_RAD, servo_dataset
-from sim.synthetic import random_truth
-from solver.dataset import write_dataset
-from solver.fit import identify_dataset
-from tools.cli import main
+from naocal.sim.synthetic import random_truth
+from naocal.solver.dataset import write_dataset
+from naocal.solver.fit import identify_dataset
+from naocal.tools.cli import main
 
 DEG = np.pi / 180
 
@@ -28,7 +28,7 @@ def offset_errors(fit, truth):
 def test_the_agent_and_identify_fit_the_same_way(tmp_path, capsys):
     """A dataset with a lag probe's moving captures: `naocal identify` and the agent's identification state give the
     same offsets, with HipYawPitch tied (one motor) and the moving captures set aside (no time_lag in the model)."""
-    from agent.states import AgentSettings, Context, Identification
+    from naocal.agent.states import AgentSettings, Context, Identification
 
     rng = np.random.default_rng(40)
     truth = random_truth(rng)

@@ -8,10 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import tools.cli
-from solver.dataset import read_dataset
-from solver.errors import DataError
-from solver.offsets import SCHEMA_V1, format_offsets, read_offsets, validate
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.dataset import read_dataset
+from naocal.solver.errors import DataError
+from naocal.solver.offsets import SCHEMA_V1, format_offsets, read_offsets, validate
 
 V1 = Path(__file__).parent / "data" / "v1"
 

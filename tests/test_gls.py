@@ -5,14 +5,14 @@ it recovers the offsets that ordinary least squares loses, with standard deviati
 import numpy as np
 import pytest
 
-from sim.synthetic import dataset_parts, random_plan, random_truth
-from solver.adapter import make_model_data
-from solver.dataset import Dataset
-from solver.fit import identify_dataset
-from solver.gls import GLSProblem, angle_error_groups
-from solver.joints import JOINT_INDEX, LEG_JOINTS
-from solver.model import Model
-from solver.registry import Registry
+from naocal.sim.synthetic import dataset_parts, random_plan, random_truth
+from naocal.solver.adapter import make_model_data
+from naocal.solver.dataset import Dataset
+from naocal.solver.fit import identify_dataset
+from naocal.solver.gls import GLSProblem, angle_error_groups
+from naocal.solver.joints import JOINT_INDEX, LEG_JOINTS
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
 
 STEP = 2 * np.pi / 4096
 DEG = np.pi / 180
@@ -51,7 +51,7 @@ def offset_errors(fit, truth):
 def test_angle_error_groups_follow_the_held_commands():
     rng = np.random.default_rng(1)
     dataset = shared_step_dataset(rng, random_truth(rng), n_stances_per_leg=3)
-    from solver.adapter import model_data_from_dataset
+    from naocal.solver.adapter import model_data_from_dataset
     data = model_data_from_dataset(dataset, angles="measured")
     groups = dict(angle_error_groups(data, np.full(len(data.joints), STEP)))
     knee = groups[data.column("LKneePitch")]
@@ -68,7 +68,7 @@ def test_gls_normal_equations_are_those_of_the_dense_covariance_and_the_gradient
     rng = np.random.default_rng(2)
     truth = random_truth(rng)
     dataset = shared_step_dataset(rng, truth, n_stances_per_leg=2)
-    from solver.adapter import model_data_from_dataset
+    from naocal.solver.adapter import model_data_from_dataset
     data = model_data_from_dataset(dataset, angles="measured")
     registry = Registry()
     x0 = registry.from_dict(truth) * 0.9
@@ -140,9 +140,9 @@ def test_gls_in_chunks_equals_gls_in_one_chunk_and_the_dense_jackknife(monkeypat
     """Chunks of 8 images (stances cut by chunk edges): the same fit, standard deviations and residuals as one chunk
     to 1e-9, and the jackknife covariance (its left-out systems solved 5 clusters at a time) is the one built from
     the dense (2N x 2N) covariance."""
-    from solver import gls
-    from solver.adapter import model_data_from_dataset
-    from solver.gls import _blocks, identify_gls
+    from naocal.solver import gls
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.gls import _blocks, identify_gls
 
     monkeypatch.setattr(gls, "JACKKNIFE_BLOCK", 5)
     rng = np.random.default_rng(5)

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from solver.errors import SolveError
-from solver.identify import identify
-from solver.model import Model
-from solver.joints import LEG_JOINTS
-from solver.registry import EXTRA_EFFECTS, Registry
-from sim.synthetic import random_truth, synthesize
+from naocal.solver.errors import SolveError
+from naocal.solver.identify import identify
+from naocal.solver.model import Model
+from naocal.solver.joints import LEG_JOINTS
+from naocal.solver.registry import EXTRA_EFFECTS, Registry
+from naocal.sim.synthetic import random_truth, synthesize
 
 DEG = np.pi / 180
 
@@ -192,8 +192,8 @@ def test_std_counts_the_error_a_stance_shares_across_its_images():
 
 
 def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
-    from solver.joints import JOINTS
-    from solver.adapter import choose_angles, encoder_resolution
+    from naocal.solver.joints import JOINTS
+    from naocal.solver.adapter import choose_angles, encoder_resolution
 
     step = 0.1 * DEG
     sparse = np.array([0, 7, 19, 40, 41 + 12, 90]) * step  # smallest gap 7 steps: a few stances, far apart
@@ -212,7 +212,7 @@ def test_encoder_step_is_found_despite_wide_gaps_and_moving_readings():
 def test_status_codes_mean_the_same_for_both_solvers():
     """naocal's LM reports why it stopped with scipy.optimize.least_squares's codes (2: ftol, 3: xtol) and the
     message of one table, as the MINPACK path does."""
-    from solver.identify import TERMINATION_MESSAGES, Normal, levenberg_marquardt
+    from naocal.solver.identify import TERMINATION_MESSAGES, Normal, levenberg_marquardt
 
     rng = np.random.default_rng(3)
     A, b = rng.normal(size=(30, 3)), rng.normal(size=30)
@@ -233,9 +233,9 @@ def test_status_codes_mean_the_same_for_both_solvers():
 def test_one_encoder_step_for_every_joint_of_one_kind_of_encoder():
     """A joint that visits only 0 and +-0.3 deg must not claim a 0.3 deg encoder (and then take commands 0.15 deg
     away as its reading): all joints share the step the joints with many readings show, 0.1 deg."""
-    from solver.adapter import choose_angles
-    from solver.joints import JOINTS
-    from solver.quantisation import reading_resolution
+    from naocal.solver.adapter import choose_angles
+    from naocal.solver.joints import JOINTS
+    from naocal.solver.quantisation import reading_resolution
 
     step = 0.1 * DEG
     rng = np.random.default_rng(5)
@@ -270,7 +270,7 @@ def test_stance_clusters_are_the_straightforward_ones():
     stance); a moving image with them when a still one has its readings, else on its own."""
     from dataclasses import replace
 
-    from solver.scoretest import stance_cluster_of_image
+    from naocal.solver.scoretest import stance_cluster_of_image
 
     rng = np.random.default_rng(4)
     data = synthesize(rng, random_truth(rng), n_stances_per_leg=6, pixel_noise_px=0.0)

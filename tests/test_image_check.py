@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from solver.adapter import model_data_from_dataset
-from solver.dataset import read_dataset, write_dataset
-from solver.fit import identify_dataset
-from solver.image_check import apply_homographies, check_images, fit_homographies, least_median_homography
-from tools.cli import main
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.solver.adapter import model_data_from_dataset
+from naocal.solver.dataset import read_dataset, write_dataset
+from naocal.solver.fit import identify_dataset
+from naocal.solver.image_check import apply_homographies, check_images, fit_homographies, least_median_homography
+from naocal.tools.cli import main
 
 DEG = np.pi / 180
 REALDATA = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009"

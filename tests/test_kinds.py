@@ -3,9 +3,7 @@
 import argparse
 import json
 
-import kinds
-
-
+import naocal.kinds as kinds
 def _write(path, doc):
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc))

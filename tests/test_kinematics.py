@@ -12,10 +12,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import ROOT
-from solver import kinematics
-from solver.joints import HEAD_JOINTS, leg_joints
-from solver.nao_model import SANDAL_MASS_KG, board_vertices_sole, leg_chain
-from solver.urdf import nominal_urdf
+from naocal.solver import kinematics
+from naocal.solver.joints import HEAD_JOINTS, leg_joints
+from naocal.solver.nao_model import SANDAL_MASS_KG, board_vertices_sole, leg_chain
+from naocal.solver.urdf import nominal_urdf
 
 URDF = ROOT / "solver" / "data" / "nao_v50.urdf"
 
@@ -172,10 +172,10 @@ def test_board_vertices_span_documented_area():
 
 def test_projection_of_sole_points_equals_the_models_prediction():
     """The planner's and the agent's projection (no distortion) is the identification model's at zero offsets."""
-    from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
-    from solver.model import Model
-    from solver.registry import Registry
-    from sim.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
+    from naocal.solver.joints import HEAD_COLUMNS, LEG_COLUMNS
+    from naocal.solver.model import Model
+    from naocal.solver.registry import Registry
+    from naocal.sim.synthetic import DEFAULT_INTRINSICS, make_model_data, random_plan
 
     rng = np.random.default_rng(5)
     theta, leg, stance, posture = random_plan(rng, 4, 2)
@@ -216,7 +216,7 @@ def test_the_urdf_holds_the_documented_geometry_and_masses(xml_chain):
 
 def test_elementary_rotations_and_their_derivatives():
     """rot_x, rot_y, rot_z: right-handed rotations of any shape of angles; d_rot_*: their exact derivatives."""
-    from solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_axis_angle, rot_x, rot_y, rot_z
+    from naocal.solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_axis_angle, rot_x, rot_y, rot_z
 
     angles = np.random.default_rng(2).uniform(-3.0, 3.0, (4, 5))
     for axis, rot, d_rot in ((0, rot_x, d_rot_x), (1, rot_y, d_rot_y), (2, rot_z, d_rot_z)):

@@ -3,9 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from solver import limits
-from solver.errors import DataError
-from solver.joints import JOINTS
+from naocal.solver import limits
+from naocal.solver.errors import DataError
+from naocal.solver.joints import JOINTS
 
 
 def test_head_pitch_limits_hit_the_documented_table_rows_on_both_sides():
@@ -53,7 +53,7 @@ def test_a_broken_urdf_is_reported_with_its_path(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- shared checks
-from solver.errors import SafetyError  # noqa: E402
+from naocal.solver.errors import SafetyError  # noqa: E402
 
 
 @pytest.mark.parametrize("targets, problem", [

@@ -16,10 +16,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from backends.base import Backend, JointReading
-from backends.lola_driver import CYCLE_S, LOLA_INDEX
-from solver import limits
-from solver.joints import JOINTS, LEG_JOINTS
+from naocal.backends.base import Backend, JointReading
+from naocal.backends.lola_driver import CYCLE_S, LOLA_INDEX
+from naocal.solver import limits
+from naocal.solver.joints import JOINTS, LEG_JOINTS
 from tests.lola_fakes import answer_series, read_records
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -52,7 +52,7 @@ class TwelveMsRobot(Backend):
 
 def test_the_agent_sees_still_joints_sampled_every_12_ms():
     """Samples that do not divide the agent's 0.1 s still window (LoLA's 12 ms) must still make a still window."""
-    from agent.robot import Robot
+    from naocal.agent.robot import Robot
 
     robot = Robot(TwelveMsRobot(), guard=None, parked14=np.zeros(len(JOINTS)))
     still = robot.wait_still(np.full(len(JOINTS), 0.1), expected_s=0.0, t_command=100.0)
@@ -88,13 +88,13 @@ def stop(process, timeout_s=60.0):
 
 
 def calibrate(endpoint, out, *extra):
-    return [sys.executable, "-m", "tools", "calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out",
+    return [sys.executable, "-m", "naocal", "calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out",
             str(out), "--stances-per-leg", "6", "--no-probe", "--no-progress", *extra]
 
 
 @pytest.mark.slow
 def test_calibrating_through_lola_and_v4l2_recovers_the_mock_truth_and_a_killed_agent_leaves_a_safe_robot(tmp_path):
-    from backends.mock import draw_truth
+    from naocal.backends.mock import draw_truth
 
     record = tmp_path / "lola.record"
     intrinsics = tmp_path / "intrinsics.json"  # the mock's camera prior (a team passes its own)

@@ -9,16 +9,16 @@ import msgpack
 import numpy as np
 import pytest
 
-from backends.bridge import BridgeBackend
-from backends.bridge_server import BridgeServer
-from backends.errors import RobotFault
-from backends.lola_driver import (CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_JOINTS, LOLA_LIMITS, MOTOR_OF, N_LOLA,
+from naocal.backends.bridge import BridgeBackend
+from naocal.backends.bridge_server import BridgeServer
+from naocal.backends.errors import RobotFault
+from naocal.backends.lola_driver import (CALIBRATED_MOTORS, CYCLE_S, LOLA_INDEX, LOLA_JOINTS, LOLA_LIMITS, MOTOR_OF, N_LOLA,
                                   BadReading, JointControl, LolaBackend, LolaFrame, pack_answer, parse_sensor_message)
-from backends.v4l2_camera import V4L2Camera
-from solver import limits
-from backends.errors import RobotTimeout
-from solver.errors import NaocalError, SafetyError
-from solver.joints import JOINTS
+from naocal.backends.v4l2_camera import V4L2Camera
+from naocal.solver import limits
+from naocal.backends.errors import RobotTimeout
+from naocal.solver.errors import NaocalError, SafetyError
+from naocal.solver.joints import JOINTS
 from tests.backend_contract import check_backend_contract
 from tests.lola_fakes import (BODY_ID, HEAD_ID, FakeLola, SimpleServos, SyntheticCapture, answer_series,
                               lola_speeds)
@@ -169,7 +169,7 @@ def test_stiffening_a_joint_never_makes_it_jump(lola_path):
     ({"HeadYaw": 1.5, "HeadPitch": 0.4}, "HeadPitch 0.4000 rad outside"),
 ])
 def test_unsafe_targets_are_refused_as_by_every_driver_and_nothing_moves(fake, lola_path, targets, match):
-    from backends.mock import MockBackend
+    from naocal.backends.mock import MockBackend
 
     backend = LolaBackend(lola_path)
     mock = MockBackend(0)

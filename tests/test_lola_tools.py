@@ -13,8 +13,8 @@ import time
 import numpy as np
 import pytest
 
-from backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS
-from solver import limits
+from naocal.backends.lola_driver import CYCLE_S, LOLA_INDEX, LOLA_JOINTS
+from naocal.solver import limits
 from tests.cli_runner import naocal_process
 from tests.lola_fakes import BODY_ID, HEAD_ID, FakeLola, SimpleServos, answer_series
 
@@ -46,7 +46,7 @@ def robot(tmp_path, request):
     slow = request.node.get_closest_marker("lola_cycle_s")
     with FakeLola(path, servos, cycle_s=slow.args[0] if slow else CYCLE_S) as fake:
         fake.distinct = distinct
-        server = subprocess.Popen([sys.executable, "-m", "tools", "bridge", "serve", "--driver", "lola",
+        server = subprocess.Popen([sys.executable, "-m", "naocal", "bridge", "serve", "--driver", "lola",
                                    "--lola-socket", path, "--bind", "tcp://127.0.0.1:0", "--hold-s", "0.5",
                                    "--ramp-s", "0.5", "--no-camera"],
                                   cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -68,7 +68,7 @@ def robot(tmp_path, request):
 
 
 def offsets_file(tmp_path, c):
-    from solver.offsets import offsets_from_alpha, write_offsets
+    from naocal.solver.offsets import offsets_from_alpha, write_offsets
 
     alpha = {j: -c.get(j, 0.0) for j in ("LHipYawPitch", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch",
                                          "LAnkleRoll", "RHipYawPitch", "RHipRoll", "RHipPitch", "RKneePitch",

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from solver.quantisation import reading_resolution
+from naocal.solver.quantisation import reading_resolution
 
 STEP_RAD = 2 * math.pi / 4096
 
@@ -27,9 +27,9 @@ def _offset_z_scores(seeds, *, with_quantisation_term, tmp_path, **case):
     """|fitted c - true c| / std of the leg joints' offsets over datasets of the independent generator."""
     from loop_cases import JOINTS, generate
 
-    from solver.dataset import read_dataset
-    from solver.fit import identify_dataset
-    from solver.identify import identify
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.fit import identify_dataset
+    from naocal.solver.identify import identify
 
     z = []
     for seed in seeds:

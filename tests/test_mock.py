@@ -6,14 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from backends.mock import (
+from naocal.backends.mock import (
     DEFAULT_POSTURE, EFFECTS, FRAME_PERIOD_S, MockBackend, check_effects, draw_truth, parse_effect_sizes,
 )
-from backends.errors import RobotFault
-from solver.errors import SafetyError
-from solver.errors import NaocalError
-from solver.joints import JOINTS, LEG_JOINTS
-from solver.limits import head_pitch_limits
+from naocal.backends.errors import RobotFault
+from naocal.solver.errors import SafetyError
+from naocal.solver.errors import NaocalError
+from naocal.solver.joints import JOINTS, LEG_JOINTS
+from naocal.solver.limits import head_pitch_limits
 from tests.backend_contract import check_backend_contract
 from tests.mock_stances import settle_and_capture
 
@@ -278,8 +278,8 @@ def test_closed_mock_refuses_work():
 
 
 def test_the_top_camera_sees_a_planned_top_stance_where_its_truth_says():
-    from agent.measure import opencv_detector
-    from agent.planner import Planner
+    from naocal.agent.measure import opencv_detector
+    from naocal.agent.planner import Planner
 
     planner = Planner()
     try:

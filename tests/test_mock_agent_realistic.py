@@ -7,15 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from agent.planner import PARKED, PlanSettings, Planner, make_plan, parked_posture
-from agent.robot import Robot, TimingSettings
-from agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
-from agent.states import Thresholds, implausible, unusual
-from backends.mock import MockBackend
-from body.nao_body import CollisionChecker, NaoBody
-from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS
-from solver.limits import joint_limits, max_speeds
-from tools import cli
+from naocal.agent.planner import PARKED, PlanSettings, Planner, make_plan, parked_posture
+from naocal.agent.robot import Robot, TimingSettings
+from naocal.agent.safety import SafetyGuard, prior_covariance, worst_case_clearance
+from naocal.agent.states import Thresholds, implausible, unusual
+from naocal.backends.mock import MockBackend
+from naocal.body.nao_body import CollisionChecker, NaoBody
+from naocal.solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS
+from naocal.solver.limits import joint_limits, max_speeds
+from naocal.tools import cli
 
 PRIOR = prior_covariance(math.radians(12.0), math.radians(3.0))  # before anything is known
 
@@ -122,7 +122,7 @@ def test_plausibility_limits_warn_before_they_refuse():
         success, message, rms_px = True, "", (0.3, 0.3)
 
         def __init__(self, offsets_deg):
-            from solver.registry import Registry
+            from naocal.solver.registry import Registry
 
             self.registry = Registry()
             self.values = {n: 0.0 for n in self.registry.names}
@@ -162,9 +162,9 @@ def test_the_agent_calibrates_the_realistic_mock_safely_to_a_tenth_of_a_degree(t
     the true robot), nearly every capture is taken, and every joint offset is within 0.1 deg and within 3.5 of its
     standard deviations of the truth (measured 0.039 / 0.061 deg, 0.9 / 1.9 std), the summary reporting the
     precision. The default plan's runs are benchmarks/mock_realism_runs.py's (docs/MOCK.md)."""
-    from agent.calibrate import calibrate
-    from agent.measure import opencv_detector
-    from agent.states import AgentSettings
+    from naocal.agent.calibrate import calibrate
+    from naocal.agent.measure import opencv_detector
+    from naocal.agent.states import AgentSettings
 
     mock = MockBackend(seed=seed, realism="realistic")
     try:
@@ -192,8 +192,8 @@ def test_the_agent_calibrates_the_realistic_mock_safely_to_a_tenth_of_a_degree(t
 def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
     """A detector that puts 1-2 % of the corners a square off (or on a reflection) must not drag the estimate the
     safety check and the detector rely on: its refits leave out the vertices the current values miss by far."""
-    from agent.estimate import FULL, RunningEstimate
-    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from naocal.agent.estimate import FULL, RunningEstimate
+    from naocal.sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(40)
     truth = random_truth(rng)
@@ -215,7 +215,7 @@ def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
 def test_the_bridge_serves_the_realistic_mock_when_asked():
     import argparse
 
-    from tools.cmd_bridge import _open_backend
+    from naocal.tools.cmd_bridge import _open_backend
 
     backend, clock, persists = _open_backend(argparse.Namespace(driver="mock", seed=4, effect=[], mock="realistic"))
     try:
@@ -230,8 +230,8 @@ def test_a_leg_joining_the_running_estimate_is_not_taken_for_faulty_corners():
     offsets: those misses are not faulty corners. Leaving them out would fit the new leg to whichever corners
     happen to agree, and the safety check would trust a wrong leg (a realistic run sent the mock commands it had to
     refuse). Only the fitted legs' corners are judged, and never more than 5 % of them."""
-    from agent.estimate import RunningEstimate
-    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from naocal.agent.estimate import RunningEstimate
+    from naocal.sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(7)
     truth = random_truth(rng)
@@ -259,7 +259,7 @@ def test_the_search_stays_wide_until_the_estimate_fits_the_leg_well():
     than the wide margin."""
     from types import SimpleNamespace
 
-    from agent.measure import Measurement, MeasureSettings
+    from naocal.agent.measure import Measurement, MeasureSettings
 
     settings = MeasureSettings()
 
@@ -277,8 +277,8 @@ def test_the_search_stays_wide_until_the_estimate_fits_the_leg_well():
 def test_the_running_estimate_gives_the_safety_check_alpha_the_negative_of_the_fitted_c():
     """joint_offset.<J> is c (q_true = theta - c); the safety check wants alpha = q_true - theta = -c. With the
     sign wrong the guard checks the mirror image of the true stance: twice the offset off."""
-    from agent.estimate import RunningEstimate
-    from sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
+    from naocal.agent.estimate import RunningEstimate
+    from naocal.sim.synthetic import DEFAULT_INTRINSICS, random_truth, synthesize
 
     rng = np.random.default_rng(11)
     truth = random_truth(rng, joint_offset_rad=math.radians(3.0))
@@ -297,9 +297,9 @@ def test_the_running_estimate_gives_the_safety_check_alpha_the_negative_of_the_f
 def test_real_size_offsets_fit_the_offsets_file_and_its_limit_is_the_effects(tmp_path):
     """Real robots carry HipYawPitch offsets up to 11.5 deg: a version 2 file holds them; the limit (20 deg) is the
     joint_offsets effect's, and the agent refuses by the same number."""
-    from solver.effects import EFFECTS
-    from solver.errors import DataError
-    from solver.offsets import offsets_from_parameters, read_offsets, write_offsets
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.errors import DataError
+    from naocal.solver.offsets import offsets_from_parameters, read_offsets, write_offsets
 
     limit = EFFECTS["joint_offsets"].offsets_limit
     assert math.degrees(limit) == pytest.approx(20.0) and Thresholds().max_joint_offset_rad == limit
@@ -322,8 +322,8 @@ def test_real_size_offsets_fit_the_offsets_file_and_its_limit_is_the_effects(tmp
 def test_the_mock_camera_prior_is_the_robot_description():
     """The mock reports the robot description's prior intrinsics (one home for the camera priors); the realistic
     mock changes only the focal length, to a real NAO head's 618 px."""
-    from backends.mock import default_intrinsics
-    from solver.robot import nao
+    from naocal.backends.mock import default_intrinsics
+    from naocal.solver.robot import nao
 
     prior = nao().camera("bottom").intrinsics()
     for realism, focal in (("ideal", prior["fx_px"]), ("realistic", 618.0)):

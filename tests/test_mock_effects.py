@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from agent.corners import detect_board_vertices
-from backends.mock import MockBackend
-from body.nao_body import T_WORLD_TORSO
-from solver.joints import JOINTS, LEGS, leg_joints
-from solver.kinematics import gravity_torques, leg_fk
+from naocal.agent.corners import detect_board_vertices
+from naocal.backends.mock import MockBackend
+from naocal.body.nao_body import T_WORLD_TORSO
+from naocal.solver.joints import JOINTS, LEGS, leg_joints
+from naocal.solver.kinematics import gravity_torques, leg_fk
 from tests.mock_stances import settle_and_capture, visible_stances
 
 SEED = 21

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from agent.corners import detect_board_vertices
-from backends.mock import MockBackend, draw_truth
-from backends.mock_faults import FaultyDetector, draw_faults
-from backends.mock_realism import IDEAL, REALISTIC, as_realism
-from backends.mock_render import bgr_to_yuyv, grey_to_yuyv, yuyv_to_bgr
-from backends.mock_servo import SecondOrder, rest_offset
-from solver.errors import NaocalError
-from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, leg_joints
+from naocal.agent.corners import detect_board_vertices
+from naocal.backends.mock import MockBackend, draw_truth
+from naocal.backends.mock_faults import FaultyDetector, draw_faults
+from naocal.backends.mock_realism import IDEAL, REALISTIC, as_realism
+from naocal.backends.mock_render import bgr_to_yuyv, grey_to_yuyv, yuyv_to_bgr
+from naocal.backends.mock_servo import SecondOrder, rest_offset
+from naocal.solver.errors import NaocalError
+from naocal.solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, leg_joints
 from tests.backend_contract import check_backend_contract
 from tests.mock_stances import settle_and_capture, visible_stances
 
@@ -175,7 +175,7 @@ def test_second_order_closed_form_matches_integration_and_overshoots_a_little():
 
     times = np.linspace(0.0, 0.5, 501)
     numeric = solve_ivp(ode, (0.0, 0.5), [0.0, 0.0], t_eval=times, max_step=1e-4, rtol=1e-10, atol=1e-12).y[0]
-    from backends.mock_servo import servo_positions
+    from naocal.backends.mock_servo import servo_positions
 
     changes = [([0.05, 0.15], [2.0, -2.0])]
     closed = [servo_positions(t, [reference(t)], [2.0 if 0.05 <= t < 0.15 else 0.0], changes, dyn, [], [])[0]
@@ -363,8 +363,8 @@ def test_corner_fault_model_fires_at_its_rate():
 
 
 def test_faulty_detector_wraps_a_detector_reproducibly():
-    from agent.corners import BoardDetection
-    from backends.base import CameraImage
+    from naocal.agent.corners import BoardDetection
+    from naocal.backends.base import CameraImage
 
     grid = np.arange(48, dtype=float).reshape(24, 2) * 7.0
 

@@ -6,17 +6,17 @@ import numpy as np
 import pybullet
 import pytest
 
-from backends.mock_render import SceneRenderer, board_outline_board_m, projection_matrix_gl, view_matrix_gl
-from solver.camera import CameraIntrinsics, plane_homography
-from body.nao_body import (
+from naocal.backends.mock_render import SceneRenderer, board_outline_board_m, projection_matrix_gl, view_matrix_gl
+from naocal.solver.camera import CameraIntrinsics, plane_homography
+from naocal.body.nao_body import (
     BOARD_HALF_X_M, BOARD_HALF_Y_M, T_WORLD_TORSO, BoardMount, BodyGeometry, CollisionChecker, NaoBody,
     T_sole_board,
 )
-from backends.mock import DEFAULT_POSTURE
-from solver.joints import JOINTS, LEGS, leg_joints
-from solver.kinematics import camera_fk, chain_frames, gravity_torques, leg_fk
-from solver.limits import joint_limits
-from solver.nao_model import head_chain
+from naocal.backends.mock import DEFAULT_POSTURE
+from naocal.solver.joints import JOINTS, LEGS, leg_joints
+from naocal.solver.kinematics import camera_fk, chain_frames, gravity_torques, leg_fk
+from naocal.solver.limits import joint_limits
+from naocal.solver.nao_model import head_chain
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +131,7 @@ def test_board_coverage_is_the_exact_projected_area(body):
     renderer = SceneRenderer(body, cam, supersample=4)
     rng = np.random.default_rng(4)
     for _ in range(5):
-        from solver.transforms import make_transform, rot_rpy
+        from naocal.solver.transforms import make_transform, rot_rpy
 
         R = rot_rpy(*rng.uniform(-0.4, 0.4, 3)) @ np.array([[0, 0, -1.0], [0, 1, 0], [1, 0, 0]])
         T_cam_board = make_transform(R, [rng.uniform(0.45, 0.6), rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03)])
@@ -183,7 +183,7 @@ def test_rendered_images_are_pinned_to_the_bit():
     if versions != ("5.0.0", "2.4.6", "3.2.7"):
         pytest.skip(f"pinned with OpenCV 5.0.0, numpy 2.4.6, pybullet 3.2.7; these are {versions}")
 
-    from backends.mock import MockBackend
+    from naocal.backends.mock import MockBackend
     from tests.mock_stances import settle_and_capture, visible_stances
 
     mock = MockBackend(seed=21, effects={"distortion": -0.08, "intrinsics": 5.0})

@@ -9,12 +9,12 @@ import pytest
 pytest.importorskip("qi", reason="the NAOqi driver's tests need qi (libqi-python, wheels for x86_64 Linux only): "
                                   "pip install '.[naoqi]'")
 
-from backends.bridge import BridgeBackend  # noqa: E402
-from backends.bridge_server import BridgeServer  # noqa: E402
-from backends.naoqi_driver import FRAME_PERIOD_S, NaoqiBackend  # noqa: E402
-from backends.errors import RobotFault, RobotTimeout  # noqa: E402
-from solver.errors import SafetyError
-from solver.errors import NaocalError  # noqa: E402
+from naocal.backends.bridge import BridgeBackend  # noqa: E402
+from naocal.backends.bridge_server import BridgeServer  # noqa: E402
+from naocal.backends.naoqi_driver import FRAME_PERIOD_S, NaoqiBackend  # noqa: E402
+from naocal.backends.errors import RobotFault, RobotTimeout  # noqa: E402
+from naocal.solver.errors import SafetyError
+from naocal.solver.errors import NaocalError  # noqa: E402
 from tests.backend_contract import check_backend_contract  # noqa: E402
 from tests.naoqi_fakes import DCM_EPOCH_S, FakeRobot, TextImageVideoDevice, fake_naoqi  # noqa: E402
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from solver.compensation import compensate_command, correct_reading
-from solver.errors import DataError
-from solver.joints import HEAD_JOINTS, LEG_JOINTS
-from solver.offsets import (
+from naocal.solver.compensation import compensate_command, correct_reading
+from naocal.solver.errors import DataError
+from naocal.solver.joints import HEAD_JOINTS, LEG_JOINTS
+from naocal.solver.offsets import (
     MAX_BOARD_ROT_Z_RAD, MAX_BOARD_TRANS_M, MAX_CAMERA_ROTATION_RAD, MAX_JOINT_OFFSET_RAD, SCHEMA, Offsets,
     alpha_from_offsets, offsets_from_alpha, offsets_from_parameters, parameter_unit, read_offsets, validate,
     write_offsets,
@@ -323,9 +323,9 @@ def test_limits_are_the_documented_ones():
 def test_every_registry_parameter_is_accepted_with_its_unit():
     """The offsets file must accept whatever the identification reports, for every camera and target of the robot
     (the effects, solver/effects/, are the source), and write every effect's section."""
-    from solver.effect import Setup
-    from solver.effects import EFFECTS
-    from solver.registry import EXTRA_EFFECTS, Registry
+    from naocal.solver.effect import Setup
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.registry import EXTRA_EFFECTS, Registry
 
     registry = Registry(EXTRA_EFFECTS, setup=Setup.everything())
     assert len(registry.parameters) > 21
@@ -342,8 +342,8 @@ def test_every_registry_parameter_is_accepted_with_its_unit():
 def test_a_fit_the_file_could_not_hold_is_implausible():
     """identify refuses, before writing, what the offsets file would refuse: each term at its own file limit (a
     camera translation is in m, not under the camera rotation's limit in rad)."""
-    from solver.effects import EFFECTS
-    from solver.offsets import MAX_CAMERA_TRANSLATION_M, implausible_parameter
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.offsets import MAX_CAMERA_TRANSLATION_M, implausible_parameter
 
     assert MAX_CAMERA_TRANSLATION_M == EFFECTS["camera_translation"].offsets_limit
     assert "camera.bottom.trans_z" in implausible_parameter("camera.bottom.trans_z", 0.05, 1e-4, "m")
@@ -357,7 +357,7 @@ def test_a_fit_the_file_could_not_hold_is_implausible():
 def test_a_result_beyond_a_sections_file_limit_is_implausible_not_a_write_error():
     """identify checks a result with implausible_parameter before writing: it must hold the file's own limits (an
     elasticity of 1.47 rad/(N m) passed it, then failed as bad input while being written)."""
-    from solver.offsets import implausible_parameter
+    from naocal.solver.offsets import implausible_parameter
 
     assert "at most 1 rad/(N m)" in implausible_parameter("elasticity.RAnkleRoll", 1.47, 0.1, "rad/(N m)")
     assert implausible_parameter("elasticity.RAnkleRoll", 0.5, 0.1, "rad/(N m)") is None

@@ -11,8 +11,10 @@ import math
 
 import pytest
 
-import tools.cli
-from solver.offsets import read_offsets, write_offsets
+import naocal.tools.cli  # noqa
+
+from naocal import tools
+from naocal.solver.offsets import read_offsets, write_offsets
 from tests.test_offsets import make_offsets
 
 DATASET = tools.cli.__file__.rsplit("/tools/", 1)[0] + "/tests/data/v1/synthetic_dataset"

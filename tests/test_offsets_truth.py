@@ -8,10 +8,10 @@ import re
 import numpy as np
 import pytest
 
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from solver.dataset import write_dataset
-from solver.joints import LEG_JOINTS
-from tools.cli import main
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.solver.dataset import write_dataset
+from naocal.solver.joints import LEG_JOINTS
+from naocal.tools.cli import main
 
 ROW = re.compile(r"^  (\S+(?: \S+)?) +([-+0-9.]+) +([-+0-9.]+) +([-+0-9.]+) +([0-9.]+) +([-+0-9.]+)  (.+?)( \*)?$")
 

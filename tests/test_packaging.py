@@ -13,3 +13,31 @@ def test_the_test_extra_does_not_pull_qi():
     names = {requirement.split(">")[0].split("=")[0].split("[")[0].strip().lower() for requirement in extras["test"]}
     assert "qi" not in names and {"pytest", "hypothesis"} <= names
     assert any(r.startswith("qi") for r in extras["naoqi"])
+
+
+def test_an_install_is_one_import_package_naocal(tmp_path):
+    """Issue 22: `pip install .` put six generic top-level packages (agent, backends, body, sim, solver, tools) into
+    site-packages, colliding with any other project's `tools` or `agent`. Installed, naocal is one package."""
+    import subprocess
+    import sys
+
+    target = tmp_path / "site"
+    run = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--quiet",
+                          "--target", str(target), str(ROOT)], capture_output=True, text=True, timeout=600)
+    if run.returncode != 0 and "setuptools" in run.stderr.lower():  # no setuptools beside this Python: build it apart
+        run = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet", "--target",
+                              str(target), str(ROOT)], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    imported = sorted(p.name for p in target.iterdir() if p.suffix != ".dist-info" and p.name not in ("bin",)
+                      and not p.name.endswith(".dist-info") and not p.name.startswith(("_", ".")))
+    assert imported == ["naocal"], imported
+    installed = target / "naocal"
+    for package in ("agent", "backends", "body", "kinds", "sim", "solver", "tools"):
+        assert (installed / package / "__init__.py").is_file(), package
+    assert (installed / "solver" / "data" / "nao.json").is_file()  # the robot description travels with it
+    # the installed copy runs on its own, from anywhere: no checkout on the path
+    probe = subprocess.run([sys.executable, "-c", "import naocal.tools.cli as c, naocal.solver.robot as r; "
+                            "print(c.__file__); print(r.load_robot('nao').name)"],
+                           capture_output=True, text=True, cwd=tmp_path, env={"PYTHONPATH": str(target)}, timeout=120)
+    assert probe.returncode == 0, probe.stderr[-2000:]
+    assert probe.stdout.splitlines()[0].startswith(str(installed))

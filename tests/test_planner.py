@@ -6,19 +6,19 @@ import json
 import numpy as np
 import pytest
 
-from agent.design import _gls_information, greedy_d_optimal, load_error_moment, log_det, stance_information
-from agent.plan import Plan, Still, Sweep, read_plan, write_plan
-from agent.planner import PlanSettings, Planner, make_plan, parked_posture
-from agent.safety import SafetyGuard, prior_covariance
-from agent.visibility import OcclusionChecker, views_ok
-from body.nao_body import CollisionChecker, NaoBody
-from solver.errors import SafetyError
-from solver.errors import DataError
-from solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
-from solver.kinematics import camera_fk, leg_fk
-from solver.limits import head_pitch_limits, joint_limits
-from solver.joints import HEAD_COLUMNS, LEG_COLUMNS
-from sim.synthetic import DEFAULT_INTRINSICS
+from naocal.agent.design import _gls_information, greedy_d_optimal, load_error_moment, log_det, stance_information
+from naocal.agent.plan import Plan, Still, Sweep, read_plan, write_plan
+from naocal.agent.planner import PlanSettings, Planner, make_plan, parked_posture
+from naocal.agent.safety import SafetyGuard, prior_covariance
+from naocal.agent.visibility import OcclusionChecker, views_ok
+from naocal.body.nao_body import CollisionChecker, NaoBody
+from naocal.solver.errors import SafetyError
+from naocal.solver.errors import DataError
+from naocal.solver.joints import JOINT_INDEX, JOINTS, LEG_JOINTS, LEGS
+from naocal.solver.kinematics import camera_fk, leg_fk
+from naocal.solver.limits import head_pitch_limits, joint_limits
+from naocal.solver.joints import HEAD_COLUMNS, LEG_COLUMNS
+from naocal.sim.synthetic import DEFAULT_INTRINSICS
 
 
 @pytest.fixture(scope="module")
@@ -214,7 +214,7 @@ def test_shared_leg_reading_error_limits_what_more_head_postures_add(paper_plan)
 def test_the_optimal_plan_stops_where_the_predicted_worst_joint_offset_std_reaches_its_target():
     """reaching_count: the first prefix of the greedy order whose predicted worst joint-offset std is within the
     target, never a prefix that leaves a parameter undetermined (its pseudo-inverse would call it known)."""
-    from agent.design import BASE_REGISTRY, joint_offset_indices, predicted_std, reaching_count
+    from naocal.agent.design import BASE_REGISTRY, joint_offset_indices, predicted_std, reaching_count
 
     P = len(BASE_REGISTRY)
     rng = np.random.default_rng(5)
@@ -342,10 +342,10 @@ def test_head_yaw_range_is_one_constant_of_the_robot_description(body):
     robot description's command range."""
     from types import SimpleNamespace
 
-    from agent.measure import Measurement
-    from agent.planner import PlanSettings
-    from solver.limits import command_limits
-    from solver.robot import nao
+    from naocal.agent.measure import Measurement
+    from naocal.agent.planner import PlanSettings
+    from naocal.solver.limits import command_limits
+    from naocal.solver.robot import nao
 
     assert nao().command_limits == {"HeadYaw": (-0.7, 0.7)}
     assert command_limits()["HeadYaw"] == (-0.7, 0.7) and command_limits()["HeadPitch"] == joint_limits()["HeadPitch"]
@@ -368,8 +368,8 @@ def _guards_of_realistic_robots(body, seeds=(1, 2, 3, 4)):
     """The agent's guard (its own margins) as it stands on the realistic mock's robots `seeds`: before anything is
     known (offsets 0, the plausible offsets as 3 standard deviations) and once the offsets and sandal mounts are
     known (the hidden truth: the verification's and the top camera's state)."""
-    from agent.states import AgentSettings
-    from backends.mock import draw_truth
+    from naocal.agent.states import AgentSettings
+    from naocal.backends.mock import draw_truth
 
     s = AgentSettings()
     planned = PlanSettings()
@@ -421,7 +421,7 @@ def test_every_stance_of_the_realistic_mocks_plans_passes_the_guard(body):
     """As above, for the plans the realistic mock's runs use (its prior intrinsics, fx = 618 px): paper and
     optimal; and the guard, knowing each robot's offsets, finds a clear way for every move of the plan (before: on
     realistic seed 1 the optimal plan's right-leg stances had none and were left out)."""
-    from backends.mock import default_intrinsics
+    from naocal.backends.mock import default_intrinsics
 
     prior = default_intrinsics("realistic").to_dict()
     intrinsics = {k: prior[k] for k in ("fx_px", "fy_px", "cx_px", "cy_px", "width_px", "height_px")}
@@ -437,7 +437,7 @@ def test_every_stance_of_the_realistic_mocks_plans_passes_the_guard(body):
 def blocked_moves(plan, guard, speed_fraction=0.4):
     """The plan's moves, in the order the agent makes them (calibration, top camera, verification; each sweep
     from its start to its end), for which `guard` finds no clear way, direct or through detours."""
-    from agent.plan import Sweep
+    from naocal.agent.plan import Sweep
 
     targets = []
     for step in plan.steps:

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tools.cli import main
+from naocal.tools.cli import main
 
 DATA = Path(__file__).parent / "data" / "realdata" / "mrlspl-nao-2009"
 CAMERA_ONLY = ["--fix", "joint_offsets", "--fix", "board_mount"]
@@ -28,7 +28,7 @@ def imported(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def dataset(imported):
-    from solver.dataset import read_dataset
+    from naocal.solver.dataset import read_dataset
 
     return read_dataset(imported)
 
@@ -89,9 +89,9 @@ def test_the_corners_are_in_the_floor_targets_vertex_order(dataset):
 
 def test_the_nominal_model_misses_by_20_to_35_px(dataset):
     """The solver's own model at zero parameters (the URDF's geometry, the read angles)."""
-    from solver.adapter import model_data_from_dataset
-    from solver.model import Model
-    from solver.registry import Registry
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.model import Model
+    from naocal.solver.registry import Registry
 
     data = model_data_from_dataset(dataset)
     registry = Registry.for_data(data)
@@ -224,8 +224,8 @@ def test_with_headpitch_as_stored_the_prediction_cannot_order_the_corners(monkey
     """The file's HeadPitch has the opposite sign to today's: read as stored, the nominal prediction of image 1
     (its head 25 deg up, read as 25 deg down) is so far off that no labelling of the corners fits it, and the
     import stops, naming the image, rather than guess an order."""
-    import tools.import_mrlspl as importer
-    from solver.errors import DataError
+    import naocal.tools.import_mrlspl as importer
+    from naocal.solver.errors import DataError
 
     monkeypatch.setattr(importer, "SIGN", {})
     with pytest.raises(DataError, match="image_1.png: the corners' order cannot be told"):
@@ -244,8 +244,8 @@ def test_an_existing_dataset_is_not_overwritten(tmp_path, capsys):
 def test_a_board_turned_by_a_quarter_turn_is_refused_by_its_colours(dataset):
     """The 180 deg turn is told by the prediction; a board lying turned by 90 deg against the description would
     still be ordered by the prediction, and only the colours can tell: the square before vertex 0 is blue then."""
-    from solver.robot import load_robot
-    from tools.import_mrlspl import board_spec, colour_check
+    from naocal.solver.robot import load_robot
+    from naocal.tools.import_mrlspl import board_spec, colour_check
 
     board = board_spec(load_robot("nao"))
     image = cv2.imread(str(DATA / "image_0.png"))
@@ -261,9 +261,9 @@ def test_a_board_turned_by_a_quarter_turn_is_refused_by_its_colours(dataset):
 def test_seeded_damage_to_the_joints_file_is_refused_as_bad_input_or_read(tmp_path):
     """300 seeded damages (bytes changed, deleted, doubled; lines cut, repeated, swapped; huge numbers, NaN,
     bad UTF-8): every one reads or is a DataError naming joints_raw.csv - never another exception."""
-    from solver.errors import DataError
-    from solver.robot import load_robot
-    from tools.import_mrlspl import check_limits, read_joints
+    from naocal.solver.errors import DataError
+    from naocal.solver.robot import load_robot
+    from naocal.tools.import_mrlspl import check_limits, read_joints
 
     original = (DATA / "joints_raw.csv").read_bytes()
     robot = load_robot("nao")
@@ -303,8 +303,9 @@ def test_seeded_damage_to_the_joints_file_is_refused_as_bad_input_or_read(tmp_pa
 def test_a_write_that_fails_half_way_leaves_no_half_dataset(tmp_path, monkeypatch, capsys):
     """The disk fills while dataset.json is written: the images already copied are taken back, the output
     directory is left as it was (empty), and the error is one line (exit 3)."""
-    import solver.dataset
-    from solver.errors import DiskFullError
+    import naocal.solver.dataset  # noqa
+    from naocal import solver
+    from naocal.solver.errors import DiskFullError
 
     def full(*args, **kwargs):
         raise DiskFullError(tmp_path / "out" / "dataset.json", 0)

@@ -42,8 +42,8 @@ def test_resume_with_another_speed_or_images_is_refused_unchanged(tmp_path, extr
 
 
 def test_every_calibrate_option_defines_the_run_or_is_declared_free_per_session():
-    from agent.rundir import RECORD_OPTIONS, SESSION_OPTIONS
-    from tools.cli import build_parser
+    from naocal.agent.rundir import RECORD_OPTIONS, SESSION_OPTIONS
+    from naocal.tools.cli import build_parser
 
     parser = build_parser()
     calibrate = parser._subparsers._group_actions[0].choices["calibrate"]
@@ -54,8 +54,8 @@ def test_every_calibrate_option_defines_the_run_or_is_declared_free_per_session(
 
 
 def test_resume_removes_the_temporary_files_a_killed_session_left(tmp_path, monkeypatch):
-    import tools.cmd_calibrate as cmd
-    from tools.cli import main
+    import naocal.tools.cmd_calibrate as cmd
+    from naocal.tools.cli import main
 
     out = started_run(tmp_path / "run")
     images = out / "dataset" / "images"
@@ -81,7 +81,7 @@ def test_resume_removes_the_temporary_files_a_killed_session_left(tmp_path, monk
 def test_a_backup_link_left_by_a_killed_write_is_a_temporary_file(tmp_path, monkeypatch):
     """The hard link that keeps NAME.bak is made under a temporary name too (it was NAME.bak.tmp, which --resume
     took for a foreign file)."""
-    from solver.fileio import atomic_write_text, is_temporary
+    from naocal.solver.fileio import atomic_write_text, is_temporary
 
     path = tmp_path / "offsets.json"
     atomic_write_text(path, "1")

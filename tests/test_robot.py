@@ -7,11 +7,11 @@ import shutil
 import numpy as np
 import pytest
 
-from solver.errors import DataError
-from solver.kinematics import chain_frames
-from solver.robot import load_robot, nao
-from solver.transforms import make_transform, rot_axis_angle, rot_rpy
-from solver.urdf import nominal_urdf
+from naocal.solver.errors import DataError
+from naocal.solver.kinematics import chain_frames
+from naocal.solver.robot import load_robot, nao
+from naocal.solver.transforms import make_transform, rot_axis_angle, rot_rpy
+from naocal.solver.urdf import nominal_urdf
 
 
 def walk(urdf, base, tip, angles):
@@ -130,8 +130,8 @@ def test_a_description_with_another_base_and_chains(tmp_path):
 
 def test_one_intrinsics_type_for_the_description_and_the_backends():
     """The robot description's cameras and what backends report are one type (solver.camera.CameraIntrinsics)."""
-    from backends.base import CameraIntrinsics as reported
-    from solver.camera import CameraIntrinsics
+    from naocal.backends.base import CameraIntrinsics as reported
+    from naocal.solver.camera import CameraIntrinsics
 
     assert reported is CameraIntrinsics
     top = nao().camera("top")

@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.calibrate import calibrate
-from agent.plan import read_plan
-from agent.planner import PlanSettings
-from agent.rundir import LOCK_NAME, RunLock, RunLocked
-from agent.states import AgentSettings
-from solver.dataset import read_dataset, write_dataset
-from sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.agent.calibrate import calibrate
+from naocal.agent.plan import read_plan
+from naocal.agent.planner import PlanSettings
+from naocal.agent.rundir import LOCK_NAME, RunLock, RunLocked
+from naocal.agent.states import AgentSettings
+from naocal.solver.dataset import read_dataset, write_dataset
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
 from tests.agent_fakes import FakeBackend
-from tools import cli
+from naocal.tools import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 # The ideal mock: the interrupted and resumed runs are compared capture by capture.
@@ -36,7 +36,7 @@ def _sigint_default():
 
 
 def naocal_process(*argv, **kw):
-    return subprocess.Popen([sys.executable, "-m", "tools", *argv], cwd=ROOT, text=True,
+    return subprocess.Popen([sys.executable, "-m", "naocal", *argv], cwd=ROOT, text=True,
                             preexec_fn=_sigint_default, **kw)
 
 
@@ -243,7 +243,7 @@ def test_resume_with_other_options_is_refused_before_anything_is_written(interru
 
 
 def test_the_mock_realism_is_recorded_and_another_refused(tmp_path):
-    from agent.rundir import calibrate_record, mismatches, recorded_run, write_record
+    from naocal.agent.rundir import calibrate_record, mismatches, recorded_run, write_record
 
     def record(mock):
         return calibrate_record(backend="mock", mock_seed=3, mock=mock, effects={}, plan="paper", plan_seed=0,
@@ -456,7 +456,7 @@ def test_offsets_record_the_mock_seed_and_the_plan_seed_by_name(tmp_path):
     assert source["mock_seed"] == 7 and source["plan_seed"] == 1 and "seed" not in source
     from types import SimpleNamespace
 
-    from agent.states import offsets_source
+    from naocal.agent.states import offsets_source
 
     robot = SimpleNamespace(settings=AgentSettings(seed=1), dataset_dir=tmp_path, plan=None)  # no mock: no mock seed
     assert offsets_source(robot) == {"tool": "naocal calibrate", "dataset": str(tmp_path), "plan_seed": 1,
@@ -464,8 +464,8 @@ def test_offsets_record_the_mock_seed_and_the_plan_seed_by_name(tmp_path):
 
 
 def test_an_older_offsets_file_with_one_seed_still_reads(tmp_path, capsys):
-    from solver.joints import LEG_JOINTS
-    from solver.offsets import offsets_from_alpha, read_offsets, write_offsets
+    from naocal.solver.joints import LEG_JOINTS
+    from naocal.solver.offsets import offsets_from_alpha, read_offsets, write_offsets
 
     path = tmp_path / "offsets.json"
     source = {"tool": "naocal calibrate --backend mock", "dataset": "runs/x/dataset", "seed": 0, "plan": "paper"}
@@ -479,7 +479,7 @@ def test_an_older_offsets_file_with_one_seed_still_reads(tmp_path, capsys):
 
 
 def test_resume_on_another_robot_is_refused_before_anything_is_written(tmp_path):
-    from solver.errors import DataError
+    from naocal.solver.errors import DataError
 
     fake = FakeBackend(3)
     settings = AgentSettings(seed=1, plan=PlanSettings(stances_per_leg=2), progress_bar=False)
@@ -500,7 +500,7 @@ def test_a_fifo_in_place_of_run_json_is_refused_not_waited_on(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     os.mkfifo(out / "run.json")
-    result = subprocess.run([sys.executable, "-m", "tools", "calibrate", "--backend", "mock", "--out", str(out),
+    result = subprocess.run([sys.executable, "-m", "naocal", "calibrate", "--backend", "mock", "--out", str(out),
                              "--resume"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "run.json" in result.stderr and "FIFO" in result.stderr

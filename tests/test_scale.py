@@ -5,13 +5,13 @@ measured by benchmarks/bench_scale.py, not here."""
 import numpy as np
 import pytest
 
-from solver.effect import Setup
-from solver.effects import ALL_EFFECTS
-from solver.identify import NormalEquations, identify, normal_equations
-from solver.model import Model
-from solver.registry import Registry
-from solver.robot import nao
-from sim.synthetic import random_truth, synthesize, synthesize_views
+from naocal.solver.effect import Setup
+from naocal.solver.effects import ALL_EFFECTS
+from naocal.solver.identify import NormalEquations, identify, normal_equations
+from naocal.solver.model import Model
+from naocal.solver.registry import Registry
+from naocal.solver.robot import nao
+from naocal.sim.synthetic import random_truth, synthesize, synthesize_views
 
 
 @pytest.fixture(scope="module")
@@ -134,9 +134,9 @@ def test_factored_normal_equations_equal_the_dense_ones_with_weights_and_uneven_
 
 
 def test_row_ids_are_numpys_unique_rows():
-    """solver.scoretest.row_ids (the stance clusters' row labels) equals np.unique(axis=0)'s inverse: negative values,
+    """naocal.solver.scoretest.row_ids (the stance clusters' row labels) equals np.unique(axis=0)'s inverse: negative values,
     repeated rows, one column, no rows."""
-    from solver.scoretest import row_ids
+    from naocal.solver.scoretest import row_ids
 
     rng = np.random.default_rng(9)
     for shape in ((200, 12), (50, 1), (0, 3), (7, 0)):

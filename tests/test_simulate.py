@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from solver.dataset import read_dataset
-from solver.joints import JOINTS
+from naocal.solver.dataset import read_dataset
+from naocal.solver.joints import JOINTS
 from tests.cli_runner import naocal
-from tools import cli
+from naocal.tools import cli
 
 @pytest.mark.slow
 def test_simulate_writes_a_dataset_and_the_hidden_truth(tmp_path):

@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from backends.lola_driver import LolaBackend
-from backends.base import nominal_intrinsics
-from backends.v4l2_camera import CAMERAS, V4L2Camera, read_intrinsics, yuyv_problem, yuyv_to_bgr
-from backends.errors import RobotTimeout
-from solver.errors import DataError, NaocalError
+from naocal.backends.lola_driver import LolaBackend
+from naocal.backends.base import nominal_intrinsics
+from naocal.backends.v4l2_camera import CAMERAS, V4L2Camera, read_intrinsics, yuyv_problem, yuyv_to_bgr
+from naocal.backends.errors import RobotTimeout
+from naocal.solver.errors import DataError, NaocalError
 from tests.lola_fakes import FakeLola, SyntheticCapture, bgr_to_yuyv
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from solver.dataset import write_dataset
-from sim.synthetic import dataset_parts, random_truth, synthesize
-from tools.cli import main
+from naocal.solver.dataset import write_dataset
+from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
+from naocal.tools.cli import main
 
 DEG = np.pi / 180
 V1 = ROOT / "tests" / "data" / "v1"
@@ -205,12 +205,12 @@ def test_a_drift_of_three_standard_deviations_among_mis_detections_is_found(real
 def test_the_agents_verification_sets_aside_mis_detected_corners_as_identify_does():
     """The agent's held-out captures (4 stances) with two corners a square and a reflection off: exactly those are
     set aside (solver.fit.set_aside_mis_detections), whatever offsets the readings still carry."""
-    from agent.estimate import FULL
-    from agent.verify import _set_aside
-    from sim.synthetic import random_plan
-    from solver.adapter import make_model_data
-    from solver.robot import default_intrinsics
-    from solver.model import Model
+    from naocal.agent.estimate import FULL
+    from naocal.agent.verify import _set_aside
+    from naocal.sim.synthetic import random_plan
+    from naocal.solver.adapter import make_model_data
+    from naocal.solver.robot import default_intrinsics
+    from naocal.solver.model import Model
 
     rng = np.random.default_rng(5)
     theta, legs, stances, _ = random_plan(rng, n_stances_per_leg=2, n_head_postures=1)
@@ -228,8 +228,8 @@ def test_the_agents_verification_sets_aside_mis_detected_corners_as_identify_doe
 
 
 def test_the_agent_predicts_held_out_captures_with_the_fitted_intrinsics():
-    from agent.verify import identified_intrinsics
-    from solver.robot import default_intrinsics
+    from naocal.agent.verify import identified_intrinsics
+    from naocal.solver.robot import default_intrinsics
 
     class Fit:  # an identification whose GLS freed the bottom camera's fx and cy
         registry = type("R", (), {"index": {"intrinsics.bottom.fx": 0, "intrinsics.bottom.cy": 1}})()
@@ -245,8 +245,8 @@ def test_the_agent_predicts_held_out_captures_with_the_fitted_intrinsics():
 
 
 def test_the_summary_explains_the_verification_numbers():
-    from agent.summary import verification_lines
-    from agent.verify import VerificationReport
+    from naocal.agent.summary import verification_lines
+    from naocal.agent.verify import VerificationReport
 
     entry = {"before": {"reading_rms_px": 65.0, "command_rms_px": 65.1, "all_reading_rms_px": 65.2,
                         "all_command_rms_px": 65.2},

@@ -20,15 +20,15 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
 VERB_MODULES = (
-    "tools.cmd_calibrate",
-    "tools.cmd_simulate",
-    "tools.cmd_identify",
-    "tools.cmd_diagnose",
-    "tools.cmd_verify",
-    "tools.cmd_offsets",
-    "tools.cmd_bridge",
-    "tools.cmd_detect",
-    "tools.cmd_import",
+    "naocal.tools.cmd_calibrate",
+    "naocal.tools.cmd_simulate",
+    "naocal.tools.cmd_identify",
+    "naocal.tools.cmd_diagnose",
+    "naocal.tools.cmd_verify",
+    "naocal.tools.cmd_offsets",
+    "naocal.tools.cmd_bridge",
+    "naocal.tools.cmd_detect",
+    "naocal.tools.cmd_import",
 )
 
 
@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     _terminate_like_ctrl_c()
     try:
@@ -73,7 +73,7 @@ def main(argv=None) -> int:
         what = "out of memory" if isinstance(err, MemoryError) else "input nested too deeply"
         return _error(args.verb, f"{what} (is an input file damaged or far too large?)", 2)
     except KeyboardInterrupt as interrupt:
-        from agent.machine import interrupt_cause
+        from naocal.agent.machine import interrupt_cause
 
         print(f"naocal {args.verb}: interrupted ({interrupt_cause(interrupt)})", file=sys.stderr)
         return 130

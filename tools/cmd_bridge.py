@@ -14,7 +14,7 @@ with `naocal calibrate --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL
 import argparse
 import logging
 
-from tools import cmd_bridge_tools
+from naocal.tools import cmd_bridge_tools
 
 DEFAULT_BIND = "tcp://127.0.0.1:7790"  # keep in step with backends.bridge_server.DEFAULT_BIND
 MAX_PING_COUNT = 10000
@@ -103,9 +103,9 @@ def _serve(args) -> int:
     import logging
     import signal
 
-    from backends.bridge_guard import raise_fd_limit
-    from backends.bridge_server import BridgeServer, check_bind_address, check_lease_timeout, keep_large_buffers_in_heap
-    from solver.errors import NaocalError
+    from naocal.backends.bridge_guard import raise_fd_limit
+    from naocal.backends.bridge_server import BridgeServer, check_bind_address, check_lease_timeout, keep_large_buffers_in_heap
+    from naocal.solver.errors import NaocalError
 
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
@@ -142,11 +142,11 @@ def _serve(args) -> int:
 
 def _open_backend(args):
     """(backend, clock, state_persists) for --driver."""
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     if args.driver == "mock":
         try:
-            from backends.mock import MockBackend, parse_effect_sizes
+            from naocal.backends.mock import MockBackend, parse_effect_sizes
         except ImportError as err:
             raise NaocalError(f"the PyBullet mock is not available: {err}") from None
         kwargs = {"seed": args.seed, "realism": args.mock or "realistic"}
@@ -158,7 +158,7 @@ def _open_backend(args):
     if args.driver == "lola":
         return _open_lola(args), "wall", True
     try:
-        from backends.naoqi_driver import NaoqiBackend
+        from naocal.backends.naoqi_driver import NaoqiBackend
 
         return NaoqiBackend(args.naoqi), "wall", True
     except ImportError as err:
@@ -167,11 +167,11 @@ def _open_backend(args):
 
 def _open_lola(args):
     """The LoLA driver with the cameras whose devices exist (each opened on first capture) for `serve --driver lola`."""
-    from backends.lola_driver import LolaBackend
-    from backends.base import nominal_intrinsics
-    from backends import v4l2_camera
-    from backends.v4l2_camera import V4L2Camera, read_intrinsics
-    from solver.errors import NaocalError
+    from naocal.backends.lola_driver import LolaBackend
+    from naocal.backends.base import nominal_intrinsics
+    from naocal.backends import v4l2_camera
+    from naocal.backends.v4l2_camera import V4L2Camera, read_intrinsics
+    from naocal.solver.errors import NaocalError
 
     log = logging.getLogger("naocal.bridge")
 
@@ -213,8 +213,8 @@ def _ping(args) -> int:
     import statistics
     import time
 
-    from backends.bridge import BridgeBackend
-    from solver.errors import NaocalError
+    from naocal.backends.bridge import BridgeBackend
+    from naocal.solver.errors import NaocalError
 
     if not 1 <= args.count <= MAX_PING_COUNT:  # a median of no round trips means nothing
         raise NaocalError(f"--count must be within 1..{MAX_PING_COUNT}, got {args.count}")
@@ -236,7 +236,7 @@ def _ping(args) -> int:
 
 
 def _keygen(args) -> int:
-    from backends.bridge_server import write_curve_keys
+    from naocal.backends.bridge_server import write_curve_keys
 
     public_path, secret_path = write_curve_keys(args.out, args.name)
     print(f"public key: {public_path}\n  give it to the other side: a server's key to its clients "

@@ -49,7 +49,7 @@ def register(actions) -> None:
 
 def _read_offsets(path):
     """The offsets file (None without --offsets), read before anything connects: a bad file stops here."""
-    from solver.offsets import read_offsets
+    from naocal.solver.offsets import read_offsets
 
     return read_offsets(path) if path else None
 
@@ -59,9 +59,9 @@ def _offsets_for(robot, offsets, path) -> dict:
     file names another body or head than the robot reports (solver.verify.check_same_robot)."""
     import sys
 
-    from solver.errors import DataError
-    from solver.robot import nao
-    from solver.verify import check_same_robot
+    from naocal.solver.errors import DataError
+    from naocal.solver.robot import nao
+    from naocal.solver.verify import check_same_robot
 
     if offsets is None:
         return {}
@@ -86,8 +86,8 @@ def run_status(args) -> int:
     import json
     import math
 
-    from backends.bridge import BridgeBackend
-    from solver.compensation import correct_reading
+    from naocal.backends.bridge import BridgeBackend
+    from naocal.solver.compensation import correct_reading
 
     offsets_file = _read_offsets(args.offsets)
     bridge = BridgeBackend(args.endpoint, timeout_s=args.timeout_s, retries=1)
@@ -133,12 +133,12 @@ def run_status(args) -> int:
 def run_move(args) -> int:
     import math
 
-    from backends.bridge import BridgeBackend
-    from backends.compensated import CompensatedBackend
-    from solver import limits
-    from solver.compensation import parse_assignment
-    from backends.errors import RobotTimeout
-    from solver.errors import NaocalError, SafetyError
+    from naocal.backends.bridge import BridgeBackend
+    from naocal.backends.compensated import CompensatedBackend
+    from naocal.solver import limits
+    from naocal.solver.compensation import parse_assignment
+    from naocal.backends.errors import RobotTimeout
+    from naocal.solver.errors import NaocalError, SafetyError
 
     if not 0.0 < args.speed <= 0.5:
         raise NaocalError(f"--speed must be within (0, 0.5], got {args.speed}")

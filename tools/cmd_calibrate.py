@@ -94,10 +94,10 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     """Refuse, before anything is written, a directory that is not this run's to write: a dataset (naocal
     simulate's), a finished run, another run without --resume, foreign files, or a run started with other options.
     `command(record)` is the command line that resumes the run `record` describes."""
-    from agent.calibrate import check_unfinished
-    from agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
-    from solver.errors import NaocalError
-    from solver.fileio import is_temporary
+    from naocal.agent.calibrate import check_unfinished
+    from naocal.agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
+    from naocal.solver.errors import NaocalError
+    from naocal.solver.fileio import is_temporary
 
     names = entries(out)
     if not names:
@@ -137,8 +137,8 @@ def realistic_mock_note(realism) -> str:
 
 def check_report_directory(report, out) -> None:
     """--report: a directory we may write in, outside the run directory (which holds the run's own files only)."""
-    from solver.errors import NaocalError
-    from solver.fileio import check_output_directory
+    from naocal.solver.errors import NaocalError
+    from naocal.solver.fileio import check_output_directory
 
     check_output_directory(report)
     if report.resolve() == out.resolve() or out.resolve() in report.resolve().parents:
@@ -151,9 +151,9 @@ def write_run_report(report, out, ctx) -> str | None:
     the measurement is complete; prints where it is, or why there is none. Returns the error, if it failed."""
     import sys
 
-    from agent.rundir import find_dataset
-    from solver.errors import NaocalError
-    from kinds import for_data
+    from naocal.agent.rundir import find_dataset
+    from naocal.solver.errors import NaocalError
+    from naocal.kinds import for_data
 
     if ctx.measurement is None:
         print("naocal calibrate: no report: the measurement did not finish", file=sys.stderr)
@@ -171,9 +171,9 @@ def run(args) -> int:
     import logging
     from pathlib import Path
 
-    from agent.rundir import RunLock, calibrate_record
-    from agent.options import check_common
-    from solver.errors import NaocalError
+    from naocal.agent.rundir import RunLock, calibrate_record
+    from naocal.agent.options import check_common
+    from naocal.solver.errors import NaocalError
 
     check_common(args)
     out = Path(args.out)
@@ -182,7 +182,7 @@ def run(args) -> int:
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
-        from backends.bridge_endpoint import check_client_endpoint
+        from naocal.backends.bridge_endpoint import check_client_endpoint
 
         check_client_endpoint(args.endpoint)
         if args.effect:
@@ -190,14 +190,14 @@ def run(args) -> int:
         if args.mock is not None:
             raise NaocalError("--mock chooses the in-process mock; serve a realistic one with "
                               "`naocal bridge serve --driver mock --mock realistic`")
-        from backends.bridge import check_server_answers
+        from naocal.backends.bridge import check_server_answers
 
         check_server_answers(args.endpoint)  # before the run directory exists: a dead endpoint leaves nothing
     elif args.endpoint:
         raise NaocalError("--endpoint is for --backend bridge")
     effects = {}
     if args.backend == "mock":
-        from backends.mock import parse_effect_sizes
+        from naocal.backends.mock import parse_effect_sizes
 
         effects = parse_effect_sizes(args.effect)
     realism = (args.mock or "realistic") if args.backend == "mock" else None
@@ -213,7 +213,7 @@ def run(args) -> int:
     with RunLock(out, command(record, args.resume)):
         check_out_dir(out, resume=args.resume, record=record, command=command)
         if args.resume:  # a session killed mid-write left temporary files: ours (we hold the lock), never used
-            from solver.fileio import remove_stale_temporaries
+            from naocal.solver.fileio import remove_stale_temporaries
 
             for path in remove_stale_temporaries(out):
                 logging.getLogger("naocal.calibrate").info("removed %s, left by a session killed while writing it",
@@ -228,7 +228,7 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     import sys
     from pathlib import Path
 
-    from agent.rundir import RECORD_NAME, write_record
+    from naocal.agent.rundir import RECORD_NAME, write_record
 
     if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
         console = logging.StreamHandler(sys.stderr)
@@ -236,11 +236,11 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
         console.setFormatter(logging.Formatter("naocal calibrate: %(levelname)s: %(message)s"))
         logging.getLogger().addHandler(console)
 
-    from agent.calibrate import calibrate
-    from agent.machine import INTERRUPTED
-    from agent.options import settings_from_args
-    from agent.summary import resumable
-    from solver.fileio import atomic_write_text
+    from naocal.agent.calibrate import calibrate
+    from naocal.agent.machine import INTERRUPTED
+    from naocal.agent.options import settings_from_args
+    from naocal.agent.summary import resumable
+    from naocal.solver.fileio import atomic_write_text
 
     settings = settings_from_args(args, seed=args.plan_seed, source=f"naocal calibrate --backend {args.backend}")
     settings.mock_seed = record["mock_seed"]
@@ -248,8 +248,8 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     truth = None
     detector = None
     if args.backend == "mock":
-        from agent.measure import opencv_detector
-        from backends.mock import MockBackend
+        from naocal.agent.measure import opencv_detector
+        from naocal.backends.mock import MockBackend
 
         backend = MockBackend(args.seed, effects=effects, realism=record["mock"])
         detector = backend.faulty(opencv_detector)  # the realistic mock's detector errs now and then
@@ -261,8 +261,8 @@ def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
             ", effects " + ", ".join(f"{k}={v:g}" for k, v in effects.items()) if effects else "") + ")"
         truth = backend.truth_dict()
     else:
-        from agent.rundir import BRIDGE_TOKEN_NAME
-        from backends.bridge import BridgeBackend
+        from naocal.agent.rundir import BRIDGE_TOKEN_NAME
+        from naocal.backends.bridge import BridgeBackend
 
         # The lease token stays with the run, so `--resume` after a crash takes the robot back at once.
         backend = BridgeBackend(args.endpoint, lease_file=out / BRIDGE_TOKEN_NAME)

@@ -74,9 +74,9 @@ def run(args) -> int:
     import json
     import sys
 
-    from agent.board_detect import parse_board
-    from solver.errors import DataError, NaocalError
-    from solver.fileio import check_output_file
+    from naocal.agent.board_detect import parse_board
+    from naocal.solver.errors import DataError, NaocalError
+    from naocal.solver.fileio import check_output_file
 
     try:
         board = parse_board(args.board)
@@ -120,12 +120,12 @@ def board_words(board) -> str:
 
 def parse_size(text: str) -> tuple[int, int]:
     """--size 'WxH' -> (width, height) of a raw YUYV frame; NaocalError when malformed."""
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     parts = text.lower().replace(" ", "").split("x")
     if len(parts) != 2 or not all(p.isdigit() for p in parts):
         raise NaocalError(f"--size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
-    from solver.fileio import MAX_IMAGE_PIXELS
+    from naocal.solver.fileio import MAX_IMAGE_PIXELS
 
     width, height = (int(p) for p in parts)
     if not (2 <= width <= 8192 and 2 <= height <= 8192) or width % 2:
@@ -145,8 +145,8 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     import cv2
     import numpy as np
 
-    from solver.errors import DataError
-    from solver.fileio import read_bytes, read_image_bytes
+    from naocal.solver.errors import DataError
+    from naocal.solver.fileio import read_bytes, read_image_bytes
 
     file = Path(path)
     if not file.exists():
@@ -217,7 +217,7 @@ def detect_one(path: str, image, board, channel: str) -> dict:
     """One image's JSON report (module docstring)."""
     import numpy as np
 
-    from agent.board_detect import BoardSpec, detect_board
+    from naocal.agent.board_detect import BoardSpec, detect_board
 
     found = detect_board(image, board, channel=channel)
     corners = found.image_order_px
@@ -268,7 +268,7 @@ def _overlay_paths(out: str, images: list) -> dict:
     """{image path: overlay file}. OUT is a file for one image (unless it is a directory), else a directory."""
     from pathlib import Path
 
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     target = Path(out)
     if len(images) == 1 and not target.is_dir():
@@ -308,8 +308,8 @@ def _write_overlay(out, image, report: dict) -> None:
     import cv2
     import numpy as np
 
-    from solver.errors import NaocalError
-    from solver.fileio import atomic_write_bytes
+    from naocal.solver.errors import NaocalError
+    from naocal.solver.fileio import atomic_write_bytes
 
     canvas = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     scale = 1

@@ -2,8 +2,8 @@
 
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
-import kinds
-from tools.verb_options import effect_names
+import naocal.kinds as kinds
+from naocal.tools.verb_options import effect_names
 
 EPILOG = """\
 Sections of the output:

@@ -1,8 +1,8 @@
 """`naocal identify DATASET`: fit the model to a dataset and print (or save) the parameters."""
 
 
-import kinds
-from tools.verb_options import add_identify_options
+import naocal.kinds as kinds
+from naocal.tools.verb_options import add_identify_options
 
 
 def register(subparsers):

@@ -31,7 +31,7 @@ def register(subparsers):
 def run(args) -> int:
     import numpy as np
 
-    from tools.import_mrlspl import import_mrlspl
+    from naocal.tools.import_mrlspl import import_mrlspl
 
     dataset = import_mrlspl(args.directory, args.out)
     per_image = dataset.meta["provenance"]["images"]

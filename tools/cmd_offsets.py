@@ -8,8 +8,7 @@ Every error is one line on stderr and exit code 2.
 import argparse
 import sys
 
-import kinds
-
+import naocal.kinds as kinds
 COMMANDS_HELP = """commands:
   show FILE                       offsets (deg, with std), camera rotation, board mount, model effects, fit, source
   diff A B                        per-parameter differences; '*' marks |B - A| > sqrt(std_A^2 + std_B^2)

@@ -13,9 +13,7 @@ Exit 0 on success, 2 on bad input, 3 if the measurement failed.
 
 import argparse
 
-import kinds
-
-
+import naocal.kinds as kinds
 def register(subparsers):
     p = subparsers.add_parser(
         "simulate", help="record a dataset of the simulated NAO (with its hidden truth in truth.json)",

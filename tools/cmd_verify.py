@@ -1,8 +1,6 @@
 """`naocal verify DATASET --offsets FILE`: is a calibration still good on new data? (its values are not refitted)"""
 
-import kinds
-
-
+import naocal.kinds as kinds
 def register(subparsers):
     p = subparsers.add_parser(
         "verify",

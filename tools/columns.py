@@ -10,6 +10,6 @@ def number_column(value, width=10, digits=4) -> str:
 
 def shown_value(value, unit):
     """An SI value in the unit tables show it in (solver.effect.shown: rad as deg, m as mm); None stays None."""
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     return None if value is None else shown(value, unit)[0]

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.errors import DataError, NaocalError
+from naocal.solver.errors import DataError, NaocalError
 
 JOINTS_FILE = "joints_raw.csv"
 LICENCE_FILE = "LICENSE.MIT.txt"
@@ -83,7 +83,7 @@ INTRINSICS_SOURCE = ("fx = fy = 160 px / tan(1.0641 rad / 2) = 271.8 px: the nom
 
 def read_joints(path: Path) -> list[dict]:
     """The rows of joints_raw.csv: [{"image", "camera_flag", "line", "raw": {joint: rad}}], checked."""
-    from solver.fileio import read_text
+    from naocal.solver.fileio import read_text
 
     text = read_text(path)
     rows = list(csv.reader(io.StringIO(text)))
@@ -144,7 +144,7 @@ def today_angles(raw: dict, joints) -> np.ndarray:
 
 def check_limits(rows: list[dict], robot, path: Path) -> None:
     """Every angle read within its joint's limits and the margin a dataset allows (names the line and column)."""
-    from solver.dataset import ANGLE_MARGIN_RAD
+    from naocal.solver.dataset import ANGLE_MARGIN_RAD
 
     for row in rows:
         for joint in robot.joints:
@@ -158,7 +158,7 @@ def check_limits(rows: list[dict], robot, path: Path) -> None:
 
 def nominal_pose(robot, camera: str, q: dict):
     """(T_torso_cam, T_torso_sole) of the nominal robot (URDF geometry, no offsets) at the angles `q`."""
-    from solver.kinematics import chain_frames
+    from naocal.solver.kinematics import chain_frames
 
     def fk(chain):
         angles = np.array([[q[j] for j in chain.joint_names]]) if chain.joint_names else np.zeros((1, 0))
@@ -170,7 +170,7 @@ def nominal_pose(robot, camera: str, q: dict):
 def predict_vertices(robot, camera: str, q: dict, intrinsics: dict) -> np.ndarray:
     """(n, 2) nominal projection of the floor target's vertices, in its vertex order, or a non-finite array when
     the board is behind the camera."""
-    from solver.camera import project_points, transform_to_camera
+    from naocal.solver.camera import project_points, transform_to_camera
 
     T_torso_cam, T_torso_sole = nominal_pose(robot, camera, q)
     vertices = robot.target(TARGET).vertices()
@@ -187,7 +187,7 @@ def gravity_in_torso(robot, q: dict) -> np.ndarray:
 
 def board_spec(robot):
     """The floor target's board as the detector describes it (size, square, colours from the description)."""
-    from agent.board_detect import BoardSpec
+    from naocal.agent.board_detect import BoardSpec
 
     board = robot.target(TARGET).board
     return BoardSpec(board.columns, board.rows, board.square_m, tuple(board.colours))
@@ -196,7 +196,7 @@ def board_spec(robot):
 def colour_check(image, channel: str, ordered: np.ndarray, board) -> str | None:
     """None when the square before vertex 0 has the board's first colour in `channel` (or the polarity there is
     unknown), else what is wrong. Compares the channel at the centres of squares (0, 0) and (1, 0)."""
-    from agent.board_detect import channel_image, polarity
+    from naocal.agent.board_detect import channel_image, polarity
 
     sign = polarity(board, channel)
     if sign == 0:
@@ -226,8 +226,8 @@ def colour_check(image, channel: str, ordered: np.ndarray, board) -> str | None:
 def detect_and_order(image_path: Path, image, robot, camera: str, q: dict, intrinsics: dict, board):
     """(corners (n, 2) in the target's vertex order, a dict saying how) for one image; DataError naming the image
     when the board is not found or its order cannot be told."""
-    from agent.board_detect import detect_board
-    from agent.corners import order_like_prediction
+    from naocal.agent.board_detect import detect_board
+    from naocal.agent.corners import order_like_prediction
 
     found = detect_board(image, board)
     if found.image_order_px is None or found.reason not in (None, "ambiguous") or "boards of" in found.detail:
@@ -254,7 +254,7 @@ def sha256(path: Path) -> str:
 
 def _read_checked(image_path: Path):
     """A 320 x 240 colour image (BGR), or DataError naming the file."""
-    from tools.cmd_detect import read_image
+    from naocal.tools.cmd_detect import read_image
 
     image = read_image(str(image_path))
     if image.shape[:2] != (HEIGHT_PX, WIDTH_PX):
@@ -267,8 +267,8 @@ def _read_checked(image_path: Path):
 
 def build_dataset(directory) -> tuple[dict, dict, dict]:
     """(meta, columns, image files {image: path}) of the dataset the directory's samples make."""
-    from solver.dataset import SCHEMA_V2
-    from solver.robot import load_robot
+    from naocal.solver.dataset import SCHEMA_V2
+    from naocal.solver.robot import load_robot
 
     directory = Path(directory)
     if not directory.is_dir():
@@ -346,9 +346,9 @@ def build_dataset(directory) -> tuple[dict, dict, dict]:
 def import_mrlspl(directory, out):
     """Write the dataset of `directory`'s samples to `out` (absent or an empty directory); returns it as read
     back (solver.dataset.Dataset). Nothing is left written when anything is wrong."""
-    from agent.rundir import RunLock, entries
-    from solver.dataset import IMAGES_DIR, META_FILE, OBSERVATIONS_FILE, write_dataset
-    from solver.fileio import atomic_write_bytes, check_output_directory
+    from naocal.agent.rundir import RunLock, entries
+    from naocal.solver.dataset import IMAGES_DIR, META_FILE, OBSERVATIONS_FILE, write_dataset
+    from naocal.solver.fileio import atomic_write_bytes, check_output_directory
 
     out = Path(out)
     check_output_directory(out)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.fileio import atomic_write_bytes, atomic_write_text
+from naocal.solver.fileio import atomic_write_bytes, atomic_write_text
 
 IMAGE_PATTERNS = ("{:06d}.png", "{:06d}.jpg", "{:d}.png", "{:d}.jpg", "image_{:06d}.png", "image_{:d}.png")
 COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown")
@@ -49,8 +49,8 @@ def write_report(out_dir, diagnosis, *, identify_fit, identify_command=None, dat
     import matplotlib
 
     matplotlib.use("Agg")
-    from solver.crossval import grouped_cv_rms
-    from solver.errors import NaocalError
+    from naocal.solver.crossval import grouped_cv_rms
+    from naocal.solver.errors import NaocalError
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -217,7 +217,7 @@ def _regressor_view(fit, effect):
     per-image joint error against the joint's gravity torque, approach direction or velocity; link lengths the
     apparent per-image length; camera terms per vertex.
     """
-    from solver.effects import EFFECTS
+    from naocal.solver.effects import EFFECTS
 
     panels = EFFECTS[effect].partial_residual_panels(fit)
     if not panels:
@@ -240,7 +240,7 @@ def _regressor_view(fit, effect):
 
 
 def _correlation(fit):
-    from solver.offsets import shown_name
+    from naocal.solver.offsets import shown_name
 
     names = [shown_name(n) for n in fit.registry.free_names]  # offsets named as c, as the tables show them
     C = np.nan_to_num(fit.correlation)
@@ -260,7 +260,7 @@ def _overlay(path, result, after, top, image_id):
 
     import matplotlib.image as mpimg
 
-    from solver.fileio import read_image_bytes
+    from naocal.solver.fileio import read_image_bytes
 
     picture = mpimg.imread(io.BytesIO(read_image_bytes(path)[0]))  # its size checked before it is decoded
     data = result.model.data
@@ -311,8 +311,8 @@ def _shown_effects(fit, top) -> set:
 def _parameter_rows(fit, only_effects=None):
     """Table rows of the fitted parameters: joint and head offsets named as the stored c they are ('c LHipPitch'),
     the others under their own names."""
-    from solver.diagnostics import implausibility
-    from solver.offsets import shown_name
+    from naocal.solver.diagnostics import implausibility
+    from naocal.solver.offsets import shown_name
 
     rows = []
     for name, entry in fit.parameters_dict().items():
@@ -342,7 +342,7 @@ img { max-width: 100%; border: 1px solid #ddd; margin: 0.3em 0; }
 
 
 def _html(diagnosis, after, top, cv_before, cv_after, figures, overlays, dataset_path, identify_command) -> str:
-    from agent.summary import describe_direction
+    from naocal.agent.summary import describe_direction
 
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
     data = res.model.data

@@ -4,7 +4,7 @@ identify's options (the NAO's diagnose parses the identify command it suggests) 
 
 def effect_names() -> str:
     """The candidate effects, for --help (solver/effects/, one module each)."""
-    from solver.effects import EXTRA_EFFECTS
+    from naocal.solver.effects import EXTRA_EFFECTS
 
     return ", ".join(EXTRA_EFFECTS)
 

@@ -12,13 +12,13 @@ class ArmKind:
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot / --chain exist only for an arm
             return bool(getattr(source, "robot", None) or getattr(source, "chain", None))
-        from solver.arm_calibration import is_arm_calibration
-        from solver.arm_dataset import is_arm_dataset
+        from naocal.solver.arm_calibration import is_arm_calibration
+        from naocal.solver.arm_dataset import is_arm_dataset
 
         return is_arm_dataset(source) or is_arm_calibration(source)
 
     def add_options(self, parser, verb: str) -> None:
-        from kinds.arm.verbs import add_arm_options
+        from naocal.kinds.arm.verbs import add_arm_options
 
         if verb in ("identify", "diagnose", "verify"):
             add_arm_options(parser)  # DATASET a naocal.arm_dataset/1; --effects then names the arm's effects
@@ -33,30 +33,30 @@ class ArmKind:
                                 help="arm: the hidden errors (default joint_offsets,link_lengths)")
 
     def identify(self, args) -> int:
-        from kinds.arm.verbs import run_identify
+        from naocal.kinds.arm.verbs import run_identify
 
         return run_identify(args)
 
     def diagnose(self, args) -> int:
-        from kinds.arm.verbs import run_diagnose
+        from naocal.kinds.arm.verbs import run_diagnose
 
         return run_diagnose(args)
 
     def verify(self, args) -> int:
-        from kinds.arm.verbs import run_verify
+        from naocal.kinds.arm.verbs import run_verify
 
         return run_verify(args)
 
     def simulate(self, args) -> int:
-        from kinds.arm.verbs import run_simulate
+        from naocal.kinds.arm.verbs import run_simulate
 
         return run_simulate(args)
 
     def offsets(self, args, action: str, out) -> int:
-        from kinds.arm import offsets
+        from naocal.kinds.arm import offsets
 
         if action == "show":
-            from kinds.arm.verbs import format_calibration
+            from naocal.kinds.arm.verbs import format_calibration
 
             out.write(format_calibration(args.file))
             return 0

@@ -7,8 +7,8 @@ import math
 import sys
 from pathlib import Path
 
-from solver.errors import DataError, NaocalError
-from tools.columns import number_column as _num, shown_value as _shown  # the NAO's diff table's columns
+from naocal.solver.errors import DataError, NaocalError
+from naocal.tools.columns import number_column as _num, shown_value as _shown  # the NAO's diff table's columns
 
 ARM_EXPORT_FORMATS = ("urdf", "json")
 
@@ -17,7 +17,7 @@ ARM_EXPORT_FORMATS = ("urdf", "json")
 def format_arm_diff(a, b, name_a: str, name_b: str):
     """(text, number of marked differences): B - A per parameter in display units (deg, mm), '*' where it exceeds
     the combined std. The sensors' frames (the setup, not the arm) are listed apart and never marked."""
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     out = [f"A = {name_a}", f"B = {name_b}"]
     for key in ("id", "base", "tip"):
@@ -57,7 +57,7 @@ def format_arm_diff(a, b, name_a: str, name_b: str):
 
 
 def _arm_pair(path_a, path_b):
-    from solver.arm_calibration import is_arm_calibration, read_arm_calibration
+    from naocal.solver.arm_calibration import is_arm_calibration, read_arm_calibration
 
     arm_a, arm_b = is_arm_calibration(path_a), is_arm_calibration(path_b)
     if arm_a != arm_b:
@@ -75,7 +75,7 @@ def run_diff(args, out) -> int:
 
 
 def run_validate(args, out) -> int:
-    from solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_calibration import read_arm_calibration
 
     read_arm_calibration(args.file)
     out.write("ok\n")
@@ -101,7 +101,7 @@ def build_export(args):
     be exported to."""
     import json
 
-    from solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_calibration import read_arm_calibration
 
     if args.format not in ARM_EXPORT_FORMATS:
         raise NaocalError(f"--format {args.format}: an arm's calibration exports to {' or '.join(ARM_EXPORT_FORMATS)} "
@@ -111,10 +111,10 @@ def build_export(args):
             raise NaocalError(f"--{option.replace('_', '-')} is the NAO's team formats' option")
     cal = read_arm_calibration(args.file)
     if args.format == "json":
-        from solver.fileio import read_json
+        from naocal.solver.fileio import read_json
 
         return "calibration.json", json.dumps(read_json(args.file), indent=1, allow_nan=False) + "\n", [args.file]
-    from tools.export.arm_urdf import export_arm_urdf
+    from naocal.tools.export.arm_urdf import export_arm_urdf
 
     urdf = _urdf_of(cal, args)
     return "calibrated.urdf", export_arm_urdf(cal, urdf, source_name=Path(args.file).name,
@@ -122,12 +122,12 @@ def build_export(args):
 
 
 def run_export(args, out) -> int:
-    from tools.export.write import export_target, locked, write_export
+    from naocal.tools.export.write import export_target, locked, write_export
 
     if args.out is None:
         out.write(build_export(args)[1])
         return 0
-    from solver.fileio import check_not_an_input
+    from naocal.solver.fileio import check_not_an_input
 
     target = Path(args.out)
     with locked(target.parent):
@@ -139,7 +139,7 @@ def run_export(args, out) -> int:
 
 def run_apply(args, out) -> int:
     """Compensated commands (requested + c) or corrected readings (measured - c) of the arm's joints."""
-    from solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_calibration import read_arm_calibration
 
     cal = read_arm_calibration(args.file)
     offsets = {n.split(".", 1)[1]: e["value"] for n, e in cal.parameters.items() if n.startswith("joint_offset.")}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import sys
 
-from solver.fileio import json_safe
+from naocal.solver.fileio import json_safe
 
 
 def add_arm_options(parser, *, simulate=False) -> None:
@@ -21,9 +21,9 @@ def add_arm_options(parser, *, simulate=False) -> None:
 
 
 def parse_arm_effects(text: str):
-    from solver.arm import DEFAULT_EFFECTS, EFFECTS
-    from solver.effects import comma_list
-    from solver.errors import NaocalError
+    from naocal.solver.arm import DEFAULT_EFFECTS, EFFECTS
+    from naocal.solver.effects import comma_list
+    from naocal.solver.errors import NaocalError
 
     if not text:
         return DEFAULT_EFFECTS
@@ -35,7 +35,7 @@ def parse_arm_effects(text: str):
 
 
 def _check_nao_only(args) -> None:
-    from solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
     if getattr(args, "loss_scale_px", 1.0) != 1.0:
         raise NaocalError("--loss-scale-px is the NAO's: an arm's robust loss bends at its sensors' noise (1 std)")
@@ -44,7 +44,7 @@ def _check_nao_only(args) -> None:
 
 
 def _load(args):
-    from solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_dataset import read_arm_dataset
 
     dataset = read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
     for note in dataset.notes or ():
@@ -80,13 +80,13 @@ def result_json(fit, dataset, heldout) -> dict:
 
 
 def _shown(value, unit):
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     return shown(value, unit)
 
 
 def format_table(report: dict) -> str:
-    from solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_diagnose import shown_rms
 
     kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
     lines = ["fit: " + "; ".join(f"{s} RMS {shown_rms(v['value'], kind[s])} per axis" for s, v in
@@ -105,7 +105,7 @@ def format_table(report: dict) -> str:
     lines.append("")
     for name, reason in report["fixed"].items():
         lines.append(f"fixed: {name}: {reason}")
-    from solver.arm_identify import ArmOutlier, describe_outliers
+    from naocal.solver.arm_identify import ArmOutlier, describe_outliers
 
     lines.append(describe_outliers([ArmOutlier(**o) for o in report["outliers"]]))
     lines.append(f"condition number (scaled Jacobian): {report['condition_number']:.3g}")
@@ -117,21 +117,21 @@ def format_table(report: dict) -> str:
 
 
 def run_identify(args) -> int:
-    from solver.arm_identify import heldout_rms, identify_dataset
-    from solver.errors import SolveError
+    from naocal.solver.arm_identify import heldout_rms, identify_dataset
+    from naocal.solver.errors import SolveError
 
     _check_nao_only(args)
     effects = parse_arm_effects(args.effects)
     dataset = _load(args)
     if args.out:
-        from agent.rundir import dataset_files
-        from solver.fileio import check_output_file
+        from naocal.agent.rundir import dataset_files
+        from naocal.solver.fileio import check_output_file
 
         check_output_file(args.out, inputs=[*dataset_files(args.dataset), dataset.urdf_path])  # before the fit
     fit = identify_dataset(dataset, effects, fixed=tuple(args.fix), loss=args.loss, robust=not args.keep_outliers)
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
-    from solver.arm_calibration import LIMITS, implausible
+    from naocal.solver.arm_calibration import LIMITS, implausible
 
     beyond = implausible(fit.parameters_dict())
     if beyond:
@@ -151,9 +151,9 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
     """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
     from pathlib import Path
 
-    from solver.arm_calibration import SCHEMA
-    from solver.fileio import atomic_write_text
-    from solver.offsets import utc_now_iso
+    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.solver.fileio import atomic_write_text
+    from naocal.solver.offsets import utc_now_iso
 
     params = report["parameters"]
     sections = {"joint_offsets_rad": {}, "link_lengths_m": {}, "sensors": {}}
@@ -179,7 +179,7 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
 
 def format_calibration(path) -> str:
     """`naocal offsets show` of an arm calibration file; DataError naming the field when it is damaged."""
-    from solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_calibration import read_arm_calibration
 
     cal = read_arm_calibration(path)
     robot = cal.robot
@@ -193,7 +193,7 @@ def format_calibration(path) -> str:
     for name, reason in cal.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     if cal.rms:
-        from solver.arm_diagnose import shown_rms
+        from naocal.solver.arm_diagnose import shown_rms
 
         lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, 'points' if u == 'm' else 'camera')} per axis"
                                           for s, (v, u) in cal.rms.items())]
@@ -202,11 +202,11 @@ def format_calibration(path) -> str:
 
 def run_verify(args) -> int:
     """`naocal verify` of an arm dataset under an arm calibration: exit 0 still good, 1 drifted."""
-    from solver.arm_calibration import read_arm_calibration
-    from solver.arm_verify import format_arm_verdict, verify_arm
+    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_verify import format_arm_verdict, verify_arm
 
     if getattr(args, "angles", "auto") != "auto":
-        from solver.errors import NaocalError
+        from naocal.solver.errors import NaocalError
 
         raise NaocalError("--angles is the NAO's: an arm's dataset has one reading per joint")
     cal = read_arm_calibration(args.offsets)
@@ -221,9 +221,9 @@ def run_verify(args) -> int:
 
 
 def run_diagnose(args) -> int:
-    from solver.arm_diagnose import diagnose, format_diagnosis
-    from solver.arm_identify import identify_dataset
-    from solver.errors import SolveError
+    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
+    from naocal.solver.arm_identify import identify_dataset
+    from naocal.solver.errors import SolveError
 
     effects = parse_arm_effects(args.effects)
     dataset = _load(args)
@@ -242,12 +242,12 @@ def run_simulate(args) -> int:
     import shlex
     from pathlib import Path
 
-    from agent.rundir import RunLock, entries
-    from backends.arm_sim import simulate_arm
-    from solver.arm_dataset import PYBULLET_ARMS, resolve_robot
-    from solver.errors import NaocalError
+    from naocal.agent.rundir import RunLock, entries
+    from naocal.backends.arm_sim import simulate_arm
+    from naocal.solver.arm_dataset import PYBULLET_ARMS, resolve_robot
+    from naocal.solver.errors import NaocalError
 
-    from solver.effects import comma_list
+    from naocal.solver.effects import comma_list
 
     hidden = tuple(comma_list(args.hidden, "--hidden")) if args.hidden else ()
     for h in hidden:

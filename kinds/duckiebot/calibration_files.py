@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from kinds.duckiebot.robot import Kinematics, robot_name_problem
-from solver.camera import plane_homography
-from solver.errors import DataError, NaocalError
-from solver.fileio import atomic_write_text, check_output_file, read_text
-from solver.transforms import invert_transform
+from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
+from naocal.solver.camera import plane_homography
+from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.fileio import atomic_write_text, check_output_file, read_text
+from naocal.solver.transforms import invert_transform
 
 KINEMATICS_DIR, INTRINSIC_DIR, EXTRINSIC_DIR = "kinematics", "camera_intrinsic", "camera_extrinsic"
 DISTORTION_MODEL = "plumb_bob"  # what Duckietown's files hold and its rectification assumes

@@ -19,7 +19,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from agent.board_detect import BoardSpec, channel_image, detect_board
+from naocal.agent.board_detect import BoardSpec, channel_image, detect_board
 
 MARKER_FAMILIES = {"tag36h11": cv2.aruco.DICT_APRILTAG_36h11}
 MAX_BOARDS = 3  # the set-up's boards on their semicircle; never more in one image

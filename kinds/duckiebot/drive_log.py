@@ -28,9 +28,9 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
-from kinds.duckiebot.robot import robot_name_problem
-from solver.errors import DataError
-from solver.fileio import atomic_write_bytes, atomic_write_text, read_bytes, read_json, read_text
+from naocal.kinds.duckiebot.robot import robot_name_problem
+from naocal.solver.errors import DataError
+from naocal.solver.fileio import atomic_write_bytes, atomic_write_text, read_bytes, read_json, read_text
 
 SCHEMA = "naocal.drive_log/1"
 META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE = "log.json", "wheels.csv", "frames.csv", "encoders.csv"

@@ -34,11 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.camera import project
-from solver.errors import SolveError
-from solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable, solve,
+from naocal.solver.camera import project
+from naocal.solver.errors import SolveError
+from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable, solve,
                              worst_of_group_beyond)
-from solver.transforms import d_rot_x, d_rot_y, d_rot_z, make_transform, rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
+from naocal.solver.transforms import d_rot_x, d_rot_y, d_rot_z, make_transform, rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 
 KINEMATIC = ("gain", "trim", "baseline_m")
 # The detector's corners lie inside the marker's true ones, the more the smaller the marker (a rendered log, seed 1:

@@ -10,14 +10,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
-from kinds.duckiebot.detect import detect_boards, detect_markers
-from kinds.duckiebot.drive_log import DriveLog, read_drive_log
-from kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive
-from kinds.duckiebot.intrinsics import LensCamera, LensFit, board_points, choose_lens
-from kinds.duckiebot.robot import Kinematics, duckiebot
-from solver.camera import CameraIntrinsics
-from solver.errors import NaocalError
+from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
+from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
+from naocal.kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive
+from naocal.kinds.duckiebot.intrinsics import LensCamera, LensFit, board_points, choose_lens
+from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
+from naocal.solver.camera import CameraIntrinsics
+from naocal.solver.errors import NaocalError
 
 # A marker corner's detection noise grows fast as the marker shrinks in the image: measured on a rendered log (seed
 # 1, detected vs true corners, after their common inward bias) 0.04 px sd for sides of 30-100 px, 0.32 px at 20-30,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 LENS_MODELS = ("plumb_bob", "rational", "fisheye")
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)

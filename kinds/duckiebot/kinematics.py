@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinds.duckiebot.robot import Kinematics
+from naocal.kinds.duckiebot.robot import Kinematics
 
 PWM_MAX = 255  # the wheel driver's 8-bit PWM
 PWM_MIN = 60  # the smallest PWM it sends for a non-zero duty (a dead zone, then a jump)

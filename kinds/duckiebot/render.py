@@ -28,12 +28,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from kinds.duckiebot.drive_log import SCHEMA, DriveLog, write_drive_log, write_frame
-from kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, wheel_speeds
-from kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
-from solver.camera import CameraIntrinsics, distort, project_points, undistort_points
-from solver.fileio import check_output_directory
-from solver.transforms import invert_transform, make_transform, rot_z, transform_points
+from naocal.kinds.duckiebot.drive_log import SCHEMA, DriveLog, write_drive_log, write_frame
+from naocal.kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, wheel_speeds
+from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
+from naocal.solver.camera import CameraIntrinsics, distort, project_points, undistort_points
+from naocal.solver.fileio import check_output_directory
+from naocal.solver.transforms import invert_transform, make_transform, rot_z, transform_points
 
 MARKER_SIZE_M = 0.065
 MARKER_SPACING_M = 0.15

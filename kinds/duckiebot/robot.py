@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.camera import CameraIntrinsics
-from solver.errors import NaocalError
-from solver.transforms import make_transform, rot_x, rot_y, rot_z
+from naocal.solver.camera import CameraIntrinsics
+from naocal.solver.errors import NaocalError
+from naocal.solver.transforms import make_transform, rot_x, rot_y, rot_z
 
 # Duckietown's kinematics defaults (dt-car-interface kinematics_node).
 DEFAULT_GAIN = 1.0

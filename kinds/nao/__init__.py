@@ -7,13 +7,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from kinds.nao import options
+from naocal.kinds.nao import options
 
 
 def _schema(path: Path):
     """The "schema" of the JSON file `path`, None if it is not a readable JSON object."""
-    from solver.errors import DataError
-    from solver.fileio import read_json
+    from naocal.solver.errors import DataError
+    from naocal.solver.fileio import read_json
 
     try:  # read_json: regular files only (a FIFO must not block the check), size capped
         doc = read_json(path)
@@ -28,8 +28,8 @@ class NaoKind:
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # no option is the NAO's alone: it is the default kind
             return False
-        from solver.dataset import SCHEMAS as DATASET_SCHEMAS
-        from solver.offsets import SCHEMA_V1, SCHEMA_V2, TRUTH_SCHEMAS
+        from naocal.solver.dataset import SCHEMAS as DATASET_SCHEMAS
+        from naocal.solver.offsets import SCHEMA_V1, SCHEMA_V2, TRUTH_SCHEMAS
 
         path = Path(source)
         if path.is_dir():  # a dataset, or a `naocal calibrate --out` run holding one
@@ -40,34 +40,34 @@ class NaoKind:
         options.add_options(parser, verb)
 
     def identify(self, args) -> int:
-        from kinds.nao.identify import run
+        from naocal.kinds.nao.identify import run
 
         return run(args)
 
     def diagnose(self, args) -> int:
-        from kinds.nao.diagnose import run
+        from naocal.kinds.nao.diagnose import run
 
         return run(args)
 
     def verify(self, args) -> int:
-        from kinds.nao.verify import run
+        from naocal.kinds.nao.verify import run
 
         return run(args)
 
     def simulate(self, args) -> int:
-        from kinds.nao.simulate import run
+        from naocal.kinds.nao.simulate import run
 
         return run(args)
 
     def offsets(self, args, action: str, out) -> int:
-        from kinds.nao import offsets
+        from naocal.kinds.nao import offsets
 
         return {"show": offsets.run_show, "diff": offsets.run_diff, "validate": offsets.run_validate,
                 "export": offsets.run_export, "apply": offsets.run_apply}[action](args, out)
 
     def diagnosis_report(self, dataset_path, report_dir) -> str:
         """`naocal diagnose DATASET --report DIR`'s report with its defaults (for `naocal calibrate --report`)."""
-        from kinds.nao.diagnose import diagnose_dataset, write_diagnosis_report
+        from naocal.kinds.nao.diagnose import diagnose_dataset, write_diagnosis_report
 
         dataset, _, diagnosis = diagnose_dataset(dataset_path)
         return write_diagnosis_report(report_dir, diagnosis, dataset, dataset_path)

@@ -1,15 +1,15 @@
 """The NAO's `naocal diagnose DATASET`: compare the model with the measurements, locate where it fails, name what is
 missing (the sections: tools/cmd_diagnose.py's EPILOG)."""
 
-from solver.fileio import json_safe
+from naocal.solver.fileio import json_safe
 
 
 def run(args) -> int:
     import json
 
-    from agent.rundir import find_dataset
-    from solver.effects import parse_effect_names
-    from solver.fileio import check_output_directory
+    from naocal.agent.rundir import find_dataset
+    from naocal.solver.effects import parse_effect_names
+    from naocal.solver.fileio import check_output_directory
 
     effects = parse_effect_names(args.effects)
     if args.report:
@@ -24,7 +24,7 @@ def run(args) -> int:
         report_path = write_diagnosis_report(args.report, diagnosis, dataset, dataset_path, fixed=args.fix,
                                              angles=args.angles, tied=tied)
     if args.json:
-        from kinds.nao.identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
+        from naocal.kinds.nao.identify import MODEL_PARAMETERS_NOTE, joint_offsets_c
 
         out = diagnosis.as_dict()
         out.update(fit.as_dict())
@@ -54,12 +54,12 @@ def run(args) -> int:
 def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=True):
     """(the dataset, the fit, its diagnosis) of the dataset directory `dataset_path` with the model plus `effects`:
     what `naocal diagnose` prints and reports (and `naocal calibrate --report` for its run's dataset)."""
-    from solver.adapter import model_data_from_dataset
-    from solver.dataset import read_dataset
-    from solver.diagnostics import diagnose_result
-    from solver.effects import EFFECTS
-    from solver.errors import NaocalError, SolveError
-    from solver.fit import identify_dataset
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.diagnostics import diagnose_result
+    from naocal.solver.effects import EFFECTS
+    from naocal.solver.errors import NaocalError, SolveError
+    from naocal.solver.fit import identify_dataset
 
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset)
@@ -80,10 +80,10 @@ def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=
 def write_diagnosis_report(report_dir, diagnosis, dataset, dataset_path, *, fixed=(), angles="auto", tied=True):
     """Write the HTML report of `diagnosis` into `report_dir`; its "after" tables are the fits of the identify
     commands the verdict prints (identify's own options and path). Returns the report's path."""
-    from tools.report import write_report
+    from naocal.tools.report import write_report
 
     def identify_fit(candidate):
-        from kinds.nao.identify import fit_dataset, parse_options
+        from naocal.kinds.nao.identify import fit_dataset, parse_options
 
         return fit_dataset(parse_options(identify_options(diagnosis, candidate, fixed=fixed, angles=angles,
                                                           tied=tied)), dataset)
@@ -103,7 +103,7 @@ def angle_check(dataset, fit, effects, args, dataset_path) -> dict | None:
     with --angles auto (the fit chose already: its evidence is in the COMPARE section)."""
     import shlex
 
-    from solver.fit import HYPOTHESIS_WORDS, identify_dataset
+    from naocal.solver.fit import HYPOTHESIS_WORDS, identify_dataset
 
     if args.angles == "auto":
         return None
@@ -177,7 +177,7 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
     evidence). `dataset_path`, `fixed`, `angles` and `tied` are the run's, for the commands the verdict prints."""
     import math
 
-    from solver.diagnostics import LOW_UNIQUENESS
+    from naocal.solver.diagnostics import LOW_UNIQUENESS
 
     c, loc, res = diagnosis.comparison, diagnosis.location, diagnosis.result
     data = res.model.data
@@ -272,10 +272,10 @@ def format_text(diagnosis, fit=None, *, dataset_path="DATASET", fixed=(), angles
 
 def _top_values(candidate, registry, count=3) -> str:
     """The candidate's largest predicted values, as its effect shows them (degrees, mm, ms ...); offsets named as c."""
-    from solver.diagnostics import registry_with
-    from solver.offsets import COMPENSATED_PREFIXES, shown_name
+    from naocal.solver.diagnostics import registry_with
+    from naocal.solver.offsets import COMPENSATED_PREFIXES, shown_name
 
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     tied_to = {p.name: p.tied_to for p in registry.parameters if p.tied_to}
     registry = registry if candidate.remedy else registry_with(registry, candidate)

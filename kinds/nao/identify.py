@@ -6,13 +6,13 @@ import argparse
 def run(args) -> int:
     import json
 
-    from agent.rundir import dataset_files, find_dataset
-    from solver.adapter import model_data_from_dataset
-    from solver.dataset import read_dataset
-    from solver.effects import EFFECTS, parse_effect_names
-    from solver.errors import NaocalError, SolveError
-    from solver.fileio import check_output_file
-    from solver.offsets import implausible_parameters
+    from naocal.agent.rundir import dataset_files, find_dataset
+    from naocal.solver.adapter import model_data_from_dataset
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.effects import EFFECTS, parse_effect_names
+    from naocal.solver.errors import NaocalError, SolveError
+    from naocal.solver.fileio import check_output_file
+    from naocal.solver.offsets import implausible_parameters
 
     if not 0 < args.loss_scale_px < float("inf"):  # (also refuses nan)
         raise NaocalError(f"--loss-scale-px must be a positive number, got {args.loss_scale_px}")
@@ -36,7 +36,7 @@ def run(args) -> int:
 
     cv_rms = None
     if args.cv_folds and args.cv_folds > 1:
-        from solver.crossval import grouped_cv_rms
+        from naocal.solver.crossval import grouped_cv_rms
 
         cv_rms = grouped_cv_rms(data, result.registry, n_folds=args.cv_folds)
 
@@ -62,8 +62,8 @@ def run(args) -> int:
 def fit_dataset(args, dataset):
     """The fit `naocal identify` makes of a read dataset with these options (solver.fit.DatasetFit): the one place
     that turns identify's options into a fit (run, and diagnose's report for the command it suggests)."""
-    from solver.effects import parse_effect_names
-    from solver.fit import identify_dataset
+    from naocal.solver.effects import parse_effect_names
+    from naocal.solver.fit import identify_dataset
 
     return identify_dataset(dataset, parse_effect_names(args.effects), angles=args.angles,
                             robust=not args.keep_outliers, fixed=args.fix,
@@ -73,8 +73,8 @@ def fit_dataset(args, dataset):
 
 def parse_options(options) -> argparse.Namespace:
     """identify's options (the words after DATASET, e.g. of a command diagnose suggests) as `run` would see them."""
-    from kinds.nao.options import add_options
-    from tools.verb_options import add_identify_options
+    from naocal.kinds.nao.options import add_options
+    from naocal.tools.verb_options import add_identify_options
 
     parser = argparse.ArgumentParser(prog="naocal identify")
     add_identify_options(parser)
@@ -117,7 +117,7 @@ MODEL_PARAMETERS_NOTE = ("model values: joint_offset.<J> and head_offset.<J> are
 def joint_offsets_c(result) -> dict:
     """{joint: {"c_rad", "std_rad", "fixed"}}: the compensation offsets c, as offsets.json stores them (the
     parameters joint_offset.<J> and head_offset.<J> are c)."""
-    from solver.offsets import COMPENSATED_PREFIXES
+    from naocal.solver.offsets import COMPENSATED_PREFIXES
 
     out = {}
     for name, entry in result.parameters_dict().items():
@@ -142,9 +142,9 @@ def format_offsets_c(result, out=None) -> list[str]:
 
 
 def format_table(result, cv_rms, out=None) -> str:
-    from agent.summary import describe_direction
-    from solver.diagnostics import implausibility
-    from solver.offsets import COMPENSATED_PREFIXES
+    from naocal.agent.summary import describe_direction
+    from naocal.solver.diagnostics import implausibility
+    from naocal.solver.offsets import COMPENSATED_PREFIXES
 
     lines = [
         f"fit: RMS {result.rms_px[0]:.3f} px (x), {result.rms_px[1]:.3f} px (y) over "
@@ -186,7 +186,7 @@ def strongest_correlations(result, count=5, threshold=0.8):
     """The strongest correlations between free parameters, offsets named as c (as the tables show them)."""
     import numpy as np
 
-    from solver.offsets import shown_name
+    from naocal.solver.offsets import shown_name
 
     C = np.nan_to_num(result.correlation)
     names = [shown_name(n) for n in result.registry.free_names]
@@ -196,7 +196,7 @@ def strongest_correlations(result, count=5, threshold=0.8):
 
 
 def write_offsets_file(path, result, dataset, dataset_path):
-    from solver.offsets import offsets_from_result, write_offsets
+    from naocal.solver.offsets import offsets_from_result, write_offsets
 
     robot_meta = dataset.meta.get("robot", {})
     robot = {key: str(robot_meta.get(key, robot_meta.get("id", "unknown"))) for key in ("id", "body_id", "head_id")}

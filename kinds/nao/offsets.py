@@ -1,7 +1,7 @@
 """The NAO's `naocal offsets show | diff | validate | export | apply` of naocal.offsets/2 (and /1) files, and a result
 against the simulator's naocal.truth (the verb and its help: tools/cmd_offsets.py)."""
 
-from tools.columns import number_column as _num, shown_value as _shown  # shared with kinds/arm/offsets.py
+from naocal.tools.columns import number_column as _num, shown_value as _shown  # shared with kinds/arm/offsets.py
 
 
 # ----------------------------------------------------------------------------------------------- display
@@ -18,7 +18,7 @@ _BOARD_ROWS = (("rot_z_rad", "rot_z", "rad"), ("trans_x_m", "trans_x", "m"), ("t
 
 
 def _unit(unit) -> str:
-    from solver.effect import shown
+    from naocal.solver.effect import shown
 
     return shown(0.0, unit)[1]
 
@@ -36,7 +36,7 @@ def parameter_rows(offsets) -> list:
 
     Joint offsets are c (the file's value); the other parameters are the model's values.
     """
-    from solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
+    from naocal.solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
 
     rows = [(f"c {j}", "rad", offsets.joint_offsets_rad[j], _joint_std(offsets, j))
             for j in OFFSET_JOINTS if j in offsets.joint_offsets_rad]
@@ -53,7 +53,7 @@ def parameter_rows(offsets) -> list:
 
 
 def format_show(offsets, name: str) -> str:
-    from solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
+    from naocal.solver.offsets import CAMERA_ANGLES, OFFSET_JOINTS
 
     robot, fit = offsets.robot, offsets.fit
     out = [name,
@@ -134,18 +134,18 @@ def format_diff(a, b, name_a: str, name_b: str):
 
 
 def run_show(args, out) -> int:
-    from solver.offsets import read_offsets
+    from naocal.solver.offsets import read_offsets
 
     out.write(format_show(read_offsets(args.file), args.file))
     return 0
 
 
 def run_diff(args, out) -> int:
-    from solver.offsets import is_truth_file, read_offsets, read_truth
+    from naocal.solver.offsets import is_truth_file, read_offsets, read_truth
 
     truth_a, truth_b = is_truth_file(args.file_a), is_truth_file(args.file_b)
     if truth_a or truth_b:  # a result against the simulator's truth
-        from solver.errors import NaocalError
+        from naocal.solver.errors import NaocalError
 
         if truth_a and truth_b:
             raise NaocalError(f"{args.file_a}, {args.file_b}: both are a simulator's truth; give a result and a truth")
@@ -192,7 +192,7 @@ def format_truth_diff(result, truth, result_name: str, truth_name: str, notes=()
 
 
 def run_validate(args, out) -> int:
-    from solver.offsets import read_offsets
+    from naocal.solver.offsets import read_offsets
 
     read_offsets(args.file)
     out.write("ok\n")
@@ -200,7 +200,7 @@ def run_validate(args, out) -> int:
 
 
 def run_export(args, out) -> int:
-    from tools.export.write import run_export as export
+    from naocal.tools.export.write import run_export as export
 
     return export(args, out)
 
@@ -208,8 +208,8 @@ def run_export(args, out) -> int:
 def run_apply(args, out) -> int:
     import math
 
-    from solver.compensation import compensate_command, correct_reading, parse_assignment
-    from solver.offsets import read_offsets
+    from naocal.solver.compensation import compensate_command, correct_reading, parse_assignment
+    from naocal.solver.offsets import read_offsets
 
     offsets = read_offsets(args.file)
     posture = dict(parse_assignment(text) for text in args.angles)

@@ -9,15 +9,15 @@ def run(args) -> int:
     import sys
     from pathlib import Path
 
-    from agent.options import check_common, settings_from_args
-    from agent.rundir import RunLock, entries
-    from solver.errors import NaocalError
+    from naocal.agent.options import check_common, settings_from_args
+    from naocal.agent.rundir import RunLock, entries
+    from naocal.solver.errors import NaocalError
 
     check_common(args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
-    from backends.mock import MockBackend, parse_effect_sizes
+    from naocal.backends.mock import MockBackend, parse_effect_sizes
 
     effects = parse_effect_sizes(args.effect)
     command = shlex.join(["naocal", "simulate", "--out", str(out), "--seed", str(args.seed)]
@@ -32,10 +32,10 @@ def run(args) -> int:
             console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
             logging.getLogger().addHandler(console)
 
-        from agent.calibrate import simulate
-        from agent.machine import INTERRUPTED
-        from agent.measure import opencv_detector
-        from solver.fileio import atomic_write_text
+        from naocal.agent.calibrate import simulate
+        from naocal.agent.machine import INTERRUPTED
+        from naocal.agent.measure import opencv_detector
+        from naocal.solver.fileio import atomic_write_text
 
         settings = settings_from_args(args, seed=args.seed, source=f"naocal simulate --seed {args.seed}")
         backend = MockBackend(args.seed, effects=effects, realism=args.mock or "realistic")

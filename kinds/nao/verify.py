@@ -7,11 +7,11 @@ EXIT_GOOD, EXIT_DRIFTED = 0, 1
 def run(args) -> int:
     import json
 
-    from agent.rundir import find_dataset
-    from solver.dataset import read_dataset
-    from solver.offsets import read_offsets
-    from solver.robot import load_robot
-    from solver.verify import check_same_robot, verify_dataset
+    from naocal.agent.rundir import find_dataset
+    from naocal.solver.dataset import read_dataset
+    from naocal.solver.offsets import read_offsets
+    from naocal.solver.robot import load_robot
+    from naocal.solver.verify import check_same_robot, verify_dataset
 
     offsets = read_offsets(args.offsets)
     dataset = read_dataset(find_dataset(args.dataset))  # (both read through solver.fileio: regular files, capped)
@@ -26,7 +26,7 @@ def run(args) -> int:
 
 
 def format_text(result) -> str:
-    from solver.verify import moved_text
+    from naocal.solver.verify import moved_text
 
     def stats(s):
         return (f"RMS {s['rms_px']:.3f} px, median {s['median_px']:.3f}, p95 {s['p95_px']:.3f}, "
@@ -49,8 +49,8 @@ def format_text(result) -> str:
     lines += [f"warning: {w}" for w in result.warnings]
     if result.angles:
         lines.append(result.angles)
-    from solver.fit import describe_outliers
-    from solver.image_check import describe_set_aside
+    from naocal.solver.fit import describe_outliers
+    from naocal.solver.image_check import describe_set_aside
 
     lines.append(describe_outliers(result.outliers, result.robust_scale_px) + " (as identify sets them aside)")
     if result.images_set_aside:

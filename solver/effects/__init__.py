@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from solver.errors import NaocalError
+from naocal.solver.errors import NaocalError
 
 
 def _discover() -> dict:

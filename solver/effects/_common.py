@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, ProjectionTerm, check_number, check_object
+from naocal.solver.effect import Effect, Parameter, ProjectionTerm, check_number, check_object
 
 
 def per_joint(effect, prefix: str, joints, unit: str, scale: float) -> list[Parameter]:
@@ -47,7 +47,7 @@ def read_per_name_section(content, path, where, names, components, limits, units
 
 
 def _unknown(path, where, what, known):
-    from solver.errors import DataError
+    from naocal.solver.errors import DataError
 
     return DataError(path, f"unknown {what} (allowed: {', '.join(known)})", field=where)
 
@@ -55,7 +55,7 @@ def _unknown(path, where, what, known):
 def apparent_offset_panels(fit, prefix: str, joints, regressor, xlabel, *, jitter=0.0, slope_from_value=True):
     """Panels of the apparent per-image error of each joint (the fitted term `<prefix>.<joint>` plus what remains)
     against a per-image regressor (M,) of that joint: `regressor(column)`, labelled `xlabel(joint)`."""
-    from solver.diagnostics import apparent_errors, partial_residuals
+    from naocal.solver.diagnostics import apparent_errors, partial_residuals
 
     data = fit.model.data
     panels = []

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm, MockPerturbation
-from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation
+from naocal.solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
 class Backlash(Effect):

@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, Parameter, TargetTerm
-from solver.effects._common import read_per_name_section
-from solver.transforms import rot_z
+from naocal.solver.effect import Effect, Parameter, TargetTerm
+from naocal.solver.effects._common import read_per_name_section
+from naocal.solver.transforms import rot_z
 
 COMPONENTS = (("rot_z", "rad", 0.01), ("trans_x", "m", 0.002), ("trans_y", "m", 0.002))
 FILE_KEYS = {"rot_z": "rot_z_rad", "trans_x": "trans_x_m", "trans_y": "trans_y_m"}

@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from solver.effect import CameraTerm, Effect, Parameter
-from solver.effects._common import per_name_section, read_per_name_section
-from solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_x, rot_y, rot_z
+from naocal.solver.effect import CameraTerm, Effect, Parameter
+from naocal.solver.effects._common import per_name_section, read_per_name_section
+from naocal.solver.transforms import d_rot_x, d_rot_y, d_rot_z, rot_x, rot_y, rot_z
 
 ANGLES = ("roll", "pitch", "yaw")
 

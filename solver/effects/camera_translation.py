@@ -10,8 +10,8 @@ camera's rotation. Seen by the parallax it causes: a board near the camera moves
 
 import numpy as np
 
-from solver.effect import CameraTerm, Effect, MockPerturbation, Parameter, signed_uniform
-from solver.effects._common import per_name_section, read_per_name_section
+from naocal.solver.effect import CameraTerm, Effect, MockPerturbation, Parameter, signed_uniform
+from naocal.solver.effects._common import per_name_section, read_per_name_section
 
 AXES = ("trans_x", "trans_y", "trans_z")
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from solver.effect import MockPerturbation
-from solver.effects._common import CameraCorrections
+from naocal.solver.effect import MockPerturbation
+from naocal.solver.effects._common import CameraCorrections
 
 COMPONENTS = ("k1", "k2")
 
@@ -19,7 +19,7 @@ class Distortion(CameraCorrections):
     mock_size_unit, mock_stream = "1 (radial k1)", 6
 
     def partial_residual_panels(self, fit):
-        from solver.diagnostics import partial_residuals
+        from naocal.solver.diagnostics import partial_residuals
 
         data = fit.model.data
         r_off = partial_residuals(fit, [self.name])

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm, MockPerturbation
-from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation
+from naocal.solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
 class Elasticity(Effect):
@@ -41,7 +41,7 @@ class Elasticity(Effect):
         return ""
 
     def partial_residual_panels(self, fit):
-        from solver.model import gravity_torques_of
+        from naocal.solver.model import gravity_torques_of
 
         data = fit.model.data
         # the fitted model's own gravity torques: its joints sag, so they differ from those at the readings

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm, MockPerturbation, signed_uniform
-from solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation, signed_uniform
+from naocal.solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
 class HeadOffsets(Effect):

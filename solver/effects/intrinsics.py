@@ -5,8 +5,8 @@
 
 import numpy as np
 
-from solver.effect import MockPerturbation
-from solver.effects._common import CameraCorrections
+from naocal.solver.effect import MockPerturbation
+from naocal.solver.effects._common import CameraCorrections
 
 COMPONENTS = ("fx", "fy", "cx", "cy")
 
@@ -22,7 +22,7 @@ class Intrinsics(CameraCorrections):
     mock_size_unit, mock_stream = "px", 5
 
     def partial_residual_panels(self, fit):
-        from solver.diagnostics import partial_residuals
+        from naocal.solver.diagnostics import partial_residuals
 
         data = fit.model.data
         r_off = partial_residuals(fit, [self.name])

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm
-from solver.effects._common import joint_section, per_joint, read_joint_section
+from naocal.solver.effect import Effect, JointTerm
+from naocal.solver.effects._common import joint_section, per_joint, read_joint_section
 
 
 class JointOffsets(Effect):

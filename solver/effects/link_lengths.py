@@ -8,7 +8,7 @@ The robot description names the links (`link_lengths`: label -> the joint at the
 
 import numpy as np
 
-from solver.effect import ChainTerm, Effect, MockPerturbation, Parameter, check_number, check_object, signed_uniform
+from naocal.solver.effect import ChainTerm, Effect, MockPerturbation, Parameter, check_number, check_object, signed_uniform
 
 
 def _links(setup):
@@ -41,7 +41,7 @@ class LinkLengths(Effect):
         return terms
 
     def partial_residual_panels(self, fit):
-        from solver.diagnostics import apparent_errors, partial_residuals
+        from naocal.solver.diagnostics import apparent_errors, partial_residuals
 
         data = fit.model.data
         panels = []

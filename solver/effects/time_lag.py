@@ -7,7 +7,7 @@ Only images taken while the joints move carry it (the agent's lag probe).
 
 import numpy as np
 
-from solver.effect import Effect, JointTerm, MockPerturbation, Parameter, check_number, check_object
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation, Parameter, check_number, check_object
 
 
 class TimeLag(Effect):
@@ -36,7 +36,7 @@ class TimeLag(Effect):
         return ""
 
     def partial_residual_panels(self, fit):
-        from solver.diagnostics import apparent_errors, partial_residuals
+        from naocal.solver.diagnostics import apparent_errors, partial_residuals
 
         data = fit.model.data
         # One parameter drives every joint: show the lag each moving image implies on its own.

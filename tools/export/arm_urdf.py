@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.arm import exp_so3
-from solver.errors import DataError, NaocalError
-from solver.fileio import read_bytes
-from solver.transforms import rot_axis_angle, rot_rpy, rpy_from_rot
-from tools.export.common import comment_text
+from naocal.solver.arm import exp_so3
+from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.fileio import read_bytes
+from naocal.solver.transforms import rot_axis_angle, rot_rpy, rpy_from_rot
+from naocal.tools.export.common import comment_text
 
 MOVABLE = ("revolute", "continuous")
 _CREATED = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z?")

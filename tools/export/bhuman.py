@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from solver.errors import DataError, NaocalError
-from tools.export import cfgtext
-from tools.export.common import (
+from naocal.solver.errors import DataError, NaocalError
+from naocal.tools.export import cfgtext
+from naocal.tools.export.common import (
     Calibrated, ExportFile, checked_id, deg_literal, first_existing, provenance, read_team_file,
 )
 

@@ -10,8 +10,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from solver.errors import DataError, NaocalError
-from solver.offsets import ROBOT_ID_PATTERN, ROBOT_ID_RULE
+from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.offsets import ROBOT_ID_PATTERN, ROBOT_ID_RULE
 
 MAX_TEAM_FILE_BYTES = 1 << 20  # team config files are a few kB
 _CREATED = re.compile(r"[0-9]{4}-[0-9]{2}-[0-9]{2}T[0-9:.]+(?:Z|[+-][0-9]{2}:?[0-9]{2})?")
@@ -90,7 +90,7 @@ def read_team_file(path: Path) -> str | None:
         raise DataError(path, "not a regular file")
     if path.stat().st_size > MAX_TEAM_FILE_BYTES:
         raise DataError(path, f"larger than {MAX_TEAM_FILE_BYTES} bytes: not a calibration file")
-    from solver.dataset import read_text
+    from naocal.solver.dataset import read_text
 
     return read_text(path)
 

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.errors import NaocalError
-from solver.joints import LEG_JOINT_SUFFIXES
-from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
-from tools.export import jsontext
-from tools.export.common import Calibrated, ExportFile, checked_id, read_team_file
+from naocal.solver.errors import NaocalError
+from naocal.solver.joints import LEG_JOINT_SUFFIXES
+from naocal.solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
+from naocal.tools.export import jsontext
+from naocal.tools.export.common import Calibrated, ExportFile, checked_id, read_team_file
 
 _LEG_FIELDS = ("hip_yaw_pitch", "hip_roll", "hip_pitch", "knee_pitch", "ankle_pitch", "ankle_roll")
 JOINT_PATHS = {"HeadYaw": ("head", "yaw"), "HeadPitch": ("head", "pitch")}

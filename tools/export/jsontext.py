@@ -8,7 +8,7 @@ import json
 import re
 from dataclasses import dataclass, field
 
-from solver.errors import DataError
+from naocal.solver.errors import DataError
 
 _NUMBER = re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?")
 _STRING = re.compile(r'"(?:[^"\\\x00-\x1f]|\\(?:["\\/bfnrt]|u[0-9a-fA-F]{4}))*"')

@@ -16,13 +16,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from solver.errors import DataError
-from tools.export import cfgtext
-from tools.export.bhuman import (
+from naocal.solver.errors import DataError
+from naocal.tools.export import cfgtext
+from naocal.tools.export.bhuman import (
     CAMERA_AXES, CAMERA_FILE, FIRST_RELEASE, JOINT_FILE, bhuman_key, camera_notes, camera_paths, fresh_cameras,
     joint_keys,
 )
-from tools.export.common import (
+from naocal.tools.export.common import (
     Calibrated, ExportFile, checked_id, deg_literal, first_existing, provenance, read_team_file,
 )
 
@@ -37,7 +37,7 @@ def _limit_literals() -> dict[str, tuple[str, str]]:
     """{key: (minAngle, maxAngle)} for a fresh file: the Aldebaran limits naocal uses (the URDF's, RKneePitch from the
     documentation) to 0.01 deg as documented, as in Nao Devils' Config/Robots/V5/jointCalibration.cfg (the hands'
     0..1 in deg like theirs)."""
-    from solver.limits import joint_limits
+    from naocal.solver.limits import joint_limits
 
     def inward(low_rad, high_rad):  # rounded to 0.01 deg towards the inside: never wider than the robot's range
         low, high = math.ceil(math.degrees(low_rad) * 100 - 1e-9), math.floor(math.degrees(high_rad) * 100 + 1e-9)

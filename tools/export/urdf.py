@@ -13,11 +13,11 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from solver.errors import DataError, NaocalError
-from solver.fileio import read_bytes
-from solver.offsets import Offsets, format_offsets
-from solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
-from tools.export.common import calibrated, provenance
+from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.fileio import read_bytes
+from naocal.solver.offsets import Offsets, format_offsets
+from naocal.solver.transforms import rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
+from naocal.tools.export.common import calibrated, provenance
 
 NOMINAL_URDF = Path(__file__).resolve().parents[2] / "solver" / "data" / "nao_v50.urdf"
 CAMERA_URDF_JOINTS = {"bottom": "CameraBottom_sensor_fixedjoint", "top": "CameraTop_sensor_fixedjoint"}

@@ -10,9 +10,9 @@ import os
 import sys
 from pathlib import Path, PurePosixPath
 
-from solver.errors import DataError, NaocalError
-from tools.export import TEAM_FORMATS
-from tools.export.common import ExportFile, calibrated
+from naocal.solver.errors import DataError, NaocalError
+from naocal.tools.export import TEAM_FORMATS
+from naocal.tools.export.common import ExportFile, calibrated
 
 BACKUP_SUFFIX = ".bak"
 
@@ -36,19 +36,19 @@ def build(args, offsets) -> list[ExportFile]:
     head = args.head_id if args.head_id is not None else cal.robot.get("head_id")
     body = args.body_id if args.body_id is not None else cal.robot.get("body_id")
     if args.format == "bhuman":
-        from tools.export.bhuman import export_bhuman
+        from naocal.tools.export.bhuman import export_bhuman
 
         return export_bhuman(cal, source_name, head=head, body=body, release=args.bhuman_release,
                              merge_from=merge_from)
     if args.format == "naodevils":
-        from tools.export.naodevils import export_naodevils
+        from naocal.tools.export.naodevils import export_naodevils
 
         return export_naodevils(cal, source_name, head=head, body=body, merge_from=merge_from)
     if args.format == "hulks":
-        from tools.export.hulks import export_hulks
+        from naocal.tools.export.hulks import export_hulks
 
         return export_hulks(cal, head=head, body=body, merge_from=merge_from)
-    from tools.export import urdf
+    from naocal.tools.export import urdf
 
     if args.format == "urdf":
         nominal = args.nominal_urdf or urdf.NOMINAL_URDF
@@ -96,7 +96,7 @@ def export_target(out: Path, relative: str, single_file: bool) -> Path:
 
 
 def write_export(target: Path, text: str) -> str:
-    from solver.fileio import atomic_write_text
+    from naocal.solver.fileio import atomic_write_text
 
     previous = None
     if target.exists():
@@ -114,14 +114,14 @@ def write_export(target: Path, text: str) -> str:
 
 def export_inputs(args) -> list:
     """The files an export is made from (an export never replaces them)."""
-    from tools.export import urdf
+    from naocal.tools.export import urdf
 
     return [args.file, args.nominal_urdf or (urdf.NOMINAL_URDF if args.format == "urdf" else None)]
 
 
 def run_export(args, out) -> int:
-    from solver.fileio import check_not_an_input
-    from solver.offsets import read_offsets
+    from naocal.solver.fileio import check_not_an_input
+    from naocal.solver.offsets import read_offsets
 
     offsets = read_offsets(args.file)
     team = args.format in TEAM_FORMATS

@@ -21,16 +21,15 @@ HERE = Path(__file__).resolve().parent
 
 
 def naocal(*args, stdout=None):
-    subprocess.run([sys.executable, "-m", "tools", *map(str, args)], check=True, stdout=stdout)
+    subprocess.run([sys.executable, "-m", "naocal", *map(str, args)], check=True, stdout=stdout)
 
 
 def main():
-    import solver
-
+    import naocal.solver as solver
     assert not str(Path(solver.__file__)).startswith(str(HERE.parents[2])), "run with the old version's code"
-    from solver.dataset import write_dataset
-    from solver.offsets import offsets_from_alpha, write_offsets
-    from sim.synthetic import dataset_parts, random_truth, synthesize
+    from naocal.solver.dataset import write_dataset
+    from naocal.solver.offsets import offsets_from_alpha, write_offsets
+    from naocal.sim.synthetic import dataset_parts, random_truth, synthesize
 
     # 1. The mock robot, as `naocal simulate` recorded it (4 stances per leg x 3 head postures + the lag probe).
     naocal("simulate", "--out", HERE / "mock_dataset", "--seed", 5, "--stances-per-leg", 4, "--no-images",

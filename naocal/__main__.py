@@ -1,0 +1,5 @@
+import sys
+
+from naocal.tools.cli import main
+
+sys.exit(main())
