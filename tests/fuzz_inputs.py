@@ -12,6 +12,8 @@ traceback, no warning, no hang.
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib
 import io
 import json
 import os
@@ -463,6 +465,22 @@ def _address_space_bytes() -> int:
         return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
 
 
+@functools.cache
+def _import_every_module() -> None:
+    """Import all of naocal in this (root) process before a child drops to nobody: the verbs import their modules
+    when they run, and nobody may not read the checkout (CI's clone sits in a mode-0700 temporary directory), which
+    would fail the import instead of the damaged file's read that the case is about."""
+    import pkgutil
+
+    for layer in ("agent", "backends", "body", "kinds", "sim", "solver", "tools"):
+        package = importlib.import_module(f"naocal.{layer}")
+        for module in pkgutil.walk_packages(package.__path__, f"{package.__name__}."):
+            try:
+                importlib.import_module(module.name)
+            except ImportError:  # an optional driver's library (qi) is missing: its verbs are not fuzzed
+                pass
+
+
 def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
                memory_headroom_bytes: int = 2 * 1024 ** 3) -> Outcome:
     """Run `tools.cli.main(argv)` in a forked child as the `naocal` command would run it; kill it at the deadline.
@@ -473,6 +491,8 @@ def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
     """
     from naocal.tools.cli import main
 
+    if as_nobody:
+        _import_every_module()
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         sys.stdout.flush(), sys.stderr.flush()
         start = time.perf_counter()
