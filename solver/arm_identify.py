@@ -27,7 +27,7 @@ import numpy as np
 from naocal.solver.arm import PRIORITY, ArmModel, Observations
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal,
-                             check_identifiable, gauges, solve, worst_of_group_beyond)
+                             check_identifiable, gauges, last_pass_cached, solve, worst_of_group_beyond)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
@@ -271,19 +271,6 @@ class ArmEquations:
         return np.concatenate(rs), np.concatenate(Js)
 
 
-def _cached(equations):
-    cache = {}
-
-    def normal_at(free):
-        key = free.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = equations(free)
-        return cache[key]
-
-    return normal_at
-
-
 def _solve(model, obs, x0, free, sigma, loss="linear"):
     """(x, solver.identify.Solution, equations): the free parameters fitted from x0."""
     equations = ArmEquations(model, obs, x0, free, sigma)
@@ -297,7 +284,7 @@ def _solve(model, obs, x0, free, sigma, loss="linear"):
     if len(equations.index) > equations.mask.sum():
         raise SolveError(f"{len(equations.index)} parameters but only {int(equations.mask.sum())} measured "
                          "components: too few observations")
-    solution = solve(equations, _cached(equations), x0[equations.index], loss=loss, loss_scale=LOSS_SCALE_SIGMA,
+    solution = solve(equations, last_pass_cached(equations), x0[equations.index], loss=loss, loss_scale=LOSS_SCALE_SIGMA,
                      max_iterations=MAX_ITERATIONS, measured=equations.mask)
     return equations.values(solution.free), solution, equations
 

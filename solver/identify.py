@@ -536,6 +536,21 @@ class Solution:
         return Spread(covariance, covariance_iid, cond, sv, Vt, weak)
 
 
+def last_pass_cached(equations):
+    """`equations` (free values -> normal equations) remembering its last pass: LM and the checks ask at one x
+    twice, and a pass over every chunk is the fit's whole cost."""
+    cache = {}
+
+    def normal_at(free):
+        key = free.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = equations(free)
+        return cache[key]
+
+    return normal_at
+
+
 def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: float = 1.0, solver: str = "lm",
           max_iterations: int = 100, measured: np.ndarray | None = None) -> Solution:
     """The one solve of every robot kind: Levenberg-Marquardt on the normal equations (`levenberg_marquardt`), or,
@@ -616,16 +631,7 @@ def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = Non
     def make_problem(registry):
         """The chunked normal equations, and a cache of the last pass (LM and the checks ask at one x twice)."""
         equations = NormalEquations(data, registry, base, chunk_rows=chunk_rows)
-        cache = {}
-
-        def normal_at(free):
-            key = free.tobytes()
-            if key not in cache:
-                cache.clear()
-                cache[key] = equations(free)
-            return cache[key]
-
-        return equations, normal_at
+        return equations, last_pass_cached(equations)
 
     equations, normal_at = make_problem(registry)
     model = equations.model

@@ -36,8 +36,8 @@ import numpy as np
 
 from naocal.solver.camera import project
 from naocal.solver.errors import SolveError
-from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable, solve,
-                             worst_of_group_beyond)
+from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable,
+                                    last_pass_cached, solve, worst_of_group_beyond)
 from naocal.solver.transforms import d_rot_x, d_rot_y, d_rot_z, make_transform, rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 
 KINEMATIC = ("gain", "trim", "baseline_m")
@@ -440,16 +440,7 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
         if 2 * len(kept) <= len(equations.index):
             raise SolveError(f"{len(equations.index)} parameters but only {2 * len(kept)} corner coordinates")
         check_identifiable(equations(x[equations.index]).A, [names[i] for i in equations.index])
-        cache = {}
-
-        def normal_at(f, equations=equations, cache=cache):
-            key = f.tobytes()
-            if key not in cache:
-                cache.clear()
-                cache[key] = equations(f)
-            return cache[key]
-
-        solution = solve(equations, normal_at, x[equations.index], loss=loss, loss_scale=loss_scale_px,
+        solution = solve(equations, last_pass_cached(equations), x[equations.index], loss=loss, loss_scale=loss_scale_px,
                          max_iterations=MAX_ITERATIONS)
         x = equations.values(solution.free)
         if not robust:
