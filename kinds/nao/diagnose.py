@@ -57,16 +57,13 @@ def diagnose_dataset(dataset_path, effects=(), *, angles="auto", fixed=(), tied=
     from naocal.solver.adapter import model_data_from_dataset
     from naocal.solver.dataset import read_dataset
     from naocal.solver.diagnostics import diagnose_result
-    from naocal.solver.effects import EFFECTS
-    from naocal.solver.errors import NaocalError, SolveError
+    from naocal.solver.effects import check_testable
+    from naocal.solver.errors import SolveError
     from naocal.solver.fit import identify_dataset
 
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset)
-    for name in effects:
-        reason = EFFECTS[name].untestable_reason(data)
-        if reason:
-            raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
+    check_testable(effects, data, dataset_path)
     # naocal identify's routine; the moving captures stay in: they are how the time_lag candidate is tested
     fit = identify_dataset(dataset, effects, angles=angles, moving="all", fixed=fixed, tie_shared_motors=tied)
     result = fit.result

@@ -9,7 +9,7 @@ def run(args) -> int:
     from naocal.agent.rundir import dataset_files, find_dataset
     from naocal.solver.adapter import model_data_from_dataset
     from naocal.solver.dataset import read_dataset
-    from naocal.solver.effects import EFFECTS, parse_effect_names
+    from naocal.solver.effects import check_testable, parse_effect_names
     from naocal.solver.errors import NaocalError, SolveError
     from naocal.solver.fileio import check_output_file
     from naocal.solver.offsets import implausible_parameters
@@ -22,10 +22,7 @@ def run(args) -> int:
         check_output_file(args.out, inputs=dataset_files(dataset_path))
     dataset = read_dataset(dataset_path)
     data = model_data_from_dataset(dataset)
-    for name in effects:
-        reason = EFFECTS[name].untestable_reason(data)
-        if reason:
-            raise NaocalError(f"{dataset_path}: the {name} effect {reason}")
+    check_testable(effects, data, dataset_path)
     fit = fit_dataset(args, dataset)
     result, data = fit.result, fit.data
     if not result.success:

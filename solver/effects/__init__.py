@@ -71,3 +71,12 @@ def owner_of(name: str, setup) -> object | None:
         if any(p.name == name for p in e.parameters(setup)):
             return e
     return None
+
+
+def check_testable(effects, data, where) -> None:
+    """NaocalError naming `where` (the dataset) when one of `effects` cannot be fitted on `data` (the effect's own
+    reason, e.g. time_lag without joint velocities): before any fit, for identify and diagnose alike."""
+    for name in effects:
+        reason = EFFECTS[name].untestable_reason(data)
+        if reason:
+            raise NaocalError(f"{where}: the {name} effect {reason}")
