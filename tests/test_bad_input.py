@@ -656,3 +656,13 @@ def test_a_damaged_image_is_one_line_without_the_libraries_own_lines(tmp_path, k
     path.write_bytes(bytes(data))
     line = one_line_error(fz.run_forked(["detect", str(path)], deadline_s=20), "detect")
     assert str(path) in line and words in line, line
+
+
+@pytest.mark.parametrize("verb", ["identify", "diagnose"])
+def test_an_effect_these_data_cannot_fit_is_refused_before_the_fit(verb, capsys):
+    """time_lag needs joint velocities: a dataset without vel_<Joint> columns is refused in one line naming the
+    dataset and the reason (solver.effects.check_testable, identify's and diagnose's one check), exit 2."""
+    dataset = Path(__file__).parent / "data" / "v1" / "synthetic_dataset"
+    assert main([verb, str(dataset), "--effects", "time_lag"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(dataset) in err[0] and "the time_lag effect needs joint velocities" in err[0]
