@@ -45,3 +45,17 @@ def settings_from_args(args, *, seed: int, source: str):
     return AgentSettings(seed=seed, plan=plan, speed_fraction=args.speed, resume=getattr(args, "resume", False),
                          save_images=not args.no_images, progress_bar=not args.no_progress, source=source,
                          thresholds=thresholds)
+
+
+def log_warnings_to_stderr(verb: str, verbose: bool) -> None:
+    """Warnings (all of it with -v) on stderr as `naocal VERB: LEVEL: message`, unless logging is set up already;
+    the full log goes to the run's own file. For the verbs that run the agent (calibrate, simulate)."""
+    import logging
+    import sys
+
+    if logging.getLogger().handlers:
+        return
+    console = logging.StreamHandler(sys.stderr)
+    console.setLevel(logging.INFO if verbose else logging.WARNING)
+    console.setFormatter(logging.Formatter(f"naocal {verb}: %(levelname)s: %(message)s"))
+    logging.getLogger().addHandler(console)

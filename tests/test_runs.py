@@ -162,13 +162,12 @@ def test_ctrl_c_writes_the_summary_and_prints_the_resume_command(interrupted):
     assert not (out / LOCK_NAME).exists()
 
 
-def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
-    """systemd's stop, `kill` or a closed terminal must not kill a run between two writes."""
-    out = tmp_path / "run"
-    proc = naocal_process("calibrate", *BASE, "--out", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+def terminated_run(argv, ready, what: str) -> str:
+    """Run `naocal ARGV` as a process, send it SIGTERM once `ready()` holds (within 300 s), and return its stderr
+    after checking it ended as interrupted (exit 130)."""
+    proc = naocal_process(*argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        wait_for(lambda: captured_lines(out / "dataset" / "observations.csv") > 1 + 24 * 2 or proc.poll() is not None,
-                 300, "2 captures")
+        wait_for(lambda: ready() or proc.poll() is not None, 300, what)
         assert proc.poll() is None, "the run ended before it could be stopped"
         proc.send_signal(signal.SIGTERM)
         _, stderr = proc.communicate(timeout=120)
@@ -177,6 +176,14 @@ def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 130, stderr
+    return stderr
+
+
+def test_sigterm_ends_a_run_as_ctrl_c_does(tmp_path):
+    """systemd's stop, `kill` or a closed terminal must not kill a run between two writes."""
+    out = tmp_path / "run"
+    stderr = terminated_run(["calibrate", *BASE, "--out", str(out)],
+                            lambda: captured_lines(out / "dataset" / "observations.csv") > 1 + 24 * 2, "2 captures")
     assert stderr.strip().startswith("naocal calibrate: interrupted during ") and "Traceback" not in stderr
     # what stopped it is recorded as it was: SIGTERM, not Ctrl-C
     assert "(SIGTERM; " in stderr and "Ctrl-C" not in stderr, stderr
@@ -191,18 +198,8 @@ def test_the_realistic_mock_says_once_that_its_errors_are_deliberate(tmp_path):
     """The first run warned of an 11 deg offset, skipped captures and corners set aside, with no word that the
     realistic mock (the default) has them on purpose."""
     out = tmp_path / "run"
-    proc = naocal_process("calibrate", "--backend", "mock", "--seed", "1", "--no-progress", "--out", str(out),
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        wait_for(lambda: (out / "plan.json").exists() or proc.poll() is not None, 300, "the plan")
-        assert proc.poll() is None, "the run ended before it could be stopped"
-        proc.send_signal(signal.SIGTERM)
-        _, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 130, stderr
+    stderr = terminated_run(["calibrate", "--backend", "mock", "--seed", "1", "--no-progress", "--out", str(out)],
+                            lambda: (out / "plan.json").exists(), "the plan")
     notes = [line for line in stderr.splitlines() if "note:" in line]
     assert len(notes) == 1 and stderr.startswith(notes[0]), stderr  # once, before any warning
     for words in ("realistic mock", "on purpose", "12 deg", "1.5 % of the corners", "docs/MOCK.md", "--mock ideal"):

@@ -224,17 +224,13 @@ def run(args) -> int:
 def _calibrate(args, out, record, effects, *, resume_hint: str) -> int:
     """The run itself, in a checked and locked DIR."""
     import json
-    import logging
     import sys
     from pathlib import Path
 
+    from naocal.agent.options import log_warnings_to_stderr
     from naocal.agent.rundir import RECORD_NAME, write_record
 
-    if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
-        console = logging.StreamHandler(sys.stderr)
-        console.setLevel(logging.INFO if args.verbose else logging.WARNING)
-        console.setFormatter(logging.Formatter("naocal calibrate: %(levelname)s: %(message)s"))
-        logging.getLogger().addHandler(console)
+    log_warnings_to_stderr("calibrate", args.verbose)
 
     from naocal.agent.calibrate import calibrate
     from naocal.agent.machine import INTERRUPTED

@@ -4,12 +4,11 @@ NAO, with its hidden truth beside it."""
 
 def run(args) -> int:
     import json
-    import logging
     import shlex
     import sys
     from pathlib import Path
 
-    from naocal.agent.options import check_common, settings_from_args
+    from naocal.agent.options import check_common, log_warnings_to_stderr, settings_from_args
     from naocal.agent.rundir import RunLock, entries
     from naocal.solver.errors import NaocalError
 
@@ -26,11 +25,7 @@ def run(args) -> int:
     with RunLock(out, command):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
-        if not logging.getLogger().handlers:  # warnings on stderr (all of it with -v); the full log goes to a file
-            console = logging.StreamHandler(sys.stderr)
-            console.setLevel(logging.INFO if args.verbose else logging.WARNING)
-            console.setFormatter(logging.Formatter("naocal simulate: %(levelname)s: %(message)s"))
-            logging.getLogger().addHandler(console)
+        log_warnings_to_stderr("simulate", args.verbose)
 
         from naocal.agent.calibrate import simulate
         from naocal.agent.machine import INTERRUPTED
