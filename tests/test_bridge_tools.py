@@ -136,3 +136,26 @@ def test_move_through_offsets_commands_target_plus_c(served_mock, tmp_path, caps
     code, out, err = naocal(["bridge", "move", "--endpoint", served_mock, "--offsets", own, "LKneePitch=35"], capsys)
     assert code == 0, err
     assert "target 35.00 deg, commanded 37.00 deg raw" in out
+
+
+class FaultedMock(mock.MockBackend):
+    """The mock as a faulted driver reports itself: its status names the fault."""
+
+    def status(self):
+        report = super().status()
+        report["robot"]["fault"] = "LKneePitch reads nan: a reading that cannot be trusted"
+        return report
+
+
+@pytest.mark.parametrize("json_flag", [[], ["--json"]])
+def test_status_of_a_faulted_robot_exits_3_so_that_a_script_stops(json_flag, capsys):
+    backend = FaultedMock(seed=0)
+    server = BridgeServer(backend, "tcp://127.0.0.1:0", driver="mock", clock="simulated",
+                          state_persists=False).start_thread()
+    try:
+        code, out, err = naocal(["bridge", "status", "--endpoint", server.endpoint, *json_flag], capsys)
+    finally:
+        server.stop()
+        backend.close()
+    assert code == 3, (out, err)
+    assert "cannot be trusted" in out

@@ -8,6 +8,8 @@ An offsets file of another body or head than the robot's (what `naocal verify` r
 (reading - c), stiffness, temperature and temperature status. `--json` prints one JSON object (schema in
 docs/DEPLOY.md): a key per joint name with raw_rad, corrected_rad, stiffness, temperature_c, status (null where
 the robot does not report it), and the key "robot" with body_id, head_id, their versions and the driver.
+Exit 0 when the robot is fine, 3 when it reports a fault (the readings shown are then the last trusted ones), so
+that a script checking the robot stops there.
 
 `move` moves the named joints to the given angles in degrees, through the offsets (the command sent is
 target + c, so the joint truly stands at the target), at a safe default speed (10 % of each joint's maximum),
@@ -107,9 +109,11 @@ def run_status(args) -> int:
                      "temperature_c": entry.get("temperature_c"), "status": entry.get("status")}
         if entry.get("current_a") is not None:
             out[name]["current_a"] = entry["current_a"]
+    # A fault is not an answer to "is the robot fine": a script must see it in the exit code, not parse the text.
+    code = 3 if robot.get("fault") else 0
     if args.json:
         print(json.dumps(out, indent=1))
-        return 0
+        return code
 
     def number(value, fmt):
         return "-" if value is None else format(value, fmt)
@@ -127,7 +131,7 @@ def run_status(args) -> int:
               f"{number(entry['status'], 'd'):>8}")
     if not offsets:
         print("(no --offsets: corrected = raw)")
-    return 0
+    return code
 
 
 def run_move(args) -> int:
