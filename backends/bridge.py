@@ -90,6 +90,7 @@ class BridgeBackend(Backend):
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
         self.sim_slowdown = float(sim_slowdown)
+        self._unanswered = False  # the last call's every attempt went unanswered
         self.client_id = client_id or secrets.token_hex(8)
         protocol.parse_request_id(f"{self.client_id}:0")  # a client id the server accepts
         self._context = context or zmq.Context.instance()
@@ -158,7 +159,9 @@ class BridgeBackend(Backend):
         if len(payload) > protocol.MAX_REQUEST_BYTES:
             raise BridgeError(f"{self.endpoint}: {cmd}: request of {len(payload)} bytes is too large")
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
-        attempts = 1 + (self.retries if retries is None else retries)
+        # A server that left a whole call unanswered is presumed gone: one attempt per call until it answers again,
+        # so that the calls of a shutdown (stop, release) fail in one timeout each, not (1 + retries).
+        attempts = 1 if self._unanswered else 1 + (self.retries if retries is None else retries)
         reconnected = False
         for attempt in range(attempts):
             if self._socket is None:
@@ -170,6 +173,7 @@ class BridgeBackend(Backend):
                 self._drop_socket()
                 raise
             if reply is not None:
+                self._unanswered = False
                 if reconnected and cmd != "hello":
                     self._check_same_server(cmd)
                 return self._result(reply, cmd)
@@ -177,6 +181,7 @@ class BridgeBackend(Backend):
             if attempt + 1 < attempts:
                 log.warning("no reply from %s to %s (%s) within %.2f s; retrying (%d of %d)",
                             self.endpoint, cmd, request_id, timeout_s, attempt + 1, attempts - 1)
+        self._unanswered = True
         raise BridgeError(
             f"no reply from {self.endpoint} to '{cmd}' (request {request_id}) after {attempts} attempt(s) "
             f"of {timeout_s:.2f} s; is `naocal bridge serve` running there?"

@@ -161,6 +161,28 @@ def test_when_the_retries_are_spent_the_error_names_endpoint_and_command():
     assert sent_targets(fake) == TARGETS[:1]
 
 
+def test_after_a_call_went_unanswered_the_next_calls_try_once_until_the_server_answers():
+    """A server that died mid-run: its first unanswered call spends the retries, every later call one timeout (the
+    shutdown's stop and release would otherwise take (1 + retries) timeouts each); a server back resets it."""
+    fake = FakeBackend()
+    server = BridgeServer(fake, "tcp://127.0.0.1:0").start_thread()
+    endpoint = server.endpoint
+    bridge = client(endpoint, timeout_s=0.1, retries=4)
+    bridge.command(TARGETS[0], 0.2)
+    server.stop()
+    with pytest.raises(BridgeError, match="5 attempt"):
+        bridge.command(TARGETS[1], 0.2)
+    start = time.monotonic()
+    with pytest.raises(BridgeError, match="1 attempt"):
+        bridge.set_stiffness(["HeadYaw"], 0.0)
+    assert time.monotonic() - start < 0.45  # one attempt of 0.1 s (+ reconnect), not five
+    again = BridgeServer(fake, endpoint).start_thread()
+    try:
+        bridge.command(TARGETS[2], 0.2)  # answered: retries are back
+    finally:
+        again.stop()
+
+
 # ---------------------------------------------------------------------------------------------- malformed input
 def _valid_request(cmd):
     args = {
