@@ -134,12 +134,21 @@ class NaoqiBackend(Backend):
         with self._lock:
             return self._wait(getattr(service, method)(*args, _async=True), method)
 
+    def _number(self, value, what: str, low: float = -math.inf) -> float:
+        """A number NAOqi reported, checked before use: a string, a bool, NaN or a value below `low` is refused
+        with one line naming what was asked (NAOqi's dynamic values carry any type)."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or value < low:
+            raise NaocalError(f"NAOqi at {self.url}: {what} reported {str(value)[:40]!r}: not a finite number"
+                              + (f" >= {low:g}" if low > -math.inf else ""))
+        return float(value)
+
     def _read_limits(self):
         model_limits, model_speeds = limits.joint_limits(), limits.max_speeds()
         joint_limits, speeds = {}, {}
         for name in JOINTS:
             reported = self._call(self._motion, "getLimits", name)
-            lower_rad, upper_rad, speed_rad_per_s = (float(v) for v in reported[0][:3])
+            lower_rad, upper_rad, speed_rad_per_s = (self._number(v, f"getLimits({name})") for v in reported[0][:3])
             lower = max(lower_rad, model_limits[name][0])
             upper = min(upper_rad, model_limits[name][1])
             if not lower < upper:
@@ -150,7 +159,7 @@ class NaoqiBackend(Backend):
         return joint_limits, speeds
 
     def _dcm_time_s(self) -> float:
-        return float(self._call(self._memory, "getData", "DCM/Time")) * 1e-3
+        return self._number(self._call(self._memory, "getData", "DCM/Time"), "DCM/Time (ms)", low=0.0) * 1e-3
 
     def _measure_clock_offset(self, samples: int = 7) -> float:
         """DCM time minus local monotonic time, from the read with the shortest round trip."""

@@ -40,6 +40,7 @@ class FakeRobot:
         self.image_pattern = np.random.default_rng(seed).integers(0, 256, (480, 640, 3), dtype=np.uint8)
         self.block_get_angles_s = 0.0  # make getAngles hang, to test deadlines
         self.sensor_override: dict = {}  # {joint: what getAngles reports instead (any type: a hostile robot)}
+        self.memory_override: dict = {}  # {ALMemory key: what getData reports instead (any type)}
 
     def update(self) -> None:
         now = time.monotonic()
@@ -143,6 +144,8 @@ class FakeMemory:
         self.robot = robot
 
     def getData(self, key):
+        if key in self.robot.memory_override:
+            return self.robot.memory_override[key]
         if key == "DCM/Time":
             return int((time.monotonic() + DCM_EPOCH_S) * 1000)
         return {

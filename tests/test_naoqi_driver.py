@@ -236,3 +236,14 @@ def test_a_reading_naoqi_cannot_be_trusted_is_a_fault_never_served_and_motion_st
         assert len(robot.calls) == sent  # nothing reached NAOqi
     finally:
         backend.close()
+
+
+@pytest.mark.parametrize("value", ["12:03:04", math.nan, -5, True, None])
+def test_a_dcm_time_that_is_no_time_refuses_the_connection_in_one_line(value):
+    """DCM/Time is read at connect to put images and readings on the robot's clock: a string, NaN, a negative or a
+    bool is refused naming DCM/Time (it was float()-ed: a traceback or a clock in the wrong place)."""
+    robot = FakeRobot()
+    robot.memory_override["DCM/Time"] = value
+    with fake_naoqi(robot) as (url, _):
+        with pytest.raises(NaocalError, match="DCM/Time"):
+            NaoqiBackend(url)
