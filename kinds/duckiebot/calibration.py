@@ -34,7 +34,7 @@ from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, KINEMATIC, camera_t
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
-from naocal.solver.errors import DataError, NaocalError
+from naocal.solver.errors import DataError, SolveError
 from naocal.solver.fileio import atomic_write_text, check_output_file, read_json
 
 SCHEMA = "naocal.duckiebot_calibration/1"
@@ -125,20 +125,33 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
     }
 
 
+def checked_document(calibration, where, *, width_px: int = 640, height_px: int = 480,
+                     source: str = "") -> tuple[dict, CalibrationFile]:
+    """(document, what the reader makes of it) of a DuckiebotCalibration, to be written to `where`. SolveError (exit
+    3: the fit's result is at fault), in one line, for a calibration the reader would refuse: a value beyond any
+    working Duckiebot, a non-finite value or std."""
+    doc = calibration_document(calibration, width_px=width_px, height_px=height_px, source=source)
+    try:  # through JSON, as the reader will see it (a NaN or inf is refused there)
+        return doc, parse_calibration(json.loads(json.dumps(doc)), where)
+    except DataError as err:
+        raise SolveError(f"calibration not written to {where}: {err.problem}"
+                         + (f" (field '{err.field}')" if err.field else "")) from None
+
+
+def write_document(path, doc: dict, *, inputs=()) -> None:
+    """Write a checked document (checked_document) to `path` atomically, never over one of `inputs` (DataError)."""
+    check_output_file(path, inputs=inputs)
+    atomic_write_text(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
 def write_calibration_file(path, calibration, *, width_px: int = 640, height_px: int = 480, source: str = "",
                            inputs=()) -> list[Finding]:
     """Write `calibration` (a DuckiebotCalibration) to `path` atomically; return the plausibility warnings the caller
-    must show. Refused before anything is written (NaocalError, one line): a value beyond any working Duckiebot, a
-    non-finite value or std, a path that cannot be written or is one of `inputs`."""
-    doc = calibration_document(calibration, width_px=width_px, height_px=height_px, source=source)
-    try:
-        checked = parse_calibration(json.loads(json.dumps(doc, allow_nan=False)), path)  # what the reader would say of it
-    except DataError as err:
-        raise NaocalError(f"calibration not written to {path}: {err.problem}"
-                          + (f" ({err.field})" if err.field else "")) from None
-    check_output_file(path, inputs=inputs)
-    atomic_write_text(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    return list(checked.findings)
+    must show. Nothing is written for a calibration the reader would refuse (checked_document) or a path that
+    cannot be written or is one of `inputs`."""
+    doc, result = checked_document(calibration, path, width_px=width_px, height_px=height_px, source=source)
+    write_document(path, doc, inputs=inputs)
+    return list(result.findings)
 
 
 # ------------------------------------------------------------------------------------------------ reading
@@ -288,11 +301,3 @@ def read_calibration_file(path, *, strict: bool = True) -> CalibrationFile:
     """The Duckiebot calibration file at `path`, checked (parse_calibration). DataError naming the file and field."""
     return parse_calibration(read_json(path), path, strict=strict)
 
-
-def is_calibration_file(path) -> bool:
-    """Whether `path` is a readable JSON file of this schema (never raises: anything else is not)."""
-    try:
-        doc = read_json(path)
-    except (NaocalError, OSError, ValueError):
-        return False
-    return isinstance(doc, dict) and doc.get("schema") == SCHEMA
