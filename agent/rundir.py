@@ -29,7 +29,7 @@ RECORD_NAME = "run.json"
 RECORD_SCHEMA = "naocal.run/1"
 DATASET_SUBDIR = "dataset"
 BRIDGE_TOKEN_NAME = "bridge.token"  # the bridge's motion lease token, so --resume takes the robot back (mode 0600)
-# Everything `naocal calibrate` writes into DIR (agent.calibrate, agent.states, tools.cmd_calibrate).
+# Everything `naocal calibrate` writes into DIR (agent.calibrate, agent.states, kinds.nao.calibrate).
 CALIBRATE_ENTRIES = frozenset({
     LOCK_NAME, RECORD_NAME, "plan.json", DATASET_SUBDIR, "progress.json", "offsets.json", "offsets.json.bak",
     "verification", "verification.prev", "verification.json", "summary.txt", "calibrate.log", "truth.json",

@@ -293,8 +293,19 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
         _fail(path, f"no Duckietown calibration follows from it: {err}", "parameters")
     refusals = [f for f in findings if f.level == "refuse"]
     if strict and refusals:
-        _fail(path, f"implausible calibration: {refusals[0].message}", refusals[0].field)
+        _fail(path, f"implausible calibration: {refusals[0]}", file_field(refusals[0].field))
     return replace(result, findings=tuple(findings))
+
+
+def file_field(duckietown_field: str) -> str:
+    """The field of this file a finding on Duckietown's files (calibration_files.check_calibration) comes from."""
+    for prefix, field in (("camera_matrix", f"camera.lenses.{DUCKIETOWN_LENS}.K"),
+                          ("distortion_coefficients", f"camera.lenses.{DUCKIETOWN_LENS}.distortion"),
+                          ("homography", "parameters.camera"),  # the homography follows from the camera's pose
+                          ("kinematics", "kinematics")):
+        if duckietown_field.startswith(prefix):
+            return field + duckietown_field[len(prefix):] if prefix == "kinematics" else field
+    return duckietown_field
 
 
 def read_calibration_file(path, *, strict: bool = True) -> CalibrationFile:
