@@ -129,3 +129,14 @@ def test_the_duckiebots_data_choose_it(tmp_path):
     assert kinds.for_data(log).name == "duckiebot" and kinds.for_data(cal).name == "duckiebot"
     offsets = _write(tmp_path / "offsets.json", {"schema": "naocal.offsets/2"})
     assert kinds.for_data(offsets).name == "nao"
+
+
+def test_building_the_command_line_imports_no_kind_body():
+    """`naocal --help` stays instant: every kind's __init__ (and the option modules it calls at registration) is
+    argparse only; OpenCV, SciPy and PyBullet are imported by the bodies."""
+    import subprocess
+
+    probe = ("import sys; from naocal.tools.cli import build_parser; build_parser(); "
+             "print(sorted(m for m in ('cv2', 'scipy', 'pybullet') if m in sys.modules))")
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "[]", run.stdout + run.stderr
