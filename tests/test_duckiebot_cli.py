@@ -105,6 +105,9 @@ def _swap_rows(path):
 
 BAD_LOGS = {  # what is broken -> (how, the file the one line names)
     "missing wheels.csv": (lambda log, _: (log / "wheels.csv").unlink(), "wheels.csv"),
+    "missing log.json": (lambda log, _: (log / "log.json").unlink(), "log.json"),
+    "another schema": (lambda log, _: (log / "log.json").write_text(
+        (log / "log.json").read_text().replace("naocal.drive_log/1", "naocal.drive_log/9")), "schema"),
     "times not increasing": (lambda log, _: _swap_rows(log / "wheels.csv"), "wheels.csv"),
     "NaN duty": (lambda log, _: _edit_csv(log / "wheels.csv", 3, 1, "nan"), "wheels.csv"),
     "a frame not an image": (lambda log, _: (log / "frames" / "000002.png").write_text("not a png"), "000002.png"),

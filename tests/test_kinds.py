@@ -129,6 +129,12 @@ def test_the_duckiebots_data_choose_it(tmp_path):
     assert kinds.for_data(log).name == "duckiebot" and kinds.for_data(cal).name == "duckiebot"
     offsets = _write(tmp_path / "offsets.json", {"schema": "naocal.offsets/2"})
     assert kinds.for_data(offsets).name == "nao"
+    # a broken log is still the Duckiebot's (its reader names what is wrong); a NAO dataset never is
+    (log / "log.json").unlink()
+    (log / "wheels.csv").write_text("t_s,left_duty,right_duty\n")
+    assert kinds.for_data(log).name == "duckiebot"
+    _write(log / "dataset.json", {"schema": "naocal.dataset/2"})
+    assert kinds.for_data(log).name == "nao"
 
 
 def test_building_the_command_line_imports_no_kind_body():

@@ -30,6 +30,7 @@ from naocal.kinds import json_schema
 NAME = "duckiebot"
 LOG_SCHEMA = "naocal.drive_log/1"  # kinds.duckiebot.drive_log.SCHEMA (not imported here: it imports cv2)
 CALIBRATION_SCHEMA = "naocal.duckiebot_calibration/1"  # kinds.duckiebot.calibration.SCHEMA
+LOG_FILES = ("log.json", "wheels.csv", "frames.csv")  # kinds.duckiebot.drive_log's required files
 # The verbs whose bodies live in a module of their own, each with add_options(parser) and the body's function.
 VERB_MODULES = {"calibrate": ("calibrate", "run"), "diagnose": ("diagnose", "run_diagnose"),
                 "simulate": ("simulate", "run_simulate")}
@@ -50,8 +51,9 @@ class DuckiebotKind:
         if isinstance(source, argparse.Namespace):
             return getattr(source, "robot", None) == NAME
         path = Path(source)
-        if path.is_dir():
-            return json_schema(path / "log.json") == LOG_SCHEMA
+        if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset
+            return json_schema(path / "log.json") == LOG_SCHEMA or (
+                any((path / name).is_file() for name in LOG_FILES) and not (path / "dataset.json").exists())
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:
