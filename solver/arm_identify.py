@@ -456,8 +456,9 @@ def data_weakest(model, obs, x, free, sigma, count: int = 3):
 
 def ran_off(fit_: ArmFit):
     """None, or one line: the parameter furthest beyond RUNOFF_FACTOR of its plausible size (or beyond what a
-    calibration file may hold, solver.arm_calibration.implausible), the data's weak direction at the solution it
-    moves most along, and the `--fix` that holds it."""
+    calibration file may hold, solver.arm_calibration.LIMITS), the data's weak direction at the solution it moves
+    most cheaply along, and the `--fix` that removes that direction: its largest physical parameter held at the
+    URDF's value."""
     from naocal.solver.arm_calibration import LIMITS
     from naocal.solver.effect import shown
 
@@ -478,13 +479,15 @@ def ran_off(fit_: ArmFit):
     j = int(np.flatnonzero(equations.index == worst)[0])
     k = int(np.argmax(np.abs(Vt[:, j]) / np.maximum(sv, 1e-300)))  # the direction along which it moves most cheaply
     direction = weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], [model.names[i] for i in equations.index])
+    physical = [(abs(c), n) for n, c in direction.coefficients.items() if not n.startswith("sensor.")]
+    to_fix = max(physical)[1] if physical else p.name
     value, unit = shown(fit_.x[worst], p.unit)
     plausible = shown(size[worst], p.unit)[0] if size[worst] > 0 else None
     return (f"{p.name} = {value:.4g} {unit} ran off "
-            + (f"(plausible within {plausible:.3g} {unit}; {RUNOFF_FACTOR:g} x that is beyond a calibration)"
+            + (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
                if plausible is not None else "(beyond any plausible calibration)")
             + f" along a direction the data hardly determine (relative singular value {direction.singular_value:.1e}"
-            f" at the solution): {direction.describe()}; fix it at the URDF's value (--fix {p.name}=0)"
+            f" at the solution): {direction.describe()}; fix {to_fix} at the URDF's value (--fix {to_fix}=0)"
             + ("" if fit_.priors else " or fit with the priors on")
             + ", or measure poses that move it; nothing written")
 

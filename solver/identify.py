@@ -350,7 +350,11 @@ def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image
     inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
     bread = (Vt.T * inv_sv2) @ Vt  # (Js^T Js)^+ in scaled units
     s2 = rss / dof
-    covariance_iid = bread * s2 * np.outer(scales, scales)
+    if prior_information is None:
+        iid = bread * s2
+    else:  # the residuals' variance scales the data's information only: where the data say nothing, the prior
+        iid = bread @ ((As - prior_information) * s2 + prior_information) @ bread
+    covariance_iid = iid * np.outer(scales, scales)
     scores = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, As.shape[1]))
     np.add.at(scores, np.asarray(cluster_of_image, dtype=int), image_scores)
     n_clusters, p = len(scores), As.shape[1]
@@ -359,7 +363,7 @@ def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image
     if prior_information is not None:
         meat = meat + prior_information
     clustered = bread @ meat @ bread
-    covariance = _at_least(clustered, bread * s2) * np.outer(scales, scales)
+    covariance = _at_least(clustered, iid) * np.outer(scales, scales)
     return covariance, covariance_iid
 
 

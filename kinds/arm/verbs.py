@@ -215,13 +215,13 @@ def run_identify(args) -> int:
     fixed, start = fixed_and_start(args, dataset, effects)
     fit = identify_dataset(dataset, effects, fixed=fixed, start=start, loss=args.loss, robust=not args.keep_outliers,
                            priors=not args.no_priors)
-    if not fit.success:
-        raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
     from naocal.solver.arm_identify import ran_off
 
-    runoff = ran_off(fit)
+    runoff = ran_off(fit)  # first: a fit that ran off often does not converge either, and this says why
     if runoff:
         raise SolveError(runoff)
+    if not fit.success:
+        raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
     heldout = heldout_rms(fit, args.cv_folds) if args.cv_folds and args.cv_folds > 1 else None
     report = result_json(fit, dataset, heldout)
     if args.out:
@@ -313,13 +313,13 @@ def run_diagnose(args) -> int:
     dataset = _load(args)
     fixed, start = fixed_and_start(args, dataset, effects)
     fit = identify_dataset(dataset, effects, fixed=fixed, start=start, priors=not args.no_priors)
-    if not fit.success:
-        raise SolveError(f"the fit did not converge ({fit.message})")
     from naocal.solver.arm_identify import ran_off
 
     runoff = ran_off(fit)
     if runoff:  # the diagnosis of a fit that ran off would name effects for the wrong reason
         raise SolveError(runoff.replace("; nothing written", ""))
+    if not fit.success:
+        raise SolveError(f"the fit did not converge ({fit.message})")
     d = diagnose(fit)
     if args.json:
         print(json.dumps(json_safe(d.as_dict()), indent=1))
