@@ -245,3 +245,85 @@ def test_start_refuses_a_calibration_of_a_parameter_the_model_lacks(tmp_path):
     result = naocal("identify", data, "--effects", "joint_offsets,link_lengths", "--start", cal)
     assert result.returncode == 2 and "model.parameters.point.t1." in result.stderr and "--effects" in result.stderr
     assert json.loads(cal.read_text())["schema"] == "naocal.arm_calibration/1"
+
+
+# ------------------------------------------------------------------------------------------------ verify on the tracker
+
+
+def one_sensor_dataset(directory, model, obs, sensors, name, noise_px=0.2):
+    """The observations of sensor `name` only, as a dataset whose dataset.json states that sensor alone (its frame
+    not given: found from the data)."""
+    from naocal.solver.arm_dataset import write_arm_dataset
+
+    urdf, base, tip, *_ = panda()
+    s = [x.name for x in sensors].index(name)
+    points = dict(zip(model.point_names, map(tuple, model.point_xyz)))
+    entry = {"kind": "points", "noise_m": 1e-4} if name == "tracker" else dict(
+        {"kind": "camera", "noise_px": noise_px}, **CAMERA)
+    meta = {"robot": {"id": "test", "urdf": str(urdf), "base": base, "tip": tip},
+            "points": {p: {"xyz_m": list(v)} for p, v in points.items()}, "sensors": {name: entry}}
+    write_arm_dataset(directory, meta, model.chain.joint_names, obs.subset(obs.sensor == s), sensors, points)
+    return directory
+
+
+def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_reflectors_are_unknown(tmp_path):
+    """Calibrated from a camera alone; the tracker's data (another session: other poses, its frame unknown, its
+    reflectors 1-2 mm off where dataset.json puts them) judged with the arm held: with the reflectors refitted
+    (--refit sensors,points) the calibration is still good at the tracker's noise; without, the misplaced reflectors
+    look like drift; and the URDF (no calibration) is drifted even with the reflectors refitted."""
+    import json
+
+    from tests.cli_runner import naocal
+    from tests.test_arm import synthetic
+
+    rng = np.random.default_rng(11)
+    truth = true_errors()
+    reflectors = {f"point.{t}.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for t in ("t1", "t2", "t3")
+                  for a in "xyz"}
+    effects = ("joint_offsets", "link_lengths", "points")
+    # the markers where the file says; a camera as precise as the tracker (0.05 px at 2.5 m is some 0.1 mm)
+    model, obs, _, sensors = synthetic(effects, truth, n_poses=100, seed=3, noise_px=0.05)
+    cameras = one_sensor_dataset(tmp_path / "cameras", model, obs, sensors, "camera", noise_px=0.05)
+    model, obs, _, sensors = synthetic(effects, dict(truth, **reflectors), n_poses=40, seed=4)
+    tracker = one_sensor_dataset(tmp_path / "tracker", model, obs, sensors, "tracker")
+    cal = tmp_path / "from_cameras.json"
+    assert naocal("identify", cameras, "--out", cal).returncode == 0
+
+    refitted = naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,points", "--json")
+    assert refitted.returncode == 0, refitted.stdout + refitted.stderr
+    verdict = json.loads(refitted.stdout)
+    assert verdict["good"] and verdict["per_sensor"]["tracker"]["ratio"] < 1.3
+    found = {e["parameter"]: e["value"] for e in verdict["refitted"]}
+    for name, value in reflectors.items():  # where the reflectors really are, from the tracker with the arm held
+        assert abs(found[name] - value) < 3e-4, name
+    assert naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,points").stdout.count(
+        "refitted with the arm held: point.t1.x") == 1
+
+    as_filed = naocal("verify", tracker, "--offsets", cal, "--json")  # the reflectors taken as dataset.json says
+    assert as_filed.returncode == 1 and json.loads(as_filed.stdout)["per_sensor"]["tracker"]["ratio"] > 3
+
+    nominal = json.loads(cal.read_text())
+    for name, entry in nominal["model"]["parameters"].items():
+        if not name.startswith("sensor."):
+            entry["value"] = 0.0
+    nominal["joint_offsets_rad"] = {k: 0.0 for k in nominal["joint_offsets_rad"]}
+    nominal["link_lengths_m"] = {k: 0.0 for k in nominal["link_lengths_m"]}
+    urdf_only = tmp_path / "urdf.json"
+    urdf_only.write_text(json.dumps(nominal))
+    refuted = naocal("verify", tracker, "--offsets", urdf_only, "--refit", "sensors,points", "--json")
+    assert refuted.returncode == 1 and json.loads(refuted.stdout)["per_sensor"]["tracker"]["ratio"] > 3
+
+
+@pytest.mark.parametrize("option, problem", [
+    (["--refit", "sensors,link_lengths"], "not refitted by verify"),
+    (["--refit", "sensors,,points"], "empty name"),
+    (["--fix", "joint_offset.panda_joint2=0.1"], "verify holds the calibration's arm"),
+])
+def test_verify_refit_bad_options_are_one_line_exit_2(tmp_path, option, problem):
+    from tests.cli_runner import naocal
+
+    data, _, _ = write_scenario(tmp_path / "wrist", "b")
+    cal = tmp_path / "cal.json"
+    assert naocal("identify", data, "--out", cal).returncode == 0
+    result = naocal("verify", data, "--offsets", cal, *option)
+    assert result.returncode == 2 and problem in result.stderr and len(result.stderr.strip().splitlines()) == 1
