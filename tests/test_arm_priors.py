@@ -83,10 +83,11 @@ LOW = np.array([-2.5, -1.5, -2.5, -2.8, -2.5, 0.3, -2.5])  # the panda's stances
 HIGH = np.array([2.5, 1.5, 2.5, -0.4, 2.5, 3.4, 2.5])
 
 
-def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0):
+def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0, noise=True):
     """(model with `effects`, observations) of the panda seen by one sensor ('tracker' or 'camera') at `points` of
     its tool, the joints `still` (0-based) within +-`width` rad of their mid-range in every pose (what makes a
-    direction nearly flat), the rest anywhere; measured at `truth` (joint offsets, link lengths, points)."""
+    direction nearly flat), the rest anywhere; measured at `truth` (joint offsets, link lengths, points), with the
+    sensor's noise unless `noise` is off (the same poses)."""
     _, _, _, chain, names, load = panda()
     rng = np.random.default_rng(seed)
     s = Sensor("tracker", "points", noise=1e-4) if sensor == "tracker" else Sensor("camera", "camera", dict(CAMERA),
@@ -103,7 +104,7 @@ def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0):
     if sensor == "camera":
         truth_model.R0[0] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # looks back at the arm
     pred = truth_model.predict(x, obs)
-    noise = s.noise * rng.normal(size=pred.shape)
+    noise = s.noise * rng.normal(size=pred.shape) * noise
     if sensor == "camera":
         noise[:, 2] = 0.0
         obs.measured = pred + noise
@@ -113,27 +114,28 @@ def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0):
     return ArmModel(chain, pts, [s], effects, load=load, link_names=names), obs
 
 
-def scenario(case):
+def scenario(case, seed=0, noise=True):
     """The near-flat directions of issue 24, on the panda: (a) a joint's offset against a turn of the marker body
     (per-marker points, a camera) when the joint after it barely turns; (b) link lengths from poses that barely
     move the wrist (a self-touch-like narrow set); (c) a tracker's one reflector with a free position, the wrist
-    barely moving. Returns (model, observations, truth, the parameters the flat direction is mostly made of)."""
-    rng = np.random.default_rng(5)
-    errors = true_errors()
+    barely moving. Returns (model, observations, truth, the parameters the flat direction is mostly made of); `seed`
+    draws other errors and poses (benchmarks/bench_arm_priors.py)."""
+    rng = np.random.default_rng(5 + seed)
+    errors = true_errors(1 + seed)
     truth = {k: v for k, v in errors.items() if k.startswith("joint_offset.")}
     if case == "a":
         markers = ("m1", "m2", "m3", "m4")
         truth.update({f"point.{m}.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for m in markers for a in "xyz"})
-        model, obs = narrow("camera", markers, ("joint_offsets", "points"), truth, still=[6], width=0.003)
+        model, obs = narrow("camera", markers, ("joint_offsets", "points"), truth, still=[6], width=0.003, seed=seed, noise=noise)
         return model, obs, truth, ("joint_offset.panda_joint7",)
     truth.update({k: v for k, v in errors.items() if k.startswith("link_length.")})
     if case == "b":
         model, obs = narrow("tracker", ("t1", "t2", "t3"), ("joint_offsets", "link_lengths"), truth, still=[4, 5, 6],
-                            width=0.001)
+                            width=0.001, seed=seed, noise=noise)
         return model, obs, truth, ("link_length.panda_link4", "link_length.panda_link6")  # +-0.64 each
     truth.update({f"point.t1.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for a in "xyz"})
     model, obs = narrow("tracker", ("t1",), ("joint_offsets", "link_lengths", "points"), truth, still=[4, 5, 6],
-                        width=0.003)
+                        width=0.003, seed=seed, noise=noise)
     return model, obs, truth, ("joint_offset.panda_joint6",)
 
 
