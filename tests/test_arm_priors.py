@@ -329,3 +329,19 @@ def test_verify_refit_bad_options_are_one_line_exit_2(tmp_path, option, problem)
     assert naocal("identify", data, "--out", cal).returncode == 0
     result = naocal("verify", data, "--offsets", cal, *option)
     assert result.returncode == 2 and problem in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_diagnose_takes_fix_values_start_and_no_priors_and_stops_on_a_run_off_fit(tmp_path):
+    from tests.cli_runner import naocal
+
+    data, _, _ = write_scenario(tmp_path / "wrist", "b")
+    alone = naocal("diagnose", data, "--no-priors")
+    assert alone.returncode == 3 and " ran off " in alone.stderr and len(alone.stderr.strip().splitlines()) == 1
+    held = naocal("diagnose", data, "--no-priors", "--fix", "joint_offset.panda_joint7=0.25", "--effects",
+                  "joint_offsets")
+    assert held.returncode == 0, held.stderr
+    # the command it suggests holds what this fit held, as it held it
+    assert "--fix joint_offset.panda_joint7=0.25 --no-priors --out calibration.json" in held.stdout
+    cal = tmp_path / "cal.json"
+    assert naocal("identify", data, "--out", cal).returncode == 0
+    assert naocal("diagnose", data, "--start", cal).returncode == 0
