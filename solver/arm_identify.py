@@ -33,8 +33,8 @@ import numpy as np
 from naocal.solver.arm import PRIOR_SIZE, PRIORITY, ArmModel, Observations
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
-                             check_identifiable, gauges, identifiability, last_pass_cached, solve, weak_direction,
-                             worst_of_group_beyond)
+                             WEAK_RATIO, check_identifiable, gauges, identifiability, last_pass_cached, solve,
+                             weak_direction, worst_of_group_beyond)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
@@ -483,9 +483,13 @@ def ran_off(fit_: ArmFit):
     to_fix = max(physical)[1] if physical else p.name
     value, unit = shown(fit_.x[worst], p.unit)
     plausible = shown(size[worst], p.unit)[0] if size[worst] > 0 else None
-    return (f"{p.name} = {value:.4g} {unit} ran off "
-            + (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
-               if plausible is not None else "(beyond any plausible calibration)")
+    beyond = (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
+              if plausible is not None else "(beyond any plausible calibration)")
+    if direction.singular_value >= WEAK_RATIO:  # no flat direction: the data themselves put it there
+        return (f"{p.name} = {value:.4g} {unit} is beyond a calibration {beyond}, and the data determine it (its "
+                f"weakest direction has relative singular value {direction.singular_value:.1e}: "
+                f"{direction.describe()}): is the URDF the arm's, are the readings' zeros its zeros? nothing written")
+    return (f"{p.name} = {value:.4g} {unit} ran off {beyond}"
             + f" along a direction the data hardly determine (relative singular value {direction.singular_value:.1e}"
             f" at the solution): {direction.describe()}; fix {to_fix} at the URDF's value (--fix {to_fix}=0)"
             + ("" if fit_.priors else " or fit with the priors on")

@@ -345,3 +345,17 @@ def test_diagnose_takes_fix_values_start_and_no_priors_and_stops_on_a_run_off_fi
     cal = tmp_path / "cal.json"
     assert naocal("identify", data, "--out", cal).returncode == 0
     assert naocal("diagnose", data, "--start", cal).returncode == 0
+
+
+def test_a_value_the_data_insist_on_is_not_called_a_run_off_and_no_fix_is_suggested():
+    """A joint whose readings are 25 deg off the URDF's zero: the data determine it well, so the stop asks about the
+    URDF and the zeros, and suggests no --fix (holding it would write a wrong calibration)."""
+    import math
+
+    from tests.test_arm import synthetic
+
+    truth = dict(true_errors(seed=8), **{"joint_offset.panda_joint4": math.radians(25.0)})
+    model, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=30, seed=9)
+    message = ran_off(fit(model, obs, initialise_sensors(model, obs)))
+    assert message.startswith("joint_offset.panda_joint4 = 25 deg is beyond a calibration")
+    assert "the data determine it" in message and "zeros" in message and "--fix" not in message
