@@ -359,3 +359,14 @@ def test_a_value_the_data_insist_on_is_not_called_a_run_off_and_no_fix_is_sugges
     message = ran_off(fit(model, obs, initialise_sensors(model, obs)))
     assert message.startswith("joint_offset.panda_joint4 = 25 deg is beyond a calibration")
     assert "the data determine it" in message and "zeros" in message and "--fix" not in message
+
+
+def test_the_arm_s_options_on_a_nao_dataset_are_refused_not_ignored(tmp_path):
+    from tests.cli_runner import naocal
+
+    nao = tmp_path / "nao"  # what a NAO's dataset says it is (the arm's options refuse it before reading on)
+    nao.mkdir()
+    (nao / "dataset.json").write_text('{"schema": "naocal.dataset/2"}')
+    for argv in (["identify", nao, "--no-priors"], ["diagnose", nao, "--start", tmp_path / "x.json"]):
+        result = naocal(*argv)
+        assert result.returncode == 2 and "an arm's options" in result.stderr, result.stderr

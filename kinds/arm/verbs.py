@@ -114,7 +114,13 @@ def fixed_and_start(args, dataset, effects):
 
 
 def _load(args):
-    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_dataset import is_arm_dataset, read_arm_dataset
+
+    if not (args.robot or args.chain) and not is_arm_dataset(args.dataset):  # claimed by an arm-only option
+        from naocal.solver.errors import NaocalError
+
+        raise NaocalError(f"{args.dataset}: not an arm's dataset (naocal.arm_dataset/1): --no-priors, --start, "
+                          "--refit and verify's --fix are an arm's options")
 
     dataset = read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
     for note in dataset.notes or ():
