@@ -444,12 +444,18 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
                   std_iid, outliers, loss, solution.weights, prior_std)
 
 
+def _data_directions(model, obs, x, free, sigma):
+    """(condition number, singular values, Vt, indices of the free parameters) of the data's whitened,
+    column-scaled Jacobian at x (solver.identify.identifiability; the priors left out)."""
+    equations = ArmEquations(model, obs, x, free, sigma)
+    return (*identifiability(equations(x[equations.index]).A), equations.index)
+
+
 def data_weakest(model, obs, x, free, sigma, count: int = 3):
     """(condition number, [solver.identify.WeakDirection]) of the data's whitened, column-scaled Jacobian at x (the
     solution, not the start; the priors left out: what the data themselves determine least), weakest first."""
-    equations = ArmEquations(model, obs, x, free, sigma)
-    cond, sv, Vt = identifiability(equations(x[equations.index]).A)
-    names = [model.names[i] for i in equations.index]
+    cond, sv, Vt, index = _data_directions(model, obs, x, free, sigma)
+    names = [model.names[i] for i in index]
     return cond, [weak_direction(sv[k] / max(sv[0], 1e-300), 1.0 / sv[k] if sv[k] > 0 else np.inf, Vt[k], names)
                   for k in np.argsort(sv)[:count]]
 
@@ -474,11 +480,11 @@ def ran_off(fit_: ArmFit):
     if worst is None:
         return None
     p = model.parameters[worst]
-    equations = ArmEquations(model, fit_.obs, fit_.x, fit_.free, fit_.sigma)
-    _, sv, Vt = identifiability(equations(fit_.x[equations.index]).A)
-    j = int(np.flatnonzero(equations.index == worst)[0])
+    _, sv, Vt, index = _data_directions(model, fit_.obs, fit_.x, fit_.free, fit_.sigma)
+    j = int(np.flatnonzero(index == worst)[0])
     k = int(np.argmax(np.abs(Vt[:, j]) / np.maximum(sv, 1e-300)))  # the direction along which it moves most cheaply
-    direction = weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], [model.names[i] for i in equations.index])
+    direction = weak_direction(sv[k] / max(sv[0], 1e-300), 1.0 / max(sv[k], 1e-300), Vt[k],
+                               [model.names[i] for i in index])
     physical = [(abs(c), n) for n, c in direction.coefficients.items() if not n.startswith("sensor.")]
     to_fix = max(physical)[1] if physical else p.name
     value, unit = shown(fit_.x[worst], p.unit)
