@@ -7,8 +7,8 @@ Per scenario: with the priors (the default), how many fits converge to plausible
 finds nothing) and the largest |z| = (identified - true) / std over every free physical parameter (do the
 posterior stds cover the truth, prior-held ones included?), and the largest error in plausible sizes; without
 (--no-priors), how many stop with the run-off message and the largest value in plausible sizes. The truth is taken
-in the fit's gauge (`gauge_truth`): in (a) a turn of the markers about the last joint's axis is that joint's offset
-exactly, and the fit holds one marker coordinate at 0 (docs/ARM.md, identifiability).
+in the fit's gauges (`gauge_truth`: the first joint's offset and the base's height, which the sensor frames absorb,
+held at 0; docs/ARM.md, identifiability).
 
     python benchmarks/bench_arm_priors.py [--seeds 8]
 """

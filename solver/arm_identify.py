@@ -342,17 +342,32 @@ PRIOR_HELD = 0.5
 RUNOFF_FACTOR = 5.0
 
 
-def identifiable(model, obs, x, free, sigma):
+def identifiable(model, obs, x, free, sigma, priors: bool = True):
     """(free mask, {name: reason}): the gauges of the arm's parametrisation (solver.identify.gauges, in the order of
     solver.arm.PRIORITY) fixed; raises SolveError (solver.identify.check_identifiable) if anything else is
-    undetermined."""
+    undetermined.
+
+    With the priors (`arm_prior`) only what the sensor frames absorb is a gauge (they have no prior: the first
+    joint's offset, the base's height); what physical parameters cannot tell apart among themselves (a tool's
+    turn and its markers, two links along one axis) their priors resolve, each by its plausible size, rather than
+    one being held at the URDF and the other taking it all (a tool turned 8 deg to carry its markers' 2 mm). The
+    check that nothing else is undetermined then counts the priors' information."""
     equations = ArmEquations(model, obs, x, free, sigma)
     A = equations(x[equations.index]).A
     names = [model.names[i] for i in equations.index]
     effect = [model.parameters[i].effect for i in equations.index]
     order = sorted(range(len(names)), key=lambda j: (PRIORITY.index(effect[j]), j))
     fixable = [e != "sensor" for e in effect]
-    found = gauges(A, order, fixable)
+    prior = arm_prior(model, free, priors)
+    if prior is None or not len(prior):
+        found = gauges(A, order, fixable)
+    else:
+        sensors = [j for j in order if not fixable[j]]
+        found = {}
+        for j in order:
+            if fixable[j]:
+                found.update(gauges(A, sensors + [j], fixable))
+        A = A + prior.information(equations.scales)
     reasons = {}
     for j, (partners, residual) in found.items():
         reasons[names[j]] = ("it changes no prediction of these data" if not partners else
@@ -412,7 +427,7 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
             raise DataError(path, f"sensor {sensor.name} has no observations", field=f"sensors.{sensor.name}")
     reasons = {}
     if auto_fix:
-        free, reasons = identifiable(model, obs, x0, free, sigma)
+        free, reasons = identifiable(model, obs, x0, free, sigma, priors)
     all_obs, kept = obs, np.arange(len(obs))
     x, solution, _ = _solve(model, obs, x0, free, sigma, loss, priors)
     if not known.all():  # weights from what the first fit left, then fit again
