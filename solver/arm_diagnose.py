@@ -196,8 +196,8 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
         bigger.R0 = model.R0.copy()
         values = dict(zip(model.names, fit.x))
         x0 = np.array([values.get(n, 0.0) for n in bigger.names])
-        fixed = tuple(n for n in fit.fixed_reasons)
-        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert), n_folds)
+        fixed = tuple(n for n, free in zip(model.names, fit.free) if not free)  # gauges and the user's --fix
+        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert, priors=fit.priors), n_folds)
     return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
@@ -213,6 +213,19 @@ def _shown_value(name, value, units) -> str:
 
     v, unit = shown(value, units.get(name, "1"))
     return f"{v:+.4g} {unit}".rstrip()
+
+
+def _held_options(fit: ArmFit) -> str:
+    """The options that reproduce what the fit held: the user's --fix (NAME, or NAME=VALUE in display units; not the
+    gauges, which identify finds again) and --no-priors."""
+    from naocal.solver.effect import shown
+
+    out = ""
+    for i, p in enumerate(fit.model.parameters):
+        if not fit.free[i] and p.name not in fit.fixed_reasons:
+            value = shown(fit.x[i], p.unit)[0]
+            out += f" --fix {p.name}" + (f"={value:.6g}" if fit.x[i] != 0.0 else "")
+    return out + ("" if fit.priors else " --no-priors")
 
 
 def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
@@ -259,7 +272,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     else:
         lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
                      f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert)
-                     + " --out calibration.json")  # identify writes with --out
+                     + _held_options(fit) + " --out calibration.json")  # identify writes with --out
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

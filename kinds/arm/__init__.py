@@ -11,8 +11,11 @@ class ArmKind:
     rank = 20  # before the NAO: a pair of an arm's file and a NAO's reaches the arm's reader, which names the mismatch
 
     def claims(self, source) -> bool:
-        if isinstance(source, argparse.Namespace):  # --robot / --chain exist only for an arm
-            return bool(getattr(source, "robot", None) or getattr(source, "chain", None))
+        if isinstance(source, argparse.Namespace):  # options that exist only for an arm: a NAO's data given them
+            return bool(getattr(source, "robot", None) or getattr(source, "chain", None)  # get the arm's refusal,
+                        or getattr(source, "no_priors", False) or getattr(source, "start", None)  # not silence
+                        or getattr(source, "refit", "sensors") != "sensors"
+                        or (getattr(source, "verb", "") == "verify" and getattr(source, "fix", None)))
         from naocal.solver.arm_calibration import is_arm_calibration
         from naocal.solver.arm_dataset import is_arm_dataset
 
@@ -22,7 +25,7 @@ class ArmKind:
         from naocal.kinds.arm.verbs import add_arm_options
 
         if verb in ("identify", "diagnose", "verify"):
-            add_arm_options(parser)  # DATASET a naocal.arm_dataset/1; --effects then names the arm's effects
+            add_arm_options(parser, verb=verb)  # DATASET a naocal.arm_dataset/1; --effects then names its effects
         elif verb == "simulate":
             add_arm_options(parser, simulate=True)  # an arm instead of the NAO
             parser.add_argument("--poses", type=int, default=60, metavar="N", help="arm: stances (default 60)")
