@@ -36,13 +36,15 @@ class Detections:
     boards: list
 
 
-def detect_log(log: DriveLog) -> Detections:
-    markers, boards = [], []
+def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
+    """Markers and (unless `boards` is False: a drive with none, e.g. kinds.duckiebot.refine's lane pass) boards
+    in every frame."""
+    markers, found = [], []
     for i in range(len(log.frame_files)):
         image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
         markers.append(detect_markers(image, log.marker_family))
-        boards.append(detect_boards(image, log.board_inner_corners, log.board_square_m))
-    return Detections(markers, boards)
+        found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if boards else [])
+    return Detections(markers, found)
 
 
 def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict]:
