@@ -87,7 +87,7 @@ def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings
 class DuckiebotCalibration:
     """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
     camera (the chosen lens; its plumb_bob fit for Duckietown's files), the camera's pose on the body, the floor
-    markers, with the joint fit's cluster-robust stds."""
+    markers, with the joint fit's cluster-robust stds (the lens's own: `lens.std`, clusters the board views)."""
 
     robot_id: str
     kinematics: Kinematics
@@ -121,6 +121,8 @@ class DuckiebotCalibration:
                                "radius_m": self.kinematics.radius_m, "limit": self.kinematics.limit},
                 "lens": {"model": self.lens.camera.model, "K": self.lens.camera.K.tolist(),
                          "distortion": self.lens.camera.distortion.tolist(),
+                         "std": dict(zip(self.lens.names, self.lens.std.tolist())),
+                         "whole_image_std_px": self.lens.whole_image_std_px,
                          "held_out_rms_px": {m: f.held_out_rms_px for m, f in self.lens_fits.items()}},
                 "T_base_camera": self.T_base_camera.tolist(),
                 "parameters": fit.parameters_dict(), "reference_marker": fit.reference_marker,
