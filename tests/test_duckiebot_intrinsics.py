@@ -87,7 +87,8 @@ def test_the_lens_equations_jacobian_is_exact(model, distortion):
     numeric = np.zeros_like(J)
     for j in range(len(x)):
         h = 1e-6 * equations.scales[j]
-        numeric[:, j] = (equations.dense(x + np.eye(len(x))[j] * h)[0] - equations.dense(x - np.eye(len(x))[j] * h)[0]) / (2 * h)
+        step = np.eye(len(x))[j] * h
+        numeric[:, j] = (equations.dense(x + step)[0] - equations.dense(x - step)[0]) / (2 * h)
     assert np.max(np.abs(J - numeric) * equations.scales) < 1e-5 * np.max(np.abs(J) * equations.scales)
     normal = equations(x)  # the normal equations are those of the dense Jacobian, in scaled units
     Js = J * equations.scales
