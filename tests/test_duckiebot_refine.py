@@ -75,3 +75,12 @@ def test_a_pass_without_markers_or_too_short_is_refused(tmp_path):
     lane_pass(tmp_path / "short", 5)
     with pytest.raises(RefinementRefused, match="5 frames with a marker.*at least 8"):
         refine_trim(tmp_path / "short", calibration(old))
+
+
+def test_weak_evidence_is_refused(lane, monkeypatch):
+    """A pass whose trim std is above the bound gives no new value (the bound lowered below this pass's std)."""
+    import naocal.kinds.duckiebot.refine as refine
+    path, old = lane
+    monkeypatch.setattr(refine, "MAX_TRIM_STD", 1e-6)
+    with pytest.raises(RefinementRefused, match=r"determines trim only to \+-0\.0000.*trim is unchanged"):
+        refine_trim(path, calibration(old))
