@@ -61,6 +61,18 @@ def test_a_lane_pass_refines_a_changed_trim_within_its_std(lane):
     assert "trim" in refined.describe()
 
 
+def test_gain_and_trim_are_in_the_calibrations_k_and_radius(lane):
+    """The same robot described with twice the k and a 10 % larger radius: its gain and trim scale by 2.2."""
+    path, old = lane
+    base = refine_trim(path, calibration(old), max_step=0.05)
+    scaled = Kinematics(gain=old.gain * 2.2, trim=old.trim * 2.2, k=2 * LOG_K, radius_m=old.radius_m * 1.1,
+                        baseline_m=old.baseline_m)
+    refined = refine_trim(path, calibration(scaled), max_step=0.05 * 2.2)
+    assert refined.trim == pytest.approx(base.trim * 2.2, abs=1e-6)
+    assert refined.trim_std == pytest.approx(base.trim_std * 2.2, rel=1e-3)
+    assert refined.kinematics.k == 2 * LOG_K
+
+
 def test_the_step_is_bounded(lane):
     path, old = lane
     refined = refine_trim(path, calibration(old), max_step=0.004)

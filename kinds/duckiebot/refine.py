@@ -8,8 +8,8 @@ corners are rectified; its pose on the body: `fixed`) and the baseline held at t
 has no turns to tell the baseline from trim, and its markers seen from one side only pin the camera's pose poorly.
 Free: gain, trim, the robot's pose at the first frame with a marker, the markers' poses, the corners' bias.
 
-Gain and trim are fitted in the log's k (as every fit is) and converted to the calibration's k: w = u k / (gain +-
-trim), so (gain, trim) scale with k.
+Gain and trim are fitted in the log's k and wheel radius (as every fit is) and converted to the calibration's: the
+speed is r u k / (gain +- trim), so (gain, trim) scale with k r.
 
 Refused (RefinementRefused, nothing returned): fewer than MIN_MARKER_FRAMES frames with a marker; a fit that
 cannot determine trim (SolveError) or does not converge; a trim std above MAX_TRIM_STD (0.001: the issue's
@@ -82,7 +82,8 @@ def refine_trim(log_dir, calibration: DuckiebotCalibration, *, max_step: float =
         raise RefinementRefused(f"{log.path}: {marker_frames} frames with a marker in view, at least "
                                 f"{MIN_MARKER_FRAMES} are needed to refine trim: trim is unchanged")
     kin = calibration.kinematics
-    to_log = log.wheels.k / kin.k  # (gain, trim) in the calibration's k -> in the log's
+    # (gain, trim) in the calibration's k and radius -> the log's: the speed is r u k / (gain +- trim)
+    to_log = (log.wheels.k * log.wheels.radius_m) / (kin.k * kin.radius_m)
     drive = dataclasses.replace(Drive.of_log(log), baseline_m=kin.baseline_m)
     sightings = rectified_sightings(detections, calibration.lens.camera)
     try:
