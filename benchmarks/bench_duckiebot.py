@@ -43,6 +43,7 @@ from naocal.kinds.duckiebot.calibration_files import apply_homography, ground_ho
 from naocal.kinds.duckiebot.detect import detect_markers  # noqa: E402
 from naocal.kinds.duckiebot.fit import marker_on_floor, pose_parameters  # noqa: E402
 from naocal.kinds.duckiebot.identify import identify_log  # noqa: E402
+from naocal.kinds.duckiebot.intrinsics import LensCamera, camera_difference_px  # noqa: E402
 from naocal.kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, inverse_kinematics  # noqa: E402
 from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, hidden_robot, joint_program,  # noqa: E402
                                     paper_program, render_drive_log, simulate_drive)
@@ -56,6 +57,7 @@ PATH_M = 2.0
 EPSILON = 0.002  # the paper's "correction below epsilon" on kappa
 MAX_ROUNDS = 10
 DRIVE_DUTY, DRIVE_S = 0.3, 0.3  # the paper's short drive: about 8 cm
+SIZE = (640, 480)
 
 
 def cache_dir() -> Path:
@@ -141,17 +143,18 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     args = parser.parse_args(argv)
-    rows, z_max = [], []
+    rows, z_max, lens_rows = [], [], []
     print("| seed | method | trim error | 2 m deviation | speed error | homography RMS | z (max over kin. + "
-          "camera pose) | CPU s |")
-    print("|---|---|---|---|---|---|---|---|")
+          "camera pose) | CPU s | wall s |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         robot = hidden_robot(seed)
         gain_true, trim_true = effective_truth(robot.kinematics)
         path = rendered_log(seed)
-        start = time.process_time()
+        start, wall = time.process_time(), time.perf_counter()
         cal = identify_log(path)
-        cpu = time.process_time() - start
+        cpu, wall = time.process_time() - start, time.perf_counter() - wall
+        lens_rows.append((seed, cal.lens, cal.lens_fits, LensCamera.from_intrinsics(robot.camera)))
         fit = cal.drive_fit
         truth = {"gain": gain_true, "trim": trim_true, "baseline_m": robot.kinematics.baseline_m}
         truth.update(zip(("camera.x_m", "camera.y_m", "camera.z_m", "camera.roll_rad", "camera.pitch_rad",
@@ -168,11 +171,11 @@ def main(argv=None) -> int:
         print(f"| {seed} | naocal joint fit ({cal.lens.camera.model}, {len(fit.sightings.frame)} corners, "
               f"{len(fit.outliers.frame)} set aside) | {trim_error:.4f} (std {fit.stdev('trim'):.4f}) | "
               f"{deviation * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.2f} % | {h_error * 1000:.1f} mm | "
-              f"{abs(z[worst]):.1f} ({worst}) | {cpu:.1f} |")
-        start = time.process_time()
+              f"{abs(z[worst]):.1f} ({worst}) | {cpu:.1f} | {wall:.1f} |")
+        start, wall = time.process_time(), time.perf_counter()
         lens = cal.lens_fits["plumb_bob"].camera
         kappa, rounds, measured = paper_method(seed, lens, np.random.default_rng(seed + 2000))
-        cpu = time.process_time() - start
+        cpu, wall = time.process_time() - start, time.perf_counter() - wall
         trim = (kappa - 1.0) / (kappa + 1.0)
         paper = Kinematics(gain=1.0, trim=trim, k=LOG_K, baseline_m=duckiebot("DB21").baseline_m)
         trim_error = abs(trim - trim_true / gain_true) * gain_true
@@ -182,15 +185,33 @@ def main(argv=None) -> int:
         rows.append(("paper", trim_error, deviation, speed, h_error))
         print(f"| {seed} | paper's k iteration ({rounds} drives, {measured} with a marker before and after) | "
               f"{trim_error:.4f} | {deviation * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.1f} % | "
-              f"{h_error * 1000:.1f} mm (nominal mount) | - | {cpu:.1f} |")
+              f"{h_error * 1000:.1f} mm (nominal mount) | - | {cpu:.1f} | {wall:.1f} |")
     for method in ("naocal", "paper"):
         r = np.array([row[1:] for row in rows if row[0] == method])
         print(f"| all | {method} (max) | {r[:, 0].max():.4f} | {r[:, 1].max() * 100:.1f} cm | "
               f"{np.abs(r[:, 2] / SPEED_MPS - 1).max() * 100:.2f} % | {r[:, 3].max() * 1000:.1f} mm | "
-              f"{max(z_max):.1f} |  |" if method == "naocal" else
+              f"{max(z_max):.1f} |  |  |" if method == "naocal" else
               f"| all | {method} (max) | {r[:, 0].max():.4f} | {r[:, 1].max() * 100:.1f} cm | "
-              f"{np.abs(r[:, 2] / SPEED_MPS - 1).max() * 100:.1f} % | {r[:, 3].max() * 1000:.1f} mm | - |  |")
+              f"{np.abs(r[:, 2] / SPEED_MPS - 1).max() * 100:.1f} % | {r[:, 3].max() * 1000:.1f} mm | - |  |  |")
+    print_intrinsics(lens_rows)
     return 0
+
+
+def print_intrinsics(lens_rows) -> None:
+    """The intrinsics of each seed's identify_log beside the truth: every lens model's training and held-out RMS,
+    and the camera's RMS difference from the truth over the whole image with the std its covariance implies."""
+    print()
+    print("| seed, views | model | training RMS | held-out RMS | whole image vs truth | its std | fx, fy, cx, cy "
+          "error (std) px |")
+    print("|---|---|---|---|---|---|---|")
+    for seed, chosen, fits, truth in lens_rows:
+        for i, (model, fit) in enumerate(fits.items()):
+            error = camera_difference_px(truth, fit.camera, SIZE)
+            k = fit.camera.parameters[:4] - truth.parameters[:4]
+            pixels = ", ".join(f"{e:+.2f} ({s:.2f})" for e, s in zip(k, fit.std[:4]))
+            print(f"| {f'{seed}, {fit.n_views}' if i == 0 else ''} | {model}{' (chosen)' if fit is chosen else ''} | "
+                  f"{fit.train_rms_px:.3f} px | {fit.held_out_rms_px:.3f} px | {error:.2f} px | "
+                  f"{fit.whole_image_std_px:.2f} px | {pixels} |")
 
 
 if __name__ == "__main__":

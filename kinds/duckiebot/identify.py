@@ -36,13 +36,15 @@ class Detections:
     boards: list
 
 
-def detect_log(log: DriveLog) -> Detections:
-    markers, boards = [], []
+def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
+    """Markers and (unless `boards` is False: a drive with none, e.g. kinds.duckiebot.refine's lane pass) boards
+    in every frame."""
+    markers, found = [], []
     for i in range(len(log.frame_files)):
         image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
         markers.append(detect_markers(image, log.marker_family))
-        boards.append(detect_boards(image, log.board_inner_corners, log.board_square_m))
-    return Detections(markers, boards)
+        found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if boards else [])
+    return Detections(markers, found)
 
 
 def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict]:
@@ -85,7 +87,7 @@ def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings
 class DuckiebotCalibration:
     """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
     camera (the chosen lens; its plumb_bob fit for Duckietown's files), the camera's pose on the body, the floor
-    markers, with the joint fit's cluster-robust stds."""
+    markers, with the joint fit's cluster-robust stds (the lens's own: `lens.std`, clusters the board views)."""
 
     robot_id: str
     kinematics: Kinematics
@@ -119,6 +121,8 @@ class DuckiebotCalibration:
                                "radius_m": self.kinematics.radius_m, "limit": self.kinematics.limit},
                 "lens": {"model": self.lens.camera.model, "K": self.lens.camera.K.tolist(),
                          "distortion": self.lens.camera.distortion.tolist(),
+                         "std": dict(zip(self.lens.names, self.lens.std.tolist())),
+                         "whole_image_std_px": self.lens.whole_image_std_px,
                          "held_out_rms_px": {m: f.held_out_rms_px for m, f in self.lens_fits.items()}},
                 "T_base_camera": self.T_base_camera.tolist(),
                 "parameters": fit.parameters_dict(), "reference_marker": fit.reference_marker,
