@@ -404,14 +404,14 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
             if pname not in point_index:
                 _fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
                       field="point", line=line)
-            c = 0
+            row_c = 0
             if chains is not None:
                 cname = row[col["chain"]] if "chain" in col else chains[0].name
                 if cname not in chain_index:
                     _fail(path, f"unknown chain {cname[:40]!r} (dataset.json has {', '.join(chain_index)})",
                           field="chain", line=line)
-                c = chain_index[cname]
-                ac, link = chains[c], sensors[s].link
+                row_c = chain_index[cname]
+                ac, link = chains[row_c], sensors[s].link
                 if link is not None and link != ac.chain.base and link not in ac.child_links:
                     _fail(path, f"sensor {name} is mounted on {link!r}, which chain {cname} does not carry: it "
                                 "cannot see that chain's points", field="sensor", line=line)
@@ -449,7 +449,7 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
                 values.append(0.0)
             reading = []
             for i, factor, field, joint in joint_cols:
-                if chains is not None and joint not in chain_joints[c] and row[i] in MISSING:
+                if chains is not None and joint not in chain_joints[row_c] and row[i] in MISSING:
                     reading.append(0.0)  # a joint off this row's chain: not read, not used
                     continue
                 angle = number(row[i], field) * factor
@@ -475,7 +475,7 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
             sensor.append(s)
             point.append(point_index[pname])
             rows_read.append(line)
-            row_chain.append(c)
+            row_chain.append(row_c)
     except csv.Error as err:
         _fail(path, f"malformed CSV: {err}", line=line + 1)
     if unseen:
