@@ -39,6 +39,16 @@ EFFECTS = {
     "tool": "pose error of the tool (end-effector mount) on each chain's tip: translation (m), rotation (rad)",
 }
 DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
+# Each effect's plausible size per unit: the std of its Gaussian prior (solver.arm_identify.arm_prior) about the
+# URDF's value (every correction 0), and, times solver.arm_identify.RUNOFF_FACTOR, the value a fit must not land
+# beyond. The sensor frames have none: they may be anywhere.
+PRIOR_SIZE = {
+    "joint_offsets": {"rad": math.radians(2.0)},  # encoder zeros are off by degrees at most
+    "link_lengths": {"m": 2e-3},  # a machined link is off by millimetres
+    "link_poses": {"m": 2e-3, "rad": math.radians(1.0)},
+    "points": {"m": 3e-3},  # a marker or reflector glued by hand
+    "elasticity": {"rad/(N m)": math.radians(0.05)},  # 0.5 deg under 10 N m: a soft gear
+}
 # The gauges' order (solver.identify.gauges, via solver.arm_identify.identifiable): of parameters the data cannot
 # tell apart, the earlier group stays free and the later is fixed; a sensor frame is never fixed.
 PRIORITY = ("sensor", "joint_offsets", "link_lengths", "tool", "points", "link_poses", "elasticity")

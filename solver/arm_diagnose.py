@@ -196,8 +196,8 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
         bigger.R0 = model.R0.copy()
         values = dict(zip(model.names, fit.x))
         x0 = np.array([values.get(n, 0.0) for n in bigger.names])
-        fixed = tuple(n for n in fit.fixed_reasons)
-        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert), n_folds)
+        fixed = tuple(n for n, free in zip(model.names, fit.free) if not free)  # gauges and the user's --fix
+        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert, priors=fit.priors), n_folds)
     return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,

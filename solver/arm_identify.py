@@ -15,6 +15,12 @@
    are (solver.identify.OUTLIER_SCALES robust scales, the worst of a pose each round) and listed.
 4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
    correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
+5. Priors (soft bounds, on by default): every physical parameter has a Gaussian prior about the URDF's value with
+   its effect's plausible size (solver.arm.PRIOR_SIZE), one whitened pseudo-observation each (solver.identify.Prior),
+   so that a direction the data hardly determine stays near the URDF instead of soaking up what the model lacks.
+   A parameter whose posterior std is more than PRIOR_HELD of its prior's was held by the prior, not the data: the
+   report says so. After the fit the weakest directions of the data's whitened Jacobian at the solution are
+   reported; a value beyond RUNOFF_FACTOR plausible sizes stops identify naming the direction it ran along.
 """
 
 from __future__ import annotations
@@ -24,10 +30,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.solver.arm import PRIORITY, ArmModel, Observations
+from naocal.solver.arm import PRIOR_SIZE, PRIORITY, ArmModel, Observations
 from naocal.solver.errors import DataError, SolveError
-from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal,
-                             check_identifiable, gauges, last_pass_cached, solve, worst_of_group_beyond)
+from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
+                             check_identifiable, gauges, identifiability, last_pass_cached, solve, weak_direction,
+                             worst_of_group_beyond)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
@@ -54,6 +61,7 @@ class ArmFit:
     outliers: list = field(default_factory=list)  # [ArmOutlier]: detections set aside (not in `obs`)
     loss: str = "linear"
     weights: np.ndarray = field(default=None)  # (N,) the robust loss's weight of each observation (1: linear)
+    prior_std: np.ndarray = field(default=None)  # (P,) the std of each parameter's prior (0: none, or priors off)
 
     def rms(self) -> dict:
         """{sensor: RMS per measured component (m or px)}."""
@@ -61,8 +69,23 @@ class ArmFit:
 
     def parameters_dict(self) -> dict:
         values = self.model.reported_values(self.x)
+        prior = self.prior_std if self.prior_std is not None else np.zeros(len(self.x))
         return {p.name: {"value": values[p.name], "std": float(self.std[i]), "unit": p.unit,
-                         "fixed": not bool(self.free[i])} for i, p in enumerate(self.model.parameters)}
+                         "fixed": not bool(self.free[i]), "prior_std": float(prior[i]) if prior[i] > 0 else None}
+                for i, p in enumerate(self.model.parameters)}
+
+    @property
+    def priors(self) -> bool:
+        return self.prior_std is not None and bool(np.any(self.prior_std > 0))
+
+    @property
+    def held_by_prior(self) -> list:
+        """Names of the free parameters whose posterior std is more than PRIOR_HELD of their prior's: the data
+        hardly informed them; their values are the URDF's, as the prior says."""
+        if self.prior_std is None:
+            return []
+        return [p.name for i, p in enumerate(self.model.parameters)
+                if self.free[i] and self.prior_std[i] > 0 and self.std[i] > PRIOR_HELD * self.prior_std[i]]
 
     @property
     def free_names(self):
@@ -160,10 +183,13 @@ def camera_pose_dlt(points, pixels, K):
     return R, p / np.mean(sv)
 
 
-def initialise_sensors(model: ArmModel, obs: Observations, path="dataset") -> np.ndarray:
-    """Set each sensor's R0 and return parameter values with its translation, from its prior or from the data."""
+def initialise_sensors(model: ArmModel, obs: Observations, path="dataset", start=None) -> np.ndarray:
+    """Set each sensor's R0 and return parameter values with its translation, from its prior or from the data;
+    the arm's parameters at `start` ({name: SI value}; default the URDF's, 0), where the data are seen from."""
     x = model.initial_values()
-    p_b = model.base_points(np.zeros(len(model.parameters)), obs)
+    for name, value in (start or {}).items():
+        x[model.names.index(name)] = value
+    p_b = model.base_points(np.where([p.effect == "sensor" for p in model.parameters], 0.0, x), obs)
     for s, sensor in enumerate(model.sensors):
         rows = obs.sensor == s
         if sensor.prior_rotation is not None:
@@ -271,8 +297,23 @@ class ArmEquations:
         return np.concatenate(rs), np.concatenate(Js)
 
 
-def _solve(model, obs, x0, free, sigma, loss="linear"):
-    """(x, solver.identify.Solution, equations): the free parameters fitted from x0."""
+def prior_sizes(model) -> np.ndarray:
+    """(P,) each parameter's plausible size (solver.arm.PRIOR_SIZE by its effect and unit; 0: none, a sensor)."""
+    return np.array([PRIOR_SIZE.get(p.effect, {}).get(p.unit, 0.0) for p in model.parameters])
+
+
+def arm_prior(model, free, priors: bool = True):
+    """The solver.identify.Prior of the free parameters that have a plausible size: mean the URDF (0), std that
+    size; None with `priors` off."""
+    if not priors:
+        return None
+    size = prior_sizes(model)[free]
+    index = np.flatnonzero(size > 0)
+    return Prior(index, np.zeros(len(index)), size[index])
+
+
+def _solve(model, obs, x0, free, sigma, loss="linear", priors=True):
+    """(x, solver.identify.Solution, equations): the free parameters fitted from x0 (with their priors)."""
     equations = ArmEquations(model, obs, x0, free, sigma)
     if not len(equations.index):
         raise SolveError("no free parameters to identify")
@@ -285,7 +326,7 @@ def _solve(model, obs, x0, free, sigma, loss="linear"):
         raise SolveError(f"{len(equations.index)} parameters but only {int(equations.mask.sum())} measured "
                          "components: too few observations")
     solution = solve(equations, last_pass_cached(equations), x0[equations.index], loss=loss, loss_scale=LOSS_SCALE_SIGMA,
-                     max_iterations=MAX_ITERATIONS, measured=equations.mask)
+                     max_iterations=MAX_ITERATIONS, measured=equations.mask, prior=arm_prior(model, free, priors))
     return equations.values(solution.free), solution, equations
 
 
@@ -293,6 +334,12 @@ def _solve(model, obs, x0, free, sigma, loss="linear"):
 # by their noise: one scale for pixels and metres).
 LOSS_SCALE_SIGMA = 1.0
 MAX_ITERATIONS = 200
+# A free parameter whose posterior std is above this share of its prior's was held by the prior (the data alone
+# would know it no better than 1.15 prior stds).
+PRIOR_HELD = 0.5
+# A value beyond this many plausible sizes (solver.arm.PRIOR_SIZE) is no calibration: the fit ran off along a
+# direction the data hardly determine (with the priors on it can only land there if the data insist).
+RUNOFF_FACTOR = 5.0
 
 
 def identifiable(model, obs, x, free, sigma):
@@ -345,11 +392,13 @@ def _outlier_rows(model, obs, residual, sigma) -> np.ndarray:
 
 
 def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path="dataset", loss: str = "linear",
-        robust: bool = True) -> ArmFit:
+        robust: bool = True, priors: bool = True) -> ArmFit:
     """Fit the free parameters (all but `fixed` names or effects, and the gauges the data cannot tell apart).
 
+    fixed : names or effects held at their value in x0.
     loss : 'linear' or a robust loss (solver.identify.ROBUST_WEIGHT), bending at LOSS_SCALE_SIGMA noise stds.
     robust : set aside the detections no model explains (`_outlier_rows`), refitting after each round.
+    priors : each physical parameter's Gaussian prior (`arm_prior`); off, the data alone.
     """
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}: expected one of {', '.join(LOSSES)}")
@@ -365,20 +414,20 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
     if auto_fix:
         free, reasons = identifiable(model, obs, x0, free, sigma)
     all_obs, kept = obs, np.arange(len(obs))
-    x, solution, _ = _solve(model, obs, x0, free, sigma, loss)
+    x, solution, _ = _solve(model, obs, x0, free, sigma, loss, priors)
     if not known.all():  # weights from what the first fit left, then fit again
         sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
-        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)
     for _ in range(MAX_TRIM_ROUNDS if robust else 0):
         bad = _outlier_rows(model, obs, solution.final.residuals * sigma[obs.sensor][:, None], sigma)
         if not len(bad):
             break
         kept = np.delete(kept, bad)
         obs = all_obs.subset(kept)
-        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)
     if len(kept) < len(all_obs) and not known.all():  # the noise from the detections kept
         sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
-        x, solution, _ = _solve(model, obs, x, free, sigma, loss)
+        x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)
     names = [n for n, f in zip(model.names, free) if f]
     _, cluster = np.unique(obs.pose, return_inverse=True)
     spread = solution.spread(cluster.reshape(-1), names)
@@ -388,9 +437,59 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
     residual = model.predict(x, obs) - obs.measured
     residual[~model.component_mask(obs)] = 0.0
     outliers = _outliers(model, all_obs, np.setdiff1d(np.arange(len(all_obs)), kept), x)
-    return ArmFit(model, obs, x, free, std, sigma, known, reasons, spread.weak_directions, spread.condition_number,
+    prior_std = np.where(free, prior_sizes(model), 0.0) if priors else np.zeros(len(x))
+    cond, weak = data_weakest(model, obs, x, free, sigma)
+    return ArmFit(model, obs, x, free, std, sigma, known, reasons, weak, cond,
                   solution.n_fun, solution.success, solution.message, time.perf_counter() - start, residual,
-                  std_iid, outliers, loss, solution.weights)
+                  std_iid, outliers, loss, solution.weights, prior_std)
+
+
+def data_weakest(model, obs, x, free, sigma, count: int = 3):
+    """(condition number, [solver.identify.WeakDirection]) of the data's whitened, column-scaled Jacobian at x (the
+    solution, not the start; the priors left out: what the data themselves determine least), weakest first."""
+    equations = ArmEquations(model, obs, x, free, sigma)
+    cond, sv, Vt = identifiability(equations(x[equations.index]).A)
+    names = [model.names[i] for i in equations.index]
+    return cond, [weak_direction(sv[k] / max(sv[0], 1e-300), 1.0 / sv[k] if sv[k] > 0 else np.inf, Vt[k], names)
+                  for k in np.argsort(sv)[:count]]
+
+
+def ran_off(fit_: ArmFit):
+    """None, or one line: the parameter furthest beyond RUNOFF_FACTOR of its plausible size (or beyond what a
+    calibration file may hold, solver.arm_calibration.LIMITS), the data's weak direction at the solution it moves
+    most cheaply along, and the `--fix` that removes that direction: its largest physical parameter held at the
+    URDF's value."""
+    from naocal.solver.arm_calibration import LIMITS
+    from naocal.solver.effect import shown
+
+    model = fit_.model
+    size = prior_sizes(model)
+    worst, worst_ratio = None, 1.0
+    for i, p in enumerate(model.parameters):
+        if not fit_.free[i] or p.effect == "sensor":
+            continue
+        limit = min(RUNOFF_FACTOR * size[i] if size[i] > 0 else np.inf, LIMITS.get(p.unit, np.inf))
+        if abs(fit_.x[i]) > worst_ratio * limit:
+            worst, worst_ratio = i, abs(fit_.x[i]) / limit
+    if worst is None:
+        return None
+    p = model.parameters[worst]
+    equations = ArmEquations(model, fit_.obs, fit_.x, fit_.free, fit_.sigma)
+    _, sv, Vt = identifiability(equations(fit_.x[equations.index]).A)
+    j = int(np.flatnonzero(equations.index == worst)[0])
+    k = int(np.argmax(np.abs(Vt[:, j]) / np.maximum(sv, 1e-300)))  # the direction along which it moves most cheaply
+    direction = weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], [model.names[i] for i in equations.index])
+    physical = [(abs(c), n) for n, c in direction.coefficients.items() if not n.startswith("sensor.")]
+    to_fix = max(physical)[1] if physical else p.name
+    value, unit = shown(fit_.x[worst], p.unit)
+    plausible = shown(size[worst], p.unit)[0] if size[worst] > 0 else None
+    return (f"{p.name} = {value:.4g} {unit} ran off "
+            + (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
+               if plausible is not None else "(beyond any plausible calibration)")
+            + f" along a direction the data hardly determine (relative singular value {direction.singular_value:.1e}"
+            f" at the solution): {direction.describe()}; fix {to_fix} at the URDF's value (--fix {to_fix}=0)"
+            + ("" if fit_.priors else " or fit with the priors on")
+            + ", or measure poses that move it; nothing written")
 
 
 def _outliers(model, obs, rows, x) -> list:
@@ -434,7 +533,7 @@ def heldout_rms(fit_: ArmFit, n_folds: int = 5) -> dict:
         train = obs.subset(~test)
         held = obs.subset(test)
         for label, free in (("nominal", sensor_only), ("calibrated", fit_.free)):
-            x, _, _ = _solve(model, train, x_start, free, fit_.sigma, fit_.loss)
+            x, _, _ = _solve(model, train, x_start, free, fit_.sigma, fit_.loss, fit_.priors)
             errors[label][test] = model.predict(x, held) - held.measured
     mask = model.component_mask(obs)
     for e in errors.values():
@@ -449,8 +548,11 @@ def model_for(dataset, effects) -> ArmModel:
                     dataset.link_names)
 
 
-def identify_dataset(dataset, effects, *, fixed=(), loss: str = "linear", robust: bool = True) -> ArmFit:
+def identify_dataset(dataset, effects, *, fixed=(), start=None, loss: str = "linear", robust: bool = True,
+                     priors: bool = True) -> ArmFit:
+    """The fit of a read dataset: `fixed` names or effects held at their start value, `start` {name: SI value} of
+    the arm's parameters to start from (--start, --fix NAME=VALUE; the rest at the URDF's)."""
     model = model_for(dataset, effects)
     meta_path = dataset.path / "dataset.json"
-    x0 = initialise_sensors(model, dataset.observations, meta_path)
-    return fit(model, dataset.observations, x0, fixed=fixed, path=meta_path, loss=loss, robust=robust)
+    x0 = initialise_sensors(model, dataset.observations, meta_path, start)
+    return fit(model, dataset.observations, x0, fixed=fixed, path=meta_path, loss=loss, robust=robust, priors=priors)

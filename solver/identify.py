@@ -333,7 +333,7 @@ def normal_equations(model: Model, registry: Registry, values: np.ndarray, *, ch
             2 * model.data.n_rows)
 
 
-def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image, n, dof):
+def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image, n, dof, prior_information=None):
     """Covariance of the free parameters: cluster-robust (sandwich), and the classic s^2 (J^T J)^-1.
 
     The 24 vertices of one image share its errors (a board that flexes, a detection bias), and the images of one
@@ -342,19 +342,28 @@ def parameter_covariance(As, rss, image_scores, sv, Vt, scales, cluster_of_image
     (J^T J)^-1 (sum_c g_c g_c^T) (J^T J)^-1 with g_c = J_c^T r_c the score of cluster c is not. Clusters:
     `cluster_of_image` (M,) (solver.scoretest.stance_cluster_of_image); `image_scores` (M, P) the scaled scores of
     each image (Normal.image_scores). Both results are in the unscaled parameter units. Unidentifiable directions
-    (singular value below UNIDENTIFIABLE_RATIO) are left out.
+    (singular value below UNIDENTIFIABLE_RATIO) are left out. With a prior (Prior), As includes its information
+    `prior_information` (scaled), which the sandwich's meat gets as it is: a prior is no cluster of the data, and
+    where the data say nothing the posterior is the prior.
     """
     usable = sv > UNIDENTIFIABLE_RATIO * sv[0]
     inv_sv2 = np.where(usable, 1.0 / np.where(usable, sv, 1.0) ** 2, 0.0)
     bread = (Vt.T * inv_sv2) @ Vt  # (Js^T Js)^+ in scaled units
     s2 = rss / dof
-    covariance_iid = bread * s2 * np.outer(scales, scales)
+    if prior_information is None:
+        iid = bread * s2
+    else:  # the residuals' variance scales the data's information only: where the data say nothing, the prior
+        iid = bread @ ((As - prior_information) * s2 + prior_information) @ bread
+    covariance_iid = iid * np.outer(scales, scales)
     scores = np.zeros((int(np.max(cluster_of_image, initial=-1)) + 1, As.shape[1]))
     np.add.at(scores, np.asarray(cluster_of_image, dtype=int), image_scores)
     n_clusters, p = len(scores), As.shape[1]
     small_sample = n_clusters / max(n_clusters - 1, 1) * (n - 1) / max(n - p, 1)
-    clustered = bread @ (scores.T @ scores) @ bread * small_sample
-    covariance = _at_least(clustered, bread * s2) * np.outer(scales, scales)
+    meat = scores.T @ scores * small_sample
+    if prior_information is not None:
+        meat = meat + prior_information
+    clustered = bread @ meat @ bread
+    covariance = _at_least(clustered, iid) * np.outer(scales, scales)
     return covariance, covariance_iid
 
 
@@ -487,6 +496,49 @@ ROBUST_WEIGHT = {  # rho'(z) of scipy.optimize.least_squares's robust losses, z 
     "cauchy": lambda z: 1 / (1 + z),
 }
 LOSSES = ("linear",) + tuple(ROBUST_WEIGHT)
+ROBUST_RHO = {  # (rho, rho', rho'') of the same losses, as scipy.optimize.least_squares's callable `loss` returns
+    "soft_l1": lambda z: (2.0 * (np.sqrt(1 + z) - 1), 1 / np.sqrt(1 + z), -0.5 / (1 + z) ** 1.5),
+    "huber": lambda z: (np.where(z <= 1, z, 2 * np.sqrt(np.maximum(z, 1.0)) - 1), ROBUST_WEIGHT["huber"](z),
+                        np.where(z <= 1, 0.0, -0.5 / np.maximum(z, 1.0) ** 1.5)),
+    "cauchy": lambda z: (np.log1p(z), 1 / (1 + z), -1 / (1 + z) ** 2),
+}
+
+
+@dataclass
+class Prior:
+    """Gaussian pseudo-observations (soft bounds) on some free parameters: one whitened row (free[index] - mean) / std
+    each, appended to the data's residuals with its exact Jacobian (1 / std). In the normal equations (scaled
+    variables) it adds (scales / std)^2 to A's diagonal, scales (free - mean) / std^2 to g and half its squares to
+    the cost. A robust loss never bends it (it is a Gaussian, not a measurement that may be wrong)."""
+
+    index: np.ndarray  # positions in the free vector
+    mean: np.ndarray
+    std: np.ndarray
+
+    def __len__(self):
+        return len(self.index)
+
+    def residuals(self, free) -> np.ndarray:
+        return (np.asarray(free)[self.index] - self.mean) / self.std
+
+    def jacobian(self, n_free: int) -> np.ndarray:
+        J = np.zeros((len(self.index), n_free))
+        J[np.arange(len(self.index)), self.index] = 1.0 / self.std
+        return J
+
+    def information(self, scales) -> np.ndarray:
+        """What it adds to the scaled normal matrix (P_free, P_free)."""
+        P = np.zeros((len(scales), len(scales)))
+        P[self.index, self.index] = (scales[self.index] / self.std) ** 2
+        return P
+
+    def added(self, normal: "Normal", free, scales) -> "Normal":
+        """`normal` (the data's) with the prior's rows: the residuals and scores stay the data's."""
+        r = self.residuals(free)
+        g = normal.g.copy()
+        g[self.index] += scales[self.index] / self.std * r
+        return Normal(normal.A + self.information(scales), g, normal.cost + 0.5 * float(r @ r), normal.residuals,
+                      normal.scores)
 
 
 @dataclass
@@ -521,15 +573,18 @@ class Solution:
     success: bool
     weights: np.ndarray
     n_measured: int  # residual components that are measurements (the degrees of freedom count these)
+    prior: Prior | None = None  # the pseudo-observations the fit included (their rows count as measurements too)
 
     def spread(self, cluster_of_group, names) -> Spread:
         """The covariance with the errors shared within a cluster (`cluster_of_group` (M,): the cluster of each
         row of Normal.image_scores: an image's stance for the NAO, an observation's pose for the arm)."""
-        dof = max(self.n_measured - len(self.scales), 1)
-        rss = 2.0 * self.final.cost  # weighted with a robust loss
+        n_prior = 0 if self.prior is None else len(self.prior)
+        dof = max(self.n_measured + n_prior - len(self.scales), 1)
+        rss = 2.0 * self.final.cost  # weighted with a robust loss; the prior's rows included
         cond, sv, Vt = identifiability(self.final.A)
-        covariance, covariance_iid = parameter_covariance(self.final.A, rss, self.final.image_scores, sv, Vt,
-                                                          self.scales, cluster_of_group, self.n_measured, dof)
+        covariance, covariance_iid = parameter_covariance(
+            self.final.A, rss, self.final.image_scores, sv, Vt, self.scales, cluster_of_group, self.n_measured, dof,
+            None if not n_prior else self.prior.information(self.scales))
         s = np.sqrt(rss / dof)
         weak = [weak_direction(sv[k] / sv[0], float(s / sv[k]) if sv[k] > 0 else np.inf, Vt[k], names)
                 for k in np.argsort(sv)[:3]]
@@ -552,7 +607,7 @@ def last_pass_cached(equations):
 
 
 def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: float = 1.0, solver: str = "lm",
-          max_iterations: int = 100, measured: np.ndarray | None = None) -> Solution:
+          max_iterations: int = 100, measured: np.ndarray | None = None, prior: Prior | None = None) -> Solution:
     """The one solve of every robot kind: Levenberg-Marquardt on the normal equations (`levenberg_marquardt`), or,
     for a robust loss or 'minpack', scipy.optimize.least_squares on the whole Jacobian.
 
@@ -562,8 +617,16 @@ def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: floa
     loss, loss_scale : 'linear' or a robust loss of ROBUST_WEIGHT; the residual size (in the residuals' units) where
         it bends. The weights of each residual row are the mean of rho' over its measured components.
     measured : (N, C) bool, which components of Normal.residuals are measurements (default: all).
+    prior : Gaussian pseudo-observations on free parameters (Prior), added to every pass; never robust-weighted.
     """
     scales = equations.scales
+    if prior is not None and not len(prior):
+        prior = None
+    if prior is not None:
+        data_normal_at = normal_at
+
+        def normal_at(free):
+            return prior.added(data_normal_at(free), free, scales)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         try:
             if loss == "linear" and solver == "lm":
@@ -577,13 +640,17 @@ def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: floa
                     key = f.tobytes()
                     if key not in dense_cache:
                         dense_cache.clear()
-                        dense_cache[key] = equations.dense(f)
+                        r, J = equations.dense(f)
+                        if prior is not None:  # its rows last
+                            r, J = np.concatenate([r, prior.residuals(f)]), np.vstack([J, prior.jacobian(len(f))])
+                        dense_cache[key] = r, J
                     return dense_cache[key]
 
                 method = "lm" if loss == "linear" else "trf"
                 sol = least_squares(
                     lambda f: dense(f)[0], free0, jac=lambda f: dense(f)[1], method=method,
-                    x_scale=scales, loss=loss, f_scale=loss_scale,
+                    x_scale=scales, loss=loss if prior is None or loss == "linear" else _robust_but_last(loss, len(prior)),
+                    f_scale=loss_scale,
                     max_nfev=max_iterations * (len(scales) + 1), xtol=1e-10, ftol=1e-10, gtol=1e-10,
                 )
                 dense_cache.clear()
@@ -601,9 +668,24 @@ def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: floa
         rho1 = ROBUST_WEIGHT[loss]((residuals / loss_scale) ** 2)
         weights = np.sum(rho1 * mask, axis=1) / np.maximum(mask.sum(axis=1), 1)
         final = equations(free, weights=weights)  # the covariance's scores of the weighted residuals
+        if prior is not None:
+            final = prior.added(final, free, scales)
         final.residuals = residuals
     return Solution(free, final, scales, int(status), message, int(n_jac), int(n_fun),
-                    bool(success) and bool(np.all(np.isfinite(free))), weights, int(mask.sum()))
+                    bool(success) and bool(np.all(np.isfinite(free))), weights, int(mask.sum()), prior)
+
+
+def _robust_but_last(loss: str, k: int):
+    """scipy.optimize.least_squares's callable loss: `loss` on every residual but the last k (a Prior's rows),
+    which stay quadratic."""
+
+    def rho(z):
+        out = np.empty((3, z.size))
+        out[:, :-k] = np.array(ROBUST_RHO[loss](z[:-k]))
+        out[0, -k:], out[1, -k:], out[2, -k:] = z[-k:], 1.0, 0.0
+        return out
+
+    return rho
 
 
 def identify(data: ModelData, registry: Registry, *, x0: np.ndarray | None = None, loss: str = "linear",

@@ -21,7 +21,7 @@ class ArmKind:
         from naocal.kinds.arm.verbs import add_arm_options
 
         if verb in ("identify", "diagnose", "verify"):
-            add_arm_options(parser)  # DATASET a naocal.arm_dataset/1; --effects then names the arm's effects
+            add_arm_options(parser, verb=verb)  # DATASET a naocal.arm_dataset/1; --effects then names its effects
         elif verb == "simulate":
             add_arm_options(parser, simulate=True)  # an arm instead of the NAO
             parser.add_argument("--poses", type=int, default=60, metavar="N", help="arm: stances (default 60)")

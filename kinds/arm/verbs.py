@@ -5,19 +5,37 @@ naocal.arm_calibration/1 file."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 from naocal.solver.fileio import json_safe
 
 
-def add_arm_options(parser, *, simulate=False) -> None:
-    """--robot and --chain (argparse only)."""
+def add_arm_options(parser, *, simulate=False, verb="") -> None:
+    """--robot and --chain; for identify, diagnose and verify the priors, start values and (verify) the nuisance
+    parameters refitted (argparse only)."""
     parser.add_argument("--robot", metavar="URDF",
                         help="an arm: its URDF file, or kuka_iiwa / franka_panda (pybullet_data); "
                              + ("simulates that arm" if simulate else "default: the dataset's robot.urdf"))
     parser.add_argument("--chain", metavar="BASE_LINK:TIP_LINK",
                         help="the arm's serial chain by its URDF base and tip links (default: the dataset's, or "
                              "the named arm's flange / hand)")
+    if verb not in ("identify", "diagnose", "verify"):
+        return
+    parser.add_argument("--no-priors", action="store_true",
+                        help="arm: fit from the data alone (default: every physical parameter has a Gaussian prior "
+                             "about the URDF's value of its effect's plausible size, docs/ARM.md)")
+    parser.add_argument("--start", metavar="CAL_JSON",
+                        help="arm: start from the arm's parameters of this naocal.arm_calibration/1 (the priors "
+                             "stay about the URDF)")
+    if verb == "verify":
+        parser.add_argument("--refit", default="sensors", metavar="sensors[,points]",
+                            help="arm: what the new data refit with the calibration's arm held (default: sensors, the "
+                                 "sensors' frames; points: also where the reflectors / markers sit on the tool, "
+                                 "e.g. a tracker's reflector)")
+        parser.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
+                            help="arm: hold a refitted parameter (repeatable), at VALUE in the units the report "
+                                 "shows (deg, mm)")
 
 
 def parse_arm_effects(text: str):
@@ -41,6 +59,58 @@ def _check_nao_only(args) -> None:
         raise NaocalError("--loss-scale-px is the NAO's: an arm's robust loss bends at its sensors' noise (1 std)")
     if getattr(args, "tie_hip_yaw_pitch", False):
         raise NaocalError("--tie-hip-yaw-pitch is the NAO's")
+
+
+def fixed_and_start(args, dataset, effects):
+    """(names or effects held, {name: SI start value}) from --start CAL.json and --fix NAME[=VALUE] (VALUE in the
+    units the report shows: deg, mm; a bare NAME is held at its start value, the URDF's unless --start gives one).
+    NaocalError naming the option, DataError naming the file's field."""
+    from naocal.solver.arm import EFFECTS
+    from naocal.solver.arm_calibration import LIMITS
+    from naocal.solver.arm_identify import model_for
+    from naocal.solver.effect import DISPLAY_UNITS
+    from naocal.solver.errors import DataError, NaocalError
+
+    model = model_for(dataset, effects)
+    start = {}
+    if getattr(args, "start", None):
+        from naocal.solver.arm_calibration import read_arm_calibration
+        from naocal.solver.arm_verify import check_same_arm
+
+        cal = read_arm_calibration(args.start)
+        check_same_arm(cal, dataset)
+        for name, entry in cal.arm_parameters.items():
+            if name not in model.names:
+                raise DataError(cal.path, f"{name} is not a parameter of the model being fitted (effects "
+                                          f"{', '.join(model.effects)}): add its effect with --effects",
+                                field=f"model.parameters.{name}")
+            start[name] = entry["value"]
+    fixed = []
+    for text in getattr(args, "fix", None) or ():
+        name, sep, value = (part.strip() for part in text.partition("="))
+        if not sep:
+            if name not in EFFECTS and name not in model.names:
+                raise NaocalError(f"--fix {text[:60]!r}: not a parameter of the model nor an effect")
+            fixed.append(name)
+            continue
+        if name not in model.names:
+            raise NaocalError(f"--fix {text[:60]!r}: {name[:60]!r} is not a parameter of the model (NAME=VALUE "
+                              "needs one parameter)")
+        unit = model.parameters[model.names.index(name)].unit
+        if name.startswith("sensor."):
+            raise NaocalError(f"--fix {text[:60]!r}: a sensor's frame is found from the data; give its pose in "
+                              "dataset.json instead")
+        try:
+            shown_value = float(value)
+        except ValueError:
+            shown_value = float("nan")
+        label, factor = DISPLAY_UNITS.get(unit, (unit, 1.0))
+        if not math.isfinite(shown_value) or abs(shown_value / factor) > LIMITS.get(unit, math.inf):
+            raise NaocalError(f"--fix {text[:60]!r}: expected NAME=VALUE with a finite value in {label} within "
+                              f"{LIMITS.get(unit, math.inf) * factor:.4g} {label}")
+        start[name] = shown_value / factor
+        fixed.append(name)
+    return tuple(fixed), start
 
 
 def _load(args):
@@ -70,6 +140,8 @@ def result_json(fit, dataset, heldout) -> dict:
             s: dict(v, unit=_unit_of(sensors[s])) for s, v in heldout.items()},
         "parameters": fit.parameters_dict(),
         "fixed": fit.fixed_reasons,
+        "priors": fit.priors,
+        "held_by_prior": fit.held_by_prior,
         "loss": fit.loss,
         "outliers": [o.as_dict() for o in fit.outliers],
         "condition_number": fit.condition_number,
@@ -87,6 +159,7 @@ def _shown(value, unit):
 
 def format_table(report: dict) -> str:
     from naocal.solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_identify import PRIOR_HELD
 
     kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
     lines = ["fit: " + "; ".join(f"{s} RMS {shown_rms(v['value'], kind[s])} per axis" for s, v in
@@ -97,19 +170,30 @@ def format_table(report: dict) -> str:
         lines.append("held-out poses: " + "; ".join(
             f"{s} nominal {shown_rms(v['nominal'], kind[s])} -> calibrated {shown_rms(v['calibrated'], kind[s])}"
             for s, v in report["heldout"].items()))
-    lines += ["", f"{'parameter':45s} {'value':>12s} {'std':>10s}  unit"]
+    held = set(report["held_by_prior"])
+    lines += ["", f"{'parameter':45s} {'value':>12s} {'std':>10s} {'prior':>8s}  unit"]
     for name, e in report["parameters"].items():
         value, unit = _shown(e["value"], e["unit"])
         std, _ = _shown(e["std"], e["unit"])
-        lines.append(f"{name:45s} {value:12.4f} {std:10.4f}  {unit}{'  (fixed)' if e['fixed'] else ''}")
+        prior = f"{_shown(e['prior_std'], e['unit'])[0]:8.3g}" if e.get("prior_std") else f"{'-':>8s}"
+        mark = "  (fixed)" if e["fixed"] else "  (held by its prior)" if name in held else ""
+        lines.append(f"{name:45s} {value:12.4f} {std:10.4f} {prior}  {unit}{mark}")
     lines.append("")
     for name, reason in report["fixed"].items():
         lines.append(f"fixed: {name}: {reason}")
+    if report["priors"]:
+        lines.append(f"priors: each physical parameter ~ N(URDF, its plausible size: the 'prior' column); "
+                     + (f"{len(held)} held by their prior (posterior std above {PRIOR_HELD:g} x the prior's: the "
+                        f"data did not inform them): {', '.join(sorted(held))}" if held else
+                        "the data informed every one (posterior std below "
+                        f"{PRIOR_HELD:g} x the prior's)"))
+    else:
+        lines.append("priors: off (--no-priors): the data alone")
     from naocal.solver.arm_identify import ArmOutlier, describe_outliers
 
     lines.append(describe_outliers([ArmOutlier(**o) for o in report["outliers"]]))
     lines.append(f"condition number (scaled Jacobian): {report['condition_number']:.3g}")
-    lines.append("weakest directions (what the data determine least):")
+    lines.append("weakest directions at the solution (what the data determine least):")
     for w in report["weak_directions"]:
         lines.append(f"  relative singular value {w['singular_value']:.2e}: "
                      + " ".join(f"{c:+.2f}*{n}" for n, c in w["coefficients"].items()))
@@ -128,17 +212,16 @@ def run_identify(args) -> int:
         from naocal.solver.fileio import check_output_file
 
         check_output_file(args.out, inputs=[*dataset_files(args.dataset), dataset.urdf_path])  # before the fit
-    fit = identify_dataset(dataset, effects, fixed=tuple(args.fix), loss=args.loss, robust=not args.keep_outliers)
+    fixed, start = fixed_and_start(args, dataset, effects)
+    fit = identify_dataset(dataset, effects, fixed=fixed, start=start, loss=args.loss, robust=not args.keep_outliers,
+                           priors=not args.no_priors)
+    from naocal.solver.arm_identify import ran_off
+
+    runoff = ran_off(fit)  # first: a fit that ran off often does not converge either, and this says why
+    if runoff:
+        raise SolveError(runoff)
     if not fit.success:
         raise SolveError(f"the solve did not converge ({fit.message}); nothing written")
-    from naocal.solver.arm_calibration import LIMITS, implausible
-
-    beyond = implausible(fit.parameters_dict())
-    if beyond:
-        e = fit.parameters_dict()[beyond[0]]
-        raise SolveError(f"{beyond[0]} = {e['value']:.4g} {e['unit']} is beyond any plausible calibration "
-                         f"({LIMITS[e['unit']]:.4g} {e['unit']}; {len(beyond)} such): is the URDF the arm's, are the "
-                         "readings' zeros its zeros? nothing written")
     heldout = heldout_rms(fit, args.cv_folds) if args.cv_folds and args.cv_folds > 1 else None
     report = result_json(fit, dataset, heldout)
     if args.out:
@@ -170,7 +253,8 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
            "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
                          id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
-           "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"]},
+           "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"],
+                     "priors": report["priors"], "held_by_prior": report["held_by_prior"]},
            "fit": {"rms": report["rms"], "noise": report["noise"], "heldout": report["heldout"],
                    "n_observations": report["n_observations"]},
            "source": {"tool": "naocal identify", "dataset": str(dataset_path)}}
@@ -227,7 +311,13 @@ def run_diagnose(args) -> int:
 
     effects = parse_arm_effects(args.effects)
     dataset = _load(args)
-    fit = identify_dataset(dataset, effects)
+    fixed, start = fixed_and_start(args, dataset, effects)
+    fit = identify_dataset(dataset, effects, fixed=fixed, start=start, priors=not args.no_priors)
+    from naocal.solver.arm_identify import ran_off
+
+    runoff = ran_off(fit)
+    if runoff:  # the diagnosis of a fit that ran off would name effects for the wrong reason
+        raise SolveError(runoff.replace("; nothing written", ""))
     if not fit.success:
         raise SolveError(f"the fit did not converge ({fit.message})")
     d = diagnose(fit)

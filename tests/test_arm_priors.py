@@ -1,0 +1,247 @@
+"""Priors (soft bounds) in the one fit (solver.identify.Prior) and the arm's use of them (issue 24): the posterior of
+a linear problem is Bayes' exact one, a robust loss never bends a prior's row, and the arm reports which parameters
+its priors held."""
+
+import numpy as np
+import pytest
+
+from naocal.solver.identify import Normal, Prior, last_pass_cached, solve
+
+
+class LinearEquations:
+    """r = J x - y, one row per observation (each its own cluster), in the shape solver.identify.solve wants."""
+
+    def __init__(self, J, y, scales):
+        self.J, self.y, self.scales = J, y, np.asarray(scales, dtype=float)
+
+    def __call__(self, free, *, weights=None, jacobian=True):
+        r = self.J @ free - self.y
+        rw = r if weights is None else r * np.sqrt(weights)
+        Js = self.J * self.scales
+        return Normal(Js.T @ Js, Js.T @ rw, 0.5 * float(rw @ rw), r[:, None], Js * rw[:, None])
+
+    def dense(self, free):
+        return self.J @ free - self.y, self.J
+
+
+def _problem(seed=0):
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(40, 3))
+    J[:, 2] = J[:, 1] + 1e-3 * rng.normal(size=40)  # x1 and x2 nearly the same direction: the prior decides
+    y = J @ np.array([1.0, 0.3, -0.2]) + rng.normal(size=40)
+    return J, y
+
+
+def test_a_prior_gives_the_exact_gaussian_posterior_and_is_counted_in_the_covariance():
+    J, y = _problem()
+    equations = LinearEquations(J, y, [1.0, 0.1, 0.1])
+    prior = Prior(np.array([1, 2]), np.array([0.0, 0.1]), np.array([0.5, 0.2]))
+    solution = solve(equations, last_pass_cached(equations), np.zeros(3), prior=prior)
+    P = np.diag([0.0, 1 / 0.5 ** 2, 1 / 0.2 ** 2])
+    mean = np.linalg.solve(J.T @ J + P, J.T @ y + P @ np.array([0.0, 0.0, 0.1]))
+    assert np.allclose(solution.free, mean, atol=1e-8)
+    spread = solution.spread(np.arange(40), ["a", "b", "c"])
+    s2 = 2 * solution.final.cost / (40 + 2 - 3)
+    bread = np.linalg.inv(J.T @ J + P)  # the residuals' variance scales the data's information, not the prior's
+    assert np.allclose(spread.covariance_iid, bread @ (J.T @ J * s2 + P) @ bread, rtol=1e-6)
+    # the data alone barely separate b from c: their posterior stds are near the priors', not the data's 1e3
+    std = np.sqrt(np.diag(spread.covariance))
+    assert std[1] < 0.5 and std[2] < 0.2
+    # without the prior, the same solve is the plain least squares
+    plain = solve(equations, last_pass_cached(equations), np.zeros(3))
+    assert np.allclose(plain.free, np.linalg.lstsq(J, y, rcond=None)[0], atol=1e-6)
+
+
+@pytest.mark.parametrize("loss", ["soft_l1", "huber", "cauchy"])
+def test_a_robust_loss_bends_the_data_but_never_the_prior(loss):
+    """A prior 20 of its stds from the data's answer: a robust loss applied to its row would all but drop it (x0
+    back at the data's 1.0); kept quadratic, the answer is Bayes' exact one (the data's rows stay inside the bend)."""
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=(2000, 2))
+    y = J @ np.array([1.0, 2.0]) + 0.05 * rng.normal(size=2000)
+    equations = LinearEquations(J, y, [1.0, 1.0])
+    prior = Prior(np.array([0]), np.array([0.9]), np.array([0.005]))
+    solution = solve(equations, last_pass_cached(equations), np.zeros(2), loss=loss, loss_scale=1.0, prior=prior)
+    P = np.diag([1 / 0.005 ** 2, 0.0])
+    exact = np.linalg.solve(J.T @ J + P, J.T @ y + P @ np.array([0.9, 0.0]))
+    data_only = np.linalg.lstsq(J, y, rcond=None)[0]
+    assert solution.success
+    assert data_only[0] - exact[0] > 3e-3  # the prior moves it measurably
+    assert abs(solution.free[0] - exact[0]) < 2e-4
+
+
+# ------------------------------------------------------------------------------------------------ the arm
+
+
+from naocal.solver.arm import PRIOR_SIZE, ArmModel, Observations, Sensor  # noqa: E402
+from naocal.solver.arm_identify import RUNOFF_FACTOR, fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
+from tests.test_arm import CAMERA, panda, tool, true_errors  # noqa: E402
+
+FRAMES = {("tracker", "rotation"): (0.4, -0.3, 1.2), ("tracker", "translation"): (1.5, -2.0, 0.3),
+          ("camera", "rotation"): (0.01, 0.02, -0.01), ("camera", "translation"): (2.5, 0.1, -0.4)}
+LOW = np.array([-2.5, -1.5, -2.5, -2.8, -2.5, 0.3, -2.5])  # the panda's stances (tests/test_arm.py's)
+HIGH = np.array([2.5, 1.5, 2.5, -0.4, 2.5, 3.4, 2.5])
+
+
+def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0):
+    """(model with `effects`, observations) of the panda seen by one sensor ('tracker' or 'camera') at `points` of
+    its tool, the joints `still` (0-based) within +-`width` rad of their mid-range in every pose (what makes a
+    direction nearly flat), the rest anywhere; measured at `truth` (joint offsets, link lengths, points)."""
+    _, _, _, chain, names, load = panda()
+    rng = np.random.default_rng(seed)
+    s = Sensor("tracker", "points", noise=1e-4) if sensor == "tracker" else Sensor("camera", "camera", dict(CAMERA),
+                                                                                   0.2)
+    pts = {p: tool()[p] for p in points}
+    theta = rng.uniform(LOW, HIGH, (n_poses, 7))
+    theta[:, still] = (LOW + HIGH)[still] / 2 + rng.uniform(-width, width, (n_poses, len(still)))
+    pose = np.repeat(np.arange(n_poses), len(pts))
+    obs = Observations(theta[pose], pose, np.zeros(len(pose), int), np.tile(np.arange(len(pts)), n_poses),
+                       np.zeros((len(pose), 3)))
+    truth_model = ArmModel(chain, pts, [s], ("joint_offsets", "link_lengths", "points"), load=load, link_names=names)
+    x = np.array([FRAMES[(sensor, n.split(".")[2])]["xyz".index(n[-1])] if n.startswith("sensor.")
+                  else truth.get(n, 0.0) for n in truth_model.names])
+    if sensor == "camera":
+        truth_model.R0[0] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # looks back at the arm
+    pred = truth_model.predict(x, obs)
+    noise = s.noise * rng.normal(size=pred.shape)
+    if sensor == "camera":
+        noise[:, 2] = 0.0
+        obs.measured = pred + noise
+        obs = obs.subset((pred[:, 0] > 0) & (pred[:, 0] < 1280) & (pred[:, 1] > 0) & (pred[:, 1] < 1024))
+    else:
+        obs.measured = pred + noise
+    return ArmModel(chain, pts, [s], effects, load=load, link_names=names), obs
+
+
+def scenario(case):
+    """The near-flat directions of issue 24, on the panda: (a) a joint's offset against a turn of the marker body
+    (per-marker points, a camera) when the joint after it barely turns; (b) link lengths from poses that barely
+    move the wrist (a self-touch-like narrow set); (c) a tracker's one reflector with a free position, the wrist
+    barely moving. Returns (model, observations, truth, the parameters the flat direction is mostly made of)."""
+    rng = np.random.default_rng(5)
+    errors = true_errors()
+    truth = {k: v for k, v in errors.items() if k.startswith("joint_offset.")}
+    if case == "a":
+        markers = ("m1", "m2", "m3", "m4")
+        truth.update({f"point.{m}.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for m in markers for a in "xyz"})
+        model, obs = narrow("camera", markers, ("joint_offsets", "points"), truth, still=[6], width=0.003)
+        return model, obs, truth, ("joint_offset.panda_joint7",)
+    truth.update({k: v for k, v in errors.items() if k.startswith("link_length.")})
+    if case == "b":
+        model, obs = narrow("tracker", ("t1", "t2", "t3"), ("joint_offsets", "link_lengths"), truth, still=[4, 5, 6],
+                            width=0.001)
+        return model, obs, truth, ("link_length.panda_link4", "link_length.panda_link6")  # +-0.64 each
+    truth.update({f"point.t1.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for a in "xyz"})
+    model, obs = narrow("tracker", ("t1",), ("joint_offsets", "link_lengths", "points"), truth, still=[4, 5, 6],
+                        width=0.003)
+    return model, obs, truth, ("joint_offset.panda_joint6",)
+
+
+@pytest.mark.parametrize("case", ["a", "b", "c"])
+def test_a_near_flat_direction_stays_plausible_with_priors_and_stops_naming_it_without(case):
+    model, obs, truth, flat = scenario(case)
+    with_priors = fit(model, obs, initialise_sensors(model, obs))
+    assert with_priors.success and ran_off(with_priors) is None
+    size = prior_sizes(model)
+    physical = size > 0
+    assert np.all(np.abs(with_priors.x[physical]) <= RUNOFF_FACTOR * size[physical])
+    # the posterior of what the data determine is the data's: the well-seen parameters are at their truth
+    for name in ("joint_offset.panda_joint2", "joint_offset.panda_joint3"):
+        i = model.names.index(name)
+        assert abs(with_priors.x[i] - truth[name]) < 4 * with_priors.std[i] < 1e-3
+    alone = fit(model, obs, initialise_sensors(model, obs), priors=False)
+    message = ran_off(alone)
+    assert message is not None and " ran off " in message and "relative singular value" in message
+    weak = message.split("at the solution): ")[1].split(";")[0]
+    assert all(name in weak for name in flat), message  # the direction, by its parameters
+    assert any(f"--fix {name}=0" in message for name in flat) and "priors on" in message and "\n" not in message
+
+
+def test_the_report_says_which_parameters_the_prior_held():
+    model, obs, _, _ = scenario("b")
+    result = fit(model, obs, initialise_sensors(model, obs))
+    held = set(result.held_by_prior)
+    # the wrist's link lengths along the flat direction: the prior, not the data; the shoulder's: the data
+    assert {"link_length.panda_link4", "link_length.panda_link6"} <= held
+    assert "link_length.panda_link2" not in held and "joint_offset.panda_joint2" not in held
+    entries = result.parameters_dict()
+    assert entries["link_length.panda_link4"]["prior_std"] == PRIOR_SIZE["link_lengths"]["m"]
+    assert entries["sensor.tracker.translation.x"]["prior_std"] is None  # a sensor may be anywhere
+    i = model.names.index("link_length.panda_link4")
+    assert 0.5 * PRIOR_SIZE["link_lengths"]["m"] < result.std[i] <= PRIOR_SIZE["link_lengths"]["m"]
+    assert fit(model, obs, initialise_sensors(model, obs), priors=False).held_by_prior == []
+
+
+def write_scenario(directory, case):
+    from naocal.solver.arm_dataset import write_arm_dataset
+
+    model, obs, truth, flat = scenario(case)
+    urdf, base, tip, *_ = panda()
+    points = dict(zip(model.point_names, map(tuple, model.point_xyz)))
+    sensor = model.sensors[0]
+    entry = {"kind": "points", "noise_m": 1e-4} if sensor.kind == "points" else dict(
+        {"kind": "camera", "noise_px": 0.2}, **CAMERA)
+    meta = {"robot": {"id": "test", "urdf": str(urdf), "base": base, "tip": tip},
+            "points": {p: {"xyz_m": list(v)} for p, v in points.items()}, "sensors": {sensor.name: entry}}
+    write_arm_dataset(directory, meta, model.chain.joint_names, obs, model.sensors, points)
+    return directory, truth, flat
+
+
+def test_identify_stops_on_a_run_off_fit_writing_nothing_and_fits_it_with_priors_fix_and_start(tmp_path):
+    import json
+
+    from tests.cli_runner import naocal
+
+    data, truth, flat = write_scenario(tmp_path / "wrist", "b")
+    out = tmp_path / "cal.json"
+    alone = naocal("identify", data, "--no-priors", "--out", out)
+    assert alone.returncode == 3 and not out.exists()
+    assert len(alone.stderr.strip().splitlines()) == 1 and " ran off " in alone.stderr and "--fix" in alone.stderr
+    # the --fix it names, at a value in the units the table shows (mm), holds the direction: the rest converges
+    fixed = naocal("identify", data, "--no-priors", "--fix", "link_length.panda_link6=-0.5", "--json")
+    assert fixed.returncode == 0, fixed.stderr
+    entry = json.loads(fixed.stdout)["parameters"]["link_length.panda_link6"]
+    assert entry["fixed"] and entry["value"] == pytest.approx(-0.5e-3) and entry["prior_std"] is None
+    # the priors on (the default): it converges, writes, and says which parameters its prior held
+    ok = naocal("identify", data, "--out", out)
+    assert ok.returncode == 0, ok.stderr
+    assert "(held by its prior)" in ok.stdout and "priors: " in ok.stdout and "link_length.panda_link6" in ok.stdout
+    written = json.loads(out.read_text())
+    assert written["model"]["priors"] and "link_length.panda_link6" in written["model"]["held_by_prior"]
+    # --start from that file: the same solution (the priors stay about the URDF, not the start)
+    again = naocal("identify", data, "--start", out, "--json")
+    assert again.returncode == 0, again.stderr
+    started = json.loads(again.stdout)["parameters"]
+    for name, e in written["model"]["parameters"].items():
+        if not name.startswith("sensor."):
+            assert started[name]["value"] == pytest.approx(e["value"], abs=1e-3 * max(e["std"], 1e-9) + 1e-9), name
+
+
+@pytest.mark.parametrize("option, problem", [
+    (["--fix", "link_length.nowhere=1"], "is not a parameter of the model"),
+    (["--fix", "link_length.panda_link6=abc"], "finite value in mm"),
+    (["--fix", "joint_offset.panda_joint2=45"], "within 20 deg"),
+    (["--fix", "sensor.tracker.translation.x=3"], "dataset.json"),
+    (["--fix", "wobble"], "not a parameter of the model nor an effect"),
+    (["--start", "missing.json"], "missing.json"),
+])
+def test_bad_fix_and_start_are_one_line_and_exit_2(tmp_path, option, problem):
+    from tests.cli_runner import naocal
+
+    data, _, _ = write_scenario(tmp_path / "wrist", "b")
+    result = naocal("identify", data, *[str(tmp_path / o) if o.endswith(".json") else o for o in option])
+    assert result.returncode == 2 and problem in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in result.stderr
+
+
+def test_start_refuses_a_calibration_of_a_parameter_the_model_lacks(tmp_path):
+    import json
+
+    from tests.cli_runner import naocal
+
+    data, _, _ = write_scenario(tmp_path / "wrist", "c")
+    cal = tmp_path / "cal.json"
+    assert naocal("identify", data, "--effects", "joint_offsets,link_lengths,points", "--out", cal).returncode == 0
+    result = naocal("identify", data, "--effects", "joint_offsets,link_lengths", "--start", cal)
+    assert result.returncode == 2 and "model.parameters.point.t1." in result.stderr and "--effects" in result.stderr
+    assert json.loads(cal.read_text())["schema"] == "naocal.arm_calibration/1"
