@@ -322,7 +322,10 @@ DUALARM_URDF = Path(__file__).with_name("data") / "dualarm.urdf"
 DUALARM_CHAINS = {"left": ("base_link", "left_tool"), "right": ("base_link", "right_tool")}
 TORSO_HEIGHT_M = 0.8
 # (joint, xyz in the parent link, axis, lower, upper rad, the child link's mass kg) of one arm; side s = +1 left,
-# -1 right: the shoulder sits s * 0.22 m to the side and the arm's zero stance points sideways (its z outward)
+# -1 right: the shoulder sits s * 0.22 m to the side and the arm's zero stance points sideways and up (its z
+# outward, tilted up by SHOULDER_TILT_RAD: the two first axes are not on one line, which a turn of both torso
+# cameras about it would hide)
+SHOULDER_TILT_RAD = 0.4
 ARM = (("j1", (0.05, 0.22, 0.35), (0, 0, 1), -2.9, 2.9, 3.5),
        ("j2", (0.0, 0.0, 0.12), (0, 1, 0), -0.6, 2.8, 5.0),
        ("j3", (0.04, 0.0, 0.36), (0, 1, 0), -2.6, 2.6, 3.0),
@@ -373,7 +376,7 @@ def dualarm_urdf(origins: dict | None = None) -> str:
             following = ARM[k + 1][1] if k + 1 < len(ARM) else (0.0, 0.0, TOOL_OFFSET_M)
             lines.append(f'  <link name="{child}">{inertial(mass, [v / 2 for v in following])}</link>')
             xyz = (xyz[0], s * xyz[1], xyz[2])
-            rpy = (-s * math.pi / 2.0, 0.0, 0.0) if k == 0 else (0.0, 0.0, 0.0)
+            rpy = (-s * (math.pi / 2.0 - SHOULDER_TILT_RAD), 0.0, 0.0) if k == 0 else (0.0, 0.0, 0.0)
             lines.append(joint(f"{side}_{name}", "revolute", parent, child, xyz, rpy, axis, (lo, hi)))
             parent = child
         lines.append(f'  <link name="{side}_tool">{inertial(TOOL_MASS_KG, (0.0, 0.0, 0.03))}</link>')
@@ -418,15 +421,18 @@ def _random_vector(rng, low, high) -> np.ndarray:
     return v / np.linalg.norm(v) * rng.uniform(low, high)
 
 
+DUAL_LINK_ERROR_M = (2e-5, 2e-4)  # an industrial robot's machined links: within 0.2 mm of its URDF
+
+
 def dualarm_truth(rng) -> dict:
-    """Hidden errors by parameter name: joint offsets 0.01-0.5 deg, link lengths 0.1-2 mm (hidden_truth), each
-    tool's mount 1-3 mm and 0.2-0.6 deg, each marker and the reflector glued 1-2 mm off."""
+    """Hidden errors by parameter name: joint offsets 0.01-0.5 deg, link lengths 0.02-0.2 mm (DUAL_LINK_ERROR_M),
+    each tool's mount 1-3 mm and 0.2-0.6 deg, each marker and the reflector glued 1-2 mm off."""
     model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"))
     truth = {}
     for _, p in model.params("joint_offsets"):
         truth[p.name] = float(math.radians(rng.uniform(0.01, 0.5)) * rng.choice((-1.0, 1.0)))
     for _, p in model.params("link_lengths"):
-        truth[p.name] = float(rng.uniform(0.1e-3, 2e-3) * rng.choice((-1.0, 1.0)))
+        truth[p.name] = float(rng.uniform(*DUAL_LINK_ERROR_M) * rng.choice((-1.0, 1.0)))
     for ac in model.arm_chains:
         t, r = _random_vector(rng, 1e-3, 3e-3), _random_vector(rng, math.radians(0.2), math.radians(0.6))
         for c, (q, _) in enumerate(POSE_COMPONENTS):

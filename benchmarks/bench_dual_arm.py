@@ -54,6 +54,8 @@ def camera_fit(sim, priors: bool):
     model = ArmModel(dualarm_chains(), sim["points"], cameras, EFFECTS)
     x0 = initialise_sensors(model, cam_obs)
     options = {"priors": priors} if fit_priors_supported() else {}
+    if priors:  # what the data leave undetermined the priors hold: nothing to fix
+        return fit(model, cam_obs, x0, auto_fix=False, **options), []
     fixed = []
     while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
         try:

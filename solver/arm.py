@@ -43,11 +43,12 @@ DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
 # URDF's value (every correction 0), and, times solver.arm_identify.RUNOFF_FACTOR, the value a fit must not land
 # beyond. The sensor frames have none: they may be anywhere.
 PRIOR_SIZE = {
-    "joint_offsets": {"rad": math.radians(2.0)},  # encoder zeros are off by degrees at most
+    "joint_offsets": {"rad": math.radians(2.0), "m": 2e-3},  # encoder zeros are off by degrees (a slide's by mm)
     "link_lengths": {"m": 2e-3},  # a machined link is off by millimetres
     "link_poses": {"m": 2e-3, "rad": math.radians(1.0)},
     "points": {"m": 3e-3},  # a marker or reflector glued by hand
     "elasticity": {"rad/(N m)": math.radians(0.05)},  # 0.5 deg under 10 N m: a soft gear
+    "tool": {"m": 5e-3, "rad": math.radians(1.0)},  # a tool mounted on its flange by hand: mm and a degree
 }
 # The gauges' order (solver.identify.gauges, via solver.arm_identify.identifiable): of parameters the data cannot
 # tell apart, the earlier group stays free and the later is fixed; a sensor frame is never fixed.
