@@ -329,3 +329,17 @@ def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(t
     assert "joint_offset.torso_joint" in report["parameters"] and "tool.right.rz" in report["parameters"]
     run = naocal("simulate", "--robot", "dualarm", "--chain", "a:b", "--out", str(tmp_path / "x"))
     assert run.returncode == 2 and "--chain" in run.stderr
+
+
+def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):
+    """LOCATE's groups are the chains' shared joints and origins (the torso joint once, each shoulder its own)."""
+    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_diagnose import diagnose, location_groups
+    from naocal.solver.arm_identify import identify_dataset
+
+    fit = identify_dataset(read_arm_dataset(dual_dir), ("joint_offsets", "link_lengths"))
+    groups = location_groups(fit)
+    assert "joint torso_joint" in groups and "link torso_to_left_j1" in groups and "link torso_to_right_j1" in groups
+    assert groups["joint left_j2"][2] == "link_pose.left_link1.rx"
+    d = diagnose(fit, n_folds=0)
+    assert {c.label for c in d.candidates} >= {"tool", "points"}
