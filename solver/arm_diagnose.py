@@ -215,6 +215,19 @@ def _shown_value(name, value, units) -> str:
     return f"{v:+.4g} {unit}".rstrip()
 
 
+def _held_options(fit: ArmFit) -> str:
+    """The options that reproduce what the fit held: the user's --fix (NAME, or NAME=VALUE in display units; not the
+    gauges, which identify finds again) and --no-priors."""
+    from naocal.solver.effect import shown
+
+    out = ""
+    for i, p in enumerate(fit.model.parameters):
+        if not fit.free[i] and p.name not in fit.fixed_reasons:
+            value = shown(fit.x[i], p.unit)[0]
+            out += f" --fix {p.name}" + (f"={value:.6g}" if fit.x[i] != 0.0 else "")
+    return out + ("" if fit.priors else " --no-priors")
+
+
 def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     fit, model = d.fit, d.fit.model
     units = {p.name: p.unit for p in extended(fit)[0].parameters}
@@ -259,7 +272,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     else:
         lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
                      f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert)
-                     + " --out calibration.json")  # identify writes with --out
+                     + _held_options(fit) + " --out calibration.json")  # identify writes with --out
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

@@ -33,8 +33,8 @@ import numpy as np
 from naocal.solver.arm import PRIOR_SIZE, PRIORITY, ArmModel, Observations
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
-                             check_identifiable, gauges, identifiability, last_pass_cached, solve, weak_direction,
-                             worst_of_group_beyond)
+                             WEAK_RATIO, check_identifiable, gauges, identifiability, last_pass_cached, solve,
+                             weak_direction, worst_of_group_beyond)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
@@ -342,17 +342,32 @@ PRIOR_HELD = 0.5
 RUNOFF_FACTOR = 5.0
 
 
-def identifiable(model, obs, x, free, sigma):
+def identifiable(model, obs, x, free, sigma, priors: bool = True):
     """(free mask, {name: reason}): the gauges of the arm's parametrisation (solver.identify.gauges, in the order of
     solver.arm.PRIORITY) fixed; raises SolveError (solver.identify.check_identifiable) if anything else is
-    undetermined."""
+    undetermined.
+
+    With the priors (`arm_prior`) only what the sensor frames absorb is a gauge (they have no prior: the first
+    joint's offset, the base's height); what physical parameters cannot tell apart among themselves (a tool's
+    turn and its markers, two links along one axis) their priors resolve, each by its plausible size, rather than
+    one being held at the URDF and the other taking it all (a tool turned 8 deg to carry its markers' 2 mm). The
+    check that nothing else is undetermined then counts the priors' information."""
     equations = ArmEquations(model, obs, x, free, sigma)
     A = equations(x[equations.index]).A
     names = [model.names[i] for i in equations.index]
     effect = [model.parameters[i].effect for i in equations.index]
     order = sorted(range(len(names)), key=lambda j: (PRIORITY.index(effect[j]), j))
     fixable = [e != "sensor" for e in effect]
-    found = gauges(A, order, fixable)
+    prior = arm_prior(model, free, priors)
+    if prior is None or not len(prior):
+        found = gauges(A, order, fixable)
+    else:
+        sensors = [j for j in order if not fixable[j]]
+        found = {}
+        for j in order:
+            if fixable[j]:
+                found.update(gauges(A, sensors + [j], fixable))
+        A = A + prior.information(equations.scales)
     reasons = {}
     for j, (partners, residual) in found.items():
         reasons[names[j]] = ("it changes no prediction of these data" if not partners else
@@ -412,7 +427,7 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
             raise DataError(path, f"sensor {sensor.name} has no observations", field=f"sensors.{sensor.name}")
     reasons = {}
     if auto_fix:
-        free, reasons = identifiable(model, obs, x0, free, sigma)
+        free, reasons = identifiable(model, obs, x0, free, sigma, priors)
     all_obs, kept = obs, np.arange(len(obs))
     x, solution, _ = _solve(model, obs, x0, free, sigma, loss, priors)
     if not known.all():  # weights from what the first fit left, then fit again
@@ -444,12 +459,18 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
                   std_iid, outliers, loss, solution.weights, prior_std)
 
 
+def _data_directions(model, obs, x, free, sigma):
+    """(condition number, singular values, Vt, indices of the free parameters) of the data's whitened,
+    column-scaled Jacobian at x (solver.identify.identifiability; the priors left out)."""
+    equations = ArmEquations(model, obs, x, free, sigma)
+    return (*identifiability(equations(x[equations.index]).A), equations.index)
+
+
 def data_weakest(model, obs, x, free, sigma, count: int = 3):
     """(condition number, [solver.identify.WeakDirection]) of the data's whitened, column-scaled Jacobian at x (the
     solution, not the start; the priors left out: what the data themselves determine least), weakest first."""
-    equations = ArmEquations(model, obs, x, free, sigma)
-    cond, sv, Vt = identifiability(equations(x[equations.index]).A)
-    names = [model.names[i] for i in equations.index]
+    cond, sv, Vt, index = _data_directions(model, obs, x, free, sigma)
+    names = [model.names[i] for i in index]
     return cond, [weak_direction(sv[k] / max(sv[0], 1e-300), 1.0 / sv[k] if sv[k] > 0 else np.inf, Vt[k], names)
                   for k in np.argsort(sv)[:count]]
 
@@ -474,18 +495,22 @@ def ran_off(fit_: ArmFit):
     if worst is None:
         return None
     p = model.parameters[worst]
-    equations = ArmEquations(model, fit_.obs, fit_.x, fit_.free, fit_.sigma)
-    _, sv, Vt = identifiability(equations(fit_.x[equations.index]).A)
-    j = int(np.flatnonzero(equations.index == worst)[0])
+    _, sv, Vt, index = _data_directions(model, fit_.obs, fit_.x, fit_.free, fit_.sigma)
+    j = int(np.flatnonzero(index == worst)[0])
     k = int(np.argmax(np.abs(Vt[:, j]) / np.maximum(sv, 1e-300)))  # the direction along which it moves most cheaply
-    direction = weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], [model.names[i] for i in equations.index])
+    direction = weak_direction(sv[k] / max(sv[0], 1e-300), 1.0 / max(sv[k], 1e-300), Vt[k],
+                               [model.names[i] for i in index])
     physical = [(abs(c), n) for n, c in direction.coefficients.items() if not n.startswith("sensor.")]
     to_fix = max(physical)[1] if physical else p.name
     value, unit = shown(fit_.x[worst], p.unit)
     plausible = shown(size[worst], p.unit)[0] if size[worst] > 0 else None
-    return (f"{p.name} = {value:.4g} {unit} ran off "
-            + (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
-               if plausible is not None else "(beyond any plausible calibration)")
+    beyond = (f"(its plausible size is {plausible:.3g} {unit}: more than {RUNOFF_FACTOR:g} x that is no calibration)"
+              if plausible is not None else "(beyond any plausible calibration)")
+    if direction.singular_value >= WEAK_RATIO:  # no flat direction: the data themselves put it there
+        return (f"{p.name} = {value:.4g} {unit} is beyond a calibration {beyond}, and the data determine it (its "
+                f"weakest direction has relative singular value {direction.singular_value:.1e}: "
+                f"{direction.describe()}): is the URDF the arm's, are the readings' zeros its zeros? nothing written")
+    return (f"{p.name} = {value:.4g} {unit} ran off {beyond}"
             + f" along a direction the data hardly determine (relative singular value {direction.singular_value:.1e}"
             f" at the solution): {direction.describe()}; fix {to_fix} at the URDF's value (--fix {to_fix}=0)"
             + ("" if fit_.priors else " or fit with the priors on")

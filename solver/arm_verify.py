@@ -8,6 +8,11 @@ parameter on the new data); beyond DRIFT_RATIO times it the calibration has drif
 moved: a calibrated parameter whose refitted value differs from the calibration's by DRIFT_Z standard deviations
 and by DRIFT_MIN_SCALE of its typical size. As the NAO's (solver/verify.py), with sensors for cameras and poses
 for images.
+
+Nuisance parameters (`refit`, --refit sensors,points): what belongs to the new data's setup rather than to the arm,
+refitted with the calibration's arm held, e.g. where a laser tracker's reflector sits on the tool, so that a
+calibration made from cameras can be checked on a tracker's data (its frame and reflector unknown); the verdict is
+on the residual of that refit. They are never among what moved.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ class ArmVerdict:
     per_sensor: dict  # sensor -> statistics (its unit), calibration RMS, noise floor, reference, ratio
     per_pose: list  # [{"pose", "rms_reference", "n"}]: each pose's RMS in units of its sensors' reference
     ratio: float  # the largest sensor ratio
+    refitted: list  # the nuisance parameters refitted beside the sensors' frames: {"parameter", "value", "std", "unit"}
     moved: list
     suspects: list
     worst_poses: list
@@ -38,7 +44,8 @@ class ArmVerdict:
 
     def as_dict(self) -> dict:
         return {"good": self.good, "verdict": self.verdict, "per_sensor": self.per_sensor, "per_pose": self.per_pose,
-                "ratio": self.ratio, "drift_ratio": DRIFT_RATIO, "moved": self.moved, "suspects": self.suspects,
+                "ratio": self.ratio, "drift_ratio": DRIFT_RATIO, "refitted": self.refitted, "moved": self.moved,
+                "suspects": self.suspects,
                 "worst_poses": self.worst_poses, "uncalibrated": self.uncalibrated, "warnings": self.warnings}
 
 
@@ -66,30 +73,39 @@ def check_same_arm(cal, dataset) -> None:
                                   "calibration", field="robot.id")
 
 
-def verify_arm(dataset, cal) -> ArmVerdict:
-    """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset)."""
+# What --refit may name: the sensors' frames (always refitted) and effects of the setup rather than the arm.
+NUISANCE_EFFECTS = ("points",)
+
+
+def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), start=None) -> ArmVerdict:
+    """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset).
+
+    refit_effects : NUISANCE_EFFECTS refitted from the new data beside the sensors' frames, the arm held.
+    priors : the nuisance parameters' priors (solver.arm_identify.arm_prior).
+    held, start : nuisance parameters held, and {name: SI value} to start them from (--fix NAME[=VALUE]).
+    """
     from naocal.solver.arm_identify import fit, initialise_sensors, model_for
 
     check_same_arm(cal, dataset)
-    model = model_for(dataset, cal.effects)
+    model = model_for(dataset, tuple(cal.effects) + tuple(e for e in refit_effects if e not in cal.effects))
     obs = dataset.observations
     meta_path = dataset.path / "dataset.json"
-    arm_names = [n for n in model.names if not n.startswith("sensor.")]
+    nuisance = [p.name for p in model.parameters if p.effect in refit_effects]
+    arm_names = [n for n in model.names if not n.startswith("sensor.") and n not in nuisance]
     foreign = [n for n in cal.arm_parameters if n not in model.names]
     if foreign:
         raise DataError(cal.path, f"{foreign[0]} is not a parameter of the dataset's chain ({len(foreign)} such): "
                                   "another arm's calibration", field=f"model.parameters.{foreign[0]}")
     missing = [n for n in arm_names if n not in cal.parameters]
-    x0 = initialise_sensors(model, obs, meta_path)
-    for i, name in enumerate(model.names):
-        if name in cal.arm_parameters:
-            x0[i] = cal.parameters[name]["value"]
-    # 1. the calibration as it is; only the sensors' frames found from the new data
+    values = {n: e["value"] for n, e in cal.arm_parameters.items()}
+    values.update(start or {})
+    x0 = initialise_sensors(model, obs, meta_path, values)
+    # 1. the calibration as it is; only the sensors' frames (and the nuisances) found from the new data
     # (every detection kept: a verdict is on all the new data, as the NAO's verify)
-    fixed = fit(model, obs, x0, fixed=tuple(arm_names), path=meta_path, robust=False)
+    fixed = fit(model, obs, x0, fixed=tuple(arm_names) + tuple(held), path=meta_path, robust=False, priors=priors)
     # 2. a refit of what the calibration fitted: the noise floor (when the data state none) and what moved
     kept_fixed = tuple(n for n in arm_names if n in cal.parameters and cal.parameters[n]["fixed"]) + tuple(missing)
-    refit = fit(model, obs, fixed.x, fixed=kept_fixed, path=meta_path, robust=False)
+    refit = fit(model, obs, fixed.x, fixed=kept_fixed + tuple(held), path=meta_path, robust=False, priors=priors)
 
     per_sensor, reference = {}, np.zeros(len(model.sensors))
     refit_rms = refit.rms()
@@ -123,7 +139,7 @@ def verify_arm(dataset, cal) -> ArmVerdict:
     moved = []
     values = dict(zip(model.names, fixed.x))
     for i, p in enumerate(model.parameters):
-        if p.effect == "sensor" or not refit.free[i]:
+        if p.effect == "sensor" or p.name in nuisance or not refit.free[i]:
             continue
         change = float(refit.x[i] - values[p.name])
         std = float(refit.std[i])
@@ -147,8 +163,11 @@ def verify_arm(dataset, cal) -> ArmVerdict:
                      f"ratio {v['ratio']:.2f})" for name, v in per_sensor.items())
     verdict = verdict_text(good, head, moved, suspects, "an effect the calibration lacks, a moved tool, or bad "
                                                         "readings")
-    return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), moved, suspects, worst[:WORST_IMAGES],
-                      missing, warnings)
+    entries = fixed.parameters_dict()
+    refitted = [{"parameter": n, "value": entries[n]["value"], "std": entries[n]["std"], "unit": entries[n]["unit"],
+                 "fixed": entries[n]["fixed"]} for n in nuisance if n in held or not entries[n]["fixed"]]
+    return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), refitted, moved, suspects,
+                      worst[:WORST_IMAGES], missing, warnings)
 
 
 def _group(name: str) -> str:
@@ -179,6 +198,13 @@ def format_arm_verdict(v: ArmVerdict) -> str:
     if v.worst_poses:
         lines.append("worst poses: " + ", ".join(f"{e['pose']} ({e['rms_reference']:.2f} x the reference)"
                                                  for e in v.worst_poses))
+    if v.refitted:
+        from naocal.solver.effect import shown
+
+        lines.append("refitted with the arm held: " + ", ".join(
+            "{} {:+.3f} {}".format(e["parameter"], *shown(e["value"], e["unit"]))
+            + (" (held)" if e["fixed"] else " +- {:.3f}".format(shown(e["std"], e["unit"])[0]))
+            for e in v.refitted))
     lines += [moved_text(e) for e in v.moved]
     lines += [f"warning: {w}" for w in v.warnings]
     lines.append(v.verdict)

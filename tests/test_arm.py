@@ -262,13 +262,20 @@ def test_arm_gauges_are_fixed_at_the_nao_s_threshold_and_a_sensor_never_is():
 def test_a_parameter_no_pose_moves_stops_the_fit_naming_it_and_fitting_the_rest_once_it_is_fixed():
     """The flange's elasticity: the hand's centre of mass lies nearly on its axis, so no pose gives it a gravity
     torque (its column is 1e-18 of the largest). The arm fitted it to -1e13 deg/(N m) with std 0; under the one
-    policy it stops the fit with the NAO's message naming it, and `--fix` lets the rest be fitted."""
+    policy it stops the fit with the NAO's message naming it, and `--fix` lets the rest be fitted. With the priors
+    (the default, docs/ARM.md) its prior holds it at the URDF's 0, its std the prior's, and the report says so."""
+    from naocal.solver.arm import PRIOR_SIZE
     from naocal.solver.errors import SolveError
 
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=40)
     with pytest.raises(SolveError, match=r"cannot determine 1 parameter combination.*elasticity\.panda_joint7"):
-        fit(model, obs, initialise_sensors(model, obs))
-    result = fit(model, obs, initialise_sensors(model, obs), fixed=("elasticity.panda_joint7",))
+        fit(model, obs, initialise_sensors(model, obs), priors=False)
+    held = fit(model, obs, initialise_sensors(model, obs))
+    i = model.names.index("elasticity.panda_joint7")
+    size = PRIOR_SIZE["elasticity"]["rad/(N m)"]
+    assert held.success and held.free[i] and "elasticity.panda_joint7" in held.held_by_prior
+    assert abs(held.x[i]) < 1e-3 * size and held.std[i] == pytest.approx(size, rel=1e-3)
+    result = fit(model, obs, initialise_sensors(model, obs), fixed=("elasticity.panda_joint7",), priors=False)
     assert result.success and not result.free[model.names.index("elasticity.panda_joint7")]
     assert result.condition_number < 1e6
 

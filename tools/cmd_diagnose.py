@@ -47,7 +47,8 @@ def register(subparsers):
     p.add_argument("--effects", default="", metavar="E1,E2",
                    help="extra model terms already in the model: " + effect_names())
     p.add_argument("--fix", action="append", default=[], metavar="NAME",
-                   help="keep a parameter or a whole effect at zero (repeatable), as naocal identify --fix does")
+                   help="keep a parameter or a whole effect at zero (repeatable), as naocal identify --fix does (an "
+                        "arm's NAME=VALUE too)")
     p.add_argument("--json", action="store_true",
                    help='print one JSON object: {"rms_px": [x, y], "noise_px": f, "candidates": [...], ...}')
     p.add_argument("--report", metavar="DIR", help="write an HTML report with plots to DIR/index.html")

@@ -19,7 +19,8 @@ def add_identify_options(p) -> None:
                    help="fit every corner and image (default: corners no rigid board motion explains, and images no "
                         "view of their flat board explains, are set aside and listed)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME",
-                   help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw")
+                   help="keep a parameter or a whole effect at zero (repeatable), e.g. board_mount or camera.yaw; an "
+                        "arm's NAME=VALUE holds it at VALUE in the units its table shows (deg, mm; docs/ARM.md)")
     p.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
                    help="robust loss; images it down-weights are reported (default: linear)")
     p.add_argument("--cv-folds", type=int, default=5,

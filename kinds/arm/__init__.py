@@ -10,8 +10,11 @@ class ArmKind:
     name = "arm"
 
     def claims(self, source) -> bool:
-        if isinstance(source, argparse.Namespace):  # --robot / --chain exist only for an arm
-            return bool(getattr(source, "robot", None) or getattr(source, "chain", None))
+        if isinstance(source, argparse.Namespace):  # options that exist only for an arm: a NAO's data given them
+            return bool(getattr(source, "robot", None) or getattr(source, "chain", None)  # get the arm's refusal,
+                        or getattr(source, "no_priors", False) or getattr(source, "start", None)  # not silence
+                        or getattr(source, "refit", "sensors") != "sensors"
+                        or (getattr(source, "verb", "") == "verify" and getattr(source, "fix", None)))
         from naocal.solver.arm_calibration import is_arm_calibration
         from naocal.solver.arm_dataset import is_arm_dataset
 

@@ -115,7 +115,13 @@ def fixed_and_start(args, dataset, effects):
 
 
 def _load(args):
-    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_dataset import is_arm_dataset, read_arm_dataset
+
+    if not (args.robot or args.chain) and not is_arm_dataset(args.dataset):  # claimed by an arm-only option
+        from naocal.solver.errors import NaocalError
+
+        raise NaocalError(f"{args.dataset}: not an arm's dataset (naocal.arm_dataset/1): --no-priors, --start, "
+                          "--refit and verify's --fix are an arm's options")
 
     dataset = read_arm_dataset(args.dataset, robot=args.robot, chain=args.chain)
     for note in dataset.notes or ():
@@ -288,21 +294,45 @@ def format_calibration(path) -> str:
 def run_verify(args) -> int:
     """`naocal verify` of an arm dataset under an arm calibration: exit 0 still good, 1 drifted."""
     from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.solver.arm_identify import model_for
     from naocal.solver.arm_verify import format_arm_verdict, verify_arm
 
-    if getattr(args, "angles", "auto") != "auto":
-        from naocal.solver.errors import NaocalError
+    from naocal.solver.errors import NaocalError
 
+    if getattr(args, "angles", "auto") != "auto":
         raise NaocalError("--angles is the NAO's: an arm's dataset has one reading per joint")
     cal = read_arm_calibration(args.offsets)
     dataset = _load(args)
-    verdict = verify_arm(dataset, cal)
+    refit = parse_refit(args.refit)
+    held, start = fixed_and_start(args, dataset, tuple(cal.effects) + tuple(e for e in refit if e not in cal.effects))
+    refitted = {p.name for p in model_for(dataset, refit).parameters if p.effect in refit}
+    for name in held:
+        if name not in refitted and name not in refit:
+            raise NaocalError(f"--fix {name}: verify holds the calibration's arm; only what --refit names "
+                              f"({', '.join(('sensors',) + refit)}) is fitted")
+    # a --start file may be a whole calibration (of this setup): only what verify refits is taken from it
+    start = {name: value for name, value in start.items() if name in refitted}
+    verdict = verify_arm(dataset, cal, refit_effects=refit, priors=not args.no_priors, held=held, start=start)
     if args.json:
         print(json.dumps(json_safe({"dataset": str(args.dataset), "offsets": str(args.offsets), **verdict.as_dict()}),
                          indent=1))
     else:
         print(format_arm_verdict(verdict))
     return 0 if verdict.good else 1
+
+
+def parse_refit(text: str) -> tuple:
+    """--refit sensors[,points]: the nuisance effects beyond the sensors' frames (always refitted)."""
+    from naocal.solver.arm_verify import NUISANCE_EFFECTS
+    from naocal.solver.effects import comma_list
+    from naocal.solver.errors import NaocalError
+
+    names = comma_list(text or "sensors", "--refit")
+    for name in names:
+        if name != "sensors" and name not in NUISANCE_EFFECTS:
+            raise NaocalError(f"--refit: {name[:40]!r} is not refitted by verify (expected sensors, "
+                              f"{', '.join(NUISANCE_EFFECTS)}): the arm's parameters are the calibration's")
+    return tuple(n for n in dict.fromkeys(names) if n != "sensors")
 
 
 def run_diagnose(args) -> int:
