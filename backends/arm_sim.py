@@ -352,9 +352,9 @@ def dualarm_urdf(origins: dict | None = None) -> str:
                 'ixz="0" iyz="0"/></inertial>')
 
     def joint(name, kind, parent, child, xyz, rpy=(0.0, 0.0, 0.0), axis=None, limits=None):
-        xyz = origins.get(name, xyz)
+        xyz, rpy = (" ".join(repr(float(v)) for v in vector) for vector in (origins.get(name, xyz), rpy))
         text = (f'  <joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
-                f'<origin xyz="{" ".join(repr(float(v)) for v in xyz)}" rpy="{" ".join(repr(float(v)) for v in rpy)}"/>')
+                f'<origin xyz="{xyz}" rpy="{rpy}"/>')
         if axis is not None:
             text += f'<axis xyz="{axis[0]} {axis[1]} {axis[2]}"/>'
         if limits is not None:

@@ -9,7 +9,8 @@ Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, marker
 only: "priors", with the priors (soft bounds at each effect's plausible size, solver.arm.PRIOR_SIZE) holding what
 the data leave undetermined; "priors, --fix", with the priors but, as `naocal identify` does today, the combinations
 the data leave undetermined refused first and fixed as the refusal says (its largest parameter, at the URDF's
-value); "free, no priors", link lengths and everything else free, no priors, fixed as the refusal says. Then the tracker: its frame and the reflector's position on
+value); "free, no priors", link lengths and everything else free, no priors, fixed as the refusal says. Then
+the tracker: its frame and the reflector's position on
 the tool are nuisance, refitted with the arm held at the camera fit (2-fold over the tracker's poses: fitted on one
 half, the error measured on the other); "nominal" holds the arm at the URDF, "true arm" at the hidden truth (what
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis

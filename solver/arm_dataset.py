@@ -283,8 +283,8 @@ def _chain_specs(meta, robot_meta, base, tip, meta_path) -> dict:
         base = base or robot_meta.get("base")
         tip = tip or robot_meta.get("tip")
         if not base or not tip:
-            _fail(meta_path, "no chain: name robot.base and robot.tip (or chains) here or give --chain BASE_LINK:TIP_LINK",
-                  "robot.base" if not base else "robot.tip")
+            _fail(meta_path, "no chain: name robot.base and robot.tip (or chains) here or give --chain "
+                             "BASE_LINK:TIP_LINK", "robot.base" if not base else "robot.tip")
         return {tip: (base, tip)}
     if base or tip:
         _fail(meta_path, "the dataset names its chains: --chain picks none of them", "chains")
