@@ -6,12 +6,11 @@ and 0.2-0.6 deg), 2 % of the detections wrong by 8-40 px, a tracker on the floor
 tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5 deg and link lengths 0.1-2 mm; PyBullet's kinematics.
 
 Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers) are fitted from the camera rows
-only: "priors", with the priors (soft bounds at each effect's plausible size, solver.arm.PRIOR_SIZE) holding what
-the data leave undetermined; "priors, --fix", with the priors but, as `naocal identify` does today, the combinations
-the data leave undetermined refused first and fixed as the refusal says (its largest parameter, at the URDF's
-value); "free, no priors", link lengths and everything else free, no priors, fixed as the refusal says. Then
-the tracker: its frame and the reflector's position on
-the tool are nuisance, refitted with the arm held at the camera fit (2-fold over the tracker's poses: fitted on one
+only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points` does: "priors", with the priors
+(soft bounds at each effect's plausible size, solver.arm.PRIOR_SIZE) splitting what the data leave undetermined;
+"free, no priors", link lengths and everything else free and no priors (`--no-priors`), the combinations the data
+leave undetermined refused and fixed as the refusal says (its largest parameter, at the URDF's value). Then the
+tracker: its frame and the reflector's position on the tool are nuisance, refitted with the arm held at the camera fit (2-fold over the tracker's poses: fitted on one
 half, the error measured on the other); "nominal" holds the arm at the URDF, "true arm" at the hidden truth (what
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
 is within 1.3 x its noise; without, it is not.
@@ -48,10 +47,10 @@ def fit_priors_supported() -> bool:
     return "priors" in inspect.signature(fit).parameters
 
 
-def camera_fit(sim, priors: bool, follow_refusal: bool = True):
-    """(fit, [fixed names]): the arm fitted from the camera rows alone (the tracker's rows left out). With the
-    priors and not `follow_refusal`, what the data leave undetermined the priors hold; otherwise, as `naocal
-    identify` does today, the data-undetermined combinations are refused first and fixed as the refusal says."""
+def camera_fit(sim, priors: bool):
+    """(fit, [fixed names]): the arm fitted from the camera rows alone (the tracker's rows left out); what the
+    data leave undetermined, refused, is fixed as the refusal says (without the priors: with them it is split by
+    the priors, nothing is refused)."""
     obs = sim["observations"]
     cameras = [s for s in sim["sensors"] if s.kind == "camera"]
     rows = np.flatnonzero(obs.sensor < len(cameras))  # the sensors are listed cameras first
@@ -59,8 +58,6 @@ def camera_fit(sim, priors: bool, follow_refusal: bool = True):
     model = ArmModel(dualarm_chains(), sim["points"], cameras, EFFECTS)
     x0 = initialise_sensors(model, cam_obs)
     options = {"priors": priors} if fit_priors_supported() else {}
-    if priors and not follow_refusal:  # what the data leave undetermined the priors hold: nothing to fix
-        return fit(model, cam_obs, x0, auto_fix=False, **options), []
     fixed = []
     while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
         try:
@@ -125,12 +122,11 @@ def main(argv=None) -> int:
         t_sim = (time.process_time() - cpu, time.perf_counter() - wall)
         truth = sim["truth"]
         rows = [("nominal (URDF)", {}, None, t_sim), ("true arm", truth, None, (0.0, 0.0))]
-        for label, priors, follow in (("cameras, priors", True, False), ("cameras, priors, --fix", True, True),
-                                      ("cameras, free, no priors", False, True)):
+        for label, priors in (("cameras, priors", True), ("cameras, free, no priors", False)):
             if priors and not priors_here:
                 continue
             wall, cpu = time.perf_counter(), time.process_time()
-            result, fixed = camera_fit(sim, priors, follow)
+            result, fixed = camera_fit(sim, priors)
             values = result.model.reported_values(result.x)
             if fixed:
                 print(f"     ({label}: the cameras alone do not determine {len(fixed)} combination(s); "
