@@ -323,10 +323,16 @@ def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(t
     run = naocal("simulate", "--robot", "dualarm", "--seed", "4", "--poses", "25", "--out", str(out))
     assert run.returncode == 0, run.stderr
     assert "chains left, right" in run.stdout and (out / "truth.json").is_file()
-    run = naocal("identify", str(out), "--effects", "joint_offsets,tool", "--json")
+    cal = tmp_path / "cal.json"
+    run = naocal("identify", str(out), "--effects", "joint_offsets,tool", "--json", "--out", str(cal))
     assert run.returncode == 0, run.stderr
     report = json.loads(run.stdout)
     assert "joint_offset.torso_joint" in report["parameters"] and "tool.right.rz" in report["parameters"]
+    # the calibration file holds the tool's mount: read back by offsets and verify (the tracker's nuisances refitted)
+    run = naocal("offsets", "validate", str(cal))
+    assert run.returncode == 0, run.stderr
+    run = naocal("verify", str(out), "--offsets", str(cal), "--refit", "sensors,points")
+    assert run.returncode in (0, 1), run.stderr
     run = naocal("simulate", "--robot", "dualarm", "--chain", "a:b", "--out", str(tmp_path / "x"))
     assert run.returncode == 2 and "--chain" in run.stderr
 
