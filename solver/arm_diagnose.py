@@ -62,12 +62,21 @@ class Test:
         """False if a held-out check is worse with it, True if every one is not, None if none was made."""
         return None if not self.checks else not any(c.worse for c in self.checks)
 
+    @property
+    def refutation(self) -> str:
+        """Why it is not recommended ('' if it is not refuted): the other sensor worse, or only other sessions."""
+        worse = {c.kind for c in self.checks if c.worse}
+        if "sensor" in worse:
+            return "fits the pixels only (absorbs camera/marker-model error)"
+        return "predicts other sessions worse (fits these poses only)" if worse else ""
+
     def as_dict(self):
         return {"label": self.label, "dof": self.k, "drss": self.drss, "noise_rss": self.noise_rss,
                 "p_value": self.p_value,
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
                 "significant": self.significant, "testable": self.testable, "inert": list(self.inert),
-                "checks": [c.as_dict() for c in self.checks], "physical": self.physical}
+                "checks": [c.as_dict() for c in self.checks], "physical": self.physical,
+                "refutation": self.refutation or None}
 
 
 @dataclass
@@ -423,14 +432,14 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                                f"({'worse' if s in check.worse else 'better' if check.with_effect[s] < check.without[s] else 'no better'})"
                                for s in check.with_effect)
             lines.append(f"    held-out {check.how}: {change}")
-        lines.append("    -> " + ("physical" if c.physical else
-                                  "fits the pixels only (absorbs camera/marker-model error): not recommended"))
+        lines.append("    -> " + ("physical" if c.physical else f"{c.refutation}: not recommended"))
     best = d.best
     lines.append("")
     if best is None and d.refuted:
-        lines.append(f"verdict: no physical candidate: {', '.join(c.label for c in d.refuted)} fit(s) the pixels "
-                     "only (absorb camera/marker-model error): not recommended; check the cameras' intrinsics and "
-                     "where the markers sit on the tool")
+        lines.append("verdict: no physical candidate: " + "; ".join(f"{c.label} {c.refutation}" for c in d.refuted)
+                     + ": not recommended" + ("; check the cameras' intrinsics and where the markers sit on the tool"
+                                              if any(c.refutation.startswith("fits the pixels") for c in d.refuted)
+                                              else ""))
     elif best is None:
         lines.append("verdict: no candidate effect is significant; nothing is missing from the model"
                      + (" (the fit is at the noise level)." if all(
@@ -441,8 +450,8 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                      f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert)
                      + _held_options(fit) + " --out calibration.json")  # identify writes with --out
         if d.refuted:
-            lines.append(f"  (the best physical candidate; {', '.join(c.label for c in d.refuted)} fit(s) the pixels "
-                         "only: not recommended)")
+            lines.append("  (the best physical candidate; not recommended: "
+                         + "; ".join(f"{c.label} {c.refutation}" for c in d.refuted) + ")")
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

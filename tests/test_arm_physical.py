@@ -54,8 +54,10 @@ def test_with_the_markers_taken_as_filed_no_candidate_is_recommended():
     assert d.best is None and {c.label for c in d.refuted} == {"link_lengths", "link_poses"}
     assert all("tracker" in check.worse for c in d.refuted for check in c.checks)
     assert "(its frame refitted)" in format_diagnosis(d)  # the held markers and reflectors stay held
-    assert format_diagnosis(d).splitlines()[-1].startswith(
-        "verdict: no physical candidate: link_lengths, link_poses fit(s) the pixels only")
+    assert format_diagnosis(d).splitlines()[-1] == (
+        "verdict: no physical candidate: link_lengths fits the pixels only (absorbs camera/marker-model error); "
+        "link_poses fits the pixels only (absorbs camera/marker-model error): not recommended; check the cameras' "
+        "intrinsics and where the markers sit on the tool")
 
 
 def test_link_lengths_truly_off_are_recommended_as_physical():
