@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver.arm import Observations, Sensor, exp_so3, log_so3
+from naocal.solver.arm import POSE_COMPONENTS, Observations, Sensor, exp_so3, log_so3
 from naocal.solver.arm_dataset import arm_chain
 from naocal.solver.errors import NaocalError
 
@@ -311,3 +311,306 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
                  "hidden": list(hidden)}
     atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
     return {"n_poses": int(len(thetas)), "n_observations": int(len(obs)), "truth": truth}
+
+
+# ------------------------------------------------------------------------------------------------ the dual-arm robot
+# Two 6-DoF arms on a torso that turns about the vertical (a dual-arm industrial robot's layout, issue 24): naocal's
+# own URDF (backends/data/dualarm.urdf, written by dualarm_urdf: no third-party file), two cameras on the torso, a
+# laser tracker on the floor seeing a reflector on the right tool, ArUco-like markers glued on each tool.
+
+DUALARM_URDF = Path(__file__).with_name("data") / "dualarm.urdf"
+DUALARM_CHAINS = {"left": ("base_link", "left_tool"), "right": ("base_link", "right_tool")}
+TORSO_HEIGHT_M = 0.8
+# (joint, xyz in the parent link, axis, lower, upper rad, the child link's mass kg) of one arm; side s = +1 left,
+# -1 right: the shoulder sits s * 0.22 m to the side and the arm's zero stance points sideways and up (its z
+# outward, tilted up by SHOULDER_TILT_RAD: the two first axes are not on one line, which a turn of both torso
+# cameras about it would hide)
+SHOULDER_TILT_RAD = 0.4
+ARM = (("j1", (0.05, 0.22, 0.35), (0, 0, 1), -2.9, 2.9, 3.5),
+       ("j2", (0.0, 0.0, 0.12), (0, 1, 0), -0.6, 2.8, 5.0),
+       ("j3", (0.04, 0.0, 0.36), (0, 1, 0), -2.6, 2.6, 3.0),
+       ("j4", (0.0, 0.0, 0.30), (0, 0, 1), -2.9, 2.9, 1.5),
+       ("j5", (0.0, 0.0, 0.08), (0, 1, 0), -2.1, 2.1, 1.0),
+       ("j6", (0.0, 0.0, 0.08), (0, 0, 1), -2.9, 2.9, 0.4))
+TOOL_OFFSET_M = 0.05  # the flange to the tool frame
+TOOL_MASS_KG = 0.8
+TORSO_LIMIT_RAD = 2.6
+DUAL_CAMERA = {"width_px": 1920, "height_px": 1200, "fx_px": 1100.0, "fy_px": 1100.0, "cx_px": 959.5,
+               "cy_px": 599.5, "distortion": [0.0, 0.0, 0.0, 0.0, 0.0]}
+MARKER_RING_M, MARKER_HEIGHT_M = 0.035, 0.03  # four markers around the tool's z axis, one on top
+MARKER_VIEW_RAD = math.radians(65.0)  # a marker is detected when it faces the camera within this angle
+REFLECTOR_M = (0.0, 0.0, 0.06)  # the tracker's reflector on the right tool
+
+
+def dualarm_urdf(origins: dict | None = None) -> str:
+    """The dual-arm robot's URDF text; `origins` {joint: xyz} replaces joint origins (the true robot's)."""
+    origins = origins or {}
+
+    def inertial(mass, com):
+        return (f'<inertial><origin xyz="{com[0]:.6g} {com[1]:.6g} {com[2]:.6g}"/><mass value="{mass:g}"/>'
+                f'<inertia ixx="{mass * 0.004:.6g}" iyy="{mass * 0.004:.6g}" izz="{mass * 0.002:.6g}" ixy="0" '
+                'ixz="0" iyz="0"/></inertial>')
+
+    def joint(name, kind, parent, child, xyz, rpy=(0.0, 0.0, 0.0), axis=None, limits=None):
+        xyz, rpy = (" ".join(repr(float(v)) for v in vector) for vector in (origins.get(name, xyz), rpy))
+        text = (f'  <joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+                f'<origin xyz="{xyz}" rpy="{rpy}"/>')
+        if axis is not None:
+            text += f'<axis xyz="{axis[0]} {axis[1]} {axis[2]}"/>'
+        if limits is not None:
+            text += f'<limit lower="{limits[0]}" upper="{limits[1]}" effort="150" velocity="2"/>'
+        return text + "</joint>"
+
+    lines = ['<?xml version="1.0"?>',
+             "<!-- naocal's simulated dual-arm robot (backends/arm_sim.py dualarm_urdf; written for naocal, no "
+             "third-party content): a torso turning about z, two 6-DoF arms, a tool on each -->",
+             '<robot name="dualarm">',
+             f'  <link name="base_link">{inertial(40.0, (0.0, 0.0, 0.4))}</link>',
+             f'  <link name="torso">{inertial(25.0, (0.0, 0.0, 0.25))}</link>',
+             joint("torso_joint", "revolute", "base_link", "torso", (0.0, 0.0, TORSO_HEIGHT_M), axis=(0, 0, 1),
+                   limits=(-TORSO_LIMIT_RAD, TORSO_LIMIT_RAD))]
+    for side, s in (("left", 1.0), ("right", -1.0)):
+        parent = "torso"
+        for k, (name, xyz, axis, lo, hi, mass) in enumerate(ARM):
+            child = f"{side}_link{k + 1}"
+            following = ARM[k + 1][1] if k + 1 < len(ARM) else (0.0, 0.0, TOOL_OFFSET_M)
+            lines.append(f'  <link name="{child}">{inertial(mass, [v / 2 for v in following])}</link>')
+            xyz = (xyz[0], s * xyz[1], xyz[2])
+            rpy = (-s * (math.pi / 2.0 - SHOULDER_TILT_RAD), 0.0, 0.0) if k == 0 else (0.0, 0.0, 0.0)
+            lines.append(joint(f"{side}_{name}", "revolute", parent, child, xyz, rpy, axis, (lo, hi)))
+            parent = child
+        lines.append(f'  <link name="{side}_tool">{inertial(TOOL_MASS_KG, (0.0, 0.0, 0.03))}</link>')
+        lines.append(joint(f"{side}_tool_joint", "fixed", parent, f"{side}_tool", (0.0, 0.0, TOOL_OFFSET_M)))
+    lines.append("</robot>")
+    return "\n".join(lines) + "\n"
+
+
+def dualarm_points() -> dict:
+    """{name: (xyz in its tool frame, outward normal or None, chain)}: markers L_m1..L_m5 and R_m1..R_m5 (four
+    around the tool, one on top), the tracker's reflector R_smr on the right tool."""
+    points = {}
+    for side, prefix in (("left", "L"), ("right", "R")):
+        for i in range(4):
+            a = math.pi / 2.0 * i
+            normal = (math.cos(a), math.sin(a), 0.0)
+            points[f"{prefix}_m{i + 1}"] = (tuple(MARKER_RING_M * v for v in normal[:2]) + (MARKER_HEIGHT_M,),
+                                            normal, side)
+        points[f"{prefix}_m5"] = ((0.0, 0.0, MARKER_HEIGHT_M + 0.02), (0.0, 0.0, 1.0), side)
+    points["R_smr"] = (REFLECTOR_M, None, "right")
+    return points
+
+
+def dualarm_sensors(noise_m, noise_px) -> list:
+    return [Sensor("cam_left", "camera", dict(DUAL_CAMERA), noise_px, link="torso"),
+            Sensor("cam_right", "camera", dict(DUAL_CAMERA), noise_px, link="torso"),
+            Sensor("tracker", "points", noise=noise_m)]
+
+
+def dualarm_model(effects, sensors=None, noise_m=5e-5, noise_px=0.3):
+    """The nominal ArmModel of the dual-arm robot (backends/data/dualarm.urdf) with these effects."""
+    from naocal.solver.arm import ArmModel
+    from naocal.solver.arm_dataset import arm_chains
+
+    chains = arm_chains(DUALARM_URDF, DUALARM_CHAINS)
+    points = {name: xyz for name, (xyz, _, _) in dualarm_points().items()}
+    return ArmModel(chains, points, sensors if sensors is not None else dualarm_sensors(noise_m, noise_px), effects)
+
+
+def _random_vector(rng, low, high) -> np.ndarray:
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v) * rng.uniform(low, high)
+
+
+DUAL_LINK_ERROR_M = (2e-5, 2e-4)  # an industrial robot's machined links: within 0.2 mm of its URDF
+
+
+def dualarm_truth(rng) -> dict:
+    """Hidden errors by parameter name: joint offsets 0.01-0.5 deg, link lengths 0.02-0.2 mm (DUAL_LINK_ERROR_M),
+    each tool's mount 1-3 mm and 0.2-0.6 deg, each marker and the reflector glued 1-2 mm off."""
+    model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"))
+    truth = {}
+    for _, p in model.params("joint_offsets"):
+        truth[p.name] = float(math.radians(rng.uniform(0.01, 0.5)) * rng.choice((-1.0, 1.0)))
+    for _, p in model.params("link_lengths"):
+        truth[p.name] = float(rng.uniform(*DUAL_LINK_ERROR_M) * rng.choice((-1.0, 1.0)))
+    for ac in model.arm_chains:
+        t, r = _random_vector(rng, 1e-3, 3e-3), _random_vector(rng, math.radians(0.2), math.radians(0.6))
+        for c, (q, _) in enumerate(POSE_COMPONENTS):
+            truth[f"tool.{ac.name}.{q}"] = float((t if c < 3 else r)[c % 3])
+    for name in model.point_names:
+        d = _random_vector(rng, 1e-3, 2e-3)
+        for c, a in enumerate("xyz"):
+            truth[f"point.{name}.{a}"] = float(d[c])
+    return truth
+
+
+def _true_origins(model, truth) -> dict:
+    """{URDF joint: true xyz}: each origin moved along its offset by its link's hidden length error."""
+    from naocal.solver.urdf import parse_urdf
+
+    urdf = parse_urdf(DUALARM_URDF)
+    out = {}
+    for o, key in enumerate(model.origin_keys):
+        delta = truth.get(f"link_length.{model.origin_names[o]}", 0.0)
+        if not delta:
+            continue
+        name = key[1] if key[0] == "joint" else f"{key[1]}_tool_joint"  # the tip offset: the tool's fixed joint
+        xyz = np.array(urdf.joints[name].xyz)
+        out[name] = tuple(xyz + delta * xyz / np.linalg.norm(xyz))
+    return out
+
+
+def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, noise_px=0.3, outlier_fraction=0.02,
+                     write=True):
+    """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
+    on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
+    "truth", "sensors", "points", "n_poses"}.
+
+    Readings are drawn uniformly inside the joint limits less a margin (the torso within +-0.6 rad) and kept when
+    both tools are in front of the torso (torso frame x > 0.3 m, 0.25 m apart, neither below the torso's floor
+    clearance); the true robot is PyBullet's (the URDF with the true link lengths) at q = theta - c, the tool
+    mounts and markers placed on its tool links. A camera detects a marker in its image that faces it within 65
+    deg (pixel noise `noise_px`); `outlier_fraction` of the detections are wrong by 8-40 px (a corner mistaken).
+    The tracker reads the reflector at every pose (noise `noise_m` per axis). Poses are labelled by session."""
+    import json
+
+    from naocal.body.pybullet_quiet import c_output_silenced, pybullet
+    from naocal.solver.camera import project_points
+
+    rng = np.random.default_rng([seed, 24])
+    model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"), noise_m=noise_m, noise_px=noise_px)
+    truth = dualarm_truth(rng)
+    x_true = np.array([truth.get(n, 0.0) for n in model.names])
+    # the sensors: cameras on the torso's head looking down at the work area, a tracker 2.5-3 m in front
+    frames = {}
+    for name, y in (("cam_left", 0.08), ("cam_right", -0.08)):
+        eye = np.array([0.12, y, 0.6]) + rng.normal(0.0, 0.01, 3)
+        R = look_at(eye, (0.6, 0.0, 0.15)) @ exp_so3(rng.normal(size=3) * 0.02)  # R_torso_cam
+        frames[name] = (R.T, -R.T @ eye)
+    eye = np.array([2.8, -0.6, 1.4]) + rng.normal(0.0, 0.1, 3)
+    R = exp_so3(rng.normal(size=3))
+    frames["tracker"] = (R.T, -R.T @ eye)
+    for name, (R, t) in frames.items():
+        rotvec = log_so3(R)
+        for c, a in enumerate("xyz"):
+            truth[f"sensor.{name}.rotation.{a}"] = float(rotvec[c])
+            truth[f"sensor.{name}.translation.{a}"] = float(t[c])
+    tools = {}
+    for ac in model.arm_chains:
+        v = [truth[f"tool.{ac.name}.{q}"] for q, _ in POSE_COMPONENTS]
+        tools[ac.name] = (exp_so3(v[3:]), np.array(v[:3]))
+    points = dualarm_points()
+    on_tool = {n: np.array(xyz) + [truth[f"point.{n}.{a}"] for a in "xyz"] for n, (xyz, _, _) in points.items()}
+
+    client = pybullet.connect(pybullet.DIRECT)
+    tmp = tempfile.TemporaryDirectory(prefix="naocal-dualarm-")
+    try:
+        true_urdf = Path(tmp.name) / "true.urdf"
+        true_urdf.write_text(dualarm_urdf(_true_origins(model, truth)), encoding="utf-8")
+        with c_output_silenced():
+            body = pybullet.loadURDF(str(true_urdf), useFixedBase=True, physicsClientId=client)
+        info = [pybullet.getJointInfo(body, i, physicsClientId=client)
+                for i in range(pybullet.getNumJoints(body, physicsClientId=client))]
+        joint_index = {i[1].decode(): i[0] for i in info}
+        link_index = {i[12].decode(): i[0] for i in info}
+        from naocal.solver.urdf import parse_urdf
+
+        urdf = parse_urdf(DUALARM_URDF)
+        joints = model.joint_names
+        lo = np.array([urdf.joints[j].lower for j in joints])
+        hi = np.array([urdf.joints[j].upper for j in joints])
+        margin = np.maximum(LIMIT_MARGIN_RAD, LIMIT_MARGIN_FRACTION * (hi - lo))
+        lo, hi = lo + margin, hi - margin
+        torso = joints.index("torso_joint")
+        lo[torso], hi[torso] = -0.6, 0.6
+        offsets = np.array([truth[f"joint_offset.{j}"] for j in joints])
+
+        def pose_of(link):
+            state = pybullet.getLinkState(body, link_index[link], computeForwardKinematics=True,
+                                          physicsClientId=client)
+            return np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3), np.array(state[4])
+
+        rows, pose_labels = [], []
+        tries = 0
+        while len(pose_labels) < n_poses:
+            tries += 1
+            if tries > 400 * n_poses:
+                raise NaocalError(f"found only {len(pose_labels)} of {n_poses} stances with both tools in front")
+            theta = rng.uniform(lo, hi)
+            for j, angle in zip(joints, theta - offsets):
+                pybullet.resetJointState(body, joint_index[j], float(angle), physicsClientId=client)
+            R_torso, t_torso = pose_of("torso")
+            tool_frames = {}
+            for ac in model.arm_chains:
+                R_tip, t_tip = pose_of(ac.chain.tip)
+                R_tool, t_tool = tools[ac.name]
+                tool_frames[ac.name] = (R_tip @ R_tool, t_tip + R_tip @ t_tool)
+            in_torso = {c: R_torso.T @ (t - t_torso) for c, (_, t) in tool_frames.items()}
+            if (min(p[0] for p in in_torso.values()) < 0.3 or min(p[2] for p in in_torso.values()) < -0.6
+                    or np.linalg.norm(in_torso["left"] - in_torso["right"]) < 0.25):
+                continue
+            pose = len(pose_labels)
+            seen = []
+            for name, (_, normal, chain) in points.items():
+                R_tool, t_tool = tool_frames[chain]
+                p_base = R_tool @ on_tool[name] + t_tool
+                c = 0 if chain == "left" else 1
+                if normal is None:  # the reflector: the tracker, in the base frame
+                    R, t = frames["tracker"]
+                    seen.append((pose, c, 2, name, theta, R @ p_base + t + rng.normal(0.0, noise_m, 3)))
+                    continue
+                p_torso = R_torso.T @ (p_base - t_torso)
+                n_torso = R_torso.T @ (R_tool @ normal)
+                for s, cam in enumerate(("cam_left", "cam_right")):
+                    R, t = frames[cam]
+                    p_cam = R @ p_torso + t
+                    eye = -R.T @ t
+                    to_eye = eye - p_torso
+                    if n_torso @ to_eye < math.cos(MARKER_VIEW_RAD) * np.linalg.norm(to_eye):
+                        continue
+                    uv, depth = project_points(p_cam, DUAL_CAMERA)
+                    if not (depth > 0.2 and IMAGE_MARGIN_PX <= uv[0] <= DUAL_CAMERA["width_px"] - 1 - IMAGE_MARGIN_PX
+                            and IMAGE_MARGIN_PX <= uv[1] <= DUAL_CAMERA["height_px"] - 1 - IMAGE_MARGIN_PX):
+                        continue
+                    uv = uv + rng.normal(0.0, noise_px, 2)
+                    if rng.random() < outlier_fraction:
+                        uv = uv + _random_vector(rng, 8.0, 40.0)[:2]
+                    seen.append((pose, c, s, name, theta, np.array([uv[0], uv[1], 0.0])))
+            if len({(r[1], r[2]) for r in seen if r[2] < 2}) < 3:  # each stance was chosen for the cameras to see
+                continue  # markers of both tools: at least three (tool, camera) pairs
+            rows += seen
+            pose_labels.append(f"s{pose * sessions // n_poses + 1}-{pose:04d}")
+    finally:
+        pybullet.disconnect(physicsClientId=client)
+        tmp.cleanup()
+    names = list(points)
+    obs = Observations(np.array([r[4] for r in rows]), np.array([r[0] for r in rows]),
+                       np.array([r[2] for r in rows]), np.array([names.index(r[3]) for r in rows]),
+                       np.array([r[5] for r in rows]), None, tuple(pose_labels), np.array([r[1] for r in rows]))
+    sensors = dualarm_sensors(noise_m, noise_px)
+    result = {"observations": obs, "truth": truth, "sensors": sensors,
+              "points": {n: xyz for n, (xyz, _, _) in points.items()}, "n_poses": n_poses, "x_true": x_true}
+    if write:
+        from naocal.solver.arm_dataset import write_arm_dataset
+        from naocal.solver.fileio import atomic_write_text
+
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "robot.urdf", DUALARM_URDF.read_text(encoding="utf-8"))
+        meta = {
+            "robot": {"id": f"simulated-dualarm-{seed}", "model": "dualarm", "urdf": "robot.urdf"},
+            "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
+            "points": {n: {"xyz_m": list(xyz)} for n, xyz in result["points"].items()},
+            "sensors": {"cam_left": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
+                        "cam_right": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
+                        "tracker": {"kind": "points", "noise_m": noise_m}},
+            "source": f"naocal simulate --robot dualarm --seed {seed} (PyBullet; {n_poses} stances in {sessions} "
+                      "sessions)",
+        }
+        write_arm_dataset(out, meta, model.joint_names, obs, sensors, result["points"],
+                          chain_names=[ac.name for ac in model.arm_chains])
+        truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
+                     "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
+                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"]}
+        atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
+    return result

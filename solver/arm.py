@@ -1,13 +1,17 @@
 """The measurement model of a serial arm from its URDF (docs/ARM.md): forward kinematics with per-joint and per-link
 errors, mapped into the frame of an external sensor that sees points on the end effector, and its exact Jacobian.
 
-For one observation (joint readings theta, a point p on the tip link, a sensor s):
+For one observation (joint readings theta, a point p on the tip link of the observation's chain, a sensor s):
 
     q_k   = theta_k - c_k + C_k * tau_k(theta)            c: joint_offset (the NAO's sign), C: elasticity
     A_k   = F_{k-1} @ T_origin_k(+ length_k along its offset) @ Trans(t_k) @ Exp(r_k)      link_pose (t, r)
-    F_k   = A_k @ Rot(axis_k, q_k)                       F_{-1} = the chain's base frame
-    p_b   = F_{n-1} @ T_end(+ length_n along its offset) @ (p0 + dp)                          points (dp)
-    y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_base = (R_s, t_s)
+    F_k   = A_k @ Rot(axis_k, q_k)   (prismatic: A_k @ Trans(axis_k q_k))   F_{-1} = the sensor's mount (the base)
+    p_b   = F_{n-1} @ T_end(+ length_n along its offset) @ (t_T + Exp(r_T) (p0 + dp))   tool (t_T, r_T), points (dp)
+    y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_mount = (R_s, t_s)
+
+Several chains (two arms on one torso) share joints, joint origins and sensors by name: a joint's offset is one
+parameter whichever chain moves it. A sensor mounted on a link of the chains (a camera on the torso) sees the
+points in that link's frame: the joints before it do not move them.
     3-D sensor: residual = y - measured (m);  camera: residual = project(y) - measured (px, solver/camera.py)
 
 tau_k is the static gravity torque about joint k of the links beyond it (URDF masses), at the readings theta: a
@@ -32,21 +36,23 @@ EFFECTS = {
     "link_poses": "full pose error of each joint origin: translation (m) and rotation (rad) in the joint frame",
     "points": "position error of each observed point on the end effector (tip frame), m",
     "elasticity": "joint compliance under the static gravity torque of the URDF masses, rad/(N m)",
+    "tool": "pose error of the tool (end-effector mount) on each chain's tip: translation (m), rotation (rad)",
 }
 DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
 # Each effect's plausible size per unit: the std of its Gaussian prior (solver.arm_identify.arm_prior) about the
 # URDF's value (every correction 0), and, times solver.arm_identify.RUNOFF_FACTOR, the value a fit must not land
 # beyond. The sensor frames have none: they may be anywhere.
 PRIOR_SIZE = {
-    "joint_offsets": {"rad": math.radians(2.0)},  # encoder zeros are off by degrees at most
+    "joint_offsets": {"rad": math.radians(2.0), "m": 2e-3},  # encoder zeros are off by degrees (a slide's by mm)
     "link_lengths": {"m": 2e-3},  # a machined link is off by millimetres
     "link_poses": {"m": 2e-3, "rad": math.radians(1.0)},
     "points": {"m": 3e-3},  # a marker or reflector glued by hand
     "elasticity": {"rad/(N m)": math.radians(0.05)},  # 0.5 deg under 10 N m: a soft gear
+    "tool": {"m": 5e-3, "rad": math.radians(1.0)},  # a tool mounted on its flange by hand: mm and a degree
 }
 # The gauges' order (solver.identify.gauges, via solver.arm_identify.identifiable): of parameters the data cannot
 # tell apart, the earlier group stays free and the later is fixed; a sensor frame is never fixed.
-PRIORITY = ("sensor", "joint_offsets", "link_lengths", "points", "link_poses", "elasticity")
+PRIORITY = ("sensor", "joint_offsets", "link_lengths", "tool", "points", "link_poses", "elasticity")
 POINT_KINDS = tuple(MEASUREMENTS)  # the sensors' measurement kinds (solver.measurement)
 AXES = "xyz"
 
@@ -75,13 +81,28 @@ class Sensor:
     noise: float | None = None  # m or px, when known
     prior_rotation: tuple | None = None  # rotation vector of R_sensor_base, rad
     prior_translation: tuple | None = None  # t_sensor_base, m
+    link: str | None = None  # the URDF link it is mounted on (None: the chains' base), e.g. a camera on a torso
+
+
+@dataclass(frozen=True)
+class ArmChain:
+    """One serial chain of a model with several (two arms on one torso): `chain` (solver.robot.Chain, base to tip),
+    `link_names` the link each joint origin (and the tip offset) ends, `load` (mass kg, com in the tip frame) what
+    the tip carries, `child_links` the URDF link each joint moves (where a sensor may be mounted)."""
+
+    name: str
+    chain: object
+    link_names: tuple
+    load: tuple = (0.0, (0.0, 0.0, 0.0))
+    child_links: tuple = ()
 
 
 @dataclass
 class Observations:
-    """N observations: joint readings theta (N, n) in chain order, pose id, sensor and point indices, the measured
-    point (N, 3) for 3-D sensors or pixel (N, 2 in [:, :2]) for cameras; `source_line` for messages;
-    `pose_labels` the file's text label of each pose id (None: the ids are the file's own numbers)."""
+    """N observations: joint readings theta (N, n) in the model's joint order (one chain: its order), pose id,
+    sensor and point indices, the measured point (N, 3) for 3-D sensors or pixel (N, 2 in [:, :2]) for cameras;
+    `source_line` for messages; `pose_labels` the file's text label of each pose id (None: the ids are the file's
+    own numbers); `chain` the index of each observation's chain (None: all on the first)."""
 
     theta: np.ndarray
     pose: np.ndarray
@@ -90,6 +111,7 @@ class Observations:
     measured: np.ndarray
     source_line: np.ndarray | None = None
     pose_labels: tuple | None = None
+    chain: np.ndarray | None = None
 
     def __len__(self):
         return len(self.pose)
@@ -101,7 +123,11 @@ class Observations:
     def subset(self, rows) -> "Observations":
         return Observations(self.theta[rows], self.pose[rows], self.sensor[rows], self.point[rows],
                             self.measured[rows], None if self.source_line is None else self.source_line[rows],
-                            self.pose_labels)
+                            self.pose_labels, None if self.chain is None else self.chain[rows])
+
+    def chains(self) -> np.ndarray:
+        """(N,) each observation's chain index."""
+        return np.zeros(len(self.pose), dtype=int) if self.chain is None else self.chain
 
 
 def exp_so3(phi) -> np.ndarray:
@@ -157,12 +183,18 @@ def _turned(A, axis, angle) -> np.ndarray:
             + (1.0 - np.cos(angle))[:, None, None] * _times(A, K @ K))
 
 
-class ArmModel:
-    """The arm's parameters and its model for one chain, one set of sensors and points, and a choice of effects.
 
-    chain: solver.robot.Chain (base to tip); points: {name: (3,) nominal position in the tip frame, m};
-    sensors: [Sensor]; effects: names of EFFECTS; gravity_mps2 (3,) in the base frame; load: (mass kg, com (3,) in
-    the tip frame) of what the tip carries, for the gravity torques.
+POSE_COMPONENTS = (("x", "m"), ("y", "m"), ("z", "m"), ("rx", "rad"), ("ry", "rad"), ("rz", "rad"))
+
+
+class ArmModel:
+    """The arm's parameters and its model for its chains, one set of sensors and points, and a choice of effects.
+
+    chain: solver.robot.Chain (base to tip), or several chains as a sequence of ArmChain (sharing a base);
+    points: {name: (3,) nominal position in the tip frame of the chain that carries it, m}; sensors: [Sensor];
+    effects: names of EFFECTS; gravity_mps2 (3,) in the base frame; load, link_names: of a single Chain (an
+    ArmChain carries its own): (mass kg, com (3,) in the tip frame) of what the tip carries, for the gravity
+    torques, and the link each joint origin ends.
     """
 
     def __init__(self, chain, points: dict, sensors, effects=DEFAULT_EFFECTS, gravity_mps2=(0.0, 0.0, -9.81),
@@ -170,23 +202,82 @@ class ArmModel:
         unknown = [e for e in effects if e not in EFFECTS]
         if unknown:
             raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(EFFECTS)})")
-        self.chain = chain
+        self.chain = chain  # as given: a model with other effects is made from it (solver.arm_diagnose)
+        if isinstance(chain, (tuple, list)):
+            self.arm_chains = tuple(chain)
+        else:
+            n = len(chain.joint_names)
+            self.arm_chains = (ArmChain(chain.tip, chain, tuple(link_names or [f"link{k}" for k in range(n + 1)]),
+                                        load),)
+        first = self.arm_chains[0]
+        self.load = (float(first.load[0]), np.asarray(first.load[1], dtype=float))
+        self.link_names = first.link_names
         self.point_names = tuple(points)
         self.point_xyz = np.array([points[p] for p in self.point_names], dtype=float).reshape(-1, 3)
         self.sensors = tuple(sensors)
         self.effects = tuple(e for e in EFFECTS if e in effects)
         self.gravity_mps2 = np.asarray(gravity_mps2, dtype=float)
-        self.load = (float(load[0]), np.asarray(load[1], dtype=float))
-        n = len(chain.joint_names)
-        offsets = [chain.T_origin[k, :3, 3] for k in range(n)] + [chain.T_end[:3, 3]]
-        self.link_names = tuple(link_names or [f"link{k}" for k in range(n + 1)])  # the link each origin ends
-        self.directions = [o / np.linalg.norm(o) if np.linalg.norm(o) > 1e-9 else None for o in offsets]
+        self._layout()
+        if "elasticity" in self.effects and any(self.prismatic):
+            raise ValueError("elasticity with a prismatic joint is not modelled (its gravity force is not a torque)")
         self.R0 = np.array([exp_so3(s.prior_rotation or (0.0, 0.0, 0.0)) for s in self.sensors]).reshape(-1, 3, 3)
         self.parameters = self._parameters()
         self.names = tuple(p.name for p in self.parameters)
         self._by_effect = {}
         for i, p in enumerate(self.parameters):
             self._by_effect.setdefault(p.effect, []).append((i, p))
+        self._index_parameters()
+
+    # -- the chains' joints and origins, shared by name
+
+    def _layout(self):
+        """The model's joints (union of the chains', in order of appearance), each chain's columns of them, its
+        joint origins (shared where the chains share a joint), and where each sensor's mount lies on each chain."""
+        joints, prismatic, self.columns = [], [], []
+        origins = {}  # key -> index into self.origin_*: ("joint", name) or ("tip", chain name)
+        self.origin_keys, self.origin_links, self.directions, self.origin_index = [], [], [], []
+        for ac in self.arm_chains:
+            chain = ac.chain
+            cols = []
+            for k, j in enumerate(chain.joint_names):
+                if j not in joints:
+                    joints.append(j)
+                    prismatic.append(bool(chain.prismatic and chain.prismatic[k]))
+                cols.append(joints.index(j))
+            self.columns.append(np.array(cols, dtype=int))
+            n = len(chain.joint_names)
+            index = []
+            for k in range(n + 1):
+                key = ("joint", chain.joint_names[k]) if k < n else ("tip", ac.name)
+                if key not in origins:
+                    offset = chain.T_origin[k, :3, 3] if k < n else chain.T_end[:3, 3]
+                    origins[key] = len(self.origin_keys)
+                    self.origin_keys.append(key)
+                    self.origin_links.append(ac.link_names[k])
+                    norm = np.linalg.norm(offset)
+                    self.directions.append(offset / norm if norm > 1e-9 else None)
+                index.append(origins[key])
+            self.origin_index.append(index)
+        self.joint_names = tuple(joints)
+        self.prismatic = tuple(prismatic)
+        # an origin's name is its link's; a link that ends several origins (a torso carrying two shoulders)
+        # names each by the joint (or chain tip) it leads to
+        count = {}
+        for link in self.origin_links:
+            count[link] = count.get(link, 0) + 1
+        self.origin_names = [link if count[link] == 1 else f"{link}_to_{key[1]}"
+                             for link, key in zip(self.origin_links, self.origin_keys)]
+        # the first joint of each chain that moves what a sensor sees (None: the sensor's link is not on it)
+        self.starts = np.zeros((len(self.sensors), len(self.arm_chains)), dtype=int)
+        self.sees = np.ones((len(self.sensors), len(self.arm_chains)), dtype=bool)
+        for s, sensor in enumerate(self.sensors):
+            for c, ac in enumerate(self.arm_chains):
+                if sensor.link is None or sensor.link == ac.chain.base:
+                    continue
+                if sensor.link in ac.child_links:
+                    self.starts[s, c] = ac.child_links.index(sensor.link) + 1
+                else:
+                    self.sees[s, c] = False
 
     # -- parameters
 
@@ -197,24 +288,46 @@ class ArmModel:
                        for c, a in enumerate(AXES)]
             params += [ArmParameter(f"sensor.{sensor.name}.translation.{a}", "sensor", "m", 0.01, s, c,
                                     "translation") for c, a in enumerate(AXES)]
-        joints = self.chain.joint_names
         if "joint_offsets" in self.effects:
-            params += [ArmParameter(f"joint_offset.{j}", "joint_offsets", "rad", 1e-3, k) for k, j in enumerate(joints)]
+            params += [ArmParameter(f"joint_offset.{j}", "joint_offsets", "m" if self.prismatic[k] else "rad", 1e-3,
+                                    k) for k, j in enumerate(self.joint_names)]
         if "link_lengths" in self.effects:
-            params += [ArmParameter(f"link_length.{self.link_names[k]}", "link_lengths", "m", 1e-3, k)
-                       for k, d in enumerate(self.directions) if d is not None]
+            params += [ArmParameter(f"link_length.{self.origin_names[o]}", "link_lengths", "m", 1e-3, o)
+                       for o, d in enumerate(self.directions) if d is not None]
+        if "tool" in self.effects:
+            params += [ArmParameter(f"tool.{ac.name}.{q}", "tool", unit, 1e-3, c, i)
+                       for c, ac in enumerate(self.arm_chains) for i, (q, unit) in enumerate(POSE_COMPONENTS)]
         if "points" in self.effects:
             params += [ArmParameter(f"point.{p}.{a}", "points", "m", 1e-3, i, c)
                        for i, p in enumerate(self.point_names) for c, a in enumerate(AXES)]
         if "link_poses" in self.effects:
-            params += [ArmParameter(f"link_pose.{self.link_names[k]}.{q}", "link_poses", unit, 1e-3, k, c)
-                       for k in range(len(joints))
-                       for c, (q, unit) in enumerate([("x", "m"), ("y", "m"), ("z", "m"),
-                                                      ("rx", "rad"), ("ry", "rad"), ("rz", "rad")])]
+            params += [ArmParameter(f"link_pose.{self.origin_names[o]}.{q}", "link_poses", unit, 1e-3, o, c)
+                       for o, key in enumerate(self.origin_keys) if key[0] == "joint"
+                       for c, (q, unit) in enumerate(POSE_COMPONENTS)]
         if "elasticity" in self.effects:
             params += [ArmParameter(f"elasticity.{j}", "elasticity", "rad/(N m)", 1e-3, k)
-                       for k, j in enumerate(joints)]
+                       for k, j in enumerate(self.joint_names)]
         return params
+
+    def _index_parameters(self):
+        """Each quantity's parameter index (-1: not in the model), for predict."""
+        J, O, C = len(self.joint_names), len(self.origin_keys), len(self.arm_chains)
+        self._offset_i, self._elastic_i = np.full(J, -1), np.full(J, -1)
+        self._length_i, self._pose_i = np.full(O, -1), np.full((O, 6), -1)
+        self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 3), -1)
+        for i, p in enumerate(self.parameters):
+            if p.effect == "joint_offsets":
+                self._offset_i[p.index] = i
+            elif p.effect == "elasticity":
+                self._elastic_i[p.index] = i
+            elif p.effect == "link_lengths":
+                self._length_i[p.index] = i
+            elif p.effect == "link_poses":
+                self._pose_i[p.index, p.component] = i
+            elif p.effect == "tool":
+                self._tool_i[p.index, p.component] = i
+            elif p.effect == "points":
+                self._point_i[p.index, p.component] = i
 
     def params(self, effect):
         return self._by_effect.get(effect, [])
@@ -269,63 +382,61 @@ class ArmModel:
 
     # -- gravity
 
-    def gravity_torques(self, theta) -> np.ndarray:
-        """(N, n) static gravity torques about each joint at the readings (nominal URDF geometry and masses)."""
+    def gravity_torques(self, theta, chains=None) -> np.ndarray:
+        """(N, J) static gravity torques about each joint at the readings (nominal URDF geometry and masses), each
+        row on its chain (`chains` (N,) indices; None: the first); 0 for the joints off a row's chain."""
         from naocal.solver.kinematics import chain_gravity_torques
 
-        return chain_gravity_torques(self.chain, theta, self.gravity_mps2, load_mass_kg=self.load[0],
-                                     load_com_m=self.load[1])
+        theta = np.asarray(theta, dtype=float)
+        chains = np.zeros(len(theta), dtype=int) if chains is None else np.asarray(chains)
+        tau = np.zeros_like(theta)
+        for c, ac in enumerate(self.arm_chains):
+            rows = np.flatnonzero(chains == c)
+            if len(rows):
+                cols = self.columns[c]
+                load = (float(ac.load[0]), np.asarray(ac.load[1], dtype=float))
+                tau[np.ix_(rows, cols)] = chain_gravity_torques(ac.chain, theta[np.ix_(rows, cols)],
+                                                                self.gravity_mps2, load_mass_kg=load[0],
+                                                                load_com_m=load[1])
+        return tau
 
     # -- the model
 
     def base_points(self, x, obs: Observations) -> np.ndarray:
-        """(N, 3) the observed points in the chain's base frame (before any sensor)."""
+        """(N, 3) the observed points in the frame of the link each row's sensor is mounted on (the chains' base
+        unless a sensor says otherwise), before the sensor's own frame."""
         return self.predict(x, obs, base_frame=True)
+
+    def _groups(self, obs):
+        """[(chain, first joint, rows)]: the observations that share a chain and a sensor mount on it."""
+        chains = obs.chains()
+        if not self.sensors:  # points in the base frame only (base_points)
+            return [(c, 0, rows) for c in range(len(self.arm_chains))
+                    for rows in [np.flatnonzero(chains == c)] if len(rows)]
+        if not np.all(self.sees[obs.sensor, chains]):
+            bad = int(np.flatnonzero(~self.sees[obs.sensor, chains])[0])
+            raise ValueError(f"sensor {self.sensors[obs.sensor[bad]].name} is mounted on "
+                             f"{self.sensors[obs.sensor[bad]].link!r}, not on chain "
+                             f"{self.arm_chains[chains[bad]].name}")
+        starts = self.starts[obs.sensor, chains]
+        key = chains * (len(self.joint_names) + 1) + starts
+        return [(int(chains[rows[0]]), int(starts[rows[0]]), rows)
+                for rows in (np.flatnonzero(key == k) for k in np.unique(key))]
 
     def predict(self, x, obs: Observations, *, jacobian=False, tau=None, base_frame=False):
         """Predicted measurements (N, 3) (cameras: pixels in [:, :2], 0 in [:, 2]) and with `jacobian` also
-        d prediction / d x (N, 3, P)."""
-        chain = self.chain
-        n = len(chain.joint_names)
+        d prediction / d x (N, 3, P). tau: gravity_torques(obs.theta, obs.chain), when already known."""
+        x = np.asarray(x, dtype=float)
         N = len(obs)
         P = len(self.parameters)
-        lengths = np.zeros(n + 1)
-        for i, p in self.params("link_lengths"):
-            lengths[p.index] = x[i]
-        pose_t = np.zeros((n, 3))
-        pose_r = np.zeros((n, 3))
-        for i, p in self.params("link_poses"):
-            (pose_t if p.component < 3 else pose_r)[p.index, p.component % 3] = x[i]
-        q = np.array(obs.theta, dtype=float)
-        for i, p in self.params("joint_offsets"):
-            q[:, p.index] -= x[i]
-        if self.params("elasticity"):
-            tau = self.gravity_torques(obs.theta) if tau is None else tau
-            for i, p in self.params("elasticity"):
-                q[:, p.index] += x[i] * tau[:, p.index]
-        R = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
-        t = np.zeros((N, 3))
-        frames = []  # per joint: (R before origin, R_B, R_G, origin o, axis a in base)
-        for k in range(n):
-            offset = chain.T_origin[k, :3, 3] + (lengths[k] * self.directions[k] if self.directions[k] is not None
-                                                 else 0.0)
-            R_prev = R
-            R_B = _times(R, chain.T_origin[k, :3, :3])
-            t = t + _times(R, offset)
-            t = t + _times(R_B, pose_t[k])
-            E = exp_so3(pose_r[k])
-            R_A = _times(R_B, E)
-            a = _times(R_A, chain.axes[k])
-            frames.append((R_prev, R_B, t.copy(), a, E))
-            R = _turned(R_A, chain.axes[k], q[:, k])
-        offset_end = chain.T_end[:3, 3] + (lengths[n] * self.directions[n] if self.directions[n] is not None else 0.0)
-        R_prev_end = R
-        t_end = t + _times(R, offset_end)
-        R_end = _times(R, chain.T_end[:3, :3])
-        p_tip = self.point_xyz[obs.point].copy()
-        for i, p in self.params("points"):
-            p_tip[obs.point == p.index, p.component] += x[i]
-        p_b = t_end + np.einsum("nij,nj->ni", R_end, p_tip)
+        if self.params("elasticity") and tau is None:
+            tau = self.gravity_torques(obs.theta, obs.chain)
+        p_b = np.empty((N, 3))
+        Jb = np.zeros((N, 3, P)) if jacobian else None  # d p_b / d x
+        for c, start, rows in self._groups(obs):
+            p_b[rows], J = self._forward(x, obs, rows, c, start, jacobian, tau)
+            if jacobian:
+                Jb[rows] = J
         if base_frame:
             return p_b
         # into the sensors
@@ -345,28 +456,7 @@ class ArmModel:
                 dpred_dy[s] = (rows, D)
         if not jacobian:
             return pred
-        Jb = np.zeros((N, 3, P))  # d p_b / d x
         Js = np.zeros((N, 3, P))  # d y / d x beyond R_s d p_b
-        for i, p in self.params("joint_offsets"):
-            _, _, o, a, _ = frames[p.index]
-            Jb[:, :, i] = -np.cross(a, p_b - o)
-        if self.params("elasticity"):
-            for i, p in self.params("elasticity"):
-                _, _, o, a, _ = frames[p.index]
-                Jb[:, :, i] = tau[:, p.index, None] * np.cross(a, p_b - o)
-        for i, p in self.params("link_lengths"):
-            R_before = R_prev_end if p.index == n else frames[p.index][0]
-            Jb[:, :, i] = _times(R_before, self.directions[p.index])
-        for i, p in self.params("link_poses"):
-            _, R_B, o, _, _ = frames[p.index]
-            if p.component < 3:
-                Jb[:, :, i] = R_B[:, :, p.component]
-            else:
-                w = left_jacobian(pose_r[p.index])[:, p.component - 3]
-                Jb[:, :, i] = np.cross(_times(R_B, w), p_b - o)
-        for i, p in self.params("points"):
-            rows = obs.point == p.index
-            Jb[rows, :, i] = R_end[rows, :, p.component]
         for i, p in self.params("sensor"):
             rows = obs.sensor == p.index
             if p.kind == "translation":
@@ -381,6 +471,94 @@ class ArmModel:
         for s, (rows, D) in dpred_dy.items():
             J[rows] = np.einsum("nij,njp->nip", D, J[rows])
         return pred, J
+
+    def _forward(self, x, obs, rows, c, start, jacobian, tau):
+        """(p (M, 3), d p / d x (M, 3, P) or None): the points of observations `rows` (all on chain c) in the frame
+        of the chain's link before joint `start` (0: the base)."""
+        ac = self.arm_chains[c]
+        chain = ac.chain
+        n = len(chain.joint_names)
+        cols, origin = self.columns[c], self.origin_index[c]
+        M, P = len(rows), len(self.parameters)
+
+        def value(i):
+            return np.where(i >= 0, x[np.maximum(i, 0)], 0.0)
+
+        q = obs.theta[np.ix_(rows, cols)] - value(self._offset_i[cols])
+        elastic = self._elastic_i[cols]
+        if np.any(elastic >= 0):
+            q = q + value(elastic) * tau[np.ix_(rows, cols)]
+        sliding = [bool(chain.prismatic and chain.prismatic[k]) for k in range(n)]
+        R = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
+        t = np.zeros((M, 3))
+        frames = {}  # per joint: (R before its origin, R_B, origin o, axis a, both in the mount's frame)
+        for k in range(start, n):
+            o = origin[k]
+            offset = chain.T_origin[k, :3, 3] + (value(self._length_i[o]) * self.directions[o]
+                                                 if self.directions[o] is not None else 0.0)
+            pose = value(self._pose_i[o])
+            R_prev = R
+            R_B = _times(R, chain.T_origin[k, :3, :3])
+            t = t + _times(R, offset) + _times(R_B, pose[:3])
+            R_A = _times(R_B, exp_so3(pose[3:]))
+            a = _times(R_A, chain.axes[k])
+            frames[k] = (R_prev, R_B, t.copy(), a)
+            if sliding[k]:
+                t = t + a * q[:, k, None]
+                R = R_A
+            else:
+                R = _turned(R_A, chain.axes[k], q[:, k])
+        o_end = origin[n]
+        offset_end = chain.T_end[:3, 3] + (value(self._length_i[o_end]) * self.directions[o_end]
+                                           if self.directions[o_end] is not None else 0.0)
+        R_prev_end = R
+        t_end = t + _times(R, offset_end)
+        R_end = _times(R, chain.T_end[:3, :3])
+        point = obs.point[rows]
+        tool = value(self._tool_i[c])
+        E_tool = exp_so3(tool[3:])
+        on_tool = self.point_xyz[point] + value(self._point_i)[point]  # (M, 3) on the tool, before its pose
+        p_tip = on_tool @ E_tool.T + tool[:3]
+        p = t_end + np.einsum("nij,nj->ni", R_end, p_tip)
+        if not jacobian:
+            return p, None
+        Jb = np.zeros((M, 3, P))
+        for k in range(start, n):
+            R_prev, R_B, o, a = frames[k]
+            i = self._offset_i[cols[k]]
+            if i >= 0:
+                Jb[:, :, i] = -a if sliding[k] else -np.cross(a, p - o)
+            i = self._elastic_i[cols[k]]
+            if i >= 0:
+                Jb[:, :, i] = tau[rows, cols[k], None] * np.cross(a, p - o)
+            i = self._length_i[origin[k]]
+            if i >= 0:
+                Jb[:, :, i] = _times(R_prev, self.directions[origin[k]])
+            pose_i = self._pose_i[origin[k]]
+            if np.any(pose_i >= 0):
+                w = left_jacobian(value(pose_i)[3:])
+                for comp in range(6):
+                    if pose_i[comp] >= 0:
+                        Jb[:, :, pose_i[comp]] = (R_B[:, :, comp] if comp < 3 else
+                                                  np.cross(_times(R_B, w[:, comp - 3]), p - o))
+        i = self._length_i[o_end]
+        if i >= 0:
+            Jb[:, :, i] = _times(R_prev_end, self.directions[o_end])
+        tool_i = self._tool_i[c]
+        if np.any(tool_i >= 0):
+            w = left_jacobian(tool[3:])
+            turned = on_tool @ E_tool.T
+            for comp in range(6):
+                if tool_i[comp] >= 0:
+                    Jb[:, :, tool_i[comp]] = (R_end[:, :, comp] if comp < 3 else
+                                              np.einsum("nij,nj->ni", R_end, np.cross(w[:, comp - 3], turned)))
+        for pi in np.unique(point):
+            sel = point == pi
+            for comp in range(3):
+                i = self._point_i[pi, comp]
+                if i >= 0:
+                    Jb[sel, :, i] = _times(R_end[sel], E_tool[:, comp])
+        return p, Jb
 
     def component_mask(self, obs: Observations) -> np.ndarray:
         """(N, 3) which components of a prediction are measured (cameras: u, v only)."""

@@ -17,6 +17,7 @@ from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds 
 SCHEMA = "naocal.arm_calibration/1"
 # The units a parameter of each kind is stored in (solver/arm.py), by the first part of its name.
 UNITS = {"joint_offset": "rad", "link_length": "m", "point": "m", "elasticity": "rad/(N m)"}
+POSE_KINDS = ("link_pose", "tool")  # x, y, z in m and rx, ry, rz in rad: a joint origin's pose error, a tool mount's
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
 # limit), 0.1 m of link length or point position.
 LIMITS = {"rad": math.radians(20.0), "m": 0.1, "rad/(N m)": MAX_PARAMETER_SIZE["rad/(N m)"]}
@@ -122,13 +123,15 @@ def read_arm_calibration(path) -> ArmCalibration:
         std = _number(entry["std"], path, f"{where}.std")
         unit = _text(entry["unit"], path, f"{where}.unit")
         kind = name.split(".", 1)[0]
-        expected = "rad" if kind == "link_pose" and name.rsplit(".", 1)[-1].startswith("r") else \
-            "m" if kind == "link_pose" else UNITS.get(kind)
+        expected = "rad" if kind in POSE_KINDS and name.rsplit(".", 1)[-1].startswith("r") else \
+            "m" if kind in POSE_KINDS else UNITS.get(kind)
+        if kind == "joint_offset" and unit == "m":  # a prismatic joint's offset
+            expected = "m"
         if kind == "sensor":
             expected = "rad" if ".rotation." in name else "m"
         if expected is None:
-            _fail(path, "not an arm parameter (joint_offset., link_length., link_pose., point., elasticity., "
-                        "sensor.)", where)
+            _fail(path, "not an arm parameter (joint_offset., link_length., link_pose., tool., point., "
+                        "elasticity., sensor.)", where)
         if unit != expected:
             _fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
         _plausible(value, (SENSOR_LIMITS if kind == "sensor" else LIMITS)[unit], unit, path, f"{where}.value")

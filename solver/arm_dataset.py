@@ -14,17 +14,19 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver.arm import POINT_KINDS, Observations, Sensor
+from naocal.solver.arm import POINT_KINDS, ArmChain, Observations, Sensor
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import read_json, read_text
 
 SCHEMA = "naocal.arm_dataset/1"
 JOINT_UNITS = {"_rad": 1.0, "_deg": math.pi / 180.0}
+SLIDE_UNITS = {"_m": 1.0, "_mm": 1e-3}  # a prismatic joint's reading
 POINT_UNITS = {"_m": 1.0, "_mm": 1e-3}
 PIXEL_COLUMNS = ("u_px", "v_px")
 DELIMITERS = (",", ";", "\t")  # ',' (the format); ';' (with decimal commas) or a tab as spreadsheets export
 MISSING = ("", "nan", "NaN", "NAN", "-nan")  # a measurement a sensor did not make (a marker out of sight)
 ANGLE_MARGIN = math.radians(10.0)  # readings beyond a joint's URDF limits by more are refused
+SLIDE_MARGIN = 0.01  # m, the same for a prismatic joint
 MAX_POINT_M = 100.0  # a 3-D reading farther from its sensor is refused
 WORKSPACE_M = 10.0  # a point on the tip farther from the tip frame is refused
 MAX_PIXELS = 1e5  # image sizes, focal lengths and principal points, px
@@ -42,9 +44,9 @@ class ArmDataset:
     meta: dict
     urdf_path: Path
     base: str
-    tip: str
-    chain: object  # solver.robot.Chain
-    link_names: tuple  # the link each joint origin (and the tip offset) ends, for link_length.<link>
+    tip: str  # several chains: their tips joined by '+'
+    chain: object  # solver.robot.Chain; several chains (or a sensor on a link): a tuple of solver.arm.ArmChain
+    link_names: tuple  # the link each joint origin (and the tip offset) ends, for link_length.<link> (first chain)
     load: tuple  # (mass kg, com in the tip frame) hanging off the last joint by fixed joints
     sensors: tuple
     points: dict  # name -> (3,) in the tip frame, m
@@ -54,6 +56,9 @@ class ArmDataset:
 
     @property
     def joints(self) -> tuple:
+        """Every joint the readings hold (several chains: their union, in order of appearance)."""
+        if isinstance(self.chain, tuple):
+            return tuple(dict.fromkeys(j for ac in self.chain for j in ac.chain.joint_names))
         return self.chain.joint_names
 
 
@@ -101,9 +106,9 @@ def arm_chain(urdf_path, base, tip, where_path):
     for name, link in (("base", base), ("tip", tip)):
         if link not in links:
             raise DataError(urdf_path, f"no link {link!r} (the chain's {name}) in the URDF")
-    chain = serial_chain(urdf, base, tip, urdf_path)
+    chain = serial_chain(urdf, base, tip, urdf_path, prismatic=True)
     if not chain.joint_names:
-        raise DataError(urdf_path, f"no revolute joint between {base!r} and {tip!r}")
+        raise DataError(urdf_path, f"no movable joint between {base!r} and {tip!r}")
     names = [urdf.joints[j].parent for j in chain.joint_names] + [urdf.joints[chain.joint_names[-1]].child]
     # what the last joint carries beyond its own link (a hand on fixed joints): its mass at its centre, tip frame
     last_child = urdf.joints[chain.joint_names[-1]].child
@@ -111,6 +116,18 @@ def arm_chain(urdf_path, base, tip, where_path):
     if tip != last_child and tip in urdf.links:
         load = (urdf.links[tip].mass, urdf.links[tip].com)
     return chain, tuple(names), load
+
+
+def arm_chains(urdf_path, specs: dict) -> tuple:
+    """(ArmChain, ...) of {name: (base, tip)}: the chains of one URDF, sharing their joints by name."""
+    from naocal.solver.urdf import parse_urdf
+
+    urdf = parse_urdf(urdf_path)
+    out = []
+    for name, (base, tip) in specs.items():
+        chain, link_names, load = arm_chain(urdf_path, base, tip, urdf_path)
+        out.append(ArmChain(name, chain, link_names, load, tuple(urdf.joints[j].child for j in chain.joint_names)))
+    return tuple(out)
 
 
 def _fail(path, problem, field=None, line=None):
@@ -157,8 +174,8 @@ CAMERA_FIELDS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 
 def _sensor(name, doc, path) -> Sensor:
     where = f"sensors.{name}"
-    doc = _object(doc, path, where, ("kind", "noise_m", "noise_px", "pose", "about", "distortion") + CAMERA_FIELDS,
-                  ("kind",))
+    doc = _object(doc, path, where, ("kind", "noise_m", "noise_px", "pose", "about", "distortion", "link")
+                  + CAMERA_FIELDS, ("kind",))
     kind = doc["kind"]
     if kind not in POINT_KINDS:
         _fail(path, f"expected one of {', '.join(POINT_KINDS)}, got {str(kind)[:40]!r}", f"{where}.kind")
@@ -187,7 +204,8 @@ def _sensor(name, doc, path) -> Sensor:
                        ("rotation_rad", "translation_m"))
         rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad", bound=2 * math.pi)
         translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m", bound=MAX_POINT_M)
-    return Sensor(name, kind, intrinsics, noise, rotation, translation)
+    link = _name(doc["link"], path, f"{where}.link") if "link" in doc else None
+    return Sensor(name, kind, intrinsics, noise, rotation, translation, link)
 
 
 def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None = None) -> ArmDataset:
@@ -198,8 +216,8 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
     if not directory.is_dir():
         _fail(directory, "not a dataset directory")
     meta = read_json(meta_path)  # regular files only, size and nesting capped (solver/fileio.py)
-    meta = _object(meta, meta_path, "", ("schema", "robot", "points", "sensors", "gravity_mps2", "source", "about",
-                                         "notes", "created"), ("schema", "points", "sensors"))
+    meta = _object(meta, meta_path, "", ("schema", "robot", "chains", "points", "sensors", "gravity_mps2", "source",
+                                         "about", "notes", "created"), ("schema", "points", "sensors"))
     if meta["schema"] != SCHEMA:
         _fail(meta_path, f"wrong schema {str(meta['schema'])[:60]!r}, expected {SCHEMA!r}", "schema")
     robot_meta = _object(meta.get("robot", {}), meta_path, "robot", ("id", "model", "urdf", "base", "tip", "about"))
@@ -210,12 +228,7 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         if "urdf" not in robot_meta:
             _fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
         urdf_path = directory / robot_meta["urdf"]
-    base = base or robot_meta.get("base")
-    tip = tip or robot_meta.get("tip")
-    if not base or not tip:
-        _fail(meta_path, "no chain: name robot.base and robot.tip here or give --chain BASE_LINK:TIP_LINK",
-              "robot.base" if not base else "robot.tip")
-    kin_chain, link_names, load = arm_chain(urdf_path, base, tip, meta_path)
+    specs = _chain_specs(meta, robot_meta, base, tip, meta_path)
     points = {}
     for name, point in _object(meta["points"], meta_path, "points").items():
         _name(name, meta_path, "points")
@@ -230,13 +243,29 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
                     for name, doc in _object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
         _fail(meta_path, "no sensors", "sensors")
+    several = "chains" in meta or any(s.link is not None for s in sensors)
+    if several:
+        chains = arm_chains(urdf_path, specs)
+        kin_chain, link_names, load = chains, chains[0].link_names, chains[0].load
+        base, tip = chains[0].chain.base, "+".join(ac.chain.tip for ac in chains)
+        for s in sensors:  # a sensor's link must be the base or a link a joint of some chain moves
+            if s.link is not None and not any(s.link == ac.chain.base or s.link in ac.child_links for ac in chains):
+                _fail(meta_path, f"no chain moves link {s.link!r} by a joint of its own (a sensor is mounted on the "
+                                 "chains' base or on the child link of one of their joints)", f"sensors.{s.name}.link")
+    else:
+        (base, tip), = specs.values()
+        kin_chain, link_names, load = arm_chain(urdf_path, base, tip, meta_path)
+        chains = (ArmChain(tip, kin_chain, link_names, load),)
     gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2", bound=13.0)
     if not 7.0 <= math.hypot(*gravity) <= 13.0:
         _fail(meta_path, f"|g| = {math.hypot(*gravity):.4g} m/s^2: expected 7-13 (m/s^2, in the base frame)",
               "gravity_mps2")
     notes = []
-    obs = _read_observations(directory / "observations.csv", kin_chain.joint_names, sensors, tuple(points),
-                             joint_limits(urdf_path, kin_chain.joint_names), notes)
+    joints = tuple(dict.fromkeys(j for ac in chains for j in ac.chain.joint_names))
+    obs = _read_observations(directory / "observations.csv", joints, sensors, tuple(points),
+                             joint_limits(urdf_path, joints), notes, chains=chains if several else None,
+                             slides={j for ac in chains for k, j in enumerate(ac.chain.joint_names)
+                                     if ac.chain.prismatic and ac.chain.prismatic[k]})
     seen = sorted(set(obs.sensor.tolist()))
     if len(seen) < len(sensors):  # e.g. a camera named in dataset.json, but only tracker rows: left out, said so
         unused = [s.name for i, s in enumerate(sensors) if i not in seen]
@@ -247,13 +276,47 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
                       gravity, notes)
 
 
+def _chain_specs(meta, robot_meta, base, tip, meta_path) -> dict:
+    """{chain name: (base, tip)}: dataset.json's `chains`, else the one chain of --chain or robot.base/robot.tip
+    (named by its tip)."""
+    if "chains" not in meta:
+        base = base or robot_meta.get("base")
+        tip = tip or robot_meta.get("tip")
+        if not base or not tip:
+            _fail(meta_path, "no chain: name robot.base and robot.tip (or chains) here or give --chain "
+                             "BASE_LINK:TIP_LINK", "robot.base" if not base else "robot.tip")
+        return {tip: (base, tip)}
+    if base or tip:
+        _fail(meta_path, "the dataset names its chains: --chain picks none of them", "chains")
+    for key in ("base", "tip"):
+        if key in robot_meta:
+            _fail(meta_path, "the chains are named in `chains`: robot.base and robot.tip are for one chain",
+                  f"robot.{key}")
+    specs = {}
+    for name, doc in _object(meta["chains"], meta_path, "chains").items():
+        _name(name, meta_path, "chains")
+        doc = _object(doc, meta_path, f"chains.{name}", ("base", "tip", "about"), ("base", "tip"))
+        specs[name] = (_name(doc["base"], meta_path, f"chains.{name}.base"),
+                       _name(doc["tip"], meta_path, f"chains.{name}.tip"))
+    if not specs:
+        _fail(meta_path, "no chains: name at least one {\"base\": LINK, \"tip\": LINK}", "chains")
+    first = next(iter(specs.values()))[0]
+    for name, (b, _) in specs.items():
+        if b != first:
+            _fail(meta_path, f"every chain starts at one base (the first at {first!r}), not {b!r}",
+                  f"chains.{name}.base")
+    return specs
+
+
 def joint_limits(urdf_path, joints) -> dict:
-    """{joint: (lower, upper)} rad of the URDF's revolute joints among `joints` (continuous ones have none)."""
+    """{joint: (lower, upper)} of the URDF's revolute (rad) and prismatic (m) joints among `joints` (continuous ones
+    have none)."""
     from naocal.solver.urdf import parse_urdf
 
     urdf = parse_urdf(urdf_path)
     return {j: (urdf.joints[j].lower, urdf.joints[j].upper) for j in joints
-            if urdf.joints[j].kind == "revolute" and math.isfinite(urdf.joints[j].lower + urdf.joints[j].upper)}
+            if urdf.joints[j].kind in ("revolute", "prismatic")
+            and math.isfinite(urdf.joints[j].lower + urdf.joints[j].upper)}
 
 
 def _comment_free_lines(text):
@@ -262,9 +325,12 @@ def _comment_free_lines(text):
             for line in text.splitlines(keepends=True)]
 
 
-def _read_observations(path, joints, sensors, points, limits=None, notes=None) -> Observations:
-    """The rows of observations.csv (docs/FORMATS.md); `limits` {joint: (lower, upper)} rad from the URDF; what was
-    skipped goes to `notes`."""
+def _read_observations(path, joints, sensors, points, limits=None, notes=None, *, chains=None,
+                       slides=frozenset()) -> Observations:
+    """The rows of observations.csv (docs/FORMATS.md); `limits` {joint: (lower, upper)} rad (m for the prismatic
+    `slides`) from the URDF; what was skipped goes to `notes`. `chains` (ArmChain, ...): each row's chain (the
+    `chain` column; needed when there are several), its joints' readings needed, its sensor mounted where it sees
+    that chain."""
     notes = [] if notes is None else notes
     lines = _comment_free_lines(read_text(path))  # regular files only, at most 64 MiB (solver/fileio.py)
     first = next((i for i, line in enumerate(lines) if line), None)
@@ -289,16 +355,24 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
         if required not in col and len(names) != 1:
             _fail(path, f"missing column (needed when dataset.json names more than one {required})", field=required,
                   line=header_line)
+    if chains is not None and len(chains) > 1 and "chain" not in col:
+        _fail(path, "missing column (needed when dataset.json names more than one chain)", field="chain",
+              line=header_line)
     joint_cols = []
     for joint in joints:
-        found = [(joint + suffix, factor) for suffix, factor in JOINT_UNITS.items() if joint + suffix in col]
+        units = SLIDE_UNITS if joint in slides else JOINT_UNITS
+        found = [(joint + suffix, factor) for suffix, factor in units.items() if joint + suffix in col]
         if len(found) > 1:
             _fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=header_line)
         if not found:
-            hint = f" (a column {joint!r} needs its unit: {joint}_rad or {joint}_deg)" if joint in col else ""
-            _fail(path, f"missing the column of chain joint {joint}: {joint}_rad or {joint}_deg{hint}", field=joint,
+            a, b = (f"{joint}{u}" for u in units)
+            hint = f" (a column {joint!r} needs its unit: {a} or {b})" if joint in col else ""
+            _fail(path, f"missing the column of chain joint {joint}: {a} or {b}{hint}", field=joint,
                   line=header_line)
         joint_cols.append((col[found[0][0]], found[0][1], found[0][0], joint))
+    chain_index = {ac.name: c for c, ac in enumerate(chains or ())}
+    chain_joints = [set(ac.chain.joint_names) for ac in chains or ()]
+    point_chain = {}  # point -> (chain, first line): a point is on one chain's tool
     units = [suffix for suffix in POINT_UNITS if all(f"{a}{suffix}" in col for a in "xyz")]
     if len(units) > 1:
         _fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=header_line)
@@ -306,7 +380,7 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
     sensor_index = {s.name: i for i, s in enumerate(sensors)}
     point_index = {p: i for i, p in enumerate(points)}
     pose_col = col.get("pose")
-    theta, pose, sensor, point, measured, rows_read = [], [], [], [], [], []
+    theta, pose, sensor, point, measured, rows_read, row_chain = [], [], [], [], [], [], []
     unseen = 0
     line = header_line
 
@@ -330,6 +404,21 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
             if pname not in point_index:
                 _fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
                       field="point", line=line)
+            row_c = 0
+            if chains is not None:
+                cname = row[col["chain"]] if "chain" in col else chains[0].name
+                if cname not in chain_index:
+                    _fail(path, f"unknown chain {cname[:40]!r} (dataset.json has {', '.join(chain_index)})",
+                          field="chain", line=line)
+                row_c = chain_index[cname]
+                ac, link = chains[row_c], sensors[s].link
+                if link is not None and link != ac.chain.base and link not in ac.child_links:
+                    _fail(path, f"sensor {name} is mounted on {link!r}, which chain {cname} does not carry: it "
+                                "cannot see that chain's points", field="sensor", line=line)
+                first = point_chain.setdefault(pname, (cname, line))
+                if first[0] != cname:
+                    _fail(path, f"point {pname} is on chain {first[0]} (line {first[1]}), here on {cname}: a point "
+                                "is on one chain's tool", field="chain", line=line)
             if sensors[s].kind == "points":
                 if xyz_cols is None:
                     _fail(path, f"a 3-D sensor's row ({name}) needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)",
@@ -360,9 +449,18 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
                 values.append(0.0)
             reading = []
             for i, factor, field, joint in joint_cols:
+                if chains is not None and joint not in chain_joints[row_c] and row[i] in MISSING:
+                    reading.append(0.0)  # a joint off this row's chain: not read, not used
+                    continue
                 angle = number(row[i], field) * factor
                 lower, upper = (limits or {}).get(joint, (math.nan, math.nan))
-                if not lower - ANGLE_MARGIN <= angle <= upper + ANGLE_MARGIN and math.isfinite(lower + upper):
+                if joint in slides:
+                    if not lower - SLIDE_MARGIN <= angle <= upper + SLIDE_MARGIN and math.isfinite(lower + upper):
+                        hint = " (millimetres in a _m column?)" if field.endswith("_m") else ""
+                        _fail(path, f"reading {angle * 1e3:.4g} mm is beyond the URDF's limits {lower * 1e3:.4g}.."
+                                    f"{upper * 1e3:.4g} mm by more than {SLIDE_MARGIN * 1e3:.0f} mm{hint}",
+                              field=field, line=line)
+                elif not lower - ANGLE_MARGIN <= angle <= upper + ANGLE_MARGIN and math.isfinite(lower + upper):
                     hint = " (degrees in a _rad column?)" if field.endswith("_rad") else ""
                     _fail(path, f"reading {math.degrees(angle):.4g} deg is beyond the URDF's limits "
                                 f"{math.degrees(lower):.4g}..{math.degrees(upper):.4g} deg by more than 10 deg{hint}",
@@ -377,6 +475,7 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
             sensor.append(s)
             point.append(point_index[pname])
             rows_read.append(line)
+            row_chain.append(row_c)
     except csv.Error as err:
         _fail(path, f"malformed CSV: {err}", line=line + 1)
     if unseen:
@@ -395,7 +494,8 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None) -
             pose = [labels.setdefault(p, len(labels)) for p in pose]
             pose_labels = tuple(labels)
     return Observations(theta, np.asarray(pose, dtype=np.int64).ravel(), np.array(sensor), np.array(point),
-                        np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read), pose_labels)
+                        np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read), pose_labels,
+                        None if chains is None else np.array(row_chain, dtype=int))
 
 
 def _cell(text, path, line, field) -> float:
@@ -410,24 +510,29 @@ def _cell(text, path, line, field) -> float:
     return value
 
 
-def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points) -> None:
-    """Write dataset.json and observations.csv (joints in rad, points in m, pixels) atomically."""
+def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points, *, chain_names=None,
+                      slides=()) -> None:
+    """Write dataset.json and observations.csv (joints in rad, prismatic `slides` in m, points in m, pixels)
+    atomically; with `chain_names` (several chains) each row's chain in a `chain` column."""
     from naocal.solver.fileio import atomic_write_text
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    header = ["pose", "sensor", "point"] + [f"{j}_rad" for j in joints] + ["x_m", "y_m", "z_m", "u_px", "v_px"]
+    header = (["pose"] + (["chain"] if chain_names else []) + ["sensor", "point"]
+              + [f"{j}_m" if j in slides else f"{j}_rad" for j in joints] + ["x_m", "y_m", "z_m", "u_px", "v_px"])
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(header)
     names = [s.name for s in sensors]
     point_names = list(points)
+    row_chain = obs.chains()
     for i in range(len(obs)):
         s = sensors[obs.sensor[i]]
         m = obs.measured[i]
         values = [repr(float(v)) for v in m[:3]] + ["", ""] if s.kind == "points" else \
             ["", "", ""] + [repr(float(v)) for v in m[:2]]
-        writer.writerow([obs.pose_name(obs.pose[i]), names[obs.sensor[i]], point_names[obs.point[i]]]
+        chain = [chain_names[row_chain[i]]] if chain_names else []
+        writer.writerow([obs.pose_name(obs.pose[i])] + chain + [names[obs.sensor[i]], point_names[obs.point[i]]]
                         + [repr(float(v)) for v in obs.theta[i]] + values)
     atomic_write_text(directory / "observations.csv", out.getvalue())
     atomic_write_text(directory / "dataset.json", json.dumps(dict(meta, schema=SCHEMA), indent=1) + "\n")

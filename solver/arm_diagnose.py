@@ -171,15 +171,15 @@ def location_groups(fit: ArmFit) -> dict:
     origin; the tip link also its points): every parameter of it the model does not have."""
     big, _, _ = extended(fit)
     groups = {}
-    n = len(big.chain.joint_names)
-    for k, joint in enumerate(big.chain.joint_names):
+    origin = {key: o for o, key in enumerate(big.origin_keys)}  # every chain's joint origins, shared by name
+    for joint in big.joint_names:
         groups[f"joint {joint}"] = [f"joint_offset.{joint}", f"elasticity.{joint}"] + [
-            f"link_pose.{big.link_names[k]}.{q}" for q in ("rx", "ry", "rz")]
-    for k, link in enumerate(big.link_names):
+            f"link_pose.{big.origin_names[origin[('joint', joint)]]}.{q}" for q in ("rx", "ry", "rz")]
+    for (kind, _), link in zip(big.origin_keys, big.origin_names):
         names = [f"link_length.{link}"]
-        if k < n:
+        if kind == "joint":
             names += [f"link_pose.{link}.{q}" for q in ("x", "y", "z")]
-        else:
+        else:  # a chain's tip: the points on its tool
             names += [p.name for _, p in big.params("points")]
         groups[f"link {link}"] = names
     return groups

@@ -55,6 +55,7 @@ class Chain:
     T_end: np.ndarray  # (4, 4)
     link_mass: np.ndarray  # (k,) kg
     link_com: np.ndarray  # (k, 3) m
+    prismatic: tuple = ()  # per joint: True for a prismatic joint (it slides along axes[k]); () none is
 
     def index(self, joint: str) -> int:
         return self.joint_names.index(joint)
@@ -191,8 +192,10 @@ def _chain(robot: RobotDescription, base: str, tip: str) -> Chain:
     return serial_chain(robot.urdf, base, tip, robot.path)
 
 
-def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF") -> Chain:
-    """The serial chain of `urdf` from link `base` to link `tip`; DataError naming `path` when there is none."""
+def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF", *, prismatic: bool = False) -> Chain:
+    """The serial chain of `urdf` from link `base` to link `tip`; DataError naming `path` when there is none.
+    prismatic: accept prismatic joints (the arm's model has them; the NAO's has none)."""
+    movable = MOVABLE + (("prismatic",) if prismatic else ())
     by_child = {j.child: j for j in urdf.joints.values()}
     path_joints = []
     link = tip
@@ -201,13 +204,13 @@ def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF") -> Chain:
         if joint is None:
             raise DataError(path, f"no chain from {base!r} to {tip!r} in the URDF (stopped at {link!r})",
                             field="chains")
-        if joint.kind not in MOVABLE + ("fixed",):
-            raise DataError(path, f"joint {joint.name!r} is {joint.kind}: only revolute, continuous and "
+        if joint.kind not in movable + ("fixed",):
+            raise DataError(path, f"joint {joint.name!r} is {joint.kind}: only {', '.join(movable)} and "
                                         "fixed joints are supported", field="chains")
         path_joints.append(joint)
         link = joint.parent
     path_joints.reverse()
-    names, origins, axes, masses, coms = [], [], [], [], []
+    names, origins, axes, masses, coms, sliding = [], [], [], [], [], []
     pending = np.eye(4)  # fixed transforms since the last movable joint
     for joint in path_joints:
         pending = pending @ _joint_origin(joint)
@@ -216,6 +219,7 @@ def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF") -> Chain:
         names.append(joint.name)
         origins.append(pending)
         axes.append(joint.axis)
+        sliding.append(joint.kind == "prismatic")
         child = urdf.links.get(joint.child)
         masses.append(child.mass if child is not None else 0.0)
         coms.append(child.com if child is not None else (0.0, 0.0, 0.0))
@@ -224,7 +228,8 @@ def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF") -> Chain:
     return Chain(base=base, tip=tip, joint_names=tuple(names),
                  T_origin=np.stack(origins) if k else np.zeros((0, 4, 4)),
                  axes=np.array(axes, dtype=float).reshape(k, 3), T_end=pending,
-                 link_mass=np.array(masses, dtype=float), link_com=np.array(coms, dtype=float).reshape(k, 3))
+                 link_mass=np.array(masses, dtype=float), link_com=np.array(coms, dtype=float).reshape(k, 3),
+                 prismatic=tuple(sliding) if any(sliding) else ())
 
 
 # ------------------------------------------------------------------------------------------------ loading

@@ -15,7 +15,8 @@ def add_arm_options(parser, *, simulate=False, verb="") -> None:
     """--robot and --chain; for identify, diagnose and verify the priors, start values and (verify) the nuisance
     parameters refitted (argparse only)."""
     parser.add_argument("--robot", metavar="URDF",
-                        help="an arm: its URDF file, or kuka_iiwa / franka_panda (pybullet_data); "
+                        help="an arm: its URDF file, or kuka_iiwa / franka_panda (pybullet_data); simulate also "
+                             "knows dualarm (two arms on a torso); "
                              + ("simulates that arm" if simulate else "default: the dataset's robot.urdf"))
     parser.add_argument("--chain", metavar="BASE_LINK:TIP_LINK",
                         help="the arm's serial chain by its URDF base and tip links (default: the dataset's, or "
@@ -380,6 +381,8 @@ def run_simulate(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
+    if args.robot == DUALARM:
+        return run_simulate_dualarm(args, out)
     if args.robot is None:
         raise NaocalError("--robot kuka_iiwa|franka_panda|URDF is needed with --chain")
     urdf, base, tip = resolve_robot(args.robot, args.chain)
@@ -396,4 +399,33 @@ def run_simulate(args) -> int:
                             noise_px=args.noise_px, hidden=hidden, name=name)
     print(f"naocal simulate: wrote {out}: {info['n_observations']} observations in {info['n_poses']} poses of "
           f"{name}; hidden truth in {out / 'truth.json'}", file=sys.stdout)
+    return 0
+
+
+DUALARM = "dualarm"  # --robot dualarm: naocal's two arms on a torso (backends/arm_sim.py simulate_dualarm)
+
+
+def run_simulate_dualarm(args, out) -> int:
+    """`naocal simulate --robot dualarm`: its cameras, tracker and markers; every error it has hidden."""
+    import shlex
+
+    from naocal.agent.rundir import RunLock, entries
+    from naocal.backends.arm_sim import simulate_dualarm
+    from naocal.solver.errors import NaocalError
+
+    if args.chain is not None:
+        raise NaocalError("--chain: the dual-arm robot's chains are its own (left, right)")
+    if args.hidden != "joint_offsets,link_lengths":
+        raise NaocalError("--hidden: the dual-arm robot hides joint offsets, link lengths, tool mounts and marker "
+                          "positions (not chosen)")
+    command = shlex.join(["naocal", "simulate", "--robot", DUALARM, "--out", str(out), "--seed", str(args.seed),
+                          "--poses", str(args.poses)])
+    with RunLock(out, command):
+        if entries(out):
+            raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
+        info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
+                                noise_px=args.noise_px)
+    print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
+          f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); hidden "
+          f"truth in {out / 'truth.json'}", file=sys.stdout)
     return 0

@@ -1,0 +1,151 @@
+"""Issue 24's must-show: a dual-arm robot calibrated from its cameras alone, checked on an independent laser tracker.
+
+The simulated robot (backends/arm_sim.py, simulate_dualarm): a torso turning about the vertical, two 6-DoF arms,
+two cameras on the torso seeing ArUco-like markers on both tools (glued 1-2 mm off, each tool's mount off by 1-3 mm
+and 0.2-0.6 deg), 2 % of the detections wrong by 8-40 px, a tracker on the floor reading a reflector on the right
+tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5 deg and link lengths 0.1-2 mm; PyBullet's kinematics.
+
+Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers) are fitted from the camera rows
+only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points` does: "priors", with the priors
+(soft bounds at each effect's plausible size, solver.arm.PRIOR_SIZE) splitting what the data leave undetermined;
+"free, no priors", link lengths and everything else free and no priors (`--no-priors`), the combinations the data
+leave undetermined refused and fixed as the refusal says (its largest parameter, at the URDF's value). Then the
+tracker: its frame and the reflector's position on the tool are nuisance, refitted with the arm held at the camera fit (2-fold over the tracker's poses: fitted on one
+half, the error measured on the other); "nominal" holds the arm at the URDF, "true arm" at the hidden truth (what
+the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
+is within 1.3 x its noise; without, it is not.
+
+    python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500]
+
+Exit 1 if a seed's priors row is beyond 1.3 x the tracker's noise.
+"""
+
+import argparse
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from naocal.backends.arm_sim import simulate_dualarm  # noqa: E402
+from naocal.solver.arm import ArmModel  # noqa: E402
+from naocal.solver.arm_identify import fit, initialise_sensors, pose_folds  # noqa: E402
+from naocal.solver.errors import SolveError  # noqa: E402
+
+EFFECTS = ("joint_offsets", "link_lengths", "tool", "points")
+NOISE_M = 1e-4  # the tracker with the robot's repeatability: what issue 24's tracker left fitted to itself
+NOISE_PX = 0.3
+MUST_RATIO = 1.3
+
+
+def fit_priors_supported() -> bool:
+    import inspect
+
+    return "priors" in inspect.signature(fit).parameters
+
+
+def camera_fit(sim, priors: bool):
+    """(fit, [fixed names]): the arm fitted from the camera rows alone (the tracker's rows left out); what the
+    data leave undetermined, refused, is fixed as the refusal says (without the priors: with them it is split by
+    the priors, nothing is refused)."""
+    obs = sim["observations"]
+    cameras = [s for s in sim["sensors"] if s.kind == "camera"]
+    rows = np.flatnonzero(obs.sensor < len(cameras))  # the sensors are listed cameras first
+    cam_obs = obs.subset(rows)
+    model = ArmModel(dualarm_chains(), sim["points"], cameras, EFFECTS)
+    x0 = initialise_sensors(model, cam_obs)
+    options = {"priors": priors} if fit_priors_supported() else {}
+    fixed = []
+    while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
+        try:
+            return fit(model, cam_obs, x0, fixed=tuple(fixed), **options), fixed
+        except SolveError as err:
+            found = re.search(r"combination\(s\) \(([^)]*)\)", str(err))
+            if found is None or len(fixed) >= 10:
+                raise
+            terms = [(abs(float(c)), name) for c, name in re.findall(r"([-+][0-9.]+)\*?\s?([\w.]+)", found.group(1))]
+            fixed.append(max(terms)[1])
+
+
+def dualarm_chains():
+    from naocal.backends.arm_sim import DUALARM_CHAINS, DUALARM_URDF
+    from naocal.solver.arm_dataset import arm_chains
+
+    return arm_chains(DUALARM_URDF, DUALARM_CHAINS)
+
+
+def tracker_heldout(sim, arm_values: dict, n_folds: int = 2) -> float:
+    """RMS per axis (m) of the tracker on held-out poses with the arm at `arm_values` ({name: value}; absent: the
+    URDF's): the tracker's frame and the reflector's position refitted as nuisance on the other poses."""
+    obs = sim["observations"]
+    tracker = [s for s in sim["sensors"] if s.kind == "points"]
+    t = len(sim["sensors"]) - 1
+    track = obs.subset(np.flatnonzero(obs.sensor == t))
+    track.sensor = np.zeros(len(track), dtype=int)
+    model = ArmModel(dualarm_chains(), sim["points"], tracker, ("joint_offsets", "link_lengths", "points"))
+    nuisance = [n for n in model.names if n.startswith("sensor.") or n.startswith("point.R_smr.")]
+    held = [n for n in model.names if n not in nuisance]
+    errors = np.zeros_like(track.measured)
+    for test in pose_folds(track, n_folds):
+        train = track.subset(~test)
+        x0 = initialise_sensors(model, train)
+        for i, name in enumerate(model.names):
+            if name in held:
+                x0[i] = arm_values.get(name, 0.0)
+        options = {"priors": False} if fit_priors_supported() else {}
+        result = fit(model, train, x0, fixed=tuple(held), robust=False, **options)
+        errors[test] = model.predict(result.x, track.subset(test)) - track.measured[test]
+    return float(np.sqrt(np.mean(errors ** 2)))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--poses", type=int, default=1500)
+    args = parser.parse_args(argv)
+    priors_here = fit_priors_supported()
+    print(f"dual-arm robot, {args.poses} stances per seed in 3 sessions; tracker noise {NOISE_M * 1e3:.3f} mm per "
+          f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}")
+    if not priors_here:
+        print("(this checkout has no priors: solver.arm_identify.fit(priors=) is missing; the priors row is "
+              "left out)")
+    print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>24s} {'tracker held-out':>16s} {'/ noise':>8s} "
+          f"{'camera RMS':>10s} {'outliers':>8s} {'CPU s':>6s} {'wall s':>6s}")
+    worst = 0.0
+    for seed in args.seeds:
+        wall, cpu = time.perf_counter(), time.process_time()
+        sim = simulate_dualarm(None, seed=seed, n_poses=args.poses, noise_m=NOISE_M, noise_px=NOISE_PX, write=False)
+        n_cam = int(np.sum(sim["observations"].sensor < 2))
+        t_sim = (time.process_time() - cpu, time.perf_counter() - wall)
+        truth = sim["truth"]
+        rows = [("nominal (URDF)", {}, None, t_sim), ("true arm", truth, None, (0.0, 0.0))]
+        for label, priors in (("cameras, priors", True), ("cameras, free, no priors", False)):
+            if priors and not priors_here:
+                continue
+            wall, cpu = time.perf_counter(), time.process_time()
+            result, fixed = camera_fit(sim, priors)
+            values = result.model.reported_values(result.x)
+            if fixed:
+                print(f"     ({label}: the cameras alone do not determine {len(fixed)} combination(s); "
+                      f"fixed as the refusal says: {', '.join(fixed)})")
+            rows.append((label, values, result, (time.process_time() - cpu, time.perf_counter() - wall)))
+        for label, values, result, (c, w) in rows:
+            rms = tracker_heldout(sim, values)
+            ratio = rms / NOISE_M
+            if label == "cameras, priors":
+                worst = max(worst, ratio)
+            cam = "" if result is None else f"{max(result.rms().values()):.3f} px"
+            out = "" if result is None else str(len(result.outliers))
+            print(f"{seed:4d} {args.poses:5d} {n_cam:10d} {label:>24s} {rms * 1e3:13.4f} mm {ratio:8.2f} {cam:>10s} "
+                  f"{out:>8s} {c:6.1f} {w:6.1f}")
+    if priors_here:
+        print(f"worst priors row: {worst:.2f} x the tracker's noise (must be within {MUST_RATIO})")
+        return 0 if worst <= MUST_RATIO else 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

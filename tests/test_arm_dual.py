@@ -1,0 +1,351 @@
+"""Several chains in one arm dataset (issue 24): two arms on a turning torso sharing its joint, cameras on the torso
+and a tracker on the floor; the tool mount effect; prismatic joints (docs/ARM.md, docs/FORMATS.md)."""
+
+import csv
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from naocal.solver.arm import EFFECTS, ArmModel, Observations, Sensor
+from naocal.solver.errors import DataError
+
+DATA = Path(__file__).with_name("data")
+SLIDE_URDF = DATA / "slide_arm.urdf"
+
+
+def numeric_jacobian(model, x, obs, h=1e-6):
+    out = np.empty(model.predict(x, obs).shape + (len(x),))
+    for i in range(len(x)):
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        out[:, :, i] = (model.predict(up, obs) - model.predict(down, obs)) / (2 * h)
+    return out
+
+
+def assert_exact_jacobian(model, x, obs):
+    _, J = model.predict(x, obs, jacobian=True)
+    numeric = numeric_jacobian(model, x, obs)
+    scale = np.abs(numeric).max(axis=(0, 1)) + 1e-3
+    worst = np.abs(J - numeric).max(axis=(0, 1)) / scale
+    assert worst.max() < 1e-5, model.names[int(np.argmax(worst))]
+
+
+@pytest.fixture(scope="module")
+def dual():
+    """A small noise-free, outlier-free measurement of the simulated dual-arm robot (PyBullet's kinematics)."""
+    from naocal.backends.arm_sim import simulate_dualarm
+
+    return simulate_dualarm(None, seed=5, n_poses=12, noise_m=1e-12, noise_px=1e-9, outlier_fraction=0.0,
+                            write=False)
+
+
+def dual_model(dual, effects):
+    from naocal.backends.arm_sim import dualarm_model
+
+    return dualarm_model(effects, sensors=dual["sensors"])
+
+
+# ------------------------------------------------------------------------------------------------ the model
+
+
+def test_the_dual_arm_model_is_pybullets_robot_shared_torso_and_cameras_on_it(dual):
+    """naocal's model of both chains (shared torso joint, cameras on the torso, tool mounts, glued markers) at the
+    hidden truth predicts what PyBullet's robot showed, to the micrometre and the thousandth of a pixel."""
+    model = dual_model(dual, ("joint_offsets", "link_lengths", "tool", "points"))
+    obs = dual["observations"]
+    assert set(obs.chain.tolist()) == {0, 1} and set(obs.sensor.tolist()) == {0, 1, 2}
+    x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
+    for i, p in model.params("sensor"):  # truth.json's rotation is R_sensor_mount's rotation vector; R0 = I here
+        x[i] = dual["truth"][p.name]
+    error = model.predict(x, obs) - obs.measured
+    assert np.abs(error[obs.sensor == 2]).max() < 1e-6  # m
+    assert np.abs(error[obs.sensor < 2][:, :2]).max() < 1e-3  # px
+    # the torso joint is one parameter; the torso's two shoulders are two origins
+    assert model.names.count("joint_offset.torso_joint") == 1
+    assert {"link_length.torso_to_left_j1", "link_length.torso_to_right_j1"} <= set(model.names)
+    # the cameras ride on the torso: its joint does not move what they see; the tracker sees it
+    _, J = model.predict(x, obs, jacobian=True)
+    torso = model.names.index("joint_offset.torso_joint")
+    assert np.all(J[obs.sensor < 2, :, torso] == 0.0) and np.abs(J[obs.sensor == 2, :, torso]).max() > 0.1
+
+
+def test_the_dual_arm_jacobian_is_exact_for_every_effect(dual):
+    model = dual_model(dual, tuple(EFFECTS))
+    assert {p.effect for p in model.parameters} == set(EFFECTS) | {"sensor"}
+    rng = np.random.default_rng(1)
+    x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
+    x += rng.normal(0.0, 1.0, len(x)) * model.scales * 3
+    assert_exact_jacobian(model, x, dual["observations"].subset(np.arange(0, len(dual["observations"]), 4)))
+
+
+def test_a_point_on_a_single_chain_model_keeps_its_names_and_the_tool_effect():
+    """A one-chain model has the names it always had, and its tool is named by its tip."""
+    from naocal.solver.arm_dataset import arm_chain
+
+    chain, names, load = arm_chain(SLIDE_URDF, "base", "tool", SLIDE_URDF)
+    model = ArmModel(chain, {"p": (0.0, 0.0, 0.05)}, [Sensor("t", "points")], ("joint_offsets", "link_lengths",
+                                                                                  "tool"), load=load,
+                     link_names=names)
+    assert "joint_offset.turn" in model.names and "link_length.turntable" in model.names
+    assert [n for n in model.names if n.startswith("tool.")] == [f"tool.tool.{q}" for q in
+                                                                  ("x", "y", "z", "rx", "ry", "rz")]
+
+
+# ------------------------------------------------------------------------------------------------ prismatic joints
+
+
+def slide_model(effects=("joint_offsets", "link_lengths", "tool", "points", "link_poses")):
+    from naocal.solver.arm_dataset import arm_chain
+
+    chain, names, load = arm_chain(SLIDE_URDF, "base", "tool", SLIDE_URDF)
+    points = {"a": (0.02, 0.01, 0.03), "b": (-0.03, 0.02, 0.0), "c": (0.0, -0.04, 0.01)}
+    return ArmModel(chain, points, [Sensor("tracker", "points", noise=1e-5)], effects, load=load, link_names=names)
+
+
+def slide_readings(n, rng):
+    return np.column_stack([rng.uniform(-2.0, 2.0, n), rng.uniform(0.02, 0.38, n), rng.uniform(-1.8, 1.8, n)])
+
+
+def test_a_prismatic_joint_slides_as_pybullet_says_and_its_jacobian_is_exact():
+    from naocal.body.pybullet_quiet import c_output_silenced, pybullet
+
+    model = slide_model()
+    assert model.prismatic == (False, True, False)
+    assert dict(zip(model.names, (p.unit for p in model.parameters)))["joint_offset.slide"] == "m"
+    rng = np.random.default_rng(2)
+    theta = slide_readings(6, rng)
+    obs = Observations(np.repeat(theta, 3, axis=0), np.repeat(np.arange(6), 3), np.zeros(18, int),
+                       np.tile(np.arange(3), 6), np.zeros((18, 3)))
+    zero = model.base_points(np.zeros(len(model.names)), obs)
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        with c_output_silenced():
+            body = pybullet.loadURDF(str(SLIDE_URDF), useFixedBase=True, physicsClientId=client)
+        index = {pybullet.getJointInfo(body, i, physicsClientId=client)[1].decode(): i for i in range(4)}
+        for k, reading in enumerate(theta):
+            for joint, value in zip(("turn", "slide", "elbow"), reading):
+                pybullet.resetJointState(body, index[joint], float(value), physicsClientId=client)
+            state = pybullet.getLinkState(body, index["tool_joint"], computeForwardKinematics=True,
+                                          physicsClientId=client)
+            R = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+            found = np.array([R @ p + np.array(state[4]) for p in model.point_xyz])
+            assert np.allclose(zero[3 * k:3 * k + 3], found, atol=1e-9)
+    finally:
+        pybullet.disconnect(physicsClientId=client)
+    # a slide's offset moves the points along its axis: theta - c
+    x = np.zeros(len(model.names))
+    x[model.names.index("joint_offset.slide")] = 0.01
+    shifted = obs.subset(np.arange(len(obs)))
+    shifted.theta = obs.theta - np.array([0.0, 0.01, 0.0])
+    assert np.allclose(model.base_points(x, obs), model.base_points(np.zeros(len(x)), shifted), atol=1e-12)
+    x = rng.normal(0.0, 1.0, len(model.names)) * model.scales * 3
+    obs.measured = model.predict(x, obs)
+    assert_exact_jacobian(model, x, obs)
+    with pytest.raises(ValueError, match="prismatic"):
+        slide_model(("joint_offsets", "elasticity"))
+
+
+def test_a_prismatic_joint_is_read_in_metres_or_millimetres_and_its_offset_identified(tmp_path):
+    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_identify import identify_dataset
+
+    model = slide_model(("joint_offsets",))
+    rng = np.random.default_rng(3)
+    theta = slide_readings(40, rng)
+    truth = {"joint_offset.turn": 0.0, "joint_offset.slide": 1.5e-3, "joint_offset.elbow": math.radians(0.3)}
+    x = np.array([truth.get(n, 0.0) for n in model.names])
+    for i, p in model.params("sensor"):
+        x[i] = {"translation": (1.0, -0.5, 0.2)}.get(p.kind, (0.0, 0.0, 0.0))[p.component]
+    obs = Observations(np.repeat(theta, 3, axis=0), np.repeat(np.arange(40), 3), np.zeros(120, int),
+                       np.tile(np.arange(3), 40), np.zeros((120, 3)))
+    measured = model.predict(x, obs) + rng.normal(0.0, 1e-5, (120, 3))
+    root = tmp_path / "slide"
+    root.mkdir()
+    shutil.copy(SLIDE_URDF, root / "robot.urdf")
+    (root / "dataset.json").write_text(json.dumps({
+        "schema": "naocal.arm_dataset/1", "robot": {"urdf": "robot.urdf", "base": "base", "tip": "tool"},
+        "points": {name: {"xyz_m": list(xyz)} for name, xyz in zip(model.point_names, model.point_xyz)},
+        "sensors": {"tracker": {"kind": "points", "noise_m": 1e-5}}}))
+    with open(root / "observations.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["pose", "point", "turn_rad", "slide_mm", "elbow_deg", "x_m", "y_m", "z_m"])
+        for i in range(len(obs)):
+            t = obs.theta[i]
+            w.writerow([obs.pose[i], model.point_names[obs.point[i]], t[0], t[1] * 1e3, math.degrees(t[2]),
+                        *measured[i]])
+    dataset = read_arm_dataset(root)
+    assert np.allclose(dataset.observations.theta, obs.theta)
+    fit = identify_dataset(dataset, ("joint_offsets",), priors=False)
+    values = fit.parameters_dict()
+    assert values["joint_offset.slide"]["unit"] == "m"
+    assert abs(values["joint_offset.slide"]["value"] - 1.5e-3) < 5 * values["joint_offset.slide"]["std"] + 1e-6
+    assert abs(values["joint_offset.elbow"]["value"] - math.radians(0.3)) < 1e-4
+    # a slide's reading beyond its limits by more than 10 mm, or in a _rad column, is refused naming it
+    text = (root / "observations.csv").read_text().splitlines()
+    cells = text[1].split(",")
+    cells[3] = "450.0"
+    (root / "observations.csv").write_text("\n".join([text[0], ",".join(cells)] + text[2:]) + "\n")
+    with pytest.raises(DataError, match=r"line 2.*slide_mm|slide_mm.*line 2|beyond the URDF's limits"):
+        read_arm_dataset(root)
+    (root / "observations.csv").write_text("\n".join([text[0].replace("slide_mm", "slide_rad")] + text[1:]) + "\n")
+    with pytest.raises(DataError, match="slide_m or slide_mm"):
+        read_arm_dataset(root)
+
+
+# ------------------------------------------------------------------------------------------------ the format
+
+
+@pytest.fixture(scope="module")
+def dual_dir(tmp_path_factory):
+    from naocal.backends.arm_sim import simulate_dualarm
+
+    out = tmp_path_factory.mktemp("dual") / "d"
+    simulate_dualarm(out, seed=3, n_poses=30)
+    return out
+
+
+def test_a_dual_arm_dataset_round_trips_with_its_chains_and_sensor_mounts(dual_dir):
+    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_identify import model_for
+
+    doc = json.loads((dual_dir / "dataset.json").read_text())
+    assert doc["chains"] == {"left": {"base": "base_link", "tip": "left_tool"},
+                             "right": {"base": "base_link", "tip": "right_tool"}}
+    assert doc["sensors"]["cam_left"]["link"] == "torso"
+    header = (dual_dir / "observations.csv").read_text().splitlines()[0].split(",")
+    assert "chain" in header and "torso_joint_rad" in header
+    dataset = read_arm_dataset(dual_dir)
+    assert [ac.name for ac in dataset.chain] == ["left", "right"]
+    assert dataset.joints[0] == "torso_joint" and len(dataset.joints) == 13
+    assert set(dataset.observations.chain.tolist()) == {0, 1}
+    model = model_for(dataset, ("joint_offsets", "link_lengths", "tool"))
+    assert len([n for n in model.names if n.startswith("tool.")]) == 12
+    assert model.sensors[0].link == "torso"
+
+
+def edited(dual_dir, tmp_path, meta_change=None, row_change=None, header_change=None):
+    out = tmp_path / "d"
+    shutil.copytree(dual_dir, out)
+    if meta_change:
+        doc = json.loads((out / "dataset.json").read_text())
+        meta_change(doc)
+        (out / "dataset.json").write_text(json.dumps(doc))
+    lines = (out / "observations.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    if header_change:
+        header = header_change(header)
+    if row_change:
+        rows = [dict(zip(header, line.split(","))) for line in lines[1:]]
+        row_change(rows)
+        lines = [",".join(r[h] for h in header) for r in rows]
+        lines.insert(0, ",".join(header))
+    else:
+        lines[0] = ",".join(header)
+    (out / "observations.csv").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def set_row(index, **cells):
+    def change(rows):
+        rows[index].update(cells)
+    return change
+
+
+def first_row(rows, **match):
+    return next(i for i, r in enumerate(rows) if all(r[k] == v for k, v in match.items()))
+
+
+BAD = [
+    ("chains with two bases", dict(meta_change=lambda d: d["chains"]["right"].update(base="torso")),
+     "dataset.json", "chains.right.base", "one base"),
+    ("robot.base beside chains", dict(meta_change=lambda d: d["robot"].update(base="base_link")),
+     "dataset.json", "robot.base", "chains"),
+    ("an unknown chain field", dict(meta_change=lambda d: d["chains"]["left"].update(tipp="x")),
+     "dataset.json", "chains.left.tipp", "unknown field"),
+    ("a sensor on a link no joint moves", dict(meta_change=lambda d: d["sensors"]["cam_left"].update(
+        link="left_tool")), "dataset.json", "sensors.cam_left.link", "no chain moves"),
+    ("no chain column", dict(header_change=lambda h: [c if c != "chain" else "arm" for c in h]),
+     "observations.csv", "chain", "missing column"),
+    ("an unknown chain", dict(row_change=set_row(0, chain="middle")), "observations.csv", "chain",
+     "unknown chain 'middle'"),
+    ("a marker seen on the other chain", dict(row_change=lambda rows: rows[first_row(
+        rows, point="L_m1")].update(chain="right")), "observations.csv", "chain", "on one chain's tool"),
+    ("a camera on a link the chain does not carry", dict(meta_change=lambda d: d["sensors"]["cam_left"].update(
+        link="left_link1")), "observations.csv", "sensor", "cannot see"),
+    ("the row's own joint empty", dict(row_change=lambda rows: rows[first_row(rows, chain="left")].update(
+        left_j3_rad="")), "observations.csv", "left_j3_rad", "empty cell"),
+]
+
+
+@pytest.mark.parametrize("label, change, file, field, problem", BAD, ids=[b[0] for b in BAD])
+def test_a_bad_dual_arm_dataset_is_refused_naming_file_line_and_field(dual_dir, tmp_path, label, change, file,
+                                                                     field, problem):
+    from naocal.solver.arm_dataset import read_arm_dataset
+
+    with pytest.raises(DataError) as err:
+        read_arm_dataset(edited(dual_dir, tmp_path, **change))
+    text = str(err.value)
+    assert file in text and field in text and problem in text, text
+    if file == "observations.csv" and "column" not in problem:
+        assert "line " in text
+
+
+def test_a_joint_off_the_row_s_chain_may_be_empty(dual_dir, tmp_path):
+    from naocal.solver.arm_dataset import read_arm_dataset
+
+    def empty_right(rows):
+        for r in rows:
+            if r["chain"] == "left":
+                for k in range(1, 7):
+                    r[f"right_j{k}_rad"] = ""
+
+    before = read_arm_dataset(dual_dir).observations
+    after = read_arm_dataset(edited(dual_dir, tmp_path, row_change=empty_right)).observations
+    left = before.chain == 0
+    assert np.array_equal(before.theta[~left], after.theta[~left]) and len(before) == len(after)
+
+
+def test_dualarm_urdf_is_what_its_generator_writes():
+    from naocal.backends.arm_sim import DUALARM_URDF, dualarm_urdf
+
+    assert DUALARM_URDF.read_text() == dualarm_urdf()
+
+
+def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(tmp_path):
+    from tests.cli_runner import naocal
+
+    out = tmp_path / "dual"
+    run = naocal("simulate", "--robot", "dualarm", "--seed", "4", "--poses", "25", "--out", str(out))
+    assert run.returncode == 0, run.stderr
+    assert "chains left, right" in run.stdout and (out / "truth.json").is_file()
+    cal = tmp_path / "cal.json"
+    run = naocal("identify", str(out), "--effects", "joint_offsets,tool", "--json", "--out", str(cal))
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert "joint_offset.torso_joint" in report["parameters"] and "tool.right.rz" in report["parameters"]
+    # the calibration file holds the tool's mount: read back by offsets and verify (the tracker's nuisances refitted)
+    run = naocal("offsets", "validate", str(cal))
+    assert run.returncode == 0, run.stderr
+    run = naocal("verify", str(out), "--offsets", str(cal), "--refit", "sensors,points")
+    assert run.returncode in (0, 1), run.stderr
+    run = naocal("simulate", "--robot", "dualarm", "--chain", "a:b", "--out", str(tmp_path / "x"))
+    assert run.returncode == 2 and "--chain" in run.stderr
+
+
+def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):
+    """LOCATE's groups are the chains' shared joints and origins (the torso joint once, each shoulder its own)."""
+    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.solver.arm_diagnose import diagnose, location_groups
+    from naocal.solver.arm_identify import identify_dataset
+
+    fit = identify_dataset(read_arm_dataset(dual_dir), ("joint_offsets", "link_lengths"))
+    groups = location_groups(fit)
+    assert "joint torso_joint" in groups and "link torso_to_left_j1" in groups and "link torso_to_right_j1" in groups
+    assert groups["joint left_j2"][2] == "link_pose.left_link1.rx"
+    d = diagnose(fit, n_folds=0)
+    assert {c.label for c in d.candidates} >= {"tool", "points"}
