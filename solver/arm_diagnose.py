@@ -100,9 +100,7 @@ class HeldOutCheck:
 def extended(fit: ArmFit, effects=tuple(EFFECTS)):
     """(model with every effect, its x at the fit, free mask of the fit's free parameters)."""
     m = fit.model
-    big = ArmModel(m.chain, dict(zip(m.point_names, m.point_xyz)), m.sensors, effects, m.gravity_mps2, m.load,
-                   m.link_names)
-    big.R0 = m.R0.copy()
+    big = _model_like(m, effects, range(len(m.sensors)))
     values = dict(zip(m.names, fit.x))
     free_names = set(fit.free_names)
     x = np.array([values.get(n, 0.0) for n in big.names])
