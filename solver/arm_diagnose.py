@@ -244,11 +244,20 @@ def session_folds(obs, n_blocks: int = SESSIONS) -> list:
     return [np.isin(obs.pose, block) for block in np.array_split(ordered, min(n_blocks, len(ordered)))]
 
 
+def _unless_unfit(compute):
+    """compute(), or None when its fit cannot be made (too few observations of a sensor or a fold, a combination
+    the cameras alone leave undetermined): what the data cannot judge is not judged."""
+    from naocal.solver.errors import DataError, SolveError
+
+    try:
+        return compute()
+    except (DataError, SolveError):
+        return None
+
+
 def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
     """Fill each significant candidate's `checks` (HeldOutCheck: the other sensor, other sessions); returns
     {label: its fit on all the data} for the candidates judged."""
-    from naocal.solver.errors import SolveError
-
     model = fit.model
     judged = [c for c in candidates if c.significant]
     if not judged:
@@ -256,35 +265,29 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
     folds = session_folds(fit.obs, sessions) if sessions > 1 else []
     how = (f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session column: "
            "they stand in for sessions)")
+
+    def session_rms(fit_):
+        return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, folds))
+
     groups = sensor_groups(model)
-    base_sessions = sensor_rms(model, fit.obs, heldout_residuals(fit, folds)) if len(folds) > 1 else None
-    base_sensor = None
-    if groups:
-        try:
-            base_sensor = cross_sensor_rms(fit, model.effects)
-        except SolveError:  # the cameras alone do not determine the arm: no cross-sensor judgement
-            base_sensor = None
-    names = ", ".join(model.sensors[s].name for s in groups[1]) if groups else ""
-    cams = ", ".join(model.sensors[s].name for s in groups[0]) if groups else ""
+    base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None
+    base_sensor = _unless_unfit(lambda: cross_sensor_rms(fit, model.effects)) if groups else None
     fits = {}
-
-    def reflectors_free(c):
-        return c.label == "points" or any(f for p, f in zip(model.parameters, fit.free) if p.effect == "points")
-
     for c in judged:
         effects = model.effects + (c.label,)
-        if base_sensor is not None:
-            try:
-                c.checks.append(HeldOutCheck(
-                    "sensor", f"{names} with the arm fitted from {cams} alone, then held (its frame"
-                    + (" and reflectors" if reflectors_free(c) else "") + " refitted)",
-                    base_sensor, cross_sensor_rms(fit, effects, c.inert)))
-            except SolveError:
-                pass
-        if base_sessions is not None:
-            with_it = fits[c.label] = refit_with(fit, effects, held=c.inert)
-            c.checks.append(HeldOutCheck("session", how, base_sessions,
-                                         sensor_rms(with_it.model, with_it.obs, heldout_residuals(with_it, folds))))
+        with_it = base_sensor and _unless_unfit(lambda: cross_sensor_rms(fit, effects, c.inert))
+        if with_it:
+            reflectors = c.label == "points" or any(f for p, f in zip(model.parameters, fit.free)
+                                                    if p.effect == "points")
+            c.checks.append(HeldOutCheck(
+                "sensor", f"{', '.join(model.sensors[s].name for s in groups[1])} with the arm fitted from "
+                f"{', '.join(model.sensors[s].name for s in groups[0])} alone, then held (its frame"
+                + (" and reflectors" if reflectors else "") + " refitted)", base_sensor, with_it))
+        refit = base_sessions and _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
+        with_it = refit and _unless_unfit(lambda: session_rms(refit))
+        if with_it:
+            fits[c.label] = refit
+            c.checks.append(HeldOutCheck("session", how, base_sessions, with_it))
     return fits
 
 
