@@ -56,6 +56,7 @@ class Test:
     testable: bool = True  # False: too few poses for its directions (k >= poses - 1): p-value 1, not named
     inert: tuple = ()  # its parameters no pose moves (solver.identify.UNIDENTIFIABLE_RATIO): to be fixed with it
     checks: list = field(default_factory=list)  # [HeldOutCheck]: judged on data its fit did not see (significant only)
+    pixels: dict = field(default_factory=dict)  # judged ones: camera (or every) sensor -> [RMS now, with it]
 
     @property
     def physical(self):
@@ -67,7 +68,9 @@ class Test:
         """Why it is not recommended ('' if it is not refuted): the other sensor worse, or only other sessions."""
         worse = {c.kind for c in self.checks if c.worse}
         if "sensor" in worse:
-            return "fits the pixels only (absorbs camera/marker-model error)"
+            if any(after < before for before, after in self.pixels.values()):
+                return "fits the pixels only (absorbs camera/marker-model error)"
+            return "makes the other sensor worse (takes up another effect's misfit)"
         return "predicts other sessions worse (fits these poses only)" if worse else ""
 
     def as_dict(self):
@@ -76,7 +79,7 @@ class Test:
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
                 "significant": self.significant, "testable": self.testable, "inert": list(self.inert),
                 "checks": [c.as_dict() for c in self.checks], "physical": self.physical,
-                "refutation": self.refutation or None}
+                "refutation": self.refutation or None, "pixels": self.pixels}
 
 
 @dataclass
@@ -273,7 +276,10 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
     base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None
     base_sensor = _unless_unfit(lambda: cross_sensor_rms(fit, model.effects)) if groups else None
     fits = {}
+    rms = fit.rms()
+    shown = [s.name for s in model.sensors if s.kind == "camera"] or list(rms)
     for c in judged:
+        c.pixels = {s: [rms[s], c.predicted_rms[s]] for s in shown}
         effects = model.effects + (c.label,)
         with_it = base_sensor and _unless_unfit(lambda: cross_sensor_rms(fit, effects, c.inert))
         if with_it:
@@ -424,9 +430,9 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         lines += ["", "PHYSICAL? (each significant candidate on data its fit did not see, which the pixels cannot fool; "
                       f"worse: more than {HELDOUT_TOLERANCE:.0%} up)"]
     for c in judged:
-        fitted = [s.name for s in model.sensors if s.kind == "camera"] or list(d.rms)
         lines.append(f"  {c.label}: pixels " + ", ".join(
-            f"{s} {shown_rms(d.rms[s], kinds[s])} -> {shown_rms(c.predicted_rms[s], kinds[s])}" for s in fitted))
+            f"{s} {shown_rms(before, kinds[s])} -> {shown_rms(after, kinds[s])}" for s, (before, after) in
+            c.pixels.items()))
         for check in c.checks:
             change = "; ".join(f"{s} {shown_rms(check.without[s], kinds[s])} -> "
                                f"{shown_rms(check.with_effect[s], kinds[s])} "
