@@ -13,21 +13,33 @@ datasets at most); the significant ones are ranked by dRSS - (1 + log M) n, n wh
 errors alone (k for independent errors, more when they are correlated within poses; BIC's k log M), so that
 of two effects that explain the misfit alike the one with fewer parameters comes first. A group with as many
 directions as poses less one cannot be tested (p-value 1).
+
+A significant effect may still be no property of the arm: link lengths soak up a camera's wrong focal length or
+markers glued off their nominal spot, and the pixels improve while the arm gets worse. So each significant
+candidate is also judged on data its fit did not see and the pixels cannot fool (`physical_checks`): the other
+sensor (the arm fitted from the cameras alone, with and without it, then held while the 3-D sensors' frames, and
+their reflectors if the model has points, are refitted as verify --refit does) and other sessions (leave one block
+of consecutive poses out). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
+only and is not recommended; the verdict is the best candidate that is physical.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from naocal.solver.arm import EFFECTS, ArmModel
-from naocal.solver.arm_identify import ArmFit, fit as fit_arm, heldout_rms, whitened
+from naocal.solver.arm_identify import ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, whitened
 from naocal.solver.identify import UNIDENTIFIABLE_RATIO
 from naocal.solver.scoretest import score_test
 
 FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
+# A held-out RMS more than this share above the model's without the candidate is worse: the candidate fits the
+# pixels only (a physical effect predicts unseen data no worse; a few % is what refitting k more parameters costs).
+HELDOUT_TOLERANCE = 0.02
+SESSIONS = 5  # blocks of consecutive poses standing in for sessions (the dataset has no session column)
 
 
 @dataclass
@@ -43,20 +55,55 @@ class Test:
     noise_rss: float = float("nan")  # what the group removes from the residuals' own errors on average (per pose)
     testable: bool = True  # False: too few poses for its directions (k >= poses - 1): p-value 1, not named
     inert: tuple = ()  # its parameters no pose moves (solver.identify.UNIDENTIFIABLE_RATIO): to be fixed with it
+    checks: list = field(default_factory=list)  # [HeldOutCheck]: judged on data its fit did not see (significant only)
+    pixels: dict = field(default_factory=dict)  # judged ones: camera (or every) sensor -> [RMS now, with it]
+
+    @property
+    def physical(self):
+        """False if a held-out check is worse with it, True if every one is not, None if none was made."""
+        return None if not self.checks else not any(c.worse for c in self.checks)
+
+    @property
+    def refutation(self) -> str:
+        """Why it is not recommended ('' if it is not refuted): the other sensor worse, or only other sessions."""
+        worse = {c.kind for c in self.checks if c.worse}
+        if "sensor" in worse:
+            if any(after < before for before, after in self.pixels.values()):
+                return "fits the pixels only (absorbs camera/marker-model error)"
+            return "makes the other sensor worse (takes up another effect's misfit)"
+        return "predicts other sessions worse (fits these poses only)" if worse else ""
 
     def as_dict(self):
         return {"label": self.label, "dof": self.k, "drss": self.drss, "noise_rss": self.noise_rss,
                 "p_value": self.p_value,
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
-                "significant": self.significant, "testable": self.testable, "inert": list(self.inert)}
+                "significant": self.significant, "testable": self.testable, "inert": list(self.inert),
+                "checks": [c.as_dict() for c in self.checks], "physical": self.physical,
+                "refutation": self.refutation or None, "pixels": self.pixels}
+
+
+@dataclass
+class HeldOutCheck:
+    """The RMS of data a fit did not see, per sensor (m or px), without and with a candidate effect."""
+
+    kind: str  # 'sensor': the other sensor, the arm fitted from the cameras; 'session': blocks of poses held out
+    how: str  # one phrase for the report
+    without: dict
+    with_effect: dict
+
+    @property
+    def worse(self) -> list:
+        return [s for s, v in self.with_effect.items() if v > (1.0 + HELDOUT_TOLERANCE) * self.without[s]]
+
+    def as_dict(self):
+        return {"kind": self.kind, "how": self.how, "without": self.without, "with": self.with_effect,
+                "worse": self.worse}
 
 
 def extended(fit: ArmFit, effects=tuple(EFFECTS)):
     """(model with every effect, its x at the fit, free mask of the fit's free parameters)."""
     m = fit.model
-    big = ArmModel(m.chain, dict(zip(m.point_names, m.point_xyz)), m.sensors, effects, m.gravity_mps2, m.load,
-                   m.link_names)
-    big.R0 = m.R0.copy()
+    big = _model_like(m, effects, range(len(m.sensors)))
     values = dict(zip(m.names, fit.x))
     free_names = set(fit.free_names)
     x = np.array([values.get(n, 0.0) for n in big.names])
@@ -139,6 +186,117 @@ def location_groups(fit: ArmFit) -> dict:
     return groups
 
 
+def _model_like(model: ArmModel, effects, sensors) -> ArmModel:
+    """The model's arm with `effects` and only the sensors of indices `sensors` (their starting frames kept)."""
+    out = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), [model.sensors[s] for s in sensors],
+                   effects, model.gravity_mps2, model.load, model.link_names)
+    out.R0 = model.R0[list(sensors)].copy()
+    return out
+
+
+def _sensor_rows(obs, sensors):
+    """The observations of the sensors of (sorted) indices `sensors`, their sensor indices into that list."""
+    sub = obs.subset(np.isin(obs.sensor, sensors))
+    sub.sensor = np.searchsorted(sensors, sub.sensor)
+    return sub
+
+
+def refit_with(fit: ArmFit, effects, sensors=None, held=()) -> ArmFit:
+    """The fit's data (only the `sensors`' observations, default all) fitted with `effects`, from the fit's values,
+    holding what it held (its gauges, the user's --fix) and `held`."""
+    sensors = list(range(len(fit.model.sensors))) if sensors is None else list(sensors)
+    model = _model_like(fit.model, effects, sensors)
+    obs = fit.obs if len(sensors) == len(fit.model.sensors) else _sensor_rows(fit.obs, sensors)
+    values = dict(zip(fit.model.names, fit.x))
+    x0 = np.array([values.get(n, 0.0) for n in model.names])
+    fixed = tuple(n for n, free in zip(fit.model.names, fit.free) if not free and n in values) + tuple(held)
+    return fit_arm(model, obs, x0, fixed=fixed, loss=fit.loss, priors=fit.priors)
+
+
+def sensor_groups(model: ArmModel):
+    """(cameras, 3-D sensors) indices, or None unless the model has both: the arm is fitted from the cameras and
+    judged on the 3-D sensors (a tracker), which no camera or marker model enters."""
+    cameras = [s for s, sensor in enumerate(model.sensors) if sensor.kind == "camera"]
+    trackers = [s for s, sensor in enumerate(model.sensors) if sensor.kind == "points"]
+    return (cameras, trackers) if cameras and trackers else None
+
+
+def cross_sensor_rms(fit: ArmFit, effects, held=()) -> dict:
+    """{3-D sensor: RMS (m)} of its data with the arm fitted with `effects` from the cameras alone, then held while
+    its frame (and, if the model has points, where its reflectors sit) is refitted: solver.arm_verify.nuisance_fit,
+    what verify --refit does; the nuisances the fit held stay held."""
+    from naocal.solver.arm_verify import NUISANCE_EFFECTS, nuisance_fit
+
+    cameras, trackers = sensor_groups(fit.model)
+    from_cameras = refit_with(fit, effects, cameras, held)
+    arm = {n: v for n, v in zip(from_cameras.model.names, from_cameras.x) if not n.startswith("sensor.")}
+    model = _model_like(fit.model, effects, trackers)
+    nuisances = tuple(e for e in NUISANCE_EFFECTS if e in effects)
+    held_nuisances = [n for n, free in zip(fit.model.names, fit.free)  # what the user holds stays held (--fix points)
+                      if not free and fit.model.parameters[fit.model.names.index(n)].effect in nuisances]
+    check = nuisance_fit(model, _sensor_rows(fit.obs, trackers), arm, nuisances,
+                         held=[n for n in held_nuisances if n in model.names], priors=fit.priors)
+    return check.rms()
+
+
+def session_folds(obs, n_blocks: int = SESSIONS) -> list:
+    """Row masks of `n_blocks` blocks of consecutive poses in the file's order (a pose's place: its first row):
+    sessions' stand-in, as a session's poses are measured together and share what drifts between sessions."""
+    poses, first = np.unique(obs.pose, return_index=True)
+    ordered = poses[np.argsort(first)]
+    return [np.isin(obs.pose, block) for block in np.array_split(ordered, min(n_blocks, len(ordered)))]
+
+
+def _unless_unfit(compute):
+    """compute(), or None when its fit cannot be made (too few observations of a sensor or a fold, a combination
+    the cameras alone leave undetermined): what the data cannot judge is not judged."""
+    from naocal.solver.errors import DataError, SolveError
+
+    try:
+        return compute()
+    except (DataError, SolveError):
+        return None
+
+
+def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
+    """Fill each significant candidate's `checks` (HeldOutCheck: the other sensor, other sessions); returns
+    {label: its fit on all the data} for the candidates judged."""
+    model = fit.model
+    judged = [c for c in candidates if c.significant]
+    if not judged:
+        return {}
+    folds = session_folds(fit.obs, sessions) if sessions > 1 else []
+    how = (f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session column: "
+           "they stand in for sessions)")
+
+    def session_rms(fit_):
+        return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, folds))
+
+    groups = sensor_groups(model)
+    base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None
+    base_sensor = _unless_unfit(lambda: cross_sensor_rms(fit, model.effects)) if groups else None
+    fits = {}
+    rms = fit.rms()
+    shown = [s.name for s in model.sensors if s.kind == "camera"] or list(rms)
+    for c in judged:
+        c.pixels = {s: [rms[s], c.predicted_rms[s]] for s in shown}
+        effects = model.effects + (c.label,)
+        with_it = base_sensor and _unless_unfit(lambda: cross_sensor_rms(fit, effects, c.inert))
+        if with_it:
+            reflectors = c.label == "points" or any(f for p, f in zip(model.parameters, fit.free)
+                                                    if p.effect == "points")
+            c.checks.append(HeldOutCheck(
+                "sensor", f"{', '.join(model.sensors[s].name for s in groups[1])} with the arm fitted from "
+                f"{', '.join(model.sensors[s].name for s in groups[0])} alone, then held (its frame"
+                + (" and reflectors" if reflectors else "") + " refitted)", base_sensor, with_it))
+        refit = base_sessions and _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
+        with_it = refit and _unless_unfit(lambda: session_rms(refit))
+        if with_it:
+            fits[c.label] = refit
+            c.checks.append(HeldOutCheck("session", how, base_sessions, with_it))
+    return fits
+
+
 @dataclass
 class ArmDiagnosis:
     fit: ArmFit
@@ -154,7 +312,13 @@ class ArmDiagnosis:
 
     @property
     def best(self):
-        return next((c for c in self.candidates if c.significant), None)
+        """The best significant candidate the held-out checks do not refute (fits the pixels only)."""
+        return next((c for c in self.candidates if c.significant and c.physical is not False), None)
+
+    @property
+    def refuted(self):
+        """The significant candidates that fit the pixels only (a held-out check worse with them)."""
+        return [c for c in self.candidates if c.significant and c.physical is False]
 
     def as_dict(self):
         return {"effects": list(self.fit.model.effects), "rms": self.rms, "noise": self.noise,
@@ -163,10 +327,13 @@ class ArmDiagnosis:
                 "candidates": [t.as_dict() for t in self.candidates], "threshold": self.threshold,
                 "heldout": self.heldout, "heldout_with_best": self.heldout_with,
                 "verdict": None if self.best is None else self.best.label,
+                "fits_the_pixels_only": [c.label for c in self.refuted],
                 "fixed": self.fit.fixed_reasons}
 
 
-def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
+def diagnose(fit: ArmFit, n_folds: int = 5, *, physical: bool = True, sessions: int = SESSIONS) -> ArmDiagnosis:
+    """n_folds: the held-out poses' folds (0: none); physical: judge the significant candidates on held-out data
+    (`physical_checks`; sessions: how many blocks of consecutive poses, 0: none)."""
     model, obs = fit.model, fit.obs
     candidates = score_tests(fit, candidate_groups(fit))
     threshold = FAMILY_LEVEL / max(1, sum(1 for c in candidates if c.k > 0))
@@ -188,16 +355,12 @@ def diagnose(fit: ArmFit, n_folds: int = 5) -> ArmDiagnosis:
         per_pose.append((float(np.sqrt(r[rows][mask[rows]].mean())), int(pose)))
     per_pose.sort(reverse=True)
     heldout = heldout_rms(fit, n_folds) if n_folds > 1 else {}
+    fits = physical_checks(fit, candidates, sessions) if physical else {}
     heldout_with = {}
-    best = next((c for c in candidates if c.significant), None)
+    best = next((c for c in candidates if c.significant and c.physical is not False), None)
     if best is not None and n_folds > 1:
-        bigger = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), model.sensors,
-                          model.effects + (best.label,), model.gravity_mps2, model.load, model.link_names)
-        bigger.R0 = model.R0.copy()
-        values = dict(zip(model.names, fit.x))
-        x0 = np.array([values.get(n, 0.0) for n in bigger.names])
-        fixed = tuple(n for n, free in zip(model.names, fit.free) if not free)  # gauges and the user's --fix
-        heldout_with = heldout_rms(fit_arm(bigger, obs, x0, fixed=fixed + best.inert, priors=fit.priors), n_folds)
+        bigger = fits.get(best.label) or refit_with(fit, model.effects + (best.label,), held=best.inert)
+        heldout_with = heldout_rms(bigger, n_folds)
     return ArmDiagnosis(fit, fit.rms(), {s.name: float(fit.sigma[i]) for i, s in enumerate(model.sensors)},
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
@@ -262,9 +425,29 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                      "can judge (significance counts poses): measure more poses to test them")
     for name, reason in fit.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
+    judged = [c for c in d.candidates if c.checks]
+    if judged:
+        lines += ["", "PHYSICAL? (each significant candidate on data its fit did not see, which the pixels cannot fool; "
+                      f"worse: more than {HELDOUT_TOLERANCE:.0%} up)"]
+    for c in judged:
+        lines.append(f"  {c.label}: pixels " + ", ".join(
+            f"{s} {shown_rms(before, kinds[s])} -> {shown_rms(after, kinds[s])}" for s, (before, after) in
+            c.pixels.items()))
+        for check in c.checks:
+            change = "; ".join(f"{s} {shown_rms(check.without[s], kinds[s])} -> "
+                               f"{shown_rms(check.with_effect[s], kinds[s])} "
+                               f"({'worse' if s in check.worse else 'better' if check.with_effect[s] < check.without[s] else 'no better'})"
+                               for s in check.with_effect)
+            lines.append(f"    held-out {check.how}: {change}")
+        lines.append("    -> " + ("physical" if c.physical else f"{c.refutation}: not recommended"))
     best = d.best
     lines.append("")
-    if best is None:
+    if best is None and d.refuted:
+        lines.append("verdict: no physical candidate: " + "; ".join(f"{c.label} {c.refutation}" for c in d.refuted)
+                     + ": not recommended" + ("; check the cameras' intrinsics and where the markers sit on the tool"
+                                              if any(c.refutation.startswith("fits the pixels") for c in d.refuted)
+                                              else ""))
+    elif best is None:
         lines.append("verdict: no candidate effect is significant; nothing is missing from the model"
                      + (" (the fit is at the noise level)." if all(
                          d.rms[s] < 1.5 * d.noise[s] for s in d.rms) else
@@ -273,6 +456,9 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         lines.append(f"verdict: add {best.label}: naocal identify {dataset_label} --effects "
                      f"{','.join(model.effects + (best.label,))}" + "".join(f" --fix {n}" for n in best.inert)
                      + _held_options(fit) + " --out calibration.json")  # identify writes with --out
+        if d.refuted:
+            lines.append("  (the best physical candidate; not recommended: "
+                         + "; ".join(f"{c.label} {c.refutation}" for c in d.refuted) + ")")
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))

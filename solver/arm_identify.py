@@ -542,29 +542,33 @@ def pose_folds(obs: Observations, n_folds: int, seed: int = 0) -> list:
     return [np.isin(obs.pose, order[f::n_folds]) for f in range(n_folds)]
 
 
-def heldout_rms(fit_: ArmFit, n_folds: int = 5) -> dict:
+def heldout_rms(fit_: ArmFit, n_folds: int = 5, folds=None) -> dict:
     """{sensor: {"nominal": RMS, "calibrated": RMS}} on poses held out of the fit (per measured component, m or px).
 
     nominal: only the sensor frames fitted (the URDF as it is); calibrated: every parameter the full fit used.
+    folds: the test rows of each fold (default `pose_folds`).
     """
     model, obs = fit_.model, fit_.obs
+    folds = pose_folds(obs, n_folds) if folds is None else folds
     sensor_only = np.array([p.effect == "sensor" for p in model.parameters]) & fit_.free
-    x_start = fit_.x.copy()
-    for i, p in enumerate(model.parameters):
-        if p.effect != "sensor":
-            x_start[i] = 0.0
-    errors = {"nominal": np.zeros_like(obs.measured), "calibrated": np.zeros_like(obs.measured)}
-    for test in pose_folds(obs, n_folds):
-        train = obs.subset(~test)
-        held = obs.subset(test)
-        for label, free in (("nominal", sensor_only), ("calibrated", fit_.free)):
-            x, _, _ = _solve(model, train, x_start, free, fit_.sigma, fit_.loss, fit_.priors)
-            errors[label][test] = model.predict(x, held) - held.measured
-    mask = model.component_mask(obs)
-    for e in errors.values():
-        e[~mask] = 0.0
-    nominal, calibrated = sensor_rms(model, obs, errors["nominal"]), sensor_rms(model, obs, errors["calibrated"])
+    nominal = sensor_rms(model, obs, heldout_residuals(fit_, folds, sensor_only))
+    calibrated = sensor_rms(model, obs, heldout_residuals(fit_, folds))
     return {s: {"nominal": nominal[s], "calibrated": calibrated[s]} for s in nominal}
+
+
+def heldout_residuals(fit_: ArmFit, folds, free=None) -> np.ndarray:
+    """(N, 3) residuals of `fit_.obs`, each fold's test rows predicted by the model fitted to the other rows (its
+    `free` parameters, default the fit's, from the URDF's values and the fit's sensor frames); 0 where unmeasured."""
+    model, obs = fit_.model, fit_.obs
+    free = fit_.free if free is None else free
+    x_start = np.where([p.effect == "sensor" for p in model.parameters], fit_.x, 0.0)
+    errors = np.zeros_like(obs.measured)
+    for test in folds:
+        held = obs.subset(test)
+        x, _, _ = _solve(model, obs.subset(~test), x_start, free, fit_.sigma, fit_.loss, fit_.priors)
+        errors[test] = model.predict(x, held) - held.measured
+    errors[~model.component_mask(obs)] = 0.0
+    return errors
 
 
 def model_for(dataset, effects) -> ArmModel:

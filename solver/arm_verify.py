@@ -77,6 +77,17 @@ def check_same_arm(cal, dataset) -> None:
 NUISANCE_EFFECTS = ("points",)
 
 
+def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors: bool = True, path="dataset"):
+    """The ArmFit of the sensors' frames and the `refit_effects` (NUISANCE_EFFECTS) to `obs`, the arm's other
+    parameters held at `values` ({name: SI}, the URDF's where missing; also where the nuisances start); `held`
+    nuisance names held too. Every detection kept: a verdict is on all the data, as the NAO's verify."""
+    from naocal.solver.arm_identify import fit, initialise_sensors
+
+    x0 = initialise_sensors(model, obs, path, {n: v for n, v in values.items() if n in model.names})
+    arm = tuple(p.name for p in model.parameters if p.effect != "sensor" and p.effect not in refit_effects)
+    return fit(model, obs, x0, fixed=arm + tuple(held), path=path, robust=False, priors=priors)
+
+
 def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), start=None) -> ArmVerdict:
     """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset).
 
@@ -84,7 +95,7 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     priors : the nuisance parameters' priors (solver.arm_identify.arm_prior).
     held, start : nuisance parameters held, and {name: SI value} to start them from (--fix NAME[=VALUE]).
     """
-    from naocal.solver.arm_identify import fit, initialise_sensors, model_for
+    from naocal.solver.arm_identify import fit, model_for
 
     check_same_arm(cal, dataset)
     model = model_for(dataset, tuple(cal.effects) + tuple(e for e in refit_effects if e not in cal.effects))
@@ -99,10 +110,8 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     missing = [n for n in arm_names if n not in cal.parameters]
     values = {n: e["value"] for n, e in cal.arm_parameters.items()}
     values.update(start or {})
-    x0 = initialise_sensors(model, obs, meta_path, values)
     # 1. the calibration as it is; only the sensors' frames (and the nuisances) found from the new data
-    # (every detection kept: a verdict is on all the new data, as the NAO's verify)
-    fixed = fit(model, obs, x0, fixed=tuple(arm_names) + tuple(held), path=meta_path, robust=False, priors=priors)
+    fixed = nuisance_fit(model, obs, values, refit_effects, held=held, priors=priors, path=meta_path)
     # 2. a refit of what the calibration fitted: the noise floor (when the data state none) and what moved
     kept_fixed = tuple(n for n in arm_names if n in cal.parameters and cal.parameters[n]["fixed"]) + tuple(missing)
     refit = fit(model, obs, fixed.x, fixed=kept_fixed + tuple(held), path=meta_path, robust=False, priors=priors)

@@ -1,0 +1,78 @@
+"""diagnose prefers the physical explanation (issue 24): a significant candidate is judged on data its fit did not
+see, which the pixels cannot fool: the tracker with the arm fitted from the cameras alone, and other sessions."""
+
+import numpy as np
+
+from naocal.solver.arm import ArmModel, Observations
+from naocal.solver.arm_diagnose import diagnose, format_diagnosis, session_folds
+from naocal.solver.arm_identify import fit, initialise_sensors
+from tests.test_arm import synthetic, true_errors
+
+
+def camera_heavy(truth, effects=("joint_offsets",), fixed=(), n_poses=160, tracker_every=20, seed=5):
+    """The panda seen by a camera at every pose and a tracker at one pose in `tracker_every` (as a real robot's
+    thousands of camera poses and a few hundred tracker ones), fitted with `effects` (`fixed` held)."""
+    model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "points"), truth, n_poses=n_poses, seed=seed)
+    obs = obs.subset((obs.sensor == 1) | (obs.pose % tracker_every == 0))
+    base = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), model.sensors, effects,
+                    load=model.load, link_names=model.link_names)
+    return diagnose(fit(base, obs, initialise_sensors(base, obs), fixed=fixed), n_folds=0)
+
+
+def misplaced_markers():
+    """The camera's four markers glued 2 mm above where dataset.json puts them; the arm's lengths the URDF's."""
+    truth = {k: v for k, v in true_errors(seed=4).items() if k.startswith("joint_offset")}
+    truth.update({f"point.m{k}.z": 2e-3 for k in range(1, 5)})
+    return truth
+
+
+def test_link_lengths_that_absorb_misplaced_markers_are_not_recommended():
+    """Misplaced markers: the link lengths soak them up on the pixels (significant, the camera's RMS 0.5 -> 0.28
+    px), but the arm they give from the camera alone puts the tracker's reflectors worse; diagnose says so and
+    recommends the markers' positions (points), which make the tracker better."""
+    d = camera_heavy(misplaced_markers())
+    links = next(c for c in d.candidates if c.label == "link_lengths")
+    assert links.significant and links.predicted_rms["camera"] < 0.7 * d.rms["camera"]  # the pixels like it
+    tracker = next(c for c in links.checks if c.kind == "sensor")
+    assert tracker.worse == ["tracker"] and tracker.with_effect["tracker"] > 1.3 * tracker.without["tracker"]
+    assert links.physical is False and links in d.refuted
+    assert d.best is not None and d.best.label == "points" and d.best.physical
+    text = format_diagnosis(d, "arm")
+    assert "link_lengths: pixels camera" in text and "(worse)" in text
+    assert "fits the pixels only (absorbs camera/marker-model error): not recommended" in text
+    verdict = text[text.index("verdict:"):]
+    assert "--effects joint_offsets,points " in verdict and "link_lengths" in verdict.splitlines()[1]
+    assert d.as_dict()["fits_the_pixels_only"][0] == "link_lengths"
+
+
+def test_with_the_markers_taken_as_filed_no_candidate_is_recommended():
+    """The markers' positions held as dataset.json says (--fix points): the best candidate on the pixels is the link
+    lengths (today's diagnose recommended them); the tracker refutes them and the link poses alike, so nothing is
+    recommended and the report points at the camera and marker model."""
+    d = camera_heavy(misplaced_markers(), ("joint_offsets", "points"), fixed=("points",))
+    assert d.candidates[0].label == "link_lengths" and d.candidates[0].significant
+    assert d.best is None and {c.label for c in d.refuted} == {"link_lengths", "link_poses"}
+    assert all("tracker" in check.worse for c in d.refuted for check in c.checks)
+    assert "(its frame refitted)" in format_diagnosis(d)  # the held markers and reflectors stay held
+    assert format_diagnosis(d).splitlines()[-1] == (
+        "verdict: no physical candidate: link_lengths fits the pixels only (absorbs camera/marker-model error); "
+        "link_poses fits the pixels only (absorbs camera/marker-model error): not recommended; check the cameras' "
+        "intrinsics and where the markers sit on the tool")
+
+
+def test_link_lengths_truly_off_are_recommended_as_physical():
+    """No false refusal: the same set-up with the arm's lengths truly off (markers where the file says)."""
+    d = camera_heavy(true_errors(seed=4))
+    assert d.best is not None and d.best.label == "link_lengths" and d.best.physical
+    for check in d.best.checks:  # the tracker from the camera's arm and the sessions held out are both better
+        assert all(check.with_effect[s] < 0.5 * check.without[s] for s in check.with_effect), check
+    assert {c.kind for c in d.best.checks} == {"sensor", "session"}
+    assert "verdict: add link_lengths" in format_diagnosis(d, "arm")
+
+
+def test_sessions_stand_in_as_blocks_of_consecutive_poses_in_the_file_s_order():
+    pose = np.array([7, 7, 3, 3, 9, 1, 1, 4, 8, 8])  # ids are not the order: the file's rows are
+    obs = Observations(np.zeros((10, 1)), pose, np.zeros(10, int), np.zeros(10, int), np.zeros((10, 3)))
+    folds = session_folds(obs, 3)
+    assert [sorted(set(pose[f])) for f in folds] == [[3, 7], [1, 9], [4, 8]]
+    assert np.all(sum(f.astype(int) for f in folds) == 1)
