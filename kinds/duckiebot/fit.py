@@ -193,7 +193,7 @@ def commanded_wheel_speeds(u_left, u_right, p: dict, k: float, col=None):
     dw = None if col is None else np.zeros((2, len(col)))
     for i, (u, side) in enumerate(((u_left, -1.0), (u_right, 1.0))):
         sign = math.copysign(1.0, u)
-        magnitude = max(abs(u) - dead, 0.0)
+        magnitude = max(abs(u) - dead, 0.0) if u != 0.0 else 0.0  # a stopped wheel stays stopped
         den = p["gain"] + side * (p["trim"] + speed_trim * magnitude)
         w[i] = sign * magnitude * k / den
         if dw is None:
@@ -531,14 +531,17 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     added = effect_parameters(effects)
     names = list(KINEMATIC + CAMERA + ANCHOR) + [BIAS] + list(added) + [f"marker{m}.{a}" for m in ids
                                                                         for a in ("x_m", "y_m", "yaw_rad")]
-    first = int(np.min(sightings.frame))
+    # a marker seen only in frames that see no marker tied to the reference has no start value (start_values chains
+    # them through shared frames): its corners are set aside (with the outliers), as are such frames'
+    connected = np.isin(sightings.frame, list(frames)) & np.isin(sightings.marker, list(markers))
+    first = int(np.min(sightings.frame[connected]))
     x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0],
                          [EFFECT_START.get(n, 0.0) for n in added]] + [markers[m] for m in ids])
     for name in fixed:
         if name not in names:
             raise ValueError(f"unknown parameter {name!r} to fix")
     free = np.array([n not in fixed for n in names])
-    all_obs, kept = sightings, np.arange(len(sightings.frame))
+    all_obs, kept = sightings, np.flatnonzero(connected)
     x = x0
     for _ in range(1 + (MAX_TRIM_ROUNDS if robust else 0)):
         obs = all_obs.subset(kept)

@@ -404,22 +404,49 @@ def paper_program(board_steps: int = 4, marker_drives: int = 5, step_duty: float
 
 def joint_program(board_steps: int = 4, marker_drives: int = 5, wiggles: int = 2, returns: int = 3,
                   step_duty: float = 0.25, step_s: float = 0.05, drive_duty: float = 0.3,
-                  drive_s: float = 0.25) -> list[DriveStep]:
+                  drive_s: float = 0.25, drive_duties=None, step_duties=None) -> list[DriveStep]:
     """The paper's program, better where the data allow (kinds.duckiebot.fit): along the forward drive, at `wiggles`
     places, one-wheel steps left, right, right, left (about 6 deg each: without turns in view of the markers the
     baseline cannot be told from trim); then, after driving back, `returns` short drives each forward and straight
     back (a robot with a large trim curves off the marker line on the long drive: seed 3's trim of -0.12 lost it
-    after two stretches; one stretch out and back keeps it in view)."""
+    after two stretches; one stretch out and back keeps it in view). `drive_duties`, `step_duties`: duties the
+    marker drives (and returns) and the wiggles take in turn instead of drive_duty and step_duty, each held so
+    long that it drives as far (turns as much) as those would (diagnose_program)."""
     steps = paper_program(board_steps, 0, step_duty, step_s * 2, drive_duty, drive_s)
-    left, right = DriveStep(step_s, 0.0, step_duty), DriveStep(step_s, step_duty, 0.0)
-    forward, back = DriveStep(drive_s, drive_duty, drive_duty), DriveStep(drive_s, -drive_duty, -drive_duty)
-    at = set(np.linspace(0, marker_drives - 1, wiggles).round().astype(int).tolist()) if wiggles else set()
+    drive_duties, step_duties = tuple(drive_duties or (drive_duty,)), tuple(step_duties or (step_duty,))
+
+    def forward(i):
+        duty = drive_duties[i % len(drive_duties)]
+        return DriveStep(drive_s * drive_duty / duty, duty, duty)
+
+    def back(i):
+        duty = drive_duties[i % len(drive_duties)]
+        return DriveStep(drive_s * drive_duty / duty, -duty, -duty)
+
+    at = np.linspace(0, marker_drives - 1, wiggles).round().astype(int).tolist() if wiggles else []
     for i in range(marker_drives):
-        steps.append(forward)
-        if i in at:
+        steps.append(forward(i))
+        for j in [j for j, a in enumerate(at) if a == i]:
+            duty = step_duties[j % len(step_duties)]
+            left, right = DriveStep(step_s * step_duty / duty, 0.0, duty), DriveStep(step_s * step_duty / duty, duty, 0.0)
             steps += [left, right, right, left]
-    steps += [back] * marker_drives + [forward, back] * returns
+    steps += [back(i) for i in reversed(range(marker_drives))]
+    for i in range(returns):
+        steps += [forward(i), back(i)]
     return steps
+
+
+# The program of `naocal simulate --robot duckiebot` (the mission's loop): joint_program with its marker drives at two
+# duties and its wiggles at two, so that the wheel effects can be told from what they resemble: a dead zone from
+# gain (a dead zone takes the same duty from every command, gain the same share), speed-dependent trim from trim,
+# slip from the baseline (turns at two rates). With one duty each, dead zone, gain and slip are one direction.
+DIAGNOSE_DRIVE_DUTIES = (0.3, 0.55)
+DIAGNOSE_STEP_DUTIES = (0.25, 0.5)
+
+
+def diagnose_program(board_steps: int = 4, wiggles: int = 4) -> list[DriveStep]:
+    return joint_program(board_steps=board_steps, wiggles=wiggles, drive_duties=DIAGNOSE_DRIVE_DUTIES,
+                         step_duties=DIAGNOSE_STEP_DUTIES)
 
 
 @dataclass(frozen=True)

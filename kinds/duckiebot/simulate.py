@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from naocal.kinds.duckiebot.render import HIDDEN_DEFAULTS, hidden_robot, joint_program, render_drive_log
+from naocal.kinds.duckiebot.render import HIDDEN_DEFAULTS, diagnose_program, hidden_robot, render_drive_log
 
 
 def add_options(parser) -> None:
@@ -63,7 +63,7 @@ def run_simulate(args) -> int:
     with RunLock(out, f"naocal simulate --robot duckiebot --seed {args.seed} --out {out}"):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
-        rendered = render_drive_log(out, seed=args.seed, steps=joint_program(), robot_id=f"hidden{args.seed}",
+        rendered = render_drive_log(out, seed=args.seed, steps=diagnose_program(), robot_id=f"hidden{args.seed}",
                                     hidden=hidden)
         truth = {"schema": "naocal.duckiebot_truth/1", "seed": args.seed, "hidden": hidden,
                  **hidden_robot(args.seed, hidden).truth()}
