@@ -12,6 +12,8 @@ Unknowns (`DriveFit.names`):
   the log's start would absorb all motion before the anchor exactly; anchoring at the first seen frame is the same
   model without the long lever arm of the turns before it;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
+- optional wheel effects, each off unless named (`fit_drive(effects=...)`, EFFECTS): `dead_zone`, `slip_s_per_m`,
+  `wheel_lag_s`, `speed_trim` (kinds.duckiebot.diagnose names the missing one);
 - `marker<id>.x_m .y_m .yaw_rad` of every marker seen but one, the reference (the gauge): the floor's frame is
   arbitrary (a planar rigid motion, 3 DoF), so the reference marker's pose is the world frame (0, 0, 0). The
   reference is the marker seen in the most frames (ties: the smallest id): it is the best tied to the drive, so the
