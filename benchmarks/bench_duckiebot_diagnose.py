@@ -25,7 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tools.cli  # noqa: E402,F401  (one BLAS thread, as the command line)
-from naocal.kinds.duckiebot.diagnose import diagnose_log  # noqa: E402
+from naocal.kinds.duckiebot.drive_diagnostics import diagnose_log  # noqa: E402
 from naocal.kinds.duckiebot.simulate import run_simulate  # noqa: E402
 
 CASES = {"clean": "", "dead_zone": "dead_zone=0.08", "slip": "slip=0.5", "wide_lens": "wide_lens"}
@@ -43,7 +43,7 @@ def log_of(seed: int, case: str) -> Path:
         for stale in path.rglob("*"):  # an interrupted render: start over
             if stale.is_file():
                 stale.unlink()
-        run_simulate(argparse.Namespace(seed=seed, out=str(path), hidden=CASES[case]))
+        run_simulate(argparse.Namespace(seed=seed, out=str(path), hidden_effects=CASES[case]))
     return path
 
 

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from test_duckiebot_fit import LOG_K, synthetic
 
-from naocal.kinds.duckiebot.diagnose import diagnose_fit, lens_verdict, parse_effects, run_diagnose
-from naocal.kinds.duckiebot.fit import EFFECTS, DriveEquations, fit_drive, trajectory
-from naocal.kinds.duckiebot.intrinsics import board_points, choose_lens
+from naocal.kinds.duckiebot.diagnose import LENS_CHOICES, parse_effects, run_diagnose
+from naocal.kinds.duckiebot.drive_diagnostics import diagnose_fit, lens_verdict
+from naocal.kinds.duckiebot.fit import EFFECTS, DriveEquations, Sightings, fit_drive, trajectory
+from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, board_points, choose_lens
 from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, diagnose_program, hidden_robot,
                                            paper_program, simulate_drive)
 from naocal.kinds.duckiebot.robot import camera_mount
@@ -165,6 +166,7 @@ def test_bad_hidden_and_effects_are_refused_in_one_line():
         with pytest.raises(NaocalError, match=message):
             parse_hidden(text)
     assert parse_effects("slip,dead_zone") == ("dead_zone", "slip")
+    assert LENS_CHOICES == LENS_MODELS  # --lens's choices, listed without importing cv2
     with pytest.raises(NaocalError, match="unknown Duckiebot effect 'camera_tilt'"):
         parse_effects("camera_tilt")
 
@@ -175,13 +177,13 @@ def test_simulate_then_diagnose_a_clean_rendered_log(tmp_path, capsys):
     detected, lens fitted, joint fit) names nothing; a second simulate into the same directory is refused and
     changes nothing."""
     out = tmp_path / "LOG"
-    assert run_simulate(argparse.Namespace(seed=1, out=str(out), hidden="")) == 0
+    assert run_simulate(argparse.Namespace(seed=1, out=str(out), hidden_effects="")) == 0
     truth = json.loads((out / "truth.json").read_text())
     assert truth["effects"] == {} and truth["lens"]["model"] == "plumb_bob"
     assert (out / "log.json").exists() and (out / "wheels.csv").exists()
     before = sorted(p.name for p in out.iterdir())
     with pytest.raises(NaocalError, match="not an empty directory"):
-        run_simulate(argparse.Namespace(seed=2, out=str(out), hidden="slip"))
+        run_simulate(argparse.Namespace(seed=2, out=str(out), hidden_effects="slip"))
     assert sorted(p.name for p in out.iterdir()) == before
     capsys.readouterr()
     assert run_diagnose(argparse.Namespace(dataset=str(out), effects="", lens="plumb_bob", json=True)) == 0
@@ -189,3 +191,15 @@ def test_simulate_then_diagnose_a_clean_rendered_log(tmp_path, capsys):
     assert report["named"] is None and report["after"] is None
     assert report["lens_verdict"]["best"] in ("plumb_bob", "rational") and not report["lens_verdict"]["wrong"]
     assert [t["effect"] for t in report["tests"] if t["significant"]] == []
+
+
+def test_a_marker_tied_to_no_other_is_set_aside():
+    """A frame seeing only a marker no other frame sees (no start value: start_values chains markers through shared
+    frames) is set aside with the outliers; it was a KeyError (hidden slip on seed 3's robot)."""
+    _, drive, sightings, K = synthetic(1)
+    frame = sightings.frame[-1]
+    marker = np.where(sightings.frame == frame, 99, sightings.marker)
+    lonely = Sightings(sightings.frame, marker, sightings.corner, sightings.uv_px)
+    fit = fit_drive(drive, lonely, K, 0.065, camera_mount())
+    assert fit.success and set(fit.outliers.marker) == {99} and 99 not in set(fit.sightings.marker)
+    assert not any(n.startswith("marker99.") for n in fit.names)

@@ -324,9 +324,6 @@ class HiddenRobot:
                 "T_base_camera": np.asarray(self.T_base_camera).tolist(), "effects": dict(self.effects)}
 
 
-# A hidden effect's value when `--hidden` names it without one (fit.EFFECTS's parameters, SI): each well above what
-# the joint fit resolves, well inside what a worn Duckiebot shows.
-HIDDEN_DEFAULTS = {"dead_zone": 0.08, "slip": 0.5, "wheel_lag": 0.08, "speed_trim": 0.08, "wide_lens": 1.0}
 # The hidden wide lens: Kannala-Brandt, about 150 deg across the image's diagonal (a DB21's is about 160), its
 # focal length this share of the drawn plumb_bob camera's.
 WIDE_LENS_FOCAL_SHARE = 0.8
@@ -334,14 +331,14 @@ WIDE_LENS_K = (0.03, -0.01, 0.0, 0.0)
 
 
 def hidden_robot(seed: int, hidden=None) -> HiddenRobot:
-    """The hidden robot `seed` (`_drawn_robot`) with the hidden effects `hidden` {name: value} (HIDDEN_DEFAULTS'
-    names: the wheel effects of fit.EFFECTS, their parameter's value; wide_lens: a fisheye lens instead of the
-    drawn plumb_bob one, any value)."""
+    """The hidden robot `seed` (`_drawn_robot`) with the hidden effects `hidden` {name: value}: the wheel effects of
+    fit.EFFECTS (their parameter's value), `wide_lens` (a fisheye lens instead of the drawn plumb_bob one, any
+    value)."""
     robot = _drawn_robot(seed)
     hidden = dict(hidden or {})
     for name in hidden:
-        if name not in HIDDEN_DEFAULTS:
-            raise ValueError(f"unknown hidden effect {name!r} (expected one of {', '.join(HIDDEN_DEFAULTS)})")
+        if name not in EFFECTS and name != "wide_lens":
+            raise ValueError(f"unknown hidden effect {name!r} (expected one of {', '.join(EFFECTS)}, wide_lens)")
     effects = {EFFECTS[name][0]: float(value) for name, value in hidden.items() if name in EFFECTS}
     lens = None
     if "wide_lens" in hidden:
@@ -428,7 +425,8 @@ def joint_program(board_steps: int = 4, marker_drives: int = 5, wiggles: int = 2
         steps.append(forward(i))
         for j in [j for j, a in enumerate(at) if a == i]:
             duty = step_duties[j % len(step_duties)]
-            left, right = DriveStep(step_s * step_duty / duty, 0.0, duty), DriveStep(step_s * step_duty / duty, duty, 0.0)
+            held = step_s * step_duty / duty
+            left, right = DriveStep(held, 0.0, duty), DriveStep(held, duty, 0.0)
             steps += [left, right, right, left]
     steps += [back(i) for i in reversed(range(marker_drives))]
     for i in range(returns):
