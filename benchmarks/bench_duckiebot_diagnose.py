@@ -71,7 +71,7 @@ def main(argv=None) -> int:
                 statistic = f"T2 {next(t.statistic for t in d.tests if t.effect == named):.0f}"
             if case == "clean":
                 clean_rms = d.rms_px
-            after = d.after["rms_px"] if d.after else float("nan")
+            after = d.after.get("rms_px", float("nan")) if d.after else float("nan")
             ok = named == EXPECTED[case]
             failures += not ok
             clean = f"{clean_rms:7.3f}" if clean_rms is not None else "      -"

@@ -514,14 +514,15 @@ def effect_parameters(effects) -> tuple:
 
 
 def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_base_camera_start, *,
-              fixed=(), loss: str = "linear", loss_scale_px: float = 1.0, robust: bool = False,
+              fixed=(), start=None, loss: str = "linear", loss_scale_px: float = 1.0, robust: bool = False,
               effects=()) -> DriveFit:
     """The joint fit (module docstring) of the rectified corners `sightings` seen through camera matrix K, from the
     nominal camera pose `T_base_camera_start`. `effects`: wheel effects added to the model (EFFECTS), each from 0
-    (the base model). `fixed`: names kept at their start values. `robust`: set aside the
-    corners no model explains (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by
-    default: on rendered logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-
-    tailed, not mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
+    (the base model). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
+    the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the corners no model explains
+    (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by default: on rendered
+    logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-tailed, not
+    mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
@@ -542,6 +543,10 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     for name in fixed:
         if name not in names:
             raise ValueError(f"unknown parameter {name!r} to fix")
+    for name, value in (start or {}).items():
+        if name not in names:
+            raise ValueError(f"unknown parameter {name!r} to start from")
+        x0[names.index(name)] = value
     free = np.array([n not in fixed for n in names])
     all_obs, kept = sightings, np.flatnonzero(connected)
     x = x0
