@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import tools.cli  # noqa: E402,F401  (one BLAS thread, as the command line)
 from naocal.kinds.duckiebot.drive_diagnostics import diagnose_log  # noqa: E402
 from naocal.kinds.duckiebot.simulate import run_simulate  # noqa: E402
+from naocal.solver.errors import NaocalError  # noqa: E402
 
 CASES = {"clean": "", "dead_zone": "dead_zone=0.08", "slip": "slip=0.5", "wide_lens": "wide_lens"}
 EXPECTED = {"clean": None, "dead_zone": "dead_zone", "slip": "slip", "wide_lens": "lens=fisheye"}
@@ -60,7 +61,12 @@ def main(argv=None) -> int:
         for case in args.cases:
             path = log_of(seed, case)
             t0 = time.process_time()
-            d = diagnose_log(path)
+            try:
+                d = diagnose_log(path)
+            except NaocalError as err:  # the base fit refused the log: said, counted as a failure
+                failures += 1
+                print(f"{seed:4d} {case:10s} refused: {err}", flush=True)
+                continue
             cpu = time.process_time() - t0
             named = d.named
             if named is None:
