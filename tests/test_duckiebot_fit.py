@@ -32,11 +32,12 @@ def truth_of(robot) -> dict:
     return truth
 
 
-def synthetic(seed, noise_px=0.3, steps=None):
-    """(robot, Drive, Sightings, K): the hidden robot `seed` driven through `steps`, its marker corners projected by
-    a pinhole with the true K (what rectification gives) plus Gaussian noise; markers within 0.6 m, in the image."""
+def synthetic(seed, noise_px=0.3, steps=None, effects=None):
+    """(robot, Drive, Sightings, K): the hidden robot `seed` with the hidden wheel `effects` (fit.EFFECTS' parameters)
+    driven through `steps`, its marker corners projected by a pinhole with the true K (what rectification gives)
+    plus Gaussian noise; markers within 0.6 m, in the image."""
     robot, scene = hidden_robot(seed), calibration_scene()
-    drive = simulate_drive(steps or joint_program(board_steps=0), robot.kinematics)
+    drive = simulate_drive(steps or joint_program(board_steps=0), robot.kinematics, effects=effects)
     cam = robot.camera
     K = np.array([[cam.fx_px, 0.0, cam.cx_px], [0.0, cam.fy_px, cam.cy_px], [0.0, 0.0, 1.0]])
     corners = scene.marker_corners()

@@ -12,6 +12,8 @@ Unknowns (`DriveFit.names`):
   the log's start would absorb all motion before the anchor exactly; anchoring at the first seen frame is the same
   model without the long lever arm of the turns before it;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
+- optional wheel effects, each off unless named (`fit_drive(effects=...)`, EFFECTS): `dead_zone`, `slip_s_per_m`,
+  `wheel_lag_s`, `speed_trim` (kinds.duckiebot.diagnose names the missing one);
 - `marker<id>.x_m .y_m .yaw_rad` of every marker seen but one, the reference (the gauge): the floor's frame is
   arbitrary (a planar rigid motion, 3 DoF), so the reference marker's pose is the world frame (0, 0, 0). The
   reference is the marker seen in the most frames (ties: the smallest id): it is the best tied to the drive, so the
@@ -55,6 +57,20 @@ SCALES = {"gain": 0.1, "trim": 0.05, "baseline_m": 0.003, "camera.x_m": 0.005, "
           "camera.z_m": 0.005, "camera.roll_rad": 0.02, "camera.pitch_rad": 0.03, "camera.yaw_rad": 0.03,
           "anchor.x_m": 0.05, "anchor.y_m": 0.05, "anchor.theta_rad": 0.05, BIAS: 0.1}
 MARKER_SCALES = (0.05, 0.05, 0.05)  # x, y, yaw
+# Optional effects of the wheels (each off unless named: fit_drive(effects=...)), {effect: its parameters}; each
+# parameter's value 0 is the base model (commanded_wheel_speeds, body_motion, _lagged):
+# - dead_zone: the duty's magnitude less dead_zone drives the wheel (0 inside it), both wheels alike;
+# - slip: v and omega scaled by 1 - slip_s_per_m r |w_r - w_l| (ground speed lost in turns, growing with the rate);
+# - wheel_lag: each wheel's speed follows its command with a first-order lag of time constant wheel_lag_s;
+# - speed_trim: the trim grows with the duty's magnitude, trim + speed_trim |u|.
+EFFECTS = {"dead_zone": ("dead_zone",), "slip": ("slip_s_per_m",), "wheel_lag": ("wheel_lag_s",),
+           "speed_trim": ("speed_trim",)}
+SCALES.update({"dead_zone": 0.03, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.05})
+# Where each effect's parameter starts (0 unless listed): wheel_lag_s's signature on frames grabbed at rest after the
+# wheels settle is what they still turn at the grab, exp(-t / lag), whose derivative at lag 0 is 0: a fit started
+# there stays there, and a score test there sees nothing. 0.06 s: a typical small geared motor's.
+EFFECT_START = {"wheel_lag_s": 0.06}
+LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
 
 
@@ -126,19 +142,30 @@ def _sinc_and_derivative(a):
     return s / a, (a * c - s) / (a * a)
 
 
-def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor, anchor_t_s: float, times_s):
+def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor, anchor_t_s: float, times_s,
+               effects=None):
     """Poses (m, 3) at `times_s` (each at or after anchor_t_s, increasing) of a robot at `anchor` (x, y, theta) at
     anchor_t_s, driven by the log's commands (each held until the next row; 0 before the first) through
-    Duckietown's forward kinematics, and their exact Jacobian (m, 3, 6) with respect to
-    (gain, trim, baseline, anchor x, y, theta)."""
+    Duckietown's forward kinematics, exact arcs, and their exact Jacobian (m, 3, 6 + E) with respect to
+    (gain, trim, baseline, anchor x, y, theta, then the `effects` {parameter: value} in their order: EFFECTS).
+    With wheel_lag_s the wheel speeds are a state from the log's first row on, integrated in LAG_SUBSTEP_S steps
+    (each an arc at the step's exact mean wheel speeds)."""
+    effects = dict(effects or {})
     times_s = np.asarray(times_s, dtype=float)
-    knots = np.union1d(drive.wheel_t_s[drive.wheel_t_s > anchor_t_s], times_s)
+    col = {n: i for i, n in enumerate(KINEMATIC + ANCHOR + tuple(effects))}
+    p = {"gain": gain, "trim": trim, "baseline_m": baseline_m, **effects}
+    lag = "wheel_lag_s" in effects
+    start = min(float(drive.wheel_t_s[0]), float(anchor_t_s)) if lag and len(drive.wheel_t_s) else float(anchor_t_s)
+    knots = np.union1d(drive.wheel_t_s[drive.wheel_t_s > start], times_s)
+    if lag:
+        knots = np.union1d(knots, [anchor_t_s])
     pose = np.asarray(anchor, dtype=float).copy()
-    J = np.zeros((3, 6))
-    J[:, 3:] = np.eye(3)
-    poses, jacobians = np.zeros((len(times_s), 3)), np.zeros((len(times_s), 3, 6))
+    J = np.zeros((3, len(col)))
+    J[:, 3:6] = np.eye(3)
+    poses, jacobians = np.zeros((len(times_s), 3)), np.zeros((len(times_s), 3, len(col)))
     want = {float(t): i for i, t in enumerate(times_s)}
-    r, k, t_prev = drive.radius_m, drive.k, float(anchor_t_s)
+    r, k, t_prev = drive.radius_m, drive.k, start
+    w, dw = np.zeros(2), np.zeros((2, len(col)))  # the lagged wheel speeds (left, right) and their derivatives
     if t_prev in want:
         poses[want[t_prev]], jacobians[want[t_prev]] = pose, J
     for t in knots:
@@ -146,23 +173,93 @@ def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor
         if dt > 0:
             row = np.searchsorted(drive.wheel_t_s, t_prev, side="right") - 1
             u_l, u_r = (drive.left_duty[row], drive.right_duty[row]) if row >= 0 else (0.0, 0.0)
-            if u_l != 0.0 or u_r != 0.0:
-                pose, J = _arc(pose, J, u_l, u_r, gain, trim, baseline_m, k, r, dt)
+            moving = t_prev >= anchor_t_s
+            if lag:
+                wc, dwc = commanded_wheel_speeds(u_l, u_r, p, k, col)
+                pose, J, w, dw = _lagged(pose, J, w, dw, wc, dwc, p, col, r, dt, moving)
+            elif u_l != 0.0 or u_r != 0.0:
+                wc, dwc = commanded_wheel_speeds(u_l, u_r, p, k, col)
+                pose, J = _arc(pose, J, *body_motion(wc, dwc, p, col, r), dt)
         t_prev = float(t)
         if t_prev in want:
             poses[want[t_prev]], jacobians[want[t_prev]] = pose, J
     return poses, jacobians
 
 
-def _arc(pose, J, u_l, u_r, gain, trim, b, k, r, dt):
-    """One held command: the pose after it (exact arc) and the propagated Jacobian (3, 6)."""
-    w_l, w_r = u_l * k / (gain - trim), u_r * k / (gain + trim)
-    dwl = np.array([-w_l / (gain - trim), w_l / (gain - trim), 0.0])  # d w_l / d (gain, trim, baseline)
-    dwr = np.array([-w_r / (gain + trim), -w_r / (gain + trim), 0.0])
-    v, omega = r * (w_r + w_l) / 2.0, r * (w_r - w_l) / b
-    dv = r * (dwr + dwl) / 2.0
-    domega = r * (dwr - dwl) / b
-    domega[2] = -omega / b
+def commanded_wheel_speeds(u_left, u_right, p: dict, k: float, col=None):
+    """(w (2,) rad/s of the left and right wheel, d w / d parameters (2, len(col)) or None) for held duties, by
+    Duckietown's forward map w = u k / (gain -+ trim) with the optional effects of `p`: dead_zone (the duty's
+    magnitude less the dead zone, 0 inside it) and speed_trim (trim + speed_trim |u| after the dead zone)."""
+    dead, speed_trim = p.get("dead_zone", 0.0), p.get("speed_trim", 0.0)
+    w = np.zeros(2)
+    dw = None if col is None else np.zeros((2, len(col)))
+    for i, (u, side) in enumerate(((u_left, -1.0), (u_right, 1.0))):
+        sign = math.copysign(1.0, u)
+        magnitude = max(abs(u) - dead, 0.0) if u != 0.0 else 0.0  # a stopped wheel stays stopped
+        den = p["gain"] + side * (p["trim"] + speed_trim * magnitude)
+        w[i] = sign * magnitude * k / den
+        if dw is None:
+            continue
+        dw[i, col["gain"]] = -w[i] / den
+        dw[i, col["trim"]] = -side * w[i] / den
+        if "speed_trim" in col:
+            dw[i, col["speed_trim"]] = -side * magnitude * w[i] / den
+        if "dead_zone" in col and magnitude > 0.0:
+            dw[i, col["dead_zone"]] = -sign * k / den + side * speed_trim * w[i] / den
+    return w, dw
+
+
+def body_motion(w, dw, p: dict, col, r: float):
+    """(v, omega, d v, d omega) of the robot whose wheels turn at w (left, right) (derivatives dw (2, P) or None: then
+    d v, d omega are None too): Duckietown's
+    v = r (w_r + w_l) / 2, omega = r (w_r - w_l) / b, both scaled by 1 - slip r |w_r - w_l| (slip_s_per_m: the
+    wheels' ground speed lost in turns, growing with the turn rate)."""
+    b, slip = p["baseline_m"], p.get("slip_s_per_m", 0.0)
+    difference = w[1] - w[0]
+    f = 1.0 - slip * r * abs(difference)
+    v, omega = f * r * (w[1] + w[0]) / 2.0, f * r * difference / b
+    if dw is None:
+        return v, omega, None, None
+    df = -slip * r * math.copysign(1.0, difference) * (dw[1] - dw[0])
+    if "slip_s_per_m" in col:
+        df[col["slip_s_per_m"]] -= r * abs(difference)
+    dv = df * r * (w[1] + w[0]) / 2.0 + f * r * (dw[1] + dw[0]) / 2.0
+    domega = df * r * difference / b + f * r * (dw[1] - dw[0]) / b
+    domega[col["baseline_m"]] -= omega / b
+    return v, omega, dv, domega
+
+
+def lag_factors(tau_s: float, h_s: float):
+    """(e, m, de/dtau, dm/dtau) of a first-order lag over a step h: the speed's remaining share of its distance to
+    the command at the step's end, e = exp(-h / tau), and over the step on average, m = tau / h (1 - e); the limit
+    tau -> 0 (no lag) included."""
+    if tau_s <= 1e-12:
+        return 0.0, 0.0, 0.0, 1.0 / h_s
+    e = math.exp(-h_s / tau_s)
+    return e, tau_s / h_s * (1.0 - e), e * h_s / tau_s ** 2, (1.0 - e) / h_s - e / tau_s
+
+
+def _lagged(pose, J, w, dw, wc, dwc, p, col, r, dt, moving):
+    """A held command with lagged wheels: the wheel speeds (w, dw) follow the commanded ones (wc, dwc) with time
+    constant wheel_lag_s; the pose moves (if `moving`: from the anchor on) by one arc per step at the mean speeds."""
+    steps = max(1, math.ceil(dt / LAG_SUBSTEP_S - 1e-9))
+    h = dt / steps
+    e, m, de, dm = lag_factors(p["wheel_lag_s"], h)
+    tau = col["wheel_lag_s"]
+    for _ in range(steps):
+        gap, dgap = w - wc, dw - dwc
+        if moving and (np.any(w) or np.any(wc) or np.any(dgap)):  # at rest with every derivative 0: no move
+            mean, dmean = wc + gap * m, dwc + dgap * m
+            dmean[:, tau] += gap * dm
+            pose, J = _arc(pose, J, *body_motion(mean, dmean, p, col, r), h)
+        w, dw = wc + gap * e, dwc + dgap * e
+        dw[:, tau] += gap * de
+    return pose, J, w, dw
+
+
+def _arc(pose, J, v, omega, dv, domega, dt):
+    """The pose after moving at (v, omega) for dt (exact arc) and the propagated Jacobian (3, P), given the
+    velocities' derivatives dv, domega (P,) with respect to the parameters."""
     a = omega * dt / 2.0
     S, dS = _sinc_and_derivative(a)
     chord = v * dt * S
@@ -174,9 +271,7 @@ def _arc(pose, J, u_l, u_r, gain, trim, b, k, r, dt):
     G = np.array([[dchord_dv * ch, dchord_domega * ch - chord * sh * dt / 2.0],
                   [dchord_dv * sh, dchord_domega * sh + chord * ch * dt / 2.0],
                   [0.0, dt]])  # d new / d (v, omega)
-    J_new = Phi @ J
-    J_new[:, :3] += G @ np.vstack([dv, domega])
-    return new, J_new
+    return new, Phi @ J + G @ np.vstack([dv, domega])
 
 
 # ------------------------------------------------------------------------------------------------ the equations
@@ -197,6 +292,7 @@ class DriveEquations:
         self.index = np.flatnonzero(free)
         self.scales = parameter_scales(self.names)[self.index]
         self.column = {n: i for i, n in enumerate(self.names)}
+        self.effect_parameters = tuple(n for names in EFFECTS.values() for n in names if n in self.column)
         self.frames = np.unique(sightings.frame)
         self.anchor_t_s = float(drive.frame_t_s[self.frames[0]])
         self.row_frame = np.searchsorted(self.frames, sightings.frame)
@@ -229,7 +325,8 @@ class DriveEquations:
         c = self.column
         obs, N, P = self.obs, len(self.obs.frame), len(self.names)
         poses, dposes = trajectory(self.drive, x[c["gain"]], x[c["trim"]], x[c["baseline_m"]],
-                                   x[[c[n] for n in ANCHOR]], self.anchor_t_s, self.drive.frame_t_s[self.frames])
+                                   x[[c[n] for n in ANCHOR]], self.anchor_t_s, self.drive.frame_t_s[self.frames],
+                                   {n: x[c[n]] for n in self.effect_parameters})
         pose, dpose = poses[self.row_frame], dposes[self.row_frame]
         # markers: the reference at the origin, the others from x
         m_xy, m_yaw = np.zeros((N, 2)), np.zeros(N)
@@ -267,7 +364,7 @@ class DriveEquations:
         dRT = np.stack([np.stack([-st, ct], -1), np.stack([-ct, -st], -1)], axis=1)
         d_base_d_pose = np.concatenate([-RT, np.einsum("nij,nj->ni", dRT, rel)[:, :, None]], axis=2)  # (N, 2, 3)
         through_pose = B @ d_base_d_pose @ dpose  # (N, 2, 6)
-        for j, name in enumerate(KINEMATIC + ANCHOR):
+        for j, name in enumerate(KINEMATIC + ANCHOR + self.effect_parameters):
             Jx[:, :, c[name]] += through_pose[:, :, j]
         BR = B @ RT  # d uv / d world xy
         d_world_d_yaw = np.stack([-sy * o[:, 0] - cy * o[:, 1], cy * o[:, 0] - sy * o[:, 1]], axis=1)
@@ -408,15 +505,24 @@ def _reference_marker(obs: Sightings) -> int:
     return int(ids[np.argmax(counts)])  # argmax takes the first of the ties: the smallest id
 
 
+def effect_parameters(effects) -> tuple:
+    """The parameters of the named effects (EFFECTS), in EFFECTS' order; ValueError naming an unknown effect."""
+    for e in effects:
+        if e not in EFFECTS:
+            raise ValueError(f"unknown effect {e!r} (expected one of {', '.join(EFFECTS)})")
+    return tuple(n for e, names in EFFECTS.items() if e in effects for n in names)
+
+
 def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_base_camera_start, *,
-              fixed=(), start=None, loss: str = "linear", loss_scale_px: float = 1.0,
-              robust: bool = False) -> DriveFit:
+              fixed=(), start=None, loss: str = "linear", loss_scale_px: float = 1.0, robust: bool = False,
+              effects=()) -> DriveFit:
     """The joint fit (module docstring) of the rectified corners `sightings` seen through camera matrix K, from the
-    nominal camera pose `T_base_camera_start`. `fixed`: names kept at their start values. `start`: {name: value}
-    start values instead of the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the
-    corners no model explains (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by
-    default: on rendered logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-
-    tailed, not mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
+    nominal camera pose `T_base_camera_start`. `effects`: wheel effects added to the model (EFFECTS), each from 0
+    (the base model). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
+    the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the corners no model explains
+    (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by default: on rendered
+    logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-tailed, not
+    mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
@@ -425,11 +531,15 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     frames, markers, gain0 = start_values(drive, sightings, K, marker_size_m, np.asarray(T_base_camera_start),
                                           reference)
     ids = sorted(m for m in markers if m != reference)
-    names = list(KINEMATIC + CAMERA + ANCHOR) + [BIAS] + [f"marker{m}.{a}" for m in ids
-                                                          for a in ("x_m", "y_m", "yaw_rad")]
-    first = int(np.min(sightings.frame))
-    x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0]] +
-                        [markers[m] for m in ids])
+    added = effect_parameters(effects)
+    names = list(KINEMATIC + CAMERA + ANCHOR) + [BIAS] + list(added) + [f"marker{m}.{a}" for m in ids
+                                                                        for a in ("x_m", "y_m", "yaw_rad")]
+    # a marker seen only in frames that see no marker tied to the reference has no start value (start_values chains
+    # them through shared frames): its corners are set aside (with the outliers), as are such frames'
+    connected = np.isin(sightings.frame, list(frames)) & np.isin(sightings.marker, list(markers))
+    first = int(np.min(sightings.frame[connected]))
+    x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0],
+                         [EFFECT_START.get(n, 0.0) for n in added]] + [markers[m] for m in ids])
     for name in fixed:
         if name not in names:
             raise ValueError(f"unknown parameter {name!r} to fix")
@@ -438,7 +548,7 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
             raise ValueError(f"unknown parameter {name!r} to start from")
         x0[names.index(name)] = value
     free = np.array([n not in fixed for n in names])
-    all_obs, kept = sightings, np.arange(len(sightings.frame))
+    all_obs, kept = sightings, np.flatnonzero(connected)
     x = x0
     for _ in range(1 + (MAX_TRIM_ROUNDS if robust else 0)):
         obs = all_obs.subset(kept)

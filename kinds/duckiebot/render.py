@@ -29,12 +29,15 @@ import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import SCHEMA, DriveLog, write_drive_log, write_frame
-from naocal.kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, wheel_speeds
+from naocal.kinds.duckiebot.fit import EFFECTS, body_motion, commanded_wheel_speeds, lag_factors
+from naocal.kinds.duckiebot.intrinsics import LensCamera
+from naocal.kinds.duckiebot.kinematics import integrate_pose
 from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
 from naocal.solver.camera import CameraIntrinsics, distort, project_points, undistort_points
 from naocal.solver.fileio import check_output_directory
 from naocal.solver.transforms import invert_transform, make_transform, rot_z, transform_points
 
+SIMULATION_STEP_S = 0.001  # with a hidden wheel lag: the pose integrated in steps this long
 MARKER_SIZE_M = 0.065
 MARKER_SPACING_M = 0.15
 MARKER_CELLS = 8  # tag36h11: 6 x 6 data cells and a one-cell black border
@@ -175,11 +178,33 @@ def undistort_exact(uv_px, intrinsics, iterations: int = 8) -> np.ndarray:
     return np.stack([xn, yn], axis=-1)
 
 
+def fisheye_normalised(uv_px, lens: LensCamera, iterations: int = 20) -> np.ndarray:
+    """Normalised undistorted coordinates (n, 2) of pixels (n, 2) of a Kannala-Brandt lens (OpenCV's fisheye:
+    theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8), theta the ray's angle off the axis):
+    Newton on theta, exact where OpenCV's undistortPoints stops after a few fixed-point steps."""
+    K, k = lens.K, np.asarray(lens.distortion, dtype=float).ravel()[:4]
+    uv = np.asarray(uv_px, dtype=float)
+    yd = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    xd = (uv[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    theta_d = np.hypot(xd, yd)
+    theta = theta_d.copy()
+    for _ in range(iterations):
+        t2 = theta * theta
+        f = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))) - theta_d
+        df = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+        theta = theta - f / df
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(theta_d > 1e-12, np.tan(theta) / theta_d, 1.0)
+    return np.column_stack([xd * scale, yd * scale])
+
+
 class Renderer:
     """Renders grey images of a scene seen by one camera mounted on a robot at planar poses (x, y, theta)."""
 
-    def __init__(self, scene: Scene, camera: CameraIntrinsics, T_base_camera, supersample: int = 2):
-        self.scene, self.camera = scene, camera
+    def __init__(self, scene: Scene, camera: CameraIntrinsics, T_base_camera, supersample: int = 2,
+                 lens: LensCamera | None = None):
+        """`lens`: a fisheye lens (LensCamera, Kannala-Brandt) instead of `camera`'s plumb_bob (its size is used)."""
+        self.scene, self.camera, self.lens = scene, camera, lens
         self.T_base_camera = np.asarray(T_base_camera, dtype=float)
         self.supersample = supersample
         w, h, s = camera.width_px, camera.height_px, supersample
@@ -187,7 +212,9 @@ class Renderer:
         u = (np.arange(w)[:, None] + offsets[None, :]).ravel()
         v = (np.arange(h)[:, None] + offsets[None, :]).ravel()
         uu, vv = np.meshgrid(u, v)
-        normalised = undistort_exact(np.stack([uu, vv], axis=-1), camera.intrinsics())
+        grid = np.stack([uu, vv], axis=-1)
+        normalised = (undistort_exact(grid, camera.intrinsics()) if lens is None
+                      else fisheye_normalised(grid.reshape(-1, 2), lens).reshape(grid.shape))
         radius = np.hypot(normalised[..., 0], normalised[..., 1])
         # the field of view: beyond the image border's largest normalised radius a wide lens's polynomial folds
         # back, and points far outside the view would "project" into the image
@@ -259,7 +286,12 @@ class Renderer:
         """(pixels (..., 2), within the field of view (...)) of world points seen from `pose`, by
         solver.camera.project_points."""
         p_cam = transform_points(invert_transform(self.T_world_camera(pose)), np.asarray(points_world, float))
-        uv, depth = project_points(p_cam, self.camera.intrinsics())
+        if self.lens is None:
+            uv, depth = project_points(p_cam, self.camera.intrinsics())
+        else:  # OpenCV's camera frame (x right, y down, z ahead) of naocal's (x ahead, y left, z up)
+            depth = p_cam[..., 0]
+            cv_points = np.stack([-p_cam[..., 1], -p_cam[..., 2], depth], axis=-1).reshape(-1, 3)
+            uv = self.lens.project(cv_points, np.zeros(3), np.zeros(3)).reshape(p_cam.shape[:-1] + (2,))
         with np.errstate(divide="ignore", invalid="ignore"):
             radius = np.hypot(p_cam[..., 1], p_cam[..., 2]) / depth
         return uv, (depth > 0.02) & (radius <= self.max_radius)
@@ -279,9 +311,45 @@ class HiddenRobot:
     kinematics: Kinematics
     camera: CameraIntrinsics
     T_base_camera: np.ndarray = field(repr=False)
+    effects: dict = field(default_factory=dict)  # hidden wheel effects {parameter (fit.EFFECTS): value}
+    lens: LensCamera | None = None  # a hidden wide (fisheye) lens, which `camera` then only sizes
+
+    def truth(self) -> dict:
+        """What truth.json records: Duckietown's kinematics, the camera (the lens), its pose, the hidden effects."""
+        kin = self.kinematics
+        lens = self.lens or LensCamera.from_intrinsics(self.camera)
+        return {"kinematics": {"gain": kin.gain, "trim": kin.trim, "k": kin.k, "baseline_m": kin.baseline_m,
+                               "radius_m": kin.radius_m},
+                "lens": {"model": lens.model, "K": lens.K.tolist(), "distortion": np.ravel(lens.distortion).tolist()},
+                "T_base_camera": np.asarray(self.T_base_camera).tolist(), "effects": dict(self.effects)}
 
 
-def hidden_robot(seed: int) -> HiddenRobot:
+# The hidden wide lens: Kannala-Brandt, about 150 deg across the image's diagonal (a DB21's is about 160), its
+# focal length this share of the drawn plumb_bob camera's.
+WIDE_LENS_FOCAL_SHARE = 0.8
+WIDE_LENS_K = (0.03, -0.01, 0.0, 0.0)
+
+
+def hidden_robot(seed: int, hidden=None) -> HiddenRobot:
+    """The hidden robot `seed` (`_drawn_robot`) with the hidden effects `hidden` {name: value}: the wheel effects of
+    fit.EFFECTS (their parameter's value), `wide_lens` (a fisheye lens instead of the drawn plumb_bob one, any
+    value)."""
+    robot = _drawn_robot(seed)
+    hidden = dict(hidden or {})
+    for name in hidden:
+        if name not in EFFECTS and name != "wide_lens":
+            raise ValueError(f"unknown hidden effect {name!r} (expected one of {', '.join(EFFECTS)}, wide_lens)")
+    effects = {EFFECTS[name][0]: float(value) for name, value in hidden.items() if name in EFFECTS}
+    lens = None
+    if "wide_lens" in hidden:
+        c = robot.camera
+        f = WIDE_LENS_FOCAL_SHARE * c.fx_px
+        lens = LensCamera("fisheye", np.array([[f, 0.0, c.cx_px], [0.0, f * c.fy_px / c.fx_px, c.cy_px],
+                                               [0.0, 0.0, 1.0]]), np.array(WIDE_LENS_K))
+    return HiddenRobot(robot.kinematics, robot.camera, robot.T_base_camera, effects, lens)
+
+
+def _drawn_robot(seed: int) -> HiddenRobot:
     """A DB21 drawn from the real robots' ranges (docs/DUCKIEBOT.md): trim sd 0.05, gain 0.8-1.2, k 27 +- 30 %,
     baseline 0.1 +- 3 mm; fx 319-360 px, fy/fx 0.985-1.01, cx 300-336, cy 212-257, k1 -0.32..-0.25,
     k2 0.043..0.094, |p1|, |p2| <= 0.003; the mount +-5 mm, +-2 deg."""
@@ -333,22 +401,50 @@ def paper_program(board_steps: int = 4, marker_drives: int = 5, step_duty: float
 
 def joint_program(board_steps: int = 4, marker_drives: int = 5, wiggles: int = 2, returns: int = 3,
                   step_duty: float = 0.25, step_s: float = 0.05, drive_duty: float = 0.3,
-                  drive_s: float = 0.25) -> list[DriveStep]:
+                  drive_s: float = 0.25, drive_duties=None, step_duties=None) -> list[DriveStep]:
     """The paper's program, better where the data allow (kinds.duckiebot.fit): along the forward drive, at `wiggles`
     places, one-wheel steps left, right, right, left (about 6 deg each: without turns in view of the markers the
     baseline cannot be told from trim); then, after driving back, `returns` short drives each forward and straight
     back (a robot with a large trim curves off the marker line on the long drive: seed 3's trim of -0.12 lost it
-    after two stretches; one stretch out and back keeps it in view)."""
+    after two stretches; one stretch out and back keeps it in view). `drive_duties`, `step_duties`: duties the
+    marker drives (and returns) and the wiggles take in turn instead of drive_duty and step_duty, each held so
+    long that it drives as far (turns as much) as those would (diagnose_program)."""
     steps = paper_program(board_steps, 0, step_duty, step_s * 2, drive_duty, drive_s)
-    left, right = DriveStep(step_s, 0.0, step_duty), DriveStep(step_s, step_duty, 0.0)
-    forward, back = DriveStep(drive_s, drive_duty, drive_duty), DriveStep(drive_s, -drive_duty, -drive_duty)
-    at = set(np.linspace(0, marker_drives - 1, wiggles).round().astype(int).tolist()) if wiggles else set()
+    drive_duties, step_duties = tuple(drive_duties or (drive_duty,)), tuple(step_duties or (step_duty,))
+
+    def forward(i):
+        duty = drive_duties[i % len(drive_duties)]
+        return DriveStep(drive_s * drive_duty / duty, duty, duty)
+
+    def back(i):
+        duty = drive_duties[i % len(drive_duties)]
+        return DriveStep(drive_s * drive_duty / duty, -duty, -duty)
+
+    at = np.linspace(0, marker_drives - 1, wiggles).round().astype(int).tolist() if wiggles else []
     for i in range(marker_drives):
-        steps.append(forward)
-        if i in at:
+        steps.append(forward(i))
+        for j in [j for j, a in enumerate(at) if a == i]:
+            duty = step_duties[j % len(step_duties)]
+            held = step_s * step_duty / duty
+            left, right = DriveStep(held, 0.0, duty), DriveStep(held, duty, 0.0)
             steps += [left, right, right, left]
-    steps += [back] * marker_drives + [forward, back] * returns
+    steps += [back(i) for i in reversed(range(marker_drives))]
+    for i in range(returns):
+        steps += [forward(i), back(i)]
     return steps
+
+
+# The program of `naocal simulate --robot duckiebot` (the mission's loop): joint_program with its marker drives at two
+# duties and its wiggles at two, so that the wheel effects can be told from what they resemble: a dead zone from
+# gain (a dead zone takes the same duty from every command, gain the same share), speed-dependent trim from trim,
+# slip from the baseline (turns at two rates). With one duty each, dead zone, gain and slip are one direction.
+DIAGNOSE_DRIVE_DUTIES = (0.3, 0.55)
+DIAGNOSE_STEP_DUTIES = (0.25, 0.5)
+
+
+def diagnose_program(board_steps: int = 4, wiggles: int = 4) -> list[DriveStep]:
+    return joint_program(board_steps=board_steps, wiggles=wiggles, drive_duties=DIAGNOSE_DRIVE_DUTIES,
+                         step_duties=DIAGNOSE_STEP_DUTIES)
 
 
 @dataclass(frozen=True)
@@ -366,29 +462,44 @@ class SimulatedDrive:
 
 
 def simulate_drive(steps, truth: Kinematics, start_pose=(0.0, 0.0, 0.0), t0_s: float = 0.0,
-                   ticks_per_revolution: int = 135, encoder_period_s: float = 0.05) -> SimulatedDrive:
-    """Run a program on a robot whose true parameters are `truth` (Duckietown's forward kinematics, exact arcs)."""
+                   ticks_per_revolution: int = 135, encoder_period_s: float = 0.05, effects=None) -> SimulatedDrive:
+    """Run a program on a robot whose true parameters are `truth` (Duckietown's forward kinematics, exact arcs), with
+    the hidden wheel `effects` {parameter (fit.EFFECTS): value} (the fit's formulas: commanded_wheel_speeds,
+    body_motion; a wheel lag integrated exactly in SIMULATION_STEP_S steps)."""
+    effects = dict(effects or {})
+    p = {"gain": truth.gain, "trim": truth.trim, "baseline_m": truth.baseline_m, **effects}
+    lag = effects.get("wheel_lag_s", 0.0)
     t, pose = t0_s, np.asarray(start_pose, dtype=float)
     wheel_rows, frames, poses = [], [], []
     angle = np.zeros(2)  # cumulative true wheel angles (left, right), rad
-    segments = []  # (start t, duration, (w_left, w_right)) for the encoders
+    w = np.zeros(2)  # the true wheel speeds (left, right), rad/s
+    segments = []  # (start t, duration, (w_left, w_right), angles at its start) for the encoders
+
+    def motion(left, right):
+        return body_motion(commanded_wheel_speeds(left, right, p, truth.k)[0], None, p, None, truth.radius_m)[:2]
 
     def hold(duration, left, right):
-        nonlocal t, pose, angle
+        nonlocal t, pose, angle, w
         if duration <= 0:
             return
         wheel_rows.append((t, left, right))
-        v, omega = forward_kinematics(left, right, truth)
-        w = np.array(wheel_speeds(left, right, truth), dtype=float)
-        segments.append((t, duration, w, angle.copy()))
-        pose = integrate_pose(pose, v, omega, duration)
-        angle = angle + w * duration
-        t += duration
+        command = commanded_wheel_speeds(left, right, p, truth.k)[0]
+        steps = max(1, math.ceil(duration / SIMULATION_STEP_S)) if lag > 0 else 1
+        h = duration / steps
+        e, m, _, _ = lag_factors(lag, h)
+        for _ in range(steps):
+            mean = command + (w - command) * m  # the step's exact mean speed: the wheel angle it adds is exact
+            v, omega = body_motion(mean, None, p, None, truth.radius_m)[:2]
+            segments.append((t, h, mean, angle.copy()))
+            pose = integrate_pose(pose, v, omega, h)
+            angle = angle + mean * h
+            w = command + (w - command) * e
+            t += h
 
     for step in steps:
         duration = step.duration_s
         if step.face_rad is not None:
-            _, omega = forward_kinematics(step.left_duty, step.right_duty, truth)
+            _, omega = motion(step.left_duty, step.right_duty)
             if omega == 0:
                 raise ValueError("a facing step must turn the robot")
             duration = float(np.mod((step.face_rad - pose[2]) * np.sign(omega), 2.0 * np.pi) / abs(omega))
@@ -425,14 +536,15 @@ class RenderedLog:
 
 
 def render_drive_log(directory, seed: int = 1, steps=None, scene: Scene | None = None,
-                     robot_id: str = "rendered", supersample: int = 2) -> RenderedLog:
-    """Render a drive of the hidden robot `seed` through `steps` (default: paper_program()) and write it as a
-    drive log in `directory` (frames as PNG in frames/). Returns the log as read back and the truth."""
+                     robot_id: str = "rendered", supersample: int = 2, hidden=None) -> RenderedLog:
+    """Render a drive of the hidden robot `seed` with the hidden effects `hidden` (hidden_robot) through `steps`
+    (default: paper_program()) and write it as a drive log in `directory` (frames as PNG in frames/). Returns the
+    log as read back and the truth."""
     directory = check_output_directory(Path(directory))
     scene = scene or calibration_scene()
-    robot = hidden_robot(seed)
-    drive = simulate_drive(paper_program() if steps is None else steps, robot.kinematics)
-    renderer = Renderer(scene, robot.camera, robot.T_base_camera, supersample)
+    robot = hidden_robot(seed, hidden)
+    drive = simulate_drive(paper_program() if steps is None else steps, robot.kinematics, effects=robot.effects)
+    renderer = Renderer(scene, robot.camera, robot.T_base_camera, supersample, robot.lens)
     rng = np.random.default_rng(seed + 1000)
     markers_world, boards_world = scene.marker_corners(), scene.board_corners()
     files, marker_px, board_px = [], [], []

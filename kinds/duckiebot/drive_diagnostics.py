@@ -1,0 +1,340 @@
+"""The mission's loop on the Duckiebot (issue 23): compare the joint fit with the drive, see where it fails, name the
+missing effect, add it, watch the error fall. The engine of `naocal diagnose LOG` for a drive log (the verb:
+kinds.duckiebot.diagnose).
+
+- compare: the fit's corner RMS against the noise floor (what the detector's noise alone leaves: the corners'
+  expected noise, identify.py's model), whitened (1 at the floor) and in pixels;
+- locate: the RMS of the frames by the drive phase before them (turning or straight, by duty);
+- name: a score test per wheel effect not in the model (kinds.duckiebot.fit.EFFECTS), the one engine of
+  solver.scoretest: the effect's Jacobian columns at the fit, projected off the fitted model's, against the
+  whitened residuals, the variance clustered by frame (what a frame's corners share: its pose), leverage-corrected;
+  significant below solver.diagnostics.FAMILY_ALPHA over the number of tests (Bonferroni); the significant ones
+  ranked by what they explain beyond what they would fit of noise alone. The lens is judged by the lens fits
+  (kinds.duckiebot.intrinsics: held-out board error per model): a lens model whose held-out error is below the
+  model in use by more than LENS_RATIO names "the wrong lens model", and comes first (a camera that is wrong bends
+  every marker, and every wheel test with it);
+- add: the named effect (or lens) refitted, the RMS before and after.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from naocal.kinds.duckiebot.fit import (EFFECT_START, EFFECTS, KINEMATIC, Drive, DriveEquations, DriveFit,
+                                        fit_drive, parameter_scales)
+from naocal.solver.diagnostics import FAMILY_ALPHA
+from naocal.solver.errors import NaocalError, SolveError
+from naocal.solver.scoretest import orthonormal_basis, project_off, score_test
+
+# The lens in use is wrong when another model's held-out board error is below its own by this factor or more: a
+# model that fits the lens leaves the detector's noise on views it was not fitted to, one that cannot follow it
+# leaves its shape error too (a plumb_bob on a 150-degree fisheye: 3-10 x; on a plumb_bob lens the richer models'
+# held-out errors are within 20 % of plumb_bob's, as their extra terms fit noise: docs/DUCKIEBOT.md).
+LENS_RATIO = 1.5
+# Far from the floor (whitened RMS above this) the base fit can be far from any true model (a hidden slip of 0.3
+# s/m on seed 3's robot: baseline 0.057 m, RMS 10.8 px) and a score test, local, can miss the effect or rank a
+# stand-in first: every candidate is then refitted, and one whose refit divides the RSS by FAR_RSS_RATIO or more is
+# named (a likelihood-ratio decision; a clean log never gets here).
+FAR_FROM_FLOOR = 3.0
+FAR_RSS_RATIO = 4.0
+DUTY_BINS = (0.0, 0.2, 0.35, 1.0)  # the locate table's duty classes (|duty| of the faster wheel)
+
+
+@dataclass
+class EffectTest:
+    """One candidate effect's score test against the fitted model (whitened residuals: 1 = the expected noise)."""
+
+    effect: str
+    parameters: tuple
+    dof: int = 0
+    delta_rss: float = 0.0  # predicted drop of the whitened RSS
+    excess_rss: float = float("nan")  # delta_rss less what its parameters would fit of noise alone
+    statistic: float = float("nan")  # Hotelling T^2 of the cluster-robust test
+    p_value: float = 1.0
+    significant: bool = False
+    uniqueness: float = float("nan")  # share of its signature the fitted model cannot already produce
+    predicted_rms_px: float = float("nan")
+    predicted_values: dict = field(default_factory=dict)
+    refit_rms_px: float = float("nan")  # the RMS the model with it leaves (significant ones, when refitted)
+    confirmed_by_refit: bool = False  # far from the floor, named by its refit (FAR_FROM_FLOOR), not its score
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__, parameters=list(self.parameters))
+
+
+@dataclass
+class LensVerdict:
+    in_use: str
+    best: str
+    held_out_rms_px: dict  # model -> held-out board RMS, px
+    ratio: float  # in use / best
+    wrong: bool
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class DriveDiagnosis:
+    effects: tuple  # in the model
+    lens: str  # the lens model the corners were rectified with
+    fit: DriveFit
+    rms_px: float
+    floor_px: float  # the corners' expected noise, RMS
+    whitened_rms: float  # residual / expected noise, RMS: 1 at the floor
+    phases: list  # [{"phase", "frames", "corners", "rms_px"}]
+    tests: list  # [EffectTest], best first
+    threshold: float
+    lens_verdict: LensVerdict | None = None
+    after: dict | None = None  # refit_summary of the refit with the named one added
+
+    @property
+    def named(self) -> str | None:
+        """What to add: 'lens=<model>' for the wrong lens model, else the best significant effect, else None."""
+        if self.lens_verdict is not None and self.lens_verdict.wrong:
+            return f"lens={self.lens_verdict.best}"
+        return next((t.effect for t in self.tests if t.significant), None)
+
+    def as_dict(self) -> dict:
+        return {"effects": list(self.effects), "lens": self.lens, "rms_px": self.rms_px, "floor_px": self.floor_px,
+                "whitened_rms": self.whitened_rms, "phases": self.phases,
+                "tests": [t.as_dict() for t in self.tests], "threshold": self.threshold,
+                "lens_verdict": None if self.lens_verdict is None else self.lens_verdict.as_dict(),
+                "named": self.named, "after": self.after, "parameters": self.fit.parameters_dict()}
+
+
+def floor_and_whitened(fit: DriveFit) -> tuple[float, float]:
+    """(the corners' expected noise RMS px, the whitened residual RMS) of a fit."""
+    sigma = fit.sightings.sigma_px
+    return (float(np.sqrt(np.mean(sigma ** 2))),
+            float(np.sqrt(np.mean((fit.residuals_px / sigma[:, None]) ** 2))))
+
+
+def score_effects(drive: Drive, fit: DriveFit, K, marker_size_m: float, candidates) -> list[EffectTest]:
+    """A score test (solver.scoretest.score_test) per candidate effect of fit.EFFECTS not in the fit, clustered by
+    frame."""
+    extra = [n for e in candidates for n in EFFECTS[e] if n not in fit.names]
+    names = list(fit.names) + extra
+    # each taken where a fit of it starts (fit.EFFECT_START: a wheel lag's signature vanishes at 0); any fixed
+    # direction is a valid test of "no such effect"
+    x = np.concatenate([fit.x, [EFFECT_START.get(n, 0.0) for n in extra]])
+    free = np.concatenate([fit.free, np.zeros(len(extra), bool)])
+    equations = DriveEquations(drive, fit.sightings, K, marker_size_m, fit.reference_marker, names, x, free)
+    uv, Jx = equations.predict(x)
+    w = equations.inverse_sigma
+    base_uv = uv
+    if extra:  # the residuals at the fit itself (a start value off 0 moves the prediction)
+        base_uv, _ = equations.predict(np.concatenate([fit.x, np.zeros(len(extra))]), jacobian=False)
+    r = ((base_uv - fit.sightings.uv_px) * w[:, None]).reshape(-1)
+    scales = parameter_scales(names)
+    J = (Jx * w[:, None, None] * scales).reshape(-1, len(names))
+    Q = orthonormal_basis(J[:, free])
+    element_frame = np.repeat(equations.row_frame, 2)
+    order = np.argsort(element_frame, kind="stable")
+    clusters = np.split(order, np.flatnonzero(np.diff(element_frame[order])) + 1)
+    sigma_flat = np.repeat(fit.sightings.sigma_px, 2)
+    tests = []
+    for effect in candidates:
+        cols = [names.index(n) for n in EFFECTS[effect]]
+        Jk = J[:, cols]
+        Jt = project_off(Q, Jk)
+        total = float(np.sum(Jk ** 2))
+        test = EffectTest(effect, EFFECTS[effect], uniqueness=float(np.sum(Jt ** 2) / total) if total > 0 else 0.0)
+        st = score_test(Jt, r, clusters, Q)
+        if st.dof > 0 and np.isfinite(st.p_value):
+            step = np.linalg.lstsq(Jt, r, rcond=None)[0]
+            after = (r - Jt @ step) * sigma_flat
+            test.dof, test.delta_rss, test.statistic, test.p_value = st.dof, st.delta_rss, st.statistic, st.p_value
+            test.excess_rss = st.delta_rss - st.noise_rss
+            test.predicted_rms_px = float(np.sqrt(np.mean(after ** 2)))
+            if not any(EFFECT_START.get(n) for n in EFFECTS[effect]):  # else a step from the start, not a value
+                test.predicted_values = {n: float(-s * scales[c]) for n, s, c in zip(EFFECTS[effect], step, cols)}
+        tests.append(test)
+    threshold = FAMILY_ALPHA / max(1, sum(1 for t in tests if t.dof > 0))
+    for t in tests:
+        t.significant = t.dof > 0 and t.p_value < threshold
+    tests.sort(key=lambda t: (not t.significant, -(t.excess_rss if np.isfinite(t.excess_rss) else -np.inf)))
+    return tests, threshold
+
+
+def phase_table(drive: Drive, fit: DriveFit) -> list[dict]:
+    """The fit's corner RMS (px) by the phase of the drive before each frame: the last command that moved the robot
+    (turning: the wheels' duties differ; straight: alike), by the faster wheel's |duty| (DUTY_BINS)."""
+    obs, residual = fit.sightings, fit.residuals_px
+    groups = {}
+    for frame in np.unique(obs.frame):
+        t = drive.frame_t_s[frame]
+        rows = np.flatnonzero((drive.wheel_t_s < t) & ((drive.left_duty != 0) | (drive.right_duty != 0)))
+        if not len(rows):
+            key = "before any motion"
+        else:
+            u_l, u_r = drive.left_duty[rows[-1]], drive.right_duty[rows[-1]]
+            duty = max(abs(u_l), abs(u_r))
+            b = int(np.clip(np.searchsorted(DUTY_BINS, duty, side="right") - 1, 0, len(DUTY_BINS) - 2))
+            kind = "straight" if u_l == u_r else "turning"
+            key = f"{kind}, |duty| {DUTY_BINS[b]:.2f}-{DUTY_BINS[b + 1]:.2f}"
+        groups.setdefault(key, []).append(frame)
+    table = []
+    for key, frames in sorted(groups.items()):
+        rows = np.isin(obs.frame, frames)
+        table.append({"phase": key, "frames": len(frames), "corners": int(rows.sum()),
+                      "rms_px": float(np.sqrt(np.mean(residual[rows] ** 2)))})
+    return table
+
+
+def lens_verdict(lens_fits: dict, in_use: str) -> LensVerdict:
+    """Whether the lens model in use is the wrong one: another's held-out error below it by LENS_RATIO."""
+    held = {m: float(f.held_out_rms_px) for m, f in lens_fits.items()}
+    best = min(held, key=held.get)
+    ratio = held[in_use] / held[best] if held[best] > 0 else float("inf")
+    return LensVerdict(in_use, best, held, ratio, best != in_use and ratio >= LENS_RATIO)
+
+
+def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(), lens: str = "",
+                 lens_fits: dict | None = None, refit=None) -> DriveDiagnosis:
+    """Compare, locate and name (module docstring) for a fitted model with `effects`. `refit(effects)`: the fit
+    with other effects (a DriveFit); given, each significant candidate is refitted and they are ranked by the RMS
+    their refits leave (the score test screens, the refit confirms: far from the floor a one-step prediction can
+    rank a stand-in first), and the best's refit is DriveDiagnosis.after."""
+    effects = tuple(effects)
+    candidates = [e for e in EFFECTS if e not in effects]
+    tests, threshold = score_effects(drive, fit, K, marker_size_m, candidates)
+    floor, whitened = floor_and_whitened(fit)
+    verdict = lens_verdict(lens_fits, lens) if lens_fits and lens in lens_fits else None
+    diagnosis = DriveDiagnosis(effects, lens, fit, fit.rms_px, floor, whitened, phase_table(drive, fit), tests,
+                               threshold, verdict)
+    if refit is None or (verdict is not None and verdict.wrong):
+        return diagnosis
+    far = whitened > FAR_FROM_FLOOR
+    refits = {}
+    for t in tests:
+        if not (t.significant or (far and t.dof > 0)):
+            continue
+        try:
+            result = refit(tuple(e for e in EFFECTS if e in effects + (t.effect,)))
+        except SolveError:  # the data cannot determine it beside the model: not a remedy
+            result = None
+        if result is None or not result.success:
+            t.significant = False
+            continue
+        refits[t.effect], t.refit_rms_px = result, result.rms_px
+        if far and not t.significant and (fit.rms_px / result.rms_px) ** 2 >= FAR_RSS_RATIO:
+            t.significant, t.confirmed_by_refit = True, True
+    tests.sort(key=lambda t: (not t.significant, t.refit_rms_px if t.significant else 0.0))
+    if diagnosis.named is not None:
+        diagnosis.after = refit_summary(refits[diagnosis.named], effects + (diagnosis.named,))
+    return diagnosis
+
+
+def refit_summary(refit: DriveFit, effects) -> dict:
+    floor, whitened = floor_and_whitened(refit)
+    return {"added": [e for e in effects], "rms_px": refit.rms_px, "whitened_rms": whitened, "floor_px": floor,
+            "values": {n: {"value": refit.value(n), "std": refit.stdev(n)} for e in effects for n in EFFECTS[e]}}
+
+
+# ------------------------------------------------------------------------------------------------ a drive log
+
+@dataclass
+class LogFit:
+    """What the verb fits from a log: its drive, detections and lens fits, for refits with other models."""
+
+    log: object
+    drive: Drive
+    detections: object
+    lens_fits: dict
+
+    def fit(self, lens: str, effects=(), start=None) -> tuple[DriveFit, np.ndarray]:
+        from naocal.kinds.duckiebot.identify import rectified_sightings
+        from naocal.kinds.duckiebot.robot import duckiebot
+
+        camera = self.lens_fits[lens].camera
+        sightings = rectified_sightings(self.detections, camera)
+        fit = fit_drive(self.drive, sightings, camera.K, self.log.marker_size_m,
+                        duckiebot(self.log.model).T_base_camera, effects=effects, start=start)
+        return fit, camera.K
+
+
+def diagnose_log(log_dir, effects=(), lens: str = "plumb_bob") -> DriveDiagnosis:
+    """Read, detect, fit the lens models and the joint fit (`effects`, corners rectified with `lens`), diagnose, and
+    refit with what is named (DriveDiagnosis.after)."""
+    from naocal.kinds.duckiebot.drive_log import read_drive_log
+    from naocal.kinds.duckiebot.identify import detect_log, fit_intrinsics
+
+    log = read_drive_log(log_dir)
+    detections = detect_log(log)
+    _, lens_fits = fit_intrinsics(log, detections)
+    if lens not in lens_fits:
+        raise NaocalError(f"{log_dir}: the {lens} lens model could not be fitted to the board views")
+    source = LogFit(log, Drive.of_log(log), detections, lens_fits)
+    fit, K = source.fit(lens, effects)
+    diagnosis = diagnose_fit(source.drive, fit, K, log.marker_size_m, effects, lens, lens_fits,
+                             refit=lambda with_effects: source.fit(lens, with_effects)[0])
+    if diagnosis.named is not None and diagnosis.named.startswith("lens="):
+        # from the fit's kinematics, which another lens does not change: from the detections' start (their rays
+        # through a wide lens reach 67 deg off the axis) seed 3's refit ended at 98.7 px, from these at 0.56 px
+        start = {n: fit.value(n) for n in KINEMATIC}
+        try:
+            diagnosis.after = refit_summary(source.fit(diagnosis.lens_verdict.best, effects, start)[0], effects)
+        except SolveError as err:  # e.g. a marker seen once, far, that the other lens leaves undetermined
+            diagnosis.after = {"added": [], "error": str(err)}
+    return diagnosis
+
+
+def add_command(log_label, diagnosis: DriveDiagnosis) -> str:
+    """The command that adds what is named."""
+    named = diagnosis.named
+    if named.startswith("lens="):
+        effects = ",".join(diagnosis.effects)
+        return (f"naocal diagnose {log_label} --lens {named.split('=')[1]}"
+                + (f" --effects {effects}" if effects else ""))
+    return f"naocal diagnose {log_label} --effects {','.join(diagnosis.effects + (named,))}" + (
+        f" --lens {diagnosis.lens}" if diagnosis.lens != "plumb_bob" else "")
+
+
+def verdict(t: EffectTest) -> str:
+    return ("refit" if t.confirmed_by_refit else "yes") if t.significant else "no"
+
+
+def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
+    fit = d.fit
+    lines = [f"model: Duckietown's kinematics + {' + '.join(d.effects) or 'no wheel effect'}; lens {d.lens}; "
+             f"{len(fit.sightings.frame)} marker corners in {len(np.unique(fit.sightings.frame))} frames", "",
+             "COMPARE",
+             f"  RMS {d.rms_px:.3f} px; noise floor {d.floor_px:.3f} px (the corners' expected detection noise); "
+             f"whitened RMS {d.whitened_rms:.2f} (1 at the floor)", "",
+             "LOCATE (corner RMS of the frames by the drive phase before them)"]
+    for row in d.phases:
+        lines.append(f"  {row['phase']:28s} {row['frames']:4d} frames {row['corners']:5d} corners  "
+                     f"RMS {row['rms_px']:.3f} px")
+    if d.lens_verdict is not None:
+        v = d.lens_verdict
+        lines += ["", "LENS (held-out board RMS per lens model)",
+                  "  " + "; ".join(f"{m} {r:.3f} px" for m, r in v.held_out_rms_px.items())
+                  + f"; in use {v.in_use}: {v.ratio:.2f} x the best ({v.best})"
+                  + (f" >= {LENS_RATIO}: the wrong lens model" if v.wrong else "")]
+    lines += ["", f"NAMES (score test per wheel effect, clustered by frame; significant: p < {d.threshold:.1e})"]
+    for t in d.tests:
+        values = ", ".join(f"{n} {v:+.4g}" for n, v in t.predicted_values.items())
+        lines.append(f"  {t.effect:11s} dof {t.dof}  dRSS {t.delta_rss:9.1f}  T2 {t.statistic:9.1f}  p {t.p_value:8.1e}"
+                     f"  {verdict(t):5s}  uniqueness {t.uniqueness:.3f}  "
+                     f"predicted RMS {t.predicted_rms_px:.3f} px"
+                     + (f", refitted {t.refit_rms_px:.3f} px" if np.isfinite(t.refit_rms_px) else "")
+                     + (f"; {values}" if t.significant and values else ""))
+    lines.append("")
+    if d.named is None:
+        lines.append("VERDICT: no missing effect: the model explains the drive to the noise floor's test")
+    else:
+        what = (f"the wrong lens model: {d.lens_verdict.best} instead of {d.lens}" if d.named.startswith("lens=")
+                else f"{d.named} ({', '.join(EFFECTS[d.named])})")
+        lines.append(f"VERDICT: missing {what}")
+        lines.append(f"  add it: {add_command(log_label, d)}")
+        if d.after is not None and "error" in d.after:
+            lines.append(f"  with it: the refit failed: {d.after['error']}")
+        elif d.after is not None:
+            values = ", ".join(f"{n} {v['value']:+.4g} +- {v['std']:.2g}" for n, v in d.after["values"].items())
+            lines.append(f"  with it: RMS {d.rms_px:.3f} -> {d.after['rms_px']:.3f} px (floor "
+                         f"{d.after['floor_px']:.3f} px; whitened {d.whitened_rms:.2f} -> "
+                         f"{d.after['whitened_rms']:.2f})" + (f"; {values}" if values else ""))
+    return "\n".join(lines)
