@@ -200,3 +200,16 @@ def test_other_kinds_options_and_formats_are_refused(calibrated, tmp_path, monke
     one_line_error(naocal("calibrate", "--robot", "duckiebot", "--backend", "mock", "--out", tmp_path / "run"),
                    "not in this version")
     assert not (tmp_path / "run").exists()
+
+
+def test_identify_adds_the_wheel_effects_diagnose_names(calibrated, tmp_path):
+    """`naocal identify LOG --effects dead_zone --out CAL.json` (what diagnose's loop leads to) fits the effect and
+    writes it; the strict reader takes it back; an unknown effect is one line, exit 2, nothing written."""
+    out = tmp_path / "CAL.json"
+    result = naocal("identify", calibrated.log, "--effects", "dead_zone", "--out", out)
+    assert result.returncode == 0, result.stderr
+    cal = read_calibration_file(out)
+    assert "dead_zone" in cal.parameters and cal.std("dead_zone") > 0
+    bad = naocal("identify", calibrated.log, "--effects", "wobble", "--out", tmp_path / "BAD.json")
+    one_line_error(bad, "wobble")
+    assert not (tmp_path / "BAD.json").exists()

@@ -30,7 +30,7 @@ import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, Finding, check_calibration, \
     duckietown_calibration
-from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, KINEMATIC, camera_transform
+from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC, camera_transform
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
@@ -42,7 +42,8 @@ DUCKIETOWN_LENS = "plumb_bob"  # the lens model Duckietown's camera_intrinsic fi
 DISTORTION_SIZES = {"plumb_bob": (5,), "rational": (8, 12, 14), "fisheye": (4,)}  # OpenCV's coefficient counts
 MARKER_PARAMETER = re.compile(r"marker\d{1,9}\.(x_m|y_m|yaw_rad)")
 REQUIRED_PARAMETERS = KINEMATIC + CAMERA
-KNOWN_PARAMETERS = KINEMATIC + CAMERA + ANCHOR + (BIAS,)
+# the base model's and every optional wheel effect's (fit.EFFECTS: identify --effects)
+KNOWN_PARAMETERS = KINEMATIC + CAMERA + ANCHOR + (BIAS,) + tuple(n for names in EFFECTS.values() for n in names)
 MAX_PARAMETER_SIZE = 1e3  # SI: metres, radians, gain; a marker 1 km away is a damaged file
 MAX_PIXELS = 1e5
 MAX_COUNT = 2 ** 53  # an integer a JSON reader holds exactly
@@ -228,7 +229,8 @@ def _parameters(value, path) -> dict:
         field = f"parameters.{name}"
         if name not in KNOWN_PARAMETERS and not MARKER_PARAMETER.fullmatch(name):
             _fail(path, "unknown parameter (expected the joint fit's: gain, trim, baseline_m, camera.*, anchor.*, "
-                        f"{BIAS}, marker<id>.*)", field)
+                        f"{BIAS}, marker<id>.*, or an effect's: {', '.join(n for e in EFFECTS.values() for n in e)})",
+                  field)
         entry = _object(entry, path, field, ("value", "std", "fixed"))
         std = _number(entry["std"], path, f"{field}.std")
         if std < 0:

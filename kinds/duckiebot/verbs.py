@@ -38,8 +38,6 @@ def check_options(args, kind) -> None:
 
 def _refuse_unsupported(args) -> None:
     """identify's options every kind shares that a Duckiebot's joint fit has no use for."""
-    if getattr(args, "effects", ""):
-        raise NaocalError("--effects: a Duckiebot's joint fit has no optional effects yet (docs/DUCKIEBOT.md)")
     if getattr(args, "cv_folds", 5) not in (0, 5):
         raise NaocalError("--cv-folds: a Duckiebot's fit is judged by its lens models' held-out error, not by folds")
 
@@ -69,8 +67,11 @@ def run_identify(args, kind) -> int:
     from naocal.kinds.duckiebot.identify import calibrate, detect_log, fit_intrinsics
     from naocal.solver.fileio import check_output_file
 
+    from naocal.kinds.duckiebot.diagnose import parse_effects
+
     check_options(args, kind)
     _refuse_unsupported(args)
+    effects = parse_effects(getattr(args, "effects", "") or "")  # the wheel effects diagnose names
     log = read_drive_log(args.dataset)
     inputs = log_inputs(log)
     if args.out:
@@ -80,7 +81,7 @@ def run_identify(args, kind) -> int:
         raise _no_marker(log)
     lens, fits = fit_intrinsics(log, detections)
     try:
-        cal = calibrate(log, detections, lens, fits, fixed=tuple(args.fix), loss=args.loss)
+        cal = calibrate(log, detections, lens, fits, fixed=tuple(args.fix), loss=args.loss, effects=effects)
     except ValueError as err:  # an unknown --fix name
         raise NaocalError(f"--fix: {err} (the joint fit's parameters: naocal offsets show CAL.json)") from None
     if not cal.drive_fit.success:
