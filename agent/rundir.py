@@ -29,7 +29,7 @@ RECORD_NAME = "run.json"
 RECORD_SCHEMA = "naocal.run/1"
 DATASET_SUBDIR = "dataset"
 BRIDGE_TOKEN_NAME = "bridge.token"  # the bridge's motion lease token, so --resume takes the robot back (mode 0600)
-# Everything `naocal calibrate` writes into DIR (agent.calibrate, agent.states, tools.cmd_calibrate).
+# Everything `naocal calibrate` writes into DIR (agent.calibrate, agent.states, kinds.nao.calibrate).
 CALIBRATE_ENTRIES = frozenset({
     LOCK_NAME, RECORD_NAME, "plan.json", DATASET_SUBDIR, "progress.json", "offsets.json", "offsets.json.bak",
     "verification", "verification.prev", "verification.json", "summary.txt", "calibrate.log", "truth.json",
@@ -163,7 +163,8 @@ RECORD_OPTIONS = {  # record key -> how the command line says it
     "backend": "--backend", "mock_seed": "--seed", "mock": "--mock", "effects": "--effect", "plan": "--plan",
     "plan_seed": "--plan-seed", "stances_per_leg": "--stances-per-leg", "probe": "--no-probe",
     "speed": "--speed",  # the motion blur and servo lag of every capture
-    "images": "--no-images"}  # a dataset has its images for every capture or for none
+    "images": "--no-images",  # a dataset has its images for every capture or for none
+    "robot": "--robot"}  # the robot kind, whose run it is (the NAO's record leaves it out: the default kind)
 NEGATED_FLAGS = {"probe": "with the lag probe", "images": "with its images"}  # recorded True: the flag not given
 SESSION_OPTIONS = {  # options free to change on --resume, and why
     "--out": "names the run", "--resume": "continues it", "--help": "prints help",

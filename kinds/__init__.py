@@ -1,26 +1,33 @@
-"""Robot kinds as plug-ins (issue 22): each kind (the NAO, a serial arm) brings its own options and the bodies of the
-verbs it supports; the verbs in tools/cmd_*.py find the kind once and run its body (docs/ARCHITECTURE.md).
+"""Robot kinds as plug-ins (issue 22): each kind (the NAO, a serial arm, the Duckiebot) brings its own options and
+the bodies of the verbs it supports; the verbs in tools/cmd_*.py find the kind once and run its body
+(docs/ARCHITECTURE.md).
 
     kind = kinds.for_args(args, args.dataset)   # --robot, else the data, else the default kind
     return kind.identify(args)
 
-A kind is a module `kinds/<name>/__init__.py` whose KIND satisfies `Kind`, listed in KINDS below. Other robot
-kinds (kinds/duckiebot, issue 23) live here too before they are wired into the command line.
+A kind is a subpackage `kinds/<name>/` whose `__init__.py` defines KIND (satisfying `Kind`): the registry finds
+every such subpackage of this package (`registered()`), so adding a kind is adding a folder. A kind's __init__ is
+imported while the command line is built: argparse only there, heavy imports inside the verb bodies.
 """
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from typing import Protocol
 
-from naocal.kinds import arm, nao
+# The verbs whose bodies a kind may have (a kind has those it supports; `capable` lists the kinds with one).
+VERBS = ("calibrate", "identify", "diagnose", "verify", "simulate", "offsets")
 
 
 class Kind(Protocol):
     """A robot kind. The per-verb bodies take the parsed arguments and return the exit code; a kind has the bodies of
-    the verbs it supports: identify(args), diagnose(args), verify(args), simulate(args), and offsets(args, action,
-    out) for `naocal offsets ACTION` (show, diff, validate, export, apply), writing to the text stream `out`."""
+    the verbs it supports: calibrate(args), identify(args), diagnose(args), verify(args), simulate(args), and
+    offsets(args, action, out) for `naocal offsets ACTION` (show, diff, validate, export, apply), writing to the
+    text stream `out`."""
 
     name: str
+    rank: int  # the order of asking: lower first; the highest rank is the default kind (the NAO)
 
     def claims(self, source) -> bool:
         """Whether `source` is this kind's: a path (a dataset directory, a calibration file), decided from the data
@@ -32,30 +39,93 @@ class Kind(Protocol):
         Every kind adds its options before parsing; the chosen kind refuses another kind's options it was given."""
 
 
-# The order of asking: the arm first, so that a pair of an arm's file and a NAO's reaches the arm's reader, which
-# names the mismatch. DEFAULT reads what no kind claims (its readers name what is wrong with it); its options come
-# first in --help.
-KINDS: tuple[Kind, ...] = (arm.KIND, nao.KIND)
-DEFAULT: Kind = nao.KIND
+def registered() -> tuple[Kind, ...]:
+    """Every kind, in the order of asking (by rank, then name). Found anew on each call (a directory listing; each
+    kind's __init__ is imported once), so that a kind put on this package's __path__ is found."""
+    found = {}
+    for info in pkgutil.iter_modules(__path__, __name__ + "."):
+        if info.ispkg:
+            kind = getattr(importlib.import_module(info.name), "KIND", None)
+            if kind is not None:
+                found.setdefault(kind.name, kind)  # the first on __path__ of a name wins, as for any import
+    return tuple(sorted(found.values(), key=lambda k: (k.rank, k.name)))
+
+
+def default() -> Kind:
+    """The kind that reads what no kind claims (its readers name what is wrong with it): the last asked."""
+    return registered()[-1]
+
+
+def capable(verb: str) -> tuple[Kind, ...]:
+    """The kinds that have a body for `verb`, in the order of asking."""
+    return tuple(k for k in registered() if callable(getattr(k, verb, None)))
+
+
+def named(name: str) -> Kind:
+    """The kind called `name` (KeyError if none is)."""
+    for kind in registered():
+        if kind.name == name:
+            return kind
+    raise KeyError(name)
+
+
+def export_formats() -> tuple[str, ...]:
+    """Every format `naocal offsets export --format` takes: each kind's `export_formats`, the default kind's first.
+    The kind of the file exported refuses the formats that are not its own."""
+    kinds = registered()
+    formats = [f for kind in (kinds[-1], *kinds[:-1]) for f in getattr(kind, "export_formats", ())]
+    return tuple(dict.fromkeys(formats))
 
 
 def add_options(parser, verb: str) -> None:
-    """Every kind's options of `verb`, the default kind's first."""
-    for kind in (DEFAULT, *(k for k in KINDS if k is not DEFAULT)):
+    """Every kind's options of `verb`, the default kind's first (its options come first in --help). Which options
+    each kind added is kept in the parsed arguments (`kind_options`) for `foreign_options`."""
+    kinds = registered()
+    owners = {}
+    for kind in (kinds[-1], *kinds[:-1]):
+        before = {a.dest for a in parser._actions}
         kind.add_options(parser, verb)
+        owners[kind.name] = {a.dest: (a.option_strings[0] if a.option_strings else a.dest, a.default)
+                             for a in parser._actions if a.dest not in before}
+    parser.set_defaults(kind_options=owners)
+
+
+def foreign_options(args, kind: Kind) -> list[str]:
+    """The options of other kinds given in `args` (their value not the default), as written on the command line:
+    what `kind` must refuse."""
+    given = []
+    for owner, options in getattr(args, "kind_options", {}).items():
+        if owner != kind.name:
+            given += [flag for dest, (flag, default) in options.items() if getattr(args, dest, default) != default]
+    return given
+
+
+def json_schema(path):
+    """The "schema" of the JSON file `path`, None if it is not a readable JSON object (for a kind's `claims`: never
+    raises)."""
+    from naocal.solver.errors import DataError
+    from naocal.solver.fileio import read_json
+
+    try:  # read_json: regular files only (a FIFO must not block the check), size capped
+        doc = read_json(path)
+    except DataError:
+        return None
+    return doc.get("schema") if isinstance(doc, dict) else None
 
 
 def for_data(*paths) -> Kind:
-    """The kind of the data at `paths` (the first kind claiming any of them), else DEFAULT."""
-    for kind in KINDS:
+    """The kind of the data at `paths` (the first kind claiming any of them), else the default kind."""
+    kinds = registered()
+    for kind in kinds:
         if any(kind.claims(str(path)) for path in paths if path is not None):
             return kind
-    return DEFAULT
+    return kinds[-1]
 
 
 def for_args(args, *paths) -> Kind:
-    """The kind the options in `args` ask for (an arm's --robot), else that of the data at `paths` (`for_data`)."""
-    for kind in KINDS:
+    """The kind the options in `args` ask for (an arm's --robot, `--robot duckiebot`), else that of the data at
+    `paths` (`for_data`)."""
+    for kind in registered():
         if kind.claims(args):
             return kind
     return for_data(*paths)

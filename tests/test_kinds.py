@@ -2,8 +2,13 @@
 
 import argparse
 import json
+import sys
 
 import naocal.kinds as kinds
+from conftest import ROOT
+from tests.cli_runner import naocal
+
+
 def _write(path, doc):
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc))
@@ -18,15 +23,15 @@ def test_the_data_choose_the_kind(tmp_path):
     arm_calibration = _write(tmp_path / "arm.json", {"schema": "naocal.arm_calibration/1"})
     assert [kinds.for_data(p).name for p in (nao_dataset, nao_run, offsets)] == ["nao"] * 3
     assert [kinds.for_data(p).name for p in (arm_dataset, arm_calibration)] == ["arm"] * 2
-    assert len({k.name for k in kinds.KINDS}) == len(kinds.KINDS)
+    assert len({k.name for k in kinds.registered()}) == len(kinds.registered())
     # a pair with an arm's file goes to the arm, whose reader names the mismatch
     assert kinds.for_data(offsets, arm_calibration).name == "arm"
     # what no kind claims (missing, of another schema, damaged) goes to the default kind, whose reader names it
     _write(tmp_path / "bad" / "dataset.json", {"schema": "something/9"})
     (tmp_path / "damaged.json").write_text("{")
     for path in (tmp_path / "missing", tmp_path / "bad", tmp_path / "damaged.json"):
-        assert not any(k.claims(str(path)) for k in kinds.KINDS)
-        assert kinds.for_data(path) is kinds.DEFAULT
+        assert not any(k.claims(str(path)) for k in kinds.registered())
+        assert kinds.for_data(path) is kinds.default()
 
 
 def test_options_choose_the_kind_before_the_data(tmp_path):
@@ -40,7 +45,87 @@ def test_options_choose_the_kind_before_the_data(tmp_path):
 
 
 def test_every_kind_has_the_protocol():
-    for kind in kinds.KINDS:
+    for kind in kinds.registered():
         assert isinstance(kind.name, str) and callable(kind.claims) and callable(kind.add_options)
         for verb in ("identify", "diagnose", "verify", "simulate", "offsets"):
             assert callable(getattr(kind, verb)), (kind.name, verb)
+
+
+def test_kinds_are_discovered_in_their_order_of_asking():
+    """Issue 22: the registry lists no kind; it finds every subpackage with a KIND, asked by rank, the NAO (the
+    default) last, the Duckiebot before the arm (whose --robot takes any name)."""
+    assert [k.name for k in kinds.registered()] == ["duckiebot", "arm", "nao"]
+    assert kinds.default().name == "nao"
+    assert [k.name for k in kinds.capable("calibrate")] == ["duckiebot", "nao"]
+    source = (ROOT / "kinds" / "__init__.py").read_text()
+    assert "import arm" not in source and "nao.KIND" not in source
+
+
+KIND_SOURCE = """
+import argparse
+
+
+class ToyKind:
+    name = "toy"
+    rank = 5
+
+    def claims(self, source):
+        if isinstance(source, argparse.Namespace):
+            return getattr(source, "robot", None) == "toy"
+        return str(source).endswith(".toy")
+
+    def add_options(self, parser, verb):
+        if verb == "identify":
+            parser.add_argument("--toy-level", type=int, default=1)
+
+    def identify(self, args):
+        print(f"toy identify {args.dataset} level {args.toy_level}")
+        return 7
+
+    def calibrate(self, args):
+        print(f"toy calibrate {args.out}")
+        return 0
+
+
+KIND = ToyKind()
+"""
+
+
+def test_a_kind_is_a_folder_found_and_dispatched_to(tmp_path, monkeypatch):
+    """A throw-away kind package on naocal.kinds' search path: found, its options in the verb's parser, its data and
+    its --robot dispatched to it, with no other file touched."""
+    package = tmp_path / "toy"
+    package.mkdir()
+    (package / "__init__.py").write_text(KIND_SOURCE)
+    monkeypatch.setattr(kinds, "__path__", [*kinds.__path__, str(tmp_path)])
+    try:
+        assert [k.name for k in kinds.registered()][0] == "toy"
+        result = naocal("identify", tmp_path / "data.toy", "--toy-level", "3")
+        assert result.returncode == 7 and "toy identify" in result.stdout and "level 3" in result.stdout
+        result = naocal("calibrate", "--robot", "toy", "--backend", "mock", "--out", tmp_path / "run")
+        assert result.returncode == 0 and "toy calibrate" in result.stdout, result.stderr
+    finally:
+        sys.modules.pop("naocal.kinds.toy", None)
+        monkeypatch.undo()
+    assert "toy" not in [k.name for k in kinds.registered()]
+
+
+def test_robot_duckiebot_reaches_the_duckiebot_not_the_arm(tmp_path):
+    """The arm claims any --robot (a URDF path); `--robot duckiebot` is the Duckiebot's, whatever the verb."""
+    for verb in ("identify", "diagnose", "verify", "simulate"):
+        parser = argparse.ArgumentParser()
+        if verb != "simulate":
+            parser.add_argument("dataset")
+        kinds.add_options(parser, verb)
+        argv = ([] if verb == "simulate" else [str(tmp_path)]) + ["--robot", "duckiebot"]
+        assert kinds.for_args(parser.parse_args(argv)).name == "duckiebot", verb
+        argv = ([] if verb == "simulate" else [str(tmp_path)]) + ["--robot", "kuka_iiwa"]
+        assert kinds.for_args(parser.parse_args(argv)).name == "arm", verb
+
+
+def test_the_duckiebots_data_choose_it(tmp_path):
+    log = _write(tmp_path / "LOG" / "log.json", {"schema": "naocal.drive_log/1"}).parent
+    cal = _write(tmp_path / "cal.json", {"schema": "naocal.duckiebot_calibration/1"})
+    assert kinds.for_data(log).name == "duckiebot" and kinds.for_data(cal).name == "duckiebot"
+    offsets = _write(tmp_path / "offsets.json", {"schema": "naocal.offsets/2"})
+    assert kinds.for_data(offsets).name == "nao"

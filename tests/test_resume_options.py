@@ -54,7 +54,7 @@ def test_every_calibrate_option_defines_the_run_or_is_declared_free_per_session(
 
 
 def test_resume_removes_the_temporary_files_a_killed_session_left(tmp_path, monkeypatch):
-    import naocal.tools.cmd_calibrate as cmd
+    import naocal.kinds.nao.calibrate as cmd
     from naocal.tools.cli import main
 
     out = started_run(tmp_path / "run")

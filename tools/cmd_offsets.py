@@ -100,7 +100,7 @@ def register(subparsers):
         "export", help="write the offsets for other software (B-Human, HULKs, Nao Devils, URDF, JSON)",
         formatter_class=argparse.RawDescriptionHelpFormatter, description=EXPORT_HELP)
     export.add_argument("file", metavar="FILE")
-    export.add_argument("--format", required=True, choices=("bhuman", "hulks", "naodevils", "urdf", "json"))
+    export.add_argument("--format", required=True, choices=kinds.export_formats())  # each kind's (docs/ARCHITECTURE.md)
     export.add_argument("--out", metavar="PATH",
                         help="output directory (bhuman, hulks, naodevils: the team layout is created below it) or "
                              "file (urdf, json); default: standard output")

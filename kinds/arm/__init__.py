@@ -8,6 +8,7 @@ import argparse
 
 class ArmKind:
     name = "arm"
+    rank = 20  # before the NAO: a pair of an arm's file and a NAO's reaches the arm's reader, which names the mismatch
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot / --chain exist only for an arm

@@ -1,14 +1,99 @@
-"""The Duckiebot (Duckietown's differential-drive robot with one camera), issue 23, first layer.
+"""The Duckiebot (Duckietown's differential-drive robot with one camera) as a robot kind (issues 22, 23;
+docs/DUCKIEBOT.md): its data are drive logs (LOG/log.json of schema naocal.drive_log/1) and its calibration files
+(naocal.duckiebot_calibration/1); `--robot duckiebot` asks for it where no data say (calibrate, simulate).
 
 - `robot`: the DB21 / DB18 description (wheels, encoders, camera prior and mount) and Duckietown's kinematics
   parameters;
 - `kinematics`: Duckietown's forward and inverse kinematics, its duty-to-PWM map, pose integration;
 - `drive_log`: the strict reader of a drive log (`naocal.drive_log/1`);
+- `calibration`: the calibration file (`naocal.duckiebot_calibration/1`: strict reader, atomic writer);
 - `calibration_files`: Duckietown's three calibration files (writer and strict reader, plausibility checks);
 - `detect`: AprilTag 36h11 markers (OpenCV's class API) and chessboards (agent.board_detect);
 - `intrinsics`: the camera's intrinsics, the lens model chosen by held-out reprojection error;
-- `render`: an independent OpenCV renderer of the calibration set-up writing a drive log.
+- `fit`, `identify`: the joint fit of a drive log (wheels, camera pose on the body, floor markers);
+- `render`: an independent OpenCV renderer of the calibration set-up writing a drive log;
+- `verbs`: the bodies of identify, verify and offsets; `diagnose`, `simulate`, `calibrate` the other verbs'.
 
-Not wired into the CLI yet (the dispatch is being redesigned, issue 22): each module exposes plain functions.
-Facts and numbers come from docs/DUCKIEBOT.md, which cites their public sources.
+Facts and numbers come from docs/DUCKIEBOT.md, which cites their public sources. This module is imported while the
+command line is built: argparse only here, the bodies import what they need.
 """
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+from pathlib import Path
+
+from naocal.kinds import json_schema
+
+NAME = "duckiebot"
+LOG_SCHEMA = "naocal.drive_log/1"  # kinds.duckiebot.drive_log.SCHEMA (not imported here: it imports cv2)
+CALIBRATION_SCHEMA = "naocal.duckiebot_calibration/1"  # kinds.duckiebot.calibration.SCHEMA
+# The verbs whose bodies live in a module of their own, each with add_options(parser) and the body's function.
+VERB_MODULES = {"calibrate": ("calibrate", "run"), "diagnose": ("diagnose", "run_diagnose"),
+                "simulate": ("simulate", "run_simulate")}
+
+
+def _verb_module(verb: str):
+    """The module of `verb`'s body, None if this checkout does not have it."""
+    name = f"{__name__}.{VERB_MODULES[verb][0]}"
+    return importlib.import_module(name) if importlib.util.find_spec(name) is not None else None
+
+
+class DuckiebotKind:
+    name = NAME
+    rank = 10  # before the arm, whose --robot takes any name: `--robot duckiebot` is this kind's
+    export_formats = ("duckietown", "json")
+
+    def claims(self, source) -> bool:
+        if isinstance(source, argparse.Namespace):
+            return getattr(source, "robot", None) == NAME
+        path = Path(source)
+        if path.is_dir():
+            return json_schema(path / "log.json") == LOG_SCHEMA
+        return json_schema(path) == CALIBRATION_SCHEMA
+
+    def add_options(self, parser, verb: str) -> None:
+        if verb in VERB_MODULES:
+            module = _verb_module(verb)
+            if module is not None:
+                module.add_options(parser)
+
+    def _run_module(self, verb: str, args) -> int:
+        from naocal.kinds.duckiebot.verbs import check_options
+        from naocal.solver.errors import NaocalError
+
+        check_options(args, self)
+        module = _verb_module(verb)
+        if module is None:
+            raise NaocalError(f"a Duckiebot's {verb} is not in this version of naocal "
+                              f"(kinds/duckiebot/{VERB_MODULES[verb][0]}.py is missing)")
+        return getattr(module, VERB_MODULES[verb][1])(args)
+
+    def calibrate(self, args) -> int:
+        return self._run_module("calibrate", args)
+
+    def diagnose(self, args) -> int:
+        return self._run_module("diagnose", args)
+
+    def simulate(self, args) -> int:
+        return self._run_module("simulate", args)
+
+    def identify(self, args) -> int:
+        from naocal.kinds.duckiebot.verbs import run_identify
+
+        return run_identify(args, self)
+
+    def verify(self, args) -> int:
+        from naocal.kinds.duckiebot.verbs import run_verify
+
+        return run_verify(args, self)
+
+    def offsets(self, args, action: str, out) -> int:
+        from naocal.kinds.duckiebot.verbs import run_offsets
+
+        return run_offsets(args, action, out)
+
+
+KIND = DuckiebotKind()

@@ -7,23 +7,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from naocal.kinds import json_schema
 from naocal.kinds.nao import options
-
-
-def _schema(path: Path):
-    """The "schema" of the JSON file `path`, None if it is not a readable JSON object."""
-    from naocal.solver.errors import DataError
-    from naocal.solver.fileio import read_json
-
-    try:  # read_json: regular files only (a FIFO must not block the check), size capped
-        doc = read_json(path)
-    except DataError:
-        return None
-    return doc.get("schema") if isinstance(doc, dict) else None
 
 
 class NaoKind:
     name = "nao"
+    rank = 1000  # asked last, so the default kind: it reads what no other kind claims and names what is wrong
+    export_formats = ("bhuman", "hulks", "naodevils", "urdf", "json")  # tools/export/
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # no option is the NAO's alone: it is the default kind
@@ -33,8 +24,8 @@ class NaoKind:
 
         path = Path(source)
         if path.is_dir():  # a dataset, or a `naocal calibrate --out` run holding one
-            return any(_schema(d / "dataset.json") in DATASET_SCHEMAS for d in (path, path / "dataset"))
-        return _schema(path) in (SCHEMA_V1, SCHEMA_V2, *TRUTH_SCHEMAS)
+            return any(json_schema(d / "dataset.json") in DATASET_SCHEMAS for d in (path, path / "dataset"))
+        return json_schema(path) in (SCHEMA_V1, SCHEMA_V2, *TRUTH_SCHEMAS)
 
     def add_options(self, parser, verb: str) -> None:
         options.add_options(parser, verb)
@@ -62,15 +53,18 @@ class NaoKind:
     def offsets(self, args, action: str, out) -> int:
         from naocal.kinds.nao import offsets
 
+        if action == "export" and args.format not in self.export_formats:
+            from naocal.solver.errors import NaocalError
+
+            raise NaocalError(f"--format {args.format}: a NAO's offsets file exports to "
+                              f"{', '.join(self.export_formats)}")
         return {"show": offsets.run_show, "diff": offsets.run_diff, "validate": offsets.run_validate,
                 "export": offsets.run_export, "apply": offsets.run_apply}[action](args, out)
 
-    def diagnosis_report(self, dataset_path, report_dir) -> str:
-        """`naocal diagnose DATASET --report DIR`'s report with its defaults (for `naocal calibrate --report`)."""
-        from naocal.kinds.nao.diagnose import diagnose_dataset, write_diagnosis_report
+    def calibrate(self, args) -> int:
+        from naocal.kinds.nao.calibrate import run
 
-        dataset, _, diagnosis = diagnose_dataset(dataset_path)
-        return write_diagnosis_report(report_dir, diagnosis, dataset, dataset_path)
+        return run(args)
 
 
 KIND = NaoKind()

@@ -53,3 +53,22 @@ def add_options(parser, verb: str) -> None:
                             help="speed fraction of moves (default 0.4)")
         parser.add_argument("--no-images", action="store_true", help="do not keep the rendered images")
         parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    elif verb == "calibrate":  # the generic options are tools/cmd_calibrate.py's
+        parser.add_argument("--plan-seed", type=int, default=0,
+                            help="seed of the measurement plan (default 0; the same plan for every robot)")
+        parser.add_argument("--plan", choices=("paper", "optimal"), default="paper",
+                            help="paper: 24 random stances per leg x 3 head postures (default); optimal: greedy "
+                                 "D-optimal stances reaching the paper plan's precision")
+        parser.add_argument("--stances-per-leg", type=int, default=24, metavar="N",
+                            help="stances per leg of the paper plan (default 24)")
+        parser.add_argument("--no-probe", action="store_true",
+                            help="leave out the lag probe (slow sweeps; see docs/AGENT.md)")
+        parser.add_argument("--speed", type=float, default=0.4, metavar="F",
+                            help="fraction of the joints' maximum speed for moves between stances (default 0.4)")
+        parser.add_argument("--max-joint-offset-deg", type=float, metavar="DEG",
+                            help="refuse a calibration with a larger joint offset (default: the offsets file's "
+                                 "limit, 20, solver/effects/joint_offsets.py; a warning above 8)")
+        parser.add_argument("--max-camera-rotation-deg", type=float, metavar="DEG",
+                            help="refuse a calibration with a larger camera rotation (default: the offsets file's "
+                                 "limit, 15; a warning above 7)")
+        parser.add_argument("--no-images", action="store_true", help="do not keep the captured images")

@@ -1,0 +1,314 @@
+"""`naocal.duckiebot_calibration/1`: a Duckiebot's calibration file, as `naocal identify LOG --out CAL.json` (and
+`naocal calibrate --robot duckiebot`'s RUN/offsets.json) writes it (docs/DUCKIEBOT.md).
+
+    {"schema": "naocal.duckiebot_calibration/1",
+     "robot": {"id"},
+     "camera": {"width_px", "height_px", "lens_model": the lens chosen by held-out error,
+                "lenses": {MODEL: {"K": 3 x 3, "distortion": [...], "train_rms_px", "held_out_rms_px", "views"}}},
+                (plumb_bob always: Duckietown's files hold it)
+     "kinematics": {"gain", "trim", "baseline_m", "k", "radius_m", "limit"},
+     "parameters": {NAME: {"value", "std", "fixed"}}   the joint fit (kinds.duckiebot.fit), SI, cluster-robust stds
+     "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings"},
+     "source", "created"}
+
+`parameters` is the file's truth: `kinematics` repeats gain, trim and baseline_m from it (for people and other
+programs) and must agree; the camera's pose on the body is parameters' camera.*. The reader is strict: every
+problem is one DataError naming the file and the field, and a calibration beyond any working Duckiebot
+(calibration_files.check_calibration on the Duckietown files it would export) is refused. The writer validates the
+document with the same reader before writing it atomically: it never writes what the reader would refuse.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, Finding, check_calibration, \
+    duckietown_calibration
+from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, KINEMATIC, camera_transform
+from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
+from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
+from naocal.solver.camera import CameraIntrinsics
+from naocal.solver.errors import DataError, SolveError
+from naocal.solver.fileio import atomic_write_text, check_output_file, read_json
+
+SCHEMA = "naocal.duckiebot_calibration/1"
+DUCKIETOWN_LENS = "plumb_bob"  # the lens model Duckietown's camera_intrinsic file holds
+DISTORTION_SIZES = {"plumb_bob": (5,), "rational": (8, 12, 14), "fisheye": (4,)}  # OpenCV's coefficient counts
+MARKER_PARAMETER = re.compile(r"marker\d{1,9}\.(x_m|y_m|yaw_rad)")
+REQUIRED_PARAMETERS = KINEMATIC + CAMERA
+KNOWN_PARAMETERS = KINEMATIC + CAMERA + ANCHOR + (BIAS,)
+MAX_PARAMETER_SIZE = 1e3  # SI: metres, radians, gain; a marker 1 km away is a damaged file
+MAX_PIXELS = 1e5
+MAX_COUNT = 2 ** 53  # an integer a JSON reader holds exactly
+# The kinematics section repeats parameters' values; written from the same floats, so they agree to rounding.
+AGREEMENT = 1e-9
+
+
+@dataclass(frozen=True)
+class CalibrationFile:
+    """A Duckiebot calibration file read and checked. `findings`: the plausibility warnings to show (refusals raise)."""
+
+    path: str
+    robot_id: str
+    width_px: int
+    height_px: int
+    lens_model: str
+    lenses: dict  # model -> LensCamera
+    lens_errors: dict  # model -> {"train_rms_px", "held_out_rms_px", "views"}
+    kinematics: Kinematics
+    parameters: dict  # name -> {"value", "std", "fixed"} (SI)
+    fit: dict
+    source: str
+    created: str
+    findings: tuple = ()
+
+    def value(self, name: str) -> float:
+        return self.parameters[name]["value"]
+
+    def std(self, name: str) -> float:
+        return self.parameters[name]["std"]
+
+    @property
+    def T_base_camera(self) -> np.ndarray:
+        return camera_transform(np.array([self.value(n) for n in CAMERA]))
+
+    @property
+    def lens(self) -> LensCamera:
+        return self.lenses[self.lens_model]
+
+    def duckietown(self, calibration_time: str = "") -> DuckietownCalibration:
+        """Duckietown's three files' content (calibration_files.write_calibration writes them)."""
+        return duckietown_calibration(self.robot_id, self.kinematics, plumb_bob_intrinsics(
+            self.lenses[DUCKIETOWN_LENS], self.width_px, self.height_px), self.T_base_camera, calibration_time)
+
+
+def plumb_bob_intrinsics(camera: LensCamera, width_px: int, height_px: int) -> CameraIntrinsics:
+    K = camera.K
+    return CameraIntrinsics(width_px, height_px, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                            tuple(float(d) for d in camera.distortion[:5]))
+
+
+# ------------------------------------------------------------------------------------------------ writing
+
+def calibration_document(calibration, *, width_px: int = 640, height_px: int = 480, source: str = "") -> dict:
+    """The file's JSON document of a kinds.duckiebot.identify.DuckiebotCalibration (its camera's image size given:
+    the calibration does not hold it)."""
+    fit = calibration.drive_fit
+    kin = calibration.kinematics
+    return {
+        "schema": SCHEMA,
+        "robot": {"id": calibration.robot_id},
+        "camera": {"width_px": int(width_px), "height_px": int(height_px),
+                   "lens_model": calibration.lens.camera.model,
+                   "lenses": {model: {"K": np.asarray(f.camera.K, float).tolist(),
+                                      "distortion": np.asarray(f.camera.distortion, float).ravel().tolist(),
+                                      "train_rms_px": float(f.train_rms_px),
+                                      # inf (the model could not be judged) as null: JSON has no inf
+                                      "held_out_rms_px": float(f.held_out_rms_px) if math.isfinite(
+                                          f.held_out_rms_px) else None, "views": int(f.n_views)}
+                              for model, f in calibration.lens_fits.items()}},
+        "kinematics": {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m, "k": kin.k,
+                       "radius_m": kin.radius_m, "limit": kin.limit},
+        "parameters": {n: {"value": float(v), "std": float(s), "fixed": not bool(free)}
+                       for n, v, s, free in zip(fit.names, fit.x, fit.std, fit.free)},
+        "fit": {"rms_px": float(fit.rms_px), "corners": int(len(fit.sightings.frame)),
+                "outliers": int(len(fit.outliers.frame)), "reference_marker": int(fit.reference_marker),
+                "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings]},
+        "source": source or "naocal identify",
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def checked_document(calibration, where, *, width_px: int = 640, height_px: int = 480,
+                     source: str = "") -> tuple[dict, CalibrationFile]:
+    """(document, what the reader makes of it) of a DuckiebotCalibration, to be written to `where`. SolveError (exit
+    3: the fit's result is at fault), in one line, for a calibration the reader would refuse: a value beyond any
+    working Duckiebot, a non-finite value or std."""
+    doc = calibration_document(calibration, width_px=width_px, height_px=height_px, source=source)
+    try:  # through JSON, as the reader will see it (a NaN or inf is refused there)
+        return doc, parse_calibration(json.loads(json.dumps(doc)), where)
+    except DataError as err:
+        raise SolveError(f"calibration not written to {where}: {err.problem}"
+                         + (f" (field '{err.field}')" if err.field else "")) from None
+
+
+def write_document(path, doc: dict, *, inputs=()) -> None:
+    """Write a checked document (checked_document) to `path` atomically, never over one of `inputs` (DataError)."""
+    check_output_file(path, inputs=inputs)
+    atomic_write_text(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
+def write_calibration_file(path, calibration, *, width_px: int = 640, height_px: int = 480, source: str = "",
+                           inputs=()) -> list[Finding]:
+    """Write `calibration` (a DuckiebotCalibration) to `path` atomically; return the plausibility warnings the caller
+    must show. Nothing is written for a calibration the reader would refuse (checked_document) or a path that
+    cannot be written or is one of `inputs`."""
+    doc, result = checked_document(calibration, path, width_px=width_px, height_px=height_px, source=source)
+    write_document(path, doc, inputs=inputs)
+    return list(result.findings)
+
+
+# ------------------------------------------------------------------------------------------------ reading
+
+def _fail(path, problem, field=None):
+    raise DataError(path, problem, field=field)
+
+
+def _object(value, path, field, required, optional=()):
+    if not isinstance(value, dict):
+        _fail(path, "expected a JSON object", field or None)
+    for key in value:
+        if key not in required and key not in optional:
+            _fail(path, f"unknown field (expected {', '.join(required + optional)})", f"{field}.{key}" if field
+                  else key)
+    for key in required:
+        if key not in value:
+            _fail(path, "missing required field", f"{field}.{key}" if field else key)
+    return value
+
+
+def _number(value, path, field, limit=MAX_PARAMETER_SIZE, *, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
+    if abs(value) > limit or (positive and value <= 0):
+        _fail(path, f"{value!r} is {'not positive' if positive and value <= 0 else f'beyond +-{limit:g}'}", field)
+    return float(value)
+
+
+def _count(value, path, field, low=0, high=MAX_COUNT):
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        _fail(path, f"expected a whole number from {low} to {high}, got {str(value)[:40]!r}", field)
+    return value
+
+
+def _text(value, path, field, max_chars=1000):
+    if not isinstance(value, str) or len(value) > max_chars or not value.isprintable():
+        _fail(path, f"expected a single line of text (at most {max_chars} characters)", field)
+    return value
+
+
+def _matrix(value, path, field, rows, cols=None):
+    flat = value if cols is None else None
+    if cols is not None:
+        if not isinstance(value, list) or len(value) != rows or not all(isinstance(r, list) and len(r) == cols
+                                                                        for r in value):
+            _fail(path, f"expected {rows} rows of {cols} numbers", field)
+        flat = [x for r in value for x in r]
+    elif not isinstance(value, list) or len(value) not in rows:
+        _fail(path, f"expected a list of {' or '.join(map(str, rows))} numbers", field)
+    numbers = [_number(x, path, f"{field}[{i}]", MAX_PIXELS) for i, x in enumerate(flat)]
+    return np.array(numbers).reshape((rows, cols) if cols is not None else (-1,))
+
+
+def _lens(value, model, path, field):
+    lens = _object(value, path, field, ("K", "distortion", "train_rms_px", "held_out_rms_px", "views"))
+    K = _matrix(lens["K"], path, f"{field}.K", 3, 3)
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or np.any(K[1:, 0] != 0) or K[2, 1] != 0 or K[2, 2] != 1:
+        _fail(path, "not a camera matrix [fx 0 cx; 0 fy cy; 0 0 1]", f"{field}.K")
+    distortion = _matrix(lens["distortion"], path, f"{field}.distortion", DISTORTION_SIZES[model])
+    held_out = lens["held_out_rms_px"]  # null: the model could not be judged (inf)
+    errors = {"train_rms_px": _number(lens["train_rms_px"], path, f"{field}.train_rms_px", MAX_PIXELS),
+              "held_out_rms_px": math.inf if held_out is None else
+              _number(held_out, path, f"{field}.held_out_rms_px", MAX_PIXELS),
+              "views": _count(lens["views"], path, f"{field}.views", 1)}
+    return LensCamera(model, K, distortion), errors
+
+
+def _parameters(value, path) -> dict:
+    if not isinstance(value, dict):
+        _fail(path, "expected a JSON object", "parameters")
+    parameters = {}
+    for name, entry in value.items():
+        field = f"parameters.{name}"
+        if name not in KNOWN_PARAMETERS and not MARKER_PARAMETER.fullmatch(name):
+            _fail(path, "unknown parameter (expected the joint fit's: gain, trim, baseline_m, camera.*, anchor.*, "
+                        f"{BIAS}, marker<id>.*)", field)
+        entry = _object(entry, path, field, ("value", "std", "fixed"))
+        std = _number(entry["std"], path, f"{field}.std")
+        if std < 0:
+            _fail(path, "a negative standard deviation", f"{field}.std")
+        if not isinstance(entry["fixed"], bool):
+            _fail(path, "expected true or false", f"{field}.fixed")
+        parameters[name] = {"value": _number(entry["value"], path, f"{field}.value"), "std": std,
+                            "fixed": entry["fixed"]}
+    for name in REQUIRED_PARAMETERS:
+        if name not in parameters:
+            _fail(path, "missing parameter", f"parameters.{name}")
+    return parameters
+
+
+def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
+    """The document `doc` of the file `path` checked (module docstring). DataError naming the field; with `strict`,
+    also for a calibration beyond any working Duckiebot."""
+    _object(doc, path, "", ("schema", "robot", "camera", "kinematics", "parameters", "fit", "source", "created"))
+    if doc["schema"] != SCHEMA:
+        _fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
+    robot = _object(doc["robot"], path, "robot", ("id",))
+    problem = robot_name_problem(robot["id"])
+    if problem:
+        _fail(path, problem, "robot.id")
+    camera = _object(doc["camera"], path, "camera", ("width_px", "height_px", "lens_model", "lenses"))
+    width = _count(camera["width_px"], path, "camera.width_px", 16, 10000)
+    height = _count(camera["height_px"], path, "camera.height_px", 16, 10000)
+    lenses = _object(camera["lenses"], path, "camera.lenses", (DUCKIETOWN_LENS,), LENS_MODELS[1:])
+    fitted = {m: _lens(lenses[m], m, path, f"camera.lenses.{m}") for m in LENS_MODELS if m in lenses}
+    if camera["lens_model"] not in fitted:
+        _fail(path, f"{str(camera['lens_model'])[:40]!r} is not one of the lenses given ({', '.join(fitted)})",
+              "camera.lens_model")
+    parameters = _parameters(doc["parameters"], path)
+    section = _object(doc["kinematics"], path, "kinematics", ("gain", "trim", "baseline_m", "k", "radius_m", "limit"))
+    numbers = {key: _number(v, path, f"kinematics.{key}") for key, v in section.items()}
+    for name in KINEMATIC:
+        if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
+            _fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
+                  f"kinematics.{name}")
+    try:
+        kinematics = Kinematics(**numbers)
+    except ValueError as err:
+        _fail(path, str(err), "kinematics")
+    fit = _object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
+                                            "warnings"))
+    _number(fit["rms_px"], path, "fit.rms_px", MAX_PIXELS)
+    for key in ("corners", "outliers", "reference_marker"):
+        _count(fit[key], path, f"fit.{key}")
+    if not isinstance(fit["converged"], bool):
+        _fail(path, "expected true or false", "fit.converged")
+    if not isinstance(fit["warnings"], list):
+        _fail(path, "expected a list of text", "fit.warnings")
+    for i, warning in enumerate(fit["warnings"]):
+        _text(warning, path, f"fit.warnings[{i}]")
+    result = CalibrationFile(str(path), robot["id"], width, height, camera["lens_model"],
+                             {m: lens for m, (lens, _) in fitted.items()},
+                             {m: errors for m, (_, errors) in fitted.items()}, kinematics, parameters, fit,
+                             _text(doc["source"], path, "source"), _text(doc["created"], path, "created", 40))
+    try:
+        findings = check_calibration(result.duckietown())
+    except ValueError as err:  # e.g. a camera pose that sees no floor: no homography
+        _fail(path, f"no Duckietown calibration follows from it: {err}", "parameters")
+    refusals = [f for f in findings if f.level == "refuse"]
+    if strict and refusals:
+        _fail(path, f"implausible calibration: {refusals[0]}", file_field(refusals[0].field))
+    return replace(result, findings=tuple(findings))
+
+
+def file_field(duckietown_field: str) -> str:
+    """The field of this file a finding on Duckietown's files (calibration_files.check_calibration) comes from."""
+    for prefix, field in (("camera_matrix", f"camera.lenses.{DUCKIETOWN_LENS}.K"),
+                          ("distortion_coefficients", f"camera.lenses.{DUCKIETOWN_LENS}.distortion"),
+                          ("homography", "parameters.camera"),  # the homography follows from the camera's pose
+                          ("kinematics", "kinematics")):
+        if duckietown_field.startswith(prefix):
+            return field + duckietown_field[len(prefix):] if prefix == "kinematics" else field
+    return duckietown_field
+
+
+def read_calibration_file(path, *, strict: bool = True) -> CalibrationFile:
+    """The Duckiebot calibration file at `path`, checked (parse_calibration). DataError naming the file and field."""
+    return parse_calibration(read_json(path), path, strict=strict)
+

@@ -1,0 +1,299 @@
+"""The Duckiebot's bodies of `naocal identify LOG`, `naocal verify LOG --offsets CAL` and `naocal offsets` (show,
+validate, diff, export --format duckietown|json); the kind (kinds/duckiebot/__init__.py) claims drive logs, its
+calibration files and `--robot duckiebot` (docs/DUCKIEBOT.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from naocal.solver.errors import DataError, NaocalError, SolveError
+
+# Duckietown's wheel calibration (docs/DUCKIEBOT.md): commanded straight at 0.3 m/s for 2 m, the robot must end
+# within 10 cm of the line; naocal's goal is 2 cm.
+STRAIGHT_DISTANCE_M = 2.0
+STRAIGHT_SPEED_MPS = 0.3
+DUCKIETOWN_RULE_M = 0.10
+GOAL_M = 0.02
+# Options of other kinds a Duckiebot's verb takes as they are: simulate's mock options are the NAO's in the parser
+# (registered first) but mean the same for any mock.
+SHARED_WITH_THE_DEFAULT_KIND = {"simulate": ("--mock", "--effect", "--no-progress")}
+
+
+def check_options(args, kind) -> None:
+    """Refuse, in one line, another kind's options given to a Duckiebot's verb (`--robot duckiebot` itself chose
+    this kind)."""
+    allowed = SHARED_WITH_THE_DEFAULT_KIND.get(getattr(args, "verb", ""), ())
+    from naocal.kinds import foreign_options
+
+    given = [o for o in foreign_options(args, kind) if o not in allowed
+             and not (o == "--robot" and getattr(args, "robot", None) == kind.name)]
+    if given:
+        raise NaocalError(f"{given[0]} is not a Duckiebot's option (another robot kind's; docs/DUCKIEBOT.md)")
+
+
+def _refuse_unsupported(args) -> None:
+    """identify's options every kind shares that a Duckiebot's joint fit has no use for."""
+    if getattr(args, "effects", ""):
+        raise NaocalError("--effects: a Duckiebot's joint fit has no optional effects yet (docs/DUCKIEBOT.md)")
+    if getattr(args, "cv_folds", 5) not in (0, 5):
+        raise NaocalError("--cv-folds: a Duckiebot's fit is judged by its lens models' held-out error, not by folds")
+
+
+def log_inputs(log) -> list:
+    """Every file a drive log's reading used (an output must be none of them)."""
+    from naocal.kinds.duckiebot.drive_log import ENCODERS_FILE, FRAMES_FILE, META_FILE, WHEELS_FILE
+
+    files = [log.path / META_FILE, log.path / WHEELS_FILE, log.path / FRAMES_FILE, log.path / ENCODERS_FILE]
+    return files + [log.frame_path(i) for i in range(len(log.frame_files))]
+
+
+def _no_marker(log) -> DataError:
+    from naocal.kinds.duckiebot.drive_log import FRAMES_FILE
+
+    return DataError(log.path / FRAMES_FILE, f"no AprilTag {log.marker_family} marker was seen in any of its "
+                                             f"{len(log.frame_files)} frames: the drive cannot be fitted")
+
+
+# ------------------------------------------------------------------------------------------------ identify
+
+def run_identify(args, kind) -> int:
+    """Read the log, detect, fit the intrinsics and the joint fit (kinds.duckiebot.identify), print the summary,
+    write --out atomically. Exit 0, 2 bad input (nothing written), 3 the fit failed or is implausible."""
+    from naocal.kinds.duckiebot.calibration import checked_document, write_document
+    from naocal.kinds.duckiebot.drive_log import read_drive_log
+    from naocal.kinds.duckiebot.identify import calibrate, detect_log, fit_intrinsics
+    from naocal.solver.fileio import check_output_file
+
+    check_options(args, kind)
+    _refuse_unsupported(args)
+    log = read_drive_log(args.dataset)
+    inputs = log_inputs(log)
+    if args.out:
+        check_output_file(args.out, inputs=inputs)  # before a minute of work, not after
+    detections = detect_log(log)
+    if not any(detections.markers):
+        raise _no_marker(log)
+    lens, fits = fit_intrinsics(log, detections)
+    try:
+        cal = calibrate(log, detections, lens, fits, fixed=tuple(args.fix), loss=args.loss)
+    except ValueError as err:  # an unknown --fix name
+        raise NaocalError(f"--fix: {err} (the joint fit's parameters: naocal offsets show CAL.json)") from None
+    if not cal.drive_fit.success:
+        raise SolveError(f"the joint fit did not converge ({cal.drive_fit.message}): nothing written")
+    doc, result = checked_document(cal, args.out or args.dataset, width_px=log.width_px, height_px=log.height_px,
+                                   source=f"naocal identify {log.path}")
+    if args.json:
+        print(json.dumps(doc, indent=1, allow_nan=False))
+    else:
+        print(format_calibration(result, f"{log.path}: robot {log.robot_id} ({log.model}), "
+                                         f"{len(log.frame_files)} frames"))
+    _warn(args.verb, result.findings)
+    if args.out:
+        write_document(args.out, doc, inputs=inputs)
+        print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def _warn(verb: str, findings) -> None:
+    for finding in findings:
+        print(f"naocal {verb}: warning: {finding}", file=sys.stderr)
+
+
+def _pm(value: float, std: float, scale: float = 1.0, digits: int = 4) -> str:
+    return f"{value * scale:.{digits}f} +- {std * scale:.{digits}f}"
+
+
+def format_calibration(cal, title: str = "") -> str:
+    """A calibration file's content (kinds.duckiebot.calibration.CalibrationFile) as a few lines: the kinematics,
+    the camera's pose on the body and the lens chosen, with the joint fit's cluster-robust stds."""
+    kin = cal.kinematics
+    lines = [title] if title else []
+    lines.append(f"kinematics: gain {_pm(cal.value('gain'), cal.std('gain'))}, trim "
+                 f"{_pm(cal.value('trim'), cal.std('trim'), digits=5)}, baseline "
+                 f"{_pm(cal.value('baseline_m'), cal.std('baseline_m'), 1e3, 2)} mm (k {kin.k:g}, radius "
+                 f"{kin.radius_m * 1e3:g} mm, limit {kin.limit:g})")
+    pose = [f"{axis} {_pm(cal.value(f'camera.{axis}_m'), cal.std(f'camera.{axis}_m'), 1e3, 1)} mm" for axis in "xyz"]
+    pose += [f"{angle} {_pm(cal.value(f'camera.{angle}_rad'), cal.std(f'camera.{angle}_rad'), 180 / math.pi, 2)} deg"
+             for angle in ("roll", "pitch", "yaw")]
+    lines.append("camera on the body (from the wheel axle's midpoint on the floor): " + ", ".join(pose))
+    K = cal.lens.K
+    held = ", ".join(f"{m} {e['held_out_rms_px']:.3f} px" for m, e in cal.lens_errors.items())
+    lines.append(f"lens: {cal.lens_model} (held-out RMS: {held}; {cal.lens_errors[cal.lens_model]['views']} board "
+                 f"views), fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px, distortion "
+                 + " ".join(f"{d:.4g}" for d in cal.lens.distortion))
+    markers = sum(1 for n in cal.parameters if n.endswith(".yaw_rad") and n.startswith("marker")) + 1
+    fit = cal.fit
+    lines.append(f"fit: RMS {fit['rms_px']:.3f} px over {fit['corners']} marker corners ({fit['outliers']} set "
+                 f"aside), {markers} markers (reference {fit['reference_marker']}); stds clustered by frame"
+                 + ("" if fit["converged"] else "; NOT CONVERGED"))
+    lines += [f"fit warning: {w}" for w in fit["warnings"]]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------ verify
+
+def straight_drive(commanded, true, distance_m: float = STRAIGHT_DISTANCE_M, speed_mps: float = STRAIGHT_SPEED_MPS):
+    """(lateral deviation m, speed m/s) of a robot whose true kinematics are `true` (robot.Kinematics), asked to
+    drive straight at `speed_mps` through Duckietown's inverse kinematics with the calibration `commanded`, after
+    `distance_m` of travel (exact arc; positive: to the left)."""
+    from naocal.kinds.duckiebot.kinematics import forward_kinematics, integrate_pose, inverse_kinematics
+
+    u_left, u_right = inverse_kinematics(speed_mps, 0.0, commanded)
+    v, omega = forward_kinematics(u_left, u_right, true)
+    if v <= 0:
+        return math.inf, float(v)
+    pose = integrate_pose(np.zeros(3), v, omega, distance_m / v)
+    return float(pose[1]), float(v)
+
+
+def run_verify(args, kind) -> int:
+    """Does the robot still drive straight under CAL? Refit gain and trim on the new log (the camera's pose and the
+    baseline held at CAL's: a lane pass without turns cannot tell the baseline from trim), predict the 2 m straight
+    drive at 0.3 m/s commanded with CAL's gain and trim. Exit 0 still good, 1 drifted, 2 bad input."""
+    import dataclasses
+
+    import cv2
+
+    from naocal.kinds.duckiebot.calibration import read_calibration_file
+    from naocal.kinds.duckiebot.detect import detect_markers
+    from naocal.kinds.duckiebot.drive_log import read_drive_log
+    from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
+    from naocal.kinds.duckiebot.identify import Detections, rectified_sightings
+    from naocal.kinds.duckiebot.robot import Kinematics
+
+    check_options(args, kind)
+    cal = read_calibration_file(args.offsets)
+    log = read_drive_log(args.dataset)
+    markers = [detect_markers(log.load_frame(i, cv2.IMREAD_GRAYSCALE), log.marker_family)
+               for i in range(len(log.frame_files))]
+    if not any(markers):
+        raise _no_marker(log)
+    drive = dataclasses.replace(Drive.of_log(log), baseline_m=cal.value("baseline_m"))
+    fit = fit_drive(drive, rectified_sightings(Detections(markers, []), cal.lens), cal.lens.K, log.marker_size_m,
+                    cal.T_base_camera, fixed=CAMERA + ("baseline_m",))
+    if not fit.success:
+        raise SolveError(f"the fit of {log.path} did not converge ({fit.message})")
+    now = {"gain": fit.value("gain"), "trim": fit.value("trim")}
+    std = {"gain": fit.stdev("gain"), "trim": fit.stdev("trim")}
+
+    def predicted(gain, trim):
+        true = Kinematics(baseline_m=drive.baseline_m, radius_m=drive.radius_m, gain=gain, trim=trim, k=drive.k,
+                          limit=drive.limit)
+        return straight_drive(cal.kinematics, true)
+
+    lateral, speed = predicted(now["gain"], now["trim"])
+    # the std by first-order propagation of the fitted gain's and trim's stds (their correlation neglected)
+    variance = 0.0
+    for name in now:
+        step = 1e-3 * std[name] or 1e-9
+        moved = predicted(**{**now, name: now[name] + step})[0]
+        variance += ((moved - lateral) / step * std[name]) ** 2
+    lateral_std = math.sqrt(variance)
+    good = abs(lateral) <= DUCKIETOWN_RULE_M
+    report = {"log": str(log.path), "calibration": str(args.offsets),
+              "calibrated": {"gain": cal.kinematics.gain, "trim": cal.kinematics.trim},
+              "now": {n: {"value": now[n], "std": std[n]} for n in now}, "fit_rms_px": fit.rms_px,
+              "calibration_rms_px": cal.fit["rms_px"], "distance_m": STRAIGHT_DISTANCE_M,
+              "speed_mps": STRAIGHT_SPEED_MPS, "lateral_deviation_m": lateral, "lateral_deviation_std_m": lateral_std,
+              "predicted_speed_mps": speed, "rule_m": DUCKIETOWN_RULE_M, "goal_m": GOAL_M,
+              "verdict": "still good" if good else "drifted"}
+    if args.json:
+        print(json.dumps(report, indent=1, allow_nan=False))
+        return 0 if good else 1
+    print(f"{log.path} under {args.offsets} (gain {cal.kinematics.gain:.4f}, trim {cal.kinematics.trim:.5f}): the "
+          f"robot now has gain {_pm(now['gain'], std['gain'])}, trim {_pm(now['trim'], std['trim'], digits=5)} "
+          f"(baseline and camera pose held at the calibration's; fit RMS {fit.rms_px:.3f} px, the calibration's "
+          f"{cal.fit['rms_px']:.3f} px)")
+    print(f"commanded straight at {STRAIGHT_SPEED_MPS:g} m/s for {STRAIGHT_DISTANCE_M:g} m with the calibration: "
+          f"lateral deviation {_pm(lateral, lateral_std, 100, 1)} cm (positive: left), speed {speed:.3f} m/s "
+          f"({100 * (speed / STRAIGHT_SPEED_MPS - 1):+.1f} %)")
+    certain = abs(lateral) + 2 * lateral_std <= DUCKIETOWN_RULE_M if good else \
+        abs(lateral) - 2 * lateral_std > DUCKIETOWN_RULE_M
+    hedge = "" if certain else " (within 2 stds of the limit: drive again to be sure)"
+    if good:
+        goal = "and naocal's 2 cm goal" if abs(lateral) <= GOAL_M else "but not naocal's 2 cm goal"
+        print(f"verdict: still good: within Duckietown's {DUCKIETOWN_RULE_M * 100:g} cm rule {goal}{hedge}")
+    else:
+        print(f"verdict: drifted: beyond Duckietown's {DUCKIETOWN_RULE_M * 100:g} cm rule{hedge}; the log says trim "
+              f"{now['trim']:.5f}: recalibrate (naocal identify LOG --out CAL.json on a calibration drive)")
+    return 0 if good else 1
+
+
+# ------------------------------------------------------------------------------------------------ offsets
+
+def run_offsets(args, action: str, out) -> int:
+    """`naocal offsets ACTION` for Duckiebot calibration files (show, validate, diff, export; apply is refused)."""
+    from naocal.kinds.duckiebot.calibration import read_calibration_file
+
+    if action == "apply":
+        raise NaocalError("a Duckiebot's calibration has no joints to apply: its wheel commands are compensated by "
+                          "Duckietown's inverse kinematics on the robot (naocal offsets export FILE --format "
+                          "duckietown --out DIR)")
+    if action == "diff":
+        return _diff(read_calibration_file(args.file_a), read_calibration_file(args.file_b), args, out)
+    cal = read_calibration_file(args.file)
+    if action == "show":
+        out.write(format_calibration(cal, f"{args.file}: robot {cal.robot_id}, {cal.source}, {cal.created}") + "\n")
+        _warn("offsets", cal.findings)
+        return 0
+    if action == "validate":
+        out.write("ok\n")
+        _warn("offsets", cal.findings)
+        return 0
+    return _export(cal, args, out)
+
+
+def _diff(a, b, args, out) -> int:
+    """Per-parameter B - A; '*' where it exceeds sqrt(std_A^2 + std_B^2) (as the NAO's diff)."""
+    marked = 0
+    out.write(f"{'parameter':24s} {'A':>12s} {'B':>12s} {'B - A':>12s} {'combined std':>12s}\n")
+    for name in [n for n in a.parameters if n in b.parameters]:
+        pa, pb = a.parameters[name], b.parameters[name]
+        difference, combined = pb["value"] - pa["value"], math.hypot(pa["std"], pb["std"])
+        mark = "*" if abs(difference) > combined else ""
+        marked += bool(mark)
+        out.write(f"{name:24s} {pa['value']:12.6g} {pb['value']:12.6g} {difference:12.4g} {combined:12.4g} {mark}\n")
+    only = sorted(set(a.parameters) ^ set(b.parameters))
+    if only:
+        out.write(f"in one file only (markers seen in one drive): {', '.join(only)}\n")
+    out.write(f"lens: {a.lens_model} -> {b.lens_model}\n")
+    return 1 if marked and args.fail_on_difference else 0
+
+
+def _export(cal, args, out) -> int:
+    from naocal.kinds.duckiebot.calibration_files import calibration_paths, write_calibration
+    from naocal.solver.fileio import atomic_write_text, check_not_an_input, check_output_file, read_json
+
+    for option in ("merge_from", "head_id", "body_id", "bhuman_release", "nominal_urdf"):
+        if getattr(args, option, None) is not None:
+            raise NaocalError(f"--{option.replace('_', '-')} is not for a Duckiebot's calibration (the NAO's team "
+                              "formats' or an URDF's)")
+    if getattr(args, "strip_meshes", False):
+        raise NaocalError("--strip-meshes is for an URDF export, not a Duckiebot's calibration")
+    if args.format not in ("duckietown", "json"):
+        raise NaocalError(f"--format {args.format}: a Duckiebot's calibration exports to duckietown or json")
+    if args.format == "json":
+        text = json.dumps(read_json(args.file), indent=1, allow_nan=False) + "\n"
+        if args.out is None:
+            out.write(text)
+        else:
+            check_output_file(args.out, inputs=[args.file])
+            atomic_write_text(args.out, text)
+            print(f"wrote {args.out}", file=sys.stderr)
+        return 0
+    if args.out is None:
+        raise NaocalError("--format duckietown writes three files (kinematics/, camera_intrinsic/, "
+                          "camera_extrinsic/<robot>.yaml): give --out DIR, e.g. the robot's /data/config/calibrations")
+    paths = calibration_paths(args.out, cal.robot_id)  # the robot's name checked first
+    for path in paths.values():
+        check_not_an_input(path, [args.file])
+    findings = write_calibration(args.out, cal.duckietown())
+    for path in paths.values():
+        print(f"wrote {path}", file=sys.stderr)
+    _warn("offsets", findings)
+    return 0

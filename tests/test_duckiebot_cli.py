@@ -1,0 +1,199 @@
+"""The Duckiebot through the command line (issues 22, 23): `naocal identify LOG --out CAL.json`, `naocal offsets
+show|validate|diff|export CAL`, `naocal verify LOG --offsets CAL`, and bad logs refused in one line (exit 2, nothing
+written). Independent data: a small log made by kinds/duckiebot/render.py (OpenCV, not PyBullet)."""
+
+import json
+import shutil
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from naocal.kinds.duckiebot.calibration import read_calibration_file, write_calibration_file
+from naocal.kinds.duckiebot.calibration_files import read_calibration
+from naocal.kinds.duckiebot.intrinsics import LensCamera
+from naocal.kinds.duckiebot.render import joint_program, render_drive_log
+from naocal.solver.errors import SolveError
+from tests.cli_runner import naocal
+
+LOG_K = 27.0  # the rendered log's k: the fit's gain and trim are in it
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """A small rendered log (28 frames: boards while turning, the marker line with turns; ~7 s CPU to render) and
+    its calibration by `naocal identify LOG --out CAL.json` (~13 s CPU)."""
+    root = tmp_path_factory.mktemp("duckiebot")
+    rendered = render_drive_log(root / "LOG", seed=1, steps=joint_program(board_steps=2, marker_drives=4, returns=1))
+    result = naocal("identify", root / "LOG", "--out", root / "CAL.json")
+    assert result.returncode == 0, result.stderr
+    return SimpleNamespace(root=root, log=root / "LOG", cal=root / "CAL.json", rendered=rendered, identify=result)
+
+
+def one_line_error(result, *names):
+    assert result.returncode == 2, (result.returncode, result.stdout, result.stderr)
+    line = result.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line, line
+    for name in names:
+        assert str(name) in line, (name, line)
+    return line
+
+
+def test_identify_calibrates_a_rendered_log(calibrated):
+    """The hidden robot's trim within 0.002 and gain within 1 % (in the log's k), the summary printed."""
+    robot = calibrated.rendered.robot.kinematics
+    cal = read_calibration_file(calibrated.cal)
+    assert abs(cal.kinematics.trim - robot.trim * LOG_K / robot.k) < 0.002
+    assert abs(cal.kinematics.gain / (robot.gain * LOG_K / robot.k) - 1.0) < 0.01
+    assert cal.std("trim") > 0 and cal.fit["converged"] and cal.lens_model in cal.lenses
+    for text in ("kinematics: gain", "trim", "camera on the body", "lens:", "held-out RMS", "fit: RMS"):
+        assert text in calibrated.identify.stdout, text
+
+
+def test_the_calibration_exports_duckietowns_three_files(calibrated, tmp_path):
+    out = tmp_path / "calibrations"
+    result = naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out)
+    assert result.returncode == 0, result.stderr
+    cal = read_calibration_file(calibrated.cal)
+    files, findings = read_calibration(out, "rendered")
+    assert not [f for f in findings if f.level == "refuse"]
+    assert files.kinematics.trim == pytest.approx(cal.kinematics.trim, abs=1e-12)
+    assert np.allclose(files.camera.K, cal.lenses["plumb_bob"].K)
+    for action in ("show", "validate"):
+        assert naocal("offsets", action, calibrated.cal).returncode == 0
+    diff = naocal("offsets", "diff", calibrated.cal, calibrated.cal, "--fail-on-difference")
+    assert diff.returncode == 0 and "trim" in diff.stdout
+    exported = naocal("offsets", "export", calibrated.cal, "--format", "json")
+    assert json.loads(exported.stdout)["schema"] == "naocal.duckiebot_calibration/1"
+
+
+def test_verify_says_whether_the_robot_still_drives_straight(calibrated, tmp_path):
+    """On its own log the calibration is still good (0 +- a few mm over 2 m); a calibration whose trim is 0.05 off
+    would send it about 0.3 m aside: drifted, exit 1."""
+    good = naocal("verify", calibrated.log, "--offsets", calibrated.cal)
+    assert good.returncode == 0 and "verdict: still good" in good.stdout, good.stdout + good.stderr
+    doc = json.loads(calibrated.cal.read_text())
+    for section in (doc["kinematics"], doc["parameters"]["trim"]):
+        key = "trim" if "trim" in section else "value"
+        section[key] += 0.05
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps(doc))
+    drifted = naocal("verify", calibrated.log, "--offsets", wrong, "--json")
+    report = json.loads(drifted.stdout)
+    assert drifted.returncode == 1 and report["verdict"] == "drifted"
+    assert abs(report["lateral_deviation_m"]) > 0.1 and report["lateral_deviation_std_m"] < 0.05
+
+
+def _blank(path):
+    cv2.imwrite(str(path), np.full((480, 640), 128, np.uint8))
+
+
+def _edit_csv(path, row, column, value):
+    lines = path.read_text().splitlines()
+    cells = lines[row].split(",")
+    cells[column] = value
+    lines[row] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _swap_rows(path):
+    lines = path.read_text().splitlines()
+    lines[2], lines[3] = lines[3], lines[2]
+    path.write_text("\n".join(lines) + "\n")
+
+
+BAD_LOGS = {  # what is broken -> (how, the file the one line names)
+    "missing wheels.csv": (lambda log, _: (log / "wheels.csv").unlink(), "wheels.csv"),
+    "times not increasing": (lambda log, _: _swap_rows(log / "wheels.csv"), "wheels.csv"),
+    "NaN duty": (lambda log, _: _edit_csv(log / "wheels.csv", 3, 1, "nan"), "wheels.csv"),
+    "a frame not an image": (lambda log, _: (log / "frames" / "000002.png").write_text("not a png"), "000002.png"),
+    "no marker ever seen": (lambda log, _: [_blank(p) for p in (log / "frames").iterdir()], "frames.csv"),
+    "too few board views": (lambda log, rendered: [_blank(log / "frames" / f"{i:06d}.png")
+                                                   for i, boards in enumerate(rendered.board_px) if boards], "LOG"),
+}
+
+
+@pytest.mark.parametrize("problem", sorted(BAD_LOGS))
+def test_a_bad_log_is_refused_in_one_line_and_nothing_written(calibrated, tmp_path, problem):
+    log = tmp_path / "LOG"
+    shutil.copytree(calibrated.log, log)
+    damage, named = BAD_LOGS[problem]
+    damage(log, calibrated.rendered)
+    out = tmp_path / "CAL.json"
+    one_line_error(naocal("identify", log, "--out", out), named)
+    assert not out.exists()
+
+
+def test_identify_never_writes_over_its_input(calibrated, tmp_path):
+    log = tmp_path / "LOG"
+    shutil.copytree(calibrated.log, log)
+    before = (log / "wheels.csv").read_bytes()
+    one_line_error(naocal("identify", log, "--out", log / "wheels.csv"), "wheels.csv")
+    assert (log / "wheels.csv").read_bytes() == before
+
+
+@pytest.mark.parametrize("where, value, field", [
+    (("camera", "lenses", "plumb_bob", "K", 0, 0), 11454.0, "camera.lenses.plumb_bob.K"),  # a real broken file's fx
+    (("camera", "lenses", "plumb_bob", "distortion", 0), -5.4, "camera.lenses.plumb_bob.distortion"),
+    (("parameters", "trim", "std"), float("nan"), "parameters.trim.std"),
+    (("kinematics", "gain"), 2.0, "kinematics.gain"),  # disagrees with parameters.gain
+    (("robot", "id"), "no/such robot", "robot.id"),
+    (("fit", "extra"), 1, "fit.extra"),
+])
+def test_a_bad_calibration_file_is_refused_naming_its_field(calibrated, tmp_path, where, value, field):
+    doc = json.loads(calibrated.cal.read_text())
+    node = doc
+    for key in where[:-1]:
+        node = node[key]
+    node[where[-1]] = value
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    one_line_error(naocal("offsets", "validate", bad), bad, field)
+    out = tmp_path / "dt"
+    one_line_error(naocal("offsets", "export", bad, "--format", "duckietown", "--out", out), bad, field)
+    assert not out.exists()
+
+
+def test_an_implausible_calibration_is_never_written(calibrated, tmp_path):
+    """The writer checks the document with the reader first: a trim beyond any working Duckiebot (0.6) is refused
+    (exit 3, the fit's fault) and the file already there is kept."""
+    cal = read_calibration_file(calibrated.cal)
+    names = list(cal.parameters)
+    x = np.array([cal.value(n) for n in names])
+    x[names.index("trim")] = 0.6
+    kinematics = SimpleNamespace(**{**cal.kinematics.__dict__, "trim": 0.6})
+    lens_fits = {m: SimpleNamespace(camera=LensCamera(m, c.K, c.distortion), n_views=e["views"], train_rms_px=0.1,
+                                    held_out_rms_px=e["held_out_rms_px"])
+                 for (m, c), e in zip(cal.lenses.items(), cal.lens_errors.values())}
+    fit = SimpleNamespace(names=names, x=x, std=np.full(len(x), 1e-3), free=np.ones(len(x), bool), rms_px=0.3,
+                          sightings=SimpleNamespace(frame=np.zeros(8)), outliers=SimpleNamespace(frame=np.zeros(0)),
+                          reference_marker=0, success=True, warnings=[])
+    fake = SimpleNamespace(robot_id="rendered", kinematics=kinematics, lens=lens_fits[cal.lens_model],
+                           lens_fits=lens_fits, drive_fit=fit)
+    target = tmp_path / "CAL.json"
+    target.write_text("kept")
+    with pytest.raises(SolveError, match=r"trim.*beyond any working Duckiebot") as caught:
+        write_calibration_file(target, fake)
+    assert caught.value.exit_code == 3 and "\n" not in str(caught.value)
+    assert target.read_text() == "kept"
+    fit.x[names.index("trim")] = kinematics.trim = cal.kinematics.trim  # plausible again: written
+    assert write_calibration_file(target, fake) == []
+    assert read_calibration_file(target).kinematics.trim == cal.kinematics.trim
+
+
+def test_other_kinds_options_and_formats_are_refused(calibrated, tmp_path, monkeypatch):
+    import naocal.kinds.duckiebot as duckiebot
+
+    one_line_error(naocal("verify", calibrated.log, "--offsets", calibrated.cal, "--angles", "measured"), "--angles")
+    one_line_error(naocal("offsets", "export", calibrated.cal, "--format", "bhuman"), "duckietown")
+    one_line_error(naocal("offsets", "apply", calibrated.cal, "--command", "x=1"), "inverse kinematics")
+    nao = tmp_path / "offsets.json"
+    nao.write_text(json.dumps({"schema": "naocal.offsets/2"}))
+    one_line_error(naocal("offsets", "export", nao, "--format", "duckietown"), "a NAO's offsets file exports to")
+    one_line_error(naocal("calibrate", "--robot", "duckiebot", "--backend", "mock", "--out", tmp_path / "run",
+                          "--plan", "optimal"), "--plan")
+    monkeypatch.setitem(duckiebot.VERB_MODULES, "calibrate", ("no_such_module", "run"))
+    one_line_error(naocal("calibrate", "--robot", "duckiebot", "--backend", "mock", "--out", tmp_path / "run"),
+                   "not in this version")
+    assert not (tmp_path / "run").exists()
