@@ -52,6 +52,11 @@ def _record(args) -> dict:
     if args.backend != "mock":
         raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock so far (its bridge is not "
                           "written yet): use --backend mock")
+    for option, given in (("--effect", getattr(args, "effect", None)), ("--endpoint", getattr(args, "endpoint", None)),
+                          ("--report", getattr(args, "report", None))):
+        if given:
+            raise NaocalError(f"{option}: the Duckiebot's mock has no such option yet (its hidden effects are drawn "
+                              "per seed; docs/DUCKIEBOT.md)")
     if args.seed < 0:
         raise NaocalError(f"--seed must not be negative, got {args.seed}")
     blind = DEFAULT_MAX_BLIND_M if getattr(args, "max_blind_m", None) is None else args.max_blind_m
@@ -108,7 +113,8 @@ def summary_text(result, ctx, robot, truth: dict) -> str:
     if ctx.validation is not None:
         v = ctx.validation
         lines.append(f"validation: {v['driven_m']:.2f} m straight at {ctx.settings.speed_mps:g} m/s, "
-                     f"{100 * v['deviation_m']:+.1f} cm off the marker line (Duckietown's rule: 10 cm)")
+                     f"{100 * v['deviation_m']:+.1f} cm off its start heading (Duckietown's rule: 10 cm; "
+                     f"{100 * v['off_line_m']:+.1f} cm off the marker line)")
     return "\n".join(lines) + "\n"
 
 

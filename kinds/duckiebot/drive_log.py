@@ -409,7 +409,7 @@ class DriveLogAppender:
                 _fail(self.directory / META_FILE, "this log was recorded with another robot or set-up (nothing was "
                                                   "changed)")
             if (self.directory / WHEELS_FILE).exists():
-                self.wheels = [tuple(row) for row in zip(*read_wheels(self.directory / WHEELS_FILE))]
+                self.wheels = [tuple(map(float, row)) for row in zip(*read_wheels(self.directory / WHEELS_FILE))]
             if (self.directory / FRAMES_FILE).exists():
                 t, files = read_frames(self.directory / FRAMES_FILE, self.directory, 1, 1, check_images=False)
                 self.frames = list(zip(t.tolist(), files))

@@ -11,9 +11,9 @@ however it ends.
   error).
 - face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
   line (the markers' yaw, all oriented alike, through the fitted camera and the nominal mount).
-- marker_drives: short stretches forward along the line with one-wheel turns at some (the joint fit needs turns in
-  view of the markers to tell the baseline from trim), re-aligned when the robot curves off, back, then short
-  drives out and back (kinds.duckiebot.render.joint_program's design, closed loop).
+- marker_drives: legs out along the line in short stretches (stop, grab) and back, longer each time, some ending with
+  one-wheel turns (the joint fit needs turns in view of the markers to tell the baseline from trim), re-aligned at
+  the start when the robot came back curved (kinds.duckiebot.render.joint_program's design, closed loop).
 - identification: kinds.duckiebot.identify.identify_log on RUN/log (the joint fit); the caller writes the result.
 - validation: 2 m straight at 0.3 m/s with the fitted compensation (Duckietown's inverse kinematics), frames while
   moving; the lateral offset from the marker line at rest before and after.
@@ -85,9 +85,10 @@ class MissionSettings:
     max_align_steps: int = 12
     drive_duty: float = 0.3
     drive_s: float = 0.25
-    marker_drives: int = 5
-    wiggles: int = 2
-    returns: int = 3
+    legs: tuple = (2, 3, 4)  # out-and-back legs along the line, in stretches: driving back undoes the heading a
+    # wrong trim adds driving out, so the joint fit's start (trim 0) stays close to the drive (one long leg out, then
+    # back, curved a large-trim robot off its start values: the fit failed on trim 0.065)
+    wiggles: int = 2  # legs ending with one-wheel turns left, right, right, left
     realign_rad: float = math.radians(4.0)  # re-align along the line when curved off by more
     validation_m: float = 2.0
     speed_mps: float = 0.3
@@ -96,9 +97,6 @@ class MissionSettings:
     max_leave_m: float = 1.5
     max_robot_time_s: float = 600.0  # the deadline over the whole mission's waits
     limit: float = 1.0  # the duty limit (Duckietown's kinematics `limit`)
-
-    def record(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
 def log_meta(robot_id: str, source: str) -> dict:
@@ -458,20 +456,17 @@ class MarkerDrives(State):
             saw_marker(ctx, markers, stretch)
             return markers
 
-        at = set(np.linspace(0, s.marker_drives - 1, s.wiggles).round().astype(int).tolist()) if s.wiggles else set()
-        for i in range(s.marker_drives):
-            markers = drive(+1)
-            if i in at:  # turns in view of the markers: the baseline, told from trim
+        for leg, stretches in enumerate(s.legs):
+            for _ in range(stretches):
+                drive(+1)
+            if leg < s.wiggles:  # turns in view of the markers: the baseline, told from trim
                 for step, direction in enumerate((+1, -1, -1, +1)):
                     turn_step(session, s, direction, step, s.step_s / 2)
-                    markers = markers_on_floor(session.grab(), ctx.lens, mount)
+                    markers_on_floor(session.grab(), ctx.lens, mount)
+            for _ in range(stretches):
+                markers = drive(-1)
             if markers and abs(line_error(markers)[0]) > s.realign_rad:
                 align(ctx, ctx.lens, mount, session, markers)
-        for _ in range(s.marker_drives):
-            drive(-1)
-        for _ in range(s.returns):
-            drive(+1)
-            drive(-1)
         ctx.driven = True
         return Outcome("ok", f"{len(session.log.frames)} frames in all")
 
@@ -532,16 +527,21 @@ class Validation(State):
         lens, mount = ctx.calibration.lens, ctx.calibration.T_base_camera
         session.command(0.0, 0.0)
         markers = align(ctx, lens, mount, session)
-        _, before = line_error(markers)
+        heading, before = line_error(markers)
         ctx.blind_m = 0.0
         driven = drive_watching(ctx, session, s.validation_m, stop_when_blind=False)
         markers = markers_on_floor(session.grab(), lens, mount)
         if not markers:
             raise NaocalError("no marker in view at the end of the validation drive: its deviation cannot be measured")
-        heading, after = line_error(markers)
+        heading_end, after = line_error(markers)
+        # moving along the line, the offset from it changes by driven sin(heading error) (align leaves up to
+        # align_tolerance_rad: 7 cm over 2 m at 2 deg): the drift is what is left, off the start's own heading
+        drift = after - before - driven * math.sin(heading)
         ctx.validation = {"driven_m": driven, "lateral_start_m": before, "lateral_end_m": after,
-                          "deviation_m": after - before, "heading_end_rad": heading}
-        return Outcome("ok", f"{driven:.2f} m: {100 * (after - before):+.1f} cm off the line")
+                          "heading_start_rad": heading, "heading_end_rad": heading_end, "off_line_m": after - before,
+                          "deviation_m": drift}
+        return Outcome("ok", f"{driven:.2f} m: {100 * drift:+.1f} cm off its start heading ({100 * (after - before):+.1f}"
+                             " cm off the marker line)")
 
 
 class Leave(State):
