@@ -4,19 +4,20 @@ renderer (kinds.duckiebot.render) for the camera, in the seed paper's set-up.
 The body: a chassis on two driven wheels (spheres of the hidden radii on revolute joints about the axle, their
 contact points the hidden baseline apart: a sphere's contact point stays below its centre whatever the roll) and a
 frictionless ball caster at the back; the floor a plane with friction. Each wheel is velocity-controlled with a
-bounded torque, so it slips when it would accelerate faster than friction allows.
+bounded torque.
 
 A duty u in [-1, 1] per wheel reaches the motor as Duckietown's wheel driver sends it (kinematics.duty_to_pwm: no
 PWM for |u| <= 0.01, then floor(|u| 195 + 60) of 255). The motor turns the wheel at
     w = sign(u) m (pwm - pwm_dead) / 195  (0 below pwm_dead)
 rad/s: `m` the hidden per-wheel motor gain, `pwm_dead` the hidden PWM at which the motor starts to turn (the driver
 assumes 60: a dead zone and a speed offset when it is not), reached through a first-order lag of the hidden time
-constant. The ideal mock (`realism="ideal"`, for teaching) turns the wheel at exactly w = m u: no PWM, no dead
+constant; the body moves at the wheels' ground speeds less each tyre's hidden slip (`DuckiebotMock._roll` says why
+the body is not left to PyBullet's friction). The ideal mock (`realism="ideal"`, for teaching) turns the wheel at exactly w = m u: no PWM, no dead
 zone, no lag, full friction, no image noise or motion blur.
 
 Hidden (`MockTruth`, drawn per seed; docs/DUCKIEBOT.md "The mock and the agent" lists the ranges): per-wheel radius
 and motor gain (what Duckietown's trim and gain express), the baseline, the PWM dead zone, each wheel's lag, the
-wheels' friction (slip), the camera's intrinsics and plumb_bob distortion, and its pose on the body. `truth_document`
+tyres' slip, the camera's intrinsics and plumb_bob distortion, and its pose on the body. `truth_document`
 writes them in the calibration file's names and units (in the log's k, as the fit's gain and trim are).
 
 Frames: the renderer at the body's planar pose from PyBullet; an exposure of `exposure_s` during which the robot
@@ -45,11 +46,11 @@ LOG_K = 27.0  # Duckietown's nominal k: the log's, in which the truth's gain and
 PHYSICS_DT_S = 1.0 / 480.0
 CHASSIS_MASS_KG, WHEEL_MASS_KG, CASTER_MASS_KG = 1.0, 0.05, 0.02
 CASTER_RADIUS_M, CASTER_BEHIND_M = 0.015, 0.10
-WHEEL_TORQUE_NM = 2.0  # far above what friction transmits: the wheel follows its speed, slipping if it must
+WHEEL_TORQUE_NM = 2.0  # the wheels follow their speeds at once (their lag is the motor's, modelled before)
 N_MARKERS = 20  # the marker line: 0.3-3.2 m behind the start, so a 2 m validation drive stays over it
 COM_IN_BASE_M = np.array([-0.03, 0.0, 0.02])  # the chassis' centre of mass, behind the axle: the caster carries some
 # PyBullet reports a body's pose at its centre of mass and places links relative to it: both shifted by this
-IDEAL_FRICTION = 5.0  # the ideal mock: starts and stops within a millisecond, no slip
+WHEEL_FRICTION = 1.0
 RESTORE_GAP_S = 1e-3  # a restored mock resumes this long after its saved time, wheels stopped (the driver's watchdog)
 
 
@@ -65,15 +66,16 @@ class MockTruth:
     pwm_dead: float  # the PWM at which the motors start to turn (the driver assumes PWM_MIN = 60)
     lag_left_s: float  # first-order time constants of the wheel speeds
     lag_right_s: float
-    friction: float  # wheels' Coulomb friction with the floor
+    slip_left: float  # the fraction of each wheel's rolling speed lost to tyre slip
+    slip_right: float
     camera: CameraIntrinsics
     T_base_camera: np.ndarray
 
     def kinematics(self) -> Kinematics:
         """Duckietown's parameters that describe this robot (in the log's k = 27, the nominal radius): its forward
         map u -> wheel ground speed r_side m_side u is r (u k / (gain -+ trim))."""
-        a_left = WHEEL_RADIUS_M * LOG_K / (self.radius_left_m * self.motor_left_radps)
-        a_right = WHEEL_RADIUS_M * LOG_K / (self.radius_right_m * self.motor_right_radps)
+        a_left = WHEEL_RADIUS_M * LOG_K / (self.radius_left_m * self.motor_left_radps * (1.0 - self.slip_left))
+        a_right = WHEEL_RADIUS_M * LOG_K / (self.radius_right_m * self.motor_right_radps * (1.0 - self.slip_right))
         return Kinematics(baseline_m=self.baseline_m, radius_m=WHEEL_RADIUS_M, gain=(a_left + a_right) / 2.0,
                           trim=(a_right - a_left) / 2.0, k=LOG_K)
 
@@ -86,7 +88,8 @@ def draw_truth(seed: int, realism: str = "realistic") -> MockTruth:
     """A hidden DB21 for `seed`. The camera and the mount as kinds.duckiebot.render.hidden_robot draws them (the real
     robots' ranges); the wheels: motor gains 27 rad/s x U(0.7, 1.3) with a left/right asymmetry N(0, 0.05) clipped
     to +-0.12 (the real robots' trim), radii 0.0318 m +- 0.3 mm each (tyre wear), baseline 0.1 m +- 3 mm; realistic
-    only: the motors start at PWM U(55, 65), lags U(0.02, 0.06) s, friction U(0.6, 1.0) (ideal: 60, 0, 5)."""
+    only: the motors start at PWM U(55, 65), lags U(0.02, 0.06) s, tyre slip U(0, 2 %) of each wheel's
+    rolling speed (ideal: 60, 0, 0)."""
     if realism not in REALISMS:
         raise NaocalError(f"unknown mock realism {realism!r}: expected one of {', '.join(REALISMS)}")
     from naocal.kinds.duckiebot.render import hidden_robot
@@ -100,10 +103,9 @@ def draw_truth(seed: int, realism: str = "realistic") -> MockTruth:
     realistic = realism == "realistic"
     pwm_dead = rng.uniform(55.0, 65.0) if realistic else float(PWM_MIN)
     lags = rng.uniform(0.02, 0.06, 2) if realistic else np.zeros(2)
-    friction = rng.uniform(0.6, 1.0) if realistic else IDEAL_FRICTION
+    slips = rng.uniform(0.0, 0.02, 2) if realistic else np.zeros(2)
     return MockTruth(float(radii[0]), float(radii[1]), motor * (1.0 - asymmetry), motor * (1.0 + asymmetry),
-                     float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(friction),
-                     camera_truth.camera, camera_truth.T_base_camera)
+                     float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(slips[0]), float(slips[1]), camera_truth.camera, camera_truth.T_base_camera)
 
 
 def truth_document(truth: MockTruth, seed: int, realism: str) -> dict:
@@ -126,7 +128,7 @@ def truth_document(truth: MockTruth, seed: int, realism: str) -> dict:
             "hidden": {"radius_left_m": truth.radius_left_m, "radius_right_m": truth.radius_right_m,
                        "motor_left_radps": truth.motor_left_radps, "motor_right_radps": truth.motor_right_radps,
                        "pwm_dead": truth.pwm_dead, "lag_left_s": truth.lag_left_s, "lag_right_s": truth.lag_right_s,
-                       "friction": truth.friction}}
+                       "slip_left": truth.slip_left, "slip_right": truth.slip_right}}
 
 
 def mock_scene():
@@ -193,7 +195,7 @@ class DuckiebotMock:
             linkJointTypes=[p.JOINT_REVOLUTE, p.JOINT_REVOLUTE, p.JOINT_FIXED],
             linkJointAxis=[(0, 1, 0), (0, 1, 0), (0, 0, 1)], physicsClientId=c)
         for link in (0, 1):
-            p.changeDynamics(self._body, link, lateralFriction=truth.friction, rollingFriction=0.0,
+            p.changeDynamics(self._body, link, lateralFriction=WHEEL_FRICTION, rollingFriction=0.0,
                              spinningFriction=0.0, physicsClientId=c)
             p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=0.0,
                                     force=WHEEL_TORQUE_NM, physicsClientId=c)
@@ -260,20 +262,22 @@ class DuckiebotMock:
             for link in (0, 1):
                 p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=float(self.wheel_w[link]),
                                         force=WHEEL_TORQUE_NM, physicsClientId=c)
-            if self.ideal:
-                self._roll_without_slip()
+            self._roll()
             p.stepSimulation(physicsClientId=c)
             self.t_s += PHYSICS_DT_S
             if poses is not None:
                 poses.append(self.pose())
         self._save()
 
-    def _roll_without_slip(self) -> None:
-        """The ideal mock's wheels roll without slipping and the body follows them at once: its velocity set to the
-        wheels' (PyBullet's friction-driven body lags 10-15 % of a 0.1 s one-wheel step behind its wheels: the
-        realistic mock's slip)."""
+    def _roll(self) -> None:
+        """The body follows its wheels' ground speeds (each wheel's rolling speed less its tyre slip) at every physics
+        step; the contacts keep it on the floor. Left to PyBullet's friction alone, the body lagged its wheels by
+        10-15 % of every 0.1 s one-wheel step, losing more starting than it made up stopping (25-45 mrad of a
+        240 mrad step, at any friction 1-5 and motor torque 0.06-2 N m), and the joint fit, whose model holds each
+        command from its row, failed on it (docs/DUCKIEBOT.md)."""
         p, c, truth = self._p, self._client, self.truth
-        v_left, v_right = self.wheel_w * (truth.radius_left_m, truth.radius_right_m)
+        v_left, v_right = self.wheel_w * (truth.radius_left_m * (1.0 - truth.slip_left),
+                                          truth.radius_right_m * (1.0 - truth.slip_right))
         v, omega = (v_left + v_right) / 2.0, (v_right - v_left) / truth.baseline_m
         theta = self.pose()[2]
         com = rot_z(theta) @ COM_IN_BASE_M
