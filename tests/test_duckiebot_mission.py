@@ -240,3 +240,15 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
                             ({"max_blind_m": 5.0}, "--max-blind-m"), ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))
+
+
+def test_calibrate_cli_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys):
+    from naocal.tools.cli import main
+
+    out = tmp_path / "run"
+    for extra in (["--backend", "bridge"], ["--backend", "mock", "--seed", "-1"],
+                  ["--backend", "mock", "--max-blind-m", "0"]):
+        assert main(["calibrate", "--robot", "duckiebot", *extra, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "naocal calibrate: error:" in err
+        assert not out.exists()
