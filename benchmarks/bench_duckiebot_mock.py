@@ -35,7 +35,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_duckiebot import homography_error_m, paper_method, straight_drive  # noqa: E402
-from naocal.agent.machine import DONE  # noqa: E402
 from naocal.kinds.duckiebot.calibration_files import ground_homography  # noqa: E402
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters  # noqa: E402
 from naocal.kinds.duckiebot.intrinsics import LensCamera, camera_difference_px  # noqa: E402

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from naocal.agent.machine import DONE, FAILED, INTERRUPTED
+from naocal.agent.machine import DONE, INTERRUPTED
 from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 from naocal.kinds.duckiebot.intrinsics import LensCamera

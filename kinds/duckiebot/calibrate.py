@@ -107,8 +107,8 @@ def summary_text(result, ctx, robot, truth: dict) -> str:
                      f"{fit.stdev('trim'):.4f}), baseline {kin.baseline_m:.4f} m, lens {cal.lens.camera.model}, "
                      f"fit {fit.rms_px:.2f} px RMS over {len(fit.sightings.frame)} corners")
         tk = truth["kinematics"]
-        lines.append(f"the mock's truth: gain {tk['gain']:.4f}, trim {tk['trim']:.4f}, baseline {tk['baseline_m']:.4f} m"
-                     f" (trim error {abs(kin.trim - tk['trim']):.4f}, gain error "
+        lines.append(f"the mock's truth: gain {tk['gain']:.4f}, trim {tk['trim']:.4f}, baseline "
+                     f"{tk['baseline_m']:.4f} m (trim error {abs(kin.trim - tk['trim']):.4f}, gain error "
                      f"{100 * abs(kin.gain / tk['gain'] - 1):.2f} %)")
     if ctx.validation is not None:
         v = ctx.validation

@@ -540,8 +540,8 @@ class Validation(State):
         ctx.validation = {"driven_m": driven, "lateral_start_m": before, "lateral_end_m": after,
                           "heading_start_rad": heading, "heading_end_rad": heading_end, "off_line_m": after - before,
                           "deviation_m": drift}
-        return Outcome("ok", f"{driven:.2f} m: {100 * drift:+.1f} cm off its start heading ({100 * (after - before):+.1f}"
-                             " cm off the marker line)")
+        return Outcome("ok", f"{driven:.2f} m: {100 * drift:+.1f} cm off its start heading "
+                             f"({100 * (after - before):+.1f} cm off the marker line)")
 
 
 class Leave(State):

@@ -7,13 +7,13 @@ frictionless ball caster at the back; the floor a plane with friction. Each whee
 bounded torque.
 
 A duty u in [-1, 1] per wheel reaches the motor as Duckietown's wheel driver sends it (kinematics.duty_to_pwm: no
-PWM for |u| <= 0.01, then floor(|u| 195 + 60) of 255). The motor turns the wheel at
-    w = sign(u) m (pwm - pwm_dead) / 195  (0 below pwm_dead)
-rad/s: `m` the hidden per-wheel motor gain, `pwm_dead` the hidden PWM at which the motor starts to turn (the driver
-assumes 60: a dead zone and a speed offset when it is not), reached through a first-order lag of the hidden time
-constant; the body moves at the wheels' ground speeds less each tyre's hidden slip (`DuckiebotMock._roll` says why
-the body is not left to PyBullet's friction). The ideal mock (`realism="ideal"`, for teaching) turns the wheel at exactly w = m u: no PWM, no dead
-zone, no lag, full friction, no image noise or motion blur.
+PWM for |u| <= 0.01, then floor(|u| 195 + 60) of 255). The motor turns the wheel at w = sign(u) m (pwm - pwm_dead) /
+195 (0 below pwm_dead) rad/s: `m` the hidden per-wheel motor gain, `pwm_dead` the hidden PWM at which the motor
+starts to turn (the driver assumes 60: a dead zone and a speed offset when it is not), reached through a first-order
+lag of the hidden time constant; the body moves at the wheels' ground speeds less each tyre's hidden slip
+(`DuckiebotMock._roll` says why the body is not left to PyBullet's friction). The ideal mock (`realism="ideal"`, for
+teaching) turns the wheel at exactly w = m u: no PWM, no dead zone, no lag, no slip, no image noise or motion
+blur.
 
 Hidden (`MockTruth`, drawn per seed; docs/DUCKIEBOT.md "The mock and the agent" lists the ranges): per-wheel radius
 and motor gain (what Duckietown's trim and gain express), the baseline, the PWM dead zone, each wheel's lag, the
@@ -28,14 +28,14 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from naocal.kinds.duckiebot.kinematics import PWM_MAX, PWM_MIN, duty_to_pwm
 from naocal.kinds.duckiebot.render import HiddenRobot, Renderer, calibration_scene
-from naocal.kinds.duckiebot.robot import BASELINE_M, WHEEL_RADIUS_M, Kinematics, camera_mount
+from naocal.kinds.duckiebot.robot import BASELINE_M, WHEEL_RADIUS_M, Kinematics
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import NaocalError, SafetyError
 from naocal.solver.fileio import atomic_write_text, read_json
@@ -105,7 +105,8 @@ def draw_truth(seed: int, realism: str = "realistic") -> MockTruth:
     lags = rng.uniform(0.02, 0.06, 2) if realistic else np.zeros(2)
     slips = rng.uniform(0.0, 0.02, 2) if realistic else np.zeros(2)
     return MockTruth(float(radii[0]), float(radii[1]), motor * (1.0 - asymmetry), motor * (1.0 + asymmetry),
-                     float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(slips[0]), float(slips[1]), camera_truth.camera, camera_truth.T_base_camera)
+                     float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(slips[0]),
+                     float(slips[1]), camera_truth.camera, camera_truth.T_base_camera)
 
 
 def truth_document(truth: MockTruth, seed: int, realism: str) -> dict:
