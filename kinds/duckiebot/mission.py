@@ -95,6 +95,7 @@ class MissionSettings:
     check_every_m: float = 0.1  # validation / leave: a frame while moving this often
     max_blind_m: float = 0.3  # never drive farther than this without a marker in view
     max_leave_m: float = 1.5
+    max_fit_rms_px: float = 3.0  # beyond this joint-fit RMS the result is refused (ideal mock, seed 4: 0.55 px)
     max_robot_time_s: float = 600.0  # the deadline over the whole mission's waits
     limit: float = 1.0  # the duty limit (Duckietown's kinematics `limit`)
 
@@ -477,7 +478,13 @@ class Identification(State):
     produces = ("calibration",)
 
     def run(self, ctx: MissionContext) -> Outcome:
-        ctx.calibration = identify_log(ctx.session.log.directory)
+        calibration = identify_log(ctx.session.log.directory)
+        rms = calibration.drive_fit.rms_px
+        if not rms <= ctx.settings.max_fit_rms_px:  # never drive on (nor write) what does not explain the drive
+            return Outcome("implausible", f"the joint fit leaves {rms:.2f} px RMS (more than "
+                                          f"{ctx.settings.max_fit_rms_px:g}): it does not explain the drive (a wrong "
+                                          "start or an unmodelled effect); nothing written")
+        ctx.calibration = calibration
         if ctx.on_calibration is not None:
             ctx.on_calibration(ctx.calibration)  # refuses (NaocalError) what no working Duckiebot has
         kin = ctx.calibration.kinematics
