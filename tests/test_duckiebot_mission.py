@@ -252,3 +252,20 @@ def test_calibrate_cli_bad_input_is_one_line_exit_2_nothing_written(tmp_path, ca
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "naocal calibrate: error:" in err
         assert not out.exists()
+
+
+def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_path, monkeypatch):
+    import naocal.kinds.duckiebot.mission as mission
+
+    robot = short_mock()
+    try:
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        written = []
+        ctx = MissionContext(robot, tmp_path, SHORT, session, driven=True, on_calibration=written.append)
+        bad = SimpleNamespace(drive_fit=SimpleNamespace(rms_px=26.5))  # realistic seed 1's local minimum
+        monkeypatch.setattr(mission, "identify_log", lambda _: bad)
+        outcome = Identification().run(ctx)
+        assert outcome.name == "implausible" and "26.50 px" in outcome.reason
+        assert written == [] and ctx.calibration is None
+    finally:
+        robot.close()
