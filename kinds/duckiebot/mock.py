@@ -50,7 +50,7 @@ WHEEL_TORQUE_NM = 2.0  # the wheels follow their speeds at once (their lag is th
 N_MARKERS = 20  # the marker line: 0.3-3.2 m behind the start, so a 2 m validation drive stays over it
 COM_IN_BASE_M = np.array([-0.03, 0.0, 0.02])  # the chassis' centre of mass, behind the axle: the caster carries some
 # PyBullet reports a body's pose at its centre of mass and places links relative to it: both shifted by this
-WHEEL_FRICTION = 0.0  # the body's motion is imposed (`_roll`): friction would fight the tyres' slip
+WHEEL_FRICTION = 1.0
 RESTORE_GAP_S = 1e-3  # a restored mock resumes this long after its saved time, wheels stopped (the driver's watchdog)
 
 
@@ -264,8 +264,9 @@ class DuckiebotMock:
                 self.wheel_w = target
             else:
                 self.wheel_w = self.wheel_w + (target - self.wheel_w) * (1.0 - np.exp(-PHYSICS_DT_S / lags))
-            for link in (0, 1):
-                p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=float(self.wheel_w[link]),
+            rolling = self.wheel_w * (1.0 - np.array([self.truth.slip_left, self.truth.slip_right]))
+            for link in (0, 1):  # the wheels turn as the body moves over the floor: friction has nothing to fight
+                p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=float(rolling[link]),
                                         force=WHEEL_TORQUE_NM, physicsClientId=c)
             self._roll()
             p.stepSimulation(physicsClientId=c)
