@@ -269,3 +269,26 @@ def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_pa
         assert written == [] and ctx.calibration is None
     finally:
         robot.close()
+
+
+def test_a_replayed_command_matches_within_rounding_and_is_refused_beyond(tmp_path):
+    """A resumed validation's compensated duties came out of a new process's joint fit 4e-12 off the recorded ones:
+    the same command (what the robot was sent is kept); another command is refused, nothing sent."""
+    robot = short_mock()
+    try:
+        live = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        live.command(0.0, 0.0)
+        robot.advance(0.1)
+        live.command(0.31363786007679184, 0.3478764646158086)
+        robot.advance(0.1)
+        live.command(0.0, 0.0)
+        sent = len(robot.received)
+        replay = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        replay.command(0.0, 0.0)
+        replay.command(0.31363786007293204, 0.34787646461676885)
+        assert replay.duties == (0.31363786007679184, 0.3478764646158086) and len(robot.received) == sent
+        with pytest.raises(NaocalError, match="recorded run commanded"):
+            Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0).command(0.1, 0.0)
+        assert len(robot.received) == sent
+    finally:
+        robot.close()
