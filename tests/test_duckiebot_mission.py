@@ -227,7 +227,7 @@ def test_no_marker_in_view_stops_within_the_bound(tmp_path):
 def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, capsys):
     from naocal.kinds.duckiebot.calibrate import _record, check_out_dir
 
-    args = SimpleNamespace(backend="mock", seed=3, mock=None, max_blind_m=None, out=str(tmp_path), resume=True,
+    args = SimpleNamespace(backend="mock", seed=3, mock=None, out=str(tmp_path), resume=True,
                            effect=[], report=None, endpoint=None)
     record = _record(args)
     (tmp_path / "run.json").write_text(json.dumps({**record, "mock_seed": 4}))
@@ -237,7 +237,7 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
     with pytest.raises(NaocalError, match="not empty"):
         check_out_dir(tmp_path, record, resume=False)
     for change, message in (({"backend": "bridge"}, "only the mock"), ({"seed": -1}, "--seed"),
-                            ({"max_blind_m": 5.0}, "--max-blind-m"), ({"effect": ["x=1"]}, "--effect")):
+                            ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))
 
@@ -247,7 +247,7 @@ def test_calibrate_cli_bad_input_is_one_line_exit_2_nothing_written(tmp_path, ca
 
     out = tmp_path / "run"
     for extra in (["--backend", "bridge"], ["--backend", "mock", "--seed", "-1"],
-                  ["--backend", "mock", "--max-blind-m", "0"]):
+                  ["--backend", "mock", "--effect", "x=1"]):
         assert main(["calibrate", "--robot", "duckiebot", *extra, "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "naocal calibrate: error:" in err

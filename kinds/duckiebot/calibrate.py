@@ -2,7 +2,6 @@
 on the PyBullet mock (kinds.duckiebot.mock; a real robot's bridge is not written yet).
 
     naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
-                     [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
 validation drive and leaving the area, the same format), RUN/offsets.json (the calibration,
@@ -21,19 +20,16 @@ import shlex
 import sys
 from pathlib import Path
 
-RECORD_KEYS = ("robot", "backend", "mock_seed", "mock", "max_blind_m")
+RECORD_KEYS = ("robot", "backend", "mock_seed", "mock")
 FINISHED_NAME = "mission.json"
 ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
                      "mock_state.json", ".naocal.lock"})
-DEFAULT_MAX_BLIND_M = 0.3
 
 
 def add_options(parser) -> None:
-    """The Duckiebot's own options of `naocal calibrate` (the generic ones: --robot, --backend, --seed, --out,
-    --resume, --mock)."""
-    parser.add_argument("--max-blind-m", type=float, default=None, metavar="M",
-                        help=f"duckiebot: stop when no floor marker has been seen for this far (default "
-                             f"{DEFAULT_MAX_BLIND_M:g} m; at most 1): the robot never leaves the marked area by more")
+    """The Duckiebot's own options of `naocal calibrate`: none yet (the generic --robot, --backend, --seed, --out,
+    --resume, --mock are all it takes; the out-of-area bound is MissionSettings.max_blind_m, 0.3 m). An option here
+    must be declared in agent.rundir's RECORD_OPTIONS or SESSION_OPTIONS (tests/test_resume_options.py)."""
 
 
 def command_line(record: dict, out, resume: bool = True) -> str:
@@ -41,8 +37,6 @@ def command_line(record: dict, out, resume: bool = True) -> str:
              str(record["mock_seed"])]
     if record["mock"] != "realistic":
         parts += ["--mock", record["mock"]]
-    if record["max_blind_m"] != DEFAULT_MAX_BLIND_M:
-        parts += ["--max-blind-m", repr(record["max_blind_m"])]
     return shlex.join(parts + ["--out", str(out)] + (["--resume"] if resume else []))
 
 
@@ -59,11 +53,8 @@ def _record(args) -> dict:
                               "per seed; docs/DUCKIEBOT.md)")
     if args.seed < 0:
         raise NaocalError(f"--seed must not be negative, got {args.seed}")
-    blind = DEFAULT_MAX_BLIND_M if getattr(args, "max_blind_m", None) is None else args.max_blind_m
-    if not 0.05 <= blind <= 1.0:
-        raise NaocalError(f"--max-blind-m must be within [0.05, 1] m, got {blind}")
     return {"schema": "naocal.run/1", "verb": "calibrate", "robot": "duckiebot", "backend": args.backend,
-            "mock_seed": int(args.seed), "mock": getattr(args, "mock", None) or "realistic", "max_blind_m": blind}
+            "mock_seed": int(args.seed), "mock": getattr(args, "mock", None) or "realistic"}
 
 
 def check_out_dir(out: Path, record: dict, resume: bool) -> None:
@@ -130,7 +121,7 @@ def run(args) -> int:
     out = Path(args.out)
     resume = bool(getattr(args, "resume", False))
     check_out_dir(out, record, resume)
-    settings = MissionSettings(max_blind_m=record["max_blind_m"])
+    settings = MissionSettings()
     with RunLock(out, command_line(record, out, resume)):
         if not (out / "run.json").exists():
             write_record(out, record)
