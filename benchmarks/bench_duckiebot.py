@@ -97,10 +97,11 @@ def homography_error_m(H, K, distortion, robot) -> float:
     return float(np.sqrt(np.mean(error ** 2)))
 
 
-def paper_method(seed: int, lens, rng) -> tuple[float, int, int]:
+def paper_method(seed: int, lens, rng, robot=None) -> tuple[float, int, int]:
     """(kappa, rounds driven, rounds with a marker seen before and after) of the paper's k iteration on the hidden
-    robot `seed`, rendering each frame it grabs."""
-    robot = hidden_robot(seed)
+    robot `seed` (or `robot`, a render.HiddenRobot: e.g. the PyBullet mock's, benchmarks/bench_duckiebot_mock.py),
+    rendering each frame it grabs."""
+    robot = hidden_robot(seed) if robot is None else robot
     scene = calibration_scene()
     renderer = Renderer(scene, robot.camera, robot.T_base_camera)
     facing = simulate_drive(paper_program(board_steps=0, marker_drives=0), robot.kinematics).frame_poses[-1]

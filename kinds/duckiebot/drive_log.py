@@ -389,3 +389,56 @@ def write_frame(directory, name: str, image: np.ndarray) -> None:
     if not ok:
         raise ValueError(f"cannot encode {name} as {suffix}")
     atomic_write_bytes(Path(directory) / name, data.tobytes())
+
+
+class DriveLogAppender:
+    """A drive log written while it is recorded, each row saved at once: every command and frame is durable when
+    `add_wheels` / `add_frame` return (frame image first, then its CSV; each file replaced whole through a temporary
+    file, fsync and rename, so a crash leaves the previous version or the new one, never a torn row). Rows are
+    checked as the reader would (times strictly increasing across both files' clock, duties finite in [-1, 1]).
+    Opening a directory that holds a log continues it (its log.json must be `meta`)."""
+
+    def __init__(self, directory, meta: dict):
+        self.directory = Path(directory)
+        self.meta = meta
+        parse_meta(meta, self.directory / META_FILE)
+        self.wheels, self.frames = [], []
+        if (self.directory / META_FILE).exists():
+            stored = read_json(self.directory / META_FILE)
+            if stored != json.loads(json.dumps(meta)):
+                _fail(self.directory / META_FILE, "this log was recorded with another robot or set-up (nothing was "
+                                                  "changed)")
+            if (self.directory / WHEELS_FILE).exists():
+                self.wheels = [tuple(map(float, row)) for row in zip(*read_wheels(self.directory / WHEELS_FILE))]
+            if (self.directory / FRAMES_FILE).exists():
+                t, files = read_frames(self.directory / FRAMES_FILE, self.directory, 1, 1, check_images=False)
+                self.frames = list(zip(t.tolist(), files))
+        else:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.directory / META_FILE, json.dumps(meta, indent=2) + "\n")
+
+    def last_time_s(self) -> float:
+        return max([-math.inf] + [self.wheels[-1][0]] * bool(self.wheels) + [self.frames[-1][0]] * bool(self.frames))
+
+    def _check_time(self, t_s: float, rows, what: str) -> None:
+        if not math.isfinite(t_s) or (rows and t_s <= rows[-1][0]):
+            raise ValueError(f"{what} time {t_s!r} s does not follow the previous row's (times must strictly increase)")
+
+    def add_wheels(self, t_s: float, left_duty: float, right_duty: float) -> None:
+        self._check_time(t_s, self.wheels, "wheel command")
+        for duty in (left_duty, right_duty):
+            if not (math.isfinite(duty) and -1.0 <= duty <= 1.0):
+                raise ValueError(f"duty {duty!r} is not within [-1, 1]")
+        self.wheels.append((float(t_s), float(left_duty), float(right_duty)))
+        atomic_write_text(self.directory / WHEELS_FILE, _csv_text(WHEELS_HEADER, (
+            [repr(t), repr(a), repr(b)] for t, a, b in self.wheels)))
+
+    def add_frame(self, t_s: float, name: str, image: np.ndarray) -> None:
+        self._check_time(t_s, self.frames, "frame")
+        problem = frame_file_problem(name, self.directory)
+        if problem:
+            raise ValueError(problem)
+        write_frame(self.directory, name, image)
+        self.frames.append((float(t_s), name))
+        atomic_write_text(self.directory / FRAMES_FILE, _csv_text(FRAMES_HEADER, (
+            [repr(t), _csv_cell(f)] for t, f in self.frames)))

@@ -1,0 +1,155 @@
+"""The Duckiebot calibrated end to end on the realistic PyBullet mock (kinds/duckiebot/mock.py) by its mission
+(kinds/duckiebot/mission.py), seeds 1-5, each beside the seed paper's k iteration on the same hidden robot
+(benchmarks/bench_duckiebot.py's `paper_method`, on the OpenCV renderer, from the mission's own plumb_bob lens).
+
+Measured under each result, on the hidden robot:
+- deviation: the mock itself (PyBullet, PWM quantisation, dead zone, lag, slip) placed anew, commanded 0.3 m/s
+  straight through Duckietown's inverse kinematics with the result until 2 m from its start: its lateral offset
+  there; beside it the same drive compensated with the TRUE parameters (what the PWM quantisation and the dead zone
+  alone allow), and the result's deviation on the exact forward kinematics (no PWM: bench_duckiebot.straight_drive);
+- speed: its mean speed over the last 1.5 m against 0.3 m/s;
+- trim error: |trim / gain - true trim / true gain| x true gain (in the log's k);
+- intrinsics: kinds.duckiebot.intrinsics.camera_difference_px of the chosen lens against the true camera, over the
+  whole image;
+- homography: bench_duckiebot.homography_error_m (floor 0.15-0.6 m ahead, |y| <= 0.15 m);
+- robot time: the mock's clock at the end of the identification (calibration) and at the end of the mission;
+- z: the largest |error / std| over gain, trim, baseline and the camera's six pose parameters.
+CPU and wall time of the whole mission (rendering, detection, the fits). Runs are kept in NAOCAL_BENCH_CACHE
+(default /tmp/naocal-bench-duckiebot-mock); `--fresh` runs again.
+
+Run: `python benchmarks/bench_duckiebot_mock.py [--seeds 1 2 3 4 5] [--mock realistic|ideal]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_duckiebot import homography_error_m, paper_method, straight_drive  # noqa: E402
+from naocal.kinds.duckiebot.calibration_files import ground_homography  # noqa: E402
+from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters  # noqa: E402
+from naocal.kinds.duckiebot.intrinsics import LensCamera, camera_difference_px  # noqa: E402
+from naocal.kinds.duckiebot.kinematics import inverse_kinematics  # noqa: E402
+from naocal.kinds.duckiebot.mission import MissionSettings, run_mission  # noqa: E402
+from naocal.kinds.duckiebot.mock import LOG_K, DuckiebotMock  # noqa: E402
+from naocal.kinds.duckiebot.robot import Kinematics, duckiebot  # noqa: E402
+
+SPEED_MPS, PATH_M = 0.3, 2.0
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("NAOCAL_BENCH_CACHE", "/tmp/naocal-bench-duckiebot-mock"))
+
+
+def drive_on_mock(seed: int, realism: str, kin: Kinematics) -> tuple[float, float]:
+    """(lateral deviation m at PATH_M from the start, mean speed m/s over the last 1.5 m) of the mock robot `seed`
+    commanded SPEED_MPS straight through Duckietown's inverse kinematics with `kin`."""
+    robot = DuckiebotMock(seed, realism, supersample=1)
+    try:
+        left, right = inverse_kinematics(SPEED_MPS, 0.0, kin)
+        robot.command(float(left), float(right))
+        start, marks = robot.pose(), []
+        while np.linalg.norm(robot.pose()[:2] - start[:2]) < PATH_M and robot.now() < 60.0:
+            robot.advance(0.01)
+            marks.append((robot.now(), np.linalg.norm(robot.pose()[:2] - start[:2])))
+        robot.command(0.0, 0.0)
+        end = robot.pose()
+        t, d = np.array(marks).T
+        i = np.searchsorted(d, 0.5)
+        speed = (d[-1] - d[i]) / (t[-1] - t[i])
+        return abs(float(end[1] - start[1])), float(speed)
+    finally:
+        robot.close()
+
+
+def effective_truth(kin: Kinematics) -> tuple[float, float]:
+    return kin.gain * LOG_K / kin.k, kin.trim * LOG_K / kin.k
+
+
+def run_seed(seed: int, realism: str, fresh: bool):
+    out = cache_dir() / f"{realism}_seed{seed}"
+    if fresh and out.exists():
+        shutil.rmtree(out)
+    if out.exists():  # an earlier run: resume finishes it (replaying the log), or replays a finished one
+        pass
+    robot = DuckiebotMock(seed, realism, state_path=out / "mock_state.json")
+    cpu, wall = time.process_time(), time.perf_counter()
+    try:
+        result, ctx = run_mission(robot, out, MissionSettings(), robot_id=f"mock{seed}",
+                                  source=f"benchmarks/bench_duckiebot_mock.py seed {seed}")
+    finally:
+        robot.close()
+    identified_at = next((s for s in result.history if s.state == "identification"), None)
+    robot_calibration_s = sum(s.robot_s for s in result.history[:result.history.index(identified_at) + 1]) \
+        if identified_at else float("nan")
+    return robot, result, ctx, time.process_time() - cpu, time.perf_counter() - wall, robot_calibration_s
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--mock", choices=("realistic", "ideal"), default="realistic")
+    parser.add_argument("--fresh", action="store_true", help="run the missions again (not from the cache)")
+    args = parser.parse_args(argv)
+    print("| seed | method | final | trim error | 2 m deviation on the mock (truth's: PWM floor) | deviation, exact "
+          "kinematics | speed error | intrinsics RMS | homography RMS | robot time calib. / all | z (max) | CPU s / "
+          "wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        robot, result, ctx, cpu, wall, robot_cal_s = run_seed(seed, args.mock, args.fresh)
+        truth = robot.truth
+        true_kin = truth.kinematics()
+        gain_true, trim_true = effective_truth(true_kin)
+        floor_dev, _ = drive_on_mock(seed, args.mock, true_kin)
+        cal = ctx.calibration
+        if cal is None:
+            print(f"| {seed} | naocal mission | {result.final}: {result.reason[:120]} | | | | | | | "
+                  f"{robot.now():.0f} s | | {cpu:.0f} / {wall:.0f} |")
+            continue
+        kin, fit = cal.kinematics, cal.drive_fit
+        trim_error = abs(kin.trim / kin.gain - trim_true / gain_true) * gain_true
+        dev, speed = drive_on_mock(seed, args.mock, kin)
+        exact_dev, _ = straight_drive(kin, true_kin)
+        true_lens = LensCamera.from_intrinsics(truth.camera)
+        intrinsics_px = camera_difference_px(cal.lens.camera, true_lens, (640, 480))
+        files = cal.duckietown()
+        hidden = truth.hidden_robot()
+        h_error = homography_error_m(files.homography, files.camera.K, files.camera.distortion, hidden)
+        values = {"gain": gain_true, "trim": trim_true, "baseline_m": true_kin.baseline_m}
+        values.update(zip(CAMERA, pose_parameters(truth.T_base_camera)))
+        z = {n: abs(fit.value(n) - v) / fit.stdev(n) for n, v in values.items()}
+        worst = max(z, key=z.get)
+        print(f"| {seed} | naocal mission ({cal.lens.camera.model}, {len(fit.sightings.frame)} corners) | "
+              f"{result.final} | {trim_error:.4f} (std {fit.stdev('trim'):.4f}) | {dev * 100:.1f} cm "
+              f"({floor_dev * 100:.1f} cm) | {exact_dev * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.2f} % | "
+              f"{intrinsics_px:.2f} px | {h_error * 1000:.1f} mm | {robot_cal_s:.0f} s / {robot.now():.0f} s | "
+              f"{z[worst]:.1f} ({worst}) | {cpu:.0f} / {wall:.0f} |")
+        cpu0 = time.process_time()
+        lens = cal.lens_fits["plumb_bob"].camera
+        kappa, rounds, measured = paper_method(seed, lens, np.random.default_rng(seed + 2000), robot=hidden)
+        paper_cpu = time.process_time() - cpu0
+        trim = (kappa - 1.0) / (kappa + 1.0)
+        paper = Kinematics(gain=1.0, trim=trim, k=LOG_K, baseline_m=duckiebot("DB21").baseline_m)
+        p_trim_error = abs(trim - trim_true / gain_true) * gain_true
+        p_dev, p_speed = drive_on_mock(seed, args.mock, paper)
+        p_exact, _ = straight_drive(paper, true_kin)
+        H = ground_homography(duckiebot("DB21").T_base_camera, lens.K)
+        p_h = homography_error_m(H, lens.K, lens.distortion[:5], hidden)
+        print(f"| {seed} | paper's k iteration ({rounds} drives, {measured} measured; renderer) | - | "
+              f"{p_trim_error:.4f} | {p_dev * 100:.1f} cm | {p_exact * 100:.1f} cm | "
+              f"{abs(p_speed / SPEED_MPS - 1) * 100:.1f} % | (same camera) | {p_h * 1000:.1f} mm (nominal mount) | "
+              f"- | - | {paper_cpu:.0f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

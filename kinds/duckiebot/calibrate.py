@@ -1,0 +1,166 @@
+"""`naocal calibrate --robot duckiebot`: the Duckiebot calibrated end to end by its mission (kinds.duckiebot.mission)
+on the PyBullet mock (kinds.duckiebot.mock; a real robot's bridge is not written yet).
+
+    naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
+                     [--max-blind-m M]
+
+RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
+validation drive and leaving the area, the same format), RUN/offsets.json (the calibration,
+naocal.duckiebot_calibration/1, written once identified: `naocal offsets export` makes Duckietown's files of it),
+RUN/truth.json (the mock's hidden robot in the same names and units), RUN/summary.txt (what happened, the
+validation, the truth beside the result), RUN/run.json (the options: --resume must repeat them), RUN/mission.json
+(written last: the run is finished), RUN/mock_state.json (the mock's world: where its robot stands).
+Exit 0 when calibrated and validated, 2 on bad input (nothing changed), 3 when the mission failed (the wheels are
+stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+RECORD_KEYS = ("robot", "backend", "mock_seed", "mock", "max_blind_m")
+FINISHED_NAME = "mission.json"
+ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
+                     "mock_state.json", ".naocal.lock"})
+DEFAULT_MAX_BLIND_M = 0.3
+
+
+def add_options(parser) -> None:
+    """The Duckiebot's own options of `naocal calibrate` (the generic ones: --robot, --backend, --seed, --out,
+    --resume, --mock)."""
+    parser.add_argument("--max-blind-m", type=float, default=None, metavar="M",
+                        help=f"duckiebot: stop when no floor marker has been seen for this far (default "
+                             f"{DEFAULT_MAX_BLIND_M:g} m; at most 1): the robot never leaves the marked area by more")
+
+
+def command_line(record: dict, out, resume: bool = True) -> str:
+    parts = ["naocal", "calibrate", "--robot", "duckiebot", "--backend", record["backend"], "--seed",
+             str(record["mock_seed"])]
+    if record["mock"] != "realistic":
+        parts += ["--mock", record["mock"]]
+    if record["max_blind_m"] != DEFAULT_MAX_BLIND_M:
+        parts += ["--max-blind-m", repr(record["max_blind_m"])]
+    return shlex.join(parts + ["--out", str(out)] + (["--resume"] if resume else []))
+
+
+def _record(args) -> dict:
+    from naocal.solver.errors import NaocalError
+
+    if args.backend != "mock":
+        raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock so far (its bridge is not "
+                          "written yet): use --backend mock")
+    for option, given in (("--effect", getattr(args, "effect", None)), ("--endpoint", getattr(args, "endpoint", None)),
+                          ("--report", getattr(args, "report", None))):
+        if given:
+            raise NaocalError(f"{option}: the Duckiebot's mock has no such option yet (its hidden effects are drawn "
+                              "per seed; docs/DUCKIEBOT.md)")
+    if args.seed < 0:
+        raise NaocalError(f"--seed must not be negative, got {args.seed}")
+    blind = DEFAULT_MAX_BLIND_M if getattr(args, "max_blind_m", None) is None else args.max_blind_m
+    if not 0.05 <= blind <= 1.0:
+        raise NaocalError(f"--max-blind-m must be within [0.05, 1] m, got {blind}")
+    return {"schema": "naocal.run/1", "verb": "calibrate", "robot": "duckiebot", "backend": args.backend,
+            "mock_seed": int(args.seed), "mock": getattr(args, "mock", None) or "realistic", "max_blind_m": blind}
+
+
+def check_out_dir(out: Path, record: dict, resume: bool) -> None:
+    """Refuse, before anything is written, a directory that is not this run's to write (NaocalError, exit 2)."""
+    from naocal.agent.rundir import RECORD_NAME, entries
+    from naocal.solver.errors import NaocalError
+    from naocal.solver.fileio import is_temporary, read_json
+
+    names = entries(out)
+    if not names:
+        return
+    if (out / FINISHED_NAME).exists():
+        raise NaocalError(f"{out} holds a finished calibration (offsets {out / 'offsets.json'}, summary "
+                          f"{out / 'summary.txt'}): nothing to resume; choose another --out (nothing was changed)")
+    if not resume:
+        raise NaocalError(f"{out} is not empty: continue its run with --resume, or choose a new or empty --out "
+                          "(nothing was changed)")
+    foreign = [n for n in names if n not in ENTRIES and not is_temporary(n)]
+    if foreign:
+        raise NaocalError(f"{out} holds {foreign[0]}, which a Duckiebot calibration run does not write: is it the "
+                          "right directory? (nothing was changed)")
+    recorded = read_json(out / RECORD_NAME)
+    differ = [f"{key} {record[key]!r} (the run: {recorded.get(key)!r})" for key in RECORD_KEYS
+              if recorded.get(key) != record[key]] if isinstance(recorded, dict) else ["run.json is not an object"]
+    if differ:
+        raise NaocalError(f"{out / RECORD_NAME}: this run was started with other options: {'; '.join(differ)}. "
+                          f"Resume it with the same options (nothing was changed): "
+                          f"{command_line({**record, **recorded}, out)}")
+
+
+def summary_text(result, ctx, robot, truth: dict) -> str:
+    lines = [f"naocal calibrate --robot duckiebot: {result.final}" + (f" ({result.reason})" if result.reason else ""),
+             f"robot time {robot.now():.1f} s; frames: calibration {len(ctx.session.log.frames)}, validation "
+             f"{len(ctx.validation_session.log.frames) if ctx.validation_session else 0}", "phases:"]
+    lines += [f"  {s.state}: {s.outcome}{f' ({s.reason})' if s.reason else ''}, {s.robot_s:.1f} s robot, "
+              f"{s.wall_s:.1f} s wall" for s in result.history]
+    cal = ctx.calibration
+    if cal is not None:
+        kin, fit = cal.kinematics, cal.drive_fit
+        lines.append(f"calibration: gain {kin.gain:.4f} (std {fit.stdev('gain'):.4f}), trim {kin.trim:.4f} (std "
+                     f"{fit.stdev('trim'):.4f}), baseline {kin.baseline_m:.4f} m, lens {cal.lens.camera.model}, "
+                     f"fit {fit.rms_px:.2f} px RMS over {len(fit.sightings.frame)} corners")
+        tk = truth["kinematics"]
+        lines.append(f"the mock's truth: gain {tk['gain']:.4f}, trim {tk['trim']:.4f}, baseline "
+                     f"{tk['baseline_m']:.4f} m (trim error {abs(kin.trim - tk['trim']):.4f}, gain error "
+                     f"{100 * abs(kin.gain / tk['gain'] - 1):.2f} %)")
+    if ctx.validation is not None:
+        v = ctx.validation
+        lines.append(f"validation: {v['driven_m']:.2f} m straight at {ctx.settings.speed_mps:g} m/s, "
+                     f"{100 * v['deviation_m']:+.1f} cm off its start heading (Duckietown's rule: 10 cm; "
+                     f"{100 * v['off_line_m']:+.1f} cm off the marker line)")
+    return "\n".join(lines) + "\n"
+
+
+def run(args) -> int:
+    from naocal.agent.machine import DONE, INTERRUPTED
+    from naocal.agent.rundir import RunLock, write_record
+    from naocal.kinds.duckiebot.calibration import write_calibration_file
+    from naocal.kinds.duckiebot.mission import MissionSettings, run_mission
+    from naocal.kinds.duckiebot.mock import DuckiebotMock, truth_document
+    from naocal.solver.fileio import atomic_write_text
+
+    record = _record(args)
+    out = Path(args.out)
+    resume = bool(getattr(args, "resume", False))
+    check_out_dir(out, record, resume)
+    settings = MissionSettings(max_blind_m=record["max_blind_m"])
+    with RunLock(out, command_line(record, out, resume)):
+        if not (out / "run.json").exists():
+            write_record(out, record)
+        robot = DuckiebotMock(record["mock_seed"], record["mock"], state_path=out / "mock_state.json")
+        try:
+            truth = truth_document(robot.truth, record["mock_seed"], record["mock"])
+            atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
+
+            def write_offsets(calibration):
+                findings = write_calibration_file(out / "offsets.json", calibration,
+                                                  source=f"naocal calibrate --robot duckiebot, mock seed "
+                                                         f"{record['mock_seed']} ({record['mock']})")
+                for finding in findings:
+                    print(f"naocal calibrate: warning: {finding}", file=sys.stderr)
+
+            result, ctx = run_mission(robot, out, settings, robot_id=f"mock{record['mock_seed']}",
+                                      source=f"naocal calibrate --robot duckiebot --backend mock "
+                                             f"--seed {record['mock_seed']}", on_calibration=write_offsets)
+            text = summary_text(result, ctx, robot, truth)
+            atomic_write_text(out / "summary.txt", text)
+            print(text, end="")
+            if result.final == DONE:
+                atomic_write_text(out / FINISHED_NAME, json.dumps({"final": DONE, "validation": ctx.validation},
+                                                                  indent=1) + "\n")
+                return 0
+            if result.final == INTERRUPTED:
+                print(f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
+                return 130
+            print(f"naocal calibrate: error: {result.reason} (the wheels are stopped; {out / 'summary.txt'})",
+                  file=sys.stderr)
+            return 3
+        finally:
+            robot.close()

@@ -1,0 +1,589 @@
+"""The Duckiebot's calibration mission (issue 23): the seed paper's phases on the agent's state machine
+(agent.machine.Machine), every command and frame saved at once in a drive log, resumable, the wheels stopped
+however it ends.
+
+    boards -> camera -> face_markers -> marker_drives -> identification -> validation -> leave -> done
+
+- boards: one-wheel steps (a step, stop, settle, grab: sharp frames), turning left, right, left over the semicircle
+  of boards, tracking which board is in view (identical boards: by continuity from the one in view at the start);
+  recovery when none is: keep turning towards the next board for a bounded number of steps.
+- camera: the intrinsics from every board view (kinds.duckiebot.identify.fit_intrinsics: lens model by held-out
+  error).
+- face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
+  line (the markers' yaw, all oriented alike, through the fitted camera and the nominal mount).
+- marker_drives: legs out along the line in short stretches (stop, grab) and back, longer each time, some ending with
+  one-wheel turns (the joint fit needs turns in view of the markers to tell the baseline from trim), re-aligned at
+  the start when the robot came back curved (kinds.duckiebot.render.joint_program's design, closed loop).
+- identification: kinds.duckiebot.identify.identify_log on RUN/log (the joint fit); the caller writes the result.
+- validation: 2 m straight at 0.3 m/s with the fitted compensation (Duckietown's inverse kinematics), frames while
+  moving; the lateral offset from the marker line at rest before and after.
+- leave: on along the line with the compensation until no marker has been seen for `max_blind_m`; stop.
+
+Safety: every duty passes `Session.command` (finite, within [-limit, limit], else SafetyError before the robot
+hears it); never more than `max_blind_m` (odometry's upper bound) driven without a marker in view; a robot-time
+budget (a deadline over every wait); `run_mission`'s finally commands zero duty, also after Ctrl-C, SIGTERM
+(tools.cli turns it into KeyboardInterrupt) or any exception.
+
+Resume: the decisions are a function of the frames, so a resumed run replays its log (RUN/log, RUN/validation):
+each command must be the one recorded (else refused: another run), each grab returns the saved frame, nothing is
+sent to the robot; at the log's end the run goes live (a command in force when it stopped is sent again). No
+capture is repeated.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from naocal.agent.machine import DONE, FAILED, Machine, Outcome, State
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
+from naocal.kinds.duckiebot.drive_log import MAX_IMAGE_BYTES, SCHEMA, DriveLogAppender, decode_image, read_drive_log
+from naocal.kinds.duckiebot.fit import marker_on_floor
+from naocal.kinds.duckiebot.identify import Detections, fit_intrinsics, identify_log
+from naocal.kinds.duckiebot.kinematics import inverse_kinematics
+from naocal.kinds.duckiebot.render import BOARD_INNER_CORNERS, BOARD_SQUARE_M, MARKER_SIZE_M
+from naocal.kinds.duckiebot.robot import duckiebot
+from naocal.solver.errors import NaocalError, SafetyError
+from naocal.solver.fileio import read_bytes
+
+log = logging.getLogger(__name__)
+
+CALIBRATION_LOG, VALIDATION_LOG = "log", "validation"
+
+# (state, outcome) -> next state: the mission's whole control flow.
+TRANSITIONS = {
+    ("boards", "ok"): "camera",
+    ("camera", "ok"): "face_markers",
+    ("face_markers", "ok"): "marker_drives",
+    ("marker_drives", "ok"): "identification",
+    ("identification", "ok"): "validation",
+    ("identification", "implausible"): FAILED,
+    ("validation", "ok"): "leave",
+    ("leave", "ok"): DONE,
+}
+
+
+@dataclass(frozen=True)
+class MissionSettings:
+    n_boards: int = 3  # identical boards on the semicircle, numbered counter-clockwise
+    start_board: int = 1  # the one in view at the start (given, as in the paper)
+    step_duty: float = 0.25  # one-wheel steps: duty and time (about 12 deg on a nominal robot)
+    step_s: float = 0.1
+    settle_s: float = 0.3  # stop, then wait this long before grabbing: the wheels' lag has died out
+    board_passes: int = 3  # left, right, left
+    max_board_steps: int = 30  # per pass
+    max_blind_steps: int = 8  # recovery: steps towards the next board with none in view before giving up
+    spin_duty: float = 0.3  # turning towards the marker line on the spot
+    spin_s: float = 0.1
+    max_spin_steps: int = 30
+    align_tolerance_rad: float = math.radians(2.0)
+    max_align_steps: int = 12
+    drive_duty: float = 0.3
+    drive_s: float = 0.25
+    legs: tuple = (2, 3, 4)  # out-and-back legs along the line, in stretches: driving back undoes the heading a
+    # wrong trim adds driving out, so the joint fit's start (trim 0) stays close to the drive (one long leg out, then
+    # back, curved a large-trim robot off its start values: the fit failed on trim 0.065)
+    wiggles: int = 2  # legs ending with one-wheel turns left, right, right, left
+    realign_rad: float = math.radians(4.0)  # re-align along the line when curved off by more
+    validation_m: float = 2.0
+    speed_mps: float = 0.3
+    check_every_m: float = 0.1  # validation / leave: a frame while moving this often
+    max_blind_m: float = 0.3  # never drive farther than this without a marker in view
+    max_leave_m: float = 1.5
+    max_fit_rms_px: float = 3.0  # beyond this joint-fit RMS the result is refused (ideal mock, seed 4: 0.55 px)
+    max_robot_time_s: float = 600.0  # the deadline over the whole mission's waits
+    limit: float = 1.0  # the duty limit (Duckietown's kinematics `limit`)
+
+
+def log_meta(robot_id: str, source: str) -> dict:
+    nominal = duckiebot("DB21")
+    return {"schema": SCHEMA, "robot": {"id": robot_id, "model": nominal.model},
+            "camera": {"width_px": nominal.camera.width_px, "height_px": nominal.camera.height_px},
+            "wheels": {"radius_m": nominal.radius_m, "baseline_m": nominal.baseline_m, "k": 27.0, "limit": 1.0},
+            "markers": {"family": "tag36h11", "size_m": MARKER_SIZE_M},
+            "boards": {"inner_corners": list(BOARD_INNER_CORNERS), "square_m": BOARD_SQUARE_M}, "source": source}
+
+
+# ------------------------------------------------------------------------------------------------ the session
+
+class Session:
+    """The agent's one path to the robot for one drive log: commands, waits, grabs, each saved at once; replays a
+    log recorded before (resume) without moving the robot."""
+
+    def __init__(self, robot, log_dir: Path, meta: dict, settings: MissionSettings, t_start_s: float):
+        self.robot, self.settings = robot, settings
+        self.log = DriveLogAppender(log_dir, meta)
+        self.t_start_s = self.log.wheels[0][0] if self.log.wheels else t_start_s  # the budget runs from the first run
+        events = [(t, 0, ("wheels", left, right)) for t, left, right in self.log.wheels]
+        events += [(t, 1, ("frame", name)) for t, name in self.log.frames]
+        self.replay = [e[2] for e in sorted(events)]
+        self.cursor = 0
+        self.duties = (0.0, 0.0)  # the command in force, as logged
+        self.resumed = self.live  # a replay has ended and the run gone on live
+
+    @property
+    def live(self) -> bool:
+        return self.cursor >= len(self.replay)
+
+    def _next_recorded(self, kind: str):
+        if self.live:
+            return None
+        event = self.replay[self.cursor]
+        if event[0] != kind:
+            raise NaocalError(f"{self.log.directory}: the recorded run took a {event[0]} where this one takes a {kind} "
+                              f"(event {self.cursor + 1}): it was recorded with other options or another robot; "
+                              "resume it with the same ones (nothing was sent to the robot)")
+        self.cursor += 1
+        return event
+
+    def _go_on(self) -> None:
+        """At the end of a replay: a command in force when the run stopped is sent again (the robot stopped)."""
+        if self.live and not self.resumed:
+            self.resumed = True
+            if self.duties != (0.0, 0.0):
+                self._send(*self.duties)
+
+    def _send(self, left: float, right: float) -> None:
+        t = self.robot.command(left, right)
+        self.log.add_wheels(t, left, right)
+
+    def command(self, left: float, right: float) -> None:
+        limit = self.settings.limit
+        for name, duty in (("left", left), ("right", right)):
+            if not (isinstance(duty, (int, float, np.floating)) and math.isfinite(duty) and abs(duty) <= limit):
+                raise SafetyError(f"refused wheel command: {name} duty {duty!r} is not within [-{limit:g}, {limit:g}]")
+        left, right = float(left), float(right)
+        recorded = self._next_recorded("wheels")
+        if recorded is None:
+            self._send(left, right)
+        elif (recorded[1], recorded[2]) != (left, right):
+            raise NaocalError(f"{self.log.directory}: the recorded run commanded {recorded[1]!r}, {recorded[2]!r} "
+                              f"where this one commands {left!r}, {right!r} (event {self.cursor}): resume it with the "
+                              "same options and robot (nothing was sent to the robot)")
+        self.duties = (left, right)
+        self._go_on()
+
+    def wait(self, duration_s: float) -> None:
+        if not self.live:
+            return
+        if self.robot.now() - self.t_start_s + duration_s > self.settings.max_robot_time_s:
+            raise NaocalError(f"the mission's robot-time budget ({self.settings.max_robot_time_s:g} s) is spent: "
+                              "stopped")
+        self.robot.advance(duration_s)
+
+    def hold(self, left: float, right: float, duration_s: float) -> None:
+        """Drive at duties for `duration_s`, then stop and settle (the frame grabbed next is sharp)."""
+        self.command(left, right)
+        self.wait(duration_s)
+        self.command(0.0, 0.0)
+        self.wait(self.settings.settle_s)
+
+    def grab(self) -> np.ndarray:
+        """A grey frame: the saved one when replaying, else a new one from the robot, saved before it is used."""
+        recorded = self._next_recorded("frame")
+        if recorded is not None:
+            path = self.log.directory / recorded[1]
+            image = decode_image(read_bytes(path, max_bytes=MAX_IMAGE_BYTES), path, cv2.IMREAD_GRAYSCALE)
+            self._go_on()
+            return image
+        t_command = self.log.wheels[-1][0] if self.log.wheels else -math.inf
+        t, image = self.robot.grab()
+        if not t > t_command:  # a frame exposed before the last command is stale: never decide on it
+            raise NaocalError(f"the camera returned a frame of {t:.3f} s, before the last command ({t_command:.3f} s)")
+        self.log.add_frame(t, f"frames/{len(self.log.frames):06d}.png", image)
+        return image
+
+    def stop(self) -> None:
+        """The safe state: wheels at zero duty, logged when live. Never raises for the log (the robot first)."""
+        t = self.robot.command(0.0, 0.0)
+        if self.live and self.duties != (0.0, 0.0):
+            try:
+                self.log.add_wheels(max(t, self.log.last_time_s() + 1e-6), 0.0, 0.0)
+                self.duties = (0.0, 0.0)
+            except Exception:  # the wheels are stopped; a log that cannot take the row must not hide why we stopped
+                log.exception("could not log the final stop")
+
+
+# ------------------------------------------------------------------------------------------------ the context
+
+@dataclass
+class MissionContext:
+    robot: object
+    out_dir: Path
+    settings: MissionSettings
+    session: Session
+    validation_session: Session | None = None
+    board_detections: list = field(default_factory=list)  # per frame of the boards phase
+    lens: object = None  # LensFit
+    lens_fits: object = None
+    facing: object = None  # True once coaxial with the marker line
+    driven: object = None
+    calibration: object = None  # DuckiebotCalibration
+    validation: object = None  # dict
+    left_area: object = None
+    blind_m: float = 0.0  # distance driven (upper bound) since a marker was last in view
+    on_calibration: object = None  # callable(calibration): the caller writes it (RUN/offsets.json)
+
+
+def _wrap(angle: float) -> float:
+    return math.remainder(angle, 2.0 * math.pi)
+
+
+def nominal_omega(duty: float, one_wheel: bool) -> float:
+    """rad/s of turn for a one-wheel step (or a spin) at duty on a nominal robot (gain 1, k 27)."""
+    nominal = duckiebot("DB21")
+    wheel = duty * 27.0 * nominal.radius_m
+    return wheel / nominal.baseline_m * (1.0 if one_wheel else 2.0)
+
+
+def nominal_distance_bound(duty: float, duration_s: float) -> float:
+    """An upper bound of the distance driven at duty for duration_s on an uncalibrated robot (real robots' speeds
+    are 30-40 % off the nominal: 1.5 times)."""
+    return 1.5 * abs(duty) * 27.0 * duckiebot("DB21").radius_m * duration_s
+
+
+def saw_marker(ctx: MissionContext, markers, distance_m: float) -> None:
+    """The out-of-area rule: after driving `distance_m` (an upper bound), markers in view reset the count; none for
+    more than max_blind_m stops the robot (NaocalError: the run fails with the wheels stopped)."""
+    if markers:
+        ctx.blind_m = 0.0
+        return
+    ctx.blind_m += distance_m
+    if ctx.blind_m > ctx.settings.max_blind_m:  # run_mission's finally stops the wheels at once
+        raise NaocalError(f"no marker seen for {ctx.blind_m:.2f} m (more than {ctx.settings.max_blind_m:g} m): "
+                          "stopped before leaving the marked area")
+
+
+def turn_step(session: Session, settings: MissionSettings, direction: int, step: int, duration_s=None) -> None:
+    """A one-wheel step turning left (direction +1, counter-clockwise) or right (-1): alternately the outer wheel
+    forward and the inner wheel back, so the robot turns about each wheel in turn and does not creep forward."""
+    d, dt = settings.step_duty, settings.step_s if duration_s is None else duration_s
+    forward = step % 2 == 0
+    if direction > 0:
+        session.hold(0.0 if forward else -d, d if forward else 0.0, dt)
+    else:
+        session.hold(d if forward else 0.0, 0.0 if forward else -d, dt)
+
+
+# ------------------------------------------------------------------------------------------------ boards
+
+class BoardTracker:
+    """Which of the identical boards are in view: continuity from the previous frame (boards move across the image
+    as the robot turns: left turns move them right), the image order (boards numbered counter-clockwise appear
+    right to left), and while none is in view, the side a new one enters from."""
+
+    def __init__(self, n_boards: int, start_board: int, width_px: int):
+        self.n, self.width = n_boards, width_px
+        self.previous = {}  # index -> centre u px in the last frame with boards
+        self.shift_px = 0.0  # image motion per step, learnt
+        self.start = start_board
+        self.last_seen = {}  # index -> u when last seen
+
+    def update(self, centres_u, direction: int) -> dict:
+        """{board index: centre u} for this frame's board centres."""
+        us = sorted(centres_u)
+        if not us:
+            return {}
+        if not self.last_seen:  # the first view: the board nearest the centre is the start board
+            nearest = int(np.argmin([abs(u - self.width / 2) for u in us]))
+            leftmost = self.start + nearest
+        else:
+            leftmost = self._leftmost(us, direction)
+        found = {leftmost - i: u for i, u in enumerate(us) if 0 <= leftmost - i < self.n}
+        matched = [found[i] - self.previous[i] for i in found if i in self.previous]
+        if matched:
+            self.shift_px = float(np.median(matched))
+        self.previous = found
+        self.last_seen.update(found)
+        return found
+
+    def _leftmost(self, us, direction: int) -> int:
+        guess = self.shift_px if self.shift_px * direction > 0 else direction * 60.0
+        if self.previous:
+            best = None
+            for index, u_before in self.previous.items():
+                distances = [abs(u - (u_before + guess)) for u in us]
+                rank = int(np.argmin(distances))
+                if distances[rank] < 120.0 and (best is None or distances[rank] < best[0]):
+                    best = (distances[rank], index + rank)
+            if best is not None:
+                return best[1]
+        # none to follow (recovery, or a jump): a board entering while turning left comes in on the left and is the
+        # next counter-clockwise; turning right, on the right and the next clockwise
+        seen = sorted(self.last_seen)
+        if direction > 0:
+            edge = us[0] < self.width / 2
+            return min(self.n - 1, seen[-1] + 1) if edge else seen[-1] + len(us) - 1
+        edge = us[-1] > self.width / 2
+        rightmost = max(0, seen[0] - 1) if edge else seen[0]
+        return rightmost + len(us) - 1
+
+
+class Boards(State):
+    name = "boards"
+    produces = ("board_detections",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        s, session = ctx.settings, ctx.session
+        width = duckiebot("DB21").camera.width_px
+        tracker = BoardTracker(s.n_boards, s.start_board, width)
+        detections = []
+
+        def look(direction):
+            image = session.grab()
+            boards = detect_boards(image, BOARD_INNER_CORNERS, BOARD_SQUARE_M)
+            detections.append(boards)
+            return tracker.update([float(b.corners_px[..., 0].mean()) for b in boards], direction)
+
+        session.command(0.0, 0.0)  # the safe state first
+        look(+1)
+        goals = [(+1, s.n_boards - 1), (-1, 0), (+1, s.start_board)]  # turn until this board passes the centre
+        step = 0
+        for direction, goal in (goals * s.board_passes)[:s.board_passes]:
+            blind = 0
+            for _ in range(s.max_board_steps):
+                turn_step(session, s, direction, step)
+                step += 1
+                found = look(direction)
+                blind = 0 if found else blind + 1
+                if blind > s.max_blind_steps:
+                    raise NaocalError(f"no board seen in {blind} steps turning {'left' if direction > 0 else 'right'} "
+                                      "(recovery failed): are the boards set up on the semicircle?")
+                u = found.get(goal)
+                if u is not None and (u - width / 2) * direction >= 0:
+                    break
+            else:
+                raise NaocalError(f"board {goal} did not come into the middle of the view within "
+                                  f"{s.max_board_steps} steps")
+        ctx.board_detections = detections
+        n_views = sum(len(d) for d in detections)
+        return Outcome("ok", f"{len(detections)} frames, {n_views} board views")
+
+
+class Camera(State):
+    name = "camera"
+    needs = ("board_detections",)
+    produces = ("lens",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        drive_log = read_drive_log(ctx.session.log.directory, check_images=False)
+        boards = ctx.board_detections + [[]] * (len(drive_log.frame_files) - len(ctx.board_detections))
+        ctx.lens, ctx.lens_fits = fit_intrinsics(drive_log, Detections([[]] * len(boards), boards))
+        return Outcome("ok", f"{ctx.lens.camera.model}, held-out {ctx.lens.held_out_rms_px:.3f} px")
+
+
+# ------------------------------------------------------------------------------------------------ the marker line
+
+def markers_on_floor(image, lens, T_base_camera) -> dict:
+    """{id: (x, y, yaw) in the base frame} of the markers in a frame, through a fitted lens and a camera pose."""
+    out = {}
+    K = lens.camera.K
+    for s in detect_markers(image):
+        n = lens.camera.normalised(s.corners_px)
+        uv = np.column_stack([K[0, 0] * n[:, 0] + K[0, 1] * n[:, 1] + K[0, 2], K[1, 1] * n[:, 1] + K[1, 2]])
+        out[s.id] = marker_on_floor(uv, np.arange(4), K, T_base_camera, MARKER_SIZE_M)
+    return out
+
+
+def line_error(markers: dict) -> tuple[float, float]:
+    """(heading error rad: turn this much counter-clockwise to face along the line towards its far end (the
+    markers' tops point back towards the boards, -x of the robot when coaxial), lateral offset m of the robot from
+    the line, left positive), medians over the markers seen."""
+    heading = [_wrap(math.pi + pose[2]) for pose in markers.values()]
+    lateral = []
+    for x, y, yaw in markers.values():
+        c, s = math.cos(yaw), math.sin(yaw)
+        lateral.append(s * x - c * y)  # the robot's y in the marker's frame: across the line
+    return float(np.median(heading)), float(np.median(lateral))
+
+
+def align(ctx: MissionContext, lens, T_base_camera, session: Session, markers=None) -> dict:
+    """One-wheel steps (at most one step_s each: small turns keep the joint fit's start values close) until coaxial
+    with the marker line; `markers`: those of the frame just grabbed (else one is grabbed). Returns the last frame's
+    markers."""
+    s = ctx.settings
+    if markers is None:
+        markers = markers_on_floor(session.grab(), lens, T_base_camera)
+    for step in range(s.max_align_steps):
+        if not markers:
+            raise NaocalError("lost the marker line while aligning with it")
+        error, _ = line_error(markers)
+        if abs(error) <= s.align_tolerance_rad:
+            return markers
+        duration = min(s.step_s, max(0.01, abs(error) / nominal_omega(s.step_duty, True)))
+        turn_step(session, s, 1 if error > 0 else -1, step, duration)
+        markers = markers_on_floor(session.grab(), lens, T_base_camera)
+    raise NaocalError(f"not coaxial with the marker line after {s.max_align_steps} steps")
+
+
+class FaceMarkers(State):
+    name = "face_markers"
+    needs = ("lens",)
+    produces = ("facing",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        s, session = ctx.settings, ctx.session
+        mount = duckiebot("DB21").T_base_camera  # the nominal mount: its pose is the joint fit's to find
+        for _ in range(s.max_spin_steps):
+            markers = markers_on_floor(session.grab(), ctx.lens, mount)
+            if markers:
+                break
+            session.hold(-s.spin_duty, s.spin_duty, s.spin_s)
+        else:
+            raise NaocalError(f"no floor marker in view after {s.max_spin_steps} turns on the spot")
+        align(ctx, ctx.lens, mount, session, markers)
+        ctx.facing = True
+        return Outcome("ok")
+
+
+class MarkerDrives(State):
+    name = "marker_drives"
+    needs = ("facing",)
+    produces = ("driven",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        s, session = ctx.settings, ctx.session
+        mount = duckiebot("DB21").T_base_camera
+        stretch = nominal_distance_bound(s.drive_duty, s.drive_s)
+
+        def drive(sign):
+            session.hold(sign * s.drive_duty, sign * s.drive_duty, s.drive_s)
+            markers = markers_on_floor(session.grab(), ctx.lens, mount)
+            saw_marker(ctx, markers, stretch)
+            return markers
+
+        for leg, stretches in enumerate(s.legs):
+            for _ in range(stretches):
+                drive(+1)
+            if leg < s.wiggles:  # turns in view of the markers: the baseline, told from trim
+                for step, direction in enumerate((+1, -1, -1, +1)):
+                    turn_step(session, s, direction, step, s.step_s / 2)
+                    markers_on_floor(session.grab(), ctx.lens, mount)
+            for _ in range(stretches):
+                markers = drive(-1)
+            if markers and abs(line_error(markers)[0]) > s.realign_rad:
+                align(ctx, ctx.lens, mount, session, markers)
+        ctx.driven = True
+        return Outcome("ok", f"{len(session.log.frames)} frames in all")
+
+
+class Identification(State):
+    name = "identification"
+    needs = ("driven",)
+    produces = ("calibration",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        calibration = identify_log(ctx.session.log.directory)
+        rms = calibration.drive_fit.rms_px
+        if not rms <= ctx.settings.max_fit_rms_px:  # never drive on (nor write) what does not explain the drive
+            return Outcome("implausible", f"the joint fit leaves {rms:.2f} px RMS (more than "
+                                          f"{ctx.settings.max_fit_rms_px:g}): it does not explain the drive (a wrong "
+                                          "start or an unmodelled effect); nothing written")
+        ctx.calibration = calibration
+        if ctx.on_calibration is not None:
+            ctx.on_calibration(ctx.calibration)  # refuses (NaocalError) what no working Duckiebot has
+        kin = ctx.calibration.kinematics
+        return Outcome("ok", f"gain {kin.gain:.4f}, trim {kin.trim:.4f}, baseline {kin.baseline_m:.4f} m")
+
+
+def compensated_duties(ctx: MissionContext) -> tuple[float, float]:
+    left, right = inverse_kinematics(ctx.settings.speed_mps, 0.0, ctx.calibration.kinematics)
+    return float(left), float(right)
+
+
+def drive_watching(ctx: MissionContext, session: Session, distance_m: float, *, stop_when_blind: bool) -> float:
+    """Drive straight with the compensation for `distance_m` (odometry), a frame every check_every_m while moving;
+    stops early (returns) when no marker has been seen for max_blind_m if `stop_when_blind`, else fails then.
+    Returns the distance driven."""
+    s = ctx.settings
+    left, right = compensated_duties(ctx)
+    chunk_s = s.check_every_m / s.speed_mps
+    driven = 0.0
+    lens, mount = ctx.calibration.lens, ctx.calibration.T_base_camera
+    session.command(left, right)
+    while driven < distance_m - 1e-9:
+        dt = min(chunk_s, (distance_m - driven) / s.speed_mps)
+        session.wait(dt)
+        driven += dt * s.speed_mps
+        markers = markers_on_floor(session.grab(), lens, mount)
+        bound = 1.1 * dt * s.speed_mps  # calibrated: within 10 %
+        if stop_when_blind and not markers and ctx.blind_m + bound > s.max_blind_m:
+            break
+        saw_marker(ctx, markers, bound)
+    session.command(0.0, 0.0)
+    session.wait(s.settle_s)
+    return driven
+
+
+class Validation(State):
+    name = "validation"
+    needs = ("calibration",)
+    produces = ("validation",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        s = ctx.settings
+        if ctx.validation_session is None:
+            ctx.validation_session = Session(ctx.robot, ctx.out_dir / VALIDATION_LOG, ctx.session.log.meta, s,
+                                             ctx.session.t_start_s)
+        session = ctx.validation_session
+        lens, mount = ctx.calibration.lens, ctx.calibration.T_base_camera
+        session.command(0.0, 0.0)
+        markers = align(ctx, lens, mount, session)
+        heading, before = line_error(markers)
+        ctx.blind_m = 0.0
+        driven = drive_watching(ctx, session, s.validation_m, stop_when_blind=False)
+        markers = markers_on_floor(session.grab(), lens, mount)
+        if not markers:
+            raise NaocalError("no marker in view at the end of the validation drive: its deviation cannot be measured")
+        heading_end, after = line_error(markers)
+        # moving along the line, the offset from it changes by driven sin(heading error) (align leaves up to
+        # align_tolerance_rad: 7 cm over 2 m at 2 deg): the drift is what is left, off the start's own heading
+        drift = after - before - driven * math.sin(heading)
+        ctx.validation = {"driven_m": driven, "lateral_start_m": before, "lateral_end_m": after,
+                          "heading_start_rad": heading, "heading_end_rad": heading_end, "off_line_m": after - before,
+                          "deviation_m": drift}
+        return Outcome("ok", f"{driven:.2f} m: {100 * drift:+.1f} cm off its start heading "
+                             f"({100 * (after - before):+.1f} cm off the marker line)")
+
+
+class Leave(State):
+    name = "leave"
+    needs = ("validation",)
+    produces = ("left_area",)
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        driven = drive_watching(ctx, ctx.validation_session, ctx.settings.max_leave_m, stop_when_blind=True)
+        ctx.left_area = True
+        return Outcome("ok", f"{driven:.2f} m on, stopped")
+
+
+MISSION_STATES = (Boards, Camera, FaceMarkers, MarkerDrives, Identification, Validation, Leave)
+
+
+def run_mission(robot, out_dir, settings: MissionSettings = MissionSettings(), *, robot_id: str = "duckiebot",
+                source: str = "naocal calibrate", on_calibration=None, states=MISSION_STATES,
+                transitions=None, start: str = "boards"):
+    """Run the mission on `robot` (DuckiebotMock's interface: now, command, advance, grab), logging to
+    out_dir/log and out_dir/validation. Returns (RunResult, MissionContext). The wheels are at zero duty when this
+    returns or raises, whatever happened (the finally)."""
+    out_dir = Path(out_dir)
+    meta = log_meta(robot_id, source)
+    t0 = robot.now()
+    ctx = MissionContext(robot, out_dir, settings, Session(robot, out_dir / CALIBRATION_LOG, meta, settings, t0),
+                         on_calibration=on_calibration)
+    try:
+        if (out_dir / VALIDATION_LOG).exists():  # a resumed run that had begun its validation
+            ctx.validation_session = Session(robot, out_dir / VALIDATION_LOG, meta, settings, t0)
+        machine = Machine([cls() for cls in states], TRANSITIONS if transitions is None else transitions, start)
+        result = machine.run(ctx, clock=robot.now)
+    finally:
+        for session in (ctx.validation_session, ctx.session):
+            if session is not None and session.live:
+                session.stop()
+        robot.command(0.0, 0.0)  # the safe state whatever the logs could take
+    return result, ctx

@@ -1,0 +1,271 @@
+"""The Duckiebot's PyBullet mock and its calibration mission (kinds/duckiebot/mock.py, mission.py, calibrate.py):
+the ideal mock's hidden truth recovered by a short mission, the wheels stopped on an exception and on SIGTERM, a
+killed run resumed without repeating a capture, the out-of-area stop, no duty outside [-1, 1]."""
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from naocal.agent.machine import DONE, INTERRUPTED
+from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
+from naocal.kinds.duckiebot.intrinsics import LensCamera
+from naocal.kinds.duckiebot.mission import (Boards, Camera, FaceMarkers, Identification, MarkerDrives,
+                                            MissionContext, MissionSettings, Session, drive_watching, log_meta,
+                                            run_mission)
+from naocal.kinds.duckiebot.mock import DuckiebotMock
+from naocal.solver.errors import NaocalError, SafetyError
+
+ROOT = Path(__file__).resolve().parents[1]
+# A short mission: one pass over the boards each way, two legs along the marker line.
+SHORT = MissionSettings(board_passes=2, legs=(2, 3), wiggles=1)
+UP_TO_IDENTIFICATION = {("boards", "ok"): "camera", ("camera", "ok"): "face_markers",
+                        ("face_markers", "ok"): "marker_drives", ("marker_drives", "ok"): "identification",
+                        ("identification", "ok"): DONE}
+BOARDS_ONLY = {("boards", "ok"): DONE}
+
+
+def short_mock(seed=4, realism="ideal", **kw):
+    return DuckiebotMock(seed, realism, supersample=1, **kw)
+
+
+@pytest.fixture(scope="module")
+def ideal_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ideal")
+    robot = short_mock()
+    result, ctx = run_mission(robot, out, SHORT, transitions=UP_TO_IDENTIFICATION,
+                              states=(Boards, Camera, FaceMarkers, MarkerDrives, Identification))
+    yield robot, result, ctx, out
+    robot.close()
+
+
+def test_ideal_mock_truth_recovered_by_a_short_mission(ideal_run):
+    robot, result, ctx, _ = ideal_run
+    assert result.final == DONE, result.reason
+    truth = robot.truth.kinematics()
+    kin, fit = ctx.calibration.kinematics, ctx.calibration.drive_fit
+    assert abs(kin.trim - truth.trim) < 0.001
+    assert abs(kin.gain / truth.gain - 1) < 0.01
+    assert abs(kin.baseline_m - truth.baseline_m) < 0.002
+    true_pose = pose_parameters(robot.truth.T_base_camera)
+    for name, value in zip(CAMERA, true_pose):
+        limit = 0.003 if name.endswith("_m") else math.radians(0.5)
+        assert abs(fit.value(name) - value) < limit, name
+    K = ctx.calibration.lens.camera.K
+    assert abs(K[0, 0] / robot.truth.camera.fx_px - 1) < 0.01
+
+
+def test_every_duty_within_limits_and_logged_as_sent(ideal_run):
+    robot, _, ctx, out = ideal_run
+    sent = np.array([(left, right) for _, left, right in robot.received])
+    assert np.all(np.abs(sent) <= 1.0) and len(sent) > 20
+    log = read_drive_log(out / "log")
+    logged = np.column_stack([log.left_duty, log.right_duty])
+    assert np.array_equal(logged, sent[:len(logged)])  # every command logged, in order
+    assert not sent[len(logged):].any() and not logged[-1].any()  # then only the final stops (the safe state)
+
+
+def test_a_duty_outside_the_limits_is_refused_before_the_robot(tmp_path):
+    robot = short_mock()
+    try:
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        for left, right in ((1.5, 0.0), (0.0, -1.01), (float("nan"), 0.0), (0.0, float("inf"))):
+            with pytest.raises(SafetyError):
+                session.command(left, right)
+        with pytest.raises(SafetyError):
+            robot.command(2.0, 0.0)
+        assert robot.received == []
+    finally:
+        robot.close()
+
+
+class Failing:
+    """A robot whose grab fails (or is interrupted) after `after` frames, mid-mission."""
+
+    def __init__(self, robot, after, exc):
+        self.robot, self.after, self.exc, self.frames = robot, after, exc, 0
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def advance(self, duration_s, poses=None):
+        if self.frames >= self.after and self.robot.duties.any():  # while the wheels turn
+            self.exc()
+        self.robot.advance(duration_s, poses)
+
+    def grab(self):
+        self.frames += 1
+        return self.robot.grab()
+
+
+def test_wheels_stopped_when_the_mission_raises(tmp_path):
+    robot = short_mock()
+
+    def bug():
+        raise RuntimeError("a bug")
+
+    try:
+        with pytest.raises(RuntimeError):
+            run_mission(Failing(robot, 3, bug), tmp_path, SHORT)
+        assert robot.duties.tolist() == [0.0, 0.0] and robot.received[-1][1:] == (0.0, 0.0)
+        log = read_drive_log(tmp_path / "log", check_images=False)
+        assert (log.left_duty[-2], log.right_duty[-2]) != (0.0, 0.0)  # it was driving when it failed
+        assert (log.left_duty[-1], log.right_duty[-1]) == (0.0, 0.0)
+    finally:
+        robot.close()
+
+
+def test_sigterm_stops_the_wheels_and_interrupts_the_run(tmp_path):
+    from naocal.tools.cli import _terminate_like_ctrl_c
+
+    robot = short_mock()
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _terminate_like_ctrl_c()  # what `naocal calibrate` installs: SIGTERM raises KeyboardInterrupt("SIGTERM")
+    try:
+        result, _ = run_mission(Failing(robot, 2, lambda: os.kill(os.getpid(), signal.SIGTERM)), tmp_path, SHORT)
+        assert result.final == INTERRUPTED and "SIGTERM" in result.reason
+        assert robot.duties.tolist() == [0.0, 0.0]
+        log = read_drive_log(tmp_path / "log", check_images=False)
+        assert (log.left_duty[-2], log.right_duty[-2]) != (0.0, 0.0)
+        assert (log.left_duty[-1], log.right_duty[-1]) == (0.0, 0.0)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        robot.close()
+
+
+KILLED_RUN = textwrap.dedent("""
+    import os, signal, sys
+    sys.path.insert(0, {root!r})
+    import naocal
+    from naocal.agent.machine import DONE
+    from naocal.kinds.duckiebot.mission import Boards, MissionSettings, run_mission
+    from naocal.kinds.duckiebot.mock import DuckiebotMock
+
+    class Killed:
+        def __init__(self, robot):
+            self.robot, self.frames = robot, 0
+        def __getattr__(self, name):
+            return getattr(self.robot, name)
+        def advance(self, duration_s, poses=None):
+            if self.frames >= 3 and self.robot.duties.any():
+                os.kill(os.getpid(), signal.SIGKILL)  # mid-drive: no finally, no stop
+            self.robot.advance(duration_s, poses)
+        def grab(self):
+            self.frames += 1
+            return self.robot.grab()
+
+    out = {out!r}
+    robot = DuckiebotMock(4, "ideal", supersample=1, state_path=out + "/mock_state.json")
+    run_mission(Killed(robot), out, MissionSettings(board_passes=1), states=(Boards,),
+                transitions={{("boards", "ok"): DONE}})
+""")
+
+
+def test_a_killed_run_resumes_without_repeating_a_capture(tmp_path):
+    killed = tmp_path / "killed"
+    killed.mkdir()
+    proc = subprocess.run([sys.executable, "-c", KILLED_RUN.format(root=str(ROOT.parent), out=str(killed))],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    before = read_drive_log(killed / "log")
+    assert len(before.frame_files) == 3 and before.left_duty[-1] + before.right_duty[-1] != 0  # killed driving
+    first = {name: (killed / "log" / name).read_bytes() for name in before.frame_files}
+
+    settings = MissionSettings(board_passes=1)
+    robot = short_mock(state_path=killed / "mock_state.json")
+    try:
+        result, _ = run_mission(robot, killed, settings, states=(Boards,), transitions=BOARDS_ONLY)
+        assert result.final == DONE, result.reason
+        resumed_commands = len(robot.received)
+    finally:
+        robot.close()
+    after = read_drive_log(killed / "log")
+    assert after.frame_files[:3] == before.frame_files and np.array_equal(after.frame_t_s[:3], before.frame_t_s)
+    assert all((killed / "log" / n).read_bytes() == data for n, data in first.items())  # not grabbed again
+    # the same mission uninterrupted: as many frames (none repeated, none missing)
+    reference = short_mock()
+    try:
+        result, _ = run_mission(reference, tmp_path / "whole", settings, states=(Boards,), transitions=BOARDS_ONLY)
+        assert result.final == DONE
+    finally:
+        reference.close()
+    whole = read_drive_log(tmp_path / "whole" / "log", check_images=False)
+    assert len(after.frame_files) == len(whole.frame_files)
+    assert resumed_commands < len(whole.wheel_t_s)  # the replayed part was not sent again
+
+
+def test_no_marker_in_view_stops_within_the_bound(tmp_path):
+    """Driving where no marker lies (facing the boards, away from the line), the robot stops once it has driven
+    max_blind_m without seeing one: never farther than that and one check."""
+    robot = short_mock()
+    try:
+        settings = MissionSettings(max_blind_m=0.3, check_every_m=0.1)
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), settings, 0.0)
+        lens = SimpleNamespace(camera=LensCamera.from_intrinsics(robot.truth.camera))
+        calibration = SimpleNamespace(kinematics=robot.truth.kinematics(), lens=lens,
+                                      T_base_camera=robot.truth.T_base_camera)
+        ctx = MissionContext(robot, tmp_path, settings, session, calibration=calibration)
+        start = robot.pose()
+        with pytest.raises(NaocalError, match="no marker seen"):
+            drive_watching(ctx, session, 2.0, stop_when_blind=False)
+        travelled = np.linalg.norm(robot.pose()[:2] - start[:2])
+        assert 0.25 < travelled <= settings.max_blind_m + settings.check_every_m + 0.01
+    finally:
+        robot.close()
+
+
+def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, capsys):
+    from naocal.kinds.duckiebot.calibrate import _record, check_out_dir
+
+    args = SimpleNamespace(backend="mock", seed=3, mock=None, max_blind_m=None, out=str(tmp_path), resume=True,
+                           effect=[], report=None, endpoint=None)
+    record = _record(args)
+    (tmp_path / "run.json").write_text(json.dumps({**record, "mock_seed": 4}))
+    (tmp_path / "log").mkdir()
+    with pytest.raises(NaocalError, match="other options.*mock_seed 3 .the run: 4"):
+        check_out_dir(tmp_path, record, resume=True)
+    with pytest.raises(NaocalError, match="not empty"):
+        check_out_dir(tmp_path, record, resume=False)
+    for change, message in (({"backend": "bridge"}, "only the mock"), ({"seed": -1}, "--seed"),
+                            ({"max_blind_m": 5.0}, "--max-blind-m"), ({"effect": ["x=1"]}, "--effect")):
+        with pytest.raises(NaocalError, match=message):
+            _record(SimpleNamespace(**{**vars(args), **change}))
+
+
+def test_calibrate_cli_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys):
+    from naocal.tools.cli import main
+
+    out = tmp_path / "run"
+    for extra in (["--backend", "bridge"], ["--backend", "mock", "--seed", "-1"],
+                  ["--backend", "mock", "--max-blind-m", "0"]):
+        assert main(["calibrate", "--robot", "duckiebot", *extra, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "naocal calibrate: error:" in err
+        assert not out.exists()
+
+
+def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_path, monkeypatch):
+    import naocal.kinds.duckiebot.mission as mission
+
+    robot = short_mock()
+    try:
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        written = []
+        ctx = MissionContext(robot, tmp_path, SHORT, session, driven=True, on_calibration=written.append)
+        bad = SimpleNamespace(drive_fit=SimpleNamespace(rms_px=26.5))  # realistic seed 1's local minimum
+        monkeypatch.setattr(mission, "identify_log", lambda _: bad)
+        outcome = Identification().run(ctx)
+        assert outcome.name == "implausible" and "26.50 px" in outcome.reason
+        assert written == [] and ctx.calibration is None
+    finally:
+        robot.close()
