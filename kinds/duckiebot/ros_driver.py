@@ -32,6 +32,7 @@ when it is captured; its exposure is a few ms at the calibration area's light).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
@@ -41,10 +42,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.drive_log import ENCODERS_FILE, ENCODERS_HEADER, _csv_text, read_encoders
+from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, _csv_text, parse_meta,
+                                              read_encoders)
 from naocal.kinds.duckiebot.robot import DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX
 from naocal.solver.errors import NaocalError, SafetyError
-from naocal.solver.fileio import atomic_write_text
+from naocal.solver.fileio import atomic_write_text, read_json
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +100,7 @@ class RosDuckiebot:
         self._duties = (0.0, 0.0)  # as last published
         self._last_call = time.monotonic()
         self._last_now = -math.inf
-        self._frame = None  # (stamp s, JPEG bytes) of the newest frame
+        self._frame = None  # (stamp s, message) of the newest frame: decoded only when grabbed (30 Hz on a Pi)
         self._ticks = {"left": None, "right": None}  # side -> (stamp s, ticks) newest
         self.encoder_rows = []  # (t_s, left_ticks, right_ticks): every time either side ticked, both known
         self._closed = False
@@ -180,7 +182,7 @@ class RosDuckiebot:
             if not math.isfinite(stamp) or stamp <= previous:
                 self._refuse(f"{topic}: a frame stamped {stamp!r} s, not after the previous one ({previous!r} s)")
                 return
-            self._frame = (stamp, bytes(msg.data))
+            self._frame = (stamp, msg)
 
     def _on_ticks(self, msg, side: str) -> None:
         topic = self.topics[f"{side}_ticks"]
@@ -254,7 +256,7 @@ class RosDuckiebot:
                 self._fail(f"{topic}: no frame within {self.image_timeout_s:g} s (is the camera node running?)")
             self._rospy.sleep(0.005)
             self._enter()
-        stamp, data = frame
+        stamp, data = frame[0], bytes(frame[1].data)
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
         if image is None:
             self._fail(f"{topic}: the frame stamped {stamp:.3f} s does not decode as an image ({len(data)} bytes)")
@@ -264,16 +266,23 @@ class RosDuckiebot:
         return stamp, image
 
     def save_encoders(self, log_dir, t_from_s: float, t_to_s: float) -> int:
-        """Write the ticks counted within [t_from_s, t_to_s] as LOG/encoders.csv (atomically, checked as the reader
-        does); returns the rows written (0 and nothing written on a robot without encoders, the DB18)."""
+        """Write the ticks counted within [t_from_s, t_to_s] as LOG/encoders.csv, and the encoders' resolution into
+        LOG/log.json (wheels.ticks_per_revolution, which a log with encoders must give); each file atomically and
+        checked as the reader does first. For a finished log: a log.json changed under a resumable run would no
+        longer be its own. Returns the rows written (0, nothing written, on a robot without encoders: the DB18)."""
         with self._lock:
             rows = [r for r in self.encoder_rows if t_from_s <= r[0] <= t_to_s]
         if not rows:
             return 0
-        path = Path(log_dir) / ENCODERS_FILE
+        log_dir = Path(log_dir)
         text = _csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
-        read_encoders(path, text)
-        atomic_write_text(path, text)
+        read_encoders(log_dir / ENCODERS_FILE, text)
+        meta = read_json(log_dir / META_FILE)
+        if meta.get("wheels", {}).get("ticks_per_revolution") != self.ticks_per_revolution:
+            meta["wheels"]["ticks_per_revolution"] = self.ticks_per_revolution
+            parse_meta(meta, log_dir / META_FILE)
+            atomic_write_text(log_dir / META_FILE, json.dumps(meta, indent=2) + "\n")
+        atomic_write_text(log_dir / ENCODERS_FILE, text)
         return len(rows)
 
     def close(self) -> None:
