@@ -267,3 +267,53 @@ def test_a_db18_without_encoders_writes_no_encoders_file(monkeypatch, tmp_path):
 def test_a_bad_robot_name_is_one_line(graph):
     with pytest.raises(NaocalError, match="robot name '../x'"):
         driver_named("../x")
+
+
+# ------------------------------------------------------------------------------------------ naocal calibrate --backend ros
+
+def test_calibrate_ros_bad_setups_are_one_line_exit_2_nothing_written(tmp_path, monkeypatch, capsys):
+    from naocal.tools.cli import main
+
+    out = tmp_path / "run"
+    monkeypatch.delenv("VEHICLE_NAME", raising=False)
+    cases = [(["--robot", "duckiebot"], "VEHICLE_NAME is not set"), (["--robot", "nao"], "Duckiebot's")]
+    for robot, message in cases:
+        assert main(["calibrate", *robot, "--backend", "ros", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and not out.exists()
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    monkeypatch.setitem(sys.modules, "rospy", None)  # not on the robot
+    for extra, message in (([], "dt-ros-commons"), (["--resume"], "--resume is not usable"),
+                           (["--mock", "ideal"], "--mock chooses")):
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and not out.exists()
+
+
+def test_calibrate_ros_runs_the_mission_on_the_robot_and_records_its_encoders(tmp_path, monkeypatch, capsys):
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole = mission.run_mission
+
+    def boards_only(robot, out, settings, **kw):  # the first phase only: the CLI's wiring, not the mission again
+        return whole(robot, out, MissionSettings(board_passes=1, max_blind_m=settings.max_blind_m), **kw,
+                     states=(Boards,), transitions={("boards", "ok"): DONE})
+
+    monkeypatch.setattr(mission, "run_mission", boards_only)
+    out = tmp_path / "run"
+    try:
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]) == 0, \
+            capsys.readouterr().err
+        assert stopped(graph) and graph.refused == []
+        assert not (out / "truth.json").exists() and (out / "mission.json").exists()
+        log = read_drive_log(out / "log")
+        assert log.robot_id == VEHICLE and log.wheels.ticks_per_revolution == 135
+        assert len(log.frame_files) > 3 and len(log.encoder_t_s) > 10
+        assert log.encoder_t_s[0] >= log.wheel_t_s[0] and log.encoder_t_s[-1] <= max(log.frame_t_s[-1],
+                                                                                      log.wheel_t_s[-1])
+        assert log.left_ticks[-1] != log.left_ticks[0]  # the one-wheel steps turned the left wheel
+    finally:
+        graph.close()
