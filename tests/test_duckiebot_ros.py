@@ -159,9 +159,24 @@ def test_no_frame_within_the_deadline_stops_the_wheels(graph):
     robot.command(0.2, 0.2)
     graph.camera_on = False
     start = time.monotonic()
-    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: no frame within 0.3 s"):
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: no frame within 0.3 s of asking at"):
         robot.grab()
     assert time.monotonic() - start < 5 and stopped(graph)
+    robot.close()
+
+
+def test_a_frame_stamped_on_another_clock_is_refused(graph):
+    robot = driver()
+    robot.command(0.2, 0.2)
+
+    def ahead(msg):
+        msg.header.stamp = graph.Time(msg.header.stamp.to_sec() + 3600.0)
+        return msg
+
+    graph.frame_hook = ahead
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: a frame stamped .* 3600.0 s ahead of the robot's clock"):
+        robot.grab()
+    assert stopped(graph)
     robot.close()
 
 

@@ -253,10 +253,15 @@ class RosDuckiebot:
             if frame is not None and frame[0] > t_request:
                 break
             if time.monotonic() > deadline:
-                self._fail(f"{topic}: no frame within {self.image_timeout_s:g} s (is the camera node running?)")
+                newest = "none" if frame is None else f"the newest stamped {frame[0]:.3f} s"
+                self._fail(f"{topic}: no frame within {self.image_timeout_s:g} s of asking at {t_request:.3f} s "
+                           f"({newest}: is the camera node running, on the robot's clock?)")
             self._rospy.sleep(0.005)
             self._enter()
         stamp, data = frame[0], bytes(frame[1].data)
+        now = self.now()
+        if stamp > now + self.clock_slack_s:  # another clock: its frames would pass for fresh ones forever
+            self._fail(f"{topic}: a frame stamped {stamp:.3f} s, {stamp - now:.1f} s ahead of the robot's clock")
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
         if image is None:
             self._fail(f"{topic}: the frame stamped {stamp:.3f} s does not decode as an image ({len(data)} bytes)")
