@@ -44,7 +44,8 @@ import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, _csv_text, parse_meta,
                                               read_encoders)
-from naocal.kinds.duckiebot.robot import DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX
+from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
+                                         robot_name_problem)
 from naocal.solver.errors import NaocalError, SafetyError
 from naocal.solver.fileio import atomic_write_text, read_json
 
@@ -88,9 +89,9 @@ class RosDuckiebot:
         except ImportError as exc:
             raise NaocalError(f"--backend ros runs on the Duckiebot inside Duckietown's dt-ros-commons container "
                               f"(rospy and duckietown_msgs are not importable here: {exc}); docs/DEPLOY.md") from None
-        if not vehicle or not vehicle.replace("_", "").replace("-", "").isalnum():
-            raise NaocalError(f"robot name {vehicle!r}: expected the Duckiebot's name ($VEHICLE_NAME), letters, "
-                              "digits, '_' or '-'")
+        problem = robot_name_problem(vehicle)  # it names the topics, the drive logs and the calibration files
+        if problem:
+            raise NaocalError(f"{problem} ($VEHICLE_NAME, the robot's name)")
         self._rospy, self._WheelsCmdStamped = rospy, WheelsCmdStamped
         self.vehicle, self.topics = vehicle, topics(vehicle)
         self.watchdog_s, self.image_timeout_s, self.clock_slack_s = watchdog_s, image_timeout_s, clock_slack_s
