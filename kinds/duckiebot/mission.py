@@ -74,7 +74,7 @@ class MissionSettings:
     start_board: int = 1  # the one in view at the start (given, as in the paper)
     step_duty: float = 0.25  # one-wheel steps: duty and time (about 12 deg on a nominal robot)
     step_s: float = 0.1
-    settle_s: float = 0.3  # stop, then wait this long before grabbing: the wheels' lag has died out
+    settle_s: float = 0.4  # stop, then wait this long before grabbing: a 60 ms wheel lag has left 0.1 %
     board_passes: int = 3  # left, right, left
     max_board_steps: int = 30  # per pass
     max_blind_steps: int = 8  # recovery: steps towards the next board with none in view before giving up

@@ -264,8 +264,9 @@ class DuckiebotMock:
                 self.wheel_w = target
             else:
                 self.wheel_w = self.wheel_w + (target - self.wheel_w) * (1.0 - np.exp(-PHYSICS_DT_S / lags))
-            for link in (0, 1):
-                p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=float(self.wheel_w[link]),
+            rolling = self.wheel_w * (1.0 - np.array([self.truth.slip_left, self.truth.slip_right]))
+            for link in (0, 1):  # the wheels turn as the body moves over the floor: friction has nothing to fight
+                p.setJointMotorControl2(self._body, link, p.VELOCITY_CONTROL, targetVelocity=float(rolling[link]),
                                         force=WHEEL_TORQUE_NM, physicsClientId=c)
             self._roll()
             p.stepSimulation(physicsClientId=c)
