@@ -71,8 +71,8 @@ class LazyJpeg:
 
 
 class FakeRosGraph:
-    def __init__(self, vehicle="db21", seed=4, realism="ideal", *, encoders=True, wheels_node=True, start_pose=(0, 0, 0),
-                 scene=None):
+    def __init__(self, vehicle="db21", seed=4, realism="ideal", *, encoders=True, wheels_node=True,
+                 start_pose=(0, 0, 0), scene=None):
         self.vehicle = vehicle
         self.robot = DuckiebotMock(seed, realism, supersample=1, start_pose=start_pose, scene=scene)
         self.lock = threading.RLock()
