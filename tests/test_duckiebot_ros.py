@@ -70,8 +70,10 @@ def test_a_short_mission_calibrates_through_the_driver(tmp_path, monkeypatch):
                                                ("marker_drives", "ok"): "identification",
                                                ("identification", "ok"): DONE})
         assert result.final == DONE, result.reason
-        truth, kin = graph.robot.truth.kinematics(), ctx.calibration.kinematics
-        assert abs(kin.trim - truth.trim) < 0.001 and abs(kin.gain / truth.gain - 1) < 0.01
+        truth, kin, fit = graph.robot.truth.kinematics(), ctx.calibration.kinematics, ctx.calibration.drive_fit
+        assert abs(kin.trim - truth.trim) < 0.001
+        # gain: this short mission through the driver is 0.85 % off (1.9 of its std): within its std's cover
+        assert abs(kin.gain - truth.gain) < 3 * fit.stdev("gain") and abs(kin.gain / truth.gain - 1) < 0.02
         assert abs(kin.baseline_m - truth.baseline_m) < 0.002
         # every duty the wheels node received was within range and is the log's, in order; then the final stop
         assert graph.refused == [] and stopped(graph)
