@@ -117,7 +117,19 @@ def test_watchdog_stops_the_wheels_when_the_agent_goes_silent(graph):
     time.sleep(0.6)  # the agent hangs with the wheels turning
     assert stopped(graph)
     with pytest.raises(NaocalError, match="watchdog"):
-        robot.now()
+        robot.advance(0.1)
+    robot.close()
+
+
+def test_after_a_fault_the_stop_and_the_clock_still_work_moving_does_not(graph):
+    robot = driver()
+    graph.frame_hook = lambda msg: setattr(msg.header, "stamp", type(msg.header.stamp)(0.0)) or msg
+    graph.sleep(0.2)  # a frame stamped back in time arrives while the robot stands
+    assert robot.now() > 0.1 and robot.command(0.0, 0.0) > 0.1  # the agent's unwinding: its clock, its stop
+    for move in (lambda: robot.command(0.2, 0.2), lambda: robot.advance(0.1), robot.grab):
+        with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: a frame stamped"):
+            move()
+    assert stopped(graph)
     robot.close()
 
 
@@ -329,5 +341,34 @@ def test_calibrate_ros_runs_the_mission_on_the_robot_and_records_its_encoders(tm
         assert log.encoder_t_s[0] >= log.wheel_t_s[0] and log.encoder_t_s[-1] <= max(log.frame_t_s[-1],
                                                                                       log.wheel_t_s[-1])
         assert log.left_ticks[-1] != log.left_ticks[0]  # the one-wheel steps turned the left wheel
+    finally:
+        graph.close()
+
+
+def test_calibrate_ros_a_refused_reading_mid_run_is_exit_3_with_its_summary(tmp_path, monkeypatch, capsys):
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole = mission.run_mission
+    monkeypatch.setattr(mission, "run_mission", lambda robot, out, settings, **kw: whole(
+        robot, out, MissionSettings(board_passes=1), **kw, states=(Boards,), transitions={("boards", "ok"): DONE}))
+    frames = [0]
+
+    def stamped_back_after_1_5_s(msg):  # mid-run the camera's stamps go back (refused in its subscriber)
+        frames[0] += 1
+        if frames[0] > 45:
+            msg.header.stamp = type(msg.header.stamp)(0.0)
+        return msg
+
+    graph.frame_hook = stamped_back_after_1_5_s
+    out = tmp_path / "run"
+    try:
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]) == 3
+        err = capsys.readouterr().err
+        assert f"{CAMERA_TOPIC}: a frame stamped 0.0 s, not after the previous one" in err and err.count("\n") == 1
+        assert "not after the previous one" in (out / "summary.txt").read_text()
+        assert stopped(graph) and not (out / "mission.json").exists()
     finally:
         graph.close()

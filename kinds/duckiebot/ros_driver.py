@@ -152,12 +152,14 @@ class RosDuckiebot:
                 self._fault = problem
         self._stop_quietly()
 
-    def _enter(self) -> None:
-        """Every call of the agent: it is alive (the watchdog's clock); a fault since its last call is raised."""
+    def _enter(self, *, moving: bool = True) -> None:
+        """Every call of the agent: it is alive (the watchdog's clock); a fault since its last call is raised by
+        every call that would move the robot or use a reading (`moving`), never by the clock or the stop: the
+        agent's unwinding (the stop, its summary's robot time) must not fail on the fault it is reporting."""
         with self._lock:
             self._last_call = time.monotonic()
             fault = self._fault
-        if fault is not None:
+        if fault is not None and moving:
             self._stop_quietly()
             raise RobotError(f"{fault} (the wheels were stopped)")
 
@@ -214,7 +216,7 @@ class RosDuckiebot:
     # ------------------------------------------------------------------------------------------ the interface
     def now(self) -> float:
         """The robot's ROS clock, s; refused when it goes back."""
-        self._enter()
+        self._enter(moving=False)
         t = self._rospy.get_time()
         if not math.isfinite(t) or t < self._last_now:
             self._fail(f"the robot's clock went back ({t!r} s after {self._last_now!r} s)")
@@ -222,8 +224,9 @@ class RosDuckiebot:
         return t
 
     def command(self, left: float, right: float) -> float:
-        """Publish the duties (held until the next command); returns the robot time they were sent."""
-        self._enter()
+        """Publish the duties (held until the next command); returns the robot time they were sent. The stop (0, 0)
+        is always sent, also after a fault."""
+        self._enter(moving=(left, right) != (0.0, 0.0))
         return self._publish(left, right)
 
     def advance(self, duration_s: float) -> None:
@@ -231,9 +234,11 @@ class RosDuckiebot:
         clock_slack_s of wall time (a clock that stands still: stop, fail)."""
         if not (isinstance(duration_s, (int, float)) and 0.0 <= duration_s <= MAX_ADVANCE_S):
             raise SafetyError(f"advance: duration {duration_s!r} s is not within [0, {MAX_ADVANCE_S:g}] s")
+        self._enter()
         target = self.now() + duration_s
         deadline = time.monotonic() + duration_s + self.clock_slack_s
         while True:
+            self._enter()
             remaining = target - self.now()
             if remaining <= 0:
                 return
@@ -246,6 +251,7 @@ class RosDuckiebot:
         """(stamp s, grey image) of the first frame exposed after this call (never one from before the last
         command); no such frame within image_timeout_s: stop, fail."""
         topic = self.topics["camera"]
+        self._enter()
         t_request = self.now()
         deadline = time.monotonic() + self.image_timeout_s
         while True:
