@@ -1,7 +1,11 @@
 """`naocal calibrate --robot duckiebot`: the Duckiebot calibrated end to end by its mission (kinds.duckiebot.mission)
-on the PyBullet mock (kinds.duckiebot.mock; a real robot's bridge is not written yet).
+on the PyBullet mock (kinds.duckiebot.mock), or on the robot itself over Duckietown's ROS topics
+(kinds.duckiebot.ros_driver; run inside Duckietown's dt-ros-commons container, $VEHICLE_NAME the robot's name:
+docs/DEPLOY.md "Duckiebot (DB21)").
 
     naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
+                     [--max-blind-m M]
+    naocal calibrate --robot duckiebot --backend ros --out RUN [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
 validation drive and leaving the area, the same format), RUN/offsets.json (the calibration,
@@ -20,32 +24,51 @@ import shlex
 import sys
 from pathlib import Path
 
-RECORD_KEYS = ("robot", "backend", "mock_seed", "mock")
+RECORD_KEYS = ("robot", "backend", "mock_seed", "mock", "max_blind_m", "vehicle")
 FINISHED_NAME = "mission.json"
 ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
                      "mock_state.json", ".naocal.lock"})
+DEFAULT_MAX_BLIND_M = 0.3
 
 
 def add_options(parser) -> None:
-    """The Duckiebot's own options of `naocal calibrate`: none yet (the generic --robot, --backend, --seed, --out,
-    --resume, --mock are all it takes; the out-of-area bound is MissionSettings.max_blind_m, 0.3 m). An option here
-    must be declared in agent.rundir's RECORD_OPTIONS or SESSION_OPTIONS (tests/test_resume_options.py)."""
+    """The Duckiebot's own options of `naocal calibrate` (the generic ones: --robot, --backend, --seed, --out,
+    --resume, --mock)."""
+    parser.add_argument("--max-blind-m", type=float, default=None, metavar="M",
+                        help=f"duckiebot: stop when no floor marker has been seen for this far (default "
+                             f"{DEFAULT_MAX_BLIND_M:g} m; at most 1): the robot never leaves the marked area by more")
 
 
 def command_line(record: dict, out, resume: bool = True) -> str:
-    parts = ["naocal", "calibrate", "--robot", "duckiebot", "--backend", record["backend"], "--seed",
-             str(record["mock_seed"])]
-    if record["mock"] != "realistic":
+    parts = ["naocal", "calibrate", "--robot", "duckiebot", "--backend", record["backend"]]
+    if record["backend"] == "mock":
+        parts += ["--seed", str(record["mock_seed"])]
+    if record["mock"] not in ("realistic", None):
         parts += ["--mock", record["mock"]]
+    if record["max_blind_m"] != DEFAULT_MAX_BLIND_M:
+        parts += ["--max-blind-m", repr(record["max_blind_m"])]
     return shlex.join(parts + ["--out", str(out)] + (["--resume"] if resume else []))
 
 
 def _record(args) -> dict:
     from naocal.solver.errors import NaocalError
 
-    if args.backend != "mock":
-        raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock so far (its bridge is not "
-                          "written yet): use --backend mock")
+    if args.backend not in ("mock", "ros"):
+        raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock and, on the robot itself, its "
+                          "own ROS topics (--backend ros); its remote bridge is not written yet")
+    vehicle = None
+    if args.backend == "ros":
+        import os
+
+        vehicle = os.environ.get("VEHICLE_NAME")
+        if not vehicle:
+            raise NaocalError("--backend ros: $VEHICLE_NAME is not set (Duckietown's containers set it to the "
+                              "robot's name: run inside dt-ros-commons on the robot; docs/DEPLOY.md)")
+        if getattr(args, "mock", None) is not None:
+            raise NaocalError("--mock chooses the simulated robot; --backend ros drives the real one")
+        if getattr(args, "resume", False):
+            raise NaocalError("--resume is not usable with --backend ros yet (the mission's time budget counts from "
+                              "the first run, on the robot's wall clock): start a new --out")
     for option, given in (("--effect", getattr(args, "effect", None)), ("--endpoint", getattr(args, "endpoint", None)),
                           ("--report", getattr(args, "report", None))):
         if given:
@@ -53,8 +76,14 @@ def _record(args) -> dict:
                               "per seed; docs/DUCKIEBOT.md)")
     if args.seed < 0:
         raise NaocalError(f"--seed must not be negative, got {args.seed}")
+    blind = DEFAULT_MAX_BLIND_M if getattr(args, "max_blind_m", None) is None else args.max_blind_m
+    if not 0.05 <= blind <= 1.0:
+        raise NaocalError(f"--max-blind-m must be within [0.05, 1] m, got {blind}")
+    mock = args.backend == "mock"
     return {"schema": "naocal.run/1", "verb": "calibrate", "robot": "duckiebot", "backend": args.backend,
-            "mock_seed": int(args.seed), "mock": getattr(args, "mock", None) or "realistic"}
+            "mock_seed": int(args.seed) if mock else None,
+            "mock": (getattr(args, "mock", None) or "realistic") if mock else None, "max_blind_m": blind,
+            "vehicle": vehicle}
 
 
 def check_out_dir(out: Path, record: dict, resume: bool) -> None:
@@ -97,6 +126,7 @@ def summary_text(result, ctx, robot, truth: dict) -> str:
         lines.append(f"calibration: gain {kin.gain:.4f} (std {fit.stdev('gain'):.4f}), trim {kin.trim:.4f} (std "
                      f"{fit.stdev('trim'):.4f}), baseline {kin.baseline_m:.4f} m, lens {cal.lens.camera.model}, "
                      f"fit {fit.rms_px:.2f} px RMS over {len(fit.sightings.frame)} corners")
+    if cal is not None and truth is not None:
         tk = truth["kinematics"]
         lines.append(f"the mock's truth: gain {tk['gain']:.4f}, trim {tk['trim']:.4f}, baseline "
                      f"{tk['baseline_m']:.4f} m (trim error {abs(kin.trim - tk['trim']):.4f}, gain error "
@@ -121,25 +151,41 @@ def run(args) -> int:
     out = Path(args.out)
     resume = bool(getattr(args, "resume", False))
     check_out_dir(out, record, resume)
-    settings = MissionSettings()
-    with RunLock(out, command_line(record, out, resume)):
-        if not (out / "run.json").exists():
-            write_record(out, record)
-        robot = DuckiebotMock(record["mock_seed"], record["mock"], state_path=out / "mock_state.json")
-        try:
-            truth = truth_document(robot.truth, record["mock_seed"], record["mock"])
-            atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
+    settings = MissionSettings(max_blind_m=record["max_blind_m"])
+    robot = None
+    if record["backend"] == "ros":  # connected before anything is written: a robot not there leaves nothing
+        from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+        robot = RosDuckiebot(record["vehicle"])
+        robot_id, source = record["vehicle"], f"naocal calibrate --robot duckiebot --backend ros ({record['vehicle']})"
+    else:
+        robot_id, source = f"mock{record['mock_seed']}", (f"naocal calibrate --robot duckiebot --backend mock "
+                                                          f"--seed {record['mock_seed']}")
+    try:
+        with RunLock(out, command_line(record, out, resume)):
+            if not (out / "run.json").exists():
+                write_record(out, record)
+            truth = None
+            if robot is None:
+                robot = DuckiebotMock(record["mock_seed"], record["mock"], state_path=out / "mock_state.json")
+                truth = truth_document(robot.truth, record["mock_seed"], record["mock"])
+                atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
 
             def write_offsets(calibration):
+                what = (f"{record['vehicle']}" if record["backend"] == "ros" else
+                        f"mock seed {record['mock_seed']} ({record['mock']})")
                 findings = write_calibration_file(out / "offsets.json", calibration,
-                                                  source=f"naocal calibrate --robot duckiebot, mock seed "
-                                                         f"{record['mock_seed']} ({record['mock']})")
+                                                  source=f"naocal calibrate --robot duckiebot, {what}")
                 for finding in findings:
                     print(f"naocal calibrate: warning: {finding}", file=sys.stderr)
 
-            result, ctx = run_mission(robot, out, settings, robot_id=f"mock{record['mock_seed']}",
-                                      source=f"naocal calibrate --robot duckiebot --backend mock "
-                                             f"--seed {record['mock_seed']}", on_calibration=write_offsets)
+            result, ctx = run_mission(robot, out, settings, robot_id=robot_id, source=source,
+                                      on_calibration=write_offsets)
+            if hasattr(robot, "save_encoders"):  # a DB21's ticks, into the drive logs (a DB18 has none)
+                for session in (ctx.session, ctx.validation_session):
+                    if session is not None and session.log.wheels:
+                        robot.save_encoders(session.log.directory, session.log.wheels[0][0],
+                                            session.log.last_time_s())
             text = summary_text(result, ctx, robot, truth)
             atomic_write_text(out / "summary.txt", text)
             print(text, end="")
@@ -153,5 +199,6 @@ def run(args) -> int:
             print(f"naocal calibrate: error: {result.reason} (the wheels are stopped; {out / 'summary.txt'})",
                   file=sys.stderr)
             return 3
-        finally:
+    finally:
+        if robot is not None:
             robot.close()

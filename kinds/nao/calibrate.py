@@ -128,6 +128,8 @@ def run(args) -> int:
     out = Path(args.out)
     if args.report:
         check_report_directory(Path(args.report), out)
+    if args.backend == "ros":
+        raise NaocalError("--backend ros is the Duckiebot's (its own ROS topics); a NAO runs on --backend mock or bridge")
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")

@@ -1,0 +1,374 @@
+"""The Duckiebot's ROS driver (kinds/duckiebot/ros_driver.py) against a fake peer of Duckietown's interfaces
+(tests/duckiebot_ros_peer.py: fake rospy and message modules, a wheels node driving a hidden PyBullet robot, a camera
+node publishing rendered JPEGs, encoder nodes): a short mission calibrates through it end to end, and each safety
+rule (duties in range, watchdog, stop on close / SIGTERM / refused reading, deadlines, checked readings)."""
+
+import cv2
+import math
+import os
+import signal
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from naocal.agent.machine import DONE, INTERRUPTED
+from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.mission import (Boards, Camera, FaceMarkers, Identification, MarkerDrives,
+                                            MissionSettings, run_mission)
+from naocal.solver.errors import NaocalError, SafetyError
+
+sys.path.insert(0, os.path.dirname(__file__))
+from duckiebot_ros_peer import FakeRosGraph  # noqa: E402
+
+VEHICLE = "db21"
+CAMERA_TOPIC = f"/{VEHICLE}/camera_node/image/compressed"
+LEFT_TICKS = f"/{VEHICLE}/left_wheel_encoder_node/tick"
+SHORT = MissionSettings(board_passes=2, legs=(2, 3), wiggles=1)
+
+
+@pytest.fixture
+def graph(monkeypatch):
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    yield graph
+    graph.close()
+
+
+def driver_named(vehicle, **kw):
+    from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+    return RosDuckiebot(vehicle, **kw)
+
+
+def driver(**kw):
+    return driver_named(VEHICLE, **kw)
+
+
+def stopped(graph) -> bool:
+    return graph.received[-1][1:] == (0.0, 0.0) and not graph.robot.duties.any()
+
+
+def test_without_rospy_one_line_error_and_the_module_imports(monkeypatch):
+    from naocal.kinds.duckiebot import ros_driver  # importable anywhere: rospy only in the constructor
+
+    monkeypatch.setitem(sys.modules, "rospy", None)
+    with pytest.raises(NaocalError) as err:
+        ros_driver.RosDuckiebot(VEHICLE)
+    assert "dt-ros-commons" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.slow
+def test_a_short_mission_calibrates_through_the_driver(tmp_path, monkeypatch):
+    graph = FakeRosGraph(VEHICLE, seed=4).install(monkeypatch)
+    robot = driver(watchdog_s=30.0)  # the test machine's pauses are not a hung agent
+    try:
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=(Boards, Camera, FaceMarkers, MarkerDrives,
+                                                                  Identification),
+                                  transitions={("boards", "ok"): "camera", ("camera", "ok"): "face_markers",
+                                               ("face_markers", "ok"): "marker_drives",
+                                               ("marker_drives", "ok"): "identification",
+                                               ("identification", "ok"): DONE})
+        assert result.final == DONE, result.reason
+        truth, kin, fit = graph.robot.truth.kinematics(), ctx.calibration.kinematics, ctx.calibration.drive_fit
+        assert abs(kin.trim - truth.trim) < 0.001
+        # gain: this short mission through the driver is 0.85 % off (1.9 of its std): within its std's cover
+        assert abs(kin.gain - truth.gain) < 3 * fit.stdev("gain") and abs(kin.gain / truth.gain - 1) < 0.02
+        assert abs(kin.baseline_m - truth.baseline_m) < 0.002
+        # every duty the wheels node received was within range and is the log's, in order; then the final stop
+        assert graph.refused == [] and stopped(graph)
+        received = np.array([(l, r) for _, l, r in graph.received[1:]])  # after the constructor's stop
+        log = read_drive_log(tmp_path / "log", check_images=False)
+        assert np.array_equal(np.column_stack([log.left_duty, log.right_duty]), received[:len(log.wheel_t_s)])
+        # the encoders recorded into the drive log: the ticks are the turns the logged duties drove the hidden
+        # wheels (ideal motors: w = gain duty), on the same clock
+        written = robot.save_encoders(tmp_path / "log", log.wheel_t_s[0], log.frame_t_s[-1])
+        log = read_drive_log(tmp_path / "log", check_images=False)
+        assert written > 100 and len(log.encoder_t_s) == written
+        t = np.linspace(log.encoder_t_s[0], log.encoder_t_s[-1], 200001)
+        duties = np.column_stack(log.duties_at(t))
+        gains = np.array([graph.robot.truth.motor_left_radps, graph.robot.truth.motor_right_radps])
+        driven_rad = np.abs(duties * gains).sum(axis=0) * (t[1] - t[0])
+        counted = np.abs(np.diff(np.column_stack([log.left_ticks, log.right_ticks]), axis=0)).sum(axis=0)
+        assert np.allclose(counted * 2 * np.pi / 135, driven_rad, rtol=0.03), (counted, driven_rad)
+    finally:
+        robot.close()
+        graph.close()
+
+
+def test_duties_outside_the_range_are_never_published(graph):
+    robot = driver()
+    sent = len(graph.received)
+    for left, right in ((1.01, 0.0), (0.0, -1.5), (math.nan, 0.0), (0.0, math.inf), (True, 0.0), ("0.3", 0.0)):
+        with pytest.raises(SafetyError):
+            robot.command(left, right)
+    assert len(graph.received) == sent and graph.refused == []
+    robot.command(1.0, -1.0)  # the limits themselves are fine
+    assert graph.received[-1][1:] == (1.0, -1.0)
+    robot.close()
+    assert stopped(graph)
+
+
+def test_watchdog_stops_the_wheels_when_the_agent_goes_silent(graph):
+    robot = driver(watchdog_s=0.2)
+    robot.command(0.3, 0.3)
+    robot.advance(1.5)  # inside the driver the agent is alive: no stop, however long the wait
+    assert graph.received[-1][1:] == (0.3, 0.3)
+    time.sleep(0.6)  # the agent hangs with the wheels turning
+    assert stopped(graph)
+    with pytest.raises(NaocalError, match="watchdog"):
+        robot.advance(0.1)
+    robot.close()
+
+
+def test_after_a_fault_the_stop_and_the_clock_still_work_moving_does_not(graph):
+    robot = driver()
+    graph.frame_hook = lambda msg: setattr(msg.header, "stamp", type(msg.header.stamp)(0.0)) or msg
+    graph.sleep(0.2)  # a frame stamped back in time arrives while the robot stands
+    assert robot.now() > 0.1 and robot.command(0.0, 0.0) > 0.1  # the agent's unwinding: its clock, its stop
+    for move in (lambda: robot.command(0.2, 0.2), lambda: robot.advance(0.1), robot.grab):
+        with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: a frame stamped"):
+            move()
+    assert stopped(graph)
+    robot.close()
+
+
+def test_stopped_on_close_and_on_ros_shutdown(graph):
+    robot = driver()
+    robot.command(0.4, 0.2)
+    for hook in graph.shutdown_hooks:  # rospy shutting down (the container stopping)
+        hook()
+    assert stopped(graph)
+    robot.command(0.4, 0.2)
+    robot.close()
+    robot.close()
+    assert stopped(graph)
+
+
+def test_sigterm_mid_drive_stops_the_wheels(graph, tmp_path):
+    from naocal.tools.cli import _terminate_like_ctrl_c
+
+    robot = driver()
+    previous = signal.getsignal(signal.SIGTERM)
+    _terminate_like_ctrl_c()  # what `naocal calibrate` installs: SIGTERM raises KeyboardInterrupt("SIGTERM")
+
+    def kill_while_driving():
+        if graph.robot.duties.any():
+            graph.sleep_hook = None
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    graph.sleep_hook = kill_while_driving
+    try:
+        result, _ = run_mission(robot, tmp_path, SHORT, states=(Boards,), transitions={("boards", "ok"): DONE})
+        assert result.final == INTERRUPTED and "SIGTERM" in result.reason
+        assert stopped(graph)
+        assert any(l or r for _, l, r in graph.received)  # it was driving
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        robot.close()
+
+
+def test_no_frame_within_the_deadline_stops_the_wheels(graph):
+    robot = driver(image_timeout_s=0.3)
+    robot.command(0.2, 0.2)
+    graph.camera_on = False
+    start = time.monotonic()
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: no frame within 0.3 s of asking at"):
+        robot.grab()
+    assert time.monotonic() - start < 5 and stopped(graph)
+    robot.close()
+
+
+def test_a_frame_stamped_on_another_clock_is_refused(graph):
+    robot = driver()
+    robot.command(0.2, 0.2)
+
+    def ahead(msg):
+        msg.header.stamp = graph.Time(msg.header.stamp.to_sec() + 3600.0)
+        return msg
+
+    graph.frame_hook = ahead
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: a frame stamped .* 3600.0 s ahead of the robot's clock"):
+        robot.grab()
+    assert stopped(graph)
+    robot.close()
+
+
+def test_a_clock_that_stands_still_is_a_deadline_missed(graph):
+    robot = driver(clock_slack_s=0.2)
+    robot.command(0.2, 0.2)
+    graph.clock_running = False
+    with pytest.raises(NaocalError, match="clock did not reach"):
+        robot.advance(0.1)
+    assert stopped(graph)
+    robot.close()
+
+
+def test_no_wheels_driver_listening_is_refused(monkeypatch):
+    graph = FakeRosGraph(VEHICLE, wheels_node=False).install(monkeypatch)
+    try:
+        with pytest.raises(NaocalError, match=f"/{VEHICLE}/wheels_driver_node/wheels_cmd: no wheels driver"):
+            driver(connect_timeout_s=0.2)
+    finally:
+        graph.close()
+
+
+def _jpeg(image):
+    return cv2.imencode(".jpg", image)[1].tobytes()
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda msg: setattr(msg, "data", b"not a jpeg"), "does not decode as an image"),
+    (lambda msg: setattr(msg, "data", _jpeg(np.zeros((240, 320), np.uint8))), "a 320 x 240 frame, expected 640 x 480"),
+])
+def test_a_frame_that_is_not_a_camera_image_is_refused(graph, damage, message):
+    robot = driver()
+    robot.command(0.2, -0.2)
+    graph.frame_hook = lambda msg: damage(msg) or msg
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: .*{message}"):
+        robot.grab()
+    assert stopped(graph)
+    robot.close()
+
+
+def test_a_frame_stamped_back_in_time_is_refused(graph):
+    robot = driver()
+    robot.grab()
+    robot.command(0.2, 0.2)
+
+    def back(msg):
+        msg.header.stamp = graph.Time(msg.header.stamp.to_sec() - 1.0)
+        return msg
+
+    graph.frame_hook = back
+    with pytest.raises(NaocalError, match=f"{CAMERA_TOPIC}: a frame stamped .* not after the previous one"):
+        robot.advance(0.2)
+    assert stopped(graph)
+    robot.close()
+
+
+def left_damaged_after(n, change):
+    """An encoder hook: the left count's messages after the n-th changed by `change(msg)`."""
+    seen = [0]
+
+    def hook(side, msg):
+        if side == "left":
+            seen[0] += 1
+            if seen[0] > n:
+                change(msg)
+        return msg
+
+    return hook
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda msg: setattr(msg, "data", msg.data + 500), "the count jumped \\+5\\d\\d ticks"),
+    (lambda msg: setattr(msg, "data", math.nan), "tick count nan is not a whole number"),
+    (lambda msg: setattr(msg, "data", 12.5), "tick count 12.5 is not a whole number"),
+    (lambda msg: setattr(msg, "resolution", 100), "resolution 100 ticks per revolution, expected 135"),
+    (lambda msg: setattr(msg.header, "stamp", type(msg.header.stamp)(0.0)), "not after the previous one"),
+])
+def test_an_encoder_reading_that_cannot_be_is_refused(graph, change, message):
+    robot = driver()
+    robot.command(0.3, 0.3)
+    graph.tick_hook = left_damaged_after(2, change)
+    with pytest.raises(NaocalError, match=f"{LEFT_TICKS}: .*{message}"):
+        robot.advance(0.5)
+    assert stopped(graph)
+    robot.close()
+
+
+def test_a_db18_without_encoders_writes_no_encoders_file(monkeypatch, tmp_path):
+    graph = FakeRosGraph(VEHICLE, encoders=False).install(monkeypatch)
+    robot = driver()
+    try:
+        robot.command(0.3, 0.3)
+        robot.advance(0.3)
+        assert robot.save_encoders(tmp_path, 0.0, robot.now()) == 0 and not (tmp_path / "encoders.csv").exists()
+    finally:
+        robot.close()
+        graph.close()
+
+
+def test_a_bad_robot_name_is_one_line(graph):
+    with pytest.raises(NaocalError, match="robot name '../x'"):
+        driver_named("../x")
+
+
+# --------------------------------------------------------------------------------- naocal calibrate --backend ros
+
+def test_calibrate_ros_bad_setups_are_one_line_exit_2_nothing_written(tmp_path, monkeypatch, capsys):
+    from naocal.tools.cli import main
+
+    out = tmp_path / "run"
+    monkeypatch.delenv("VEHICLE_NAME", raising=False)
+    cases = [(["--robot", "duckiebot"], "VEHICLE_NAME is not set"), (["--robot", "nao"], "Duckiebot's")]
+    for robot, message in cases:
+        assert main(["calibrate", *robot, "--backend", "ros", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and not out.exists()
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    monkeypatch.setitem(sys.modules, "rospy", None)  # not on the robot
+    for extra, message in (([], "dt-ros-commons"), (["--resume"], "--resume is not usable"),
+                           (["--mock", "ideal"], "--mock chooses")):
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and not out.exists()
+
+
+def test_calibrate_ros_runs_the_mission_on_the_robot_and_records_its_encoders(tmp_path, monkeypatch, capsys):
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole = mission.run_mission
+
+    def boards_only(robot, out, settings, **kw):  # the first phase only: the CLI's wiring, not the mission again
+        return whole(robot, out, MissionSettings(board_passes=1, max_blind_m=settings.max_blind_m), **kw,
+                     states=(Boards,), transitions={("boards", "ok"): DONE})
+
+    monkeypatch.setattr(mission, "run_mission", boards_only)
+    out = tmp_path / "run"
+    try:
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]) == 0, \
+            capsys.readouterr().err
+        assert stopped(graph) and graph.refused == []
+        assert not (out / "truth.json").exists() and (out / "mission.json").exists()
+        log = read_drive_log(out / "log")
+        assert log.robot_id == VEHICLE and log.wheels.ticks_per_revolution == 135
+        assert len(log.frame_files) > 3 and len(log.encoder_t_s) > 10
+        assert log.encoder_t_s[0] >= log.wheel_t_s[0] and log.encoder_t_s[-1] <= max(log.frame_t_s[-1],
+                                                                                      log.wheel_t_s[-1])
+        assert log.left_ticks[-1] != log.left_ticks[0]  # the one-wheel steps turned the left wheel
+    finally:
+        graph.close()
+
+
+def test_calibrate_ros_a_refused_reading_mid_run_is_exit_3_with_its_summary(tmp_path, monkeypatch, capsys):
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole = mission.run_mission
+    monkeypatch.setattr(mission, "run_mission", lambda robot, out, settings, **kw: whole(
+        robot, out, MissionSettings(board_passes=1), **kw, states=(Boards,), transitions={("boards", "ok"): DONE}))
+    frames = [0]
+
+    def stamped_back_after_1_5_s(msg):  # mid-run the camera's stamps go back (refused in its subscriber)
+        frames[0] += 1
+        if frames[0] > 45:
+            msg.header.stamp = type(msg.header.stamp)(0.0)
+        return msg
+
+    graph.frame_hook = stamped_back_after_1_5_s
+    out = tmp_path / "run"
+    try:
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]) == 3
+        err = capsys.readouterr().err
+        assert f"{CAMERA_TOPIC}: a frame stamped 0.0 s, not after the previous one" in err and err.count("\n") == 1
+        assert "not after the previous one" in (out / "summary.txt").read_text()
+        assert stopped(graph) and not (out / "mission.json").exists()
+    finally:
+        graph.close()
