@@ -46,6 +46,8 @@ class DuckiebotKind:
     name = NAME
     rank = 10  # before the arm, whose --robot takes any name: `--robot duckiebot` is this kind's
     export_formats = ("duckietown", "json")
+    # calibrate's options of this kind that define its run (recorded in run.json; --resume must repeat them)
+    run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):
