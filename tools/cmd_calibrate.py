@@ -1,6 +1,6 @@
 """`naocal calibrate`: calibrate a robot (the mock, or a robot behind a bridge) end to end.
 
-    naocal calibrate [--robot KIND] --backend mock|bridge|ros [--endpoint URL] [--seed N] --out DIR [--resume]
+    naocal calibrate [--robot KIND] --backend BACKEND [--endpoint URL] [--seed N] --out DIR [--resume]
                      [--effect NAME=SIZE ...] [--report REPORT_DIR]
 
 --robot chooses the robot kind (default: the NAO, its legs and cameras); the kind's own options follow the common
@@ -25,9 +25,12 @@ def register(subparsers):
         description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=able, default=kinds.default().name,
                    help=f"the robot kind to calibrate (default {kinds.default().name})")
-    p.add_argument("--backend", choices=("mock", "bridge", "ros"), required=True,
-                   help="mock: the simulated robot in this process; bridge: a robot behind `naocal bridge serve`; "
-                        "ros: a Duckiebot's own ROS topics, naocal running on the robot")
+    backends = {}  # each kind's (calibrate_backends): name -> what it is, per kind
+    for kind in kinds.capable("calibrate"):
+        for name, what in getattr(kind, "calibrate_backends", {}).items():
+            backends.setdefault(name, []).append(f"{kind.name}: {what}")
+    p.add_argument("--backend", choices=tuple(backends), required=True,
+                   help="; ".join(f"{name} ({', '.join(whats)})" for name, whats in backends.items()))
     p.add_argument("--endpoint", metavar="URL", help="bridge server address, e.g. tcp://nao.local:7790")
     p.add_argument("--seed", type=int, default=0, help="mock: seed of its hidden truth (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if absent)")

@@ -48,6 +48,7 @@ class DuckiebotKind:
     export_formats = ("duckietown", "json")
     # calibrate's options of this kind that define its run (recorded in run.json; --resume must repeat them)
     run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
+    calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot"}
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):

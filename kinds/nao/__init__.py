@@ -15,6 +15,7 @@ class NaoKind:
     name = "nao"
     rank = 1000  # asked last, so the default kind: it reads what no other kind claims and names what is wrong
     export_formats = ("bhuman", "hulks", "naodevils", "urdf", "json")  # tools/export/
+    calibrate_backends = {"mock": "the simulated NAO in this process", "bridge": "a NAO behind `naocal bridge serve`"}
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # no option is the NAO's alone: it is the default kind
