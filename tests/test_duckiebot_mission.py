@@ -19,7 +19,7 @@ from naocal.agent.machine import DONE, INTERRUPTED
 from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 from naocal.kinds.duckiebot.intrinsics import LensCamera
-from naocal.kinds.duckiebot.mission import (Boards, Camera, FaceMarkers, Identification, MarkerDrives,
+from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
                                             MissionContext, MissionSettings, Session, drive_watching, log_meta,
                                             run_mission)
 from naocal.kinds.duckiebot.mock import DuckiebotMock
@@ -43,7 +43,7 @@ def ideal_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("ideal")
     robot = short_mock()
     result, ctx = run_mission(robot, out, SHORT, transitions=UP_TO_IDENTIFICATION,
-                              states=(Boards, Camera, FaceMarkers, MarkerDrives, Identification))
+                              states=(Boards, CalibrateCamera, FaceMarkers, MarkerDrives, IdentifyDrive))
     yield robot, result, ctx, out
     robot.close()
 
@@ -264,7 +264,7 @@ def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_pa
         ctx = MissionContext(robot, tmp_path, SHORT, session, driven=True, on_calibration=written.append)
         bad = SimpleNamespace(drive_fit=SimpleNamespace(rms_px=26.5))  # realistic seed 1's local minimum
         monkeypatch.setattr(mission, "identify_log", lambda _: bad)
-        outcome = Identification().run(ctx)
+        outcome = IdentifyDrive().run(ctx)
         assert outcome.name == "implausible" and "26.50 px" in outcome.reason
         assert written == [] and ctx.calibration is None
     finally:

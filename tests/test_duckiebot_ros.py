@@ -15,7 +15,7 @@ import pytest
 
 from naocal.agent.machine import DONE, INTERRUPTED
 from naocal.kinds.duckiebot.drive_log import read_drive_log
-from naocal.kinds.duckiebot.mission import (Boards, Camera, FaceMarkers, Identification, MarkerDrives,
+from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
                                             MissionSettings, run_mission)
 from naocal.solver.errors import NaocalError, SafetyError
 
@@ -63,8 +63,8 @@ def test_a_short_mission_calibrates_through_the_driver(tmp_path, monkeypatch):
     graph = FakeRosGraph(VEHICLE, seed=4).install(monkeypatch)
     robot = driver(watchdog_s=30.0)  # the test machine's pauses are not a hung agent
     try:
-        result, ctx = run_mission(robot, tmp_path, SHORT, states=(Boards, Camera, FaceMarkers, MarkerDrives,
-                                                                  Identification),
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=(Boards, CalibrateCamera, FaceMarkers, MarkerDrives,
+                                                                  IdentifyDrive),
                                   transitions={("boards", "ok"): "camera", ("camera", "ok"): "face_markers",
                                                ("face_markers", "ok"): "marker_drives",
                                                ("marker_drives", "ok"): "identification",

@@ -21,12 +21,18 @@ def test_an_install_is_one_import_package_naocal(tmp_path):
     import subprocess
     import sys
 
+    import shutil
+
+    # Built from a copy: setuptools builds in the source tree (build/), whose stale files would reach a later install.
+    source = tmp_path / "source"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
+        ".git", "build", "dist", "*.egg-info", "__pycache__", ".venv", "tests", "benchmarks", "docs", ".pytest_cache"))
     target = tmp_path / "site"
     run = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--quiet",
-                          "--target", str(target), str(ROOT)], capture_output=True, text=True, timeout=600)
+                          "--target", str(target), str(source)], capture_output=True, text=True, timeout=600)
     if run.returncode != 0:  # no (recent enough) setuptools or wheel beside this Python: build it apart
         run = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet", "--target",
-                              str(target), str(ROOT)], capture_output=True, text=True, timeout=600)
+                              str(target), str(source)], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     imported = sorted(p.name for p in target.iterdir() if p.suffix != ".dist-info" and p.name not in ("bin",)
                       and not p.name.endswith(".dist-info") and not p.name.startswith(("_", ".")))

@@ -347,7 +347,7 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
 
 # ------------------------------------------------------------------------------------------------ writing
 
-def _csv_text(header, rows) -> str:
+def csv_text(header, rows) -> str:
     return ",".join(header) + "\n" + "".join(",".join(cells) + "\n" for cells in rows)
 
 
@@ -358,11 +358,11 @@ def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> Dri
     Every file's content is checked as the reader would before anything is written (DataError naming it)."""
     directory = Path(directory)
     checked = parse_meta(meta, directory / META_FILE)
-    texts = {WHEELS_FILE: _csv_text(WHEELS_HEADER, ([repr(float(t)), repr(float(a)), repr(float(b))]
+    texts = {WHEELS_FILE: csv_text(WHEELS_HEADER, ([repr(float(t)), repr(float(a)), repr(float(b))]
                                                     for t, a, b in zip(*wheels))),
-             FRAMES_FILE: _csv_text(FRAMES_HEADER, ([repr(float(t)), _csv_cell(f)] for t, f in zip(*frames)))}
+             FRAMES_FILE: csv_text(FRAMES_HEADER, ([repr(float(t)), _csv_cell(f)] for t, f in zip(*frames)))}
     if encoders is not None:
-        texts[ENCODERS_FILE] = _csv_text(ENCODERS_HEADER, ([repr(float(t)), str(int(a)), str(int(b))]
+        texts[ENCODERS_FILE] = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(int(a)), str(int(b))]
                                                            for t, a, b in zip(*encoders)))
     texts[META_FILE] = json.dumps(meta, indent=2) + "\n"
     read_wheels(directory / WHEELS_FILE, texts[WHEELS_FILE])
@@ -430,7 +430,7 @@ class DriveLogAppender:
             if not (math.isfinite(duty) and -1.0 <= duty <= 1.0):
                 raise ValueError(f"duty {duty!r} is not within [-1, 1]")
         self.wheels.append((float(t_s), float(left_duty), float(right_duty)))
-        atomic_write_text(self.directory / WHEELS_FILE, _csv_text(WHEELS_HEADER, (
+        atomic_write_text(self.directory / WHEELS_FILE, csv_text(WHEELS_HEADER, (
             [repr(t), repr(a), repr(b)] for t, a, b in self.wheels)))
 
     def add_frame(self, t_s: float, name: str, image: np.ndarray) -> None:
@@ -440,5 +440,5 @@ class DriveLogAppender:
             raise ValueError(problem)
         write_frame(self.directory, name, image)
         self.frames.append((float(t_s), name))
-        atomic_write_text(self.directory / FRAMES_FILE, _csv_text(FRAMES_HEADER, (
+        atomic_write_text(self.directory / FRAMES_FILE, csv_text(FRAMES_HEADER, (
             [repr(t), _csv_cell(f)] for t, f in self.frames)))

@@ -370,7 +370,7 @@ class Boards(State):
         return Outcome("ok", f"{len(detections)} frames, {n_views} board views")
 
 
-class Camera(State):
+class CalibrateCamera(State):
     name = "camera"
     needs = ("board_detections",)
     produces = ("lens",)
@@ -477,7 +477,7 @@ class MarkerDrives(State):
         return Outcome("ok", f"{len(session.log.frames)} frames in all")
 
 
-class Identification(State):
+class IdentifyDrive(State):
     name = "identification"
     needs = ("driven",)
     produces = ("calibration",)
@@ -567,7 +567,7 @@ class Leave(State):
         return Outcome("ok", f"{driven:.2f} m on, stopped")
 
 
-MISSION_STATES = (Boards, Camera, FaceMarkers, MarkerDrives, Identification, Validation, Leave)
+MISSION_STATES = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives, IdentifyDrive, Validation, Leave)
 
 
 def run_mission(robot, out_dir, settings: MissionSettings = MissionSettings(), *, robot_id: str = "duckiebot",

@@ -15,7 +15,7 @@ lag of the hidden time constant; the body moves at the wheels' ground speeds les
 teaching) turns the wheel at exactly w = m u: no PWM, no dead zone, no lag, no slip, no image noise or motion
 blur.
 
-Hidden (`MockTruth`, drawn per seed; docs/DUCKIEBOT.md "The mock and the agent" lists the ranges): per-wheel radius
+Hidden (`DuckiebotTruth`, drawn per seed; docs/DUCKIEBOT.md "The mock and the agent" lists the ranges): per-wheel radius
 and motor gain (what Duckietown's trim and gain express), the baseline, the PWM dead zone, each wheel's lag, the
 tyres' slip, the camera's intrinsics and plumb_bob distortion, and its pose on the body. `truth_document`
 writes them in the calibration file's names and units (in the log's k, as the fit's gain and trim are).
@@ -55,7 +55,7 @@ RESTORE_GAP_S = 1e-3  # a restored mock resumes this long after its saved time, 
 
 
 @dataclass(frozen=True)
-class MockTruth:
+class DuckiebotTruth:
     """The hidden robot. Motor gains in rad/s of wheel speed per unit duty; the dead zone in PWM steps (0..255)."""
 
     radius_left_m: float
@@ -84,7 +84,7 @@ class MockTruth:
         return HiddenRobot(self.kinematics(), self.camera, self.T_base_camera)
 
 
-def draw_truth(seed: int, realism: str = "realistic") -> MockTruth:
+def draw_truth(seed: int, realism: str = "realistic") -> DuckiebotTruth:
     """A hidden DB21 for `seed`. The camera and the mount as kinds.duckiebot.render.hidden_robot draws them (the real
     robots' ranges); the wheels: motor gains 27 rad/s x U(0.7, 1.3) with a left/right asymmetry N(0, 0.05) clipped
     to +-0.12 (the real robots' trim), radii 0.0318 m +- 0.3 mm each (tyre wear), baseline 0.1 m +- 3 mm; realistic
@@ -108,12 +108,12 @@ def draw_truth(seed: int, realism: str = "realistic") -> MockTruth:
     # cannot explain: it failed at 26 px RMS (docs/DUCKIEBOT.md); what `naocal diagnose` is to name
     lags = rng.uniform(0.02, 0.06) * rng.uniform(0.95, 1.05, 2) if realistic else np.zeros(2)
     slips = rng.uniform(0.0, 0.02, 2) if realistic else np.zeros(2)
-    return MockTruth(float(radii[0]), float(radii[1]), motor * (1.0 - asymmetry), motor * (1.0 + asymmetry),
+    return DuckiebotTruth(float(radii[0]), float(radii[1]), motor * (1.0 - asymmetry), motor * (1.0 + asymmetry),
                      float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(slips[0]),
                      float(slips[1]), camera_truth.camera, camera_truth.T_base_camera)
 
 
-def truth_document(truth: MockTruth, seed: int, realism: str) -> dict:
+def truth_document(truth: DuckiebotTruth, seed: int, realism: str) -> dict:
     """RUN/truth.json: the hidden robot in the calibration file's names and units (kinematics in the log's k;
     `parameters` the joint fit's camera.* names), with the mock's own hidden effects beside them."""
     from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters

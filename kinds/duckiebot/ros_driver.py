@@ -42,7 +42,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, _csv_text, parse_meta,
+from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, csv_text, parse_meta,
                                               read_encoders)
 from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
                                          robot_name_problem)
@@ -287,7 +287,7 @@ class RosDuckiebot:
         if not rows:
             return 0
         log_dir = Path(log_dir)
-        text = _csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
+        text = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
         read_encoders(log_dir / ENCODERS_FILE, text)
         meta = read_json(log_dir / META_FILE)
         if meta.get("wheels", {}).get("ticks_per_revolution") != self.ticks_per_revolution:
