@@ -39,16 +39,23 @@ class Kind(Protocol):
         Every kind adds its options before parsing; the chosen kind refuses another kind's options it was given."""
 
 
+_FOUND: dict[tuple, tuple] = {}  # this package's __path__ -> the kinds found on it
+
+
 def registered() -> tuple[Kind, ...]:
-    """Every kind, in the order of asking (by rank, then name). Found anew on each call (a directory listing; each
-    kind's __init__ is imported once), so that a kind put on this package's __path__ is found."""
-    found = {}
-    for info in pkgutil.iter_modules(__path__, __name__ + "."):
-        if info.ispkg:
-            kind = getattr(importlib.import_module(info.name), "KIND", None)
-            if kind is not None:
-                found.setdefault(kind.name, kind)  # the first on __path__ of a name wins, as for any import
-    return tuple(sorted(found.values(), key=lambda k: (k.rank, k.name)))
+    """Every kind, in the order of asking (by rank, then name). Found once per __path__ (a directory listing; each
+    kind's __init__ is imported once): a kind put on this package's __path__ is found, and a process that may no
+    longer list the checkout (a verb run after dropping privileges) keeps the kinds it found."""
+    key = tuple(__path__)
+    if key not in _FOUND:
+        found = {}
+        for info in pkgutil.iter_modules(__path__, __name__ + "."):
+            if info.ispkg:
+                kind = getattr(importlib.import_module(info.name), "KIND", None)
+                if kind is not None:
+                    found.setdefault(kind.name, kind)  # the first on __path__ of a name wins, as for any import
+        _FOUND[key] = tuple(sorted(found.values(), key=lambda k: (k.rank, k.name)))
+    return _FOUND[key]
 
 
 def default() -> Kind:

@@ -479,6 +479,7 @@ def _import_every_module() -> None:
                 importlib.import_module(module.name)
             except ImportError:  # an optional driver's library (qi) is missing: its verbs are not fuzzed
                 pass
+    importlib.import_module("naocal.kinds").registered()  # the kinds, found by listing the checkout, kept
 
 
 def run_forked(argv, *, deadline_s: float = 10.0, as_nobody: bool = False,
