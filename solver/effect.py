@@ -331,13 +331,18 @@ def check_number(value, path, where, *, limit=math.inf, unit="1") -> float:
 
 
 def check_object(value, path, where, allowed=None, required=()) -> dict:
+    """`value` a JSON object with every `required` key and no key outside `allowed` (None: any), else DataError
+    naming the field (`where`: the object's own field, "" or None for the document itself)."""
+    def field(key):
+        return f"{where}.{key}" if where else key
+
     if not isinstance(value, dict):
-        raise DataError(path, f"expected a JSON object, got {str(value)[:40]}", field=where)
+        raise DataError(path, f"expected a JSON object, got {str(value)[:40]}", field=where or None)
     if allowed is not None:
         for key in value:
             if key not in allowed:
-                raise DataError(path, f"unknown field (allowed: {', '.join(allowed)})", field=f"{where}.{key}")
+                raise DataError(path, f"unknown field (allowed: {', '.join(allowed)})", field=field(key))
     for key in required:
         if key not in value:
-            raise DataError(path, "missing required field", field=f"{where}.{key}")
+            raise DataError(path, "missing required field", field=field(key))
     return value

@@ -34,6 +34,7 @@ from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC,
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
+from naocal.solver.effect import check_object
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.fileio import atomic_write_text, check_output_file, read_json
 
@@ -162,16 +163,7 @@ def _fail(path, problem, field=None):
 
 
 def _object(value, path, field, required, optional=()):
-    if not isinstance(value, dict):
-        _fail(path, "expected a JSON object", field or None)
-    for key in value:
-        if key not in required and key not in optional:
-            _fail(path, f"unknown field (expected {', '.join(required + optional)})", f"{field}.{key}" if field
-                  else key)
-    for key in required:
-        if key not in value:
-            _fail(path, "missing required field", f"{field}.{key}" if field else key)
-    return value
+    return check_object(value, path, field, allowed=tuple(required) + tuple(optional), required=required)
 
 
 def _number(value, path, field, limit=MAX_PARAMETER_SIZE, *, positive=False):

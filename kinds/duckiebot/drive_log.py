@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.robot import robot_name_problem
+from naocal.solver.effect import check_object
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import atomic_write_bytes, atomic_write_text, read_bytes, read_json, read_text
 
@@ -115,16 +116,7 @@ def _fail(path, problem, field=None, line=None):
 
 
 def _object(value, path, field, required, optional=()):
-    if not isinstance(value, dict):
-        _fail(path, "expected a JSON object", field)
-    for key in value:
-        if key not in required and key not in optional:
-            _fail(path, f"unknown field (expected {', '.join(required + optional)})", f"{field}.{key}" if field
-                  else key)
-    for key in required:
-        if key not in value:
-            _fail(path, "missing required field", f"{field}.{key}" if field else key)
-    return value
+    return check_object(value, path, field, allowed=tuple(required) + tuple(optional), required=required)
 
 
 def _number(value, path, field, low, high, *, low_open=True):
