@@ -302,7 +302,8 @@ def test_calibrate_ros_bad_setups_are_one_line_exit_2_nothing_written(tmp_path, 
 
     out = tmp_path / "run"
     monkeypatch.delenv("VEHICLE_NAME", raising=False)
-    cases = [(["--robot", "duckiebot"], "VEHICLE_NAME is not set"), (["--robot", "nao"], "Duckiebot's")]
+    cases = [(["--robot", "duckiebot"], "VEHICLE_NAME is not set"),
+             (["--robot", "nao"], "another robot kind's (--robot duckiebot)")]
     for robot, message in cases:
         assert main(["calibrate", *robot, "--backend", "ros", "--out", str(out)]) == 2
         err = capsys.readouterr().err

@@ -146,3 +146,14 @@ def test_building_the_command_line_imports_no_kind_body():
              "print(sorted(m for m in ('cv2', 'scipy', 'pybullet') if m in sys.modules))")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "[]", run.stdout + run.stderr
+
+
+def test_a_backend_of_another_kind_is_refused_by_the_nao_in_one_line(tmp_path):
+    """--backend offers every kind's backends; the NAO refuses the Duckiebot's `ros` without naming another kind in
+    its code (its own calibrate_backends decide), exit 2, nothing written."""
+    from tests.cli_runner import naocal
+
+    result = naocal("calibrate", "--backend", "ros", "--out", tmp_path / "run")
+    assert result.returncode == 2 and "--backend ros is another robot kind's (--robot duckiebot)" in result.stderr, \
+        result.stderr
+    assert "\n" not in result.stderr.strip() and not (tmp_path / "run").exists()

@@ -51,9 +51,10 @@ def command_line(record: dict, out, resume: bool = True) -> str:
 
 
 def _record(args) -> dict:
+    from naocal.kinds.duckiebot import KIND
     from naocal.solver.errors import NaocalError
 
-    if args.backend not in ("mock", "ros"):
+    if args.backend not in KIND.calibrate_backends:
         raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock and, on the robot itself, its "
                           "own ROS topics (--backend ros); its remote bridge is not written yet")
     vehicle = None

@@ -128,8 +128,13 @@ def run(args) -> int:
     out = Path(args.out)
     if args.report:
         check_report_directory(Path(args.report), out)
-    if args.backend == "ros":
-        raise NaocalError("--backend ros is the Duckiebot's (its own ROS topics); a NAO runs on --backend mock or bridge")
+    from naocal import kinds
+    from naocal.kinds.nao import KIND
+
+    if args.backend not in KIND.calibrate_backends:  # another kind's backend (the parser offers every kind's)
+        owners = [k.name for k in kinds.capable("calibrate") if args.backend in getattr(k, "calibrate_backends", {})]
+        raise NaocalError(f"--backend {args.backend} is another robot kind's (--robot {' or '.join(owners)}); a NAO "
+                          "runs on --backend " + " or ".join(KIND.calibrate_backends))
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")
