@@ -13,6 +13,8 @@ parameters with which the inverse map makes the robot do what was asked.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from naocal.kinds.duckiebot.robot import Kinematics
@@ -52,6 +54,15 @@ def body_velocity(w_left, w_right, radius_m: float, baseline_m: float):
 def forward_kinematics(u_left, u_right, kin: Kinematics):
     """(v m/s, omega rad/s) that duties produce on a robot whose true parameters are `kin` (open loop)."""
     return body_velocity(*wheel_speeds(u_left, u_right, kin), kin.radius_m, kin.baseline_m)
+
+
+def duty_problem(name: str, duty, limit: float = 1.0) -> str | None:
+    """Why `duty` may not be sent to a wheel (not a finite number within [-limit, limit]), or None. A bad duty is
+    refused, never clipped: the caller has a bug. The one check of the mock, the mission and the ROS driver."""
+    if isinstance(duty, bool) or not isinstance(duty, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(duty) or abs(duty) > limit:
+        return f"{name} duty {duty!r} is not within [-{limit:g}, {limit:g}]"
+    return None
 
 
 def duty_to_pwm(duty):

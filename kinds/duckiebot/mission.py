@@ -45,7 +45,7 @@ from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
 from naocal.kinds.duckiebot.drive_log import MAX_IMAGE_BYTES, SCHEMA, DriveLogAppender, decode_image, read_drive_log
 from naocal.kinds.duckiebot.fit import marker_on_floor
 from naocal.kinds.duckiebot.identify import Detections, fit_intrinsics, identify_log
-from naocal.kinds.duckiebot.kinematics import inverse_kinematics
+from naocal.kinds.duckiebot.kinematics import duty_problem, inverse_kinematics
 from naocal.kinds.duckiebot.render import BOARD_INNER_CORNERS, BOARD_SQUARE_M, MARKER_SIZE_M
 from naocal.kinds.duckiebot.robot import duckiebot
 from naocal.solver.errors import NaocalError, SafetyError
@@ -158,8 +158,9 @@ class Session:
     def command(self, left: float, right: float) -> None:
         limit = self.settings.limit
         for name, duty in (("left", left), ("right", right)):
-            if not (isinstance(duty, (int, float, np.floating)) and math.isfinite(duty) and abs(duty) <= limit):
-                raise SafetyError(f"refused wheel command: {name} duty {duty!r} is not within [-{limit:g}, {limit:g}]")
+            problem = duty_problem(name, duty, limit)
+            if problem:
+                raise SafetyError(f"refused wheel command: {problem}")
         left, right = float(left), float(right)
         recorded = self._next_recorded("wheels")
         if recorded is None:

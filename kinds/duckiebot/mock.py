@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.kinds.duckiebot.kinematics import PWM_MAX, PWM_MIN, duty_to_pwm
+from naocal.kinds.duckiebot.kinematics import PWM_MAX, PWM_MIN, duty_problem, duty_to_pwm
 from naocal.kinds.duckiebot.render import HiddenRobot, Renderer, calibration_scene
 from naocal.kinds.duckiebot.robot import BASELINE_M, WHEEL_RADIUS_M, Kinematics
 from naocal.solver.camera import CameraIntrinsics
@@ -246,9 +246,9 @@ class DuckiebotMock:
         """Set the duties (held until the next command); returns the robot time they took effect. A duty that is not
         a finite number within [-1, 1] is refused (SafetyError), never clipped: the caller has a bug."""
         for name, duty in (("left", left), ("right", right)):
-            if isinstance(duty, bool) or not isinstance(duty, (int, float, np.floating)) or not math.isfinite(duty) \
-                    or abs(duty) > 1.0:
-                raise SafetyError(f"refused wheel command: {name} duty {duty!r} is not within [-1, 1]")
+            problem = duty_problem(name, duty)
+            if problem:
+                raise SafetyError(f"refused wheel command: {problem}")
         self.duties = np.array([float(left), float(right)])
         self.received.append((self.t_s, float(left), float(right)))
         self._save()

@@ -44,6 +44,7 @@ import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, csv_text, parse_meta,
                                               read_encoders)
+from naocal.kinds.duckiebot.kinematics import duty_problem
 from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
                                          robot_name_problem)
 from naocal.solver.errors import NaocalError, SafetyError
@@ -62,14 +63,6 @@ def topics(vehicle: str) -> dict:
             "camera": f"/{vehicle}/camera_node/image/compressed",
             "left_ticks": f"/{vehicle}/left_wheel_encoder_node/tick",
             "right_ticks": f"/{vehicle}/right_wheel_encoder_node/tick"}
-
-
-def duty_problem(name: str, duty) -> str | None:
-    """Why `duty` may not be sent to a wheel, or None."""
-    if isinstance(duty, bool) or not isinstance(duty, (int, float, np.floating, np.integer)) \
-            or not math.isfinite(duty) or abs(duty) > 1.0:
-        return f"{name} duty {duty!r} is not within [-1, 1]"
-    return None
 
 
 class RobotError(NaocalError):
