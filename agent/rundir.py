@@ -238,6 +238,33 @@ def _recorded_realism(directory: Path) -> str:
     return name if name in ("ideal", "realistic") else "ideal"
 
 
+def check_resumable(out: Path, names: list[str], *, resume: bool, own_entries, what: str) -> None:
+    """The run-directory checks every kind's calibrate makes on a non-empty `out` holding `names`, before anything
+    is written: without --resume it is refused (a run of its own: continue it; anything else: choose another);
+    with it, a file the run does not write (`own_entries`, temporaries aside) says it is not the run's directory.
+    `what` names the run ("a calibration run")."""
+    from naocal.solver.fileio import is_temporary
+
+    if not resume:
+        if any(n in own_entries for n in names):
+            raise NaocalError(f"{out} already holds {what}: continue it with --resume, or choose another --out "
+                              "(nothing was changed)")
+        raise NaocalError(f"{out} is not empty (it holds {names[0]}): choose a new or empty directory for --out "
+                          "(nothing was changed)")
+    foreign = [n for n in names if n not in own_entries and not is_temporary(n)]
+    if foreign:
+        raise NaocalError(f"{out} holds {foreign[0]}, which {what} does not write: is it the right directory? "
+                          "(nothing was changed)")
+
+
+def refuse_other_options(source, differ: list[str], resume_command: str) -> None:
+    """A --resume whose options differ from the run's (`differ`: 'OPTION X (the run: Y)' phrases) is refused,
+    naming the command that resumes it as it was started."""
+    if differ:
+        raise NaocalError(f"{source}: this run was started with other options: {'; '.join(differ)}. Resume it with "
+                          f"the same options (nothing was changed): {resume_command}")
+
+
 def mismatches(recorded: dict, wanted: dict) -> list[str]:
     """The options in which `wanted` differs from `recorded`, as 'OPTION X (the run: Y)' phrases."""
     out = []

@@ -234,7 +234,7 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
     (tmp_path / "log").mkdir()
     with pytest.raises(NaocalError, match="other options.*mock_seed 3 .the run: 4"):
         check_out_dir(tmp_path, record, resume=True)
-    with pytest.raises(NaocalError, match="not empty"):
+    with pytest.raises(NaocalError, match="already holds a Duckiebot calibration run: continue it with --resume"):
         check_out_dir(tmp_path, record, resume=False)
     for change, message in (({"backend": "bridge"}, "only the mock"), ({"seed": -1}, "--seed"),
                             ({"effect": ["x=1"]}, "--effect")):

@@ -89,9 +89,9 @@ def _record(args) -> dict:
 
 def check_out_dir(out: Path, record: dict, resume: bool) -> None:
     """Refuse, before anything is written, a directory that is not this run's to write (NaocalError, exit 2)."""
-    from naocal.agent.rundir import RECORD_NAME, entries
+    from naocal.agent.rundir import RECORD_NAME, check_resumable, entries, refuse_other_options
     from naocal.solver.errors import NaocalError
-    from naocal.solver.fileio import is_temporary, read_json
+    from naocal.solver.fileio import read_json
 
     names = entries(out)
     if not names:
@@ -99,20 +99,12 @@ def check_out_dir(out: Path, record: dict, resume: bool) -> None:
     if (out / FINISHED_NAME).exists():
         raise NaocalError(f"{out} holds a finished calibration (offsets {out / 'offsets.json'}, summary "
                           f"{out / 'summary.txt'}): nothing to resume; choose another --out (nothing was changed)")
-    if not resume:
-        raise NaocalError(f"{out} is not empty: continue its run with --resume, or choose a new or empty --out "
-                          "(nothing was changed)")
-    foreign = [n for n in names if n not in ENTRIES and not is_temporary(n)]
-    if foreign:
-        raise NaocalError(f"{out} holds {foreign[0]}, which a Duckiebot calibration run does not write: is it the "
-                          "right directory? (nothing was changed)")
+    check_resumable(out, names, resume=resume, own_entries=ENTRIES, what="a Duckiebot calibration run")
     recorded = read_json(out / RECORD_NAME)
     differ = [f"{key} {record[key]!r} (the run: {recorded.get(key)!r})" for key in RECORD_KEYS
               if recorded.get(key) != record[key]] if isinstance(recorded, dict) else ["run.json is not an object"]
-    if differ:
-        raise NaocalError(f"{out / RECORD_NAME}: this run was started with other options: {'; '.join(differ)}. "
-                          f"Resume it with the same options (nothing was changed): "
-                          f"{command_line({**record, **recorded}, out)}")
+    refuse_other_options(out / RECORD_NAME, differ,
+                         command_line({**record, **recorded} if isinstance(recorded, dict) else record, out))
 
 
 def summary_text(result, ctx, robot, truth: dict) -> str:

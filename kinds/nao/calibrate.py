@@ -43,9 +43,9 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
     simulate's), a finished run, another run without --resume, foreign files, or a run started with other options.
     `command(record)` is the command line that resumes the run `record` describes."""
     from naocal.agent.calibrate import check_unfinished
-    from naocal.agent.rundir import CALIBRATE_ENTRIES, entries, mismatches, recorded_run
+    from naocal.agent.rundir import CALIBRATE_ENTRIES, check_resumable, entries, mismatches, recorded_run, \
+        refuse_other_options
     from naocal.solver.errors import NaocalError
-    from naocal.solver.fileio import is_temporary
 
     names = entries(out)
     if not names:
@@ -54,21 +54,9 @@ def check_out_dir(out, *, resume: bool, record: dict, command) -> None:
         raise NaocalError(f"{out} holds a dataset ({out / 'dataset.json'}, e.g. from naocal simulate); calibrate "
                           "writes a run directory of its own: choose another --out (nothing was changed)")
     check_unfinished(out)  # with or without --resume: a finished run is not run again
-    if not resume:
-        if any(n in CALIBRATE_ENTRIES for n in names):
-            raise NaocalError(f"{out} already holds a calibration run: continue it with --resume, or choose another "
-                              "--out (nothing was changed)")
-        raise NaocalError(f"{out} is not empty (it holds {names[0]}): choose a new or empty directory for --out "
-                          "(nothing was changed)")
-    foreign = [n for n in names if n not in CALIBRATE_ENTRIES and not is_temporary(n)]
-    if foreign:
-        raise NaocalError(f"{out} holds {foreign[0]}, which a calibration run does not write: is it the right "
-                          "directory? (nothing was changed)")
+    check_resumable(out, names, resume=resume, own_entries=CALIBRATE_ENTRIES, what="a calibration run")
     recorded, source = recorded_run(out)
-    differ = mismatches(recorded, record)
-    if differ:
-        raise NaocalError(f"{source}: this run was started with other options: {'; '.join(differ)}. Resume it with "
-                          f"the same options (nothing was changed): {command({**record, **recorded})}")
+    refuse_other_options(source, mismatches(recorded, record), command({**record, **recorded}))
 
 
 def realistic_mock_note(realism) -> str:
