@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from naocal.solver.arm import ArmModel
-from naocal.solver.arm_identify import ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, whitened
+from naocal.solver.arm_identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
+                                       whitened)
 from naocal.solver.effects import ARM_EFFECTS
 from naocal.solver.identify import UNIDENTIFIABLE_RATIO
 from naocal.solver.scoretest import score_test
@@ -366,10 +367,6 @@ def diagnose(fit: ArmFit, n_folds: int = 5, *, physical: bool = True, sessions: 
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
                         heldout, heldout_with)
-
-
-def shown_rms(value, kind) -> str:
-    return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
 
 
 def _shown_value(name, value, units) -> str:

@@ -138,6 +138,11 @@ def sensor_rms(model, obs, residual) -> dict:
     return out
 
 
+def shown_rms(value, kind) -> str:
+    """An RMS for people: a 3-D sensor's (kind 'points') in mm, a camera's in px."""
+    return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
+
+
 # ------------------------------------------------------------------------------------------------ sensor frames
 
 

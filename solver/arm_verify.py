@@ -189,7 +189,7 @@ def _group(name: str) -> str:
 
 
 def _shown(value, unit) -> str:
-    from naocal.solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_identify import shown_rms
 
     return shown_rms(value, "points" if unit == "m" else "camera")
 

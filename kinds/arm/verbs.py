@@ -165,7 +165,7 @@ def _shown(value, unit):
 
 
 def format_table(report: dict) -> str:
-    from naocal.solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_identify import shown_rms
     from naocal.solver.arm_identify import PRIOR_HELD
 
     kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
@@ -284,7 +284,7 @@ def format_calibration(path) -> str:
     for name, reason in cal.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     if cal.rms:
-        from naocal.solver.arm_diagnose import shown_rms
+        from naocal.solver.arm_identify import shown_rms
 
         lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, 'points' if u == 'm' else 'camera')} per axis"
                                           for s, (v, u) in cal.rms.items())]
