@@ -570,3 +570,31 @@ def test_the_camera_s_starting_pose_takes_memory_linear_in_its_points():
         tracemalloc.stop()
     assert np.allclose(R_found, R, atol=1e-9)
     assert peak < 20 * 2 ** 20, f"{peak / 2 ** 20:.0f} MiB"
+
+
+def test_the_arm_s_effects_are_the_effect_modules_the_nao_s_model_shares():
+    """One home for each effect (solver/effects/): the arm's joint_offsets, link_lengths and elasticity are the NAO's
+    modules, its own (sensors, tool, points, link_poses) modules beside them; each declares what the arm needs (its
+    parameters, prior size per unit, gauge order) and the arm model has no registry of its own."""
+    import naocal.solver.arm as arm
+    from naocal.solver.effects import ALL_EFFECTS, ARM_MODEL_EFFECTS, parse_effect_names
+    from naocal.solver.errors import NaocalError
+
+    for old in ("ArmParameter", "PRIOR_SIZE", "PRIORITY"):
+        assert not hasattr(arm, old), old
+    assert getattr(arm, "EFFECTS", EFFECTS) is EFFECTS  # the one registry, not a dict of the arm's
+    assert set(ARM_EFFECTS) & set(ALL_EFFECTS) == {"joint_offsets", "link_lengths", "elasticity"}
+    assert ARM_MODEL_EFFECTS == ("sensors",) + ARM_EFFECTS
+    assert len({EFFECTS[e].gauge_priority for e in ARM_MODEL_EFFECTS}) == len(ARM_MODEL_EFFECTS)
+    with pytest.raises(NaocalError, match="unknown effect 'tool'"):
+        parse_effect_names("tool")  # an arm's effect is none of the NAO's model
+    model, _, _, _ = synthetic(ARM_EFFECTS, {}, n_poses=2)
+    assert [p.effect for p in model.parameters] == sorted((p.effect for p in model.parameters),
+                                                          key=lambda e: EFFECTS[e].gauge_priority)
+    for p in model.parameters:
+        effect = EFFECTS[p.effect]
+        assert effect.summary and p.scale > 0 and p.index is not None
+        assert (p.effect == "sensors") == (p.unit not in effect.prior_size), p.name  # a sensor frame: no prior
+    # the joint terms are the effects' own hook, the NAO model's JointTerm: q = theta - c + C tau
+    offset = next(p for p in model.parameters if p.name == "joint_offset.panda_joint2")
+    assert offset.joint == "panda_joint2" and offset.unit == "rad"
