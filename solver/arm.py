@@ -151,10 +151,11 @@ def _turned(A, axis, angle) -> np.ndarray:
             + (1.0 - np.cos(angle))[:, None, None] * _times(A, K @ K))
 
 
-class _JointTermLayout:
-    """What the effects' joint_terms hook (solver.effect.JointTerm) looks things up in, for N observations of an
-    arm: the NAO model's Layout interface, per observation instead of per image. A gravity term's regressor is
-    the torque at the readings (the arm's fixed regressor; the NAO's model re-evaluates it at the sagging angle)."""
+class _ArmLayout:
+    """What the effects' joint_terms and chain_terms hooks (solver.effect.JointTerm, ChainTerm) look things up in,
+    for N observations of an arm: the NAO model's Layout interface (solver.model.Layout), per observation instead
+    of per image, a chain's frame its name. A gravity term's regressor is the torque at the readings (the arm's
+    fixed regressor; the NAO's model re-evaluates it at the sagging angle)."""
 
     def __init__(self, model, n, tau):
         self.model, self.n_images = model, n
@@ -166,6 +167,15 @@ class _JointTermLayout:
 
     def column(self, joint):
         return self.model.joint_names.index(joint)
+
+    def chains_in_use(self):
+        return [(ac.name, ac.chain) for ac in self.model.arm_chains]
+
+    def origin_of(self, parameter, frame):
+        """The index (0..n, n: the tip's offset) on the chain called `frame` of the origin `parameter` moves (its
+        `index`, an origin of the model's, shared by the chains that share it); None when not on that chain."""
+        origins = self.model.origin_index[self.model.chain_names.index(frame)]
+        return origins.index(parameter.index) if parameter.index in origins else None
 
 
 class ArmModel:
@@ -203,10 +213,12 @@ class ArmModel:
         self.effects = tuple(e for e in ARM_EFFECTS if e in effects)
         self.gravity_mps2 = np.asarray(gravity_mps2, dtype=float)
         self._layout()
+        self.chain_names = [ac.name for ac in self.arm_chains]
         self.R0 = np.array([exp_so3(s.prior_rotation or (0.0, 0.0, 0.0)) for s in self.sensors]).reshape(-1, 3, 3)
         in_model = [EFFECTS[e] for e in ARM_MODEL_EFFECTS if e in self.effects or EFFECTS[e].arm_always]
         self.parameters = [p for e in in_model for p in e.arm_parameters(self)]
         self._joint_effects = [e for e in in_model if defines(e, "joint_terms")]
+        self._chain_effects = [e for e in in_model if defines(e, "chain_terms")]
         self.names = tuple(p.name for p in self.parameters)
         self._by_effect = {}
         for i, p in enumerate(self.parameters):
@@ -270,12 +282,10 @@ class ArmModel:
         """Each quantity's parameter index (-1: not in the model), for predict (the joint terms come from their
         effects' joint_terms)."""
         O, C = len(self.origin_keys), len(self.arm_chains)
-        self._length_i, self._pose_i = np.full(O, -1), np.full((O, 6), -1)
+        self._pose_i = np.full((O, 6), -1)
         self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 3), -1)
         for i, p in enumerate(self.parameters):
-            if p.effect == "link_lengths":
-                self._length_i[p.index] = i
-            elif p.effect == "link_poses":
+            if p.effect == "link_poses":
                 self._pose_i[p.index, p.axis] = i
             elif p.effect == "tool":
                 self._tool_i[p.index, p.axis] = i
@@ -384,12 +394,13 @@ class ArmModel:
         P = len(self.parameters)
         if self.params("elasticity") and tau is None:
             tau = self.gravity_torques(obs.theta, obs.chain)
-        layout = _JointTermLayout(self, N, tau)
+        layout = _ArmLayout(self, N, tau)
         joint_terms = [t for e in self._joint_effects for t in e.joint_terms(layout)]
+        chain_terms = [t for e in self._chain_effects for t in e.chain_terms(layout, x)]
         p_b = np.empty((N, 3))
         Jb = np.zeros((N, 3, P)) if jacobian else None  # d p_b / d x
         for c, start, rows in self._groups(obs):
-            p_b[rows], J = self._forward(x, obs, rows, c, start, jacobian, joint_terms)
+            p_b[rows], J = self._forward(x, obs, rows, c, start, jacobian, joint_terms, chain_terms)
             if jacobian:
                 Jb[rows] = J
         if base_frame:
@@ -427,10 +438,11 @@ class ArmModel:
             J[rows] = np.einsum("nij,njp->nip", D, J[rows])
         return pred, J
 
-    def _forward(self, x, obs, rows, c, start, jacobian, joint_terms):
+    def _forward(self, x, obs, rows, c, start, jacobian, joint_terms, chain_terms):
         """(p (M, 3), d p / d x (M, 3, P) or None): the points of observations `rows` (all on chain c) in the frame
         of the chain's link before joint `start` (0: the base). joint_terms: [solver.effect.JointTerm] of every
-        observation (q[:, column] += value * regressor)."""
+        observation (q[:, column] += value * regressor); chain_terms: [solver.effect.ChainTerm] of every chain (the
+        origin k of chain `frame` moves by delta along direction)."""
         ac = self.arm_chains[c]
         chain = ac.chain
         n = len(chain.joint_names)
@@ -445,14 +457,14 @@ class ArmModel:
         q = obs.theta[np.ix_(rows, cols)]
         for k, i, regressor in terms:
             q[:, k] = q[:, k] + x[i] * regressor
+        moved = {t.joint: t for t in chain_terms if t.frame == ac.name}  # origin k (n: the tip's offset) -> term
         sliding = [bool(chain.prismatic and chain.prismatic[k]) for k in range(n)]
         R = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
         t = np.zeros((M, 3))
         frames = {}  # per joint: (R before its origin, R_B, origin o, axis a, both in the mount's frame)
         for k in range(start, n):
             o = origin[k]
-            offset = chain.T_origin[k, :3, 3] + (value(self._length_i[o]) * self.directions[o]
-                                                 if self.directions[o] is not None else 0.0)
+            offset = chain.T_origin[k, :3, 3] + (moved[k].delta * moved[k].direction if k in moved else 0.0)
             pose = value(self._pose_i[o])
             R_prev = R
             R_B = _times(R, chain.T_origin[k, :3, :3])
@@ -465,9 +477,7 @@ class ArmModel:
                 R = R_A
             else:
                 R = _turned(R_A, chain.axes[k], q[:, k])
-        o_end = origin[n]
-        offset_end = chain.T_end[:3, 3] + (value(self._length_i[o_end]) * self.directions[o_end]
-                                           if self.directions[o_end] is not None else 0.0)
+        offset_end = chain.T_end[:3, 3] + (moved[n].delta * moved[n].direction if n in moved else 0.0)
         R_prev_end = R
         t_end = t + _times(R, offset_end)
         R_end = _times(R, chain.T_end[:3, :3])
@@ -486,9 +496,8 @@ class ArmModel:
                 Jb[:, :, i] = regressor[:, None] * (a if sliding[k] else np.cross(a, p - o))
         for k in range(start, n):
             R_prev, R_B, o, a = frames[k]
-            i = self._length_i[origin[k]]
-            if i >= 0:
-                Jb[:, :, i] = _times(R_prev, self.directions[origin[k]])
+            if k in moved:
+                Jb[:, :, moved[k].param] = _times(R_prev, moved[k].direction)
             pose_i = self._pose_i[origin[k]]
             if np.any(pose_i >= 0):
                 w = left_jacobian(value(pose_i)[3:])
@@ -496,9 +505,8 @@ class ArmModel:
                     if pose_i[comp] >= 0:
                         Jb[:, :, pose_i[comp]] = (R_B[:, :, comp] if comp < 3 else
                                                   np.cross(_times(R_B, w[:, comp - 3]), p - o))
-        i = self._length_i[o_end]
-        if i >= 0:
-            Jb[:, :, i] = _times(R_prev_end, self.directions[o_end])
+        if n in moved:
+            Jb[:, :, moved[n].param] = _times(R_prev_end, moved[n].direction)
         tool_i = self._tool_i[c]
         if np.any(tool_i >= 0):
             w = left_jacobian(tool[3:])

@@ -120,7 +120,8 @@ class JointTerm:
 @dataclass
 class ChainTerm:
     """The origin of joint `joint` (index in the chain) of the chain to `frame` moves by `delta` along the unit
-    `direction` (in the frame before that joint), carrying everything after it."""
+    `direction` (in the frame before that joint), carrying everything after it (an arm's chain: `joint` n, the
+    number of its joints, is its tip's offset)."""
 
     param: int
     frame: str  # the chain's tip link (a target's or a camera's frame)

@@ -44,9 +44,9 @@ class LinkLengths(Effect):
         terms = []
         for i, p in layout.params(self.name):
             for frame, chain in layout.chains_in_use():
-                if p.joint in chain.joint_names:
-                    k = chain.index(p.joint)
-                    offset = chain.T_origin[k][:3, 3]
+                k = layout.origin_of(p, frame)  # an arm's chain: len(joint_names) is its tip's offset (T_end)
+                if k is not None:
+                    offset = chain.T_origin[k][:3, 3] if k < len(chain.joint_names) else chain.T_end[:3, 3]
                     terms.append(ChainTerm(i, frame, k, float(values[i]), offset / np.linalg.norm(offset)))
         return terms
 
