@@ -43,8 +43,9 @@ class Parameter:
     `joint`, `camera`, `target` name what the parameter belongs to (None if nothing); `component` says which of
     its effect's quantities it is (e.g. 'pitch', 'fx', 'trans_x', 'L.thigh').
     `tied_to` names the parameter whose value this one always takes.
-    An arm's parameter (solver.arm.ArmModel) says which of the arm's things it belongs to by `index` (the joint's
-    column, the joint origin, chain, point or sensor number) and `axis` (0-2: along x, y, z; 3-5: about x, y, z).
+    An arm's parameter (solver.arm.ArmModel) that belongs to no joint says which of the arm's things it belongs to
+    by `index` (the joint origin, chain, point or sensor number) and `axis` (0-2: along x, y, z; 3-5: about x, y,
+    z; POSE_COMPONENTS).
     """
 
     name: str

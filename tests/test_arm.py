@@ -593,7 +593,7 @@ def test_the_arm_s_effects_are_the_effect_modules_the_nao_s_model_shares():
                                                           key=lambda e: EFFECTS[e].gauge_priority)
     for p in model.parameters:
         effect = EFFECTS[p.effect]
-        assert effect.summary and p.scale > 0 and p.index is not None
+        assert effect.summary and p.scale > 0 and (p.joint or p.index is not None)
         assert (p.effect == "sensors") == (p.unit not in effect.prior_size), p.name  # a sensor frame: no prior
     # the joint terms are the effects' own hook, the NAO model's JointTerm: q = theta - c + C tau
     offset = next(p for p in model.parameters if p.name == "joint_offset.panda_joint2")

@@ -38,8 +38,7 @@ class Elasticity(Effect):
     def arm_parameters(self, arm):
         if any(arm.prismatic):
             raise ValueError("elasticity with a prismatic joint is not modelled (its gravity force is not a torque)")
-        return [Parameter(f"elasticity.{j}", self.name, "rad/(N m)", arm.scale, joint=j, index=k)
-                for k, j in enumerate(arm.joint_names)]
+        return [Parameter(f"elasticity.{j}", self.name, "rad/(N m)", arm.scale, joint=j) for j in arm.joint_names]
 
     def joint_terms(self, layout):
         tau = layout.data.tau

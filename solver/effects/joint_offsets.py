@@ -33,8 +33,8 @@ class JointOffsets(Effect):
 
     def arm_parameters(self, arm):
         units = ["m" if sliding else "rad" for sliding in arm.prismatic]
-        return [Parameter(f"joint_offset.{j}", self.name, unit, arm.scale, joint=j, index=k)
-                for k, (j, unit) in enumerate(zip(arm.joint_names, units))]
+        return [Parameter(f"joint_offset.{j}", self.name, unit, arm.scale, joint=j)
+                for j, unit in zip(arm.joint_names, units)]
 
     def tie(self, parameter, setup):
         partner = setup.robot.motor_partner(parameter.joint)
