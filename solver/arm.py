@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from naocal.solver.effect import POSE_COMPONENTS, Parameter  # noqa: F401 (POSE_COMPONENTS: the tool's and link poses')
 from naocal.solver.effects import ARM_EFFECTS, ARM_MODEL_EFFECTS, EFFECTS, defines
 from naocal.solver.measurement import MEASUREMENTS
 from naocal.solver.transforms import rot_axis_angle, skew

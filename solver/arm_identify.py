@@ -16,7 +16,7 @@
 4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
    correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
 5. Priors (soft bounds, on by default): every physical parameter has a Gaussian prior about the URDF's value with
-   its effect's plausible size (its prior_size, solver/effects/), one whitened pseudo-observation each (solver.identify.Prior),
+   its effect's plausible size (its module's prior_size), one whitened pseudo-observation each (solver.identify.Prior),
    so that a direction the data hardly determine stays near the URDF instead of soaking up what the model lacks.
    A parameter whose posterior std is more than PRIOR_HELD of its prior's was held by the prior, not the data: the
    report says so. After the fit the weakest directions of the data's whitened Jacobian at the solution are
