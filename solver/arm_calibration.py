@@ -102,10 +102,10 @@ def read_arm_calibration(path) -> ArmCalibration:
     effects = model.get("effects", [])
     if not isinstance(effects, list):
         _fail(path, "expected a list of effect names", "model.effects")
-    from naocal.solver.arm import EFFECTS
+    from naocal.solver.effects import ARM_EFFECTS
 
     for i, e in enumerate(effects):
-        if e not in EFFECTS:
+        if e not in ARM_EFFECTS:
             _fail(path, f"unknown arm effect {str(e)[:40]!r}", f"model.effects[{i}]")
     params = model.get("parameters")
     if not isinstance(params, dict) or not params:
