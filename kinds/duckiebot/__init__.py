@@ -60,6 +60,14 @@ class DuckiebotKind:
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:
+        if verb == "identify":  # the online refinement (refine.py, verbs.run_refine); defaults None: not given
+            parser.add_argument("--refine", metavar="CAL_JSON",
+                                help="duckiebot: refine CAL_JSON's trim (and gain) from LOG, a pass along a marked "
+                                     "straight lane section; --out writes the new calibration (never over CAL_JSON);"
+                                     " weak evidence: exit 3, nothing written")
+            parser.add_argument("--max-step", type=float, default=None, metavar="TRIM",
+                                help="duckiebot, with --refine: the most trim may change (default 0.02; the pass's "
+                                     "estimate is still printed)")
         if verb in VERB_MODULES:
             module = _verb_module(verb)
             if module is not None:
