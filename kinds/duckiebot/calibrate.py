@@ -147,7 +147,6 @@ def run(args) -> int:
     from naocal.agent.rundir import RunLock, write_record
     from naocal.kinds.duckiebot.calibration import write_calibration_file
     from naocal.kinds.duckiebot.mission import MissionSettings, run_mission
-    from naocal.kinds.duckiebot.mock import DuckiebotMock, truth_document
     from naocal.solver.fileio import atomic_write_text
 
     record = _record(args)
@@ -172,6 +171,8 @@ def run(args) -> int:
                 robot.keep_encoders(out / ENCODER_JOURNAL)
             truth = None
             if robot is None:
+                from naocal.kinds.duckiebot.mock import DuckiebotMock, truth_document  # pybullet: not on the robot
+
                 robot = DuckiebotMock(record["mock_seed"], record["mock"], state_path=out / "mock_state.json")
                 truth = truth_document(robot.truth, record["mock_seed"], record["mock"])
                 atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
