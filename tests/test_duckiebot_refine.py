@@ -1,6 +1,8 @@
 """Online refinement of trim from a lane pass (kinds/duckiebot/refine.py, issue 23's "Online refinement"), on logs
 of the independent renderer (kinds/duckiebot/render.py)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ from naocal.kinds.duckiebot.refine import RefinementRefused, refine_trim
 from naocal.kinds.duckiebot.render import DriveStep, hidden_robot, render_drive_log
 from naocal.kinds.duckiebot.robot import Kinematics
 
+ROOT = Path(__file__).resolve().parent.parent
 SEED = 3  # trim -0.12 (in its k): a calibration compensating it curves hard when started from trim 0
 CHANGE = 0.01  # the robot's trim moved this much since its calibration
 LOG_K = 27.0  # render_drive_log's
@@ -170,3 +173,8 @@ def test_a_bad_refine_file_or_option_is_one_line_exit_2(lane, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, (extra, err)
         assert not new.exists()
+    # --refine names the Duckiebot: another robot's dataset is read as a drive log and refused, never fitted
+    nao = ROOT / "tests" / "data" / "v1" / "synthetic_dataset"
+    assert main(["identify", str(nao), "--refine", str(cal), "--out", str(new)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(nao) in err and not new.exists()

@@ -51,8 +51,9 @@ class DuckiebotKind:
     calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot"}
 
     def claims(self, source) -> bool:
-        if isinstance(source, argparse.Namespace):
-            return getattr(source, "robot", None) == NAME
+        if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind
+            return getattr(source, "robot", None) == NAME or any(
+                getattr(source, option, None) is not None for option in ("refine", "max_step"))
         path = Path(source)
         if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset
             return json_schema(path / "log.json") == LOG_SCHEMA or (
