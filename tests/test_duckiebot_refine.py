@@ -117,6 +117,8 @@ def calibration_file(path, kinematics: Kinematics):
 
 
 def test_the_command_line_writes_the_refined_calibration_never_over_its_input(lane, tmp_path, capsys):
+    import json
+
     from naocal.kinds.duckiebot.calibration import read_calibration_file
     from naocal.tools.cli import main
 
@@ -132,6 +134,11 @@ def test_the_command_line_writes_the_refined_calibration_never_over_its_input(la
     assert f"trim {old.trim:+.4f} -> {refined.kinematics.trim:+.4f} +- {refined.std('trim'):.4f}" in out
     assert refined.T_base_camera == pytest.approx(read_calibration_file(cal).T_base_camera)  # the rest is CAL's
     assert "--refine" in refined.source and cal.read_bytes() == before
+    # --json without --out: the same refinement as one object, nothing written
+    assert main(["identify", str(path), "--refine", str(cal), "--json", "--max-step", "0.05"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["kinematics"]["trim"] == refined.kinematics.trim and shown["out"] is None
+    assert shown["refinement"]["trim_std"] == refined.std("trim") and not shown["refinement"]["step_bounded"]
     # the default bound (0.02) holds a change of 0.01; --out over CAL itself is refused, CAL kept
     assert main(["identify", str(path), "--refine", str(cal), "--out", str(cal)]) == 2
     err = capsys.readouterr().err
