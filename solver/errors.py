@@ -4,6 +4,8 @@ A `NaocalError` is a user-facing problem (bad file, bad argument, robot that nev
 message on one line and exits non-zero without a traceback. Anything else is a bug and keeps its traceback.
 """
 
+from __future__ import annotations
+
 
 class NaocalError(Exception):
     """A problem the user can act on. `str(err)` is a complete one-line message."""

@@ -5,6 +5,8 @@ A write that fails for want of space or quota raises solver.errors.DiskFullError
 bytes; exit code 3), so every writer reports a full disk in one line.
 """
 
+from __future__ import annotations
+
 import contextlib
 import errno
 import json
@@ -269,7 +271,9 @@ def _json_object(pairs) -> dict:
     return obj
 
 
-_JSON_NESTING = re.compile(r'"(?:[^"\\]++|\\.)*+"|[\[\]{}]')
+# A string (skipped whole, never backtracked into: the lookahead and its back-reference are the atomic group
+# `(?>...)` of Python 3.11+, which the Duckiebot's Python 3.8 lacks) or a bracket.
+_JSON_NESTING = re.compile(r'"(?=((?:[^"\\]+|\\.)*))\1"|[\[\]{}]')
 
 
 def _too_deep(text: str, max_depth: int) -> int | None:

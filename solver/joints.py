@@ -2,6 +2,8 @@
 every (..., 14) joint-angle array of the NAO-specific code (agent, backends). The solver itself reads joints from
 the robot description a dataset names."""
 
+from __future__ import annotations
+
 import numpy as np
 
 from naocal.solver.robot import nao

@@ -109,14 +109,21 @@ class Target:
         return self.T_frame_board[:3, 3].copy()
 
 
-@dataclass(frozen=True, kw_only=True)
+@dataclass(frozen=True)
 class Camera(CameraIntrinsics):
     """A camera: its prior intrinsics (solver.camera.CameraIntrinsics, `intrinsics()` the dict), its name, its URDF
-    frame (NAO camera convention) and its rolling-shutter readout."""
+    frame (NAO camera convention) and its rolling-shutter readout. Made with keywords."""
 
-    name: str
-    frame: str
+    # required: None only because fields after CameraIntrinsics' defaults need one (kw_only=True is Python 3.10+,
+    # and this module runs on the Duckiebot's Python 3.8: docs/DEPLOY.md)
+    name: str = None
+    frame: str = None
     readout_s: float = 0.0  # rolling shutter: time between the first and the last row's exposure (prior)
+
+    def __post_init__(self):
+        for field_name in ("name", "frame"):
+            if getattr(self, field_name) is None:
+                raise TypeError(f"Camera() missing required keyword argument: {field_name!r}")
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: one object per loaded file

@@ -1,10 +1,13 @@
 """Online refinement of trim from a lane pass (kinds/duckiebot/refine.py, issue 23's "Online refinement"), on logs
 of the independent renderer (kinds/duckiebot/render.py)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from naocal.kinds.duckiebot.fit import CAMERA, DriveFit, Sightings, pose_parameters
+from naocal.kinds.duckiebot.calibration import CalibrationFile, checked_document
+from naocal.kinds.duckiebot.fit import CAMERA, KINEMATIC, DriveFit, Sightings, pose_parameters
 from naocal.kinds.duckiebot.identify import DuckiebotCalibration
 from naocal.kinds.duckiebot.intrinsics import LensCamera, LensFit
 from naocal.kinds.duckiebot.kinematics import inverse_kinematics
@@ -12,6 +15,7 @@ from naocal.kinds.duckiebot.refine import RefinementRefused, refine_trim
 from naocal.kinds.duckiebot.render import DriveStep, hidden_robot, render_drive_log
 from naocal.kinds.duckiebot.robot import Kinematics
 
+ROOT = Path(__file__).resolve().parent.parent
 SEED = 3  # trim -0.12 (in its k): a calibration compensating it curves hard when started from trim 0
 CHANGE = 0.01  # the robot's trim moved this much since its calibration
 LOG_K = 27.0  # render_drive_log's
@@ -23,13 +27,17 @@ def true_kinematics():
                       baseline_m=kin.baseline_m)
 
 
-def calibration(kinematics: Kinematics) -> DuckiebotCalibration:
-    """A calibration with the hidden robot's true camera and pose on the body, and `kinematics`."""
+def calibration(kinematics: Kinematics) -> CalibrationFile:
+    """A calibration file (as read) with the hidden robot's true camera and pose on the body, and `kinematics`."""
+    return checked_document(fitted_calibration(kinematics), "rendered.json")[1]
+
+
+def fitted_calibration(kinematics: Kinematics) -> DuckiebotCalibration:
     robot = hidden_robot(SEED)
     none = Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
-    drive_fit = DriveFit(list(CAMERA), pose_parameters(robot.T_base_camera), np.zeros(6), np.zeros(6),
-                         np.zeros(6, bool), 0, np.zeros((0, 2)), none, none, 0.0, True, "", 0, 1.0, [], 0.0)
-    lens = LensFit(LensCamera.from_intrinsics(robot.camera), 0.0, 0.0, 0)
+    values = np.r_[kinematics.gain, kinematics.trim, kinematics.baseline_m, pose_parameters(robot.T_base_camera)]
+    drive_fit = DriveFit(list(KINEMATIC + CAMERA), values, np.full(9, 1e-4), np.zeros(9), np.zeros(9, bool), 0, np.zeros((0, 2)), none, none, 0.0, True, "", 0, 1.0, [], 0.0)
+    lens = LensFit(LensCamera.from_intrinsics(robot.camera), 0.0, 0.0, 1)
     return DuckiebotCalibration("rendered", kinematics, lens, {"plumb_bob": lens}, drive_fit)
 
 
@@ -96,3 +104,84 @@ def test_weak_evidence_is_refused(lane, monkeypatch):
     monkeypatch.setattr(refine, "MAX_TRIM_STD", 1e-6)
     with pytest.raises(RefinementRefused, match=r"determines trim only to \+-0\.0000.*trim is unchanged"):
         refine_trim(path, calibration(old))
+
+
+# ------------------------------------------------------------------ naocal identify LOG --refine CAL.json --out NEW.json
+
+def calibration_file(path, kinematics: Kinematics):
+    import json
+
+    doc = checked_document(fitted_calibration(kinematics), path)[0]
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return path
+
+
+def test_the_command_line_writes_the_refined_calibration_never_over_its_input(lane, tmp_path, capsys):
+    import json
+
+    from naocal.kinds.duckiebot.calibration import read_calibration_file
+    from naocal.tools.cli import main
+
+    path, old = lane
+    cal, new = calibration_file(tmp_path / "cal.json", old), tmp_path / "new.json"
+    before = cal.read_bytes()
+    assert main(["identify", str(path), "--refine", str(cal), "--out", str(new), "--max-step", "0.05"]) == 0
+    out = capsys.readouterr().out
+    refined = read_calibration_file(new)
+    truth = true_kinematics().trim
+    assert abs(refined.kinematics.trim - truth) <= 2 * refined.std("trim") < 0.001
+    assert refined.value("trim") == refined.kinematics.trim and refined.kinematics.baseline_m == old.baseline_m
+    assert f"trim {old.trim:+.4f} -> {refined.kinematics.trim:+.4f} +- {refined.std('trim'):.4f}" in out
+    assert refined.T_base_camera == pytest.approx(read_calibration_file(cal).T_base_camera)  # the rest is CAL's
+    assert "--refine" in refined.source and cal.read_bytes() == before
+    # --json without --out: the same refinement as one object, nothing written
+    assert main(["identify", str(path), "--refine", str(cal), "--json", "--max-step", "0.05"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["kinematics"]["trim"] == refined.kinematics.trim and shown["out"] is None
+    assert shown["refinement"]["trim_std"] == refined.std("trim") and not shown["refinement"]["step_bounded"]
+    # the default bound (0.02) holds a change of 0.01; --out over CAL itself is refused, CAL kept
+    assert main(["identify", str(path), "--refine", str(cal), "--out", str(cal)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(cal) in err and cal.read_bytes() == before
+
+
+def test_weak_evidence_on_the_command_line_is_exit_3_and_nothing_written(lane, tmp_path, capsys, monkeypatch):
+    import naocal.kinds.duckiebot.refine as refine
+    from naocal.tools.cli import main
+
+    path, old = lane
+    cal, new = calibration_file(tmp_path / "cal.json", old), tmp_path / "new.json"
+    monkeypatch.setattr(refine, "MAX_TRIM_STD", 1e-6)
+    assert main(["identify", str(path), "--refine", str(cal), "--out", str(new)]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "determines trim only to" in err and "trim is unchanged" in err
+    assert not new.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["cal.json"]
+
+
+def test_a_bad_refine_file_or_option_is_one_line_exit_2(lane, tmp_path, capsys):
+    import json
+
+    from naocal.tools.cli import main
+
+    path, old = lane
+    cal, new = calibration_file(tmp_path / "cal.json", old), tmp_path / "new.json"
+    doc = json.loads(cal.read_text())
+    doc["kinematics"]["trim"] = "0.1"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    cases = [(["--refine", str(bad)], f"{bad}, field 'kinematics.trim'"),
+             (["--refine", str(tmp_path / "none.json")], "none.json"),
+             (["--refine", str(cal), "--max-step", "nan"], "--max-step must be within"),
+             (["--refine", str(cal), "--max-step", "0"], "--max-step must be within"),
+             (["--refine", str(cal), "--effects", "slip"], "--effects is not for --refine"),
+             (["--max-step", "0.01"], "give it with --refine")]
+    for extra, message in cases:
+        assert main(["identify", str(path), *extra, "--out", str(new)]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, (extra, err)
+        assert not new.exists()
+    # --refine names the Duckiebot: another robot's dataset is read as a drive log and refused, never fitted
+    nao = ROOT / "tests" / "data" / "v1" / "synthetic_dataset"
+    assert main(["identify", str(nao), "--refine", str(cal), "--out", str(new)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(nao) in err and not new.exists()

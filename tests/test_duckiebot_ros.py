@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from naocal.agent.machine import DONE, INTERRUPTED
-from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.drive_log import read_drive_log, read_encoders
 from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
                                             MissionSettings, run_mission)
 from naocal.solver.errors import NaocalError, SafetyError
@@ -310,7 +310,7 @@ def test_calibrate_ros_bad_setups_are_one_line_exit_2_nothing_written(tmp_path, 
         assert err.count("\n") == 1 and message in err and not out.exists()
     monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
     monkeypatch.setitem(sys.modules, "rospy", None)  # not on the robot
-    for extra, message in (([], "dt-ros-commons"), (["--resume"], "--resume is not usable"),
+    for extra, message in (([], "dt-ros-commons"), (["--resume"], "a run on the robot cannot be resumed"),
                            (["--mock", "ideal"], "--mock chooses")):
         assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
         err = capsys.readouterr().err
@@ -342,6 +342,9 @@ def test_calibrate_ros_runs_the_mission_on_the_robot_and_records_its_encoders(tm
         assert log.encoder_t_s[0] >= log.wheel_t_s[0] and log.encoder_t_s[-1] <= max(log.frame_t_s[-1],
                                                                                       log.wheel_t_s[-1])
         assert log.left_ticks[-1] != log.left_ticks[0]  # the one-wheel steps turned the left wheel
+        # the run's journal holds every row the log got, saved as they came
+        journal = list(zip(*(a.tolist() for a in read_encoders(out / "encoders.csv"))))
+        assert set(zip(log.encoder_t_s.tolist(), log.left_ticks.tolist(), log.right_ticks.tolist())) <= set(journal)
     finally:
         graph.close()
 
@@ -371,5 +374,89 @@ def test_calibrate_ros_a_refused_reading_mid_run_is_exit_3_with_its_summary(tmp_
         assert f"{CAMERA_TOPIC}: a frame stamped 0.0 s, not after the previous one" in err and err.count("\n") == 1
         assert "not after the previous one" in (out / "summary.txt").read_text()
         assert stopped(graph) and not (out / "mission.json").exists()
+    finally:
+        graph.close()
+
+
+# --------------------------------------------------------------------------------- the encoders, saved as they come
+
+def journal_rows(path):
+    return list(zip(*(a.tolist() for a in read_encoders(path))))
+
+
+def test_the_ticks_are_saved_as_they_come_and_a_restarted_driver_keeps_them(graph, tmp_path, monkeypatch):
+    import naocal.kinds.duckiebot.ros_driver as ros_driver
+
+    monkeypatch.setattr(ros_driver, "ENCODER_SAVE_S", 0.0)  # every row at once: the file is the memory, exactly
+    path = tmp_path / "encoders.csv"
+    first = driver()
+    assert first.keep_encoders(path) == 0
+    first.command(0.3, 0.1)
+    first.advance(0.5)
+    first.command(0.0, 0.0)
+    saved = journal_rows(path)  # no close, no save_encoders: what a crash now would leave
+    assert len(saved) > 10 and saved == first.encoder_rows and saved[-1][1] > saved[0][1]
+    for subscriber in first._subscribers:  # the first process is gone (a crash): its subscribers with it
+        subscriber.unregister()
+    first._closed = True
+    with open(path, "a") as f:
+        f.write(f"{saved[-1][0] + 1.0!r},9")  # a crash cut the last append short
+    second = driver()
+    try:
+        assert second.keep_encoders(path) == len(saved)  # the earlier run's rows, the torn one cut off
+        second.command(0.1, 0.3)
+        second.advance(0.3)
+        second.command(0.0, 0.0)
+    finally:
+        second.close()
+    rows = journal_rows(path)
+    assert rows[:len(saved)] == saved and len(rows) > len(saved) + 5 and rows == second.encoder_rows
+    assert path.read_text().endswith("\n")
+
+
+def test_a_damaged_journal_is_one_line_naming_it(graph, tmp_path):
+    path = tmp_path / "encoders.csv"
+    path.write_text("t_s,left_ticks,right_ticks\n0.1,3,4\n0.2,x,5\n")
+    robot = driver()
+    try:
+        with pytest.raises(NaocalError, match=r"encoders.csv, line 3, field 'left_ticks': expected a whole number"):
+            robot.keep_encoders(path)
+    finally:
+        robot.close()
+    assert path.read_text().endswith("0.2,x,5\n")  # not changed
+
+
+class Crash(Exception):
+    """A bug that kills the process (the CLI keeps its traceback)."""
+
+
+def test_calibrate_ros_a_crash_keeps_the_ticks_and_the_run_is_not_resumed(tmp_path, monkeypatch, capsys):
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole = mission.run_mission
+
+    def crash_after_the_boards(robot, out, settings, **kw):
+        whole(robot, out, MissionSettings(board_passes=1), **kw, states=(Boards,), transitions={("boards", "ok"): DONE})
+        raise Crash("the process dies here")  # before the logs get their encoders.csv
+
+    monkeypatch.setattr(mission, "run_mission", crash_after_the_boards)
+    out = tmp_path / "run"
+    try:
+        with pytest.raises(Crash):
+            main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)])
+        log = read_drive_log(out / "log")
+        assert log.encoder_t_s is None  # the end of the run never came
+        rows = journal_rows(out / "encoders.csv")
+        assert len(rows) > 10 and rows[0][0] <= log.wheel_t_s[-1] and rows[-1][1] != rows[0][1]
+        before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+        capsys.readouterr()
+        for extra in ([], ["--resume"]):
+            assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "a run on the robot cannot be resumed" in err, err
+        assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
     finally:
         graph.close()

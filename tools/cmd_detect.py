@@ -44,6 +44,8 @@ Exit codes: 0 when the board was found in every image, 1 when it was not in some
 input (an unreadable image, a bad --board) - then nothing is detected.
 """
 
+from __future__ import annotations
+
 import argparse
 import contextlib
 

@@ -51,8 +51,9 @@ class DuckiebotKind:
     calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot"}
 
     def claims(self, source) -> bool:
-        if isinstance(source, argparse.Namespace):
-            return getattr(source, "robot", None) == NAME
+        if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind
+            return getattr(source, "robot", None) == NAME or any(
+                getattr(source, option, None) is not None for option in ("refine", "max_step"))
         path = Path(source)
         if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset
             return json_schema(path / "log.json") == LOG_SCHEMA or (
@@ -60,6 +61,14 @@ class DuckiebotKind:
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:
+        if verb == "identify":  # the online refinement (refine.py, verbs.run_refine); defaults None: not given
+            parser.add_argument("--refine", metavar="CAL_JSON",
+                                help="duckiebot: refine CAL_JSON's trim (and gain) from LOG, a pass along a marked "
+                                     "straight lane section; --out writes the new calibration (never over CAL_JSON);"
+                                     " weak evidence: exit 3, nothing written")
+            parser.add_argument("--max-step", type=float, default=None, metavar="TRIM",
+                                help="duckiebot, with --refine: the most trim may change (default 0.02; the pass's "
+                                     "estimate is still printed)")
         if verb in VERB_MODULES:
             module = _verb_module(verb)
             if module is not None:

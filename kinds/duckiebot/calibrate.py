@@ -8,13 +8,16 @@ docs/DEPLOY.md "Duckiebot (DB21)").
     naocal calibrate --robot duckiebot --backend ros --out RUN [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
-validation drive and leaving the area, the same format), RUN/offsets.json (the calibration,
-naocal.duckiebot_calibration/1, written once identified: `naocal offsets export` makes Duckietown's files of it),
+validation drive and leaving the area, the same format), RUN/encoders.csv (--backend ros on a DB21: every
+encoder row as it came, appended and fsync'd; written into the logs' encoders.csv when the run ends),
+RUN/offsets.json (the calibration, naocal.duckiebot_calibration/1, written once identified: `naocal offsets export`
+makes Duckietown's files of it),
 RUN/truth.json (the mock's hidden robot in the same names and units), RUN/summary.txt (what happened, the
 validation, the truth beside the result), RUN/run.json (the options: --resume must repeat them), RUN/mission.json
 (written last: the run is finished), RUN/mock_state.json (the mock's world: where its robot stands).
 Exit 0 when calibrated and validated, 2 on bad input (nothing changed), 3 when the mission failed (the wheels are
-stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues).
+stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues on the
+mock; a run on the robot is not resumed: ROS_NO_RESUME).
 """
 
 from __future__ import annotations
@@ -26,8 +29,14 @@ from pathlib import Path
 
 RECORD_KEYS = ("robot", "backend", "mock_seed", "mock", "max_blind_m", "vehicle")
 FINISHED_NAME = "mission.json"
+ENCODER_JOURNAL = "encoders.csv"  # --backend ros: every encoder row as it came (ros_driver.keep_encoders)
 ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
-                     "mock_state.json", ".naocal.lock"})
+                     "mock_state.json", ".naocal.lock", ENCODER_JOURNAL})
+# Why a run on the real robot is not resumed (docs/DEPLOY.md): the mock's world is saved with the run
+# (mock_state.json), a real robot's is not.
+ROS_NO_RESUME = ("a run on the robot cannot be resumed: the robot may have moved since it stopped (a killed agent "
+                 "leaves the wheels turning; hands lift it), while its drive log and 600 s budget assume one unbroken "
+                 "drive on one clock; start again with a new --out (docs/DEPLOY.md)")
 DEFAULT_MAX_BLIND_M = 0.3
 
 
@@ -68,8 +77,7 @@ def _record(args) -> dict:
         if getattr(args, "mock", None) is not None:
             raise NaocalError("--mock chooses the simulated robot; --backend ros drives the real one")
         if getattr(args, "resume", False):
-            raise NaocalError("--resume is not usable with --backend ros yet (the mission's time budget counts from "
-                              "the first run, on the robot's wall clock): start a new --out")
+            raise NaocalError(f"--resume with --backend ros: {ROS_NO_RESUME}")
     for option, given in (("--effect", getattr(args, "effect", None)), ("--endpoint", getattr(args, "endpoint", None)),
                           ("--report", getattr(args, "report", None))):
         if given:
@@ -99,6 +107,8 @@ def check_out_dir(out: Path, record: dict, resume: bool) -> None:
     if (out / FINISHED_NAME).exists():
         raise NaocalError(f"{out} holds a finished calibration (offsets {out / 'offsets.json'}, summary "
                           f"{out / 'summary.txt'}): nothing to resume; choose another --out (nothing was changed)")
+    if record["backend"] == "ros" and any(n in ENTRIES for n in names):
+        raise NaocalError(f"{out} already holds a Duckiebot calibration run; {ROS_NO_RESUME} (nothing was changed)")
     check_resumable(out, names, resume=resume, own_entries=ENTRIES, what="a Duckiebot calibration run")
     recorded = read_json(out / RECORD_NAME)
     differ = [f"{key} {record[key]!r} (the run: {recorded.get(key)!r})" for key in RECORD_KEYS
@@ -137,7 +147,6 @@ def run(args) -> int:
     from naocal.agent.rundir import RunLock, write_record
     from naocal.kinds.duckiebot.calibration import write_calibration_file
     from naocal.kinds.duckiebot.mission import MissionSettings, run_mission
-    from naocal.kinds.duckiebot.mock import DuckiebotMock, truth_document
     from naocal.solver.fileio import atomic_write_text
 
     record = _record(args)
@@ -158,8 +167,12 @@ def run(args) -> int:
         with RunLock(out, command_line(record, out, resume)):
             if not (out / "run.json").exists():
                 write_record(out, record)
+            if hasattr(robot, "keep_encoders"):  # a DB21's ticks saved as they come: a crash keeps them
+                robot.keep_encoders(out / ENCODER_JOURNAL)
             truth = None
             if robot is None:
+                from naocal.kinds.duckiebot.mock import DuckiebotMock, truth_document  # pybullet: not on the robot
+
                 robot = DuckiebotMock(record["mock_seed"], record["mock"], state_path=out / "mock_state.json")
                 truth = truth_document(robot.truth, record["mock_seed"], record["mock"])
                 atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
@@ -187,7 +200,8 @@ def run(args) -> int:
                                                                   indent=1) + "\n")
                 return 0
             if result.final == INTERRUPTED:
-                print(f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
+                print(f"naocal calibrate: {ROS_NO_RESUME}" if record["backend"] == "ros" else
+                      f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
                 return 130
             print(f"naocal calibrate: error: {result.reason} (the wheels are stopped; {out / 'summary.txt'})",
                   file=sys.stderr)

@@ -133,8 +133,14 @@ def checked_document(calibration, where, *, width_px: int = 640, height_px: int 
     3: the fit's result is at fault), in one line, for a calibration the reader would refuse: a value beyond any
     working Duckiebot, a non-finite value or std."""
     doc = calibration_document(calibration, width_px=width_px, height_px=height_px, source=source)
+    return doc, check_document(doc, where)
+
+
+def check_document(doc: dict, where) -> CalibrationFile:
+    """What the reader makes of a document naocal made (to be written to `where`); SolveError (exit 3: the result
+    is at fault, not an input), in one line, for one the reader would refuse."""
     try:  # through JSON, as the reader will see it (a NaN or inf is refused there)
-        return doc, parse_calibration(json.loads(json.dumps(doc)), where)
+        return parse_calibration(json.loads(json.dumps(doc)), where)
     except DataError as err:
         raise SolveError(f"calibration not written to {where}: {err.problem}"
                          + (f" (field '{err.field}')" if err.field else "")) from None

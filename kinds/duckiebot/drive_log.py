@@ -31,7 +31,8 @@ import numpy as np
 from naocal.kinds.duckiebot.robot import robot_name_problem
 from naocal.solver.effect import check_object
 from naocal.solver.errors import DataError
-from naocal.solver.fileio import atomic_write_bytes, atomic_write_text, read_bytes, read_json, read_text
+from naocal.solver.fileio import (atomic_write_bytes, atomic_write_text, disk_full_as_error, fsync_directory,
+                                  read_bytes, read_json, read_text)
 
 SCHEMA = "naocal.drive_log/1"
 META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE = "log.json", "wheels.csv", "frames.csv", "encoders.csv"
@@ -434,3 +435,66 @@ class DriveLogAppender:
         self.frames.append((float(t_s), name))
         atomic_write_text(self.directory / FRAMES_FILE, csv_text(FRAMES_HEADER, (
             [repr(t), _csv_cell(f)] for t, f in self.frames)))
+
+
+class EncoderJournal:
+    """Encoder ticks saved as they come, in encoders.csv's format: `append(rows)` writes the rows (t_s, left_ticks,
+    right_ticks) in one append, then fsync, so what was appended survives a crash (DatasetAppender's way: an append
+    is cheap at the encoders' 60 rows a second, where rewriting the whole file would not be). Rows are checked as
+    the reader would first (times strictly increasing, whole ticks). Opening a file that holds rows continues it
+    (`rows`): a torn last line (a crash mid-append) is cut off; anything else the reader refuses is a DataError
+    naming it."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.rows = []
+        self._new_file = True  # the next append writes the header first
+        if not os.path.lexists(self.path):
+            return
+        data = read_bytes(self.path)
+        keep = data.rfind(b"\n") + 1
+        if keep < len(data):  # the append a crash cut short: never saved, so never counted
+            with disk_full_as_error(self.path), open(self.path, "r+b") as f:
+                f.truncate(keep)
+                f.flush()
+                os.fsync(f.fileno())
+        text = data[:keep].decode("utf-8", errors="replace")
+        if text.count("\n") >= 2:  # the header and a row: the reader's checks; else the next append starts it anew
+            t, left, right = read_encoders(self.path, text)
+            self.rows = list(zip(t.tolist(), left.tolist(), right.tolist()))
+            self._new_file = False
+
+    def append(self, rows) -> None:
+        rows = [(float(t), int(a), int(b)) for t, a, b in rows]
+        if not rows:
+            return
+        previous = self.rows[-1][0] if self.rows else -math.inf
+        for t, a, b in rows:
+            if not (math.isfinite(t) and t > previous and abs(a) < MAX_TICKS and abs(b) < MAX_TICKS):
+                raise ValueError(f"{self.path}: encoder row ({t!r}, {a!r}, {b!r}) does not follow the previous "
+                                 f"row ({previous!r} s) or is beyond any count")
+            previous = t
+        text = csv_text(ENCODERS_HEADER, ([repr(t), str(a), str(b)] for t, a, b in rows))
+        data = (text if self._new_file else text.split("\n", 1)[1]).encode("utf-8")
+        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | (os.O_TRUNC if self._new_file else 0)
+        with disk_full_as_error(self.path):
+            fd = os.open(self.path, flags, 0o644)
+            size_before = os.fstat(fd).st_size
+            try:
+                view = memoryview(data)
+                while view:  # one write for a regular file; loop only in case of a short write
+                    view = view[os.write(fd, view):]
+                os.fsync(fd)
+            except OSError:
+                try:  # no half row left behind (a disk full mid-write); else the next open cuts it off
+                    os.ftruncate(fd, size_before)
+                    os.fsync(fd)
+                except OSError:
+                    pass
+                raise
+            finally:
+                os.close(fd)
+        if self._new_file:
+            fsync_directory(self.path.parent)
+            self._new_file = False
+        self.rows += rows

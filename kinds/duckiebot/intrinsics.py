@@ -156,8 +156,9 @@ def opencv_start(object_points, image_points, size, model: str, K_guess=None):
     if model == "fisheye":
         obj = [np.asarray(o, np.float64).reshape(1, -1, 3) for o in object_points]  # (n, 1, 3): refused in 5.0
         img = [np.asarray(i, np.float64).reshape(1, -1, 2) for i in image_points]
-        # OpenCV 5 keeps the fisheye flags in cv2 itself (4.x: cv2.fisheye.CALIB_*)
-        flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW | cv2.CALIB_USE_INTRINSIC_GUESS
+        # OpenCV 5 keeps the fisheye flags in cv2 itself; 4.x (Python 3.8's) in cv2.fisheye, with their own values
+        ns = cv2.fisheye if hasattr(cv2.fisheye, "CALIB_FIX_SKEW") else cv2
+        flags = ns.CALIB_RECOMPUTE_EXTRINSIC | ns.CALIB_FIX_SKEW | ns.CALIB_USE_INTRINSIC_GUESS
         _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(obj, img, (w, h), K0.copy(), np.zeros(4), flags=flags,
                                                       criteria=_CRITERIA)
     else:

@@ -11,7 +11,11 @@ Free: gain, trim, the robot's pose at the first frame with a marker, the markers
 Gain and trim are fitted in the log's k and wheel radius (as every fit is) and converted to the calibration's: the
 speed is r u k / (gain +- trim), so (gain, trim) scale with k r.
 
-Refused (RefinementRefused, nothing returned): fewer than MIN_MARKER_FRAMES frames with a marker; a fit that
+`refined_document` makes the calibration file (naocal.duckiebot_calibration/1) of a refinement: the input file's
+document with the new gain and trim (and their stds); `naocal identify LOG --refine CAL.json --out NEW.json`
+(kinds/duckiebot/verbs.py) writes it.
+
+Refused (RefinementRefused, exit 3 on the command line, nothing returned): fewer than MIN_MARKER_FRAMES frames with a marker; a fit that
 cannot determine trim (SolveError) or does not converge; a trim std above MAX_TRIM_STD (0.001: the issue's
 tolerance on trim). The step is bounded by `max_step` (the new trim moves at most that far towards the estimate,
 and says so): a pass is one stretch of floor, so a large change is more likely a bad pass than a changed robot.
@@ -25,10 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.calibration import CalibrationFile
 from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
-from naocal.kinds.duckiebot.identify import DuckiebotCalibration, detect_log, rectified_sightings
+from naocal.kinds.duckiebot.identify import detect_log, rectified_sightings
 from naocal.kinds.duckiebot.robot import Kinematics
-from naocal.solver.errors import NaocalError, SolveError
+from naocal.solver.errors import SolveError
 
 MIN_MARKER_FRAMES = 8  # frames with at least one marker: fewer leave trim's curvature to a handful of poses
 MAX_TRIM_STD = 0.001  # the issue's tolerance on trim: a refinement less certain than this is refused
@@ -36,8 +41,9 @@ MAX_STEP = 0.02  # default bound on one refinement's change of trim (the real ro
 MAX_GAIN_STD = 0.005  # gain is refined only when known this well (relative: 0.5 % of speed); else kept
 
 
-class RefinementRefused(NaocalError):
-    """The pass does not carry the evidence to refine trim: no new value."""
+class RefinementRefused(SolveError):
+    """The pass does not carry the evidence to refine trim: no new value (exit 3, as a fit that cannot be
+    trusted)."""
 
 
 @dataclass(frozen=True)
@@ -70,9 +76,10 @@ class Refinement:
                 f"{self.marker_frames} frames with markers, {self.corners} corners, {self.rms_px:.2f} px RMS")
 
 
-def refine_trim(log_dir, calibration: DuckiebotCalibration, *, max_step: float = MAX_STEP) -> Refinement:
-    """Refine `calibration`'s trim (and gain) from the lane pass at `log_dir` (module docstring). DataError for a
-    bad log; RefinementRefused when the pass cannot refine trim well enough."""
+def refine_trim(log_dir, calibration: CalibrationFile, *, max_step: float = MAX_STEP) -> Refinement:
+    """Refine `calibration`'s (a calibration file read: kinds.duckiebot.calibration) trim (and gain) from the lane
+    pass at `log_dir` (module docstring). DataError for a bad log; RefinementRefused when the pass cannot refine
+    trim well enough."""
     if not max_step > 0:
         raise ValueError(f"max_step must be positive, got {max_step!r}")
     log = read_drive_log(log_dir)
@@ -85,9 +92,9 @@ def refine_trim(log_dir, calibration: DuckiebotCalibration, *, max_step: float =
     # (gain, trim) in the calibration's k and radius -> the log's: the speed is r u k / (gain +- trim)
     to_log = (log.wheels.k * log.wheels.radius_m) / (kin.k * kin.radius_m)
     drive = dataclasses.replace(Drive.of_log(log), baseline_m=kin.baseline_m)
-    sightings = rectified_sightings(detections, calibration.lens.camera)
+    sightings = rectified_sightings(detections, calibration.lens)
     try:
-        fit = fit_drive(drive, sightings, calibration.lens.camera.K, log.marker_size_m, calibration.T_base_camera,
+        fit = fit_drive(drive, sightings, calibration.lens.K, log.marker_size_m, calibration.T_base_camera,
                         fixed=CAMERA + ("baseline_m",), start={"gain": kin.gain * to_log, "trim": kin.trim * to_log})
     except SolveError as err:
         raise RefinementRefused(f"{log.path}: the pass cannot refine trim ({err}): trim is unchanged") from None
@@ -106,3 +113,22 @@ def refine_trim(log_dir, calibration: DuckiebotCalibration, *, max_step: float =
     return Refinement(new, kin.trim, trim_estimate, trim_std, abs(trim_estimate - kin.trim) > max_step, kin.gain,
                       gain_estimate, gain_std, bool(gain_refined), marker_frames, int(len(fit.sightings.frame)),
                       fit.rms_px)
+
+
+def refined_document(doc: dict, refinement: Refinement, source: str) -> dict:
+    """The calibration file's document `doc` (as read; not changed) with the refinement's gain and trim in
+    `kinematics` and `parameters` (trim's std the pass's; gain's only where the pass refined it), `source` and the
+    time of creation: every other field (lens, camera pose, baseline, the calibration's fit) is the calibration's.
+    The caller checks it with the reader before writing (calibration.checked_document's rule)."""
+    import copy
+    import time
+
+    new = copy.deepcopy(doc)
+    changed = {"trim": (refinement.trim, refinement.trim_std)}
+    if refinement.gain_refined:
+        changed["gain"] = (refinement.kinematics.gain, refinement.gain_std)
+    for name, (value, std) in changed.items():
+        new["kinematics"][name] = float(value)
+        new["parameters"][name] = {**new["parameters"][name], "value": float(value), "std": float(std)}
+    new["source"], new["created"] = source, time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    return new

@@ -42,8 +42,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, csv_text, parse_meta,
-                                              read_encoders)
+from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, EncoderJournal, csv_text,
+                                              parse_meta, read_encoders)
 from naocal.kinds.duckiebot.kinematics import duty_problem
 from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
                                          robot_name_problem)
@@ -55,6 +55,7 @@ log = logging.getLogger(__name__)
 MAX_WHEEL_RADPS = 60.0  # no Duckiebot wheel turns faster (k 27 rad/s per duty, real robots up to 40 % more): 2x
 TICK_SLACK = 3  # ticks an encoder may count beyond MAX_WHEEL_RADPS over one interval (edges, jitter)
 MAX_ADVANCE_S = 60.0  # one advance() longer than this is a caller's bug (the mission waits at most seconds)
+ENCODER_SAVE_S = 0.2  # the ticks are appended to the journal (keep_encoders) at least this often (wall time)
 
 
 def topics(vehicle: str) -> dict:
@@ -97,6 +98,10 @@ class RosDuckiebot:
         self._frame = None  # (stamp s, message) of the newest frame: decoded only when grabbed (30 Hz on a Pi)
         self._ticks = {"left": None, "right": None}  # side -> (stamp s, ticks) newest
         self.encoder_rows = []  # (t_s, left_ticks, right_ticks): every time either side ticked, both known
+        self._journal = None  # EncoderJournal (keep_encoders): encoder_rows saved as they come
+        self._unsaved = []  # encoder_rows not yet in the journal
+        self._journal_lock = threading.Lock()  # one append at a time, in order (taken before self._lock)
+        self._saved_at = time.monotonic()
         self._closed = False
         rospy.init_node(node_name, anonymous=True, disable_signals=True)
         self._wheels = rospy.Publisher(self.topics["wheels"], WheelsCmdStamped, queue_size=1)
@@ -205,6 +210,39 @@ class RosDuckiebot:
             left, right = self._ticks["left"], self._ticks["right"]
             if left is not None and right is not None and (not self.encoder_rows or stamp > self.encoder_rows[-1][0]):
                 self.encoder_rows.append((stamp, left[1], right[1]))
+                self._unsaved.append(self.encoder_rows[-1])
+        if self._journal is not None and time.monotonic() - self._saved_at >= ENCODER_SAVE_S:
+            self._save_ticks()
+
+    # ------------------------------------------------------------------------------------------ the encoders' journal
+    def keep_encoders(self, path) -> int:
+        """Save every encoder row, from now on as it comes (at least every ENCODER_SAVE_S), to the journal `path`
+        (drive_log.EncoderJournal: encoders.csv's format, appended and fsync'd): a crash loses at most the last
+        fraction of a second. A journal that holds rows (an earlier run's) is continued: its rows come first in
+        encoder_rows (save_encoders writes them into their logs). Returns the rows it held. DataError for a journal
+        the reader refuses."""
+        with self._journal_lock:
+            journal = EncoderJournal(path)
+            with self._lock:
+                last = journal.rows[-1][0] if journal.rows else -math.inf
+                new = [row for row in self.encoder_rows if row[0] > last]  # ticks since this driver started
+                self.encoder_rows = list(journal.rows) + new
+                self._unsaved = new
+                self._journal = journal
+        self._save_ticks()
+        return len(journal.rows) - len(new)
+
+    def _save_ticks(self) -> None:
+        """Append the rows not yet saved to the journal; a failure (disk full) is a fault: the wheels stop (a run
+        whose readings are not saved must not go on)."""
+        with self._journal_lock:
+            with self._lock:
+                rows, self._unsaved = self._unsaved, []
+                self._saved_at = time.monotonic()
+            try:
+                self._journal.append(rows)
+            except (OSError, ValueError, NaocalError) as err:
+                self._refuse(f"the encoders' ticks could not be saved to {self._journal.path} ({err})")
 
     # ------------------------------------------------------------------------------------------ the interface
     def now(self) -> float:
@@ -275,6 +313,8 @@ class RosDuckiebot:
         LOG/log.json (wheels.ticks_per_revolution, which a log with encoders must give); each file atomically and
         checked as the reader does first. For a finished log: a log.json changed under a resumable run would no
         longer be its own. Returns the rows written (0, nothing written, on a robot without encoders: the DB18)."""
+        if self._journal is not None:
+            self._save_ticks()
         with self._lock:
             rows = [r for r in self.encoder_rows if t_from_s <= r[0] <= t_to_s]
         if not rows:
@@ -299,3 +339,5 @@ class RosDuckiebot:
         for subscriber in self._subscribers:
             subscriber.unregister()
         self._wheels.unregister()
+        if self._journal is not None:  # the last ticks (no more come)
+            self._save_ticks()

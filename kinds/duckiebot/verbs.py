@@ -4,6 +4,7 @@ calibration files and `--robot duckiebot` (docs/DUCKIEBOT.md)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -71,6 +72,10 @@ def run_identify(args, kind) -> int:
 
     check_options(args, kind)
     _refuse_unsupported(args)
+    if getattr(args, "refine", None) is not None:
+        return run_refine(args)
+    if getattr(args, "max_step", None) is not None:
+        raise NaocalError("--max-step bounds a refinement's step: give it with --refine CAL.json")
     effects = parse_effects(getattr(args, "effects", "") or "")  # the wheel effects diagnose names
     log = read_drive_log(args.dataset)
     inputs = log_inputs(log)
@@ -96,6 +101,52 @@ def run_identify(args, kind) -> int:
     _warn(args.verb, result.findings)
     if args.out:
         write_document(args.out, doc, inputs=inputs)
+        print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+MAX_STEP_LIMIT = 0.2  # --max-step beyond this is no bound: three times the real robots' trim sd (0.068)
+
+
+def run_refine(args) -> int:
+    """`naocal identify LOG --refine CAL.json [--out NEW.json] [--max-step TRIM] [--json]`: the online refinement
+    (kinds.duckiebot.refine) of CAL's trim (and gain) from the lane pass LOG; prints old -> new +- std; --out writes
+    the new calibration file atomically (never over CAL or a file of LOG). Exit 0, 2 bad input, 3 refused (the
+    evidence is weak) or the result implausible: nothing written."""
+    from naocal.kinds.duckiebot.calibration import check_document, parse_calibration, write_document
+    from naocal.kinds.duckiebot.drive_log import read_drive_log
+    from naocal.kinds.duckiebot.refine import MAX_STEP, refine_trim, refined_document
+    from naocal.solver.fileio import check_output_file, json_safe, read_json
+
+    for option, given in (("--effects", args.effects), ("--fix", args.fix), ("--loss", args.loss != "linear"),
+                          ("--keep-outliers", args.keep_outliers)):
+        if given:
+            raise NaocalError(f"{option} is not for --refine: it refits gain and trim only, everything else held at "
+                              "the calibration's (docs/DUCKIEBOT.md)")
+    max_step = MAX_STEP if args.max_step is None else args.max_step
+    if not 0 < max_step <= MAX_STEP_LIMIT:  # NaN fails too
+        raise NaocalError(f"--max-step must be within (0, {MAX_STEP_LIMIT:g}] (a change of trim), got {max_step!r}")
+    doc = read_json(args.refine)
+    calibration = parse_calibration(doc, args.refine)
+    log = read_drive_log(args.dataset)
+    inputs = [args.refine] + log_inputs(log)
+    if args.out:
+        check_output_file(args.out, inputs=inputs)  # before the work, not after
+    refinement = refine_trim(log.path, calibration, max_step=max_step)  # RefinementRefused: exit 3
+    source = (f"naocal identify {log.path} --refine {args.refine}: trim {refinement.trim_before:+.5f} -> "
+              f"{refinement.trim:+.5f} +- {refinement.trim_std:.5f}")
+    new = refined_document(doc, refinement, source)
+    result = check_document(new, args.out or args.refine)
+    if args.json:
+        print(json.dumps(json_safe({"log": str(log.path), "calibration": str(args.refine), "out": args.out,
+                                    "max_step": max_step, "refinement": dataclasses.asdict(refinement),
+                                    "kinematics": new["kinematics"]}), indent=1, allow_nan=False))
+    else:
+        print(f"{log.path} refining {args.refine} (robot {calibration.robot_id}, at most {max_step:g} of trim): "
+              f"{refinement.describe()}")
+    _warn(args.verb, result.findings)
+    if args.out:
+        write_document(args.out, new, inputs=inputs)
         print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
@@ -156,8 +207,6 @@ def run_verify(args, kind) -> int:
     """Does the robot still drive straight under CAL? Refit gain and trim on the new log (the camera's pose and the
     baseline held at CAL's: a lane pass without turns cannot tell the baseline from trim), predict the 2 m straight
     drive at 0.3 m/s commanded with CAL's gain and trim. Exit 0 still good, 1 drifted, 2 bad input."""
-    import dataclasses
-
     import cv2
 
     from naocal.kinds.duckiebot.calibration import read_calibration_file

@@ -6,6 +6,8 @@ mock, DIR/truth.json holds its hidden truth. With --report, REPORT_DIR/index.htm
 DIR's dataset. One run at a time per DIR; --resume must repeat the run's options.
 """
 
+from __future__ import annotations
+
 
 def calibrate_command(record: dict, out, *, endpoint=None, no_progress: bool = False, resume: bool = True) -> str:
     """The shell command (quoted) that runs, or with `resume` continues, the run `record` describes in `out`."""

@@ -1,6 +1,8 @@
 """The NAO's `naocal diagnose DATASET`: compare the model with the measurements, locate where it fails, name what is
 missing (the sections: tools/cmd_diagnose.py's EPILOG)."""
 
+from __future__ import annotations
+
 from naocal.solver.fileio import json_safe
 
 

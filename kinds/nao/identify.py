@@ -1,5 +1,7 @@
 """The NAO's `naocal identify DATASET`: fit the model to a dataset and print (or save) the parameters."""
 
+from __future__ import annotations
+
 import argparse
 
 

@@ -3,10 +3,25 @@
 import argparse
 
 
+class FlagPair(argparse.Action):
+    """`--X` / `--no-X` setting one destination to True / False: argparse.BooleanOptionalAction's behaviour, which
+    is Python 3.9+ (the command line is built on the Duckiebot's Python 3.8 too: docs/DEPLOY.md)."""
+
+    def __init__(self, option_strings, dest, default=None, help=None, **kwargs):
+        strings = [s for o in option_strings for s in ((o, "--no-" + o[2:]) if o.startswith("--") else (o,))]
+        super().__init__(strings, dest, nargs=0, default=default, help=help, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, not option_string.startswith("--no-"))
+
+    def format_usage(self) -> str:
+        return " | ".join(self.option_strings)
+
+
 def add_tie_option(parser) -> None:
     """--tie-hip-yaw-pitch, shared by identify and diagnose."""
     # default None (on for the NAO) so that an arm can refuse the option only when it is given
-    parser.add_argument("--tie-hip-yaw-pitch", action=argparse.BooleanOptionalAction, default=None,
+    parser.add_argument("--tie-hip-yaw-pitch", action=FlagPair, default=None,
                         help="joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
 
 
@@ -28,7 +43,7 @@ def add_options(parser, verb: str) -> None:
                             help="lm: naocal's Levenberg-Marquardt (fast); minpack: "
                                  "scipy.optimize.least_squares(method='lm')")
         add_angles_option(parser)
-        parser.add_argument("--gls", action=argparse.BooleanOptionalAction, default=True,
+        parser.add_argument("--gls", action=FlagPair, default=True,
                             help="when the readings fit best and are quantised, refine by generalised least squares: "
                                  "the images of one held command share its error in the step, intrinsics free "
                                  "(docs/AGENT.md; the agent does the same; default: on)")
