@@ -213,12 +213,12 @@ def _ping(args) -> int:
     import statistics
     import time
 
-    from naocal.backends.bridge import BridgeBackend
+    from naocal.backends.bridge import BridgeClient
     from naocal.solver.errors import NaocalError
 
     if not 1 <= args.count <= MAX_PING_COUNT:  # a median of no round trips means nothing
         raise NaocalError(f"--count must be within 1..{MAX_PING_COUNT}, got {args.count}")
-    bridge = BridgeBackend(args.endpoint, timeout_s=args.timeout_s, retries=0,
+    bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=0,
                            curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
         info = bridge.server_info()
