@@ -391,6 +391,7 @@ class BridgeServer:
         self._lease = MotionLease(digest(token), token=token, nonce_digest=digest(nonce),
                                   replies_kept=self._replies_kept)
         self._journal_event("granted", self._lease)
+        self._robot.control_granted()
         log.info("a client now controls motion")
         return {"token": token, "lease_timeout_s": self.lease_timeout_s}
 
@@ -475,6 +476,9 @@ class ServedRobot:
         """Run one of this kind's commands (validated arguments; motion ones from the lease holder only): its result,
         plain msgpack types. Raises SafetyError, RobotFault, RobotTimeout, NaocalError as a driver does."""
         raise NotImplementedError
+
+    def control_granted(self) -> None:
+        """A new controller (not one taking its own lease back) starts: what was kept for the last one is not its."""
 
     def release_control(self) -> None:
         """Nobody controls the robot any more (released, or the lease lapsed): its safe state."""
