@@ -240,9 +240,35 @@ def test_kinds_are_told_apart_and_the_nao_client_is_unchanged(tmp_path, served):
 
 
 def test_calibrate_over_the_bridge_needs_an_endpoint_one_line_exit_2(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT.parent)}
     run = subprocess.run([sys.executable, "-m", "naocal", "calibrate", "--robot", "duckiebot", "--backend", "bridge",
-                          "--out", str(tmp_path / "run")], cwd=ROOT, env=env, capture_output=True, text=True,
+                          "--out", str(tmp_path / "run")], cwd=ROOT, capture_output=True, text=True,
                          timeout=120)
     assert run.returncode == 2 and "--backend bridge needs --endpoint URL" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
+    """`naocal bridge serve --robot duckiebot --driver ros` as on a DB21: RosDuckiebot over Duckietown's topics (the
+    fake peer of tests/duckiebot_ros_peer.py) behind the server; the client drives, grabs and reads the encoders."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from duckiebot_ros_peer import FakeRosGraph
+    from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+    graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
+    served = ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=10.0)
+    try:
+        with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
+            client = DuckiebotBridge(server.endpoint)
+            assert client.facts()["ticks_per_revolution"] == 135 and client.robot_id == "db21"
+            t_start = client.command(0.4, 0.4)
+            client.advance(1.5)
+            client.command(0.0, 0.0)
+            t, image = client.grab()
+            assert t > t_start and image.shape == (480, 640) and image.dtype == np.uint8
+            rows = client.encoder_ticks(t_start, t)
+            assert len(rows) > 20 and rows[-1][1] - rows[0][1] > 50  # 1.5 s at about 0.4 x 27 rad/s
+            assert rows == [[r[0], r[1], r[2]] for r in served.driver.encoder_ticks(t_start, t)]
+            client.close()
+        assert graph.received[-1][1:] == (0.0, 0.0) and graph.refused == []
+    finally:
+        served.close()
