@@ -272,3 +272,38 @@ def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
         assert graph.received[-1][1:] == (0.0, 0.0) and graph.refused == []
     finally:
         served.close()
+
+
+def test_with_curve_clients_an_unknown_key_moves_nothing_and_an_admitted_one_drives(tmp_path, served, mock):
+    from naocal.backends.bridge_server import write_curve_keys
+
+    server_public, server_secret = write_curve_keys(tmp_path / "server", "server")
+    write_curve_keys(tmp_path / "clients", "laptop")
+    _, stranger_secret = write_curve_keys(tmp_path / "others", "stranger")
+    with serving(served, ipc(tmp_path), curve_secret_key_file=server_secret,
+                 curve_clients_dir=tmp_path / "clients") as server:
+        for kwargs in ({}, {"curve_server_key": server_public, "curve_client_key": stranger_secret}):
+            stranger = DuckiebotBridge(server.endpoint, timeout_s=1.0, retries=0, **kwargs)
+            with pytest.raises(BridgeError, match="requires CURVE keys|does not admit this client"):
+                stranger.command(0.5, 0.5)
+            stranger.close()
+        assert mock.received == []
+        laptop = DuckiebotBridge(server.endpoint, curve_server_key=server_public,
+                                 curve_client_key=tmp_path / "clients" / "laptop.key_secret")
+        laptop.command(0.5, 0.5)
+        assert mock.duties.tolist() == [0.5, 0.5]
+        laptop.close()
+        assert mock.duties.tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--robot", "duckiebot", "--driver", "naoqi"], "--driver naoqi drives a NAO"),
+    (["--driver", "ros"], "--driver ros and --watchdog-s are for --robot duckiebot"),
+    (["--robot", "duckiebot", "--driver", "mock", "--watchdog-s", "0"], "--watchdog-s must be within"),
+])
+def test_bridge_serve_bad_robot_options_are_one_line_exit_2(argv, message, capsys):
+    from naocal.tools import cli
+
+    code = cli.main(["bridge", "serve", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err, err

@@ -78,6 +78,13 @@ def _tick_rows(rows, what: str, t_from_s: float = -math.inf, t_to_s: float = mat
     return out
 
 
+def check_watchdog(watchdog_s) -> float:
+    """--watchdog-s: a number of seconds within [0.05, 10] (NaN refused), else NaocalError."""
+    if isinstance(watchdog_s, bool) or not (isinstance(watchdog_s, (int, float)) and 0.05 <= watchdog_s <= 10.0):
+        raise NaocalError(f"--watchdog-s must be within [0.05, 10] s, got {watchdog_s!r}")
+    return float(watchdog_s)
+
+
 class ServedDuckiebot(ServedRobot):
     """A Duckiebot driver as `naocal bridge serve --robot duckiebot` serves it (see the module's safety list).
 
@@ -93,8 +100,7 @@ class ServedDuckiebot(ServedRobot):
         problem = robot_name_problem(robot_id)
         if problem:
             raise NaocalError(problem)
-        if not (isinstance(watchdog_s, (int, float)) and 0.05 <= watchdog_s <= 10.0):
-            raise NaocalError(f"--watchdog-s must be within [0.05, 10] s, got {watchdog_s!r}")
+        check_watchdog(watchdog_s)
         self.driver, self.robot_id, self.description = driver, robot_id, duckiebot(model)
         self.limit, self.watchdog_s = float(limit), float(watchdog_s)
         has_encoders = callable(getattr(driver, "encoder_ticks", None))
@@ -249,7 +255,7 @@ class ServedDuckiebot(ServedRobot):
 
 def open_served(args):
     """(ServedDuckiebot, clock, state_persists) for `naocal bridge serve --robot duckiebot --driver mock|ros`."""
-    watchdog_s = getattr(args, "watchdog_s", None) or DEFAULT_WATCHDOG_S
+    watchdog_s = check_watchdog(DEFAULT_WATCHDOG_S if getattr(args, "watchdog_s", None) is None else args.watchdog_s)
     if args.driver == "mock":
         from naocal.kinds.duckiebot.mock import DuckiebotMock
 
