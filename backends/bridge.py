@@ -1,4 +1,4 @@
-"""`BridgeBackend`: the Backend interface over the network, as a client of `naocal bridge serve`.
+"""`BridgeClient`, the client of `naocal bridge serve`, and `BridgeBackend`: a NAO's Backend interface over it.
 
 Lazy Pirate (ZeroMQ guide, ch. 4): one request at a time on a DEALER socket; wait for the reply with a deadline;
 on timeout close the socket, open a fresh one and resend the SAME request (same id), at most `retries` times,
@@ -46,8 +46,10 @@ HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_
                       | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 
 
-class BridgeBackend(Backend):
-    """A robot behind a naocal bridge server.
+class BridgeClient:
+    """The client side of a naocal bridge, for any robot kind: transport (Lazy Pirate), CURVE, the motion lease,
+    the server's hello and its clock. BridgeBackend (a NAO) and kinds.duckiebot.bridge.DuckiebotBridge add their
+    kind's commands; `kind` None (ping, first contact) talks to a server of any kind.
 
     Parameters
     ----------
@@ -65,6 +67,7 @@ class BridgeBackend(Backend):
     """
 
     name = "bridge"
+    kind: str | None = None  # the robot kind this client speaks to (hello's `kind`); None: any
 
     def __init__(
         self,
@@ -260,6 +263,10 @@ class BridgeBackend(Backend):
             info = self._call("hello")
             if not isinstance(info, dict) or info.get("protocol") != protocol.PROTOCOL_VERSION:
                 raise BridgeError(f"{self.endpoint}: server does not speak protocol {protocol.PROTOCOL_VERSION}")
+            served = info.get("kind", "nao")  # a revision-1 server served NAOs only
+            if self.kind is not None and served != self.kind:
+                older = "" if "kind" in info else " (an older naocal, protocol revision 1: update naocal there)"
+                raise BridgeError(f"{self.endpoint}: the bridge there serves a {served}{older}, not a {self.kind}")
             self._server = info
         return self._server
 
@@ -358,7 +365,56 @@ class BridgeBackend(Backend):
             self._static[cmd] = self._call(cmd)
         return self._static[cmd]
 
-    # ------------------------------------------------------------------------------------------ Backend
+    # ------------------------------------------------------------------------------------------ clock
+    def now(self) -> float:
+        return float(self._call("now"))
+
+    def _sleep_robot(self, duration_s: float) -> None:
+        """Let `duration_s` of robot time pass on the server's clock (simulated: the mock steps; wall: it waits)."""
+        duration_s = float(duration_s)
+        if not (math.isfinite(duration_s) and duration_s >= 0):
+            raise ValueError(f"sleep: duration_s must be finite and >= 0, got {duration_s}")
+        info = self._server_info()
+        simulated = info.get("clock") == "simulated"
+        # One call for a simulated clock, so a run over the bridge steps the mock exactly as a direct run does.
+        chunk_s = float(info.get("max_sleep_s", protocol.MAX_SLEEP_S)) if simulated else WALL_CLOCK_SLEEP_CHUNK_S
+        wall_per_robot_s = self.sim_slowdown if simulated else 1.0
+        remaining_s = duration_s
+        while remaining_s > 0:
+            step_s = min(remaining_s, chunk_s)
+            self._motion_call("sleep", {"duration_s": step_s}, timeout_s=self.timeout_s + wall_per_robot_s * step_s)
+            remaining_s -= step_s
+            if remaining_s < 1e-9:
+                break
+
+    def release(self) -> None:
+        """Give up control of motion so another client may command."""
+        if self._token is not None:
+            self._call("release")
+            self._token = None
+            self._forget_lease_file()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        try:
+            if self._socket is not None and self._token is not None:
+                self._call("release", timeout_s=min(self.timeout_s, 0.5), retries=0)
+                self._forget_lease_file()
+        except BridgeError:
+            pass  # best effort: the lease also times out on the server (and the token file lets a resume reclaim it)
+        finally:
+            self._closed = True
+            self._token = None
+            self._drop_socket()
+
+
+class BridgeBackend(BridgeClient, Backend):
+    """A NAO behind a naocal bridge server: the Backend interface (backends/base.py) over the network. Parameters:
+    BridgeClient's."""
+
+    kind = "nao"
+
     def robot_identity(self) -> dict:
         return dict(self._static_call("robot_identity"))
 
@@ -396,51 +452,12 @@ class BridgeBackend(Backend):
     def capture(self, camera: str = "bottom") -> CameraImage | None:
         return protocol.image_from_wire(self._call("capture", {"camera": camera}))
 
-    def now(self) -> float:
-        return float(self._call("now"))
-
     def sleep(self, duration_s: float) -> None:
-        """Let `duration_s` of robot time pass on the server's clock (simulated: the mock steps; wall: it waits)."""
-        duration_s = float(duration_s)
-        if not (math.isfinite(duration_s) and duration_s >= 0):
-            raise ValueError(f"sleep: duration_s must be finite and >= 0, got {duration_s}")
-        info = self._server_info()
-        simulated = info.get("clock") == "simulated"
-        # One call for a simulated clock, so a run over the bridge steps the mock exactly as a direct run does.
-        chunk_s = float(info.get("max_sleep_s", protocol.MAX_SLEEP_S)) if simulated else WALL_CLOCK_SLEEP_CHUNK_S
-        wall_per_robot_s = self.sim_slowdown if simulated else 1.0
-        remaining_s = duration_s
-        while remaining_s > 0:
-            step_s = min(remaining_s, chunk_s)
-            self._motion_call("sleep", {"duration_s": step_s}, timeout_s=self.timeout_s + wall_per_robot_s * step_s)
-            remaining_s -= step_s
-            if remaining_s < 1e-9:
-                break
+        self._sleep_robot(duration_s)
 
     def status(self) -> dict:
         """Everything the robot reports (Backend.status): {"robot": {...}, "joints": {name: {...}}, "t_s"}."""
         return self._call("status")
-
-    def release(self) -> None:
-        """Give up control of motion so another client may command."""
-        if self._token is not None:
-            self._call("release")
-            self._token = None
-            self._forget_lease_file()
-
-    def close(self) -> None:
-        if self._closed:
-            return
-        try:
-            if self._socket is not None and self._token is not None:
-                self._call("release", timeout_s=min(self.timeout_s, 0.5), retries=0)
-                self._forget_lease_file()
-        except BridgeError:
-            pass  # best effort: the lease also times out on the server (and the token file lets a resume reclaim it)
-        finally:
-            self._closed = True
-            self._token = None
-            self._drop_socket()
 
 
 def _load_client_curve(server_key_file, client_key_file):
@@ -465,7 +482,7 @@ def check_server_answers(endpoint: str, timeout_s: float = FIRST_CONTACT_TIMEOUT
     """The server's hello, asked once with one deadline: BridgeError at once if no naocal bridge answers at
     `endpoint` within `timeout_s`. For a command that should not start (nor make a run directory) without a robot;
     a BridgeBackend's own calls retry, which against a dead endpoint takes (1 + retries) x timeout_s per call."""
-    bridge = BridgeBackend(endpoint, timeout_s=timeout_s, retries=0)
+    bridge = BridgeClient(endpoint, timeout_s=timeout_s, retries=0)
     try:
         return bridge.server_info()
     finally:

@@ -1,4 +1,5 @@
-"""Robot-side bridge server: serves one `Backend` (the PyBullet mock or the NAOqi driver) over ZeroMQ.
+"""Robot-side bridge server: serves one robot over ZeroMQ: a NAO's `Backend` (the PyBullet mock, NAOqi, LoLA) or
+another kind's served robot (kinds.duckiebot.bridge.ServedDuckiebot), each answering its kind's commands.
 
 Socket: ROUTER, not REP. A REP socket must answer every request before it may receive the next one, so it cannot
 drop or delay a reply (the fault injector does both), and a client that vanishes mid-request leaves it in a state
@@ -87,6 +88,7 @@ class BridgeServer:
 
     Parameters
     ----------
+    backend : a NAO's Backend, or another kind's ServedRobot (kinds.duckiebot.bridge.ServedDuckiebot).
     driver : name reported to clients ('mock', 'naoqi', ...).
     clock : 'simulated' (the backend's clock only moves on `sleep`) or 'wall'.
     state_persists : True if the robot keeps its state when this server restarts (a real NAO), False for a mock
@@ -95,7 +97,7 @@ class BridgeServer:
 
     def __init__(
         self,
-        backend: Backend,
+        backend: "Backend | ServedRobot",
         bind: str = DEFAULT_BIND,
         *,
         driver: str = "unknown",
@@ -114,6 +116,7 @@ class BridgeServer:
             raise ValueError(f"clock must be 'simulated' or 'wall', got {clock!r}")
         check_bind_address(bind, allow_remote)
         self.backend = backend
+        self._robot = served_robot(backend)
         self.bind = bind
         self.driver = driver
         self.clock = clock
@@ -141,7 +144,7 @@ class BridgeServer:
     # ------------------------------------------------------------------------------------------ lifecycle
     def start(self) -> "BridgeServer":
         """Bind the socket (errors such as 'address in use' are raised here)."""
-        self._robot_id = str(self.backend.robot_identity().get("id", "unknown"))
+        self._robot_id = str(self._robot.robot_identity().get("id", "unknown"))
         socket = self._context.socket(zmq.ROUTER)
         socket.setsockopt(zmq.LINGER, 0)
         socket.setsockopt(zmq.MAXMSGSIZE, protocol.ZMQ_MAX_INBOUND_BYTES)
@@ -269,7 +272,7 @@ class BridgeServer:
         try:
             message = protocol.unpack(payload, max_bytes=protocol.MAX_REQUEST_BYTES)
             request_id = _request_id_if_valid(message)
-            request_id, cmd, args = protocol.validate_request(message)
+            request_id, cmd, args = protocol.validate_request(message, self._robot.kind)
             token = protocol.request_token(message)
         except ProtocolError as err:
             self._send(routing_id, envelope, protocol.error_reply(request_id, err.error_type, str(err)))
@@ -315,7 +318,7 @@ class BridgeServer:
             return protocol.pack(protocol.error_reply(
                 request_id, "StaleRequest", f"request {request_id} is older than the replies this server keeps; "
                                             "not executed"))
-        journaled = self._journal is not None and cmd != "sleep"
+        journaled = self._journal is not None and cmd not in protocol.NOT_JOURNALED
         if journaled:
             try:
                 self._journal.ensure_room()
@@ -388,6 +391,7 @@ class BridgeServer:
         self._lease = MotionLease(digest(token), token=token, nonce_digest=digest(nonce),
                                   replies_kept=self._replies_kept)
         self._journal_event("granted", self._lease)
+        self._robot.control_granted()
         log.info("a client now controls motion")
         return {"token": token, "lease_timeout_s": self.lease_timeout_s}
 
@@ -404,7 +408,7 @@ class BridgeServer:
 
     def _release_control(self) -> None:
         try:
-            self.backend.release_control()
+            self._robot.release_control()
         except Exception:  # the server must keep serving whatever the driver does
             log.exception("the driver failed to make the robot safe after control ended")
 
@@ -417,11 +421,13 @@ class BridgeServer:
             log.error("%s", err)
 
     def _dispatch(self, cmd: str, args: dict, token: str | None):
-        backend = self.backend
+        """The session's commands here; the robot's (its kind's) in the served robot."""
         if cmd == "hello":
             lease = self._lease
             return {
                 "protocol": protocol.PROTOCOL_VERSION,
+                "revision": protocol.PROTOCOL_REVISION,
+                "kind": self._robot.kind,
                 "server_id": self.server_id,
                 "driver": self.driver,
                 "robot_id": self._robot_id,
@@ -431,8 +437,78 @@ class BridgeServer:
                 "lease_timeout_s": self.lease_timeout_s,
                 "max_request_bytes": protocol.MAX_REQUEST_BYTES,
                 "max_sleep_s": protocol.MAX_SLEEP_S,
-                "cameras": [str(c) for c in getattr(backend, "cameras", ("bottom",))],
+                **self._robot.hello(),
             }
+        if cmd == "acquire":
+            return self._acquire(token, args["nonce"])
+        if cmd == "release":
+            lease = self._lease
+            if lease is not None and lease.held_by(token):
+                log.info("the controller released motion")
+                self._lease = None
+                self._journal_event("released", lease)
+                self._release_control()
+            return None
+        return self._robot.dispatch(cmd, args)
+
+
+def check_sleep(duration_s: float) -> float:
+    """A `sleep` request's duration: within [0, MAX_SLEEP_S] (NaN refused), else ProtocolError."""
+    if not 0.0 <= duration_s <= protocol.MAX_SLEEP_S:
+        raise ProtocolError(f"sleep: duration_s must be in [0, {protocol.MAX_SLEEP_S:g}] s, got {duration_s}")
+    return duration_s
+
+
+class ServedRobot:
+    """A robot as the bridge serves it, one per kind (ServedNao; kinds.duckiebot.bridge.ServedDuckiebot)."""
+
+    kind: str  # its protocol.KIND_COMMANDS key: the commands the server answers
+
+    def robot_identity(self) -> dict:
+        """{"id": ..., ...}: the robot the hello names."""
+        raise NotImplementedError
+
+    def hello(self) -> dict:
+        """This kind's own keys of the hello reply."""
+        return {}
+
+    def dispatch(self, cmd: str, args: dict):
+        """Run one of this kind's commands (validated arguments; motion ones from the lease holder only): its result,
+        plain msgpack types. Raises SafetyError, RobotFault, RobotTimeout, NaocalError as a driver does."""
+        raise NotImplementedError
+
+    def control_granted(self) -> None:
+        """A new controller (not one taking its own lease back) starts: what was kept for the last one is not its."""
+
+    def release_control(self) -> None:
+        """Nobody controls the robot any more (released, or the lease lapsed): its safe state."""
+
+    def close(self) -> None:
+        """The server is done: the safe state, the driver closed."""
+
+
+class ServedNao(ServedRobot):
+    """A NAO's `Backend` (the mock, NAOqi, LoLA) as the bridge serves it: the NAO's commands (protocol.COMMANDS)."""
+
+    kind = "nao"
+
+    def __init__(self, backend: Backend):
+        self.backend = backend
+
+    def robot_identity(self) -> dict:
+        return self.backend.robot_identity()
+
+    def hello(self) -> dict:
+        return {"cameras": [str(c) for c in getattr(self.backend, "cameras", ("bottom",))]}
+
+    def release_control(self) -> None:
+        self.backend.release_control()
+
+    def close(self) -> None:
+        self.backend.close()
+
+    def dispatch(self, cmd: str, args: dict):
+        backend = self.backend
         if cmd == "robot_identity":
             return {str(k): str(v) for k, v in backend.robot_identity().items()}
         if cmd == "joint_names":
@@ -461,22 +537,14 @@ class BridgeServer:
             backend.set_stiffness(args["names"], args["stiffness"])
             return None
         if cmd == "sleep":
-            duration_s = args["duration_s"]
-            if not 0.0 <= duration_s <= protocol.MAX_SLEEP_S:  # also refuses NaN
-                raise ProtocolError(f"sleep: duration_s must be in [0, {protocol.MAX_SLEEP_S:g}] s, got {duration_s}")
-            backend.sleep(duration_s)
-            return None
-        if cmd == "acquire":
-            return self._acquire(token, args["nonce"])
-        if cmd == "release":
-            lease = self._lease
-            if lease is not None and lease.held_by(token):
-                log.info("the controller released motion")
-                self._lease = None
-                self._journal_event("released", lease)
-                self._release_control()
+            backend.sleep(check_sleep(args["duration_s"]))
             return None
         raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this table disagree
+
+
+def served_robot(backend) -> ServedRobot:
+    """What the server serves: a kind's ServedRobot as it is, a NAO's Backend (the bridge's first) as a ServedNao."""
+    return backend if isinstance(backend, ServedRobot) else ServedNao(backend)
 
 
 def keep_large_buffers_in_heap() -> bool:

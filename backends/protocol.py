@@ -9,6 +9,11 @@ no eval, no msgpack extension types. Arrays travel as raw bytes with an explicit
 carry their unit (`targets_rad`, `duration_s`); unknown keys are refused, so a key in the wrong unit never passes.
 Motion needs the lease: `acquire` answers the controller alone with a secret token, which every later request
 carries (backends/bridge_lease.py).
+
+One protocol for every robot kind: the session commands (hello, acquire, release) and each kind's own (COMMANDS,
+the NAO's; DUCKIEBOT_COMMANDS). A server serves one robot and answers only its kind's commands (UnknownCommand for
+the others). `v` versions the framing; PROTOCOL_REVISION counts the commands added since (hello says it, and the
+server's kind): adding a kind's commands changes no request or reply an older client sends or reads.
 """
 
 from __future__ import annotations
@@ -24,6 +29,9 @@ from naocal.backends.base import CameraImage, CameraIntrinsics, JointReading, ch
 from naocal.backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
+# Commands and hello keys added since version 1, compatibly: 1 = the NAO's commands; 2 = hello's `kind` and
+# `revision`, the Duckiebot's commands (DUCKIEBOT_COMMANDS). hello without `revision` is a revision-1 server.
+PROTOCOL_REVISION = 2
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply
 ZMQ_MAX_INBOUND_BYTES = 4 << 20  # ZMQ_MAXMSGSIZE of the server socket: libzmq drops the peer beyond this
 MAX_REPLY_BYTES = 16 << 20  # ZMQ_MAXMSGSIZE of the client socket (a VGA BGR image is 0.9 MiB)
@@ -104,6 +112,12 @@ def _camera_name(value, key):
     return value
 
 
+def _time_s(value, key):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ProtocolError(f"args.{key} must be a finite number of seconds, got {value!r}"[:200])
+    return float(value)
+
+
 # Arguments a request may leave out, with the value they then take (requests of clients older than the argument).
 OPTIONAL_ARGS = {"capture": {"camera": "bottom"}}
 
@@ -126,7 +140,23 @@ COMMANDS = {
     "acquire": ({"nonce": _secret}, False),  # -> {"token", "lease_timeout_s"}; ControlError if another holds it
     "release": ({}, False),
 }
-MOTION_COMMANDS = frozenset(cmd for cmd, (_, motion) in COMMANDS.items() if motion)
+# The Duckiebot's commands (revision 2; docs/PROTOCOL.md). Duties are fractions of full power in [-1, 1]; passed
+# through unclipped (NaN too) so that the server's one check (kinds.duckiebot.kinematics.duty_problem) refuses
+# them with a SafetyError. `grab` steps a simulated robot's clock (the wheels in force move it): it needs the lease.
+DUCKIEBOT_COMMANDS = {
+    **{cmd: COMMANDS[cmd] for cmd in ("hello", "robot_identity", "now", "sleep", "acquire", "release")},
+    "facts": ({}, False),  # -> robot id and model, camera size, wheels (radius, baseline, encoders), duty limit
+    "encoder_ticks": ({"from_s": _time_s, "to_s": _time_s}, False),  # -> {ticks_per_revolution, rows [[t, l, r]]}
+    "wheels": ({"left_duty": _finite_or_nan_float, "right_duty": _finite_or_nan_float}, True),  # -> {t_s}
+    "stop": ({}, True),  # both duties 0 -> {t_s}; never refused for a fault (the unwinding must not fail)
+    "grab": ({}, True),  # -> {image (bin), format png|jpeg, t_exposure_s (mid-exposure), width_px, height_px}
+}
+KIND_COMMANDS = {"nao": COMMANDS, "duckiebot": DUCKIEBOT_COMMANDS}
+MOTION_COMMANDS = frozenset(cmd for table in KIND_COMMANDS.values() for cmd, (_, motion) in table.items()
+                            if motion)
+# Motion commands whose replies the lease journal does not keep on disk: repeating one after a restart of the
+# server moves nothing unasked (a sleep waits, a grab takes a new frame), and a frame is too big to fsync each time.
+NOT_JOURNALED = frozenset({"sleep", "grab"})
 
 
 # ---------------------------------------------------------------------------------------------- framing
@@ -197,8 +227,10 @@ def request_token(message: dict) -> str | None:
     return _secret(message["token"], "'token'")
 
 
-def validate_request(message) -> tuple[str, str, dict]:
-    """Check a decoded request against the schema; return (id, cmd, validated args) or raise ProtocolError."""
+def validate_request(message, kind: str = "nao") -> tuple[str, str, dict]:
+    """Check a decoded request against the schema of a server of robot `kind` (its KIND_COMMANDS); return (id, cmd,
+    validated args) or raise ProtocolError."""
+    commands = KIND_COMMANDS[kind]
     if not isinstance(message, dict):
         raise ProtocolError(f"a request must be a map, got {type(message).__name__}")
     if type(message.get("v")) is not int or message["v"] != PROTOCOL_VERSION:
@@ -216,12 +248,14 @@ def validate_request(message) -> tuple[str, str, dict]:
     cmd = message["cmd"]
     if not isinstance(cmd, str):
         raise ProtocolError("'cmd' must be a string")
-    if cmd not in COMMANDS:
-        raise ProtocolError(f"unknown command {cmd[:64]!r}", "UnknownCommand")
+    if cmd not in commands:
+        owners = [name for name, table in KIND_COMMANDS.items() if cmd in table]
+        raise ProtocolError(f"unknown command {cmd[:64]!r}" + (
+            f": a {' or '.join(owners)} command, and this server serves a {kind}" if owners else ""), "UnknownCommand")
     args = message["args"]
     if not isinstance(args, dict):
         raise ProtocolError("'args' must be a map")
-    validators, _ = COMMANDS[cmd]
+    validators, _ = commands[cmd]
     args = {**OPTIONAL_ARGS.get(cmd, {}), **args}
     missing = validators.keys() - args.keys()
     extra = args.keys() - validators.keys()

@@ -236,7 +236,8 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
         check_out_dir(tmp_path, record, resume=True)
     with pytest.raises(NaocalError, match="already holds a Duckiebot calibration run: continue it with --resume"):
         check_out_dir(tmp_path, record, resume=False)
-    for change, message in (({"backend": "bridge"}, "only the mock"), ({"seed": -1}, "--seed"),
+    for change, message in (({"backend": "naoqi"}, "runs on --backend mock or ros or bridge"),
+                            ({"backend": "bridge"}, "needs --endpoint"), ({"seed": -1}, "--seed"),
                             ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))

@@ -2,13 +2,14 @@
 
   naocal bridge serve --driver mock|naoqi|lola [--seed N] [--naoqi URL] [--lola-socket PATH] --bind URL
                       [--allow-remote] [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
+  naocal bridge serve --robot duckiebot --driver mock|ros [--seed N] [--watchdog-s S] --bind URL ... (the same)
   naocal bridge ping --endpoint URL [--timeout-s S] [--count N] [--curve-server-key FILE]
   naocal bridge keygen --out DIR [--name NAME]
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
 
 `serve` runs until SIGINT or SIGTERM. It binds 127.0.0.1 unless --allow-remote is given. The agent connects
-with `naocal calibrate --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL.md; deployment: docs/DEPLOY.md.
+with `naocal calibrate [--robot duckiebot] --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL.md; deployment: docs/DEPLOY.md.
 """
 
 import argparse
@@ -29,8 +30,15 @@ def register(subparsers) -> None:
     actions.required = True
 
     serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM")
-    serve.add_argument("--driver", choices=("mock", "naoqi", "lola"), required=True,
-                       help="the robot to serve: the simulated NAO, NAOqi (stock image), LoLA (team images, V6)")
+    serve.add_argument("--robot", choices=("nao", "duckiebot"), default="nao",
+                       help="the robot kind to serve (default nao); its driver is --driver's")
+    serve.add_argument("--driver", choices=("mock", "naoqi", "lola", "ros"), required=True,
+                       help="the robot to serve: the simulated robot (either kind); a NAO through NAOqi (stock "
+                            "image) or LoLA (team images, V6); a Duckiebot through its ROS topics (ros: run in "
+                            "Duckietown's dt-ros-commons container on the robot, docs/DEPLOY.md)")
+    serve.add_argument("--watchdog-s", type=float, default=None, metavar="S",
+                       help="duckiebot: stop the wheels when they turn and the controlling client has sent no motion "
+                            "request for this long (default 1)")
     serve.add_argument("--seed", type=int, default=0, help="mock: seed of the hidden truth (default 0)")
     serve.add_argument("--effect", action="append", default=[], metavar="NAME=SIZE",
                        help="mock: inject a physical effect (repeatable), as in `naocal simulate`")
@@ -141,8 +149,17 @@ def _serve(args) -> int:
 
 
 def _open_backend(args):
-    """(backend, clock, state_persists) for --driver."""
+    """(backend, clock, state_persists) for --robot and --driver."""
     from naocal.solver.errors import NaocalError
+
+    if args.robot == "duckiebot":
+        from naocal.kinds.duckiebot.bridge import open_served
+
+        if args.effect:
+            raise NaocalError("--effect: the Duckiebot's mock draws its hidden effects per seed (docs/DUCKIEBOT.md)")
+        return open_served(args)
+    if args.driver == "ros" or args.watchdog_s is not None:
+        raise NaocalError("--driver ros and --watchdog-s are for --robot duckiebot")
 
     if args.driver == "mock":
         try:
@@ -213,12 +230,12 @@ def _ping(args) -> int:
     import statistics
     import time
 
-    from naocal.backends.bridge import BridgeBackend
+    from naocal.backends.bridge import BridgeClient
     from naocal.solver.errors import NaocalError
 
     if not 1 <= args.count <= MAX_PING_COUNT:  # a median of no round trips means nothing
         raise NaocalError(f"--count must be within 1..{MAX_PING_COUNT}, got {args.count}")
-    bridge = BridgeBackend(args.endpoint, timeout_s=args.timeout_s, retries=0,
+    bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=0,
                            curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
         info = bridge.server_info()

@@ -48,7 +48,8 @@ class DuckiebotKind:
     export_formats = ("duckietown", "json")
     # calibrate's options of this kind that define its run (recorded in run.json; --resume must repeat them)
     run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
-    calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot"}
+    calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot",
+                          "bridge": "a Duckiebot behind `naocal bridge serve --robot duckiebot`"}
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind

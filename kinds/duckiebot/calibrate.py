@@ -1,11 +1,13 @@
 """`naocal calibrate --robot duckiebot`: the Duckiebot calibrated end to end by its mission (kinds.duckiebot.mission)
 on the PyBullet mock (kinds.duckiebot.mock), or on the robot itself over Duckietown's ROS topics
 (kinds.duckiebot.ros_driver; run inside Duckietown's dt-ros-commons container, $VEHICLE_NAME the robot's name:
-docs/DEPLOY.md "Duckiebot (DB21)").
+docs/DEPLOY.md "Duckiebot (DB21)"), or from a laptop through `naocal bridge serve --robot duckiebot` on the robot
+(kinds.duckiebot.bridge; CURVE keys from $NAOCAL_CURVE_SERVER_KEY, $NAOCAL_CURVE_CLIENT_KEY).
 
     naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
                      [--max-blind-m M]
     naocal calibrate --robot duckiebot --backend ros --out RUN [--max-blind-m M]
+    naocal calibrate --robot duckiebot --backend bridge --endpoint URL --out RUN [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
 validation drive and leaving the area, the same format), RUN/encoders.csv (--backend ros on a DB21: every
@@ -54,6 +56,8 @@ def command_line(record: dict, out, resume: bool = True) -> str:
         parts += ["--seed", str(record["mock_seed"])]
     if record["mock"] not in ("realistic", None):
         parts += ["--mock", record["mock"]]
+    if record.get("endpoint"):
+        parts += ["--endpoint", record["endpoint"]]
     if record["max_blind_m"] != DEFAULT_MAX_BLIND_M:
         parts += ["--max-blind-m", repr(record["max_blind_m"])]
     return shlex.join(parts + ["--out", str(out)] + (["--resume"] if resume else []))
@@ -64,9 +68,17 @@ def _record(args) -> dict:
     from naocal.solver.errors import NaocalError
 
     if args.backend not in KIND.calibrate_backends:
-        raise NaocalError(f"--backend {args.backend}: the Duckiebot has only the mock and, on the robot itself, its "
-                          "own ROS topics (--backend ros); its remote bridge is not written yet")
+        raise NaocalError(f"--backend {args.backend}: the Duckiebot runs on --backend "
+                          + " or ".join(KIND.calibrate_backends))
     vehicle = None
+    if args.backend == "bridge":
+        if not getattr(args, "endpoint", None):
+            raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve --robot "
+                              "duckiebot` prints)")
+        if getattr(args, "mock", None) is not None or getattr(args, "resume", False):
+            raise NaocalError("--backend bridge: --mock is the server's option (naocal bridge serve --robot duckiebot "
+                              "--driver mock --mock ...), and --resume is not usable over the bridge yet: start a "
+                              "new --out")
     if args.backend == "ros":
         import os
 
@@ -78,7 +90,8 @@ def _record(args) -> dict:
             raise NaocalError("--mock chooses the simulated robot; --backend ros drives the real one")
         if getattr(args, "resume", False):
             raise NaocalError(f"--resume with --backend ros: {ROS_NO_RESUME}")
-    for option, given in (("--effect", getattr(args, "effect", None)), ("--endpoint", getattr(args, "endpoint", None)),
+    for option, given in (("--effect", getattr(args, "effect", None)),
+                          ("--endpoint", args.backend != "bridge" and getattr(args, "endpoint", None)),
                           ("--report", getattr(args, "report", None))):
         if given:
             raise NaocalError(f"{option}: the Duckiebot's mock has no such option yet (its hidden effects are drawn "
@@ -92,7 +105,7 @@ def _record(args) -> dict:
     return {"schema": "naocal.run/1", "verb": "calibrate", "robot": "duckiebot", "backend": args.backend,
             "mock_seed": int(args.seed) if mock else None,
             "mock": (getattr(args, "mock", None) or "realistic") if mock else None, "max_blind_m": blind,
-            "vehicle": vehicle}
+            "vehicle": vehicle, "endpoint": args.endpoint if args.backend == "bridge" else None}
 
 
 def check_out_dir(out: Path, record: dict, resume: bool) -> None:
@@ -160,6 +173,16 @@ def run(args) -> int:
 
         robot = RosDuckiebot(record["vehicle"])
         robot_id, source = record["vehicle"], f"naocal calibrate --robot duckiebot --backend ros ({record['vehicle']})"
+    elif record["backend"] == "bridge":  # the server asked before anything is written, as the ROS topics
+        from naocal.kinds.duckiebot.bridge import DuckiebotBridge
+
+        robot = DuckiebotBridge(record["endpoint"])
+        try:
+            robot_id = robot.robot_id
+        except BaseException:
+            robot.close()
+            raise
+        source = f"naocal calibrate --robot duckiebot --backend bridge ({robot_id} at {record['endpoint']})"
     else:
         robot_id, source = f"mock{record['mock_seed']}", (f"naocal calibrate --robot duckiebot --backend mock "
                                                           f"--seed {record['mock_seed']}")
@@ -178,7 +201,7 @@ def run(args) -> int:
                 atomic_write_text(out / "truth.json", json.dumps(truth, indent=1) + "\n")  # the agent never reads it
 
             def write_offsets(calibration):
-                what = (f"{record['vehicle']}" if record["backend"] == "ros" else
+                what = (f"{robot_id}" if record["backend"] in ("ros", "bridge") else
                         f"mock seed {record['mock_seed']} ({record['mock']})")
                 findings = write_calibration_file(out / "offsets.json", calibration,
                                                   source=f"naocal calibrate --robot duckiebot, {what}")

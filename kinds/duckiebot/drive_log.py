@@ -369,6 +369,26 @@ def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> Dri
     return read_drive_log(directory)
 
 
+def write_encoders(log_dir, rows, ticks_per_revolution: int) -> int:
+    """Write encoder rows (t_s, left_ticks, right_ticks) as LOG/encoders.csv, and the encoders' resolution into
+    LOG/log.json (wheels.ticks_per_revolution, which a log with encoders must give); each file atomically and checked
+    as the reader does first. For a finished log: a log.json changed under a resumable run would no longer be its
+    own. Returns the rows written (0: nothing written, as for a robot without encoders, the DB18)."""
+    rows = list(rows)
+    if not rows:
+        return 0
+    log_dir = Path(log_dir)
+    text = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
+    read_encoders(log_dir / ENCODERS_FILE, text)
+    meta = read_json(log_dir / META_FILE)
+    if meta.get("wheels", {}).get("ticks_per_revolution") != ticks_per_revolution:
+        meta["wheels"]["ticks_per_revolution"] = ticks_per_revolution
+        parse_meta(meta, log_dir / META_FILE)
+        atomic_write_text(log_dir / META_FILE, json.dumps(meta, indent=2) + "\n")
+    atomic_write_text(log_dir / ENCODERS_FILE, text)
+    return len(rows)
+
+
 def _csv_cell(text: str) -> str:
     buffer = io.StringIO()
     csv.writer(buffer, lineterminator="").writerow([text])

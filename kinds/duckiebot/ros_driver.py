@@ -32,23 +32,19 @@ when it is captured; its exposure is a few ms at the calibration area's light).
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import threading
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.drive_log import (ENCODERS_FILE, ENCODERS_HEADER, META_FILE, EncoderJournal, csv_text,
-                                              parse_meta, read_encoders)
+from naocal.kinds.duckiebot.drive_log import EncoderJournal, write_encoders
 from naocal.kinds.duckiebot.kinematics import duty_problem
 from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
                                          robot_name_problem)
 from naocal.solver.errors import NaocalError, SafetyError
-from naocal.solver.fileio import atomic_write_text, read_json
 
 log = logging.getLogger(__name__)
 
@@ -308,27 +304,17 @@ class RosDuckiebot:
                        f"{IMAGE_HEIGHT_PX} (the camera node's resolution)")
         return stamp, image
 
+    def encoder_ticks(self, t_from_s: float, t_to_s: float) -> list:
+        """The rows (t_s, left_ticks, right_ticks) counted within [t_from_s, t_to_s], checked as they came in."""
+        with self._lock:
+            return [r for r in self.encoder_rows if t_from_s <= r[0] <= t_to_s]
+
     def save_encoders(self, log_dir, t_from_s: float, t_to_s: float) -> int:
-        """Write the ticks counted within [t_from_s, t_to_s] as LOG/encoders.csv, and the encoders' resolution into
-        LOG/log.json (wheels.ticks_per_revolution, which a log with encoders must give); each file atomically and
-        checked as the reader does first. For a finished log: a log.json changed under a resumable run would no
-        longer be its own. Returns the rows written (0, nothing written, on a robot without encoders: the DB18)."""
+        """The ticks counted within [t_from_s, t_to_s] into the drive log (drive_log.write_encoders); the rows written
+        (0, nothing written, on a robot without encoders: the DB18)."""
         if self._journal is not None:
             self._save_ticks()
-        with self._lock:
-            rows = [r for r in self.encoder_rows if t_from_s <= r[0] <= t_to_s]
-        if not rows:
-            return 0
-        log_dir = Path(log_dir)
-        text = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
-        read_encoders(log_dir / ENCODERS_FILE, text)
-        meta = read_json(log_dir / META_FILE)
-        if meta.get("wheels", {}).get("ticks_per_revolution") != self.ticks_per_revolution:
-            meta["wheels"]["ticks_per_revolution"] = self.ticks_per_revolution
-            parse_meta(meta, log_dir / META_FILE)
-            atomic_write_text(log_dir / META_FILE, json.dumps(meta, indent=2) + "\n")
-        atomic_write_text(log_dir / ENCODERS_FILE, text)
-        return len(rows)
+        return write_encoders(log_dir, self.encoder_ticks(t_from_s, t_to_s), self.ticks_per_revolution)
 
     def close(self) -> None:
         """Wheels stopped, watchdog ended, topics left. Safe to call twice."""

@@ -1,0 +1,309 @@
+"""The Duckiebot through naocal's bridge (kinds/duckiebot/bridge.py, docs/PROTOCOL.md "Duckiebot commands"): the same
+server, protocol and lease as the NAO's, the mock served behind it on ipc://, the mission's client in front."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge_fakes import FakeBackend, RawClient, serving
+from naocal.agent.machine import DONE
+from naocal.backends import protocol
+from naocal.backends.bridge import BridgeBackend
+from naocal.backends.errors import BridgeError, RobotFault
+from naocal.kinds.duckiebot.bridge import DuckiebotBridge, ServedDuckiebot
+from naocal.kinds.duckiebot.drive_log import read_drive_log
+from naocal.kinds.duckiebot.mission import Boards, MissionSettings, run_mission
+from naocal.kinds.duckiebot.mock import DuckiebotMock
+from naocal.solver.errors import SafetyError
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = MissionSettings(board_passes=2, legs=(2, 3), wiggles=1)
+BOARDS_ONLY = {("boards", "ok"): DONE}
+
+
+def ipc(tmp_path) -> str:
+    return f"ipc://{tmp_path}/duckiebot.sock"
+
+
+@pytest.fixture
+def mock():
+    robot = DuckiebotMock(4, "ideal", supersample=1)
+    yield robot
+    robot.close()
+
+
+@pytest.fixture
+def served(mock):
+    robot = ServedDuckiebot(mock, robot_id="mock4", watchdog_s=0.3)
+    yield robot
+    robot.close()
+
+
+def test_the_boards_phase_over_the_bridge_drives_the_mock_as_a_direct_run_does(tmp_path):
+    direct = DuckiebotMock(4, "ideal", supersample=1)
+    try:
+        run_mission(direct, tmp_path / "direct", SHORT, transitions=BOARDS_ONLY, states=(Boards,))
+    finally:
+        direct.close()
+    mock = DuckiebotMock(4, "ideal", supersample=1)
+    served = ServedDuckiebot(mock, robot_id="mock4")
+    try:
+        with serving(served, ipc(tmp_path), driver="mock") as server:
+            robot = DuckiebotBridge(server.endpoint)
+            try:
+                result, ctx = run_mission(robot, tmp_path / "bridged", SHORT, robot_id=robot.robot_id,
+                                          transitions=BOARDS_ONLY, states=(Boards,))
+            finally:
+                robot.close()
+        assert result.final == DONE, result.reason
+        assert ctx.session.log.frames and mock.duties.tolist() == [0.0, 0.0]
+        # the robot received the same duties at the same times as without the bridge; then only stops (the client's
+        # close, the server's end of control)
+        n = len(direct.received)
+        assert mock.received[:n] == direct.received and all(tuple(d) == (0.0, 0.0) for _, *d in mock.received[n:])
+        bridged, alone = read_drive_log(tmp_path / "bridged" / "log"), read_drive_log(tmp_path / "direct" / "log")
+        assert np.array_equal(bridged.wheel_t_s, alone.wheel_t_s) and np.array_equal(bridged.frame_t_s, alone.frame_t_s)
+        assert bridged.robot_id == "mock4" and bridged.frame_files == alone.frame_files
+        last = len(alone.frame_files) - 1  # PNG over the wire: the mission saw exactly what the robot saw
+        assert np.array_equal(bridged.load_frame(last), alone.load_frame(last))
+    finally:
+        served.close()
+
+
+def test_a_bad_duty_is_refused_on_the_server_before_the_robot(tmp_path, served, mock):
+    with serving(served, ipc(tmp_path)) as server:
+        raw = RawClient(server.endpoint)
+        token = raw.request("raw:1", "acquire", {"nonce": "n" * 22})["result"]["token"]
+        for seq, (left, right) in enumerate([(math.nan, 0.0), (0.2, 1.5), (-math.inf, 0.0), (1.0000001, 0.0)], 2):
+            reply = raw.request(f"raw:{seq}", "wheels", {"left_duty": left, "right_duty": right}, token=token)
+            assert reply["ok"] is False and reply["error"]["type"] == "SafetyError", reply
+        assert mock.received == []  # the driver never heard them
+        reply = raw.request("raw:9", "wheels", {"left_duty": "0.5", "right_duty": 0.0}, token=token)
+        assert reply["error"]["type"] == "ProtocolError"
+        assert raw.request("raw:10", "release", token=token)["ok"] is True
+        raw.close()
+        client = DuckiebotBridge(server.endpoint)
+        with pytest.raises(SafetyError, match="right duty 2.0"):
+            client.command(0.1, 2.0)
+        assert all((l, r) == (0.0, 0.0) for _, l, r in mock.received)  # only the stop of the raw client's release
+        client.close()
+
+
+def test_without_the_lease_nothing_moves_and_reads_still_work(tmp_path, served, mock):
+    with serving(served, ipc(tmp_path)) as server:
+        controller = DuckiebotBridge(server.endpoint)
+        controller.command(0.2, 0.2)
+        stranger = RawClient(server.endpoint)
+        for seq, (cmd, args) in enumerate([("wheels", {"left_duty": 0.9, "right_duty": -0.9}), ("stop", {}),
+                                           ("grab", {}), ("sleep", {"duration_s": 1.0})], 1):
+            reply = stranger.request(f"s:{seq}", cmd, args, token="t" * 22)
+            assert reply["error"]["type"] == "ControlError", reply
+        assert stranger.request("s:9", "now")["ok"] is True
+        assert [(l, r) for _, l, r in mock.received] == [(0.2, 0.2)] and mock.t_s == 0.0
+        stranger.close()
+        controller.close()
+
+
+def test_a_dead_client_has_its_wheels_stopped_within_the_watchdog(tmp_path, served, mock):
+    """A client process killed (SIGKILL: no stop, no release) while the wheels turn."""
+    with serving(served, ipc(tmp_path)) as server:
+        script = textwrap.dedent(f"""
+            import sys, time
+            sys.path.insert(0, {str(ROOT.parent)!r})
+            sys.path.insert(0, {str(ROOT)!r})
+            from naocal.kinds.duckiebot.bridge import DuckiebotBridge
+            robot = DuckiebotBridge({server.endpoint!r})
+            robot.command(0.5, 0.4)
+            print("driving", flush=True)
+            time.sleep(60)
+        """)
+        child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+        try:
+            assert child.stdout.readline().strip() == "driving"
+            assert mock.duties.tolist() == [0.5, 0.4]
+            child.send_signal(signal.SIGKILL)
+            killed = time.monotonic()
+            while mock.duties.tolist() != [0.0, 0.0] and time.monotonic() - killed < 5.0:
+                time.sleep(0.01)
+            stopped_after_s = time.monotonic() - killed
+        finally:
+            child.kill()
+            child.wait()
+        assert mock.duties.tolist() == [0.0, 0.0] and stopped_after_s < 0.3 + 0.5, stopped_after_s
+        # a controller silent too long (hung, not dead) is told once that the server stopped its wheels
+        hung = DuckiebotBridge(server.endpoint)
+        with pytest.raises(BridgeError, match="acquire: another client controls the robot"):
+            hung.command(0.3, 0.3)  # the dead client's lease has not lapsed (120 s): nobody else drives
+    with serving(served, ipc(tmp_path)) as server:
+        hung = DuckiebotBridge(server.endpoint)
+        hung.command(0.3, 0.3)
+        time.sleep(0.6)
+        assert mock.duties.tolist() == [0.0, 0.0]
+        with pytest.raises(RobotFault, match="no request from the controlling client for 0.[3-6]"):
+            hung.advance(0.1)
+        hung.command(0.2, 0.2)  # told once: it may drive again
+        assert mock.duties.tolist() == [0.2, 0.2]
+        hung.close()
+        assert mock.duties.tolist() == [0.0, 0.0]
+
+
+def test_the_lease_lapsing_and_the_shutdown_stop_the_wheels(tmp_path, mock):
+    served = ServedDuckiebot(mock, robot_id="mock4", watchdog_s=10.0)  # the lease's deadline comes first here
+    try:
+        with serving(served, ipc(tmp_path), lease_timeout_s=0.3) as server:
+            client = DuckiebotBridge(server.endpoint)
+            client.command(0.3, -0.3)
+            deadline = time.monotonic() + 3.0
+            while mock.duties.tolist() != [0.0, 0.0] and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert mock.duties.tolist() == [0.0, 0.0]
+            with pytest.raises(RobotFault, match="control ended"):
+                client.command(0.25, 0.25)  # its holder comes back: told once
+            time.sleep(0.4)  # its lease lapses again
+            newcomer = DuckiebotBridge(server.endpoint)
+            newcomer.command(0.25, 0.25)  # the lapsed lease passes on; the stop was not the newcomer's to hear of
+            assert mock.duties.tolist() == [0.25, 0.25]
+            newcomer._drop_socket()  # gone without a word
+        served.close()  # what `naocal bridge serve` does on SIGINT / SIGTERM
+        assert mock.duties.tolist() == [0.0, 0.0]
+    finally:
+        served.close()
+
+
+class BadFrames:
+    """The mock, but its camera returns a frame of the wrong size; encoders that count, then jump back in time."""
+
+    ticks_per_revolution = 135
+
+    def __init__(self, robot):
+        self.robot, self.rows = robot, [(0.1, 0, 0), (0.2, 3, 4), (0.3, 6, 8)]
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def grab(self):
+        t, image = self.robot.grab()
+        return t, image[:, :320]
+
+    def encoder_ticks(self, t_from_s, t_to_s):
+        return [r for r in self.rows if t_from_s <= r[0] <= t_to_s]
+
+
+def test_frames_and_encoder_rows_are_checked_before_they_are_echoed(tmp_path, mock):
+    served = ServedDuckiebot(BadFrames(mock), robot_id="mock4")
+    try:
+        with serving(served, ipc(tmp_path)) as server:
+            client = DuckiebotBridge(server.endpoint)
+            assert client.facts()["ticks_per_revolution"] == 135
+            assert client.encoder_ticks(0.0, 0.25) == [[0.1, 0, 0], [0.2, 3, 4]]
+            client.command(0.2, 0.2)
+            with pytest.raises(RobotFault, match="shape \\(480, 320\\).*the wheels were stopped"):
+                client.grab()
+            assert mock.duties.tolist() == [0.0, 0.0]
+            served.driver.rows.append((0.25, 9, 9))  # back in time
+            with pytest.raises(RobotFault, match="row 4: t_s 0.25 is not after"):
+                client.encoder_ticks(0.0, 1.0)
+            client.close()
+    finally:
+        served.close()
+
+
+def test_kinds_are_told_apart_and_the_nao_client_is_unchanged(tmp_path, served):
+    with serving(served, ipc(tmp_path)) as server:
+        hello = BridgeBackend(server.endpoint).server_info  # a NAO client meets a Duckiebot server
+        with pytest.raises(BridgeError, match="serves a duckiebot, not a nao"):
+            hello()
+        raw = RawClient(server.endpoint)
+        reply = raw.request("old:1", "read_joints")  # a revision-1 request: framing unchanged, command not this kind's
+        assert reply["v"] == 1 and reply["error"]["type"] == "UnknownCommand"
+        assert "a nao command, and this server serves a duckiebot" in reply["error"]["message"]
+        raw.close()
+    with serving(FakeBackend(), ipc(tmp_path)) as server:
+        with pytest.raises(BridgeError, match="serves a nao, not a duckiebot"):
+            DuckiebotBridge(server.endpoint).now()
+        raw = RawClient(server.endpoint)
+        hello = raw.request("old:1", "hello")["result"]
+        assert hello["protocol"] == 1 and hello["kind"] == "nao" and hello["revision"] == protocol.PROTOCOL_REVISION
+        assert raw.request("old:2", "wheels", {"left_duty": 0.1, "right_duty": 0.1})["error"]["type"] == \
+            "UnknownCommand"
+        raw.close()
+
+
+def test_calibrate_over_the_bridge_needs_an_endpoint_one_line_exit_2(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "naocal", "calibrate", "--robot", "duckiebot", "--backend", "bridge",
+                          "--out", str(tmp_path / "run")], cwd=ROOT, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 2 and "--backend bridge needs --endpoint URL" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
+    """`naocal bridge serve --robot duckiebot --driver ros` as on a DB21: RosDuckiebot over Duckietown's topics (the
+    fake peer of tests/duckiebot_ros_peer.py) behind the server; the client drives, grabs and reads the encoders."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from duckiebot_ros_peer import FakeRosGraph
+    from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+    graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
+    served = ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=10.0)
+    try:
+        with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
+            client = DuckiebotBridge(server.endpoint)
+            assert client.facts()["ticks_per_revolution"] == 135 and client.robot_id == "db21"
+            t_start = client.command(0.4, 0.4)
+            client.advance(1.5)
+            client.command(0.0, 0.0)
+            t, image = client.grab()
+            assert t > t_start and image.shape == (480, 640) and image.dtype == np.uint8
+            rows = client.encoder_ticks(t_start, t)
+            assert len(rows) > 20 and rows[-1][1] - rows[0][1] > 50  # 1.5 s at about 0.4 x 27 rad/s
+            assert rows == [[r[0], r[1], r[2]] for r in served.driver.encoder_ticks(t_start, t)]
+            client.close()
+        assert graph.received[-1][1:] == (0.0, 0.0) and graph.refused == []
+    finally:
+        served.close()
+
+
+def test_with_curve_clients_an_unknown_key_moves_nothing_and_an_admitted_one_drives(tmp_path, served, mock):
+    from naocal.backends.bridge_server import write_curve_keys
+
+    server_public, server_secret = write_curve_keys(tmp_path / "server", "server")
+    write_curve_keys(tmp_path / "clients", "laptop")
+    _, stranger_secret = write_curve_keys(tmp_path / "others", "stranger")
+    with serving(served, ipc(tmp_path), curve_secret_key_file=server_secret,
+                 curve_clients_dir=tmp_path / "clients") as server:
+        for kwargs in ({}, {"curve_server_key": server_public, "curve_client_key": stranger_secret}):
+            stranger = DuckiebotBridge(server.endpoint, timeout_s=1.0, retries=0, **kwargs)
+            with pytest.raises(BridgeError, match="requires CURVE keys|does not admit this client"):
+                stranger.command(0.5, 0.5)
+            stranger.close()
+        assert mock.received == []
+        laptop = DuckiebotBridge(server.endpoint, curve_server_key=server_public,
+                                 curve_client_key=tmp_path / "clients" / "laptop.key_secret")
+        laptop.command(0.5, 0.5)
+        assert mock.duties.tolist() == [0.5, 0.5]
+        laptop.close()
+        assert mock.duties.tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--robot", "duckiebot", "--driver", "naoqi"], "--driver naoqi drives a NAO"),
+    (["--driver", "ros"], "--driver ros and --watchdog-s are for --robot duckiebot"),
+    (["--robot", "duckiebot", "--driver", "mock", "--watchdog-s", "0"], "--watchdog-s must be within"),
+])
+def test_bridge_serve_bad_robot_options_are_one_line_exit_2(argv, message, capsys):
+    from naocal.tools import cli
+
+    code = cli.main(["bridge", "serve", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err, err
