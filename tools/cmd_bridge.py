@@ -13,8 +13,8 @@ with `naocal calibrate [--robot duckiebot] --backend bridge --endpoint URL`. Pro
 """
 
 import argparse
-import logging
 
+from naocal import kinds
 from naocal.tools import cmd_bridge_tools
 
 DEFAULT_BIND = "tcp://127.0.0.1:7790"  # keep in step with backends.bridge_server.DEFAULT_BIND
@@ -30,7 +30,8 @@ def register(subparsers) -> None:
     actions.required = True
 
     serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM")
-    serve.add_argument("--robot", choices=("nao", "duckiebot"), default="nao",
+    serve.add_argument("--robot", choices=tuple(k.name for k in kinds.registered() if hasattr(k, "open_served")),
+                       default=kinds.default().name,
                        help="the robot kind to serve (default nao); its driver is --driver's")
     serve.add_argument("--driver", choices=("mock", "naoqi", "lola", "ros"), required=True,
                        help="the robot to serve: the simulated robot (either kind); a NAO through NAOqi (stock "
@@ -149,81 +150,8 @@ def _serve(args) -> int:
 
 
 def _open_backend(args):
-    """(backend, clock, state_persists) for --robot and --driver."""
-    from naocal.solver.errors import NaocalError
-
-    if args.robot == "duckiebot":
-        from naocal.kinds.duckiebot.bridge import open_served
-
-        if args.effect:
-            raise NaocalError("--effect: the Duckiebot's mock draws its hidden effects per seed (docs/DUCKIEBOT.md)")
-        return open_served(args)
-    if args.driver == "ros" or args.watchdog_s is not None:
-        raise NaocalError("--driver ros and --watchdog-s are for --robot duckiebot")
-
-    if args.driver == "mock":
-        try:
-            from naocal.backends.mock import MockBackend, parse_effect_sizes
-        except ImportError as err:
-            raise NaocalError(f"the PyBullet mock is not available: {err}") from None
-        kwargs = {"seed": args.seed, "realism": args.mock or "realistic"}
-        if args.effect:
-            kwargs["effects"] = parse_effect_sizes(args.effect)
-        return MockBackend(**kwargs), "simulated", False
-    if args.mock is not None:
-        raise NaocalError("--mock is for --driver mock")
-    if args.driver == "lola":
-        return _open_lola(args), "wall", True
-    try:
-        from naocal.backends.naoqi_driver import NaoqiBackend
-
-        return NaoqiBackend(args.naoqi), "wall", True
-    except ImportError as err:
-        raise NaocalError(f"--driver naoqi needs libqi-python (pip install qi): {err}") from None
-
-
-def _open_lola(args):
-    """The LoLA driver with the cameras whose devices exist (each opened on first capture) for `serve --driver lola`."""
-    from naocal.backends.lola_driver import LolaBackend
-    from naocal.backends.base import nominal_intrinsics
-    from naocal.backends import v4l2_camera
-    from naocal.backends.v4l2_camera import V4L2Camera, read_intrinsics
-    from naocal.solver.errors import NaocalError
-
-    log = logging.getLogger("naocal.bridge")
-
-    if not 0.0 <= args.hold_s <= 600.0 or not 0.0 < args.ramp_s <= 60.0:
-        raise NaocalError(f"--hold-s must be within [0, 600] and --ramp-s within (0, 60], got {args.hold_s}, "
-                          f"{args.ramp_s}")
-    if not 0.05 <= args.lola_timeout_s <= 60.0:
-        raise NaocalError(f"--lola-timeout-s must be within [0.05, 60], got {args.lola_timeout_s}")
-    width, height = (int(n) for n in args.camera_resolution.split("x"))
-    intrinsics = read_intrinsics(args.intrinsics) if args.intrinsics else nominal_intrinsics(width, height)
-    names = [name.strip() for name in args.cameras.split(",") if name.strip()]
-    if not names or len(set(names)) != len(names) or not set(names) <= {"bottom", "top"}:
-        raise NaocalError(f"--cameras must list bottom and/or top, got {args.cameras!r}")
-    cameras, missing = [], {}
-    if not args.no_camera:
-        if args.camera_exposure == "auto":
-            exposure = None
-        elif args.camera_exposure.isdigit() and 1 <= int(args.camera_exposure) <= 10000:
-            exposure = int(args.camera_exposure)
-        else:
-            raise NaocalError(f"--camera-exposure must be 1..10000 (100 us units) or 'auto', got "
-                              f"{args.camera_exposure!r}")
-        devices = {"bottom": args.camera_device, "top": args.top_camera_device}
-        for name in names:
-            if not v4l2_camera.device_present(devices[name]):
-                missing[name] = devices[name]
-                continue
-            # Same lens: the top camera starts from the bottom one's prior too.
-            cameras.append(V4L2Camera(name, device=devices[name], width=width, height=height, exposure=exposure,
-                                      gain=args.camera_gain, intrinsics=intrinsics))
-    backend = LolaBackend(args.lola_socket, cameras=cameras, missing_cameras=missing, intrinsics=intrinsics,
-                          hold_s=args.hold_s, ramp_s=args.ramp_s, silence_timeout_s=args.lola_timeout_s)
-    for name, device in missing.items():  # said once connected, so that a bad start stays one line
-        log.warning("%s camera: no device %s: serving without it", name, device)
-    return backend
+    """(backend, clock, state_persists): the --robot kind's served robot for --driver (each kind's `open_served`)."""
+    return kinds.named(args.robot).open_served(args)
 
 
 def _ping(args) -> int:

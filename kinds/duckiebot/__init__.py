@@ -86,6 +86,12 @@ class DuckiebotKind:
                               f"(kinds/duckiebot/{VERB_MODULES[verb][0]}.py is missing)")
         return getattr(module, VERB_MODULES[verb][1])(args)
 
+    def open_served(self, args):
+        """The Duckiebot `naocal bridge serve --robot duckiebot` serves (--driver mock|ros)."""
+        from naocal.kinds.duckiebot.bridge import open_served
+
+        return open_served(args)
+
     def calibrate(self, args) -> int:
         return self._run_module("calibrate", args)
 

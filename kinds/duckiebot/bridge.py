@@ -255,6 +255,8 @@ class ServedDuckiebot(ServedRobot):
 
 def open_served(args):
     """(ServedDuckiebot, clock, state_persists) for `naocal bridge serve --robot duckiebot --driver mock|ros`."""
+    if getattr(args, "effect", None):
+        raise NaocalError("--effect: the Duckiebot's mock draws its hidden effects per seed (docs/DUCKIEBOT.md)")
     watchdog_s = check_watchdog(DEFAULT_WATCHDOG_S if getattr(args, "watchdog_s", None) is None else args.watchdog_s)
     if args.driver == "mock":
         from naocal.kinds.duckiebot.mock import DuckiebotMock

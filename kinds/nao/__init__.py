@@ -62,6 +62,12 @@ class NaoKind:
         return {"show": offsets.run_show, "diff": offsets.run_diff, "validate": offsets.run_validate,
                 "export": offsets.run_export, "apply": offsets.run_apply}[action](args, out)
 
+    def open_served(self, args):
+        """The NAO `naocal bridge serve` serves (--driver mock|naoqi|lola): (backend, clock, state_persists)."""
+        from naocal.kinds.nao.bridge import open_served
+
+        return open_served(args)
+
     def calibrate(self, args) -> int:
         from naocal.kinds.nao.calibrate import run
 
