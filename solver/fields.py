@@ -33,11 +33,11 @@ def shown(value, max_chars: int = 40) -> str:
 
 def _interval(low, high, open_low) -> str:
     if high == math.inf:
-        return "positive" if low == 0 and open_low else "not negative" if low == 0 else \
-            f"{'above' if open_low else 'at least'} {low:g}"
+        return "be positive" if low == 0 and open_low else "not be negative" if low == 0 else \
+            f"be {'above' if open_low else 'at least'} {low:g}"
     if low == -math.inf:
-        return f"at most {high:g}"
-    return f"within {'(' if open_low else '['}{low:g}, {high:g}]"
+        return f"be at most {high:g}"
+    return f"be within {'(' if open_low else '['}{low:g}, {high:g}]"
 
 
 def number(value, path, field, *, low=-math.inf, high=math.inf, open_low=False, positive=False,
@@ -51,7 +51,7 @@ def number(value, path, field, *, low=-math.inf, high=math.inf, open_low=False, 
     if positive or non_negative:
         low, open_low = max(low, 0.0), open_low or positive
     if value < low or (open_low and value == low) or value > high:
-        fail(path, f"must be {_interval(low, high, open_low)}, got {value!r}", field, line)
+        fail(path, f"must {_interval(low, high, open_low)}, got {value!r}", field, line)
     if integer and value != int(value):
         fail(path, f"expected a whole number, got {value!r}", field, line)
     if limit is not None and abs(value) > limit:

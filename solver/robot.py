@@ -316,7 +316,7 @@ def parse_robot(doc, path) -> RobotDescription:
             board=Board(size[0], size[1],
                         fields.number(board["square_m"], path, f"{where}.board.square_m", positive=True),
                         tuple(colours), fields.number(board.get("mass_kg", 0.0), path, f"{where}.board.mass_kg",
-                                                non_negative=True)),
+                                                      non_negative=True)),
             T_frame_board=make_transform(rot_rpy(*fields.vector(pose["rpy"], 3, path, f"{where}.pose.rpy")),
                                          fields.vector(pose["xyz"], 3, path, f"{where}.pose.xyz")),
             load=load, about=str(tgt.get("about", "")))
