@@ -105,14 +105,15 @@ def names(value, path, field, *, what: str = "names", non_empty: bool = False) -
     return tuple(value)
 
 
-def text(value, path, field, *, max_chars: int = 1000, non_empty: bool = False, one_line: bool = True) -> str:
+def text(value, path, field, *, max_chars: int | None = None, non_empty: bool = False,
+         one_line: bool = True) -> str:
     """A string of at most `max_chars` characters; `one_line`: printable, no line break or control character (text
     that another program's config file or a one-line message will hold); `non_empty`: not ""."""
-    if not isinstance(value, str) or len(value) > max_chars or (non_empty and not value) \
-            or (one_line and not value.isprintable()):
+    if not isinstance(value, str) or (max_chars is not None and len(value) > max_chars) \
+            or (non_empty and not value) or (one_line and not value.isprintable()):
         kind = "a single line of printable text" if one_line else "text"
-        fail(path, f"expected {'non-empty ' if non_empty else ''}{kind} (at most {max_chars} characters), "
-                   f"got {shown(value)}", field)
+        most = "" if max_chars is None else f" (at most {max_chars} characters)"
+        fail(path, f"expected {'non-empty ' if non_empty else ''}{kind}{most}, got {shown(value)}", field)
     return value
 
 
