@@ -72,7 +72,8 @@ def implausible(value: float, limit: float, unit: str) -> str:
 def count(value, path, field, low: int = 0, high: int = MAX_COUNT, *, line=None) -> int:
     """A JSON integer (not a boolean, not 3.0) from `low` to `high`."""
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        fail(path, f"expected a whole number from {low} to {high}, got {shown(value)}", field, line)
+        span = f"at least {low}" if high == MAX_COUNT else f"from {low} to {high}"
+        fail(path, f"expected a whole number {span}, got {shown(value)}", field, line)
     return value
 
 
