@@ -127,7 +127,7 @@ def json_object(value, path, field, required=(), optional=None, *, keys: str = "
     if not isinstance(value, dict):
         fail(path, f"expected a JSON object, got {shown(value)}", field)
     if optional is not None:
-        allowed = tuple(required) + tuple(optional)
+        allowed = tuple(dict.fromkeys((*required, *optional)))
         for key in value:
             if key not in allowed:
                 fail(path, f"unknown {keys} (allowed: {', '.join(allowed)})", inner(key))
