@@ -88,12 +88,22 @@ def number_text(text, path, field, *, line=None, **limits) -> float:
     return number(value, path, field, line=line, **limits)
 
 
-def vector(value, n, path, field, **limits) -> tuple:
-    """A list of `n` numbers (`n` a tuple: any of those lengths), each checked as `number` with `limits`."""
+def count_text(text, path, field, low: int = 0, high: int = MAX_COUNT, *, line=None) -> int:
+    """The whole number a text holds in decimal digits (a CSV cell, a YAML scalar), from `low` to `high`."""
+    if not isinstance(text, str) or not text.isdigit() or len(text) > 20 or not low <= int(text) <= high:
+        span = f"at least {low}" if high == MAX_COUNT else f"from {low} to {high}"
+        fail(path, f"expected a whole number {span}, got {shown(text)}", field, line)
+    return int(text)
+
+
+def vector(value, n, path, field, *, from_text: bool = False, **limits) -> tuple:
+    """A list of `n` numbers (`n` a tuple: any of those lengths), each checked as `number` with `limits`
+    (`from_text`: each a text holding a number, as number_text: a YAML list)."""
     lengths = n if isinstance(n, tuple) else (n,)
     if not isinstance(value, list) or len(value) not in lengths:
         fail(path, f"expected a list of {' or '.join(map(str, lengths))} numbers, got {shown(value)}", field)
-    return tuple(number(v, path, f"{field}[{i}]", **limits) for i, v in enumerate(value))
+    check = number_text if from_text else number
+    return tuple(check(v, path, f"{field}[{i}]", **limits) for i, v in enumerate(value))
 
 
 def names(value, path, field, *, what: str = "names", non_empty: bool = False) -> tuple:
