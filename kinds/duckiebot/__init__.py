@@ -49,6 +49,10 @@ class DuckiebotKind:
     # calibrate's options of this kind that define its run (recorded in run.json; --resume must repeat them)
     run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
     calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot"}
+    data_help = f"a drive log directory (log.json of {LOG_SCHEMA}, wheels.csv, frames.csv; docs/DUCKIEBOT.md)"
+    calibration_help = f"a {CALIBRATION_SCHEMA} file"
+    model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "
+                  "poses on the pixel error of the marker corners")
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):
