@@ -19,7 +19,6 @@ more about a NAO than this file says.
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +27,7 @@ import numpy as np
 from naocal.solver import fields
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import DataError
+from naocal.solver.fileio import read_json
 from naocal.solver.transforms import make_transform, rot_rpy
 from naocal.solver.urdf import Urdf, parse_urdf
 
@@ -349,15 +349,7 @@ def load_robot(name_or_path) -> RobotDescription:
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str) -> RobotDescription:
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(path, f"cannot read the robot description: {err}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise DataError(path, f"invalid JSON: {err.msg} (column {err.colno})", line=err.lineno) from None
-    return parse_robot(doc, path)
+    return parse_robot(read_json(path), path)  # regular files only, size and nesting capped, no key twice
 
 
 def nao() -> RobotDescription:
