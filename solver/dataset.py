@@ -215,7 +215,9 @@ def _check_camera(camera, path, where) -> None:
     for key in ("fx_px", "fy_px"):
         fields.number(camera[key], path, f"{where}.{key}", positive=True, limit=MAX_FOCAL_LENGTH_PX)
     for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
-        fields.number(camera[key], path, f"{where}.{key}", low=0, high=camera[side])
+        if not 0 <= fields.number(camera[key], path, f"{where}.{key}") <= camera[side]:
+            fields.fail(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} image, got "
+                              f"{camera[key]!r}", f"{where}.{key}")
     if "distortion" in camera:
         fields.vector(camera["distortion"], 5, path, f"{where}.distortion", limit=MAX_DISTORTION)
 
