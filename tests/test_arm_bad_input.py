@@ -92,14 +92,16 @@ def test_arm_identify_out_onto_its_dataset_is_refused(arm):
 
 
 URDF_DAMAGE = [  # (what is replaced in panda_joint3 or panda_link4, by what, the words of the refusal)
-    ('xyz="0 -0.316 0"', 'xyz="nan -0.316 0"', "joint 'panda_joint3': origin xyz 'nan -0.316 0': expected 3 finite"),
+    ('xyz="0 -0.316 0"', 'xyz="nan -0.316 0"',
+     "'joints.panda_joint3.origin.xyz[0]': expected a finite number, got 'nan'"),
     ('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>', "joint 'panda_joint3': axis xyz '0 0 0': no direction"),
     ('rpy="1.57079632679 0 0" xyz="0 -0.316 0"', 'rpy="inf 0 0" xyz="0 -0.316 0"',
-     "joint 'panda_joint3': origin rpy 'inf 0 0': expected 3 finite"),
+     "'joints.panda_joint3.origin.rpy[0]': expected a finite number, got 'inf'"),
     ('effort="87" lower="-2.9671" upper="2.9671"', 'effort="87" lower="nan" upper="2.9671"',
-     "joint 'panda_joint3': limit lower 'nan': expected a finite number"),
-    ('xyz="0 -0.316 0"', 'xyz="0 -316 0"', "joint 'panda_joint3': origin xyz '0 -316 0': beyond 100"),
-    ('<mass value="2.08"/>', '<mass value="-2.08"/>', "link 'panda_link4': inertial mass '-2.08': expected a finite"),
+     "'joints.panda_joint3.limit.lower': expected a finite number, got 'nan'"),
+    ('xyz="0 -0.316 0"', 'xyz="0 -316 0"', "'joints.panda_joint3.origin.xyz[1]': implausible size -316 m"),
+    ('<mass value="2.08"/>', '<mass value="-2.08"/>',
+     "'links.panda_link4.inertial.mass.value': must be within [0, 10000], got -2.08"),
 ]
 
 
