@@ -371,10 +371,7 @@ def _parameter_entry(entry, name: str, expected_unit: str, path, where) -> dict:
 
 
 def _validated_fit(fit, path) -> dict:
-    fit = copy.deepcopy(fields.json_object(fit, path, "fit"))
-    for key in ("rms_px", "n_vertices", "n_images"):
-        if key not in fit:
-            fields.fail(path, "missing required field", f"fit.{key}")
+    fit = copy.deepcopy(fields.json_object(fit, path, "fit", ("rms_px", "n_vertices", "n_images")))
     rms = fit["rms_px"]
     if not isinstance(rms, list) or len(rms) != 2:
         fields.fail(path, "expected [rms_x, rms_y] in px", "fit.rms_px")
