@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver.arm import POSE_COMPONENTS, Observations, Sensor, exp_so3, log_so3
+from naocal.solver.arm import Observations, Sensor, exp_so3, log_so3
 from naocal.solver.arm_dataset import arm_chain
+from naocal.solver.effect import POSE_COMPONENTS
 from naocal.solver.errors import NaocalError
 
 LIMIT_MARGIN_RAD = 0.1

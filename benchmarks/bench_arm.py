@@ -55,8 +55,8 @@ def dataset(n_poses, seed=0):
             x[i] = math.radians(rng.uniform(0.01, 0.5)) * rng.choice((-1, 1))
         elif p.effect == "link_lengths":
             x[i] = rng.uniform(1e-4, 2e-3) * rng.choice((-1, 1))
-        elif p.kind == "translation":
-            x[i] = ((1.5, -2.0, 0.3), (2.5, 0.1, -0.4))[p.index][p.component]
+        elif p.effect == "sensors" and p.axis < 3:  # a sensor's translation
+            x[i] = ((1.5, -2.0, 0.3), (2.5, 0.1, -0.4))[p.index][p.axis]
     model.R0[0] = exp_so3(np.array([0.4, -0.3, 1.2]))
     model.R0[1] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # looks back at the arm
     pred = model.predict(x, obs)
@@ -123,7 +123,7 @@ def main():
         model.R0[:] = np.eye(3)
         x0 = initialise_sensors(model, obs)
         mem_f = peak_mib(lambda: run_straightforward(model, obs, x0, result.free, result.sigma))
-        arm = [i for i, p in enumerate(model.parameters) if p.effect != "sensor" and result.free[i]]
+        arm = [i for i, p in enumerate(model.parameters) if p.effect != "sensors" and result.free[i]]
         diff = float(np.max(np.abs(result.x[arm] - x_f[arm]) / model.scales[arm]))
         worst = max(abs(result.x[i] - truth[model.names[i]]) / (1e-4 if model.parameters[i].unit == "m"
                                                                 else math.radians(0.01)) for i in arm)

@@ -7,7 +7,7 @@ tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5 deg and link lengths 0.1-
 
 Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers) are fitted from the camera rows
 only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points` does: "priors", with the priors
-(soft bounds at each effect's plausible size, solver.arm.PRIOR_SIZE) splitting what the data leave undetermined;
+(soft bounds at each effect's plausible size, its module's prior_size) splitting what the data leave undetermined;
 "free, no priors", link lengths and everything else free and no priors (`--no-priors`), the combinations the data
 leave undetermined refused and fixed as the refusal says (its largest parameter, at the URDF's value). Then the
 tracker: its frame and the reflector's position on the tool are nuisance, refitted with the arm held at the camera

@@ -17,6 +17,10 @@ points in that link's frame: the joints before it do not move them.
 tau_k is the static gravity torque about joint k of the links beyond it (URDF masses), at the readings theta: a
 fixed regressor, so the model stays exact in its parameters. Everything is pure and vectorised over observations.
 Rotation corrections use the exponential map; their exact derivative is the left Jacobian of SO(3).
+
+Each term is an effect of solver/effects/ (one module each, the NAO's too): the model takes its parameters from
+the effects' `arm_parameters`, in their gauge order (the sensors' frames, joint_offsets, link_lengths, tool,
+points, link_poses, elasticity), and the joint terms (c, C) from their `joint_terms`, the NAO model's hook.
 """
 
 from __future__ import annotations
@@ -26,49 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from naocal.solver.effects import ARM_EFFECTS, ARM_MODEL_EFFECTS, EFFECTS, defines
 from naocal.solver.measurement import MEASUREMENTS
 from naocal.solver.transforms import rot_axis_angle, skew
 
-# The arm's effects: name -> what it is. The sensor frames are always in the model.
-EFFECTS = {
-    "joint_offsets": "encoder offset c of each joint (q = theta - c), rad",
-    "link_lengths": "each link longer than the URDF says, along its origin offset, m",
-    "link_poses": "full pose error of each joint origin: translation (m) and rotation (rad) in the joint frame",
-    "points": "position error of each observed point on the end effector (tip frame), m",
-    "elasticity": "joint compliance under the static gravity torque of the URDF masses, rad/(N m)",
-    "tool": "pose error of the tool (end-effector mount) on each chain's tip: translation (m), rotation (rad)",
-}
-DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")
-# Each effect's plausible size per unit: the std of its Gaussian prior (solver.arm_identify.arm_prior) about the
-# URDF's value (every correction 0), and, times solver.arm_identify.RUNOFF_FACTOR, the value a fit must not land
-# beyond. The sensor frames have none: they may be anywhere.
-PRIOR_SIZE = {
-    "joint_offsets": {"rad": math.radians(2.0), "m": 2e-3},  # encoder zeros are off by degrees (a slide's by mm)
-    "link_lengths": {"m": 2e-3},  # a machined link is off by millimetres
-    "link_poses": {"m": 2e-3, "rad": math.radians(1.0)},
-    "points": {"m": 3e-3},  # a marker or reflector glued by hand
-    "elasticity": {"rad/(N m)": math.radians(0.05)},  # 0.5 deg under 10 N m: a soft gear
-    "tool": {"m": 5e-3, "rad": math.radians(1.0)},  # a tool mounted on its flange by hand: mm and a degree
-}
-# The gauges' order (solver.identify.gauges, via solver.arm_identify.identifiable): of parameters the data cannot
-# tell apart, the earlier group stays free and the later is fixed; a sensor frame is never fixed.
-PRIORITY = ("sensor", "joint_offsets", "link_lengths", "tool", "points", "link_poses", "elasticity")
+DEFAULT_EFFECTS = ("joint_offsets", "link_lengths")  # the effects (solver.effects.ARM_EFFECTS) of a plain fit
 POINT_KINDS = tuple(MEASUREMENTS)  # the sensors' measurement kinds (solver.measurement)
-AXES = "xyz"
-
-
-@dataclass(frozen=True)
-class ArmParameter:
-    """One scalar parameter: `index` is the joint origin (0..n, n = the tip), sensor or point it belongs to;
-    `component` which of its quantities (0-2 x, y, z; link pose 3-5 the rotation about x, y, z)."""
-
-    name: str
-    effect: str  # an EFFECTS key or 'sensor'
-    unit: str
-    scale: float
-    index: int
-    component: int = 0
-    kind: str = ""  # sensor: 'rotation' or 'translation'
 
 
 @dataclass(frozen=True)
@@ -183,8 +150,31 @@ def _turned(A, axis, angle) -> np.ndarray:
             + (1.0 - np.cos(angle))[:, None, None] * _times(A, K @ K))
 
 
+class _ArmLayout:
+    """What the effects' joint_terms and chain_terms hooks (solver.effect.JointTerm, ChainTerm) look things up in,
+    for N observations of an arm: the NAO model's Layout interface (solver.model.Layout), per observation instead
+    of per image, a chain's frame its name. A gravity term's regressor is the torque at the readings (the arm's
+    fixed regressor; the NAO's model re-evaluates it at the sagging angle)."""
 
-POSE_COMPONENTS = (("x", "m"), ("y", "m"), ("z", "m"), ("rx", "rad"), ("ry", "rad"), ("rz", "rad"))
+    def __init__(self, model, n, tau):
+        self.model, self.n_images = model, n
+        self.data = self  # the NAO's hooks read the torques as layout.data.tau
+        self.tau = tau
+
+    def params(self, effect_name):
+        return self.model.params(effect_name)
+
+    def column(self, joint):
+        return self.model.joint_names.index(joint)
+
+    def chains_in_use(self):
+        return [(ac.name, ac.chain) for ac in self.model.arm_chains]
+
+    def origin_of(self, parameter, frame):
+        """The index (0..n, n: the tip's offset) on the chain called `frame` of the origin `parameter` moves (its
+        `index`, an origin of the model's, shared by the chains that share it); None when not on that chain."""
+        origins = self.model.origin_index[self.model.chain_names.index(frame)]
+        return origins.index(parameter.index) if parameter.index in origins else None
 
 
 class ArmModel:
@@ -192,16 +182,20 @@ class ArmModel:
 
     chain: solver.robot.Chain (base to tip), or several chains as a sequence of ArmChain (sharing a base);
     points: {name: (3,) nominal position in the tip frame of the chain that carries it, m}; sensors: [Sensor];
-    effects: names of EFFECTS; gravity_mps2 (3,) in the base frame; load, link_names: of a single Chain (an
-    ArmChain carries its own): (mass kg, com (3,) in the tip frame) of what the tip carries, for the gravity
-    torques, and the link each joint origin ends.
+    effects: names of solver.effects.ARM_EFFECTS (the sensors' frames are always in); gravity_mps2 (3,) in the
+    base frame; load, link_names: of a single Chain (an ArmChain carries its own): (mass kg, com (3,) in the tip
+    frame) of what the tip carries, for the gravity torques, and the link each joint origin ends.
     """
+
+    # The typical size of the arm's physical parameters (Parameter.scale): its solver works on mm, mrad and
+    # mrad/(N m); the identifiability threshold (solver.identify.gauges) and verify's drift sizes are relative to it.
+    scale = 1e-3
 
     def __init__(self, chain, points: dict, sensors, effects=DEFAULT_EFFECTS, gravity_mps2=(0.0, 0.0, -9.81),
                  load=(0.0, (0.0, 0.0, 0.0)), link_names=None):
-        unknown = [e for e in effects if e not in EFFECTS]
+        unknown = [e for e in effects if e not in ARM_EFFECTS]
         if unknown:
-            raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(EFFECTS)})")
+            raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(ARM_EFFECTS)})")
         self.chain = chain  # as given: a model with other effects is made from it (solver.arm_diagnose)
         if isinstance(chain, (tuple, list)):
             self.arm_chains = tuple(chain)
@@ -215,13 +209,15 @@ class ArmModel:
         self.point_names = tuple(points)
         self.point_xyz = np.array([points[p] for p in self.point_names], dtype=float).reshape(-1, 3)
         self.sensors = tuple(sensors)
-        self.effects = tuple(e for e in EFFECTS if e in effects)
+        self.effects = tuple(e for e in ARM_EFFECTS if e in effects)
         self.gravity_mps2 = np.asarray(gravity_mps2, dtype=float)
         self._layout()
-        if "elasticity" in self.effects and any(self.prismatic):
-            raise ValueError("elasticity with a prismatic joint is not modelled (its gravity force is not a torque)")
+        self.chain_names = [ac.name for ac in self.arm_chains]
         self.R0 = np.array([exp_so3(s.prior_rotation or (0.0, 0.0, 0.0)) for s in self.sensors]).reshape(-1, 3, 3)
-        self.parameters = self._parameters()
+        in_model = [EFFECTS[e] for e in ARM_MODEL_EFFECTS if e in self.effects or EFFECTS[e].arm_always]
+        self.parameters = [p for e in in_model for p in e.arm_parameters(self)]
+        self._joint_effects = [e for e in in_model if defines(e, "joint_terms")]
+        self._chain_effects = [e for e in in_model if defines(e, "chain_terms")]
         self.names = tuple(p.name for p in self.parameters)
         self._by_effect = {}
         for i, p in enumerate(self.parameters):
@@ -281,53 +277,19 @@ class ArmModel:
 
     # -- parameters
 
-    def _parameters(self) -> list[ArmParameter]:
-        params = []
-        for s, sensor in enumerate(self.sensors):
-            params += [ArmParameter(f"sensor.{sensor.name}.rotation.{a}", "sensor", "rad", 0.01, s, c, "rotation")
-                       for c, a in enumerate(AXES)]
-            params += [ArmParameter(f"sensor.{sensor.name}.translation.{a}", "sensor", "m", 0.01, s, c,
-                                    "translation") for c, a in enumerate(AXES)]
-        if "joint_offsets" in self.effects:
-            params += [ArmParameter(f"joint_offset.{j}", "joint_offsets", "m" if self.prismatic[k] else "rad", 1e-3,
-                                    k) for k, j in enumerate(self.joint_names)]
-        if "link_lengths" in self.effects:
-            params += [ArmParameter(f"link_length.{self.origin_names[o]}", "link_lengths", "m", 1e-3, o)
-                       for o, d in enumerate(self.directions) if d is not None]
-        if "tool" in self.effects:
-            params += [ArmParameter(f"tool.{ac.name}.{q}", "tool", unit, 1e-3, c, i)
-                       for c, ac in enumerate(self.arm_chains) for i, (q, unit) in enumerate(POSE_COMPONENTS)]
-        if "points" in self.effects:
-            params += [ArmParameter(f"point.{p}.{a}", "points", "m", 1e-3, i, c)
-                       for i, p in enumerate(self.point_names) for c, a in enumerate(AXES)]
-        if "link_poses" in self.effects:
-            params += [ArmParameter(f"link_pose.{self.origin_names[o]}.{q}", "link_poses", unit, 1e-3, o, c)
-                       for o, key in enumerate(self.origin_keys) if key[0] == "joint"
-                       for c, (q, unit) in enumerate(POSE_COMPONENTS)]
-        if "elasticity" in self.effects:
-            params += [ArmParameter(f"elasticity.{j}", "elasticity", "rad/(N m)", 1e-3, k)
-                       for k, j in enumerate(self.joint_names)]
-        return params
-
     def _index_parameters(self):
-        """Each quantity's parameter index (-1: not in the model), for predict."""
-        J, O, C = len(self.joint_names), len(self.origin_keys), len(self.arm_chains)
-        self._offset_i, self._elastic_i = np.full(J, -1), np.full(J, -1)
-        self._length_i, self._pose_i = np.full(O, -1), np.full((O, 6), -1)
+        """Each quantity's parameter index (-1: not in the model), for predict (the joint terms come from their
+        effects' joint_terms)."""
+        O, C = len(self.origin_keys), len(self.arm_chains)
+        self._pose_i = np.full((O, 6), -1)
         self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 3), -1)
         for i, p in enumerate(self.parameters):
-            if p.effect == "joint_offsets":
-                self._offset_i[p.index] = i
-            elif p.effect == "elasticity":
-                self._elastic_i[p.index] = i
-            elif p.effect == "link_lengths":
-                self._length_i[p.index] = i
-            elif p.effect == "link_poses":
-                self._pose_i[p.index, p.component] = i
+            if p.effect == "link_poses":
+                self._pose_i[p.index, p.axis] = i
             elif p.effect == "tool":
-                self._tool_i[p.index, p.component] = i
+                self._tool_i[p.index, p.axis] = i
             elif p.effect == "points":
-                self._point_i[p.index, p.component] = i
+                self._point_i[p.index, p.axis] = i
 
     def params(self, effect):
         return self._by_effect.get(effect, [])
@@ -339,25 +301,25 @@ class ArmModel:
     def initial_values(self) -> np.ndarray:
         """Zero corrections; each sensor's translation at its prior (its rotation prior is R0)."""
         x = np.zeros(len(self.parameters))
-        for i, p in self.params("sensor"):
-            if p.kind == "translation":
-                x[i] = (self.sensors[p.index].prior_translation or (0.0, 0.0, 0.0))[p.component]
+        for i, p in self.params("sensors"):
+            if p.axis < 3:  # its translation
+                x[i] = (self.sensors[p.index].prior_translation or (0.0, 0.0, 0.0))[p.axis]
         return x
 
     def sensor_correction(self, x, s) -> np.ndarray:
         """The rotation vector (3,) of sensor s's correction: R_sensor_base = Exp(correction) @ R0."""
         d = np.zeros(3)
-        for i, p in self.params("sensor"):
-            if p.index == s and p.kind == "rotation":
-                d[p.component] = x[i]
+        for i, p in self.params("sensors"):
+            if p.index == s and p.axis >= 3:
+                d[p.axis - 3] = x[i]
         return d
 
     def sensor_pose(self, x, s) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) of T_sensor_base of sensor s at parameter values x."""
         t = np.zeros(3)
-        for i, p in self.params("sensor"):
-            if p.index == s and p.kind == "translation":
-                t[p.component] = x[i]
+        for i, p in self.params("sensors"):
+            if p.index == s and p.axis < 3:
+                t[p.axis] = x[i]
         return exp_so3(self.sensor_correction(x, s)) @ self.R0[s], t
 
     def rebase_sensors(self, x) -> np.ndarray:
@@ -365,8 +327,8 @@ class ArmModel:
         x = np.array(x, dtype=float)
         for s in range(len(self.sensors)):
             self.R0[s] = self.sensor_pose(x, s)[0]
-        for i, p in self.params("sensor"):
-            if p.kind == "rotation":
+        for i, p in self.params("sensors"):
+            if p.axis >= 3:
                 x[i] = 0.0
         return x
 
@@ -376,7 +338,7 @@ class ArmModel:
         out = dict(zip(self.names, (float(v) for v in x)))
         for s, sensor in enumerate(self.sensors):
             rotvec = log_so3(self.sensor_pose(x, s)[0])
-            for c, a in enumerate(AXES):
+            for c, a in enumerate("xyz"):
                 out[f"sensor.{sensor.name}.rotation.{a}"] = float(rotvec[c])
         return out
 
@@ -431,10 +393,13 @@ class ArmModel:
         P = len(self.parameters)
         if self.params("elasticity") and tau is None:
             tau = self.gravity_torques(obs.theta, obs.chain)
+        layout = _ArmLayout(self, N, tau)
+        joint_terms = [t for e in self._joint_effects for t in e.joint_terms(layout)]
+        chain_terms = [t for e in self._chain_effects for t in e.chain_terms(layout, x)]
         p_b = np.empty((N, 3))
         Jb = np.zeros((N, 3, P)) if jacobian else None  # d p_b / d x
         for c, start, rows in self._groups(obs):
-            p_b[rows], J = self._forward(x, obs, rows, c, start, jacobian, tau)
+            p_b[rows], J = self._forward(x, obs, rows, c, start, jacobian, joint_terms, chain_terms)
             if jacobian:
                 Jb[rows] = J
         if base_frame:
@@ -457,12 +422,12 @@ class ArmModel:
         if not jacobian:
             return pred
         Js = np.zeros((N, 3, P))  # d y / d x beyond R_s d p_b
-        for i, p in self.params("sensor"):
+        for i, p in self.params("sensors"):
             rows = obs.sensor == p.index
-            if p.kind == "translation":
-                Js[rows, p.component, i] = 1.0
+            if p.axis < 3:
+                Js[rows, p.axis, i] = 1.0
             else:
-                w = left_jacobian(self.sensor_correction(x, p.index))[:, p.component]
+                w = left_jacobian(self.sensor_correction(x, p.index))[:, p.axis - 3]
                 Js[rows, :, i] = np.cross(w, y[rows] - t_s[p.index])
         J = Js
         for s, rows in enumerate(rows_of):
@@ -472,9 +437,11 @@ class ArmModel:
             J[rows] = np.einsum("nij,njp->nip", D, J[rows])
         return pred, J
 
-    def _forward(self, x, obs, rows, c, start, jacobian, tau):
+    def _forward(self, x, obs, rows, c, start, jacobian, joint_terms, chain_terms):
         """(p (M, 3), d p / d x (M, 3, P) or None): the points of observations `rows` (all on chain c) in the frame
-        of the chain's link before joint `start` (0: the base)."""
+        of the chain's link before joint `start` (0: the base). joint_terms: [solver.effect.JointTerm] of every
+        observation (q[:, column] += value * regressor); chain_terms: [solver.effect.ChainTerm] of every chain (the
+        origin k of chain `frame` moves by delta along direction)."""
         ac = self.arm_chains[c]
         chain = ac.chain
         n = len(chain.joint_names)
@@ -484,18 +451,19 @@ class ArmModel:
         def value(i):
             return np.where(i >= 0, x[np.maximum(i, 0)], 0.0)
 
-        q = obs.theta[np.ix_(rows, cols)] - value(self._offset_i[cols])
-        elastic = self._elastic_i[cols]
-        if np.any(elastic >= 0):
-            q = q + value(elastic) * tau[np.ix_(rows, cols)]
+        position = {int(col): k for k, col in enumerate(cols)}
+        terms = [(position[t.column], t.param, t.regressor[rows]) for t in joint_terms if t.column in position]
+        q = obs.theta[np.ix_(rows, cols)]
+        for k, i, regressor in terms:
+            q[:, k] = q[:, k] + x[i] * regressor
+        moved = {t.joint: t for t in chain_terms if t.frame == ac.name}  # origin k (n: the tip's offset) -> term
         sliding = [bool(chain.prismatic and chain.prismatic[k]) for k in range(n)]
         R = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
         t = np.zeros((M, 3))
         frames = {}  # per joint: (R before its origin, R_B, origin o, axis a, both in the mount's frame)
         for k in range(start, n):
             o = origin[k]
-            offset = chain.T_origin[k, :3, 3] + (value(self._length_i[o]) * self.directions[o]
-                                                 if self.directions[o] is not None else 0.0)
+            offset = chain.T_origin[k, :3, 3] + (moved[k].delta * moved[k].direction if k in moved else 0.0)
             pose = value(self._pose_i[o])
             R_prev = R
             R_B = _times(R, chain.T_origin[k, :3, :3])
@@ -508,9 +476,7 @@ class ArmModel:
                 R = R_A
             else:
                 R = _turned(R_A, chain.axes[k], q[:, k])
-        o_end = origin[n]
-        offset_end = chain.T_end[:3, 3] + (value(self._length_i[o_end]) * self.directions[o_end]
-                                           if self.directions[o_end] is not None else 0.0)
+        offset_end = chain.T_end[:3, 3] + (moved[n].delta * moved[n].direction if n in moved else 0.0)
         R_prev_end = R
         t_end = t + _times(R, offset_end)
         R_end = _times(R, chain.T_end[:3, :3])
@@ -523,17 +489,14 @@ class ArmModel:
         if not jacobian:
             return p, None
         Jb = np.zeros((M, 3, P))
+        for k, i, regressor in terms:
+            if k >= start:
+                a, o = frames[k][3], frames[k][2]
+                Jb[:, :, i] = regressor[:, None] * (a if sliding[k] else np.cross(a, p - o))
         for k in range(start, n):
             R_prev, R_B, o, a = frames[k]
-            i = self._offset_i[cols[k]]
-            if i >= 0:
-                Jb[:, :, i] = -a if sliding[k] else -np.cross(a, p - o)
-            i = self._elastic_i[cols[k]]
-            if i >= 0:
-                Jb[:, :, i] = tau[rows, cols[k], None] * np.cross(a, p - o)
-            i = self._length_i[origin[k]]
-            if i >= 0:
-                Jb[:, :, i] = _times(R_prev, self.directions[origin[k]])
+            if k in moved:
+                Jb[:, :, moved[k].param] = _times(R_prev, moved[k].direction)
             pose_i = self._pose_i[origin[k]]
             if np.any(pose_i >= 0):
                 w = left_jacobian(value(pose_i)[3:])
@@ -541,9 +504,8 @@ class ArmModel:
                     if pose_i[comp] >= 0:
                         Jb[:, :, pose_i[comp]] = (R_B[:, :, comp] if comp < 3 else
                                                   np.cross(_times(R_B, w[:, comp - 3]), p - o))
-        i = self._length_i[o_end]
-        if i >= 0:
-            Jb[:, :, i] = _times(R_prev_end, self.directions[o_end])
+        if n in moved:
+            Jb[:, :, moved[n].param] = _times(R_prev_end, moved[n].direction)
         tool_i = self._tool_i[c]
         if np.any(tool_i >= 0):
             w = left_jacobian(tool[3:])

@@ -70,10 +70,10 @@ def read_arm_calibration(path) -> ArmCalibration:
     robot = {k: fields.text(v, path, f"robot.{k}", max_chars=MAX_TEXT) for k, v in robot.items()}
     model = fields.json_object(doc.get("model"), path, "model", ("parameters",))
     effects = fields.names(model.get("effects", []), path, "model.effects", what="effect names")
-    from naocal.solver.arm import EFFECTS
+    from naocal.solver.effects import ARM_EFFECTS
 
     for i, e in enumerate(effects):
-        if e not in EFFECTS:
+        if e not in ARM_EFFECTS:
             fields.fail(path, f"unknown arm effect {str(e)[:40]!r}", f"model.effects[{i}]")
     params = fields.json_object(model["parameters"], path, "model.parameters")
     if not params:

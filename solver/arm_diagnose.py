@@ -29,8 +29,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from naocal.solver.arm import EFFECTS, ArmModel
-from naocal.solver.arm_identify import ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, whitened
+from naocal.solver.arm import ArmModel
+from naocal.solver.arm_identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
+                                       whitened)
+from naocal.solver.effects import ARM_EFFECTS
 from naocal.solver.identify import UNIDENTIFIABLE_RATIO
 from naocal.solver.scoretest import score_test
 
@@ -100,7 +102,7 @@ class HeldOutCheck:
                 "worse": self.worse}
 
 
-def extended(fit: ArmFit, effects=tuple(EFFECTS)):
+def extended(fit: ArmFit, effects=ARM_EFFECTS):
     """(model with every effect, its x at the fit, free mask of the fit's free parameters)."""
     m = fit.model
     big = _model_like(m, effects, range(len(m.sensors)))
@@ -112,7 +114,7 @@ def extended(fit: ArmFit, effects=tuple(EFFECTS)):
 
 
 def score_tests(fit: ArmFit, groups: dict) -> list[Test]:
-    """One Test per {label: [parameter names]} (names of solver.arm.EFFECTS parameters not in the fit)."""
+    """One Test per {label: [parameter names]} (names of solver.effects.ARM_EFFECTS parameters not in the fit)."""
     big, x, free = extended(fit)
     obs = fit.obs
     r, J = whitened(big, obs, x, fit.sigma, jacobian=True)
@@ -164,7 +166,7 @@ def candidate_groups(fit: ArmFit) -> dict:
     """Every effect not in the model (and, for those in it, the parameters the fit has fixed are not retested)."""
     big, _, _ = extended(fit)
     in_model = set(fit.model.effects)
-    return {e: [p.name for _, p in big.params(e)] for e in EFFECTS if e not in in_model and big.params(e)}
+    return {e: [p.name for _, p in big.params(e)] for e in ARM_EFFECTS if e not in in_model and big.params(e)}
 
 
 def location_groups(fit: ArmFit) -> dict:
@@ -365,10 +367,6 @@ def diagnose(fit: ArmFit, n_folds: int = 5, *, physical: bool = True, sessions: 
                         {s.name: bool(fit.noise_known[i]) for i, s in enumerate(model.sensors)},
                         [{"pose": obs.pose_name(p), "rms_sigma": v} for v, p in per_pose[:5]], location, candidates, threshold,
                         heldout, heldout_with)
-
-
-def shown_rms(value, kind) -> str:
-    return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
 
 
 def _shown_value(name, value, units) -> str:

@@ -7,7 +7,7 @@
    chunks of observations (ArmEquations), or scipy's trust region for a robust loss (`--loss`), on residuals divided
    by each sensor's noise (dataset.json's noise_m / noise_px; when missing, estimated from a first fit and the fit
    repeated). The identifiability policy is the NAO's (solver.identify.gauges): one threshold, 1e-6 of the largest
-   singular value; the arm's parameters are gauges in the order of solver.arm.PRIORITY (sensor frames first: they
+   singular value; the arm's parameters are gauges in their effects' gauge_priority order (sensor frames first: they
    may be anywhere, so they absorb e.g. a turn of the whole arm about its first axis, which makes the first joint's
    offset redundant, and a link along that axis): those are fixed at their start value and said so; whatever else is
    undetermined stops the fit. A sensor frame is never a gauge.
@@ -16,7 +16,7 @@
 4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
    correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
 5. Priors (soft bounds, on by default): every physical parameter has a Gaussian prior about the URDF's value with
-   its effect's plausible size (solver.arm.PRIOR_SIZE), one whitened pseudo-observation each (solver.identify.Prior),
+   its effect's plausible size (its module's prior_size), one whitened pseudo-observation each (solver.identify.Prior),
    so that a direction the data hardly determine stays near the URDF instead of soaking up what the model lacks.
    A parameter whose posterior std is more than PRIOR_HELD of its prior's was held by the prior, not the data: the
    report says so. After the fit the weakest directions of the data's whitened Jacobian at the solution are
@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.solver.arm import PRIOR_SIZE, PRIORITY, ArmModel, Observations
+from naocal.solver.arm import ArmModel, Observations
+from naocal.solver.effects import EFFECTS
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
                              WEAK_RATIO, check_identifiable, gauges, identifiability, last_pass_cached, solve,
@@ -137,6 +138,11 @@ def sensor_rms(model, obs, residual) -> dict:
     return out
 
 
+def shown_rms(value, kind) -> str:
+    """An RMS for people: a 3-D sensor's (kind 'points') in mm, a camera's in px."""
+    return f"{value * 1e3:.3f} mm" if kind == "points" else f"{value:.3f} px"
+
+
 # ------------------------------------------------------------------------------------------------ sensor frames
 
 
@@ -189,7 +195,7 @@ def initialise_sensors(model: ArmModel, obs: Observations, path="dataset", start
     x = model.initial_values()
     for name, value in (start or {}).items():
         x[model.names.index(name)] = value
-    p_b = model.base_points(np.where([p.effect == "sensor" for p in model.parameters], 0.0, x), obs)
+    p_b = model.base_points(np.where([p.effect == "sensors" for p in model.parameters], 0.0, x), obs)
     for s, sensor in enumerate(model.sensors):
         rows = obs.sensor == s
         if sensor.prior_rotation is not None:
@@ -212,9 +218,9 @@ def initialise_sensors(model: ArmModel, obs: Observations, path="dataset", start
             R = CV_TO_NAO @ pose[0]
             t = CV_TO_NAO @ pose[1]
         model.R0[s] = R
-        for i, p in model.params("sensor"):
-            if p.index == s and p.kind == "translation":
-                x[i] = t[p.component]
+        for i, p in model.params("sensors"):
+            if p.index == s and p.axis < 3:  # its translation
+                x[i] = t[p.axis]
     return x
 
 
@@ -298,8 +304,8 @@ class ArmEquations:
 
 
 def prior_sizes(model) -> np.ndarray:
-    """(P,) each parameter's plausible size (solver.arm.PRIOR_SIZE by its effect and unit; 0: none, a sensor)."""
-    return np.array([PRIOR_SIZE.get(p.effect, {}).get(p.unit, 0.0) for p in model.parameters])
+    """(P,) each parameter's plausible size (its effect's prior_size of its unit; 0: none, a sensor)."""
+    return np.array([EFFECTS[p.effect].prior_size.get(p.unit, 0.0) for p in model.parameters])
 
 
 def arm_prior(model, free, priors: bool = True):
@@ -337,14 +343,14 @@ MAX_ITERATIONS = 200
 # A free parameter whose posterior std is above this share of its prior's was held by the prior (the data alone
 # would know it no better than 1.15 prior stds).
 PRIOR_HELD = 0.5
-# A value beyond this many plausible sizes (solver.arm.PRIOR_SIZE) is no calibration: the fit ran off along a
+# A value beyond this many plausible sizes (the effects' prior_size) is no calibration: the fit ran off along a
 # direction the data hardly determine (with the priors on it can only land there if the data insist).
 RUNOFF_FACTOR = 5.0
 
 
 def identifiable(model, obs, x, free, sigma, priors: bool = True):
     """(free mask, {name: reason}): the gauges of the arm's parametrisation (solver.identify.gauges, in the order of
-    solver.arm.PRIORITY) fixed; raises SolveError (solver.identify.check_identifiable) if anything else is
+    the effects' gauge_priority) fixed; raises SolveError (solver.identify.check_identifiable) if anything else is
     undetermined.
 
     With the priors (`arm_prior`) only what the sensor frames absorb is a gauge (they have no prior: the first
@@ -356,8 +362,8 @@ def identifiable(model, obs, x, free, sigma, priors: bool = True):
     A = equations(x[equations.index]).A
     names = [model.names[i] for i in equations.index]
     effect = [model.parameters[i].effect for i in equations.index]
-    order = sorted(range(len(names)), key=lambda j: (PRIORITY.index(effect[j]), j))
-    fixable = [e != "sensor" for e in effect]
+    order = sorted(range(len(names)), key=lambda j: (EFFECTS[effect[j]].gauge_priority, j))
+    fixable = [e != "sensors" for e in effect]
     prior = arm_prior(model, free, priors)
     if prior is None or not len(prior):
         found = gauges(A, order, fixable)
@@ -487,7 +493,7 @@ def ran_off(fit_: ArmFit):
     size = prior_sizes(model)
     worst, worst_ratio = None, 1.0
     for i, p in enumerate(model.parameters):
-        if not fit_.free[i] or p.effect == "sensor":
+        if not fit_.free[i] or p.effect == "sensors":
             continue
         limit = min(RUNOFF_FACTOR * size[i] if size[i] > 0 else np.inf, LIMITS.get(p.unit, np.inf))
         if abs(fit_.x[i]) > worst_ratio * limit:
@@ -550,7 +556,7 @@ def heldout_rms(fit_: ArmFit, n_folds: int = 5, folds=None) -> dict:
     """
     model, obs = fit_.model, fit_.obs
     folds = pose_folds(obs, n_folds) if folds is None else folds
-    sensor_only = np.array([p.effect == "sensor" for p in model.parameters]) & fit_.free
+    sensor_only = np.array([p.effect == "sensors" for p in model.parameters]) & fit_.free
     nominal = sensor_rms(model, obs, heldout_residuals(fit_, folds, sensor_only))
     calibrated = sensor_rms(model, obs, heldout_residuals(fit_, folds))
     return {s: {"nominal": nominal[s], "calibrated": calibrated[s]} for s in nominal}
@@ -561,7 +567,7 @@ def heldout_residuals(fit_: ArmFit, folds, free=None) -> np.ndarray:
     `free` parameters, default the fit's, from the URDF's values and the fit's sensor frames); 0 where unmeasured."""
     model, obs = fit_.model, fit_.obs
     free = fit_.free if free is None else free
-    x_start = np.where([p.effect == "sensor" for p in model.parameters], fit_.x, 0.0)
+    x_start = np.where([p.effect == "sensors" for p in model.parameters], fit_.x, 0.0)
     errors = np.zeros_like(obs.measured)
     for test in folds:
         held = obs.subset(test)

@@ -84,7 +84,7 @@ def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors:
     from naocal.solver.arm_identify import fit, initialise_sensors
 
     x0 = initialise_sensors(model, obs, path, {n: v for n, v in values.items() if n in model.names})
-    arm = tuple(p.name for p in model.parameters if p.effect != "sensor" and p.effect not in refit_effects)
+    arm = tuple(p.name for p in model.parameters if p.effect != "sensors" and p.effect not in refit_effects)
     return fit(model, obs, x0, fixed=arm + tuple(held), path=path, robust=False, priors=priors)
 
 
@@ -148,7 +148,7 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     moved = []
     values = dict(zip(model.names, fixed.x))
     for i, p in enumerate(model.parameters):
-        if p.effect == "sensor" or p.name in nuisance or not refit.free[i]:
+        if p.effect == "sensors" or p.name in nuisance or not refit.free[i]:
             continue
         change = float(refit.x[i] - values[p.name])
         std = float(refit.std[i])
@@ -189,7 +189,7 @@ def _group(name: str) -> str:
 
 
 def _shown(value, unit) -> str:
-    from naocal.solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_identify import shown_rms
 
     return shown_rms(value, "points" if unit == "m" else "camera")
 

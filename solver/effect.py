@@ -29,6 +29,8 @@ import numpy as np
 
 
 ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
+# A pose error's six components (an arm's Parameter.axis): along x, y, z, then about x, y, z.
+POSE_COMPONENTS = (("x", "m"), ("y", "m"), ("z", "m"), ("rx", "rad"), ("ry", "rad"), ("rz", "rad"))
 SECTIONS = ("body", "head", "targets")
 
 
@@ -40,6 +42,9 @@ class Parameter:
     `joint`, `camera`, `target` name what the parameter belongs to (None if nothing); `component` says which of
     its effect's quantities it is (e.g. 'pitch', 'fx', 'trans_x', 'L.thigh').
     `tied_to` names the parameter whose value this one always takes.
+    An arm's parameter (solver.arm.ArmModel) that belongs to no joint says which of the arm's things it belongs to
+    by `index` (the joint origin, chain, point or sensor number) and `axis` (0-2: along x, y, z; 3-5: about x, y,
+    z; POSE_COMPONENTS).
     """
 
     name: str
@@ -51,6 +56,8 @@ class Parameter:
     camera: str | None = None
     target: str | None = None
     component: str | None = None
+    index: int | None = None
+    axis: int | None = None
 
 
 @dataclass(frozen=True)
@@ -113,7 +120,8 @@ class JointTerm:
 @dataclass
 class ChainTerm:
     """The origin of joint `joint` (index in the chain) of the chain to `frame` moves by `delta` along the unit
-    `direction` (in the frame before that joint), carrying everything after it."""
+    `direction` (in the frame before that joint), carrying everything after it (an arm's chain: `joint` n, the
+    number of its joints, is its tip's offset)."""
 
     param: int
     frame: str  # the chain's tip link (a target's or a camera's frame)
@@ -224,6 +232,13 @@ class Effect:
     # its random stream (None: one derived from the name; the older effects keep the numbers they had).
     mock_size_unit: str | None = None
     mock_stream: int | None = None
+    # The arm (solver.arm.ArmModel, solver.arm_identify): the plausible size per unit, the std of the Gaussian prior
+    # about the URDF's value (every correction 0; none: anywhere, a sensor's frame); the order of the gauges (of
+    # parameters the data cannot tell apart, the lower priority's stay free, the later are fixed: also the order of
+    # the arm's parameters); in every arm's model whatever the effects chosen (the sensors' frames).
+    prior_size: dict = {}
+    gauge_priority: int = 100
+    arm_always: bool = False
 
     @property
     def mock_size_min(self) -> float:
@@ -233,6 +248,12 @@ class Effect:
     # -- parameters
 
     def parameters(self, setup: Setup) -> list[Parameter]:
+        return []
+
+    def arm_parameters(self, arm) -> list[Parameter]:
+        """The effect's parameters for an arm (solver.arm.ArmModel, its layout made: joint_names, prismatic,
+        origin_keys, origin_names, directions, arm_chains, point_names, sensors), each of the arm's `scale` (the
+        arm's solver works in mm and mrad); an effect that defines none is not one of the arm's."""
         return []
 
     def tie(self, parameter: Parameter, setup: Setup) -> str | None:

@@ -238,6 +238,12 @@ class Layout:
         """[(frame, Chain)] of the chains to the targets and cameras the data use."""
         return list(self.chains.items())
 
+    def origin_of(self, parameter, frame: str) -> int | None:
+        """The index in the chain to `frame` of the joint whose origin `parameter` moves (its `joint`); None when
+        that joint is not on the chain."""
+        chain = self.chains[frame]
+        return chain.index(parameter.joint) if parameter.joint in chain.joint_names else None
+
     def target_frame(self, target: str) -> str:
         return self.robot.target(target).frame
 

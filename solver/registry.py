@@ -9,6 +9,8 @@ sandals); the other effects are the physical terms the diagnostics can add. A jo
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from naocal.solver.effect import ALLOWED_UNITS, Parameter, Setup  # noqa: F401 (re-exported: the registry's vocabulary)
@@ -139,5 +141,4 @@ class Registry:
 
 
 def _with_tie(p: Parameter, source: str) -> Parameter:
-    return Parameter(p.name, p.effect, p.unit, p.scale, p.joint, tied_to=source, camera=p.camera, target=p.target,
-                     component=p.component)
+    return dataclasses.replace(p, tied_to=source)

@@ -8,9 +8,10 @@ import os
 import numpy as np
 import pytest
 
-from naocal.solver.arm import EFFECTS, ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
+from naocal.solver.arm import ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
 from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
 from naocal.solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
+from naocal.solver.effects import ARM_EFFECTS, EFFECTS
 from naocal.solver.errors import DataError
 from tests.cli_runner import naocal as naocal_in_process, naocal_process
 
@@ -49,10 +50,9 @@ def synthetic(effects, truth, n_poses=50, seed=0, noise_m=1e-4, noise_px=0.2, po
     R_cam = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # x_cam = -x_base: looks back at the arm
     x = np.array([truth.get(n, 0.0) for n in model.names])
     for i, p in enumerate(model.parameters):
-        if p.effect == "sensor" and p.name not in truth:
-            x[i] = {(0, "rotation"): (0.4, -0.3, 1.2), (0, "translation"): (1.5, -2.0, 0.3),
-                    (1, "rotation"): (0.01, 0.02, -0.01), (1, "translation"): (2.5, 0.1, -0.4)}[
-                (p.index, p.kind)][p.component]
+        if p.effect == "sensors" and p.name not in truth:  # axis 0-2: its translation, 3-5: its rotation
+            x[i] = {(0, True): (0.4, -0.3, 1.2), (0, False): (1.5, -2.0, 0.3),
+                    (1, True): (0.01, 0.02, -0.01), (1, False): (2.5, 0.1, -0.4)}[(p.index, p.axis >= 3)][p.axis % 3]
     model.R0[1] = R_cam
     standing = obs
     if pose_error_rad:
@@ -92,7 +92,7 @@ def test_rotation_helpers_round_trip_and_left_jacobian():
 
 
 def test_jacobian_matches_finite_differences_for_every_effect():
-    model, obs, truth, _ = synthetic(tuple(EFFECTS), {}, n_poses=8)
+    model, obs, truth, _ = synthetic(ARM_EFFECTS, {}, n_poses=8)
     rng = np.random.default_rng(3)
     model.R0[1] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
     x = np.array([truth[n] for n in model.names]) + rng.normal(0.0, 0.02, len(model.names)) * model.scales * 10
@@ -107,7 +107,7 @@ def test_jacobian_matches_finite_differences_for_every_effect():
     scale = np.abs(numeric).max(axis=(0, 1)) + 1e-3  # columns near zero (the hand's tiny torque): absolute
     worst = (np.abs(J - numeric).max(axis=(0, 1)) / scale)
     assert worst.max() < 1e-5, model.names[int(np.argmax(worst))]
-    assert len({p.effect for p in model.parameters}) == len(EFFECTS) + 1
+    assert len({p.effect for p in model.parameters}) == len(ARM_EFFECTS) + 1
 
 
 # ------------------------------------------------------------------------------------------------ identification
@@ -264,7 +264,6 @@ def test_a_parameter_no_pose_moves_stops_the_fit_naming_it_and_fitting_the_rest_
     torque (its column is 1e-18 of the largest). The arm fitted it to -1e13 deg/(N m) with std 0; under the one
     policy it stops the fit with the NAO's message naming it, and `--fix` lets the rest be fitted. With the priors
     (the default, docs/ARM.md) its prior holds it at the URDF's 0, its std the prior's, and the report says so."""
-    from naocal.solver.arm import PRIOR_SIZE
     from naocal.solver.errors import SolveError
 
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=40)
@@ -272,7 +271,7 @@ def test_a_parameter_no_pose_moves_stops_the_fit_naming_it_and_fitting_the_rest_
         fit(model, obs, initialise_sensors(model, obs), priors=False)
     held = fit(model, obs, initialise_sensors(model, obs))
     i = model.names.index("elasticity.panda_joint7")
-    size = PRIOR_SIZE["elasticity"]["rad/(N m)"]
+    size = EFFECTS["elasticity"].prior_size["rad/(N m)"]
     assert held.success and held.free[i] and "elasticity.panda_joint7" in held.held_by_prior
     assert abs(held.x[i]) < 1e-3 * size and held.std[i] == pytest.approx(size, rel=1e-3)
     result = fit(model, obs, initialise_sensors(model, obs), fixed=("elasticity.panda_joint7",), priors=False)
@@ -526,9 +525,9 @@ def test_simulated_arm_agrees_with_the_model_at_its_hidden_truth(robot):
         x = np.array([arm.truth.get(n, 0.0) for n in model.names])
         for s, name in enumerate(("tracker", "camera")):
             model.R0[s] = arm.frames[name][0]
-            for i, p in model.params("sensor"):
+            for i, p in model.params("sensors"):
                 if p.index == s:
-                    x[i] = 0.0 if p.kind == "rotation" else arm.frames[name][1][p.component]
+                    x[i] = 0.0 if p.axis >= 3 else arm.frames[name][1][p.axis]
         error = model.predict(x, obs) - obs.measured
         assert np.abs(error[obs.sensor == 0]).max() < 1e-6  # PyBullet rounds to ~5e-8 m
         assert np.abs(error[obs.sensor == 1, :2]).max() < 1e-3
@@ -571,3 +570,31 @@ def test_the_camera_s_starting_pose_takes_memory_linear_in_its_points():
         tracemalloc.stop()
     assert np.allclose(R_found, R, atol=1e-9)
     assert peak < 20 * 2 ** 20, f"{peak / 2 ** 20:.0f} MiB"
+
+
+def test_the_arm_s_effects_are_the_effect_modules_the_nao_s_model_shares():
+    """One home for each effect (solver/effects/): the arm's joint_offsets, link_lengths and elasticity are the NAO's
+    modules, its own (sensors, tool, points, link_poses) modules beside them; each declares what the arm needs (its
+    parameters, prior size per unit, gauge order) and the arm model has no registry of its own."""
+    import naocal.solver.arm as arm
+    from naocal.solver.effects import ALL_EFFECTS, ARM_MODEL_EFFECTS, parse_effect_names
+    from naocal.solver.errors import NaocalError
+
+    for old in ("ArmParameter", "PRIOR_SIZE", "PRIORITY"):
+        assert not hasattr(arm, old), old
+    assert getattr(arm, "EFFECTS", EFFECTS) is EFFECTS  # the one registry, not a dict of the arm's
+    assert set(ARM_EFFECTS) & set(ALL_EFFECTS) == {"joint_offsets", "link_lengths", "elasticity"}
+    assert ARM_MODEL_EFFECTS == ("sensors",) + ARM_EFFECTS
+    assert len({EFFECTS[e].gauge_priority for e in ARM_MODEL_EFFECTS}) == len(ARM_MODEL_EFFECTS)
+    with pytest.raises(NaocalError, match="unknown effect 'tool'"):
+        parse_effect_names("tool")  # an arm's effect is none of the NAO's model
+    model, _, _, _ = synthetic(ARM_EFFECTS, {}, n_poses=2)
+    assert [p.effect for p in model.parameters] == sorted((p.effect for p in model.parameters),
+                                                          key=lambda e: EFFECTS[e].gauge_priority)
+    for p in model.parameters:
+        effect = EFFECTS[p.effect]
+        assert effect.summary and p.scale > 0 and (p.joint or p.index is not None)
+        assert (p.effect == "sensors") == (p.unit not in effect.prior_size), p.name  # a sensor frame: no prior
+    # the joint terms are the effects' own hook, the NAO model's JointTerm: q = theta - c + C tau
+    offset = next(p for p in model.parameters if p.name == "joint_offset.panda_joint2")
+    assert offset.joint == "panda_joint2" and offset.unit == "rad"

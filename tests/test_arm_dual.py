@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from naocal.solver.arm import EFFECTS, ArmModel, Observations, Sensor
+from naocal.solver.arm import ArmModel, Observations, Sensor
+from naocal.solver.effects import ARM_EFFECTS
 from naocal.solver.errors import DataError
 
 DATA = Path(__file__).with_name("data")
@@ -60,7 +61,7 @@ def test_the_dual_arm_model_is_pybullets_robot_shared_torso_and_cameras_on_it(du
     obs = dual["observations"]
     assert set(obs.chain.tolist()) == {0, 1} and set(obs.sensor.tolist()) == {0, 1, 2}
     x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
-    for i, p in model.params("sensor"):  # truth.json's rotation is R_sensor_mount's rotation vector; R0 = I here
+    for i, p in model.params("sensors"):  # truth.json's rotation is R_sensor_mount's rotation vector; R0 = I here
         x[i] = dual["truth"][p.name]
     error = model.predict(x, obs) - obs.measured
     assert np.abs(error[obs.sensor == 2]).max() < 1e-6  # m
@@ -75,8 +76,8 @@ def test_the_dual_arm_model_is_pybullets_robot_shared_torso_and_cameras_on_it(du
 
 
 def test_the_dual_arm_jacobian_is_exact_for_every_effect(dual):
-    model = dual_model(dual, tuple(EFFECTS))
-    assert {p.effect for p in model.parameters} == set(EFFECTS) | {"sensor"}
+    model = dual_model(dual, ARM_EFFECTS)
+    assert {p.effect for p in model.parameters} == set(ARM_EFFECTS) | {"sensors"}
     rng = np.random.default_rng(1)
     x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
     x += rng.normal(0.0, 1.0, len(x)) * model.scales * 3
@@ -159,8 +160,8 @@ def test_a_prismatic_joint_is_read_in_metres_or_millimetres_and_its_offset_ident
     theta = slide_readings(40, rng)
     truth = {"joint_offset.turn": 0.0, "joint_offset.slide": 1.5e-3, "joint_offset.elbow": math.radians(0.3)}
     x = np.array([truth.get(n, 0.0) for n in model.names])
-    for i, p in model.params("sensor"):
-        x[i] = {"translation": (1.0, -0.5, 0.2)}.get(p.kind, (0.0, 0.0, 0.0))[p.component]
+    for i, p in model.params("sensors"):
+        x[i] = (1.0, -0.5, 0.2)[p.axis] if p.axis < 3 else 0.0  # its translation; no turn
     obs = Observations(np.repeat(theta, 3, axis=0), np.repeat(np.arange(40), 3), np.zeros(120, int),
                        np.tile(np.arange(3), 40), np.zeros((120, 3)))
     measured = model.predict(x, obs) + rng.normal(0.0, 1e-5, (120, 3))

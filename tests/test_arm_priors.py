@@ -73,7 +73,8 @@ def test_a_robust_loss_bends_the_data_but_never_the_prior(loss):
 # ------------------------------------------------------------------------------------------------ the arm
 
 
-from naocal.solver.arm import PRIOR_SIZE, ArmModel, Observations, Sensor  # noqa: E402
+from naocal.solver.arm import ArmModel, Observations, Sensor  # noqa: E402
+from naocal.solver.effects import EFFECTS  # noqa: E402
 from naocal.solver.arm_identify import RUNOFF_FACTOR, fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
 from tests.test_arm import CAMERA, panda, tool, true_errors  # noqa: E402
 
@@ -167,10 +168,10 @@ def test_the_report_says_which_parameters_the_prior_held():
     assert {"link_length.panda_link4", "link_length.panda_link6"} <= held
     assert "link_length.panda_link2" not in held and "joint_offset.panda_joint2" not in held
     entries = result.parameters_dict()
-    assert entries["link_length.panda_link4"]["prior_std"] == PRIOR_SIZE["link_lengths"]["m"]
+    assert entries["link_length.panda_link4"]["prior_std"] == EFFECTS["link_lengths"].prior_size["m"]
     assert entries["sensor.tracker.translation.x"]["prior_std"] is None  # a sensor may be anywhere
     i = model.names.index("link_length.panda_link4")
-    assert 0.5 * PRIOR_SIZE["link_lengths"]["m"] < result.std[i] <= PRIOR_SIZE["link_lengths"]["m"]
+    assert 0.5 * EFFECTS["link_lengths"].prior_size["m"] < result.std[i] <= EFFECTS["link_lengths"].prior_size["m"]
     assert fit(model, obs, initialise_sensors(model, obs), priors=False).held_by_prior == []
 
 

@@ -3,10 +3,12 @@ identify's options (the NAO's diagnose parses the identify command it suggests) 
 
 
 def effect_names() -> str:
-    """The candidate effects, for --help (solver/effects/, one module each)."""
-    from naocal.solver.effects import EXTRA_EFFECTS
+    """The candidate effects, for --help (solver/effects/, one module each: an arm's model takes some of them too)."""
+    from naocal.solver.arm import DEFAULT_EFFECTS
+    from naocal.solver.effects import ARM_EFFECTS, EXTRA_EFFECTS
 
-    return ", ".join(EXTRA_EFFECTS)
+    return (", ".join(EXTRA_EFFECTS) + f"; an arm's model (default {','.join(DEFAULT_EFFECTS)}): "
+            + ", ".join(ARM_EFFECTS))
 
 
 def add_dataset_argument(p, verb: str) -> None:

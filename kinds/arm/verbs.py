@@ -40,16 +40,16 @@ def add_arm_options(parser, *, simulate=False, verb="") -> None:
 
 
 def parse_arm_effects(text: str):
-    from naocal.solver.arm import DEFAULT_EFFECTS, EFFECTS
-    from naocal.solver.effects import comma_list
+    from naocal.solver.arm import DEFAULT_EFFECTS
+    from naocal.solver.effects import ARM_EFFECTS, comma_list
     from naocal.solver.errors import NaocalError
 
     if not text:
         return DEFAULT_EFFECTS
     names = comma_list(text, "--effects")
     for name in names:
-        if name not in EFFECTS:
-            raise NaocalError(f"--effects: unknown arm effect {name!r} (expected {', '.join(EFFECTS)})")
+        if name not in ARM_EFFECTS:
+            raise NaocalError(f"--effects: unknown arm effect {name!r} (expected {', '.join(ARM_EFFECTS)})")
     return tuple(names)
 
 
@@ -66,10 +66,10 @@ def fixed_and_start(args, dataset, effects):
     """(names or effects held, {name: SI start value}) from --start CAL.json and --fix NAME[=VALUE] (VALUE in the
     units the report shows: deg, mm; a bare NAME is held at its start value, the URDF's unless --start gives one).
     NaocalError naming the option, DataError naming the file's field."""
-    from naocal.solver.arm import EFFECTS
     from naocal.solver.arm_calibration import LIMITS
     from naocal.solver.arm_identify import model_for
     from naocal.solver.effect import DISPLAY_UNITS
+    from naocal.solver.effects import ARM_EFFECTS
     from naocal.solver.errors import DataError, NaocalError
 
     model = model_for(dataset, effects)
@@ -90,7 +90,7 @@ def fixed_and_start(args, dataset, effects):
     for text in getattr(args, "fix", None) or ():
         name, sep, value = (part.strip() for part in text.partition("="))
         if not sep:
-            if name not in EFFECTS and name not in model.names:
+            if name not in ARM_EFFECTS and name not in model.names:
                 raise NaocalError(f"--fix {text[:60]!r}: not a parameter of the model nor an effect")
             fixed.append(name)
             continue
@@ -165,7 +165,7 @@ def _shown(value, unit):
 
 
 def format_table(report: dict) -> str:
-    from naocal.solver.arm_diagnose import shown_rms
+    from naocal.solver.arm_identify import shown_rms
     from naocal.solver.arm_identify import PRIOR_HELD
 
     kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
@@ -284,7 +284,7 @@ def format_calibration(path) -> str:
     for name, reason in cal.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     if cal.rms:
-        from naocal.solver.arm_diagnose import shown_rms
+        from naocal.solver.arm_identify import shown_rms
 
         lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, 'points' if u == 'm' else 'camera')} per axis"
                                           for s, (v, u) in cal.rms.items())]

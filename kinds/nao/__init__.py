@@ -69,7 +69,7 @@ class NaoKind:
     def calibrate(self, args) -> int:
         from naocal.kinds.nao.calibrate import run
 
-        return run(args)
+        return run(args, self.calibrate_backends)
 
 
 KIND = NaoKind()

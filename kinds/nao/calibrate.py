@@ -104,7 +104,9 @@ def write_run_report(report, out, ctx) -> str | None:
     return None
 
 
-def run(args) -> int:
+def run(args, backends: dict) -> int:
+    """The NAO's `naocal calibrate`; backends: the kind's calibrate_backends {name: what it is} (the kind passes
+    its own: this module imports nothing of its package, which imports it)."""
     import logging
     from pathlib import Path
 
@@ -117,12 +119,11 @@ def run(args) -> int:
     if args.report:
         check_report_directory(Path(args.report), out)
     from naocal import kinds
-    from naocal.kinds.nao import KIND
 
-    if args.backend not in KIND.calibrate_backends:  # another kind's backend (the parser offers every kind's)
+    if args.backend not in backends:  # another kind's backend (the parser offers every kind's)
         owners = [k.name for k in kinds.capable("calibrate") if args.backend in getattr(k, "calibrate_backends", {})]
         raise NaocalError(f"--backend {args.backend} is another robot kind's (--robot {' or '.join(owners)}); a NAO "
-                          "runs on --backend " + " or ".join(KIND.calibrate_backends))
+                          "runs on --backend " + " or ".join(backends))
     if args.backend == "bridge":
         if not args.endpoint:
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve` prints)")

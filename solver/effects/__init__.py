@@ -1,8 +1,13 @@
 """The effects: one module per model term (solver/effect.py says what a module holds), discovered here.
 
 Every module of this package whose name does not start with '_' defines `EFFECT`, an instance of a subclass of
-solver.effect.Effect. `EFFECTS` maps names to them in their `order`; the base model (the paper's) is the effects
-with `base = True`, the others are the candidates the diagnostics can add.
+solver.effect.Effect. `EFFECTS` maps names to them in their `order`, whatever the robot kind. An effect is a term
+of the model it defines parameters for:
+- the NAO's model (solver.model.Model, `parameters(setup)`): the base model (the paper's) is the effects with
+  `base = True`, the others are the candidates the diagnostics can add (BASE_EFFECTS, EXTRA_EFFECTS);
+- an arm's model (solver.arm.ArmModel, `arm_parameters(arm)`): ARM_MODEL_EFFECTS in their gauge order, the sensors'
+  frames always, the others (ARM_EFFECTS) chosen by --effects.
+`joint_offsets`, `link_lengths` and `elasticity` are terms of both.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
+from naocal.solver.effect import Effect
 from naocal.solver.errors import NaocalError
 
 
@@ -28,18 +34,27 @@ def _discover() -> dict:
     return {e.name: e for e in sorted(found, key=lambda e: (e.order, e.name))}
 
 
+def defines(effect, hook: str) -> bool:
+    """Whether the effect defines `hook` (e.g. 'parameters', 'arm_parameters') rather than the base class's."""
+    return getattr(type(effect), hook) is not getattr(Effect, hook)
+
+
 EFFECTS = _discover()
-BASE_EFFECTS = tuple(name for name, e in EFFECTS.items() if e.base)
-EXTRA_EFFECTS = tuple(name for name, e in EFFECTS.items() if not e.base)
+BASE_EFFECTS = tuple(name for name, e in EFFECTS.items() if e.base and defines(e, "parameters"))
+EXTRA_EFFECTS = tuple(name for name, e in EFFECTS.items() if not e.base and defines(e, "parameters"))
 ALL_EFFECTS = BASE_EFFECTS + EXTRA_EFFECTS
+ARM_MODEL_EFFECTS = tuple(sorted((name for name, e in EFFECTS.items() if defines(e, "arm_parameters")),
+                                 key=lambda name: (EFFECTS[name].gauge_priority, name)))
+ARM_EFFECTS = tuple(name for name in ARM_MODEL_EFFECTS if not EFFECTS[name].arm_always)
 
 
 def effect(name: str):
-    """The effect called `name`; NaocalError listing the known ones otherwise."""
-    try:
-        return EFFECTS[name]
-    except KeyError:
-        raise NaocalError(f"unknown effect '{name}' (known: {', '.join(ALL_EFFECTS)})") from None
+    """The effect of the NAO's model called `name`; NaocalError listing the known ones otherwise (an arm's
+    effect, e.g. tool, is none of the NAO's)."""
+    found = EFFECTS.get(name)
+    if found is None or not defines(found, "parameters"):
+        raise NaocalError(f"unknown effect '{name}' (known: {', '.join(ALL_EFFECTS)})")
+    return found
 
 
 def comma_list(text: str, option: str) -> list[str]:

@@ -6,13 +6,16 @@ tau_j the gravity torque of the distal links and the target's board (its mass at
 gravity turns the joint in +q, taken at the joint's own, sagging angle (the model solves this implicitly and
 differentiates it exactly). Modelled for chains that hang free (a robot on its back with sandals); a chain that
 carries the body (a standing robot's support leg) has no such term.
+
+An arm (solver.arm.ArmModel) has the term on every revolute joint, tau from the URDF's masses and what the tip
+carries, taken at the readings (a fixed regressor: the sag's own change of tau is second order in C).
 """
 
 import math
 
 import numpy as np
 
-from naocal.solver.effect import Effect, JointTerm, MockPerturbation
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation, Parameter
 from naocal.solver.effects._common import apparent_offset_panels, joint_section, per_joint, read_joint_section
 
 
@@ -26,9 +29,16 @@ class Elasticity(Effect):
     offsets_limit = 1.0
     mock_size_unit, mock_stream = "rad/(N m)", 1
     plausible_min, plausible_min_why = 0.0, "a compliance is never negative"
+    prior_size = {"rad/(N m)": math.radians(0.05)}  # an arm: 0.5 deg under 10 N m, a soft gear
+    gauge_priority = 6
 
     def parameters(self, setup):
         return per_joint(self, "elasticity", setup.target_joints(), "rad/(N m)", 0.02)
+
+    def arm_parameters(self, arm):
+        if any(arm.prismatic):
+            raise ValueError("elasticity with a prismatic joint is not modelled (its gravity force is not a torque)")
+        return [Parameter(f"elasticity.{j}", self.name, "rad/(N m)", arm.scale, joint=j) for j in arm.joint_names]
 
     def joint_terms(self, layout):
         tau = layout.data.tau

@@ -3,7 +3,8 @@
     the origin of the joint at the link's end moves by delta along the link (its origin offset's direction)
 
 The robot description names the links (`link_lengths`: label -> the joint at the link's end): the NAO's thigh
-(hip to knee) and tibia (knee to ankle) of each leg, `link_length.L.thigh` etc.
+(hip to knee) and tibia (knee to ankle) of each leg, `link_length.L.thigh` etc. An arm (solver.arm.ArmModel) has
+one per joint origin (and chain tip) with an offset, named by the URDF link it ends: `link_length.panda_link4`.
 """
 
 import numpy as np
@@ -26,18 +27,27 @@ class LinkLengths(Effect):
     offsets_section, offsets_key = "body", "link_lengths_m"
     offsets_limit = 0.03
     mock_size_unit, mock_stream = "m", 3
+    prior_size = {"m": 2e-3}  # a machined link is off by millimetres
+    gauge_priority = 2
 
     def parameters(self, setup):
         return [Parameter(f"link_length.{label}", self.name, "m", 0.002, joint=joint, component=label)
                 for label, joint in _links(setup)]
 
+    def arm_parameters(self, arm):
+        """Along each origin's offset (arm.directions; none where the origin has no offset)."""
+        return [Parameter(f"link_length.{name}", self.name, "m", arm.scale,
+                          joint=key[1] if key[0] == "joint" else None, component=name, index=o)
+                for o, (name, key, direction) in enumerate(zip(arm.origin_names, arm.origin_keys, arm.directions))
+                if direction is not None]
+
     def chain_terms(self, layout, values):
         terms = []
         for i, p in layout.params(self.name):
             for frame, chain in layout.chains_in_use():
-                if p.joint in chain.joint_names:
-                    k = chain.index(p.joint)
-                    offset = chain.T_origin[k][:3, 3]
+                k = layout.origin_of(p, frame)  # an arm's chain: len(joint_names) is its tip's offset (T_end)
+                if k is not None:
+                    offset = chain.T_origin[k][:3, 3] if k < len(chain.joint_names) else chain.T_end[:3, 3]
                     terms.append(ChainTerm(i, frame, k, float(values[i]), offset / np.linalg.norm(offset)))
         return terms
 
