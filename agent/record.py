@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.dataset import IMAGES_DIR, DatasetAppender, parse_json_text, read_text
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import atomic_write_bytes, atomic_write_text
@@ -24,10 +25,7 @@ from naocal.solver.nao_model import board_vertices_sole
 log = logging.getLogger(__name__)
 
 PROGRESS_SCHEMA = "naocal.progress/1"
-
-
 MAX_ROBOT_TIME_S = 1e6  # 11 days of measuring: a calibration takes minutes
-MAX_COUNT = 2 ** 53
 
 
 def read_progress(path) -> dict:
@@ -46,13 +44,8 @@ def read_progress(path) -> dict:
 def check_progress(progress: dict, path) -> None:
     """DataError naming the field unless progress.json's values are what a run writes: robot_time_s a number of
     seconds within MAX_ROBOT_TIME_S, sessions a count, skipped {image number: reason}."""
-    time_s = progress["robot_time_s"]
-    if isinstance(time_s, bool) or not isinstance(time_s, (int, float)) or not 0 <= time_s <= MAX_ROBOT_TIME_S:
-        raise DataError(path, f"expected seconds of robot time within 0..{MAX_ROBOT_TIME_S:g}, got "
-                              f"{str(time_s)[:40]!r}", field="robot_time_s")
-    if type(progress["sessions"]) is not int or not 0 <= progress["sessions"] < MAX_COUNT:
-        raise DataError(path, f"expected a count of sessions, got {str(progress['sessions'])[:40]!r}",
-                        field="sessions")
+    fields.number(progress["robot_time_s"], path, "robot_time_s", low=0, high=MAX_ROBOT_TIME_S)
+    fields.count(progress["sessions"], path, "sessions")
     skipped = progress["skipped"]
     if not isinstance(skipped, dict):
         raise DataError(path, "expected {image number: reason}", field="skipped")

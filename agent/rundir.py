@@ -14,13 +14,13 @@ from __future__ import annotations
 import errno
 import fcntl
 import json
-import math
 import os
 import socket
 import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from naocal.solver import fields
 from naocal.solver.errors import DataError, NaocalError
 from naocal.solver.fileio import atomic_write_text, disk_full_as_error
 
@@ -212,11 +212,8 @@ def recorded_run(directory: Path) -> tuple[dict, str]:
         record["mock"] = _recorded_realism(directory)
         if isinstance(truth, dict) and isinstance(truth.get("effects"), dict):
             effects = dict(sorted(truth["effects"].items()))
-            for name, size in effects.items():  # compared with --effect's (finite) sizes
-                if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size):
-                    raise DataError(truth_path, f"expected a finite effect size, got {str(size)[:40]!r}",
-                                    field=f"effects.{name}")
-            record["effects"] = {k: float(v) for k, v in effects.items()}
+            # compared with --effect's (finite) sizes
+            record["effects"] = {k: fields.number(v, truth_path, f"effects.{k}") for k, v in effects.items()}
         sources.append(str(truth_path))
     meta_path = directory / DATASET_SUBDIR / "dataset.json"
     if record.get("backend") == "mock" and meta_path.exists():

@@ -85,38 +85,17 @@ def open_v4l2(device: str):
 def read_intrinsics(path) -> CameraIntrinsics:
     """Prior intrinsics from a JSON file {width_px, height_px, fx_px, fy_px, cx_px, cy_px[, distortion]} (pixels;
     distortion as OpenCV's k1, k2, p1, p2, k3). DataError naming the file and field."""
-    import json
+    from naocal.solver import fields
+    from naocal.solver.fileio import read_json
 
-    from naocal.solver.errors import DataError
-
-    try:
-        with open(path, encoding="utf-8") as file:
-            doc = json.load(file)
-    except OSError as err:
-        raise DataError(path, f"cannot read: {err.strerror or err}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise DataError(path, f"not JSON: {err}") from None
-    if not isinstance(doc, dict):
-        raise DataError(path, "expected a JSON object")
-    values = {}
-    for key in ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px"):
-        value = doc.get(key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-            raise DataError(path, "must be a positive number", field=key)
-        values[key] = value
-    for key in ("width_px", "height_px"):
-        if values[key] != int(values[key]):
-            raise DataError(path, "must be a whole number of pixels", field=key)
-    distortion = doc.get("distortion", [0.0] * 5)
-    if not (isinstance(distortion, list) and len(distortion) == 5 and all(
-            isinstance(d, (int, float)) and not isinstance(d, bool) and math.isfinite(d) for d in distortion)):
-        raise DataError(path, "must be 5 finite numbers k1, k2, p1, p2, k3", field="distortion")
-    unknown = sorted(set(doc) - set(values) - {"distortion", "name"})
-    if unknown:
-        raise DataError(path, "unknown key", field=unknown[0])
+    sizes, focals, centres = ("width_px", "height_px"), ("fx_px", "fy_px"), ("cx_px", "cy_px")
+    doc = fields.json_object(read_json(path), path, "", sizes + focals + centres, ("distortion", "name"))
+    values = {key: fields.number(doc[key], path, key, positive=True, integer=key in sizes)
+              for key in sizes + focals + centres}
+    distortion = fields.vector(doc.get("distortion", [0.0] * 5), 5, path, "distortion")
     return CameraIntrinsics(width_px=int(values["width_px"]), height_px=int(values["height_px"]),
-                            fx_px=float(values["fx_px"]), fy_px=float(values["fy_px"]), cx_px=float(values["cx_px"]),
-                            cy_px=float(values["cy_px"]), distortion=tuple(float(d) for d in distortion))
+                            fx_px=values["fx_px"], fy_px=values["fy_px"], cx_px=values["cx_px"], cy_px=values["cy_px"],
+                            distortion=distortion)
 
 
 def yuyv_problem(raw, width: int, height: int) -> str | None:

@@ -28,6 +28,11 @@ class Kind(Protocol):
 
     name: str
     rank: int  # the order of asking: lower first; the highest rank is the default kind (the NAO)
+    # What the verbs' common --help says of this kind (help_by_kind): its data (identify's, diagnose's and verify's
+    # DATASET), its calibration file (identify --out, verify --offsets) and what identify fits by default.
+    data_help: str
+    calibration_help: str
+    model_help: str
 
     def claims(self, source) -> bool:
         """Whether `source` is this kind's: a path (a dataset directory, a calibration file), decided from the data
@@ -74,6 +79,14 @@ def named(name: str) -> Kind:
         if kind.name == name:
             return kind
     raise KeyError(name)
+
+
+def help_by_kind(attribute: str, verb: str) -> str:
+    """For a verb's --help: what each kind with a body for `verb` says in `attribute` (data_help, calibration_help,
+    model_help), the default kind first: 'nao: ...; arm: ...'."""
+    kinds = capable(verb)
+    ordered = [k for k in kinds if k is default()] + [k for k in kinds if k is not default()]
+    return "; ".join(f"{k.name}: {getattr(k, attribute)}" for k in ordered if getattr(k, attribute, ""))
 
 
 def export_formats() -> tuple[str, ...]:

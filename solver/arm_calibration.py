@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from naocal.solver import fields
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import read_json
 from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
@@ -23,7 +24,8 @@ POSE_KINDS = ("link_pose", "tool")  # x, y, z in m and rx, ry, rz in rad: a join
 LIMITS = {"rad": math.radians(20.0), "m": 0.1, "rad/(N m)": MAX_PARAMETER_SIZE["rad/(N m)"]}
 SENSOR_LIMITS = {"rad": 2 * math.pi, "m": 100.0}  # a sensor's frame: anywhere within 100 m
 FIT_LIMITS = {"m": MAX_PARAMETER_SIZE["m"], "px": MAX_PARAMETER_SIZE["px"]}  # an RMS error beyond: no calibration
-MAX_COUNT = 2 ** 53  # an integer a JSON reader holds exactly
+FIT_UNITS = ("m", "px")
+MAX_TEXT = 4096  # characters of a name or a line of text
 AXES = "xyz"
 
 
@@ -51,29 +53,6 @@ class ArmCalibration:
         return {n: e for n, e in self.parameters.items() if not n.startswith("sensor.")}
 
 
-def _fail(path, problem, field=None):
-    raise DataError(path, problem, field=field)
-
-
-def _number(value, path, field):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
-    return float(value)
-
-
-def _plausible(value, limit, unit, path, field):
-    if abs(value) > limit:
-        _fail(path, f"|value| {abs(value):.4g} {unit} is beyond any plausible calibration ({limit:.4g} {unit}): "
-                    "a damaged file or a unit mix-up", field)
-    return value
-
-
-def _text(value, path, field):
-    if not isinstance(value, str) or len(value) > 4096 or not value.isprintable():
-        _fail(path, "expected a line of printable text", field)
-    return value
-
-
 def is_arm_calibration(path) -> bool:
     """Whether `path` is a file whose JSON says naocal.arm_calibration/1 (anything unreadable: no)."""
     try:  # a regular file only: a FIFO must not block the check; the whole file (the key may come last)
@@ -84,44 +63,29 @@ def is_arm_calibration(path) -> bool:
 
 
 def read_arm_calibration(path) -> ArmCalibration:
-    doc = read_json(path)  # regular files only, size and nesting capped (solver/fileio.py)
-    if not isinstance(doc, dict):
-        _fail(path, "expected a JSON object")
+    doc = fields.json_object(read_json(path), path, "")  # regular files only, size and nesting capped (fileio)
     if doc.get("schema") != SCHEMA:
-        _fail(path, f"expected schema {SCHEMA!r}, got {str(doc.get('schema'))[:60]!r}", "schema")
-    robot = doc.get("robot")
-    if not isinstance(robot, dict):
-        _fail(path, "expected a JSON object", "robot")
-    for key in ("base", "tip"):
-        if key not in robot:
-            _fail(path, "missing required field", f"robot.{key}")
-    robot = {k: _text(v, path, f"robot.{k}") for k, v in robot.items()}
-    model = doc.get("model")
-    if not isinstance(model, dict):
-        _fail(path, "missing the fitted model", "model")
-    effects = model.get("effects", [])
-    if not isinstance(effects, list):
-        _fail(path, "expected a list of effect names", "model.effects")
+        fields.fail(path, f"expected schema {SCHEMA!r}, got {str(doc.get('schema'))[:60]!r}", "schema")
+    robot = fields.json_object(doc.get("robot"), path, "robot", ("base", "tip"))
+    robot = {k: fields.text(v, path, f"robot.{k}", max_chars=MAX_TEXT) for k, v in robot.items()}
+    model = fields.json_object(doc.get("model"), path, "model", ("parameters",))
+    effects = fields.names(model.get("effects", []), path, "model.effects", what="effect names")
     from naocal.solver.effects import ARM_EFFECTS
 
     for i, e in enumerate(effects):
         if e not in ARM_EFFECTS:
-            _fail(path, f"unknown arm effect {str(e)[:40]!r}", f"model.effects[{i}]")
-    params = model.get("parameters")
-    if not isinstance(params, dict) or not params:
-        _fail(path, "missing the fitted parameters", "model.parameters")
+            fields.fail(path, f"unknown arm effect {str(e)[:40]!r}", f"model.effects[{i}]")
+    params = fields.json_object(model["parameters"], path, "model.parameters")
+    if not params:
+        fields.fail(path, "expected the fitted parameters, got none", "model.parameters")
     parameters = {}
     for name, entry in params.items():
         where = f"model.parameters.{name}"
-        _text(name, path, "model.parameters")
-        if not isinstance(entry, dict):
-            _fail(path, "expected {value, std, unit, fixed}", where)
-        for key in ("value", "std", "unit"):
-            if key not in entry:
-                _fail(path, "missing required field", f"{where}.{key}")
-        value = _number(entry["value"], path, f"{where}.value")
-        std = _number(entry["std"], path, f"{where}.std")
-        unit = _text(entry["unit"], path, f"{where}.unit")
+        fields.text(name, path, "model.parameters", max_chars=MAX_TEXT)
+        entry = fields.json_object(entry, path, where, ("value", "std", "unit"))
+        value = fields.number(entry["value"], path, f"{where}.value")
+        std = fields.number(entry["std"], path, f"{where}.std", non_negative=True)
+        unit = fields.text(entry["unit"], path, f"{where}.unit", max_chars=MAX_TEXT)
         kind = name.split(".", 1)[0]
         expected = "rad" if kind in POSE_KINDS and name.rsplit(".", 1)[-1].startswith("r") else \
             "m" if kind in POSE_KINDS else UNITS.get(kind)
@@ -130,84 +94,59 @@ def read_arm_calibration(path) -> ArmCalibration:
         if kind == "sensor":
             expected = "rad" if ".rotation." in name else "m"
         if expected is None:
-            _fail(path, "not an arm parameter (joint_offset., link_length., link_pose., tool., point., "
+            fields.fail(path, "not an arm parameter (joint_offset., link_length., link_pose., tool., point., "
                         "elasticity., sensor.)", where)
         if unit != expected:
-            _fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
-        _plausible(value, (SENSOR_LIMITS if kind == "sensor" else LIMITS)[unit], unit, path, f"{where}.value")
-        if std < 0:
-            _fail(path, "a standard deviation cannot be negative", f"{where}.std")
+            fields.fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
+        fields.number(value, path, f"{where}.value", limit=(SENSOR_LIMITS if kind == "sensor" else LIMITS)[unit],
+                      unit=unit)
         parameters[name] = {"value": value, "std": std, "unit": unit, "fixed": bool(entry.get("fixed", False))}
     # the people's sections must say what model.parameters says (an edited file that disagrees is refused)
     for section, prefix in (("joint_offsets_rad", "joint_offset."), ("link_lengths_m", "link_length.")):
-        table = doc.get(section, {})
-        if not isinstance(table, dict):
-            _fail(path, "expected a JSON object", section)
-        for key, value in table.items():
-            value = _number(value, path, f"{section}.{key}")
+        for key, value in fields.json_object(doc.get(section, {}), path, section).items():
+            value = fields.number(value, path, f"{section}.{key}")
             entry = parameters.get(prefix + key)
             if entry is None or abs(entry["value"] - value) > 1e-12 * max(1.0, abs(value)):
-                _fail(path, f"disagrees with model.parameters.{prefix}{key}", f"{section}.{key}")
+                fields.fail(path, f"disagrees with model.parameters.{prefix}{key}", f"{section}.{key}")
     _check_sensors(doc.get("sensors", {}), parameters, path)
-    fit = doc.get("fit", {})
-    if not isinstance(fit, dict):
-        _fail(path, "expected a JSON object", "fit")
+    fit = fields.json_object(doc.get("fit", {}), path, "fit")
     rms, noise = {}, {}
     for section, out in (("rms", rms), ("noise", noise)):
-        table = fit.get(section, {})
-        if not isinstance(table, dict):
-            _fail(path, "expected a JSON object", f"fit.{section}")
-        for sensor, entry in table.items():
-            if not isinstance(entry, dict) or entry.get("unit") not in ("m", "px"):
-                _fail(path, "expected {value, unit: m | px}", f"fit.{section}.{sensor}")
-            out[sensor] = (_fit_size(entry.get("value"), entry["unit"], path, f"fit.{section}.{sensor}.value"),
-                           entry["unit"])
-    heldout = fit.get("heldout") or {}
-    if not isinstance(heldout, dict):
-        _fail(path, "expected a JSON object or null", "fit.heldout")
-    for sensor, entry in heldout.items():
-        if not isinstance(entry, dict) or entry.get("unit") not in ("m", "px"):
-            _fail(path, "expected {nominal, calibrated, unit: m | px}", f"fit.heldout.{sensor}")
+        for sensor, entry in fields.json_object(fit.get(section, {}), path, f"fit.{section}").items():
+            where = f"fit.{section}.{sensor}"
+            entry = fields.json_object(entry, path, where, ("value", "unit"))
+            unit = fields.choice(entry["unit"], FIT_UNITS, path, f"{where}.unit")
+            out[sensor] = (_fit_size(entry["value"], unit, path, f"{where}.value"), unit)
+    for sensor, entry in fields.json_object(fit.get("heldout") or {}, path, "fit.heldout").items():
+        where = f"fit.heldout.{sensor}"
+        entry = fields.json_object(entry, path, where, ("nominal", "calibrated", "unit"))
+        unit = fields.choice(entry["unit"], FIT_UNITS, path, f"{where}.unit")
         for key in ("nominal", "calibrated"):
-            _fit_size(entry.get(key), entry["unit"], path, f"fit.heldout.{sensor}.{key}")
+            _fit_size(entry[key], unit, path, f"{where}.{key}")
     if "n_observations" in fit:
-        count = fit["n_observations"]
-        if type(count) is not int or not 0 <= count <= MAX_COUNT:
-            _fail(path, f"expected a count of observations, got {str(count)[:40]!r}", "fit.n_observations")
-    reasons = model.get("fixed", {})
-    if not isinstance(reasons, dict):
-        _fail(path, "expected a JSON object", "model.fixed")
+        fields.count(fit["n_observations"], path, "fit.n_observations")
+    reasons = fields.json_object(model.get("fixed", {}), path, "model.fixed")
     created = doc.get("created", "?")
     return ArmCalibration(str(path), robot, tuple(effects), parameters,
                           {str(k): str(v) for k, v in reasons.items()}, rms, noise,
-                          _text(created, path, "created") if created != "?" else "?")
+                          fields.text(created, path, "created", max_chars=MAX_TEXT) if created != "?" else "?")
 
 
 def _fit_size(value, unit, path, field) -> float:
     """An RMS error of the fit: finite, not negative, within FIT_LIMITS."""
-    value = _number(value, path, field)
-    if value < 0:
-        _fail(path, "cannot be negative", field)
-    return _plausible(value, FIT_LIMITS[unit], unit, path, field)
+    return fields.number(value, path, field, non_negative=True, limit=FIT_LIMITS[unit], unit=unit)
 
 
 def _check_sensors(sensors, parameters: dict, path) -> None:
     """The `sensors` section: per sensor rotation_rad and translation_m, 3 finite numbers each within SENSOR_LIMITS,
     saying what model.parameters' sensor.<name>.rotation/translation.<axis> say."""
-    if not isinstance(sensors, dict):
-        _fail(path, "expected a JSON object", "sensors")
-    for name, frame in sensors.items():
-        if not isinstance(frame, dict):
-            _fail(path, "expected {rotation_rad, translation_m}", f"sensors.{name}")
+    for name, frame in fields.json_object(sensors, path, "sensors").items():
+        frame = fields.json_object(frame, path, f"sensors.{name}", ("rotation_rad", "translation_m"))
         for key, part, unit in (("rotation_rad", "rotation", "rad"), ("translation_m", "translation", "m")):
             where = f"sensors.{name}.{key}"
-            values = frame.get(key)
-            if not isinstance(values, list) or len(values) != 3:
-                _fail(path, "expected 3 numbers (x, y, z)", where)
+            values = fields.vector(frame[key], 3, path, where, limit=SENSOR_LIMITS[unit], unit=unit)
             for axis, value in zip(AXES, values):
-                value = _plausible(_number(value, path, f"{where}[{AXES.index(axis)}]"), SENSOR_LIMITS[unit], unit,
-                                   path, f"{where}[{AXES.index(axis)}]")
                 entry = parameters.get(f"sensor.{name}.{part}.{axis}")
                 if entry is None or abs(entry["value"] - value) > 1e-12 * max(1.0, abs(value)):
-                    _fail(path, f"disagrees with model.parameters.sensor.{name}.{part}.{axis}",
-                          f"{where}[{AXES.index(axis)}]")
+                    fields.fail(path, f"disagrees with model.parameters.sensor.{name}.{part}.{axis}",
+                                f"{where}[{AXES.index(axis)}]")

@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.arm import POINT_KINDS, ArmChain, Observations, Sensor
 from naocal.solver.errors import DataError
+from naocal.solver.fields import fail
 from naocal.solver.fileio import read_json, read_text
 
 SCHEMA = "naocal.arm_dataset/1"
@@ -31,6 +33,7 @@ MAX_POINT_M = 100.0  # a 3-D reading farther from its sensor is refused
 WORKSPACE_M = 10.0  # a point on the tip farther from the tip frame is refused
 MAX_PIXELS = 1e5  # image sizes, focal lengths and principal points, px
 MAX_DISTORTION = 1e3  # OpenCV distortion coefficients
+MAX_NAME = 200  # characters of a name (a link, a sensor, a point)
 MAX_NOISE = {"noise_m": 1.0, "noise_px": 1e3}
 PYBULLET_ARMS = {  # --robot NAME: URDFs that ship with pybullet (pybullet_data), with their chain and tool
     "kuka_iiwa": ("kuka_iiwa/model.urdf", "lbr_iiwa_link_0", "lbr_iiwa_link_7"),
@@ -130,43 +133,9 @@ def arm_chains(urdf_path, specs: dict) -> tuple:
     return tuple(out)
 
 
-def _fail(path, problem, field=None, line=None):
-    raise DataError(path, problem, field=field, line=line)
-
-
-def _number(value, path, field, *, positive=False, bound=None):
-    """A finite number, positive if asked, and within +-bound (generous physical bounds: docs/FORMATS.md)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
-    if positive and value <= 0:
-        _fail(path, f"must be positive, got {value!r}", field)
-    if bound is not None and abs(value) > bound:
-        _fail(path, f"{value!r} is beyond any plausible value (at most {bound:g} in size)", field)
-    return float(value)
-
-
-def _vector(value, path, field, n=3, bound=None):
-    if not isinstance(value, list) or len(value) != n:
-        _fail(path, f"expected a list of {n} numbers", field)
-    return tuple(_number(v, path, f"{field}[{i}]", bound=bound) for i, v in enumerate(value))
-
-
-def _object(value, path, field, allowed=None, required=()):
-    if not isinstance(value, dict):
-        _fail(path, "expected a JSON object", field)
-    for key in value:
-        if allowed is not None and key not in allowed:
-            _fail(path, f"unknown field (expected {', '.join(allowed)})", f"{field}.{key}" if field else key)
-    for key in required:
-        if key not in value:
-            _fail(path, "missing required field", f"{field}.{key}" if field else key)
-    return value
-
-
-def _name(value, path, field):
-    if not isinstance(value, str) or not value or len(value) > 200 or not value.isprintable():
-        _fail(path, "expected a non-empty name", field)
-    return value
+def _name(value, path, field) -> str:
+    """A link's, a sensor's, a point's or a chain's name."""
+    return fields.text(value, path, field, max_chars=MAX_NAME, non_empty=True)
 
 
 CAMERA_FIELDS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
@@ -174,36 +143,33 @@ CAMERA_FIELDS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 
 def _sensor(name, doc, path) -> Sensor:
     where = f"sensors.{name}"
-    doc = _object(doc, path, where, ("kind", "noise_m", "noise_px", "pose", "about", "distortion", "link")
-                  + CAMERA_FIELDS, ("kind",))
-    kind = doc["kind"]
-    if kind not in POINT_KINDS:
-        _fail(path, f"expected one of {', '.join(POINT_KINDS)}, got {str(kind)[:40]!r}", f"{where}.kind")
+    doc = fields.json_object(doc, path, where, ("kind",),
+                             ("noise_m", "noise_px", "pose", "about", "distortion", "link") + CAMERA_FIELDS)
+    kind = fields.choice(doc["kind"], POINT_KINDS, path, f"{where}.kind")
     noise_key = "noise_m" if kind == "points" else "noise_px"
     wrong = "noise_px" if kind == "points" else "noise_m"
     if wrong in doc:
-        _fail(path, f"a {kind} sensor states its noise as {noise_key}", f"{where}.{wrong}")
-    noise = _number(doc[noise_key], path, f"{where}.{noise_key}", positive=True,
-                    bound=MAX_NOISE[noise_key]) if noise_key in doc else None
+        fail(path, f"a {kind} sensor states its noise as {noise_key}", f"{where}.{wrong}")
+    noise = fields.number(doc[noise_key], path, f"{where}.{noise_key}", positive=True,
+                          limit=MAX_NOISE[noise_key]) if noise_key in doc else None
     intrinsics = None
     if kind == "camera":
         for key in CAMERA_FIELDS:
             if key not in doc:
-                _fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
-        intrinsics = {key: _number(doc[key], path, f"{where}.{key}", positive=key != "cx_px" and key != "cy_px",
-                                   bound=MAX_PIXELS) for key in CAMERA_FIELDS}
-        intrinsics["distortion"] = list(_vector(doc.get("distortion", [0.0] * 5), path, f"{where}.distortion", 5,
-                                                bound=MAX_DISTORTION))
+                fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
+        intrinsics = {key: fields.number(doc[key], path, f"{where}.{key}", positive=key not in ("cx_px", "cy_px"),
+                                         limit=MAX_PIXELS) for key in CAMERA_FIELDS}
+        intrinsics["distortion"] = list(fields.vector(doc.get("distortion", [0.0] * 5), 5, path, f"{where}.distortion",
+                                                      limit=MAX_DISTORTION))
     else:
         for key in CAMERA_FIELDS + ("distortion",):
             if key in doc:
-                _fail(path, "only a camera has intrinsics", f"{where}.{key}")
+                fail(path, "only a camera has intrinsics", f"{where}.{key}")
     rotation = translation = None
     if "pose" in doc:
-        pose = _object(doc["pose"], path, f"{where}.pose", ("rotation_rad", "translation_m"),
-                       ("rotation_rad", "translation_m"))
-        rotation = _vector(pose["rotation_rad"], path, f"{where}.pose.rotation_rad", bound=2 * math.pi)
-        translation = _vector(pose["translation_m"], path, f"{where}.pose.translation_m", bound=MAX_POINT_M)
+        pose = fields.json_object(doc["pose"], path, f"{where}.pose", ("rotation_rad", "translation_m"), ())
+        rotation = fields.vector(pose["rotation_rad"], 3, path, f"{where}.pose.rotation_rad", limit=2 * math.pi)
+        translation = fields.vector(pose["translation_m"], 3, path, f"{where}.pose.translation_m", limit=MAX_POINT_M)
     link = _name(doc["link"], path, f"{where}.link") if "link" in doc else None
     return Sensor(name, kind, intrinsics, noise, rotation, translation, link)
 
@@ -214,35 +180,36 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
     directory = Path(directory)
     meta_path = directory / "dataset.json"
     if not directory.is_dir():
-        _fail(directory, "not a dataset directory")
+        fail(directory, "not a dataset directory")
     meta = read_json(meta_path)  # regular files only, size and nesting capped (solver/fileio.py)
-    meta = _object(meta, meta_path, "", ("schema", "robot", "chains", "points", "sensors", "gravity_mps2", "source",
-                                         "about", "notes", "created"), ("schema", "points", "sensors"))
+    meta = fields.json_object(meta, meta_path, "", ("schema", "points", "sensors"),
+                              ("robot", "chains", "gravity_mps2", "source", "about", "notes", "created"))
     if meta["schema"] != SCHEMA:
-        _fail(meta_path, f"wrong schema {str(meta['schema'])[:60]!r}, expected {SCHEMA!r}", "schema")
-    robot_meta = _object(meta.get("robot", {}), meta_path, "robot", ("id", "model", "urdf", "base", "tip", "about"))
+        fail(meta_path, f"wrong schema {str(meta['schema'])[:60]!r}, expected {SCHEMA!r}", "schema")
+    robot_meta = fields.json_object(meta.get("robot", {}), meta_path, "robot", (),
+                                    ("id", "model", "urdf", "base", "tip", "about"))
     for key in robot_meta:
         _name(robot_meta[key], meta_path, f"robot.{key}")
     urdf_path, base, tip = resolve_robot(robot, chain)
     if urdf_path is None:
         if "urdf" not in robot_meta:
-            _fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
+            fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
         urdf_path = directory / robot_meta["urdf"]
     specs = _chain_specs(meta, robot_meta, base, tip, meta_path)
     points = {}
-    for name, point in _object(meta["points"], meta_path, "points").items():
+    for name, point in fields.json_object(meta["points"], meta_path, "points").items():
         _name(name, meta_path, "points")
-        point = _object(point, meta_path, f"points.{name}", ("xyz_m", "about"), ("xyz_m",))
-        points[name] = _vector(point["xyz_m"], meta_path, f"points.{name}.xyz_m")
+        point = fields.json_object(point, meta_path, f"points.{name}", ("xyz_m",), ("xyz_m", "about"))
+        points[name] = fields.vector(point["xyz_m"], 3, meta_path, f"points.{name}.xyz_m")
         if max(abs(v) for v in points[name]) > WORKSPACE_M:
-            _fail(meta_path, f"more than {WORKSPACE_M:.0f} m from the tip frame (millimetres? xyz_m is in m)",
-                  f"points.{name}.xyz_m")
+            fail(meta_path, f"more than {WORKSPACE_M:.0f} m from the tip frame (millimetres? xyz_m is in m)",
+                 f"points.{name}.xyz_m")
     if not points:
-        _fail(meta_path, "no points: name at least one point on the end effector", "points")
+        fail(meta_path, "no points: name at least one point on the end effector", "points")
     sensors = tuple(_sensor(_name(name, meta_path, "sensors"), doc, meta_path)
-                    for name, doc in _object(meta["sensors"], meta_path, "sensors").items())
+                    for name, doc in fields.json_object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
-        _fail(meta_path, "no sensors", "sensors")
+        fail(meta_path, "no sensors", "sensors")
     several = "chains" in meta or any(s.link is not None for s in sensors)
     if several:
         chains = arm_chains(urdf_path, specs)
@@ -250,16 +217,16 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         base, tip = chains[0].chain.base, "+".join(ac.chain.tip for ac in chains)
         for s in sensors:  # a sensor's link must be the base or a link a joint of some chain moves
             if s.link is not None and not any(s.link == ac.chain.base or s.link in ac.child_links for ac in chains):
-                _fail(meta_path, f"no chain moves link {s.link!r} by a joint of its own (a sensor is mounted on the "
-                                 "chains' base or on the child link of one of their joints)", f"sensors.{s.name}.link")
+                fail(meta_path, f"no chain moves link {s.link!r} by a joint of its own (a sensor is mounted on the "
+                     "chains' base or on the child link of one of their joints)", f"sensors.{s.name}.link")
     else:
         (base, tip), = specs.values()
         kin_chain, link_names, load = arm_chain(urdf_path, base, tip, meta_path)
         chains = (ArmChain(tip, kin_chain, link_names, load),)
-    gravity = _vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), meta_path, "gravity_mps2", bound=13.0)
+    gravity = fields.vector(meta.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, meta_path, "gravity_mps2", limit=13.0)
     if not 7.0 <= math.hypot(*gravity) <= 13.0:
-        _fail(meta_path, f"|g| = {math.hypot(*gravity):.4g} m/s^2: expected 7-13 (m/s^2, in the base frame)",
-              "gravity_mps2")
+        fail(meta_path, f"|g| = {math.hypot(*gravity):.4g} m/s^2: expected 7-13 (m/s^2, in the base frame)",
+             "gravity_mps2")
     notes = []
     joints = tuple(dict.fromkeys(j for ac in chains for j in ac.chain.joint_names))
     obs = _read_observations(directory / "observations.csv", joints, sensors, tuple(points),
@@ -283,28 +250,28 @@ def _chain_specs(meta, robot_meta, base, tip, meta_path) -> dict:
         base = base or robot_meta.get("base")
         tip = tip or robot_meta.get("tip")
         if not base or not tip:
-            _fail(meta_path, "no chain: name robot.base and robot.tip (or chains) here or give --chain "
-                             "BASE_LINK:TIP_LINK", "robot.base" if not base else "robot.tip")
+            fail(meta_path, "no chain: name robot.base and robot.tip (or chains) here or give --chain "
+                 "BASE_LINK:TIP_LINK", "robot.base" if not base else "robot.tip")
         return {tip: (base, tip)}
     if base or tip:
-        _fail(meta_path, "the dataset names its chains: --chain picks none of them", "chains")
+        fail(meta_path, "the dataset names its chains: --chain picks none of them", "chains")
     for key in ("base", "tip"):
         if key in robot_meta:
-            _fail(meta_path, "the chains are named in `chains`: robot.base and robot.tip are for one chain",
-                  f"robot.{key}")
+            fail(meta_path, "the chains are named in `chains`: robot.base and robot.tip are for one chain",
+                 f"robot.{key}")
     specs = {}
-    for name, doc in _object(meta["chains"], meta_path, "chains").items():
+    for name, doc in fields.json_object(meta["chains"], meta_path, "chains").items():
         _name(name, meta_path, "chains")
-        doc = _object(doc, meta_path, f"chains.{name}", ("base", "tip", "about"), ("base", "tip"))
+        doc = fields.json_object(doc, meta_path, f"chains.{name}", ("base", "tip"), ("base", "tip", "about"))
         specs[name] = (_name(doc["base"], meta_path, f"chains.{name}.base"),
                        _name(doc["tip"], meta_path, f"chains.{name}.tip"))
     if not specs:
-        _fail(meta_path, "no chains: name at least one {\"base\": LINK, \"tip\": LINK}", "chains")
+        fail(meta_path, "no chains: name at least one {\"base\": LINK, \"tip\": LINK}", "chains")
     first = next(iter(specs.values()))[0]
     for name, (b, _) in specs.items():
         if b != first:
-            _fail(meta_path, f"every chain starts at one base (the first at {first!r}), not {b!r}",
-                  f"chains.{name}.base")
+            fail(meta_path, f"every chain starts at one base (the first at {first!r}), not {b!r}",
+                 f"chains.{name}.base")
     return specs
 
 
@@ -335,47 +302,47 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
     lines = _comment_free_lines(read_text(path))  # regular files only, at most 64 MiB (solver/fileio.py)
     first = next((i for i, line in enumerate(lines) if line), None)
     if first is None:
-        _fail(path, "empty file: no header row", line=1)
+        fail(path, "empty file: no header row", line=1)
     delimiter = next((d for d in DELIMITERS if d in lines[first]), ",")
     decimal_comma = delimiter == ";"
     reader = csv.reader(io.StringIO("".join(lines), newline=""), delimiter=delimiter)
     try:
         header = next(row for row in reader if row and any(cell.strip() for cell in row))
     except csv.Error as err:
-        _fail(path, f"malformed CSV: {err}", line=first + 1)
+        fail(path, f"malformed CSV: {err}", line=first + 1)
     header_line = reader.line_num
     header = [h.strip() for h in header]
     seen = set()
     for h in header:
         if h in seen:
-            _fail(path, "column named twice", field=h, line=header_line)
+            fail(path, "column named twice", field=h, line=header_line)
         seen.add(h)
     col = {h: i for i, h in enumerate(header)}
     for required, names in (("sensor", [s.name for s in sensors]), ("point", list(points))):
         if required not in col and len(names) != 1:
-            _fail(path, f"missing column (needed when dataset.json names more than one {required})", field=required,
-                  line=header_line)
+            fail(path, f"missing column (needed when dataset.json names more than one {required})", field=required,
+                 line=header_line)
     if chains is not None and len(chains) > 1 and "chain" not in col:
-        _fail(path, "missing column (needed when dataset.json names more than one chain)", field="chain",
-              line=header_line)
+        fail(path, "missing column (needed when dataset.json names more than one chain)", field="chain",
+             line=header_line)
     joint_cols = []
     for joint in joints:
         units = SLIDE_UNITS if joint in slides else JOINT_UNITS
         found = [(joint + suffix, factor) for suffix, factor in units.items() if joint + suffix in col]
         if len(found) > 1:
-            _fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=header_line)
+            fail(path, f"joint {joint} given twice ({found[0][0]}, {found[1][0]})", field=joint, line=header_line)
         if not found:
             a, b = (f"{joint}{u}" for u in units)
             hint = f" (a column {joint!r} needs its unit: {a} or {b})" if joint in col else ""
-            _fail(path, f"missing the column of chain joint {joint}: {a} or {b}{hint}", field=joint,
-                  line=header_line)
+            fail(path, f"missing the column of chain joint {joint}: {a} or {b}{hint}", field=joint,
+                 line=header_line)
         joint_cols.append((col[found[0][0]], found[0][1], found[0][0], joint))
     chain_index = {ac.name: c for c, ac in enumerate(chains or ())}
     chain_joints = [set(ac.chain.joint_names) for ac in chains or ()]
     point_chain = {}  # point -> (chain, first line): a point is on one chain's tool
     units = [suffix for suffix in POINT_UNITS if all(f"{a}{suffix}" in col for a in "xyz")]
     if len(units) > 1:
-        _fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=header_line)
+        fail(path, "the 3-D point is given twice (x_m and x_mm columns)", field="x_mm", line=header_line)
     xyz_cols = ([col[f"{a}{units[0]}"] for a in "xyz"], POINT_UNITS[units[0]], units[0]) if units else None
     sensor_index = {s.name: i for i, s in enumerate(sensors)}
     point_index = {p: i for i, p in enumerate(points)}
@@ -393,42 +360,42 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
             if not row or all(not cell.strip() for cell in row):
                 continue
             if len(row) != len(header):
-                _fail(path, f"expected {len(header)} cells, got {len(row)}", line=line)
+                fail(path, f"expected {len(header)} cells, got {len(row)}", line=line)
             row = [cell.strip() for cell in row]
             name = row[col["sensor"]] if "sensor" in col else sensors[0].name
             if name not in sensor_index:
-                _fail(path, f"unknown sensor {name[:40]!r} (dataset.json has {', '.join(sensor_index)})",
-                      field="sensor", line=line)
+                fail(path, f"unknown sensor {name[:40]!r} (dataset.json has {', '.join(sensor_index)})",
+                     field="sensor", line=line)
             s = sensor_index[name]
             pname = row[col["point"]] if "point" in col else next(iter(points))
             if pname not in point_index:
-                _fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
-                      field="point", line=line)
+                fail(path, f"unknown point {pname[:40]!r} (dataset.json has {', '.join(point_index)})",
+                     field="point", line=line)
             row_c = 0
             if chains is not None:
                 cname = row[col["chain"]] if "chain" in col else chains[0].name
                 if cname not in chain_index:
-                    _fail(path, f"unknown chain {cname[:40]!r} (dataset.json has {', '.join(chain_index)})",
-                          field="chain", line=line)
+                    fail(path, f"unknown chain {cname[:40]!r} (dataset.json has {', '.join(chain_index)})",
+                         field="chain", line=line)
                 row_c = chain_index[cname]
                 ac, link = chains[row_c], sensors[s].link
                 if link is not None and link != ac.chain.base and link not in ac.child_links:
-                    _fail(path, f"sensor {name} is mounted on {link!r}, which chain {cname} does not carry: it "
-                                "cannot see that chain's points", field="sensor", line=line)
+                    fail(path, f"sensor {name} is mounted on {link!r}, which chain {cname} does not carry: it "
+                         "cannot see that chain's points", field="sensor", line=line)
                 first = point_chain.setdefault(pname, (cname, line))
                 if first[0] != cname:
-                    _fail(path, f"point {pname} is on chain {first[0]} (line {first[1]}), here on {cname}: a point "
-                                "is on one chain's tool", field="chain", line=line)
+                    fail(path, f"point {pname} is on chain {first[0]} (line {first[1]}), here on {cname}: a point "
+                         "is on one chain's tool", field="chain", line=line)
             if sensors[s].kind == "points":
                 if xyz_cols is None:
-                    _fail(path, f"a 3-D sensor's row ({name}) needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)",
-                          field="x_m", line=line)
+                    fail(path, f"a 3-D sensor's row ({name}) needs the columns x_m, y_m, z_m (or x_mm, y_mm, z_mm)",
+                         field="x_m", line=line)
                 cols, factor, suffix = xyz_cols
                 cells = [(row[i], f"{a}{suffix}") for i, a in zip(cols, "xyz")]
             else:
                 for c in PIXEL_COLUMNS:
                     if c not in col:
-                        _fail(path, f"a camera's row ({name}) needs the columns u_px, v_px", field=c, line=line)
+                        fail(path, f"a camera's row ({name}) needs the columns u_px, v_px", field=c, line=line)
                 cells = [(row[col[c]], c) for c in PIXEL_COLUMNS]
             if all(text in MISSING for text, _ in cells):  # not seen at this pose: no observation
                 unseen += 1
@@ -438,14 +405,14 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
                 values = [v * xyz_cols[1] for v in values]
                 far = max(range(3), key=lambda a: abs(values[a]))
                 if abs(values[far]) > MAX_POINT_M:
-                    _fail(path, f"a 3-D reading {abs(values[far]):.4g} m from its sensor (more than {MAX_POINT_M:.0f} "
-                                "m: millimetres in an _m column?)", field=cells[far][1], line=line)
+                    fail(path, f"a 3-D reading {abs(values[far]):.4g} m from its sensor (more than {MAX_POINT_M:.0f} "
+                         "m: millimetres in an _m column?)", field=cells[far][1], line=line)
             else:
                 k = sensors[s].intrinsics
                 if not (-k["width_px"] <= values[0] <= 2 * k["width_px"]
                         and -k["height_px"] <= values[1] <= 2 * k["height_px"]):
-                    _fail(path, f"pixel ({values[0]:.6g}, {values[1]:.6g}) is beyond one image size of camera "
-                                f"{name}'s {k['width_px']:.0f} x {k['height_px']:.0f} image", field="u_px", line=line)
+                    fail(path, f"pixel ({values[0]:.6g}, {values[1]:.6g}) is beyond one image size of camera "
+                         f"{name}'s {k['width_px']:.0f} x {k['height_px']:.0f} image", field="u_px", line=line)
                 values.append(0.0)
             reading = []
             for i, factor, field, joint in joint_cols:
@@ -457,18 +424,18 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
                 if joint in slides:
                     if not lower - SLIDE_MARGIN <= angle <= upper + SLIDE_MARGIN and math.isfinite(lower + upper):
                         hint = " (millimetres in a _m column?)" if field.endswith("_m") else ""
-                        _fail(path, f"reading {angle * 1e3:.4g} mm is beyond the URDF's limits {lower * 1e3:.4g}.."
-                                    f"{upper * 1e3:.4g} mm by more than {SLIDE_MARGIN * 1e3:.0f} mm{hint}",
+                        fail(path, f"reading {angle * 1e3:.4g} mm is beyond the URDF's limits {lower * 1e3:.4g}.."
+                             f"{upper * 1e3:.4g} mm by more than {SLIDE_MARGIN * 1e3:.0f} mm{hint}",
                               field=field, line=line)
                 elif not lower - ANGLE_MARGIN <= angle <= upper + ANGLE_MARGIN and math.isfinite(lower + upper):
                     hint = " (degrees in a _rad column?)" if field.endswith("_rad") else ""
-                    _fail(path, f"reading {math.degrees(angle):.4g} deg is beyond the URDF's limits "
-                                f"{math.degrees(lower):.4g}..{math.degrees(upper):.4g} deg by more than 10 deg{hint}",
+                    fail(path, f"reading {math.degrees(angle):.4g} deg is beyond the URDF's limits "
+                         f"{math.degrees(lower):.4g}..{math.degrees(upper):.4g} deg by more than 10 deg{hint}",
                           field=field, line=line)
                 reading.append(angle)
             if pose_col is not None:
                 if not row[pose_col]:
-                    _fail(path, "empty cell: the pose column needs a value on every row", field="pose", line=line)
+                    fail(path, "empty cell: the pose column needs a value on every row", field="pose", line=line)
                 pose.append(row[pose_col])
             theta.append(reading)
             measured.append(values)
@@ -477,11 +444,11 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
             rows_read.append(line)
             row_chain.append(row_c)
     except csv.Error as err:
-        _fail(path, f"malformed CSV: {err}", line=line + 1)
+        fail(path, f"malformed CSV: {err}", line=line + 1)
     if unseen:
         notes.append(f"{path}: {unseen} row(s) without a measurement (empty or nan: not seen) left out")
     if not theta:
-        _fail(path, "no observations", line=header_line + 1)
+        fail(path, "no observations", line=header_line + 1)
     theta = np.array(theta, dtype=float)
     pose_labels = None
     if pose_col is None:  # rows with the same joint readings are one pose
@@ -500,14 +467,8 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
 
 def _cell(text, path, line, field) -> float:
     if not text:
-        _fail(path, "empty cell: this row's sensor needs a value here", field=field, line=line)
-    try:
-        value = float(text)
-    except ValueError:
-        _fail(path, f"expected a number, got {text[:40]!r}", field=field, line=line)
-    if not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {text[:40]!r}", field=field, line=line)
-    return value
+        fail(path, "empty cell: this row's sensor needs a value here", field=field, line=line)
+    return fields.number_text(text, path, field, line=line)
 
 
 def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points, *, chain_names=None,

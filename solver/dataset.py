@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
     atomic_write_text, decode_text, disk_full_as_error, fsync_directory, interrupts_deferred, parse_json_text,
@@ -53,6 +54,7 @@ DEFAULT_GRAVITY_TORSO_MPS2 = (-9.81, 0.0, 0.0)  # a robot lying on its back
 
 # Plausible sizes, generous: a number beyond is damage or a unit mix-up (and would overflow the maths downstream).
 MAX_IMAGE_SIDE_PX = 10_000
+CAMERA_KEYS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
 MAX_FOCAL_LENGTH_PX = 100_000.0
 MAX_DISTORTION = 100.0  # OpenCV coefficients; a NAO lens needs |k| < 1
 MAX_BOARD_SQUARES = 100
@@ -188,68 +190,45 @@ class Dataset:
 # ----------------------------------------------------------------------------------------------------- meta
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _require(meta: dict, key: str, path, where: str):
-    if key not in meta:
-        raise DataError(path, "missing required key", field=f"{where}{key}")
-    return meta[key]
-
-
 def _named_objects(meta, key: str, what: str, known, path):
     """(field, object) of each entry of meta[key], a non-empty object whose names are among `known` (the robot
     description's cameras or targets) and whose entries are objects; DataError naming the field otherwise."""
-    entries = _check_object(_require(meta, key, path, ""), path, key)
+    entries = fields.json_object(meta[key], path, key)
     if not entries:
-        raise DataError(path, f"expected at least one {what}", field=key)
+        fields.fail(path, f"expected at least one {what}", key)
     for name, entry in entries.items():
         where = f"{key}.{name}"
         if name not in known:
-            raise DataError(path, f"{what} {name!r} is not one of the robot's ({', '.join(known)})", field=where)
-        yield where, _check_object(entry, path, where)
-
-
-def _check_object(value, path, field) -> dict:
-    if not isinstance(value, dict):
-        raise DataError(path, f"expected a JSON object, got {type(value).__name__}", field=field)
-    return value
-
-
-def _check_string(value, path, field) -> str:
-    if not isinstance(value, str):
-        raise DataError(path, f"expected a string, got {_short(value)}", field=field)
-    return value
-
-
-def _check_number(value, path, field, *, positive=False, non_negative=False, integer=False, at_most=None):
-    if not _is_number(value):
-        raise DataError(path, f"expected a number, got {_short(value)}", field=field)
-    if not math.isfinite(value):
-        raise DataError(path, f"non-finite value {value!r}", field=field)
-    if integer and value != int(value):
-        raise DataError(path, f"expected an integer, got {value!r}", field=field)
-    if positive and value <= 0:
-        raise DataError(path, f"must be positive, got {value!r}", field=field)
-    if non_negative and value < 0:
-        raise DataError(path, f"must not be negative, got {value!r}", field=field)
-    if at_most is not None and abs(value) > at_most:
-        raise DataError(path, f"implausible size {value!r} (at most {at_most:g} in absolute value)", field=field)
-    return value
+            fields.fail(path, f"{what} {name!r} is not one of the robot's ({', '.join(known)})", where)
+        yield where, entry
 
 
 def _short(value) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return fields.shown(value, 60)
 
 
-def _check_vector(value, n, path, field, *, at_most=None):
-    if not isinstance(value, list) or len(value) != n:
-        raise DataError(path, f"expected a list of {n} numbers, got {_short(value)}", field=field)
-    for i, v in enumerate(value):
-        _check_number(v, path, f"{field}[{i}]", at_most=at_most)
-    return value
+def _check_camera(camera, path, where) -> None:
+    """A camera's image size and prior intrinsics (both versions)."""
+    fields.json_object(camera, path, where, CAMERA_KEYS)
+    for key in ("width_px", "height_px"):
+        fields.number(camera[key], path, f"{where}.{key}", positive=True, integer=True, limit=MAX_IMAGE_SIDE_PX)
+    for key in ("fx_px", "fy_px"):
+        fields.number(camera[key], path, f"{where}.{key}", positive=True, limit=MAX_FOCAL_LENGTH_PX)
+    for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
+        if not 0 <= fields.number(camera[key], path, f"{where}.{key}") <= camera[side]:
+            fields.fail(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} image, got "
+                              f"{camera[key]!r}", f"{where}.{key}")
+    if "distortion" in camera:
+        fields.vector(camera["distortion"], 5, path, f"{where}.distortion", limit=MAX_DISTORTION)
+
+
+def _check_board(board, path, where, required) -> None:
+    """A board's squares, square size and mass (both versions)."""
+    fields.json_object(board, path, where, required)
+    for key in ("columns", "rows"):
+        fields.number(board[key], path, f"{where}.{key}", low=2, integer=True, limit=MAX_BOARD_SQUARES)
+    fields.number(board["square_m"], path, f"{where}.square_m", positive=True, limit=MAX_LENGTH_M)
+    fields.number(board["mass_kg"], path, f"{where}.mass_kg", non_negative=True, limit=MAX_SANDAL_MASS_KG)
 
 
 def find_non_finite(obj, where=""):
@@ -271,8 +250,8 @@ def find_non_finite(obj, where=""):
 
 def validate_meta(meta, path) -> dict:
     """Check a dataset.json document (version 1 or 2) and return a copy with defaults filled in."""
-    meta = _check_object(meta, path, "(top level)")
-    schema = _require(meta, "schema", path, "")
+    meta = fields.json_object(meta, path, "", ("schema",))
+    schema = meta["schema"]
     if schema == SCHEMA_V2:
         return validate_meta_v2(meta, path)
     if schema != SCHEMA:
@@ -280,44 +259,22 @@ def validate_meta(meta, path) -> dict:
     bad = find_non_finite(meta)
     if bad:
         raise DataError(path, "non-finite value (NaN or infinity)", field=bad)
-
-    robot = _check_object(_require(meta, "robot", path, ""), path, "robot")
+    fields.json_object(meta, path, "", ("robot", "camera", "board", "source"))
+    robot = fields.json_object(meta["robot"], path, "robot", ("id", "model"))
     for key in ("id", "model"):
-        _check_string(_require(robot, key, path, "robot."), path, f"robot.{key}")
+        fields.text(robot[key], path, f"robot.{key}", one_line=False)
 
-    camera = _check_object(_require(meta, "camera", path, ""), path, "camera")
-    name = _check_string(_require(camera, "name", path, "camera."), path, "camera.name")
+    camera = fields.json_object(meta["camera"], path, "camera", ("name",))
+    name = fields.text(camera["name"], path, "camera.name", one_line=False)
     if name != "bottom":
         raise DataError(path, f"camera {name!r} is not supported, expected 'bottom'", field="camera.name")
-    for key in ("width_px", "height_px"):
-        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True, integer=True,
-                      at_most=MAX_IMAGE_SIDE_PX)
-    for key in ("fx_px", "fy_px"):
-        _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}", positive=True,
-                      at_most=MAX_FOCAL_LENGTH_PX)
-    for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
-        centre = _check_number(_require(camera, key, path, "camera."), path, f"camera.{key}")
-        if not 0 <= centre <= camera[side]:
-            raise DataError(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} image, "
-                                  f"got {centre!r}", field=f"camera.{key}")
-    if "distortion" in camera:
-        _check_vector(camera["distortion"], 5, path, "camera.distortion", at_most=MAX_DISTORTION)
+    _check_camera(camera, path, "camera")
+    _check_board(meta["board"], path, "board", ("columns", "rows", "square_m", "center_x_m", "mass_kg"))
+    fields.number(meta["board"]["center_x_m"], path, "board.center_x_m", limit=MAX_LENGTH_M)
 
-    board = _check_object(_require(meta, "board", path, ""), path, "board")
-    for key in ("columns", "rows"):
-        n = _check_number(_require(board, key, path, "board."), path, f"board.{key}", positive=True, integer=True,
-                          at_most=MAX_BOARD_SQUARES)
-        if n < 2:
-            raise DataError(path, f"a board needs at least 2 squares, got {n}", field=f"board.{key}")
-    _check_number(_require(board, "square_m", path, "board."), path, "board.square_m", positive=True,
-                  at_most=MAX_LENGTH_M)
-    _check_number(_require(board, "center_x_m", path, "board."), path, "board.center_x_m", at_most=MAX_LENGTH_M)
-    _check_number(_require(board, "mass_kg", path, "board."), path, "board.mass_kg", non_negative=True,
-                  at_most=MAX_SANDAL_MASS_KG)
-
-    _check_string(_require(meta, "source", path, ""), path, "source")
+    fields.text(meta["source"], path, "source", one_line=False)
     if "pixel_noise_px" in meta:
-        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True, at_most=MAX_PIXEL_NOISE_PX)
+        fields.number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True, limit=MAX_PIXEL_NOISE_PX)
     meta = copy.deepcopy(meta)
     if "gravity_torso_mps2" in meta:
         _check_gravity(meta["gravity_torso_mps2"], path, "gravity_torso_mps2")
@@ -327,7 +284,7 @@ def validate_meta(meta, path) -> dict:
 
 
 def _check_gravity(value, path, field) -> list:
-    gravity = _check_vector(value, 3, path, field, at_most=GRAVITY_MPS2[1])
+    gravity = fields.vector(value, 3, path, field, limit=GRAVITY_MPS2[1])
     size = math.hypot(*gravity)
     if not GRAVITY_MPS2[0] <= size <= GRAVITY_MPS2[1]:
         raise DataError(path, f"implausible gravity of {size:.4g} m/s^2 (expected {GRAVITY_MPS2[0]:g} to "
@@ -343,14 +300,14 @@ def validate_meta_v2(meta, path) -> dict:
     description's gravity). Names of cameras, targets and joints must be the robot description's."""
     from naocal.solver.robot import load_robot
 
-    meta = _check_object(meta, path, "(top level)")
+    meta = fields.json_object(meta, path, "")
     bad = find_non_finite(meta)
     if bad:
         raise DataError(path, "non-finite value (NaN or infinity)", field=bad)
-    meta = copy.deepcopy(meta)
-    robot_meta = _check_object(_require(meta, "robot", path, ""), path, "robot")
+    meta = copy.deepcopy(fields.json_object(meta, path, "", ("robot", "cameras", "targets", "joints", "source")))
+    robot_meta = fields.json_object(meta["robot"], path, "robot", ("id", "model"))
     for key in ("id", "model"):
-        _check_string(_require(robot_meta, key, path, "robot."), path, f"robot.{key}")
+        fields.text(robot_meta[key], path, f"robot.{key}", one_line=False)
     description = robot_meta.setdefault("description", "nao")
     if not isinstance(description, str) or not _NAME.match(description):
         raise DataError(path, f"expected the name of a robot description (e.g. 'nao'), got {description!r}",
@@ -361,45 +318,20 @@ def validate_meta_v2(meta, path) -> dict:
         raise DataError(path, f"unknown robot description {description!r}", field="robot.description") from None
 
     for where, camera in _named_objects(meta, "cameras", "camera", robot.cameras, path):
-        for key in ("width_px", "height_px"):
-            _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
-                          integer=True, at_most=MAX_IMAGE_SIDE_PX)
-        for key in ("fx_px", "fy_px"):
-            _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
-                          at_most=MAX_FOCAL_LENGTH_PX)
-        for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
-            centre = _check_number(_require(camera, key, path, f"{where}."), path, f"{where}.{key}")
-            if not 0 <= centre <= camera[side]:
-                raise DataError(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} "
-                                      f"image, got {centre!r}", field=f"{where}.{key}")
-        if "distortion" in camera:
-            _check_vector(camera["distortion"], 5, path, f"{where}.distortion", at_most=MAX_DISTORTION)
-
+        _check_camera(camera, path, where)
     for where, board in _named_objects(meta, "targets", "target", robot.targets, path):
-        for key in ("columns", "rows"):
-            n = _check_number(_require(board, key, path, f"{where}."), path, f"{where}.{key}", positive=True,
-                              integer=True, at_most=MAX_BOARD_SQUARES)
-            if n < 2:
-                raise DataError(path, f"a board needs at least 2 squares, got {n}", field=f"{where}.{key}")
-        _check_number(_require(board, "square_m", path, f"{where}."), path, f"{where}.square_m", positive=True,
-                      at_most=MAX_LENGTH_M)
-        _check_number(_require(board, "mass_kg", path, f"{where}."), path, f"{where}.mass_kg", non_negative=True,
-                      at_most=MAX_SANDAL_MASS_KG)
+        _check_board(board, path, where, ("columns", "rows", "square_m", "mass_kg"))
         if "centre_m" in board:
-            _check_vector(board["centre_m"], 3, path, f"{where}.centre_m", at_most=MAX_MOUNT_M)
+            fields.vector(board["centre_m"], 3, path, f"{where}.centre_m", limit=MAX_MOUNT_M)
 
-    joints = _require(meta, "joints", path, "")
-    if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise DataError(path, "expected a list of joint names", field="joints")
+    joints = fields.names(meta["joints"], path, "joints", what="joint names", non_empty=True)
     for i, joint in enumerate(joints):
         if joint not in robot.joints:
             raise DataError(path, f"joint {joint!r} is not one of the robot's", field=f"joints[{i}]")
-    if len(set(joints)) != len(joints):
-        raise DataError(path, "a joint is listed twice", field="joints")
 
-    _check_string(_require(meta, "source", path, ""), path, "source")
+    fields.text(meta["source"], path, "source", one_line=False)
     if "pixel_noise_px" in meta:
-        _check_number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True, at_most=MAX_PIXEL_NOISE_PX)
+        fields.number(meta["pixel_noise_px"], path, "pixel_noise_px", positive=True, limit=MAX_PIXEL_NOISE_PX)
     if "gravity_mps2" in meta:
         _check_gravity(meta["gravity_mps2"], path, "gravity_mps2")
     else:
@@ -452,7 +384,7 @@ def _to_float(values, path, name: str, line_numbers) -> np.ndarray:
         try:
             float(text)
         except ValueError:
-            raise DataError(path, f"not a number: {_short(text)}", line=line_numbers[i], field=name) from None
+            raise DataError(path, f"expected a finite number, got {_short(text)}", line=line_numbers[i], field=name) from None
     raise AssertionError("unreachable: numpy refused a column that float() accepts")  # pragma: no cover
 
 
@@ -481,12 +413,12 @@ def _parse_column(name: str, strings, line_numbers, path, spec=None) -> np.ndarr
     bad = ~np.isfinite(values)
     if bad.any():
         i = _first_bad(bad)
-        raise DataError(path, f"non-finite value {_short(strings[i])}", line=line_numbers[i], field=name)
+        raise DataError(path, f"expected a finite number, got {_short(strings[i])}", line=line_numbers[i], field=name)
     if name in INT_COLUMNS:
         bad = values != np.round(values)
         if bad.any():
             i = _first_bad(bad)
-            raise DataError(path, f"expected an integer, got {_short(strings[i])}", line=line_numbers[i], field=name)
+            raise DataError(path, f"expected a whole number, got {_short(strings[i])}", line=line_numbers[i], field=name)
         bad = np.abs(values) > MAX_INDEX
         if bad.any():  # before the cast: beyond int64 it would wrap (and warn)
             i = _first_bad(bad)

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.solver.errors import DataError
 
 ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
 # A pose error's six components (an arm's Parameter.axis): along x, y, z, then about x, y, z.
@@ -331,39 +330,3 @@ class Effect:
     def mock_stream_id(self) -> int:
         """The number of this effect's random stream in the mock (seeded [seed, number])."""
         return self.mock_stream if self.mock_stream is not None else zlib.crc32(self.name.encode()) & 0x7FFFFFFF
-
-
-# ------------------------------------------------------------------------------------------- helpers for effects
-
-
-def check_number(value, path, where, *, limit=math.inf, unit="1") -> float:
-    """A finite number within +-limit, else DataError naming the field (saying which unit mix-up is likely)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise DataError(path, f"expected a finite number, got {str(value)[:40]}", field=where)
-    if abs(value) > limit:
-        if unit == "rad":
-            raise DataError(path, f"implausible size {math.degrees(value):.3f} deg (limit +-{math.degrees(limit):g} "
-                                  "deg); is it in degrees instead of radians?", field=where)
-        if unit == "m":
-            raise DataError(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?",
-                            field=where)
-        raise DataError(path, f"implausible size {value:g} {unit} (limit +-{limit:g})", field=where)
-    return float(value)
-
-
-def check_object(value, path, where, allowed=None, required=()) -> dict:
-    """`value` a JSON object with every `required` key and no key outside `allowed` (None: any), else DataError
-    naming the field (`where`: the object's own field, "" or None for the document itself)."""
-    def field(key):
-        return f"{where}.{key}" if where else key
-
-    if not isinstance(value, dict):
-        raise DataError(path, f"expected a JSON object, got {str(value)[:40]}", field=where or None)
-    if allowed is not None:
-        for key in value:
-            if key not in allowed:
-                raise DataError(path, f"unknown field (allowed: {', '.join(allowed)})", field=field(key))
-    for key in required:
-        if key not in value:
-            raise DataError(path, "missing required field", field=field(key))
-    return value

@@ -26,6 +26,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from naocal.solver import fields
 from naocal.solver.dataset import find_non_finite
 from naocal.solver.effects import EFFECTS
 from naocal.solver.errors import DataError
@@ -263,77 +264,30 @@ def _ordered_section(section: str, content: dict) -> dict:
 # --------------------------------------------------------------------------------------------- validation
 
 
-def _fail(path, problem, field_path):
-    raise DataError(path, problem, field=field_path)
-
-
-def _object(value, path, where) -> dict:
-    if not isinstance(value, dict):
-        _fail(path, f"expected a JSON object, got {json.dumps(value)[:40]}", where)
-    return value
-
-
-def _keys(obj: dict, required, optional, path, where):
-    for key in obj:
-        if key not in required and key not in optional:
-            _fail(path, f"unknown field (expected {', '.join(list(required) + list(optional))})",
-                  f"{where}.{key}" if where else key)
-    for key in required:
-        if key not in obj:
-            _fail(path, "missing required field", f"{where}.{key}" if where else key)
-
-
-def _number(value, path, where, *, limit=None, unit="rad", non_negative=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(path, f"expected a number, got {json.dumps(value)[:40]}", where)
-    value = float(value)
-    if not math.isfinite(value):
-        _fail(path, "non-finite value (NaN or infinity)", where)
-    if non_negative and value < 0:
-        _fail(path, f"must not be negative, got {value!r}", where)
-    if limit is not None and abs(value) > limit:
-        if unit == "rad":
-            _fail(path, f"implausible size {math.degrees(value):.3f} deg (limit +-{math.degrees(limit):g} deg); "
-                        "is it in degrees instead of radians?", where)
-        if unit == "m":
-            _fail(path, f"implausible size {value:g} m (limit +-{limit:g} m); is it in mm instead of m?", where)
-        _fail(path, f"implausible size {value:g} {unit} (limit +-{limit:g} {unit})", where)
-    return value
-
-
-def _integer(value, path, where) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        if not (isinstance(value, float) and value.is_integer()):
-            _fail(path, f"expected a non-negative integer, got {json.dumps(value)[:40]}", where)
-    if value < 0:
-        _fail(path, f"expected a non-negative integer, got {value}", where)
-    return int(value)
-
-
 def _created(value, path) -> str:
     if not isinstance(value, str):
-        _fail(path, "expected an ISO-8601 UTC time string", "created")
+        fields.fail(path, "expected an ISO-8601 UTC time string", "created")
     try:
         when = dt.datetime.fromisoformat(value)
     except ValueError:
-        _fail(path, f"not an ISO-8601 time: {value!r}", "created")
+        fields.fail(path, f"not an ISO-8601 time: {value!r}", "created")
     if when.utcoffset() not in (None, dt.timedelta(0)):
-        _fail(path, f"expected a UTC time, got offset {when.utcoffset()}", "created")
+        fields.fail(path, f"expected a UTC time, got offset {when.utcoffset()}", "created")
     return value
 
 
 def _document(doc, path, schema: str, expected: str, top_level_keys) -> dict:
     """The top level of an offsets document of `schema` (both versions): an object, its schema, no non-finite
     value anywhere, exactly `top_level_keys`; DataError naming the file and field otherwise."""
-    doc = _object(doc, path, "(top level)")
+    doc = fields.json_object(doc, path, "(top level)")
     if "schema" not in doc:
-        _fail(path, "missing required field", "schema")
+        fields.fail(path, "missing required field", "schema")
     if doc["schema"] != schema:
-        _fail(path, f"wrong schema {doc['schema']!r}, expected {expected}", "schema")
+        fields.fail(path, f"wrong schema {doc['schema']!r}, expected {expected}", "schema")
     bad = find_non_finite(doc)
     if bad:
-        _fail(path, "non-finite value (NaN or infinity)", bad)
-    _keys(doc, top_level_keys, (), path, "")
+        fields.fail(path, "non-finite value (NaN or infinity)", bad)
+    fields.json_object(doc, path, "", top_level_keys, ())
     return doc
 
 
@@ -341,47 +295,39 @@ def _robot_ids(robot, path) -> None:
     """The robot's ids (both versions): each a valid id string, or null when unknown."""
     for key in ROBOT_KEYS:
         if robot[key] is not None and not isinstance(robot[key], str):
-            _fail(path, "expected a string (or null when unknown)", f"robot.{key}")
+            fields.fail(path, "expected a string (or null when unknown)", f"robot.{key}")
         if isinstance(robot[key], str) and not ROBOT_ID_PATTERN.fullmatch(robot[key]):
-            _fail(path, f"not a valid id {json.dumps(robot[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
+            fields.fail(path, f"not a valid id {json.dumps(robot[key])[:40]}: {ROBOT_ID_RULE}", f"robot.{key}")
 
 
 def _validated_fields(doc, path) -> dict:
     """The fields of a version 1 document (its own layout); DataError naming the file and field otherwise."""
     doc = _document(doc, path, SCHEMA_V1, repr(SCHEMA_V1), TOP_LEVEL_KEYS)
-    robot = _object(doc["robot"], path, "robot")
-    _keys(robot, ROBOT_KEYS, (), path, "robot")
+    robot = fields.json_object(doc["robot"], path, "robot", ROBOT_KEYS, ())
     _robot_ids(robot, path)
 
-    joints = _object(doc["joint_offsets_rad"], path, "joint_offsets_rad")
-    for joint in joints:
-        if joint not in OFFSET_JOINTS:
-            _fail(path, "unknown joint name (allowed: the 12 leg joints, HeadYaw, HeadPitch)",
-                  f"joint_offsets_rad.{joint}")
-    _keys(joints, LEG_JOINTS, HEAD_JOINTS, path, "joint_offsets_rad")
-    joint_offsets = {j: _number(joints[j], path, f"joint_offsets_rad.{j}", limit=MAX_JOINT_OFFSET_RAD)
+    joints = fields.json_object(doc["joint_offsets_rad"], path, "joint_offsets_rad", LEG_JOINTS, HEAD_JOINTS,
+                                keys="joint name")
+    joint_offsets = {j: fields.number(joints[j], path, f"joint_offsets_rad.{j}", limit=MAX_JOINT_OFFSET_RAD,
+                                      unit="rad")
                      for j in OFFSET_JOINTS if j in joints}
 
-    cameras = _object(doc["camera_rotation_rad"], path, "camera_rotation_rad")
-    _keys(cameras, ("bottom",), ("top",), path, "camera_rotation_rad")
+    cameras = fields.json_object(doc["camera_rotation_rad"], path, "camera_rotation_rad", ("bottom",), ("top",))
     camera_rotation = {}
     for cam in CAMERAS:
         if cam in cameras:
             where = f"camera_rotation_rad.{cam}"
-            angles = _object(cameras[cam], path, where)
-            _keys(angles, CAMERA_ANGLES, (), path, where)
-            camera_rotation[cam] = {a: _number(angles[a], path, f"{where}.{a}", limit=MAX_CAMERA_ROTATION_RAD)
-                                    for a in CAMERA_ANGLES}
+            angles = fields.json_object(cameras[cam], path, where, CAMERA_ANGLES, ())
+            camera_rotation[cam] = {a: fields.number(angles[a], path, f"{where}.{a}", limit=MAX_CAMERA_ROTATION_RAD,
+                                                     unit="rad") for a in CAMERA_ANGLES}
 
-    boards = _object(doc["board_mount"], path, "board_mount")
-    _keys(boards, LEGS, (), path, "board_mount")
+    boards = fields.json_object(doc["board_mount"], path, "board_mount", LEGS, ())
     board_mount = {}
     for leg in LEGS:
         where = f"board_mount.{leg}"
-        mount = _object(boards[leg], path, where)
-        _keys(mount, BOARD_KEYS, (), path, where)
-        board_mount[leg] = {k: _number(mount[k], path, f"{where}.{k}", limit=BOARD_LIMITS[k],
-                                       unit="rad" if k.endswith("_rad") else "m") for k in BOARD_KEYS}
+        mount = fields.json_object(boards[leg], path, where, BOARD_KEYS, ())
+        board_mount[leg] = {k: fields.number(mount[k], path, f"{where}.{k}", limit=BOARD_LIMITS[k],
+                                             unit="rad" if k.endswith("_rad") else "m") for k in BOARD_KEYS}
 
     return {
         "robot": dict(robot),
@@ -391,26 +337,21 @@ def _validated_fields(doc, path) -> dict:
         "board_mount": board_mount,
         "model": _validated_model(doc["model"], path),
         "fit": _validated_fit(doc["fit"], path),
-        "source": copy.deepcopy(_object(doc["source"], path, "source")),
+        "source": copy.deepcopy(fields.json_object(doc["source"], path, "source")),
     }
 
 
 def _validated_model(model, path) -> dict:
-    model = _object(model, path, "model")
-    _keys(model, ("effects", "parameters"), (), path, "model")
-    effects = model["effects"]
-    if not isinstance(effects, list) or not all(isinstance(e, str) and e for e in effects):
-        _fail(path, "expected a list of effect names", "model.effects")
-    if len(set(effects)) != len(effects):
-        _fail(path, "an effect is listed twice", "model.effects")
-    parameters = _object(model["parameters"], path, "model.parameters")
+    model = fields.json_object(model, path, "model", ("effects", "parameters"), ())
+    effects = list(fields.names(model["effects"], path, "model.effects", what="effect names"))
+    parameters = fields.json_object(model["parameters"], path, "model.parameters")
     checked = {}
     for name, entry in parameters.items():
         where = f"model.parameters.{name}"
         try:
             expected_unit = parameter_unit(name)
         except ValueError as err:
-            _fail(path, str(err), where)
+            fields.fail(path, str(err), where)
         checked[name] = _parameter_entry(entry, name, expected_unit, path, where)
     return {"effects": list(effects), "parameters": checked}
 
@@ -418,29 +359,25 @@ def _validated_model(model, path) -> dict:
 def _parameter_entry(entry, name: str, expected_unit: str, path, where) -> dict:
     """One model parameter's {value, std, unit} (both versions): the unit known and the parameter's, the value
     within the unit's plausible size, the std non-negative."""
-    entry = _object(entry, path, where)
-    _keys(entry, PARAMETER_KEYS, (), path, where)
+    entry = fields.json_object(entry, path, where, PARAMETER_KEYS, ())
     unit = entry["unit"]
     if unit not in PARAMETER_UNITS:
-        _fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
-              f"{where}.unit")
+        fields.fail(path, f"unknown unit {unit!r} (allowed: {', '.join(repr(u) for u in PARAMETER_UNITS)})",
+                    f"{where}.unit")
     if unit != expected_unit:
-        _fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
-    return {"value": _number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit], unit=unit),
-            "std": _number(entry["std"], path, f"{where}.std", non_negative=True), "unit": unit}
+        fields.fail(path, f"wrong unit {unit!r}, {name} is in {expected_unit!r}", f"{where}.unit")
+    return {"value": fields.number(entry["value"], path, f"{where}.value", limit=MAX_PARAMETER_SIZE[unit], unit=unit),
+            "std": fields.number(entry["std"], path, f"{where}.std", non_negative=True), "unit": unit}
 
 
 def _validated_fit(fit, path) -> dict:
-    fit = copy.deepcopy(_object(fit, path, "fit"))
-    for key in ("rms_px", "n_vertices", "n_images"):
-        if key not in fit:
-            _fail(path, "missing required field", f"fit.{key}")
+    fit = copy.deepcopy(fields.json_object(fit, path, "fit", ("rms_px", "n_vertices", "n_images")))
     rms = fit["rms_px"]
     if not isinstance(rms, list) or len(rms) != 2:
-        _fail(path, "expected [rms_x, rms_y] in px", "fit.rms_px")
-    fit["rms_px"] = [_number(v, path, f"fit.rms_px[{i}]", non_negative=True) for i, v in enumerate(rms)]
-    fit["n_vertices"] = _integer(fit["n_vertices"], path, "fit.n_vertices")
-    fit["n_images"] = _integer(fit["n_images"], path, "fit.n_images")
+        fields.fail(path, "expected [rms_x, rms_y] in px", "fit.rms_px")
+    fit["rms_px"] = [fields.number(v, path, f"fit.rms_px[{i}]", non_negative=True) for i, v in enumerate(rms)]
+    fit["n_vertices"] = int(fields.number(fit["n_vertices"], path, "fit.n_vertices", non_negative=True, integer=True))
+    fit["n_images"] = int(fields.number(fit["n_images"], path, "fit.n_images", non_negative=True, integer=True))
     return fit
 
 
@@ -458,29 +395,26 @@ def _validated_fields_v2(doc, path) -> dict:
     from naocal.solver.robot import load_robot
 
     doc = _document(doc, path, SCHEMA, f"{SCHEMA!r} (or {SCHEMA_V1!r})", TOP_LEVEL_KEYS_V2)
-    robot_meta = _object(doc["robot"], path, "robot")
-    _keys(robot_meta, ROBOT_KEYS_V2, (), path, "robot")
+    robot_meta = fields.json_object(doc["robot"], path, "robot", ROBOT_KEYS_V2, ())
     _robot_ids(robot_meta, path)
     description = robot_meta["description"]
     if not isinstance(description, str) or not re.match(r"^[a-z0-9_]{1,64}$", description):
-        _fail(path, "expected the name of a robot description (e.g. 'nao')", "robot.description")
+        fields.fail(path, "expected the name of a robot description (e.g. 'nao')", "robot.description")
     try:
         robot = load_robot(description)
     except DataError:
-        _fail(path, f"unknown robot description {description!r}", "robot.description")
+        fields.fail(path, f"unknown robot description {description!r}", "robot.description")
 
     sections = {}
     for section in ("body", "head", "targets"):
-        content = _object(doc[section], path, section)
         known = _section_keys(section)
+        content = fields.json_object(doc[section], path, section, optional=tuple(known))
         for key, value in content.items():
-            if key not in known:
-                _fail(path, f"unknown field (allowed in {section}: {', '.join(known)})", f"{section}.{key}")
             known[key].read_offsets(value, path, f"{section}.{key}", robot)
         sections[section] = copy.deepcopy(content)
     for section, key in (("body", "joint_offsets_rad"), ("head", "camera_rotation_rad")):
         if key not in sections[section]:
-            _fail(path, "missing required field", f"{section}.{key}")
+            fields.fail(path, "missing required field", f"{section}.{key}")
     model = _validated_model_v2(doc["model"], path, robot)
     check_one_value(sections, model["parameters"], robot, path)
     return {
@@ -489,7 +423,7 @@ def _validated_fields_v2(doc, path) -> dict:
         **sections,
         "model": model,
         "fit": _validated_fit(doc["fit"], path),
-        "source": copy.deepcopy(_object(doc["source"], path, "source")),
+        "source": copy.deepcopy(fields.json_object(doc["source"], path, "source")),
     }
 
 
@@ -497,24 +431,19 @@ def _validated_model_v2(model, path, robot) -> dict:
     from naocal.solver.effect import Setup
     from naocal.solver.effects import ALL_EFFECTS, EFFECTS
 
-    model = _object(model, path, "model")
-    _keys(model, ("effects", "parameters"), (), path, "model")
-    effects = model["effects"]
-    if not isinstance(effects, list) or not all(isinstance(e, str) and e for e in effects):
-        _fail(path, "expected a list of effect names", "model.effects")
+    model = fields.json_object(model, path, "model", ("effects", "parameters"), ())
+    effects = list(fields.names(model["effects"], path, "model.effects", what="effect names"))
     for i, name in enumerate(effects):
         if name not in ALL_EFFECTS:
-            _fail(path, f"unknown effect {name!r} (known: {', '.join(ALL_EFFECTS)})", f"model.effects[{i}]")
-    if len(set(effects)) != len(effects):
-        _fail(path, "an effect is listed twice", "model.effects")
+            fields.fail(path, f"unknown effect {name!r} (known: {', '.join(ALL_EFFECTS)})", f"model.effects[{i}]")
     setup = Setup.everything(robot)
     units = {p.name: p.unit for e in EFFECTS.values() for p in e.parameters(setup)}
-    parameters = _object(model["parameters"], path, "model.parameters")
+    parameters = fields.json_object(model["parameters"], path, "model.parameters")
     checked = {}
     for name, entry in parameters.items():
         where = f"model.parameters.{name}"
         if name not in units:
-            _fail(path, f"unknown model parameter of robot {robot.name!r}", where)
+            fields.fail(path, f"unknown model parameter of robot {robot.name!r}", where)
         checked[name] = _parameter_entry(entry, name, units[name], path, where)
     return {"effects": list(effects), "parameters": checked}
 
@@ -657,10 +586,10 @@ def check_one_value(sections: dict, parameters: dict, robot, path, *, section_fi
             name = source[(section,) + keys]
             where = section_field(section, keys)
             if keys not in held:
-                _fail(path, f"missing, though model.parameters.{parameter_field(name)} holds its value "
+                fields.fail(path, f"missing, though model.parameters.{parameter_field(name)} holds its value "
                             f"({value!r}): the file contradicts itself", where)
             if abs(float(held[keys]) - value) > 1e-12 * max(1.0, abs(value)):
-                _fail(path, f"{held[keys]!r} disagrees with model.parameters.{parameter_field(name)}.value = "
+                fields.fail(path, f"{held[keys]!r} disagrees with model.parameters.{parameter_field(name)}.value = "
                             f"{value!r}: the file contradicts itself (edit both, or write it again with naocal)",
                       where)
 
@@ -781,41 +710,41 @@ def read_truth(path) -> tuple[Offsets, list[str]]:
     from naocal.solver.robot import nao
 
     path = Path(path)
-    doc = _object(read_json(path), path, "(top level)")
+    doc = fields.json_object(read_json(path), path, "(top level)")
     if doc.get("schema") not in TRUTH_SCHEMAS:
-        _fail(path, f"expected a simulator's truth ({' or '.join(TRUTH_SCHEMAS)})", "schema")
+        fields.fail(path, f"expected a simulator's truth ({' or '.join(TRUTH_SCHEMAS)})", "schema")
     setup = Setup.everything(nao())
     units = {p.name: p.unit for e in EFFECTS.values() for p in e.parameters(setup)}
     values = {}
-    for joint, alpha in _object(doc.get("alpha_rad"), path, "alpha_rad").items():
-        alpha = _number(alpha, path, f"alpha_rad.{joint}", limit=MAX_JOINT_OFFSET_RAD)
+    for joint, alpha in fields.json_object(doc.get("alpha_rad"), path, "alpha_rad").items():
+        alpha = fields.number(alpha, path, f"alpha_rad.{joint}", limit=MAX_JOINT_OFFSET_RAD, unit="rad")
         for name in (f"joint_offset.{joint}", f"head_offset.{joint}"):
             if name in units and (alpha != 0.0 or name.startswith("joint_offset.")):
                 values[name] = -alpha  # the mock's alpha: q_true = servo + alpha; c = -alpha
         if not any(n in units for n in (f"joint_offset.{joint}", f"head_offset.{joint}")):
-            _fail(path, "unknown joint", f"alpha_rad.{joint}")
-    cameras = _object(doc.get("camera_rotation_rad"), path, "camera_rotation_rad")
+            fields.fail(path, "unknown joint", f"alpha_rad.{joint}")
+    cameras = fields.json_object(doc.get("camera_rotation_rad"), path, "camera_rotation_rad")
     if "pitch" in cameras:  # naocal.truth/1: the bottom camera's
         cameras = {"bottom": cameras}
     for camera, angles in cameras.items():
+        angles = fields.json_object(angles, path, f"camera_rotation_rad.{camera}")
         for a in CAMERA_ANGLES:
-            where = f"camera_rotation_rad.{camera}.{a}"
-            values[f"camera.{camera}.{a}"] = _number(_object(angles, path, f"camera_rotation_rad.{camera}").get(a),
-                                                     path, where, limit=MAX_CAMERA_ROTATION_RAD)
-    for target, mount in _object(doc.get("board_mount"), path, "board_mount").items():
-        mount = _object(mount, path, f"board_mount.{target}")
+            values[f"camera.{camera}.{a}"] = fields.number(angles.get(a), path, f"camera_rotation_rad.{camera}.{a}",
+                                                           limit=MAX_CAMERA_ROTATION_RAD, unit="rad")
+    for target, mount in fields.json_object(doc.get("board_mount"), path, "board_mount").items():
+        mount = fields.json_object(mount, path, f"board_mount.{target}")
         for key, short, _ in (("rot_z_rad", "rot_z", 0), ("trans_x_m", "trans_x", 0), ("trans_y_m", "trans_y", 0)):
-            values[f"board.{target}.{short}"] = _number(mount.get(key), path, f"board_mount.{target}.{key}",
-                                                        limit=BOARD_LIMITS[key], unit=key.rsplit("_", 1)[1])
+            values[f"board.{target}.{short}"] = fields.number(mount.get(key), path, f"board_mount.{target}.{key}",
+                                                              limit=BOARD_LIMITS[key], unit=key.rsplit("_", 1)[1])
     notes = []
-    injected = _object(doc.get("effects", {}), path, "effects")
+    injected = fields.json_object(doc.get("effects", {}), path, "effects")
     records_path = path.with_name("truth_effects.json")
     records = {}
     if records_path.is_file():
-        records_doc = _object(read_json(records_path), records_path, "(top level)")
+        records_doc = fields.json_object(read_json(records_path), records_path, "(top level)")
         if records_doc.get("schema") != TRUTH_EFFECTS_SCHEMA:
-            _fail(records_path, f"expected {TRUTH_EFFECTS_SCHEMA!r}", "schema")
-        records = _object(records_doc.get("effects", {}), records_path, "effects")
+            fields.fail(records_path, f"expected {TRUTH_EFFECTS_SCHEMA!r}", "schema")
+        records = fields.json_object(records_doc.get("effects", {}), records_path, "effects")
         if "realism" in records_doc:
             notes.append(f"the realistic mock's own errors ({records_path.name}: realism) are not compared")
     for effect in injected:
@@ -824,14 +753,14 @@ def read_truth(path) -> tuple[Offsets, list[str]]:
             notes.append(f"the injected {effect} is not compared" + ("" if key is None else
                                                                      f" ({records_path.name} is missing)"))
             continue
-        table = _object(_object(records[effect], records_path, f"effects.{effect}").get(key), records_path,
-                        f"effects.{effect}.{key}")
+        record = fields.json_object(records[effect], records_path, f"effects.{effect}")
+        table = fields.json_object(record.get(key), records_path, f"effects.{effect}.{key}")
         for joint, value in table.items():
             name = f"{EFFECTS[effect].parameters(setup)[0].name.split('.')[0]}.{joint}"
             if name not in units:
-                _fail(records_path, "unknown joint", f"effects.{effect}.{key}.{joint}")
-            values[name] = _number(value, records_path, f"effects.{effect}.{key}.{joint}",
-                                   limit=MAX_PARAMETER_SIZE[units[name]], unit=units[name])
+                fields.fail(records_path, "unknown joint", f"effects.{effect}.{key}.{joint}")
+            values[name] = fields.number(value, records_path, f"effects.{effect}.{key}.{joint}",
+                                         limit=MAX_PARAMETER_SIZE[units[name]], unit=units[name])
     parameters = {name: {"value": v, "std": 0.0, "unit": units[name]} for name, v in values.items()}
     offsets = offsets_from_parameters(parameters, robot={"id": "simulated", "body_id": None, "head_id": None},
                                       fit={"rms_px": [0.0, 0.0], "n_vertices": 0, "n_images": 0},

@@ -19,14 +19,15 @@ more about a NAO than this file says.
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import DataError
+from naocal.solver.fileio import read_json
 from naocal.solver.transforms import make_transform, rot_rpy
 from naocal.solver.urdf import Urdf, parse_urdf
 
@@ -242,150 +243,102 @@ def serial_chain(urdf: Urdf, base: str, tip: str, path="URDF", *, prismatic: boo
 # ------------------------------------------------------------------------------------------------ loading
 
 
-def _fail(path, problem, where):
-    raise DataError(path, problem, field=where)
-
-
-def _object(value, path, where) -> dict:
-    if not isinstance(value, dict):
-        _fail(path, "expected a JSON object", where)
-    return value
-
-
-def _number(value, path, where, *, positive=False, non_negative=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        _fail(path, f"expected a finite number, got {value!r}", where)
-    if positive and value <= 0:
-        _fail(path, f"must be positive, got {value!r}", where)
-    if non_negative and value < 0:
-        _fail(path, f"must not be negative, got {value!r}", where)
-    return float(value)
-
-
-def _vector(value, n, path, where) -> tuple:
-    if not isinstance(value, list) or len(value) != n:
-        _fail(path, f"expected a list of {n} numbers", where)
-    return tuple(_number(v, path, f"{where}[{i}]") for i, v in enumerate(value))
-
-
-def _names(value, path, where) -> tuple:
-    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-        _fail(path, "expected a list of names", where)
-    if len(set(value)) != len(value):
-        _fail(path, "a name is listed twice", where)
-    return tuple(value)
-
-
 def _link(urdf: Urdf, name, path, where) -> str:
     links = {j.child for j in urdf.joints.values()} | {j.parent for j in urdf.joints.values()}
     if not isinstance(name, str) or name not in links:
-        _fail(path, f"no link {name!r} in the URDF", where)
+        fields.fail(path, f"no link {name!r} in the URDF", where)
     return name
-
-
-def _keys(obj, required, optional, path, where):
-    for key in obj:
-        if key not in required and key not in optional:
-            _fail(path, f"unknown field (expected {', '.join(list(required) + list(optional))})", f"{where}.{key}")
-    for key in required:
-        if key not in obj:
-            _fail(path, "missing required field", f"{where}.{key}")
 
 
 def parse_robot(doc, path) -> RobotDescription:
     """A RobotDescription from a `naocal.robot/1` document; DataError naming the file and field otherwise."""
-    doc = _object(doc, path, "(top level)")
-    _keys(doc, ("schema", "name", "urdf", "base", "joints", "cameras", "targets"),
-          ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets", "gravity_mps2",
-           "command_limits_rad"),
-          path, "")
+    doc = fields.json_object(doc, path, "", ("schema", "name", "urdf", "base", "joints", "cameras", "targets"),
+                             ("about", "shared_motors", "chains", "link_lengths", "default_cameras", "default_targets",
+                              "gravity_mps2", "command_limits_rad"))
     if doc["schema"] != SCHEMA:
-        _fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
+        fields.fail(path, f"wrong schema {doc['schema']!r}, expected {SCHEMA!r}", "schema")
     if not isinstance(doc["urdf"], str) or "/" in doc["urdf"] or doc["urdf"].startswith("."):
-        _fail(path, "expected the name of a URDF file beside this one", "urdf")
+        fields.fail(path, "expected the name of a URDF file beside this one", "urdf")
     urdf = parse_urdf(Path(path).with_name(doc["urdf"]))
     base = _link(urdf, doc["base"], path, "base")
-    joints = _names(doc["joints"], path, "joints")
+    joints = fields.names(doc["joints"], path, "joints")
     for i, joint in enumerate(joints):
         if joint not in urdf.joints or urdf.joints[joint].kind not in MOVABLE:
-            _fail(path, f"{joint!r} is not a revolute joint of the URDF", f"joints[{i}]")
+            fields.fail(path, f"{joint!r} is not a revolute joint of the URDF", f"joints[{i}]")
     shared = []
     for i, group in enumerate(doc.get("shared_motors", [])):
-        group = _names(group, path, f"shared_motors[{i}]")
+        group = fields.names(group, path, f"shared_motors[{i}]")
         if len(group) < 2 or any(j not in joints for j in group):
-            _fail(path, "expected two or more joints of `joints`", f"shared_motors[{i}]")
+            fields.fail(path, "expected two or more joints of `joints`", f"shared_motors[{i}]")
         shared.append(group)
     chains = {}
-    for name, chain in _object(doc.get("chains", {}), path, "chains").items():
-        chain = _object(chain, path, f"chains.{name}")
-        _keys(chain, ("base", "tip"), (), path, f"chains.{name}")
+    for name, chain in fields.json_object(doc.get("chains", {}), path, "chains").items():
+        chain = fields.json_object(chain, path, f"chains.{name}", ("base", "tip"), ())
         chains[name] = (_link(urdf, chain["base"], path, f"chains.{name}.base"),
                         _link(urdf, chain["tip"], path, f"chains.{name}.tip"))
     link_lengths = {}
-    for name, joint in _object(doc.get("link_lengths", {}), path, "link_lengths").items():
+    for name, joint in fields.json_object(doc.get("link_lengths", {}), path, "link_lengths").items():
         if joint not in joints:
-            _fail(path, f"{joint!r} is not one of `joints`", f"link_lengths.{name}")
+            fields.fail(path, f"{joint!r} is not one of `joints`", f"link_lengths.{name}")
         link_lengths[name] = joint
     command_limits = {}
-    for name, bounds in _object(doc.get("command_limits_rad", {}), path, "command_limits_rad").items():
+    for name, bounds in fields.json_object(doc.get("command_limits_rad", {}), path, "command_limits_rad").items():
         where = f"command_limits_rad.{name}"
         if name not in joints:
-            _fail(path, f"{name!r} is not one of `joints`", where)
-        lower, upper = _vector(bounds, 2, path, where)
+            fields.fail(path, f"{name!r} is not one of `joints`", where)
+        lower, upper = fields.vector(bounds, 2, path, where)
         if not lower < upper:
-            _fail(path, "expected [lower, upper] with lower < upper", where)
+            fields.fail(path, "expected [lower, upper] with lower < upper", where)
         command_limits[name] = (lower, upper)
     cameras = {}
-    for name, cam in _object(doc["cameras"], path, "cameras").items():
+    for name, cam in fields.json_object(doc["cameras"], path, "cameras").items():
         where = f"cameras.{name}"
-        cam = _object(cam, path, where)
-        _keys(cam, ("frame", "width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px"),
-              ("distortion", "readout_s"), path, where)
+        cam = fields.json_object(cam, path, where, ("frame", "width_px", "height_px", "fx_px", "fy_px", "cx_px",
+                                                    "cy_px"), ("distortion", "readout_s"))
         cameras[name] = Camera(
             name=name, frame=_link(urdf, cam["frame"], path, f"{where}.frame"),
-            width_px=int(_number(cam["width_px"], path, f"{where}.width_px", positive=True)),
-            height_px=int(_number(cam["height_px"], path, f"{where}.height_px", positive=True)),
-            fx_px=_number(cam["fx_px"], path, f"{where}.fx_px", positive=True),
-            fy_px=_number(cam["fy_px"], path, f"{where}.fy_px", positive=True),
-            cx_px=_number(cam["cx_px"], path, f"{where}.cx_px"), cy_px=_number(cam["cy_px"], path, f"{where}.cy_px"),
-            distortion=_vector(cam.get("distortion", [0.0] * 5), 5, path, f"{where}.distortion"),
-            readout_s=_number(cam.get("readout_s", 0.0), path, f"{where}.readout_s", non_negative=True))
+            width_px=int(fields.number(cam["width_px"], path, f"{where}.width_px", positive=True, integer=True)),
+            height_px=int(fields.number(cam["height_px"], path, f"{where}.height_px", positive=True, integer=True)),
+            fx_px=fields.number(cam["fx_px"], path, f"{where}.fx_px", positive=True),
+            fy_px=fields.number(cam["fy_px"], path, f"{where}.fy_px", positive=True),
+            cx_px=fields.number(cam["cx_px"], path, f"{where}.cx_px"),
+            cy_px=fields.number(cam["cy_px"], path, f"{where}.cy_px"),
+            distortion=fields.vector(cam.get("distortion", [0.0] * 5), 5, path, f"{where}.distortion"),
+            readout_s=fields.number(cam.get("readout_s", 0.0), path, f"{where}.readout_s", non_negative=True))
     targets = {}
-    for name, tgt in _object(doc["targets"], path, "targets").items():
+    for name, tgt in fields.json_object(doc["targets"], path, "targets").items():
         where = f"targets.{name}"
-        tgt = _object(tgt, path, where)
-        _keys(tgt, ("frame", "board", "pose"), ("about", "load"), path, where)
-        board = _object(tgt["board"], path, f"{where}.board")
-        _keys(board, ("columns", "rows", "square_m"), ("colours", "mass_kg"), path, f"{where}.board")
-        size = [int(_number(board[k], path, f"{where}.board.{k}", positive=True)) for k in ("columns", "rows")]
+        tgt = fields.json_object(tgt, path, where, ("frame", "board", "pose"), ("about", "load"))
+        board = fields.json_object(tgt["board"], path, f"{where}.board", ("columns", "rows", "square_m"),
+                                   ("colours", "mass_kg"))
+        size = [int(fields.number(board[k], path, f"{where}.board.{k}", positive=True, integer=True))
+                for k in ("columns", "rows")]
         if min(size) < 2:
-            _fail(path, "a board needs at least 2 squares each way", f"{where}.board")
-        colours = _names(board.get("colours", ["black", "white"]), path, f"{where}.board.colours")
-        pose = _object(tgt["pose"], path, f"{where}.pose")
-        _keys(pose, ("xyz", "rpy"), (), path, f"{where}.pose")
-        load = tgt.get("load", "hanging")
-        if load not in LOADS:
-            _fail(path, f"expected one of {', '.join(LOADS)}", f"{where}.load")
+            fields.fail(path, "a board needs at least 2 squares each way", f"{where}.board")
+        colours = fields.names(board.get("colours", ["black", "white"]), path, f"{where}.board.colours")
+        pose = fields.json_object(tgt["pose"], path, f"{where}.pose", ("xyz", "rpy"), ())
+        load = fields.choice(tgt.get("load", "hanging"), LOADS, path, f"{where}.load")
         targets[name] = Target(
             name=name, frame=_link(urdf, tgt["frame"], path, f"{where}.frame"),
-            board=Board(size[0], size[1], _number(board["square_m"], path, f"{where}.board.square_m", positive=True),
-                        tuple(colours), _number(board.get("mass_kg", 0.0), path, f"{where}.board.mass_kg",
-                                                non_negative=True)),
-            T_frame_board=make_transform(rot_rpy(*_vector(pose["rpy"], 3, path, f"{where}.pose.rpy")),
-                                         _vector(pose["xyz"], 3, path, f"{where}.pose.xyz")),
+            board=Board(size[0], size[1],
+                        fields.number(board["square_m"], path, f"{where}.board.square_m", positive=True),
+                        tuple(colours), fields.number(board.get("mass_kg", 0.0), path, f"{where}.board.mass_kg",
+                                                      non_negative=True)),
+            T_frame_board=make_transform(rot_rpy(*fields.vector(pose["rpy"], 3, path, f"{where}.pose.rpy")),
+                                         fields.vector(pose["xyz"], 3, path, f"{where}.pose.xyz")),
             load=load, about=str(tgt.get("about", "")))
-    default_cameras = _names(doc.get("default_cameras", list(cameras)[:1]), path, "default_cameras")
-    default_targets = _names(doc.get("default_targets", list(targets)), path, "default_targets")
+    default_cameras = fields.names(doc.get("default_cameras", list(cameras)[:1]), path, "default_cameras")
+    default_targets = fields.names(doc.get("default_targets", list(targets)), path, "default_targets")
     for where, names, known in (("default_cameras", default_cameras, cameras),
                                 ("default_targets", default_targets, targets)):
         for n in names:
             if n not in known:
-                _fail(path, f"{n!r} is not defined", where)
+                fields.fail(path, f"{n!r} is not defined", where)
     robot = RobotDescription(
         name=str(doc["name"]), path=Path(path), urdf=urdf, base=base, joints=joints, shared_motors=tuple(shared),
         chains=chains, cameras=cameras, targets=targets, default_cameras=default_cameras,
         default_targets=default_targets,
-        gravity_mps2=_vector(doc.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, path, "gravity_mps2"),
+        gravity_mps2=fields.vector(doc.get("gravity_mps2", [0.0, 0.0, -9.81]), 3, path, "gravity_mps2"),
         link_lengths=link_lengths, command_limits=command_limits)
     for name, cam in cameras.items():  # every frame must hang off the base by a serial chain
         robot.camera_chain(name)
@@ -403,15 +356,7 @@ def load_robot(name_or_path) -> RobotDescription:
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str) -> RobotDescription:
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(path, f"cannot read the robot description: {err}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise DataError(path, f"invalid JSON: {err.msg} (column {err.colno})", line=err.lineno) from None
-    return parse_robot(doc, path)
+    return parse_robot(read_json(path), path)  # regular files only, size and nesting capped, no key twice
 
 
 def nao() -> RobotDescription:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.errors import DataError
 
 NOMINAL_URDF = Path(__file__).with_name("data") / "nao_v50.urdf"
@@ -58,39 +59,16 @@ MAX_MASS_KG = 1e4
 MIN_AXIS_NORM = 1e-6  # the axis is normalised here: below this it has no direction
 
 
-def _floats(text: str | None, default: str) -> tuple[float, ...]:
-    return tuple(float(x) for x in (text or default).split())
-
-
-def _vector(element, attribute: str, default: str, what: str, *, bound: float = math.inf) -> tuple:
-    """The 3 finite numbers of `element`'s `attribute` (default when absent), within +-bound; ValueError naming
-    `what` otherwise."""
+def _vector(element, attribute: str, default: str, path, field, *, bound=None, unit="1") -> tuple:
+    """The 3 finite numbers of `element`'s `attribute` (`default` when absent), each at most `bound` in size."""
     text = element.get(attribute) if element is not None else None
-    try:
-        values = _floats(text, default)
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{what} {text!r}: expected 3 finite numbers")
-    if max(abs(v) for v in values) > bound:
-        raise ValueError(f"{what} {text!r}: beyond {bound:g} (a damaged file or a unit mix-up)")
-    return values
+    return fields.vector((text or default).split(), 3, path, field, from_text=True, limit=bound, unit=unit)
 
 
-def _scalar(element, attribute: str, what: str, *, low: float = -math.inf, high: float = math.inf) -> float:
-    """`element`'s number `attribute` (NaN when absent: not given); ValueError naming `what` unless finite and within
-    [low, high]."""
+def _scalar(element, attribute: str, path, field, **limits) -> float:
+    """`element`'s number `attribute` (NaN when absent: not given), finite and within `limits` (fields.number)."""
     text = element.get(attribute)
-    if text is None:
-        return float("nan")
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (math.isfinite(value) and low <= value <= high):
-        raise ValueError(f"{what} {text!r}: expected a finite number" + (
-            f" within {low:g}..{high:g}" if math.isfinite(low) or math.isfinite(high) else ""))
-    return value
+    return float("nan") if text is None else fields.number_text(text, path, field, **limits)
 
 
 def parse_urdf(path=NOMINAL_URDF) -> Urdf:
@@ -105,14 +83,14 @@ def parse_urdf(path=NOMINAL_URDF) -> Urdf:
     joints = {}
     for element in root.findall("joint"):
         try:
-            joints[element.get("name")] = _parse_joint(element)
+            joints[element.get("name")] = _parse_joint(element, path)
         except (AttributeError, TypeError, ValueError) as err:
             raise DataError(path, f"malformed joint {element.get('name')!r}: {err}", field=element.get("name")) \
                 from None
     links = {}
     for element in root.findall("link"):
         try:
-            link = _parse_link(element)
+            link = _parse_link(element, path)
         except (AttributeError, TypeError, ValueError) as err:
             raise DataError(path, f"malformed link {element.get('name')!r}: {err}", field=element.get("name")) \
                 from None
@@ -121,15 +99,16 @@ def parse_urdf(path=NOMINAL_URDF) -> Urdf:
     return Urdf(joints=joints, links=links)
 
 
-def _parse_joint(element) -> UrdfJoint:
+def _parse_joint(element, path) -> UrdfJoint:
     """One joint, every attribute the kinematics use checked: origin finite and within MAX_LENGTH_M, a moving
     joint's axis finite with a direction, limits finite (velocity and effort >= 0)."""
     kind = element.get("type")
+    where = f"joints.{element.get('name')}"
     origin = element.find("origin")
-    xyz = _vector(origin, "xyz", "0 0 0", "origin xyz", bound=MAX_LENGTH_M)
-    rpy = _vector(origin, "rpy", "0 0 0", "origin rpy")
+    xyz = _vector(origin, "xyz", "0 0 0", path, f"{where}.origin.xyz", bound=MAX_LENGTH_M, unit="m")
+    rpy = _vector(origin, "rpy", "0 0 0", path, f"{where}.origin.rpy")
     axis_element = element.find("axis")
-    axis = np.array(_vector(axis_element, "xyz", "1 0 0", "axis xyz"))
+    axis = np.array(_vector(axis_element, "xyz", "1 0 0", path, f"{where}.axis.xyz"))
     norm = float(np.linalg.norm(axis))
     if kind in MOVING_TYPES and norm < MIN_AXIS_NORM:  # a fixed joint's axis is not used
         raise ValueError(f"axis xyz {axis_element.get('xyz')!r}: no direction (a zero vector)")
@@ -137,8 +116,9 @@ def _parse_joint(element) -> UrdfJoint:
     limit = element.find("limit")
     limits = {}
     if limit is not None:
-        limits = {key: _scalar(limit, key, f"limit {key}") for key in ("lower", "upper")}
-        limits.update({key: _scalar(limit, key, f"limit {key}", low=0.0) for key in ("velocity", "effort")})
+        limits = {key: _scalar(limit, key, path, f"{where}.limit.{key}") for key in ("lower", "upper")}
+        limits.update({key: _scalar(limit, key, path, f"{where}.limit.{key}", non_negative=True)
+                       for key in ("velocity", "effort")})
         # lower > upper is kept: PyBullet's files write it for "no limit"
     return UrdfJoint(
         name=element.get("name"),
@@ -152,17 +132,19 @@ def _parse_joint(element) -> UrdfJoint:
     )
 
 
-def _parse_link(element) -> UrdfLink | None:
+def _parse_link(element, path) -> UrdfLink | None:
     inertial = element.find("inertial")
     if inertial is None or inertial.find("mass") is None:
         return None
-    mass = _scalar(inertial.find("mass"), "value", "inertial mass", low=0.0, high=MAX_MASS_KG)
+    where = f"links.{element.get('name')}.inertial"
+    mass = _scalar(inertial.find("mass"), "value", path, f"{where}.mass.value", low=0.0, high=MAX_MASS_KG)
     if math.isnan(mass):
         raise ValueError("inertial mass: no value")
     return UrdfLink(
         name=element.get("name"),
         mass=mass,
-        com=_vector(inertial.find("origin"), "xyz", "0 0 0", "inertial origin xyz", bound=MAX_LENGTH_M),
+        com=_vector(inertial.find("origin"), "xyz", "0 0 0", path, f"{where}.origin.xyz", bound=MAX_LENGTH_M,
+                    unit="m"),
     )
 
 

@@ -175,14 +175,14 @@ def expect_error(path, *fragments):
 
 
 @pytest.mark.parametrize("column,value,problem", [
-    ("u_px", "abc", "not a number"),
-    ("u_px", "", "not a number"),
-    ("v_px", "nan", "non-finite"),
-    ("t_joints_s", "inf", "non-finite"),
+    ("u_px", "abc", "expected a finite number"),
+    ("u_px", "", "expected a finite number"),
+    ("v_px", "nan", "expected a finite number"),
+    ("t_joints_s", "inf", "expected a finite number"),
     ("vertex", "24", "vertex must be in 0..23"),
     ("vertex", "-1", "vertex must be in 0..23"),
-    ("vertex", "2.5", "expected an integer"),
-    ("image", "x", "not a number"),
+    ("vertex", "2.5", "expected a whole number"),
+    ("image", "x", "expected a finite number"),
     ("leg", "X", "unknown leg"),
     ("leg", "l", "unknown leg"),
 ])
@@ -196,9 +196,10 @@ def test_bad_values_name_file_line_and_column(dataset_dir, column, value, proble
 @pytest.mark.parametrize("value", ["0.123", "nan", "oops"])
 def test_per_image_values_must_agree_and_be_valid(dataset_dir, column, value):
     rewrite_cell(dataset_dir, 30, column, value)  # line 30 = image 1 (lines 26..49), not its first row
-    problem = {"0.123": "differs within image 1", "nan": "non-finite", "oops": "not a number"}[value]
+    problem = {"0.123": "differs within image 1", "nan": "expected a finite number",
+               "oops": "expected a finite number"}[value]
     if column in ("stance", "head_posture") and value == "0.123":
-        problem = "expected an integer"
+        problem = "expected a whole number"
     expect_error(dataset_dir, "line 30", f"'{column}'", problem)
 
 
@@ -248,7 +249,7 @@ def test_partial_velocity_columns_are_refused(tmp_path):
     columns = make_columns(velocities=True)
     columns["vel_HeadYaw"] = columns["vel_HeadYaw"].copy()
     columns["vel_HeadYaw"][:24] = np.nan
-    with pytest.raises(DataError, match="line 2.*vel_HeadYaw.*non-finite"):
+    with pytest.raises(DataError, match="line 2.*vel_HeadYaw.*expected a finite number"):
         write_dataset((make_meta(), columns), tmp_path / "v")
     assert not (tmp_path / "v" / OBSERVATIONS_FILE).exists()  # nothing written on failure
 
@@ -316,20 +317,20 @@ def meta_variants():
 
     return [
         (setter("naocal.dataset/3", "schema"), "schema", "wrong schema"),
-        (drop("schema"), "schema", "missing required key"),
-        (drop("camera", "fx_px"), "camera.fx_px", "missing required key"),
-        (drop("board"), "board", "missing required key"),
-        (drop("robot", "id"), "robot.id", "missing required key"),
+        (drop("schema"), "schema", "missing required field"),
+        (drop("camera", "fx_px"), "camera.fx_px", "missing required field"),
+        (drop("board"), "board", "missing required field"),
+        (drop("robot", "id"), "robot.id", "missing required field"),
         (setter(float("nan"), "camera", "cx_px"), "camera.cx_px", "non-finite"),
         (setter(float("inf"), "pixel_noise_px"), "pixel_noise_px", "non-finite"),
-        (setter("600", "camera", "fy_px"), "camera.fy_px", "expected a number"),
+        (setter("600", "camera", "fy_px"), "camera.fy_px", "expected a finite number"),
         (setter(-600.0, "camera", "fy_px"), "camera.fy_px", "must be positive"),
-        (setter(640.5, "camera", "width_px"), "camera.width_px", "expected an integer"),
-        (setter(True, "board", "columns"), "board.columns", "expected a number"),
+        (setter(640.5, "camera", "width_px"), "camera.width_px", "expected a whole number"),
+        (setter(True, "board", "columns"), "board.columns", "expected a finite number"),
         (setter([0.0, 1.0], "gravity_torso_mps2"), "gravity_torso_mps2", "list of 3"),
         (setter([0.0] * 4, "camera", "distortion"), "camera.distortion", "list of 5"),
         (setter("top", "camera", "name"), "camera.name", "not supported"),
-        (setter(7, "source"), "source", "expected a string"),
+        (setter(7, "source"), "source", "expected text"),
         (setter([], "robot"), "robot", "JSON object"),
     ]
 
@@ -355,7 +356,7 @@ def test_writer_refuses_bad_data_and_writes_nothing(tmp_path):
     columns = make_columns()
     columns["u_px"] = columns["u_px"].copy()
     columns["u_px"][5] = np.inf
-    with pytest.raises(DataError, match="line 7.*u_px.*non-finite"):
+    with pytest.raises(DataError, match="line 7.*u_px.*expected a finite number"):
         write_dataset((make_meta(), columns), tmp_path / "w")
     assert not (tmp_path / "w").exists() or not any((tmp_path / "w").iterdir())
 
@@ -415,7 +416,7 @@ def test_appender_refuses_bad_captures_and_writes_nothing(tmp_path):
     size = (tmp_path / "d" / OBSERVATIONS_FILE).stat().st_size
     rows = capture_rows(columns, 1)
     rows[3]["u_px"] = float("nan")
-    with pytest.raises(DataError, match="u_px.*non-finite"):
+    with pytest.raises(DataError, match="u_px.*expected a finite number"):
         appender.append(rows)
     two_images = capture_rows(columns, 1)
     two_images[0]["image"] = 5

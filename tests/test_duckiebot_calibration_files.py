@@ -148,7 +148,7 @@ def test_the_reader_takes_pyyaml_style_files(tmp_path):
 
 @pytest.mark.parametrize("text, match", [
     ("homography: [1, 2]\n", r"field 'homography': expected a list of 9"),
-    ("homography: [1, 2, 3, 4, 5, 6, 7, 8, 9]\nextra: 1\n", r"field 'extra': unknown key"),
+    ("homography: [1, 2, 3, 4, 5, 6, 7, 8, 9]\nextra: 1\n", r"field 'extra': unknown field"),
     ("homography: [1, 2, 3\n", r"line 1: a list '\[' never closed"),
     ("homography: &a [1]\n", r"line 1: unsupported YAML"),
     ("homography: !!python/object [1]\n", r"line 1: unsupported YAML"),

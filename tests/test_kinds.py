@@ -61,6 +61,24 @@ def test_kinds_are_discovered_in_their_order_of_asking():
     assert "import arm" not in source and "nao.KIND" not in source
 
 
+def test_the_verbs_help_names_every_kinds_data():
+    """Issue 22: identify, diagnose and verify are every kind's verbs. Their --help says, for each registered kind
+    that has the verb, what its data (DATASET) are, and identify's and verify's what its calibration file (identify
+    --out, verify --offsets) is, identify's what its model is: none describes the NAO's data alone."""
+    from naocal.tools.cli import build_parser
+
+    verbs = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    said = {"identify": ("data_help", "calibration_help", "model_help"), "diagnose": ("data_help",),
+            "verify": ("data_help", "calibration_help")}
+    for verb, attributes in said.items():
+        text = "".join(verbs[verb].format_help().split())  # argparse wraps lines: compare without white space
+        for kind in kinds.registered():
+            assert callable(getattr(kind, verb, None)), (kind.name, verb)
+            for attribute in attributes:
+                what = getattr(kind, attribute, "")
+                assert what and f"{kind.name}:{''.join(what.split())}" in text, (verb, kind.name, attribute)
+
+
 KIND_SOURCE = """
 import argparse
 

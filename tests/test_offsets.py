@@ -235,7 +235,7 @@ def delete_path(doc, path):
     ("model/effects", "elasticity", "model.effects", "list of effect names"),
     ("model/effects", ["elastic"], "model.effects[0]", "unknown effect"),
     ("fit/rms_px", [0.3], "fit.rms_px", "rms_x, rms_y"),
-    ("fit/n_images", -3, "fit.n_images", "non-negative integer"),
+    ("fit/n_images", -3, "fit.n_images", "must not be negative"),
     ("created", "yesterday", "created", "ISO-8601"),
     ("created", "2024-06-01T14:00:00+02:00", "created", "UTC"),
     ("robot/id", 17, "robot.id", "expected a string"),

@@ -210,5 +210,5 @@ def test_bad_settings_and_bad_intrinsics_files_are_refused(tmp_path):
         with pytest.raises(DataError, match=f"intrinsics.json, field '{field}'"):
             read_intrinsics(path)
     path.write_text("{not json")
-    with pytest.raises(DataError, match="not JSON"):
+    with pytest.raises(DataError, match="invalid JSON"):
         read_intrinsics(path)

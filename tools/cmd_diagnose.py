@@ -3,10 +3,10 @@
 import argparse  # noqa: F401 (argparse only at import time: `naocal --help` stays instant)
 
 import naocal.kinds as kinds
-from naocal.tools.verb_options import effect_names
+from naocal.tools.verb_options import add_dataset_argument, effect_names
 
 EPILOG = """\
-Sections of the output:
+Sections of the output (a NAO's; other kinds' name their own parts of the data):
   compare  RMS overall, per leg, per head posture and the worst stances, against the noise floor: detector noise
            (the dataset's pixel_noise_px, else estimated from what no rigid board motion and no camera term can
            explain) combined with the error of quantised joint readings (step found in the data).
@@ -25,7 +25,6 @@ Sections of the output:
 Add the top significant candidate with `naocal identify DATASET --effects NAME --out offsets.json` (its cv_rms_px
 shows the error on stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both
 commands, ready to paste (with --fix for the candidate's parameters these data cannot tell from the model).
-DATASET is a dataset directory or a `naocal calibrate --out` directory (its dataset/ is used).
 Exit 0 on success, 2 on bad input, 3 if the fit fails.
 """
 
@@ -35,15 +34,14 @@ def register(subparsers):
         "diagnose",
         help="compare the fitted model with the measurements and rank the missing physical effects",
         description=(
-            "Fit the model (the paper's 21 parameters plus --effects) to a naocal.dataset/2 (or /1) directory, then\n"
+            "Fit a robot's model (its kind's, as identify fits it, plus --effects) to its data (DATASET), then\n"
             "compare it with the measurements, locate where it fails and rank every candidate effect not yet in\n"
             "the model by how much of the misfit it would explain."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("dataset", metavar="DATASET",
-                   help="naocal.dataset/2 (or /1) directory, or a naocal calibrate --out directory (uses its dataset/)")
+    add_dataset_argument(p, "diagnose")
     p.add_argument("--effects", default="", metavar="E1,E2",
                    help="extra model terms already in the model: " + effect_names())
     p.add_argument("--fix", action="append", default=[], metavar="NAME",

@@ -8,12 +8,12 @@ from naocal.tools.verb_options import add_identify_options
 def register(subparsers):
     p = subparsers.add_parser(
         "identify",
-        help="identify joint offsets, camera rotation and board mounts from a dataset",
+        help="identify a robot's calibration from its data (the robot's kind found from the data)",
         description=(
-            "Fit the paper's 21-parameter model (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per "
-            "leg), plus any --effects, to a naocal.dataset/2 (or /1) directory by Levenberg-Marquardt on the pixel "
-            "error of the board vertices. Prints a table (or --json); --out writes a naocal.offsets/2 file. Exit 0 on "
-            "success, 2 on bad input, 3 if the solve fails or does not converge (nothing is written then)."
+            "Fit a robot's model, plus any --effects, to its data (DATASET) by Levenberg-Marquardt. The model, by "
+            f"kind: {kinds.help_by_kind('model_help', 'identify')}. Prints a table (or --json); --out writes the "
+            "kind's calibration file. Exit 0 on success, 2 on bad input, 3 if the solve fails or does not converge "
+            "(nothing is written then)."
         ),
     )
     add_identify_options(p)

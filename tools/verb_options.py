@@ -11,11 +11,20 @@ def effect_names() -> str:
             + ", ".join(ARM_EFFECTS))
 
 
+def add_dataset_argument(p, verb: str) -> None:
+    """DATASET: what it is for each kind with a body for `verb`."""
+    from naocal.kinds import help_by_kind
+
+    p.add_argument("dataset", metavar="DATASET", help="the robot's data, by kind: " + help_by_kind("data_help", verb))
+
+
 def add_identify_options(p) -> None:
-    p.add_argument("dataset", metavar="DATASET",
-                   help="naocal.dataset/2 (or /1) directory, or a naocal calibrate --out directory (uses its dataset/)")
+    from naocal.kinds import help_by_kind
+
+    add_dataset_argument(p, "identify")
     p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
-    p.add_argument("--out", metavar="OFFSETS_JSON", help="write a naocal.offsets/2 file (atomic, old one kept as .bak)")
+    p.add_argument("--out", metavar="FILE", help="write the calibration file (atomic, an old one kept as .bak), by "
+                                                 "kind: " + help_by_kind("calibration_help", "identify"))
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--keep-outliers", action="store_true",
                    help="fit every corner and image (default: corners no rigid board motion explains, and images no "

@@ -9,6 +9,10 @@ import argparse
 class ArmKind:
     name = "arm"
     rank = 20  # before the NAO: a pair of an arm's file and a NAO's reaches the arm's reader, which names the mismatch
+    data_help = "a naocal.arm_dataset/1 directory (docs/ARM.md)"
+    calibration_help = "a naocal.arm_calibration/1 file"
+    model_help = ("its sensors' frames plus joint_offsets and link_lengths, or the --effects named (docs/ARM.md), on "
+                  "the 3-D and pixel error of its sensors' readings")
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # options that exist only for an arm: a NAO's data given them

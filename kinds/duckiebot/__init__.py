@@ -50,6 +50,10 @@ class DuckiebotKind:
     run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
     calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot",
                           "bridge": "a Duckiebot behind `naocal bridge serve --robot duckiebot`"}
+    data_help = f"a drive log directory (log.json of {LOG_SCHEMA}, wheels.csv, frames.csv; docs/DUCKIEBOT.md)"
+    calibration_help = f"a {CALIBRATION_SCHEMA} file"
+    model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "
+                  "poses on the pixel error of the marker corners")
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind

@@ -34,8 +34,9 @@ from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC,
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
-from naocal.solver.effect import check_object
+from naocal.solver import fields
 from naocal.solver.errors import DataError, SolveError
+from naocal.solver.fields import fail
 from naocal.solver.fileio import atomic_write_text, check_output_file, read_json
 
 SCHEMA = "naocal.duckiebot_calibration/1"
@@ -47,7 +48,7 @@ REQUIRED_PARAMETERS = KINEMATIC + CAMERA
 KNOWN_PARAMETERS = KINEMATIC + CAMERA + ANCHOR + (BIAS,) + tuple(n for names in EFFECTS.values() for n in names)
 MAX_PARAMETER_SIZE = 1e3  # SI: metres, radians, gain; a marker 1 km away is a damaged file
 MAX_PIXELS = 1e5
-MAX_COUNT = 2 ** 53  # an integer a JSON reader holds exactly
+MAX_TEXT = 1000  # characters of a line of text
 # The kinematics section repeats parameters' values; written from the same floats, so they agree to rounding.
 AGREEMENT = 1e-9
 
@@ -164,136 +165,103 @@ def write_calibration_file(path, calibration, *, width_px: int = 640, height_px:
 
 # ------------------------------------------------------------------------------------------------ reading
 
-def _fail(path, problem, field=None):
-    raise DataError(path, problem, field=field)
-
-
-def _object(value, path, field, required, optional=()):
-    return check_object(value, path, field, allowed=tuple(required) + tuple(optional), required=required)
-
-
-def _number(value, path, field, limit=MAX_PARAMETER_SIZE, *, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
-    if abs(value) > limit or (positive and value <= 0):
-        _fail(path, f"{value!r} is {'not positive' if positive and value <= 0 else f'beyond +-{limit:g}'}", field)
-    return float(value)
-
-
-def _count(value, path, field, low=0, high=MAX_COUNT):
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        _fail(path, f"expected a whole number from {low} to {high}, got {str(value)[:40]!r}", field)
-    return value
-
-
-def _text(value, path, field, max_chars=1000):
-    if not isinstance(value, str) or len(value) > max_chars or not value.isprintable():
-        _fail(path, f"expected a single line of text (at most {max_chars} characters)", field)
-    return value
-
-
 def _matrix(value, path, field, rows, cols=None):
-    flat = value if cols is None else None
-    if cols is not None:
-        if not isinstance(value, list) or len(value) != rows or not all(isinstance(r, list) and len(r) == cols
-                                                                        for r in value):
-            _fail(path, f"expected {rows} rows of {cols} numbers", field)
-        flat = [x for r in value for x in r]
-    elif not isinstance(value, list) or len(value) not in rows:
-        _fail(path, f"expected a list of {' or '.join(map(str, rows))} numbers", field)
-    numbers = [_number(x, path, f"{field}[{i}]", MAX_PIXELS) for i, x in enumerate(flat)]
-    return np.array(numbers).reshape((rows, cols) if cols is not None else (-1,))
+    """`rows` lists of `cols` numbers, or (`cols` None) a list of any of the lengths `rows`; pixel-sized."""
+    if cols is None:
+        return np.array(fields.vector(value, rows, path, field, limit=MAX_PIXELS, unit="px"))
+    if not isinstance(value, list) or len(value) != rows:
+        fail(path, f"expected {rows} rows of {cols} numbers, got {fields.shown(value)}", field)
+    return np.array([fields.vector(row, cols, path, f"{field}[{i}]", limit=MAX_PIXELS, unit="px")
+                     for i, row in enumerate(value)])
 
 
 def _lens(value, model, path, field):
-    lens = _object(value, path, field, ("K", "distortion", "train_rms_px", "held_out_rms_px", "views"))
+    lens = fields.json_object(value, path, field, ("K", "distortion", "train_rms_px", "held_out_rms_px", "views"), ())
     K = _matrix(lens["K"], path, f"{field}.K", 3, 3)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or np.any(K[1:, 0] != 0) or K[2, 1] != 0 or K[2, 2] != 1:
-        _fail(path, "not a camera matrix [fx 0 cx; 0 fy cy; 0 0 1]", f"{field}.K")
+        fail(path, "not a camera matrix [fx 0 cx; 0 fy cy; 0 0 1]", f"{field}.K")
     distortion = _matrix(lens["distortion"], path, f"{field}.distortion", DISTORTION_SIZES[model])
     held_out = lens["held_out_rms_px"]  # null: the model could not be judged (inf)
-    errors = {"train_rms_px": _number(lens["train_rms_px"], path, f"{field}.train_rms_px", MAX_PIXELS),
+    errors = {"train_rms_px": fields.number(lens["train_rms_px"], path, f"{field}.train_rms_px", limit=MAX_PIXELS,
+                                            unit="px"),
               "held_out_rms_px": math.inf if held_out is None else
-              _number(held_out, path, f"{field}.held_out_rms_px", MAX_PIXELS),
-              "views": _count(lens["views"], path, f"{field}.views", 1)}
+              fields.number(held_out, path, f"{field}.held_out_rms_px", limit=MAX_PIXELS, unit="px"),
+              "views": fields.count(lens["views"], path, f"{field}.views", 1)}
     return LensCamera(model, K, distortion), errors
 
 
 def _parameters(value, path) -> dict:
-    if not isinstance(value, dict):
-        _fail(path, "expected a JSON object", "parameters")
     parameters = {}
-    for name, entry in value.items():
+    for name, entry in fields.json_object(value, path, "parameters").items():
         field = f"parameters.{name}"
         if name not in KNOWN_PARAMETERS and not MARKER_PARAMETER.fullmatch(name):
-            _fail(path, "unknown parameter (expected the joint fit's: gain, trim, baseline_m, camera.*, anchor.*, "
-                        f"{BIAS}, marker<id>.*, or an effect's: {', '.join(n for e in EFFECTS.values() for n in e)})",
+            fail(path, "unknown parameter (expected the joint fit's: gain, trim, baseline_m, camera.*, anchor.*, "
+                 f"{BIAS}, marker<id>.*, or an effect's: {', '.join(n for e in EFFECTS.values() for n in e)})",
                   field)
-        entry = _object(entry, path, field, ("value", "std", "fixed"))
-        std = _number(entry["std"], path, f"{field}.std")
-        if std < 0:
-            _fail(path, "a negative standard deviation", f"{field}.std")
-        if not isinstance(entry["fixed"], bool):
-            _fail(path, "expected true or false", f"{field}.fixed")
-        parameters[name] = {"value": _number(entry["value"], path, f"{field}.value"), "std": std,
-                            "fixed": entry["fixed"]}
+        entry = fields.json_object(entry, path, field, ("value", "std", "fixed"), ())
+        parameters[name] = {"value": fields.number(entry["value"], path, f"{field}.value", limit=MAX_PARAMETER_SIZE),
+                            "std": fields.number(entry["std"], path, f"{field}.std", limit=MAX_PARAMETER_SIZE,
+                                                 non_negative=True),
+                            "fixed": fields.flag(entry["fixed"], path, f"{field}.fixed")}
     for name in REQUIRED_PARAMETERS:
         if name not in parameters:
-            _fail(path, "missing parameter", f"parameters.{name}")
+            fail(path, "missing parameter", f"parameters.{name}")
     return parameters
 
 
 def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
     """The document `doc` of the file `path` checked (module docstring). DataError naming the field; with `strict`,
     also for a calibration beyond any working Duckiebot."""
-    _object(doc, path, "", ("schema", "robot", "camera", "kinematics", "parameters", "fit", "source", "created"))
+    fields.json_object(doc, path, "", ("schema", "robot", "camera", "kinematics", "parameters", "fit", "source",
+                                       "created"), ())
     if doc["schema"] != SCHEMA:
-        _fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
-    robot = _object(doc["robot"], path, "robot", ("id",))
+        fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
+    robot = fields.json_object(doc["robot"], path, "robot", ("id",), ())
     problem = robot_name_problem(robot["id"])
     if problem:
-        _fail(path, problem, "robot.id")
-    camera = _object(doc["camera"], path, "camera", ("width_px", "height_px", "lens_model", "lenses"))
-    width = _count(camera["width_px"], path, "camera.width_px", 16, 10000)
-    height = _count(camera["height_px"], path, "camera.height_px", 16, 10000)
-    lenses = _object(camera["lenses"], path, "camera.lenses", (DUCKIETOWN_LENS,), LENS_MODELS[1:])
+        fail(path, problem, "robot.id")
+    camera = fields.json_object(doc["camera"], path, "camera", ("width_px", "height_px", "lens_model", "lenses"), ())
+    width = fields.count(camera["width_px"], path, "camera.width_px", 16, 10000)
+    height = fields.count(camera["height_px"], path, "camera.height_px", 16, 10000)
+    lenses = fields.json_object(camera["lenses"], path, "camera.lenses", (DUCKIETOWN_LENS,), LENS_MODELS[1:])
     fitted = {m: _lens(lenses[m], m, path, f"camera.lenses.{m}") for m in LENS_MODELS if m in lenses}
     if camera["lens_model"] not in fitted:
-        _fail(path, f"{str(camera['lens_model'])[:40]!r} is not one of the lenses given ({', '.join(fitted)})",
-              "camera.lens_model")
+        fail(path, f"{str(camera['lens_model'])[:40]!r} is not one of the lenses given ({', '.join(fitted)})",
+             "camera.lens_model")
     parameters = _parameters(doc["parameters"], path)
-    section = _object(doc["kinematics"], path, "kinematics", ("gain", "trim", "baseline_m", "k", "radius_m", "limit"))
-    numbers = {key: _number(v, path, f"kinematics.{key}") for key, v in section.items()}
+    section = fields.json_object(doc["kinematics"], path, "kinematics",
+                                 ("gain", "trim", "baseline_m", "k", "radius_m", "limit"), ())
+    numbers = {key: fields.number(v, path, f"kinematics.{key}", limit=MAX_PARAMETER_SIZE) for key, v in section.items()}
     for name in KINEMATIC:
         if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
-            _fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
-                  f"kinematics.{name}")
+            fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
+                 f"kinematics.{name}")
     try:
         kinematics = Kinematics(**numbers)
     except ValueError as err:
-        _fail(path, str(err), "kinematics")
-    fit = _object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
-                                            "warnings"))
-    _number(fit["rms_px"], path, "fit.rms_px", MAX_PIXELS)
+        fail(path, str(err), "kinematics")
+    fit = fields.json_object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
+                                                       "warnings"), ())
+    fields.number(fit["rms_px"], path, "fit.rms_px", limit=MAX_PIXELS, unit="px")
     for key in ("corners", "outliers", "reference_marker"):
-        _count(fit[key], path, f"fit.{key}")
-    if not isinstance(fit["converged"], bool):
-        _fail(path, "expected true or false", "fit.converged")
+        fields.count(fit[key], path, f"fit.{key}")
+    fields.flag(fit["converged"], path, "fit.converged")
     if not isinstance(fit["warnings"], list):
-        _fail(path, "expected a list of text", "fit.warnings")
+        fail(path, f"expected a list of text, got {fields.shown(fit['warnings'])}", "fit.warnings")
     for i, warning in enumerate(fit["warnings"]):
-        _text(warning, path, f"fit.warnings[{i}]")
+        fields.text(warning, path, f"fit.warnings[{i}]", max_chars=MAX_TEXT)
     result = CalibrationFile(str(path), robot["id"], width, height, camera["lens_model"],
                              {m: lens for m, (lens, _) in fitted.items()},
                              {m: errors for m, (_, errors) in fitted.items()}, kinematics, parameters, fit,
-                             _text(doc["source"], path, "source"), _text(doc["created"], path, "created", 40))
+                             fields.text(doc["source"], path, "source", max_chars=MAX_TEXT),
+                             fields.text(doc["created"], path, "created", max_chars=40))
     try:
         findings = check_calibration(result.duckietown())
     except ValueError as err:  # e.g. a camera pose that sees no floor: no homography
-        _fail(path, f"no Duckietown calibration follows from it: {err}", "parameters")
+        fail(path, f"no Duckietown calibration follows from it: {err}", "parameters")
     refusals = [f for f in findings if f.level == "refuse"]
     if strict and refusals:
-        _fail(path, f"implausible calibration: {refusals[0]}", file_field(refusals[0].field))
+        fail(path, f"implausible calibration: {refusals[0]}", file_field(refusals[0].field))
     return replace(result, findings=tuple(findings))
 
 

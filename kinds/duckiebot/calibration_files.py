@@ -32,6 +32,7 @@ import numpy as np
 
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import plane_homography
+from naocal.solver import fields
 from naocal.solver.errors import DataError, NaocalError
 from naocal.solver.fileio import atomic_write_text, check_output_file, read_text
 from naocal.solver.transforms import invert_transform
@@ -410,39 +411,6 @@ def parse_simple_yaml(text: str, path) -> dict:
     return doc
 
 
-def _keys(doc: dict, path, required, optional=(), where=""):
-    for key in doc:
-        if key not in required and key not in optional:
-            raise DataError(path, f"unknown key (expected {', '.join(required + optional)})", field=where + key)
-    for key in required:
-        if key not in doc:
-            raise DataError(path, "missing key", field=where + key)
-
-
-def _float(text, path, field_name) -> float:
-    if not isinstance(text, str):
-        raise DataError(path, "expected a number", field=field_name)
-    try:
-        value = float(text)
-    except ValueError:
-        raise DataError(path, f"expected a number, got {text[:40]!r}", field=field_name) from None
-    if not math.isfinite(value):
-        raise DataError(path, f"expected a finite number, got {text[:40]!r}", field=field_name)
-    return value
-
-
-def _int(text, path, field_name, low, high) -> int:
-    if not isinstance(text, str) or not text.isdigit() or not low <= int(text) <= high:
-        raise DataError(path, f"expected a whole number from {low} to {high}", field=field_name)
-    return int(text)
-
-
-def _numbers(values, n, path, field_name) -> np.ndarray:
-    if not isinstance(values, list) or len(values) != n:
-        raise DataError(path, f"expected a list of {n} numbers", field=field_name)
-    return np.array([_float(v, path, f"{field_name}[{i}]") for i, v in enumerate(values)])
-
-
 def _refuse_findings(findings, path, strict: bool) -> list[Finding]:
     refusals = [f for f in findings if f.level == "refuse"]
     if strict and refusals:
@@ -454,11 +422,11 @@ def read_kinematics(path, *, strict: bool = True) -> tuple[Kinematics, str, list
     """(Kinematics, calibration_time, findings) of a kinematics/<robot>.yaml. DataError for a malformed file and,
     when `strict`, for a value beyond any working Duckiebot."""
     doc = parse_simple_yaml(read_text(path, max_bytes=1 << 16), path)
-    _keys(doc, path, KINEMATICS_KEYS, KINEMATICS_OPTIONAL_KEYS)
+    fields.json_object(doc, path, "", KINEMATICS_KEYS, KINEMATICS_OPTIONAL_KEYS)
     stamp = doc["calibration_time"]
     if not isinstance(stamp, str) or not CALIBRATION_TIME.fullmatch(stamp):
         raise DataError(path, "expected YYYY-MM-DD-HH-MM-SS", field="calibration_time")
-    numbers = {key: _float(doc[key], path, key) for key in KINEMATICS_KEYS + KINEMATICS_OPTIONAL_KEYS
+    numbers = {key: fields.number_text(doc[key], path, key) for key in KINEMATICS_KEYS + KINEMATICS_OPTIONAL_KEYS
                if key != "calibration_time" and key in doc}
     try:
         kin = Kinematics(baseline_m=numbers["baseline"], radius_m=numbers["radius"], gain=numbers["gain"],
@@ -473,7 +441,7 @@ def read_kinematics(path, *, strict: bool = True) -> tuple[Kinematics, str, list
 def read_intrinsic(path, *, strict: bool = True) -> tuple[CameraCalibration, str, list[Finding]]:
     """(CameraCalibration, camera_name, findings) of a camera_intrinsic/<robot>.yaml (plumb_bob)."""
     doc = parse_simple_yaml(read_text(path, max_bytes=1 << 16), path)
-    _keys(doc, path, INTRINSIC_KEYS)
+    fields.json_object(doc, path, "", INTRINSIC_KEYS, ())
     if doc["distortion_model"] != DISTORTION_MODEL:
         raise DataError(path, f"distortion model {str(doc['distortion_model'])[:40]!r} is not supported (expected "
                               f"{DISTORTION_MODEL}, what Duckietown's rectification uses)", field="distortion_model")
@@ -482,16 +450,15 @@ def read_intrinsic(path, *, strict: bool = True) -> tuple[CameraCalibration, str
         value = doc[name]
         if not isinstance(value, dict):
             raise DataError(path, "expected rows, cols and data", field=name)
-        _keys(value, path, ("rows", "cols", "data"), where=name + ".")
-        if _int(value["rows"], path, name + ".rows", 0, 99) != rows or \
-                _int(value["cols"], path, name + ".cols", 0, 99) != cols:
+        fields.json_object(value, path, name, ("rows", "cols", "data"), ())
+        if fields.count_text(value["rows"], path, name + ".rows", 0, 99) != rows or \
+                fields.count_text(value["cols"], path, name + ".cols", 0, 99) != cols:
             raise DataError(path, f"expected rows {rows}, cols {cols}", field=name)
-        matrices[name] = _numbers(value["data"], rows * cols, path, name + ".data").reshape(rows, cols)
-    camera_name = doc["camera_name"]
-    if not isinstance(camera_name, str) or not camera_name.isprintable():
-        raise DataError(path, "expected text", field="camera_name")
-    camera = CameraCalibration(width_px=_int(doc["image_width"], path, "image_width", 16, 10000),
-                               height_px=_int(doc["image_height"], path, "image_height", 16, 10000),
+        data = fields.vector(value["data"], rows * cols, path, name + ".data", from_text=True)
+        matrices[name] = np.array(data).reshape(rows, cols)
+    camera_name = fields.text(doc["camera_name"], path, "camera_name")
+    camera = CameraCalibration(width_px=fields.count_text(doc["image_width"], path, "image_width", 16, 10000),
+                               height_px=fields.count_text(doc["image_height"], path, "image_height", 16, 10000),
                                K=matrices["camera_matrix"], distortion=matrices["distortion_coefficients"].ravel(),
                                R=matrices["rectification_matrix"], P=matrices["projection_matrix"])
     return camera, camera_name, _refuse_findings(check_camera(camera), path, strict)
@@ -500,8 +467,8 @@ def read_intrinsic(path, *, strict: bool = True) -> tuple[CameraCalibration, str
 def read_extrinsic(path, width_px: int = 640, height_px: int = 480, *, strict: bool = True):
     """(H (3, 3), findings) of a camera_extrinsic/<robot>.yaml; the image size judges where the ground is seen."""
     doc = parse_simple_yaml(read_text(path, max_bytes=1 << 16), path)
-    _keys(doc, path, ("homography",))
-    H = _numbers(doc["homography"], 9, path, "homography").reshape(3, 3)
+    fields.json_object(doc, path, "", ("homography",), ())
+    H = np.array(fields.vector(doc["homography"], 9, path, "homography", from_text=True)).reshape(3, 3)
     return H, _refuse_findings(check_homography(H, width_px, height_px), path, strict)
 
 

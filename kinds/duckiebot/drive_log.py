@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.robot import robot_name_problem
-from naocal.solver.effect import check_object
-from naocal.solver.errors import DataError
+from naocal.solver import fields
+from naocal.solver.fields import fail
 from naocal.solver.fileio import (atomic_write_bytes, atomic_write_text, disk_full_as_error, fsync_directory,
                                   read_bytes, read_json, read_text)
 
@@ -112,71 +112,45 @@ class DriveLog:
 
 # ------------------------------------------------------------------------------------------------ log.json
 
-def _fail(path, problem, field=None, line=None):
-    raise DataError(path, problem, field=field, line=line)
-
-
-def _object(value, path, field, required, optional=()):
-    return check_object(value, path, field, allowed=tuple(required) + tuple(optional), required=required)
-
-
-def _number(value, path, field, low, high, *, low_open=True):
-    """A finite number in (low, high] (or [low, high] when not low_open)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {str(value)[:40]!r}", field)
-    if value < low or (low_open and value == low) or value > high:
-        _fail(path, f"{value!r} is outside {'(' if low_open else '['}{low:g}, {high:g}]", field)
-    return float(value)
-
-
-def _integer(value, path, field, low, high):
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        _fail(path, f"expected a whole number from {low} to {high}, got {str(value)[:40]!r}", field)
-    return value
-
-
-def _text(value, path, field, max_chars=200):
-    if not isinstance(value, str) or not value or len(value) > max_chars or not value.isprintable():
-        _fail(path, f"expected a non-empty single line of text (at most {max_chars} characters)", field)
-    return value
-
-
 def parse_meta(doc, path) -> dict:
     """log.json checked: the keyword arguments of DriveLog's description fields. DataError naming the field."""
-    _object(doc, path, "", ("schema", "robot", "camera", "wheels", "markers", "boards", "source"))
+    fields.json_object(doc, path, "", ("schema", "robot", "camera", "wheels", "markers", "boards", "source"), ())
     if doc["schema"] != SCHEMA:
-        _fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
-    robot = _object(doc["robot"], path, "robot", ("id", "model"))
+        fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
+    robot = fields.json_object(doc["robot"], path, "robot", ("id", "model"), ())
     problem = robot_name_problem(robot["id"])
     if problem:
-        _fail(path, problem, "robot.id")
-    camera = _object(doc["camera"], path, "camera", ("width_px", "height_px"))
-    wheels = _object(doc["wheels"], path, "wheels", ("radius_m", "baseline_m", "k", "limit"),
-                     ("ticks_per_revolution",))
+        fail(path, problem, "robot.id")
+    camera = fields.json_object(doc["camera"], path, "camera", ("width_px", "height_px"), ())
+    wheels = fields.json_object(doc["wheels"], path, "wheels", ("radius_m", "baseline_m", "k", "limit"),
+                                ("ticks_per_revolution",))
     ticks = wheels.get("ticks_per_revolution")
-    markers = _object(doc["markers"], path, "markers", ("family", "size_m"))
+    markers = fields.json_object(doc["markers"], path, "markers", ("family", "size_m"), ())
     if markers["family"] not in MARKER_FAMILIES:
-        _fail(path, f"unsupported marker family {str(markers['family'])[:40]!r} (expected "
-                    f"{', '.join(MARKER_FAMILIES)})", "markers.family")
-    boards = _object(doc["boards"], path, "boards", ("inner_corners", "square_m"))
+        fail(path, f"unsupported marker family {str(markers['family'])[:40]!r} (expected "
+             f"{', '.join(MARKER_FAMILIES)})", "markers.family")
+    boards = fields.json_object(doc["boards"], path, "boards", ("inner_corners", "square_m"), ())
     corners = boards["inner_corners"]
     if not isinstance(corners, list) or len(corners) != 2:
-        _fail(path, "expected [columns, rows] of inner corners", "boards.inner_corners")
+        fail(path, "expected [columns, rows] of inner corners", "boards.inner_corners")
     # agent.board_detect finds boards of 3..40 squares a side: 2..39 inner corners
-    corners = tuple(_integer(c, path, f"boards.inner_corners[{i}]", 2, 39) for i, c in enumerate(corners))
+    corners = tuple(fields.count(c, path, f"boards.inner_corners[{i}]", 2, 39) for i, c in enumerate(corners))
     return dict(
-        robot_id=robot["id"], model=_text(robot["model"], path, "robot.model", 40),
-        width_px=_integer(camera["width_px"], path, "camera.width_px", 16, 10000),
-        height_px=_integer(camera["height_px"], path, "camera.height_px", 16, 10000),
-        wheels=Wheels(radius_m=_number(wheels["radius_m"], path, "wheels.radius_m", 0.0, 1.0),
-                      baseline_m=_number(wheels["baseline_m"], path, "wheels.baseline_m", 0.0, 2.0),
-                      k=_number(wheels["k"], path, "wheels.k", 0.0, 1000.0),
-                      limit=_number(wheels["limit"], path, "wheels.limit", 0.0, 1.0),
+        robot_id=robot["id"], model=fields.text(robot["model"], path, "robot.model", max_chars=40, non_empty=True),
+        width_px=fields.count(camera["width_px"], path, "camera.width_px", 16, 10000),
+        height_px=fields.count(camera["height_px"], path, "camera.height_px", 16, 10000),
+        wheels=Wheels(radius_m=fields.number(wheels["radius_m"], path, "wheels.radius_m", high=1.0, positive=True),
+                      baseline_m=fields.number(wheels["baseline_m"], path, "wheels.baseline_m", high=2.0,
+                                               positive=True),
+                      k=fields.number(wheels["k"], path, "wheels.k", high=1000.0, positive=True),
+                      limit=fields.number(wheels["limit"], path, "wheels.limit", high=1.0, positive=True),
                       ticks_per_revolution=None if ticks is None else
-                      _integer(ticks, path, "wheels.ticks_per_revolution", 1, 10 ** 6)),
-        marker_family=markers["family"], marker_size_m=_number(markers["size_m"], path, "markers.size_m", 0.0, 1.0),
-        board_inner_corners=corners, board_square_m=_number(boards["square_m"], path, "boards.square_m", 0.0, 1.0),
-        source=_text(doc["source"], path, "source", 1000))
+                      fields.count(ticks, path, "wheels.ticks_per_revolution", 1, 10 ** 6)),
+        marker_family=markers["family"],
+        marker_size_m=fields.number(markers["size_m"], path, "markers.size_m", high=1.0, positive=True),
+        board_inner_corners=corners,
+        board_square_m=fields.number(boards["square_m"], path, "boards.square_m", high=1.0, positive=True),
+        source=fields.text(doc["source"], path, "source", max_chars=1000, non_empty=True))
 
 
 # ------------------------------------------------------------------------------------------------ CSV files
@@ -195,51 +169,39 @@ def _rows(path, header: tuple[str, ...], text: str | None = None):
             cells = [c.strip() for c in cells]
             if not seen_header:
                 if tuple(cells) != header:
-                    _fail(path, f"expected the header {','.join(header)}, got {','.join(cells)[:80]!r}",
-                          line=reader.line_num)
+                    fail(path, f"expected the header {','.join(header)}, got {','.join(cells)[:80]!r}",
+                         line=reader.line_num)
                 seen_header = True
                 continue
             if len(cells) != len(header):
-                _fail(path, f"expected {len(header)} cells ({','.join(header)}), got {len(cells)}",
-                      line=reader.line_num)
+                fail(path, f"expected {len(header)} cells ({','.join(header)}), got {len(cells)}",
+                     line=reader.line_num)
             rows.append((reader.line_num, cells))
     except csv.Error as err:
-        _fail(path, f"malformed CSV: {err}", line=reader.line_num)
+        fail(path, f"malformed CSV: {err}", line=reader.line_num)
     if not seen_header:
-        _fail(path, f"empty file: expected the header {','.join(header)}", line=1)
+        fail(path, f"empty file: expected the header {','.join(header)}", line=1)
     if not rows:
-        _fail(path, "no data rows after the header", line=reader.line_num)
+        fail(path, "no data rows after the header", line=reader.line_num)
     return rows
-
-
-def _float_cell(text, path, line, field, low=-math.inf, high=math.inf) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        _fail(path, f"expected a number, got {text[:40]!r}", field, line)
-    if not math.isfinite(value):
-        _fail(path, f"expected a finite number, got {text[:40]!r}", field, line)
-    if not low <= value <= high:
-        _fail(path, f"{value!r} is outside [{low:g}, {high:g}]", field, line)
-    return value
 
 
 def _int_cell(text, path, line, field) -> int:
     if not text.lstrip("+-").isdigit() or len(text) > 20:
-        _fail(path, f"expected a whole number of ticks, got {text[:40]!r}", field, line)
+        fail(path, f"expected a whole number of ticks, got {text[:40]!r}", field, line)
     value = int(text)
     if abs(value) >= MAX_TICKS:
-        _fail(path, f"{value} ticks is beyond any drive (at most 2^53 in size)", field, line)
+        fail(path, f"{value} ticks is beyond any drive (at most 2^53 in size)", field, line)
     return value
 
 
 def _times(rows, path) -> np.ndarray:
     t = np.empty(len(rows))
     for i, (line, cells) in enumerate(rows):
-        t[i] = _float_cell(cells[0], path, line, "t_s", -MAX_TIME_S, MAX_TIME_S)
+        t[i] = fields.number_text(cells[0], path, "t_s", line=line, low=-MAX_TIME_S, high=MAX_TIME_S)
         if i and t[i] <= t[i - 1]:
-            _fail(path, f"time {t[i]!r} s does not follow the previous row's {t[i - 1]!r} s (times must "
-                        "strictly increase)", "t_s", line)
+            fail(path, f"time {t[i]!r} s does not follow the previous row's {t[i - 1]!r} s (times must "
+                 "strictly increase)", "t_s", line)
     return t
 
 
@@ -247,8 +209,8 @@ def read_wheels(path, text: str | None = None):
     """(t_s, left_duty, right_duty) of wheels.csv; duties finite and within [-1, 1]."""
     rows = _rows(path, WHEELS_HEADER, text)
     t = _times(rows, path)
-    duties = np.array([[_float_cell(cells[c], path, line, WHEELS_HEADER[c], -1.0, 1.0) for c in (1, 2)]
-                       for line, cells in rows])
+    duties = np.array([[fields.number_text(cells[c], path, WHEELS_HEADER[c], line=line, low=-1.0, high=1.0)
+                        for c in (1, 2)] for line, cells in rows])
     return t, duties[:, 0], duties[:, 1]
 
 
@@ -283,10 +245,10 @@ def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray
     suffix = Path(path).suffix.lower()
     signature = IMAGE_SIGNATURES.get(suffix)
     if signature is None or not data.startswith(signature):
-        _fail(path, f"not a {'PNG' if suffix == '.png' else 'JPEG'} image (its first bytes do not say so)")
+        fail(path, f"not a {'PNG' if suffix == '.png' else 'JPEG'} image (its first bytes do not say so)")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None or image.size == 0:
-        _fail(path, "not a readable image (the decoder refused it: damaged or truncated)")
+        fail(path, "not a readable image (the decoder refused it: damaged or truncated)")
     return image
 
 
@@ -301,17 +263,17 @@ def read_frames(path, log_dir: Path, width_px: int, height_px: int, *, check_ima
         name = cells[1]
         problem = frame_file_problem(name, log_dir)
         if problem:
-            _fail(path, problem, "file", line)
+            fail(path, problem, "file", line)
         key = os.path.normpath(name)
         if key in seen:
-            _fail(path, f"{name[:60]!r} is already the frame of line {seen[key]}", "file", line)
+            fail(path, f"{name[:60]!r} is already the frame of line {seen[key]}", "file", line)
         seen[key] = line
         if check_images:
             image_path = log_dir / name
             image = decode_image(read_bytes(image_path, max_bytes=MAX_IMAGE_BYTES), image_path,
                                  cv2.IMREAD_UNCHANGED)
             if image.shape[:2] != (height_px, width_px):
-                _fail(image_path, f"image is {image.shape[1]} x {image.shape[0]} px, log.json's camera is "
+                fail(image_path, f"image is {image.shape[1]} x {image.shape[0]} px, log.json's camera is "
                                   f"{width_px} x {height_px}")
         files.append(str(PurePosixPath(name)))
     return t, tuple(files)
@@ -322,7 +284,7 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     line or field) on any problem; nothing is written. `check_images`: decode every frame now (default)."""
     directory = Path(directory)
     if not directory.is_dir():
-        _fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
+        fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
     meta = parse_meta(read_json(directory / META_FILE), directory / META_FILE)
     wheel_t, left, right = read_wheels(directory / WHEELS_FILE)
     frame_t, files = read_frames(directory / FRAMES_FILE, directory, meta["width_px"], meta["height_px"],
@@ -331,7 +293,7 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     encoders_path = directory / ENCODERS_FILE
     if os.path.lexists(encoders_path):
         if meta["wheels"].ticks_per_revolution is None:
-            _fail(directory / META_FILE, f"{ENCODERS_FILE} is present but the wheels' ticks_per_revolution is not "
+            fail(directory / META_FILE, f"{ENCODERS_FILE} is present but the wheels' ticks_per_revolution is not "
                                          "given", "wheels.ticks_per_revolution")
         encoders = read_encoders(encoders_path)
     return DriveLog(path=directory, **meta, wheel_t_s=wheel_t, left_duty=left, right_duty=right, frame_t_s=frame_t,
@@ -419,7 +381,7 @@ class DriveLogAppender:
         if (self.directory / META_FILE).exists():
             stored = read_json(self.directory / META_FILE)
             if stored != json.loads(json.dumps(meta)):
-                _fail(self.directory / META_FILE, "this log was recorded with another robot or set-up (nothing was "
+                fail(self.directory / META_FILE, "this log was recorded with another robot or set-up (nothing was "
                                                   "changed)")
             if (self.directory / WHEELS_FILE).exists():
                 self.wheels = [tuple(map(float, row)) for row in zip(*read_wheels(self.directory / WHEELS_FILE))]

@@ -22,14 +22,14 @@ def add_tie_option(parser) -> None:
     """--tie-hip-yaw-pitch, shared by identify and diagnose."""
     # default None (on for the NAO) so that an arm can refuse the option only when it is given
     parser.add_argument("--tie-hip-yaw-pitch", action=FlagPair, default=None,
-                        help="joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
+                        help="NAO: joints on one motor take one offset (the NAO's HipYawPitch pair; default: on)")
 
 
 def add_angles_option(parser) -> None:
     """--angles, shared by identify, diagnose and verify (each must read a dataset the same way)."""
     parser.add_argument("--angles", default="auto", choices=("auto", "measured", "cell", "commanded"),
-                        help="joint angles used as theta: measured readings (the paper), cell (a still joint whose "
-                             "readings are quantised and whose command lies inside its reading's step uses the "
+                        help="NAO: joint angles used as theta: measured readings (the paper), cell (a still joint "
+                             "whose readings are quantised and whose command lies inside its reading's step uses the "
                              "command), commanded, or auto (default): each is fitted and the best fit chosen")
 
 
@@ -38,15 +38,15 @@ def add_options(parser, verb: str) -> None:
     if verb == "identify":
         add_tie_option(parser)
         parser.add_argument("--loss-scale-px", type=float, default=1.0,
-                            help="residual where the robust loss bends (px)")
+                            help="NAO: residual where the robust loss bends (px)")
         parser.add_argument("--solver", default="lm", choices=("lm", "minpack"),
-                            help="lm: naocal's Levenberg-Marquardt (fast); minpack: "
+                            help="NAO: lm: naocal's Levenberg-Marquardt (fast); minpack: "
                                  "scipy.optimize.least_squares(method='lm')")
         add_angles_option(parser)
         parser.add_argument("--gls", action=FlagPair, default=True,
-                            help="when the readings fit best and are quantised, refine by generalised least squares: "
-                                 "the images of one held command share its error in the step, intrinsics free "
-                                 "(docs/AGENT.md; the agent does the same; default: on)")
+                            help="NAO: when the readings fit best and are quantised, refine by generalised least "
+                                 "squares: the images of one held command share its error in the step, intrinsics "
+                                 "free (docs/AGENT.md; the agent does the same; default: on)")
     elif verb == "diagnose":
         add_angles_option(parser)
         add_tie_option(parser)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from naocal.solver.effect import Effect, Parameter, ProjectionTerm, check_number, check_object
+from naocal.solver import fields
+from naocal.solver.effect import Effect, Parameter, ProjectionTerm
 
 
 def per_joint(effect, prefix: str, joints, unit: str, scale: float) -> list[Parameter]:
@@ -19,11 +20,9 @@ def joint_section(effect, values: dict, setup) -> dict:
 
 def read_joint_section(effect, content, path, where, robot, unit: str) -> None:
     """{joint: value}: joints of the robot description, finite values within the effect's file limit."""
-    check_object(content, path, where)
+    fields.json_object(content, path, where, optional=robot.joints, keys="joint")
     for joint, value in content.items():
-        if joint not in robot.joints:
-            raise _unknown(path, f"{where}.{joint}", "joint", robot.joints)
-        check_number(value, path, f"{where}.{joint}", limit=effect.offsets_limit, unit=unit)
+        fields.number(value, path, f"{where}.{joint}", limit=effect.offsets_limit, unit=unit)
 
 
 def per_name_section(values: dict, parameters, key) -> dict:
@@ -37,19 +36,12 @@ def per_name_section(values: dict, parameters, key) -> dict:
 
 def read_per_name_section(content, path, where, names, components, limits, units, *, complete=True) -> None:
     """{name: {component: value}} with names from `names`, every component (when `complete`) within its limit."""
-    check_object(content, path, where)
+    fields.json_object(content, path, where, optional=names, keys="name")
     for name, entry in content.items():
-        if name not in names:
-            raise _unknown(path, f"{where}.{name}", "name", names)
-        check_object(entry, path, f"{where}.{name}", allowed=components, required=components if complete else ())
+        fields.json_object(entry, path, f"{where}.{name}", components if complete else (),
+                           () if complete else components)
         for component, value in entry.items():
-            check_number(value, path, f"{where}.{name}.{component}", limit=limits[component], unit=units[component])
-
-
-def _unknown(path, where, what, known):
-    from naocal.solver.errors import DataError
-
-    return DataError(path, f"unknown {what} (allowed: {', '.join(known)})", field=where)
+            fields.number(value, path, f"{where}.{name}.{component}", limit=limits[component], unit=units[component])
 
 
 def apparent_offset_panels(fit, prefix: str, joints, regressor, xlabel, *, jitter=0.0, slope_from_value=True):

@@ -9,7 +9,8 @@ one per joint origin (and chain tip) with an offset, named by the URDF link it e
 
 import numpy as np
 
-from naocal.solver.effect import ChainTerm, Effect, MockPerturbation, Parameter, check_number, check_object, signed_uniform
+from naocal.solver import fields
+from naocal.solver.effect import ChainTerm, Effect, MockPerturbation, Parameter, signed_uniform
 
 
 def _links(setup):
@@ -82,9 +83,9 @@ class LinkLengths(Effect):
         return {p.component: float(values[p.name]) for p in self.parameters(setup) if p.name in values}
 
     def read_offsets(self, content, path, where, robot):
-        check_object(content, path, where, allowed=tuple(robot.link_lengths))
+        fields.json_object(content, path, where, optional=tuple(robot.link_lengths))
         for label, value in content.items():
-            check_number(value, path, f"{where}.{label}", limit=self.offsets_limit, unit="m")
+            fields.number(value, path, f"{where}.{label}", limit=self.offsets_limit, unit="m")
 
 
 EFFECT = LinkLengths()

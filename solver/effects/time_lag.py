@@ -7,7 +7,8 @@ Only images taken while the joints move carry it (the agent's lag probe).
 
 import numpy as np
 
-from naocal.solver.effect import Effect, JointTerm, MockPerturbation, Parameter, check_number, check_object
+from naocal.solver import fields
+from naocal.solver.effect import Effect, JointTerm, MockPerturbation, Parameter
 
 
 class TimeLag(Effect):
@@ -57,8 +58,8 @@ class TimeLag(Effect):
         return {"dt": float(values["time_lag.dt"])} if "time_lag.dt" in values else {}
 
     def read_offsets(self, content, path, where, robot):
-        check_object(content, path, where, allowed=("dt",), required=("dt",))
-        check_number(content["dt"], path, f"{where}.dt", limit=self.offsets_limit, unit="s")
+        fields.json_object(content, path, where, ("dt",), ())
+        fields.number(content["dt"], path, f"{where}.dt", limit=self.offsets_limit, unit="s")
 
 
 EFFECT = TimeLag()
