@@ -263,7 +263,7 @@ def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_pa
         written = []
         ctx = MissionContext(robot, tmp_path, SHORT, session, driven=True, on_calibration=written.append)
         bad = SimpleNamespace(drive_fit=SimpleNamespace(rms_px=26.5))  # realistic seed 1's local minimum
-        monkeypatch.setattr(mission, "identify_log", lambda _: bad)
+        monkeypatch.setattr(mission, "identify_log", lambda _, **options: bad)
         outcome = IdentifyDrive().run(ctx)
         assert outcome.name == "implausible" and "26.50 px" in outcome.reason
         assert written == [] and ctx.calibration is None
