@@ -316,13 +316,58 @@ def test_dualarm_urdf_is_what_its_generator_writes():
     assert DUALARM_URDF.read_text() == dualarm_urdf()
 
 
+# a stance main's sampler drew (seed 1, 600 poses; true angles, torso_joint, left_j1..j6, right_j1..j6) whose
+# forearms pass 9 cm through each other
+CROSSED_ARMS = (-0.426, -0.27, 2.292, -0.119, 1.757, -0.633, 0.177, 0.378, 2.02, 1.271, 0.365, -1.351, 1.794)
+
+
+def deepest_contact(true_angles) -> float:
+    """The deepest contact (m, negative: through each other) between the two arms or an arm and the torso or
+    pedestal in the dual-arm URDF's collision shapes (0.0: none), checked apart from the simulator's own check."""
+    from naocal.backends.arm_sim import DUALARM_URDF, dualarm_model
+    from naocal.body.pybullet_quiet import pybullet as p
+
+    client = p.connect(p.DIRECT)
+    try:
+        body = p.loadURDF(str(DUALARM_URDF), useFixedBase=True, physicsClientId=client)
+        info = [p.getJointInfo(body, i, physicsClientId=client) for i in range(p.getNumJoints(body, physicsClientId=client))]
+        joint = {i[1].decode(): i[0] for i in info}
+        link = {i[12].decode(): i[0] for i in info}
+        sides = {s: [link[f"{s}_link{k}"] for k in range(1, 7)] + [link[f"{s}_tool"]] for s in ("left", "right")}
+        pairs = [(a, b) for a in sides["left"] for b in sides["right"]]
+        pairs += [(a, b) for s in sides.values() for a in (-1, link["torso"]) for b in s[1:]]
+        deepest = 0.0
+        for stance in np.atleast_2d(true_angles):
+            for name, angle in zip(dualarm_model(("joint_offsets",)).joint_names, stance):
+                p.resetJointState(body, joint[name], float(angle), physicsClientId=client)
+            for a, b in pairs:
+                for point in p.getClosestPoints(body, body, 0.0, linkIndexA=a, linkIndexB=b, physicsClientId=client):
+                    deepest = min(deepest, point[8])
+        return deepest
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def test_the_dual_arm_simulator_never_draws_a_stance_whose_arms_or_torso_collide():
+    from naocal.backends.arm_sim import dualarm_model, simulate_dualarm
+
+    assert deepest_contact(CROSSED_ARMS) < -0.05  # the URDF has the arms' shapes (it had none: nothing collided)
+    sim = simulate_dualarm(None, seed=1, n_poses=60, outlier_fraction=0.0, write=False)
+    obs = sim["observations"]
+    _, first = np.unique(obs.pose, return_index=True)
+    offsets = np.array([sim["truth"][f"joint_offset.{j}"] for j in dualarm_model(("joint_offsets",)).joint_names])
+    assert deepest_contact(obs.theta[first] - offsets) == 0.0
+    assert sim["refused_colliding"] > 0  # about 7 % of the stances drawn: refused, never measured
+
+
 def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(tmp_path):
     from tests.cli_runner import naocal
 
     out = tmp_path / "dual"
     run = naocal("simulate", "--robot", "dualarm", "--seed", "4", "--poses", "25", "--out", str(out))
     assert run.returncode == 0, run.stderr
-    assert "chains left, right" in run.stdout and (out / "truth.json").is_file()
+    assert "chains left, right" in run.stdout and "refused as colliding" in run.stdout
+    assert (out / "truth.json").is_file()
     cal = tmp_path / "cal.json"
     run = naocal("identify", str(out), "--effects", "joint_offsets,tool", "--json", "--out", str(cal))
     assert run.returncode == 0, run.stderr

@@ -426,6 +426,7 @@ def run_simulate_dualarm(args, out) -> int:
         info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
                                 noise_px=args.noise_px)
     print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
-          f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); hidden "
-          f"truth in {out / 'truth.json'}", file=sys.stdout)
+          f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); "
+          f"{info['refused_colliding']} drawn stances refused as colliding (arms, tools, torso); hidden truth in "
+          f"{out / 'truth.json'}", file=sys.stdout)
     return 0
