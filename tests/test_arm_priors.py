@@ -268,13 +268,8 @@ def one_sensor_dataset(directory, model, obs, sensors, name, noise_px=0.2):
     return directory
 
 
-def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_reflectors_are_unknown(tmp_path):
-    """Calibrated from a camera alone; the tracker's data (another session: other poses, its frame unknown, its
-    reflectors 1-2 mm off where dataset.json puts them) judged with the arm held: with the reflectors refitted
-    (--refit sensors,points) the calibration is still good at the tracker's noise; without, the misplaced reflectors
-    look like drift; and the URDF (no calibration) is drifted even with the reflectors refitted."""
-    import json
-
+def camera_calibration_and_tracker(tmp_path):
+    """(calibration file from a camera alone, another session's tracker dataset, its reflectors' true positions)."""
     from tests.cli_runner import naocal
     from tests.test_arm import synthetic
 
@@ -290,11 +285,24 @@ def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_refle
     tracker = one_sensor_dataset(tmp_path / "tracker", model, obs, sensors, "tracker")
     cal = tmp_path / "from_cameras.json"
     assert naocal("identify", cameras, "--out", cal).returncode == 0
+    return cal, tracker, reflectors
 
+
+def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_reflectors_are_unknown(tmp_path):
+    """Calibrated from a camera alone; the tracker's data (another session: other poses, its frame unknown, its
+    reflectors 1-2 mm off where dataset.json puts them) judged with the arm held: with the reflectors refitted
+    (--refit sensors,points) the calibration is still good at the tracker's noise; without, the misplaced reflectors
+    look like drift; and the URDF (no calibration) is drifted even with the reflectors refitted."""
+    import json
+
+    from tests.cli_runner import naocal
+
+    cal, tracker, reflectors = camera_calibration_and_tracker(tmp_path)
     refitted = naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,points", "--json")
     assert refitted.returncode == 0, refitted.stdout + refitted.stderr
     verdict = json.loads(refitted.stdout)
     assert verdict["good"] and verdict["per_sensor"]["tracker"]["ratio"] < 1.3
+    assert verdict["absorbed"]["chi2"] < verdict["absorbed"]["bound"] and not verdict["absorbed"]["beyond"]
     found = {e["parameter"]: e["value"] for e in verdict["refitted"]}
     for name, value in reflectors.items():  # where the reflectors really are, from the tracker with the arm held
         assert abs(found[name] - value) < 3e-4, name
@@ -314,6 +322,30 @@ def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_refle
     urdf_only.write_text(json.dumps(nominal))
     refuted = naocal("verify", tracker, "--offsets", urdf_only, "--refit", "sensors,points", "--json")
     assert refuted.returncode == 1 and json.loads(refuted.stdout)["per_sensor"]["tracker"]["ratio"] > 3
+
+
+def test_verify_refit_points_cannot_hide_a_wrong_calibration_in_the_reflectors(tmp_path):
+    """The flange's offset 10 deg wrong: the three reflectors 0.1 m around its axis turn by 17 mm, all in the tool's
+    frame, which refitting where they sit absorbs whole: the tracker's residual stays at its noise and verify said
+    "still good". What the refit absorbed is now judged against the reflectors' prior (3 mm): beyond it, drifted."""
+    import json
+    import math
+
+    from tests.cli_runner import naocal
+
+    cal, tracker, _ = camera_calibration_and_tracker(tmp_path)
+    wrong = json.loads(cal.read_text())
+    wrong["model"]["parameters"]["joint_offset.panda_joint7"]["value"] += math.radians(10.0)
+    wrong["joint_offsets_rad"]["panda_joint7"] += math.radians(10.0)
+    wrong_path = tmp_path / "wrong.json"
+    wrong_path.write_text(json.dumps(wrong))
+    run = naocal("verify", tracker, "--offsets", wrong_path, "--refit", "sensors,points", "--json")
+    verdict = json.loads(run.stdout)
+    assert verdict["per_sensor"]["tracker"]["ratio"] < 1.3  # the residual alone is fooled
+    assert run.returncode == 1 and not verdict["good"] and verdict["absorbed"]["beyond"]
+    assert verdict["absorbed"]["chi2"] > 3 * verdict["absorbed"]["bound"]
+    text = naocal("verify", tracker, "--offsets", wrong_path, "--refit", "sensors,points").stdout
+    assert "BEYOND what the prior allows" in text and "an arm error can hide there" in text.splitlines()[-1]
 
 
 @pytest.mark.parametrize("option, problem", [
