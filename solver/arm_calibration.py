@@ -44,6 +44,11 @@ class ArmCalibration:
     rms: dict  # sensor -> (value, unit) of the fit
     noise: dict  # sensor -> (value, unit) the fit weighted by (absent in older files)
     created: str
+    chains: dict = None  # {chain name: (base, tip)}: the file's `chains`, else its one chain named by its tip
+
+    def __post_init__(self):
+        if self.chains is None:
+            self.chains = {self.robot["tip"]: (self.robot["base"], self.robot["tip"])}
 
     @property
     def arm_parameters(self) -> dict:
@@ -180,7 +185,29 @@ def read_arm_calibration(path) -> ArmCalibration:
     created = doc.get("created", "?")
     return ArmCalibration(str(path), robot, tuple(effects), parameters,
                           {str(k): str(v) for k, v in reasons.items()}, rms, noise,
-                          _text(created, path, "created") if created != "?" else "?")
+                          _text(created, path, "created") if created != "?" else "?", _chains(doc, robot, path))
+
+
+def _chains(doc, robot, path):
+    """The file's `chains` {name: (base, tip)} (several chains: their tips joined by '+' are robot.tip), or None:
+    one chain, robot.base to robot.tip."""
+    if "chains" not in doc:
+        if "+" in robot["tip"]:
+            _fail(path, "several chains (robot.tip joins their tips) but no chains section naming them: written by "
+                        "an older naocal; identify the dataset again", "chains")
+        return None
+    chains = doc["chains"]
+    if not isinstance(chains, dict) or not chains:
+        _fail(path, "expected {name: {base, tip}, ...}", "chains")
+    out = {}
+    for name, entry in chains.items():
+        if not isinstance(entry, dict) or set(entry) != {"base", "tip"}:
+            _fail(path, "expected {base, tip}", f"chains.{name}")
+        out[_text(name, path, f"chains.{name}")] = (_text(entry["base"], path, f"chains.{name}.base"),
+                                                    _text(entry["tip"], path, f"chains.{name}.tip"))
+    if "+".join(tip for _, tip in out.values()) != robot["tip"]:
+        _fail(path, f"the chains' tips are not robot.tip {robot['tip']!r}", "chains")
+    return out
 
 
 def _fit_size(value, unit, path, field) -> float:

@@ -260,6 +260,8 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
            "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
                          id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
+           **({"chains": {ac.name: {"base": ac.chain.base, "tip": ac.chain.tip} for ac in dataset.chain}}
+              if isinstance(dataset.chain, tuple) else {}),  # several chains: the names tool.<chain> uses
            "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"],
                      "priors": report["priors"], "held_by_prior": report["held_by_prior"]},
            "fit": {"rms": report["rms"], "noise": report["noise"], "heldout": report["heldout"],
