@@ -18,8 +18,9 @@ A significant effect may still be no property of the arm: link lengths soak up a
 markers glued off their nominal spot, and the pixels improve while the arm gets worse. So each significant
 candidate is also judged on data its fit did not see and the pixels cannot fool (`physical_checks`): the other
 sensor (the arm fitted from the cameras alone, with and without it, then held while the 3-D sensors' frames, and
-their reflectors if the model has points, are refitted as verify --refit does) and other sessions (leave one block
-of consecutive poses out). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
+their reflectors if the model has points, are refitted as verify --refit does; the other way round, the cameras
+judging the 3-D sensors' arm; and each of two or more cameras judging the others' arm) and other sessions (leave
+one block of consecutive poses out). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
 only and is not recommended; the verdict is the best candidate that is physical.
 """
 
