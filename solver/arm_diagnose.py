@@ -38,8 +38,11 @@ from naocal.solver.scoretest import score_test
 FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
 # A held-out RMS more than this share above the model's without the candidate is worse: the candidate fits the
-# pixels only (a physical effect predicts unseen data no worse; a few % is what refitting k more parameters costs).
-HELDOUT_TOLERANCE = 0.02
+# pixels only. Set from benchmarks/bench_arm_physical.py (simulated dual arm, seeds 1-4, docs/ARM.md): effects the
+# robot has raised a held-out RMS by up to 8.9 % (a camera alone judging link lengths; two more by 16 and 26 %),
+# effects it lacks that absorb a camera's 1 % focal error by 14.4 % at least: at 2 % 5 of the 8 physical candidates
+# were refuted, at 10 % those 2, and no fooled one passed at either.
+HELDOUT_TOLERANCE = 0.10
 SESSIONS = 5  # blocks of consecutive poses standing in for sessions (the dataset has no session column)
 
 
@@ -294,8 +297,8 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
     how_sessions = (f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session "
                     "column: they stand in for sessions)")
 
-    def session_rms(fit_):
-        return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, folds))
+    def session_rms(fit_):  # the blocks of fit_'s own rows: a refit may set other detections aside
+        return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, session_folds(fit_.obs, sessions)))
 
     names = [sensor.name for sensor in model.sensors]
     base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None

@@ -357,7 +357,7 @@ def test_the_dual_arm_simulator_never_draws_a_stance_whose_arms_or_torso_collide
     _, first = np.unique(obs.pose, return_index=True)
     offsets = np.array([sim["truth"][f"joint_offset.{j}"] for j in dualarm_model(("joint_offsets",)).joint_names])
     assert deepest_contact(obs.theta[first] - offsets) == 0.0
-    assert sim["refused_colliding"] > 0  # about 7 % of the stances drawn: refused, never measured
+    assert sim["refused_colliding"] > 0  # refused, never measured
 
 
 def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(tmp_path):

@@ -134,3 +134,23 @@ def test_leave_one_camera_out_names_an_effect_that_fits_one_camera_only(two_came
         assert candidate.refutation == "fits one camera only (absorbs that camera's model error)"
     else:
         assert candidate.physical and not candidate.refutation
+
+
+def test_a_refit_that_sets_aside_other_detections_is_judged_on_its_own_rows(monkeypatch):
+    """With the candidate, the fit may set aside other wrong detections than without (fewer rows): the sessions'
+    blocks are its own rows' (diagnose crashed with an IndexError on the simulated dual arm, seed 1, 300 poses)."""
+    import naocal.solver.arm_diagnose as arm_diagnose
+
+    refit_with = arm_diagnose.refit_with
+
+    def one_row_fewer(fit_, effects, sensors=None, held=()):
+        out = refit_with(fit_, effects, sensors, held)
+        if sensors is None:  # the refit on all the data: one detection set aside as an outlier would be
+            keep = np.arange(len(out.obs)) != 5
+            out.obs, out.residual = out.obs.subset(keep), out.residual[keep]
+        return out
+
+    monkeypatch.setattr(arm_diagnose, "refit_with", one_row_fewer)
+    d = camera_heavy(true_errors(seed=4))
+    links = next(c for c in d.candidates if c.label == "link_lengths")
+    assert "session" in {c.kind for c in links.checks} and links.physical
