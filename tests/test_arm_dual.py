@@ -474,3 +474,23 @@ def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
     run = naocal("offsets", "export", tmp_path / "cal.json", "--format", "urdf", "--out", tmp_path / "cal.urdf")
     assert run.returncode != 0 and f"tool.{tip}.x" in run.stderr and run.stderr.count("\n") == 1
     assert not (tmp_path / "cal.urdf").exists()
+
+
+@pytest.mark.parametrize("chains, problem", [
+    (None, "no chains section naming them"),
+    ({"left": {"base": "base_link", "tip": "right_tool"}, "right": {"base": "base_link", "tip": "left_tool"}},
+     "the chains' tips are not robot.tip"),
+    ({"left": {"base": "base_link"}}, "expected {base, tip}")])
+def test_a_calibration_of_several_chains_names_them_or_is_refused(tmp_path, chains, problem):
+    from naocal.backends.arm_sim import DUALARM_URDF
+    from naocal.solver.arm_calibration import SCHEMA
+    from tests.cli_runner import naocal
+
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},
+           "model": {"effects": ["joint_offsets"], "parameters": {
+               "joint_offset.torso_joint": {"value": 0.001, "std": 0.0, "unit": "rad", "fixed": False}}}}
+    if chains is not None:
+        doc["chains"] = chains
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    run = naocal("offsets", "validate", tmp_path / "cal.json")
+    assert run.returncode == 2 and problem in run.stderr and "chains" in run.stderr and run.stderr.count("\n") == 1
