@@ -109,6 +109,30 @@ def perturbed_urdf(urdf_path: Path, chain, link_names, truth: dict, out_path: Pa
     out_path.write_text(re.sub(r'filename="([^"]+)"', absolute, text), encoding="utf-8")
 
 
+class SelfCollision:
+    """Which links of a PyBullet body come within SELF_DISTANCE_M of each other (its URDF's collision shapes): every
+    pair but a link and its parent, less the pairs already that close in the stance the body stands in when it is
+    made (part of its build: a wrist's short links overlap). The robot is real hardware in spirit: a stance whose
+    links touch is never measured, as it would never be commanded."""
+
+    def __init__(self, p, client, body):
+        self._p, self._client, self.body = p, client, body
+        n = p.getNumJoints(body, physicsClientId=client)
+        parent = {i: p.getJointInfo(body, i, physicsClientId=client)[16] for i in range(n)}
+        pairs = [(a, b) for a in range(-1, n) for b in range(a + 1, n) if parent.get(b) != a]
+        self.built_in = {pair for pair in pairs if self._close(*pair)}
+        self.pairs = [pair for pair in pairs if pair not in self.built_in]
+
+    def _close(self, a, b) -> bool:
+        return bool(self._p.getClosestPoints(self.body, self.body, SELF_DISTANCE_M, linkIndexA=a, linkIndexB=b,
+                                             physicsClientId=self._client))
+
+    def colliding(self):
+        """The first pair of link indices (-1: the base) closer than SELF_DISTANCE_M in the body's current stance,
+        or None."""
+        return next((pair for pair in self.pairs if self._close(*pair)), None)
+
+
 def look_at(eye, target) -> np.ndarray:
     """R_base_cam of a camera at `eye` looking at `target` (NAO camera frame: x optical axis, y left, z up)."""
     x = np.asarray(target, float) - np.asarray(eye, float)
@@ -156,10 +180,9 @@ class SimulatedArm:
         self.joint_index = [index[j] for j in self.chain.joint_names]
         link_index = {i[12].decode(): i[0] for i in info}
         self.tip_index = link_index[tip]
-        self.parent = {i[0]: i[16] for i in info}
         mid = [(lo + hi) / 2.0 for lo, hi in self.limits()]
         self._set(mid)
-        self.ignored_pairs = {pair for pair in self._link_pairs() if self._close(*pair)}
+        self.self_collision = SelfCollision(pybullet, self._client, self.body)
         self.on_floor = {link for link in range(-1, len(info)) if self._link_low(link)}
 
     # -- pybullet helpers
@@ -185,20 +208,12 @@ class SimulatedArm:
             self._p.resetJointState(self.body, i, float(angle), physicsClientId=self._client)
         self._p.performCollisionDetection(physicsClientId=self._client)
 
-    def _link_pairs(self):
-        n = self._p.getNumJoints(self.body, physicsClientId=self._client)
-        return [(a, b) for a in range(-1, n) for b in range(a + 1, n) if self.parent.get(b) != a]
-
-    def _close(self, a, b) -> bool:
-        return bool(self._p.getClosestPoints(self.body, self.body, SELF_DISTANCE_M, linkIndexA=a, linkIndexB=b,
-                                             physicsClientId=self._client))
-
     def _link_low(self, link) -> bool:
         lo, _ = self._p.getAABB(self.body, link, physicsClientId=self._client)
         return lo[2] < FLOOR_CLEARANCE_M
 
     def collides(self) -> bool:
-        if any(self._close(a, b) for a, b in self._link_pairs() if (a, b) not in self.ignored_pairs):
+        if self.self_collision.colliding() is not None:
             return True
         n = self._p.getNumJoints(self.body, physicsClientId=self._client)
         return any(self._link_low(link) for link in range(-1, n) if link not in self.on_floor)
@@ -334,6 +349,11 @@ ARM = (("j1", (0.05, 0.22, 0.35), (0, 0, 1), -2.9, 2.9, 3.5),
        ("j5", (0.0, 0.0, 0.08), (0, 1, 0), -2.1, 2.1, 1.0),
        ("j6", (0.0, 0.0, 0.08), (0, 0, 1), -2.9, 2.9, 0.4))
 TOOL_OFFSET_M = 0.05  # the flange to the tool frame
+# collision shapes (capsules along each link, for the simulator's collision check): each arm link's radius, the
+# tool's (its markers stand on a ring of MARKER_RING_M), the pedestal's and the torso's (a column to its head)
+LINK_RADIUS_M = (0.06, 0.055, 0.045, 0.035, 0.035, 0.03)
+TOOL_RADIUS_DUAL_M, TOOL_LENGTH_M = 0.035, 0.06
+PEDESTAL_RADIUS_M, TORSO_RADIUS_M, TORSO_TOP_M = 0.2, 0.15, 0.65
 TOOL_MASS_KG = 0.8
 TORSO_LIMIT_RAD = 2.6
 DUAL_CAMERA = {"width_px": 1920, "height_px": 1200, "fx_px": 1100.0, "fy_px": 1100.0, "cx_px": 959.5,
@@ -362,12 +382,24 @@ def dualarm_urdf(origins: dict | None = None) -> str:
             text += f'<limit lower="{limits[0]}" upper="{limits[1]}" effort="150" velocity="2"/>'
         return text + "</joint>"
 
+    def collision(radius, start, end):
+        """A capsule of `radius` from `start` to `end` (the link's frame)."""
+        start, end = np.asarray(start, float), np.asarray(end, float)
+        d = end - start
+        length = float(np.linalg.norm(d))
+        pitch, yaw = math.acos(d[2] / length), math.atan2(d[1], d[0])  # R = Rz(yaw) Ry(pitch) turns z onto d
+        centre = (start + end) / 2.0
+        return (f'<collision><origin xyz="{centre[0]:.6g} {centre[1]:.6g} {centre[2]:.6g}" rpy="0 {pitch:.9g} '
+                f'{yaw:.9g}"/><geometry><capsule radius="{radius:g}" length="{length:.6g}"/></geometry></collision>')
+
     lines = ['<?xml version="1.0"?>',
              "<!-- naocal's simulated dual-arm robot (backends/arm_sim.py dualarm_urdf; written for naocal, no "
              "third-party content): a torso turning about z, two 6-DoF arms, a tool on each -->",
              '<robot name="dualarm">',
-             f'  <link name="base_link">{inertial(40.0, (0.0, 0.0, 0.4))}</link>',
-             f'  <link name="torso">{inertial(25.0, (0.0, 0.0, 0.25))}</link>',
+             f'  <link name="base_link">{inertial(40.0, (0.0, 0.0, 0.4))}'
+             f'{collision(PEDESTAL_RADIUS_M, (0.0, 0.0, PEDESTAL_RADIUS_M), (0.0, 0.0, 0.6))}</link>',
+             f'  <link name="torso">{inertial(25.0, (0.0, 0.0, 0.25))}'
+             f'{collision(TORSO_RADIUS_M, (0.0, 0.0, 0.0), (0.0, 0.0, TORSO_TOP_M))}</link>',
              joint("torso_joint", "revolute", "base_link", "torso", (0.0, 0.0, TORSO_HEIGHT_M), axis=(0, 0, 1),
                    limits=(-TORSO_LIMIT_RAD, TORSO_LIMIT_RAD))]
     for side, s in (("left", 1.0), ("right", -1.0)):
@@ -375,12 +407,14 @@ def dualarm_urdf(origins: dict | None = None) -> str:
         for k, (name, xyz, axis, lo, hi, mass) in enumerate(ARM):
             child = f"{side}_link{k + 1}"
             following = ARM[k + 1][1] if k + 1 < len(ARM) else (0.0, 0.0, TOOL_OFFSET_M)
-            lines.append(f'  <link name="{child}">{inertial(mass, [v / 2 for v in following])}</link>')
+            lines.append(f'  <link name="{child}">{inertial(mass, [v / 2 for v in following])}'
+                         f'{collision(LINK_RADIUS_M[k], (0.0, 0.0, 0.0), following)}</link>')
             xyz = (xyz[0], s * xyz[1], xyz[2])
             rpy = (-s * (math.pi / 2.0 - SHOULDER_TILT_RAD), 0.0, 0.0) if k == 0 else (0.0, 0.0, 0.0)
             lines.append(joint(f"{side}_{name}", "revolute", parent, child, xyz, rpy, axis, (lo, hi)))
             parent = child
-        lines.append(f'  <link name="{side}_tool">{inertial(TOOL_MASS_KG, (0.0, 0.0, 0.03))}</link>')
+        lines.append(f'  <link name="{side}_tool">{inertial(TOOL_MASS_KG, (0.0, 0.0, 0.03))}'
+                     f'{collision(TOOL_RADIUS_DUAL_M, (0.0, 0.0, 0.0), (0.0, 0.0, TOOL_LENGTH_M))}</link>')
         lines.append(joint(f"{side}_tool_joint", "fixed", parent, f"{side}_tool", (0.0, 0.0, TOOL_OFFSET_M)))
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
@@ -514,6 +548,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                 for i in range(pybullet.getNumJoints(body, physicsClientId=client))]
         joint_index = {i[1].decode(): i[0] for i in info}
         link_index = {i[12].decode(): i[0] for i in info}
+        self_collision = SelfCollision(pybullet, client, body)  # in the URDF's zero stance: arms out and up
         from naocal.solver.urdf import parse_urdf
 
         urdf = parse_urdf(DUALARM_URDF)
@@ -532,7 +567,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
             return np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3), np.array(state[4])
 
         rows, pose_labels = [], []
-        tries = 0
+        tries = colliding = 0
         while len(pose_labels) < n_poses:
             tries += 1
             if tries > 400 * n_poses:
@@ -549,6 +584,9 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
             in_torso = {c: R_torso.T @ (t - t_torso) for c, (_, t) in tool_frames.items()}
             if (min(p[0] for p in in_torso.values()) < 0.3 or min(p[2] for p in in_torso.values()) < -0.6
                     or np.linalg.norm(in_torso["left"] - in_torso["right"]) < 0.25):
+                continue
+            if self_collision.colliding() is not None:  # never a stance whose arms, tools or torso touch
+                colliding += 1
                 continue
             pose = len(pose_labels)
             seen = []
@@ -590,7 +628,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                        np.array([r[5] for r in rows]), None, tuple(pose_labels), np.array([r[1] for r in rows]))
     sensors = dualarm_sensors(noise_m, noise_px)
     result = {"observations": obs, "truth": truth, "sensors": sensors,
-              "points": {n: xyz for n, (xyz, _, _) in points.items()}, "n_poses": n_poses, "x_true": x_true}
+              "points": {n: xyz for n, (xyz, _, _) in points.items()}, "n_poses": n_poses, "x_true": x_true,
+              "refused_colliding": colliding}
     if write:
         from naocal.solver.arm_dataset import write_arm_dataset
         from naocal.solver.fileio import atomic_write_text

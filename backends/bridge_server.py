@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import ctypes
 import logging
-import math
 import os
 import secrets
 import threading

@@ -1,4 +1,4 @@
-"""The arm's priors on the near-flat directions of issue 24 (tests/test_arm_priors.py's scenarios, on the panda):
+"""The arm's priors on the near-flat directions of issue 24 (backends/arm_scenarios.py, on the panda; tests/test_arm_priors.py runs them too):
 (a) a joint offset against a turn of the marker body (per-marker points, a camera, the last joint barely turning),
 (b) link lengths from poses that barely move the wrist, (c) a tracker's one reflector with a free position, the
 wrist barely moving; 8 seeds each (other errors, poses and noise).
@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from naocal.solver.arm_identify import fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
-from tests.test_arm_priors import scenario  # noqa: E402  (the scenarios' one home)
+from naocal.backends.arm_scenarios import scenario  # noqa: E402  (the scenarios' one home, shared with the tests)
 
 CASES = {"a": "joint offset vs marker-body turn (camera, points)", "b": "link lengths, wrist barely moving (tracker)",
          "c": "free reflector, wrist barely moving (tracker)"}

@@ -46,6 +46,11 @@ class ArmCalibration:
     rms: dict  # sensor -> (value, unit) of the fit
     noise: dict  # sensor -> (value, unit) the fit weighted by (absent in older files)
     created: str
+    chains: dict = None  # {chain name: (base, tip)}: the file's `chains`, else its one chain named by its tip
+
+    def __post_init__(self):
+        if self.chains is None:
+            self.chains = {self.robot["tip"]: (self.robot["base"], self.robot["tip"])}
 
     @property
     def arm_parameters(self) -> dict:
@@ -129,7 +134,29 @@ def read_arm_calibration(path) -> ArmCalibration:
     created = doc.get("created", "?")
     return ArmCalibration(str(path), robot, tuple(effects), parameters,
                           {str(k): str(v) for k, v in reasons.items()}, rms, noise,
-                          fields.text(created, path, "created", max_chars=MAX_TEXT) if created != "?" else "?")
+                          fields.text(created, path, "created", max_chars=MAX_TEXT) if created != "?" else "?",
+                          _chains(doc, robot, path))
+
+
+def _chains(doc, robot, path):
+    """The file's `chains` {name: (base, tip)} (several chains: their tips joined by '+' are robot.tip), or None:
+    one chain, robot.base to robot.tip."""
+    if "chains" not in doc:
+        if "+" in robot["tip"]:
+            fields.fail(path, "several chains (robot.tip joins their tips) but no chains section naming them: "
+                              "written by an older naocal; identify the dataset again", "chains")
+        return None
+    chains = doc["chains"]
+    if not isinstance(chains, dict) or not chains:
+        fields.fail(path, "expected {name: {base, tip}, ...}", "chains")
+    out = {}
+    for name, entry in chains.items():
+        where = f"chains.{fields.text(name, path, 'chains', max_chars=MAX_TEXT)}"
+        entry = fields.json_object(entry, path, where, required=("base", "tip"), optional=())
+        out[name] = tuple(fields.text(entry[k], path, f"{where}.{k}", max_chars=MAX_TEXT) for k in ("base", "tip"))
+    if "+".join(tip for _, tip in out.values()) != robot["tip"]:
+        fields.fail(path, f"the chains' tips are not robot.tip {robot['tip']!r}", "chains")
+    return out
 
 
 def _fit_size(value, unit, path, field) -> float:

@@ -12,7 +12,10 @@ for images.
 Nuisance parameters (`refit`, --refit sensors,points): what belongs to the new data's setup rather than to the arm,
 refitted with the calibration's arm held, e.g. where a laser tracker's reflector sits on the tool, so that a
 calibration made from cameras can be checked on a tracker's data (its frame and reflector unknown); the verdict is
-on the residual of that refit. They are never among what moved.
+on the residual of that refit. They are never among what moved. A nuisance can hide a wrong arm (a reflector moved
+by 17 mm carries a flange turned by 10 deg), so what the refit absorbed is reported against the nuisances' prior
+(the plausible size of where a reflector is glued: the points effect's prior_size): beyond it
+(`absorbed_beyond_prior`) the verdict cannot be good.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ class ArmVerdict:
     per_pose: list  # [{"pose", "rms_reference", "n"}]: each pose's RMS in units of its sensors' reference
     ratio: float  # the largest sensor ratio
     refitted: list  # the nuisance parameters refitted beside the sensors' frames: {"parameter", "value", "std", "unit"}
+    absorbed: dict | None  # what the refitted nuisances took up against their prior (`absorbed_beyond_prior`); None
     moved: list
     suspects: list
     worst_poses: list
@@ -44,7 +48,8 @@ class ArmVerdict:
 
     def as_dict(self) -> dict:
         return {"good": self.good, "verdict": self.verdict, "per_sensor": self.per_sensor, "per_pose": self.per_pose,
-                "ratio": self.ratio, "drift_ratio": DRIFT_RATIO, "refitted": self.refitted, "moved": self.moved,
+                "ratio": self.ratio, "drift_ratio": DRIFT_RATIO, "refitted": self.refitted, "absorbed": self.absorbed,
+                "moved": self.moved,
                 "suspects": self.suspects,
                 "worst_poses": self.worst_poses, "uncalibrated": self.uncalibrated, "warnings": self.warnings}
 
@@ -86,6 +91,27 @@ def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors:
     x0 = initialise_sensors(model, obs, path, {n: v for n, v in values.items() if n in model.names})
     arm = tuple(p.name for p in model.parameters if p.effect != "sensors" and p.effect not in refit_effects)
     return fit(model, obs, x0, fixed=arm + tuple(held), path=path, robust=False, priors=priors)
+
+
+def absorbed_beyond_prior(fit_, names) -> dict | None:
+    """What the refitted nuisances `names` (the free ones) of the nuisance fit `fit_` absorbed, against their prior
+    N(0, plausible size) (solver.arm_identify.prior_sizes; 0: where dataset.json puts them): {"size" (per
+    parameter, in plausible sizes), "chi2" (sum of their squares), "bound" (its 1 - FAMILY_LEVEL quantile with as
+    many degrees of freedom: what gluing errors as plausible as the prior says leave), "beyond"}; None if none is
+    refitted. Beyond the bound the nuisances carry more than the setup explains: an arm error hides in them."""
+    from scipy.stats import chi2
+
+    from naocal.solver.arm_diagnose import FAMILY_LEVEL
+    from naocal.solver.arm_identify import prior_sizes
+
+    size = prior_sizes(fit_.model)
+    index = [i for i, n in enumerate(fit_.model.names) if n in names and fit_.free[i] and size[i] > 0]
+    if not index:
+        return None
+    z = {fit_.model.names[i]: float(fit_.x[i] / size[i]) for i in index}
+    total = float(sum(v * v for v in z.values()))
+    bound = float(chi2.ppf(1.0 - FAMILY_LEVEL, len(index)))
+    return {"size": z, "chi2": total, "bound": bound, "beyond": total > bound}
 
 
 def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), start=None) -> ArmVerdict:
@@ -134,7 +160,8 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
         per_sensor[sensor.name] = {**stats, "calibration_rms": calibration_rms, "noise_floor": float(floor),
                                    "noise_source": source, "reference": float(reference[s]), "ratio": float(ratio)}
     ratio = max(v["ratio"] for v in per_sensor.values())
-    good = bool(ratio <= DRIFT_RATIO)
+    absorbed = absorbed_beyond_prior(fixed, nuisance)
+    good = bool(ratio <= DRIFT_RATIO) and not (absorbed and absorbed["beyond"])
 
     mask = model.component_mask(obs)
     scaled = (fixed.residual / reference[obs.sensor][:, None]) ** 2
@@ -170,12 +197,17 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
             warnings.append(f"sensor {name}: the calibration has no RMS of it; compared with the noise floor only")
     head = "; ".join(f"{name} RMS {_shown(v['rms'], v['unit'])} (reference {_shown(v['reference'], v['unit'])}, "
                      f"ratio {v['ratio']:.2f})" for name, v in per_sensor.items())
+    if absorbed and absorbed["beyond"]:
+        largest = max(absorbed["size"], key=lambda n: abs(absorbed["size"][n]))
+        head += (f"; but the refitted nuisances absorbed beyond their prior (chi2 {absorbed['chi2']:.1f} over a bound "
+                 f"of {absorbed['bound']:.1f}; {largest} {absorbed['size'][largest]:+.1f} plausible sizes): an arm error "
+                 "can hide there; measure where they sit (--fix NAME=VALUE) or verify on data with them known")
     verdict = verdict_text(good, head, moved, suspects, "an effect the calibration lacks, a moved tool, or bad "
                                                         "readings")
     entries = fixed.parameters_dict()
     refitted = [{"parameter": n, "value": entries[n]["value"], "std": entries[n]["std"], "unit": entries[n]["unit"],
                  "fixed": entries[n]["fixed"]} for n in nuisance if n in held or not entries[n]["fixed"]]
-    return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), refitted, moved, suspects,
+    return ArmVerdict(good, verdict, per_sensor, per_pose, float(ratio), refitted, absorbed, moved, suspects,
                       worst[:WORST_IMAGES], missing, warnings)
 
 
@@ -214,6 +246,11 @@ def format_arm_verdict(v: ArmVerdict) -> str:
             "{} {:+.3f} {}".format(e["parameter"], *shown(e["value"], e["unit"]))
             + (" (held)" if e["fixed"] else " +- {:.3f}".format(shown(e["std"], e["unit"])[0]))
             for e in v.refitted))
+    if v.absorbed:
+        lines.append(f"the refitted nuisances absorbed chi2 {v.absorbed['chi2']:.1f} of their prior (largest "
+                     f"{max(abs(z) for z in v.absorbed['size'].values()):.1f} plausible sizes; bound "
+                     f"{v.absorbed['bound']:.1f}): " + ("BEYOND what the prior allows" if v.absorbed["beyond"]
+                                                         else "within what the prior allows"))
     lines += [moved_text(e) for e in v.moved]
     lines += [f"warning: {w}" for w in v.warnings]
     lines.append(v.verdict)

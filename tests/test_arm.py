@@ -13,18 +13,8 @@ from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm
 from naocal.solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
 from naocal.solver.effects import ARM_EFFECTS, EFFECTS
 from naocal.solver.errors import DataError
+from naocal.backends.arm_scenarios import CAMERA, panda, true_errors  # noqa: F401  (the arm's tests' one home)
 from tests.cli_runner import naocal as naocal_in_process, naocal_process
-
-CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
-          "distortion": [0.02, -0.01, 0.001, -0.0005, 0.0]}
-
-
-def panda():
-    from naocal.solver.arm_dataset import arm_chain
-
-    urdf, base, tip = resolve_robot("franka_panda", None)
-    return (urdf, base, tip) + arm_chain(urdf, base, tip, urdf)
-
 
 def tool():
     from naocal.backends.arm_sim import tool_points
@@ -66,18 +56,6 @@ def synthetic(effects, truth, n_poses=50, seed=0, noise_m=1e-4, noise_px=0.2, po
     obs = obs.subset(keep)
     model.R0[:] = np.eye(3)  # identification finds the frames itself
     return model, obs, dict(zip(model.names, x)), sensors
-
-
-def true_errors(seed=1):
-    rng = np.random.default_rng(seed)
-    _, _, _, chain, names, _ = panda()
-    truth = {f"joint_offset.{j}": math.radians(rng.uniform(0.01, 0.5)) * rng.choice((-1, 1))
-             for j in chain.joint_names}
-    for k, name in enumerate(names):
-        offset = chain.T_origin[k, :3, 3] if k < len(chain.joint_names) else chain.T_end[:3, 3]
-        if np.linalg.norm(offset) > 1e-9:
-            truth[f"link_length.{name}"] = rng.uniform(1e-4, 2e-3) * rng.choice((-1, 1))
-    return truth
 
 
 # ------------------------------------------------------------------------------------------------ maths

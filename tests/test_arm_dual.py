@@ -317,18 +317,66 @@ def test_dualarm_urdf_is_what_its_generator_writes():
     assert DUALARM_URDF.read_text() == dualarm_urdf()
 
 
+# a stance main's sampler drew (seed 1, 600 poses; true angles, torso_joint, left_j1..j6, right_j1..j6) whose
+# forearms pass 9 cm through each other
+CROSSED_ARMS = (-0.426, -0.27, 2.292, -0.119, 1.757, -0.633, 0.177, 0.378, 2.02, 1.271, 0.365, -1.351, 1.794)
+
+
+def deepest_contact(true_angles) -> float:
+    """The deepest contact (m, negative: through each other) between the two arms or an arm and the torso or
+    pedestal in the dual-arm URDF's collision shapes (0.0: none), checked apart from the simulator's own check."""
+    from naocal.backends.arm_sim import DUALARM_URDF, dualarm_model
+    from naocal.body.pybullet_quiet import pybullet as p
+
+    client = p.connect(p.DIRECT)
+    try:
+        body = p.loadURDF(str(DUALARM_URDF), useFixedBase=True, physicsClientId=client)
+        info = [p.getJointInfo(body, i, physicsClientId=client) for i in range(p.getNumJoints(body, physicsClientId=client))]
+        joint = {i[1].decode(): i[0] for i in info}
+        link = {i[12].decode(): i[0] for i in info}
+        sides = {s: [link[f"{s}_link{k}"] for k in range(1, 7)] + [link[f"{s}_tool"]] for s in ("left", "right")}
+        pairs = [(a, b) for a in sides["left"] for b in sides["right"]]
+        pairs += [(a, b) for s in sides.values() for a in (-1, link["torso"]) for b in s[1:]]
+        deepest = 0.0
+        for stance in np.atleast_2d(true_angles):
+            for name, angle in zip(dualarm_model(("joint_offsets",)).joint_names, stance):
+                p.resetJointState(body, joint[name], float(angle), physicsClientId=client)
+            for a, b in pairs:
+                for point in p.getClosestPoints(body, body, 0.0, linkIndexA=a, linkIndexB=b, physicsClientId=client):
+                    deepest = min(deepest, point[8])
+        return deepest
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def test_the_dual_arm_simulator_never_draws_a_stance_whose_arms_or_torso_collide():
+    from naocal.backends.arm_sim import dualarm_model, simulate_dualarm
+
+    assert deepest_contact(CROSSED_ARMS) < -0.05  # the URDF has the arms' shapes (it had none: nothing collided)
+    sim = simulate_dualarm(None, seed=1, n_poses=60, outlier_fraction=0.0, write=False)
+    obs = sim["observations"]
+    _, first = np.unique(obs.pose, return_index=True)
+    offsets = np.array([sim["truth"][f"joint_offset.{j}"] for j in dualarm_model(("joint_offsets",)).joint_names])
+    assert deepest_contact(obs.theta[first] - offsets) == 0.0
+    assert sim["refused_colliding"] > 0  # refused, never measured
+
+
 def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(tmp_path):
     from tests.cli_runner import naocal
 
     out = tmp_path / "dual"
     run = naocal("simulate", "--robot", "dualarm", "--seed", "4", "--poses", "25", "--out", str(out))
     assert run.returncode == 0, run.stderr
-    assert "chains left, right" in run.stdout and (out / "truth.json").is_file()
+    assert "chains left, right" in run.stdout and "refused as colliding" in run.stdout
+    assert (out / "truth.json").is_file()
     cal = tmp_path / "cal.json"
     run = naocal("identify", str(out), "--effects", "joint_offsets,tool", "--json", "--out", str(cal))
     assert run.returncode == 0, run.stderr
     report = json.loads(run.stdout)
     assert "joint_offset.torso_joint" in report["parameters"] and "tool.right.rz" in report["parameters"]
+    assert json.loads(cal.read_text())["chains"]["left"] == {"base": "base_link", "tip": "left_tool"}
+    run = naocal("offsets", "export", str(cal), "--format", "urdf", "--out", str(tmp_path / "cal.urdf"))
+    assert run.returncode == 0 and "tool mounts are in the joint origins" in (tmp_path / "cal.urdf").read_text()
     # the calibration file holds the tool's mount: read back by offsets and verify (the tracker's nuisances refitted)
     run = naocal("offsets", "validate", str(cal))
     assert run.returncode == 0, run.stderr
@@ -350,3 +398,100 @@ def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):
     assert groups["joint left_j2"][2] == "link_pose.left_link1.rx"
     d = diagnose(fit, n_folds=0)
     assert {c.label for c in d.candidates} >= {"tool", "points"}
+
+
+# ------------------------------------------------------------------------------------------------ the URDF export
+
+
+def _exported_calibration(tmp_path, values, units, chains, urdf, effects):
+    """A naocal.arm_calibration/1 of these values (SI) exported to a URDF by `naocal offsets export`; its path."""
+    from naocal.solver.arm_calibration import SCHEMA
+    from tests.cli_runner import naocal
+
+    doc = {"schema": SCHEMA, "created": "2026-11-27T20:00:00Z",
+           "robot": {"urdf": str(urdf), "base": next(iter(chains.values()))[0],
+                     "tip": "+".join(tip for _, tip in chains.values()), "id": "test"},
+           "model": {"effects": list(effects), "parameters": {
+               n: {"value": v, "std": 0.0, "unit": units[n], "fixed": False} for n, v in values.items()}}}
+    if len(chains) > 1:
+        doc["chains"] = {name: {"base": base, "tip": tip} for name, (base, tip) in chains.items()}
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    run = naocal("offsets", "export", tmp_path / "cal.json", "--format", "urdf", "--out", tmp_path / "cal.urdf")
+    assert run.returncode == 0, run.stderr
+    return tmp_path / "cal.urdf"
+
+
+@pytest.mark.parametrize("robot", ["dualarm", "panda"])
+def test_the_exported_urdf_of_several_chains_and_their_tools_predicts_as_the_calibration(tmp_path, robot):
+    """Joint offsets (the torso's shared by both arms), link lengths, link poses and each tool's mount written into
+    one URDF: read again (naocal's URDF reader, every correction 0 but the markers', which a URDF cannot hold), it
+    puts every marker of both chains where the calibrated model does, to 1e-9 m."""
+    from naocal.backends.arm_sim import DUALARM_CHAINS, DUALARM_URDF, dualarm_points
+    from naocal.solver.arm_dataset import arm_chains
+    from tests.test_arm import panda
+
+    if robot == "dualarm":
+        urdf, chains = DUALARM_URDF, DUALARM_CHAINS
+        points = {n: xyz for n, (xyz, _, _) in dualarm_points().items()}
+        on_chain = {n: list(chains).index(chain) for n, (_, _, chain) in dualarm_points().items()}
+    else:
+        urdf, base, tip, *_ = panda()
+        chains = {tip: (base, tip)}
+        points = {"o": (0.0, 0.0, 0.0), "x": (0.1, 0.0, 0.0), "y": (0.0, 0.1, 0.05)}
+        on_chain = dict.fromkeys(points, 0)
+    effects = ("joint_offsets", "link_lengths", "link_poses", "tool", "points")
+    model = ArmModel(arm_chains(urdf, chains), points, [], effects)
+    rng = np.random.default_rng(3)
+    values = {p.name: float(rng.normal(0.0, 3e-3 if p.unit == "m" else 0.01)) for p in model.parameters}
+    exported = _exported_calibration(tmp_path, values, {p.name: p.unit for p in model.parameters}, chains, urdf,
+                                     effects)
+    again = ArmModel(arm_chains(exported, chains), points, [], ("points",))
+    assert again.joint_names == model.joint_names
+    names = list(points)
+    rows = [(pose, names.index(n)) for pose in range(6) for n in names]
+    theta = rng.uniform(-1.0, 1.0, (6, len(model.joint_names)))
+    obs = Observations(theta[[r[0] for r in rows]], np.array([r[0] for r in rows]), np.zeros(len(rows), int),
+                       np.array([r[1] for r in rows]), np.zeros((len(rows), 3)),
+                       chain=np.array([on_chain[names[r[1]]] for r in rows]))
+    expected = model.base_points(np.array([values[n] for n in model.names]), obs)
+    found = again.base_points(np.array([values[n] for n in again.names]), obs)
+    assert np.abs(found - expected).max() < 1e-9
+    nominal = again.base_points(np.zeros(len(again.names)), obs)  # the test can fail: the corrections matter
+    assert np.abs(nominal - expected).max() > 1e-3
+
+
+def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
+    """The KUKA iiwa's flange link is the last joint's child: no fixed joint can carry the tool's pose."""
+    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.solver.arm_dataset import resolve_robot as resolve
+    from tests.cli_runner import naocal
+
+    urdf, base, tip = resolve("kuka_iiwa", None)
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(urdf), "base": base, "tip": tip},
+           "model": {"effects": ["tool"], "parameters": {
+               f"tool.{tip}.{q}": {"value": 1e-3, "std": 0.0, "unit": "m" if len(q) == 1 else "rad", "fixed": False}
+               for q in ("x", "y", "z", "rx", "ry", "rz")}}}
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    run = naocal("offsets", "export", tmp_path / "cal.json", "--format", "urdf", "--out", tmp_path / "cal.urdf")
+    assert run.returncode != 0 and f"tool.{tip}.x" in run.stderr and run.stderr.count("\n") == 1
+    assert not (tmp_path / "cal.urdf").exists()
+
+
+@pytest.mark.parametrize("chains, problem", [
+    (None, "no chains section naming them"),
+    ({"left": {"base": "base_link", "tip": "right_tool"}, "right": {"base": "base_link", "tip": "left_tool"}},
+     "the chains' tips are not robot.tip"),
+    ({"left": {"base": "base_link"}}, "expected {base, tip}")])
+def test_a_calibration_of_several_chains_names_them_or_is_refused(tmp_path, chains, problem):
+    from naocal.backends.arm_sim import DUALARM_URDF
+    from naocal.solver.arm_calibration import SCHEMA
+    from tests.cli_runner import naocal
+
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},
+           "model": {"effects": ["joint_offsets"], "parameters": {
+               "joint_offset.torso_joint": {"value": 0.001, "std": 0.0, "unit": "rad", "fixed": False}}}}
+    if chains is not None:
+        doc["chains"] = chains
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    run = naocal("offsets", "validate", tmp_path / "cal.json")
+    assert run.returncode == 2 and problem in run.stderr and "chains" in run.stderr and run.stderr.count("\n") == 1

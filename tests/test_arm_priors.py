@@ -73,71 +73,10 @@ def test_a_robust_loss_bends_the_data_but_never_the_prior(loss):
 # ------------------------------------------------------------------------------------------------ the arm
 
 
-from naocal.solver.arm import ArmModel, Observations, Sensor  # noqa: E402
 from naocal.solver.effects import EFFECTS  # noqa: E402
 from naocal.solver.arm_identify import RUNOFF_FACTOR, fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
-from tests.test_arm import CAMERA, panda, tool, true_errors  # noqa: E402
+from naocal.backends.arm_scenarios import CAMERA, panda, scenario, true_errors  # noqa: E402,F401
 
-FRAMES = {("tracker", "rotation"): (0.4, -0.3, 1.2), ("tracker", "translation"): (1.5, -2.0, 0.3),
-          ("camera", "rotation"): (0.01, 0.02, -0.01), ("camera", "translation"): (2.5, 0.1, -0.4)}
-LOW = np.array([-2.5, -1.5, -2.5, -2.8, -2.5, 0.3, -2.5])  # the panda's stances (tests/test_arm.py's)
-HIGH = np.array([2.5, 1.5, 2.5, -0.4, 2.5, 3.4, 2.5])
-
-
-def narrow(sensor, points, effects, truth, *, still, width, n_poses=40, seed=0, noise=True):
-    """(model with `effects`, observations) of the panda seen by one sensor ('tracker' or 'camera') at `points` of
-    its tool, the joints `still` (0-based) within +-`width` rad of their mid-range in every pose (what makes a
-    direction nearly flat), the rest anywhere; measured at `truth` (joint offsets, link lengths, points), with the
-    sensor's noise unless `noise` is off (the same poses)."""
-    _, _, _, chain, names, load = panda()
-    rng = np.random.default_rng(seed)
-    s = Sensor("tracker", "points", noise=1e-4) if sensor == "tracker" else Sensor("camera", "camera", dict(CAMERA),
-                                                                                   0.2)
-    pts = {p: tool()[p] for p in points}
-    theta = rng.uniform(LOW, HIGH, (n_poses, 7))
-    theta[:, still] = (LOW + HIGH)[still] / 2 + rng.uniform(-width, width, (n_poses, len(still)))
-    pose = np.repeat(np.arange(n_poses), len(pts))
-    obs = Observations(theta[pose], pose, np.zeros(len(pose), int), np.tile(np.arange(len(pts)), n_poses),
-                       np.zeros((len(pose), 3)))
-    truth_model = ArmModel(chain, pts, [s], ("joint_offsets", "link_lengths", "points"), load=load, link_names=names)
-    x = np.array([FRAMES[(sensor, n.split(".")[2])]["xyz".index(n[-1])] if n.startswith("sensor.")
-                  else truth.get(n, 0.0) for n in truth_model.names])
-    if sensor == "camera":
-        truth_model.R0[0] = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])  # looks back at the arm
-    pred = truth_model.predict(x, obs)
-    noise = s.noise * rng.normal(size=pred.shape) * noise
-    if sensor == "camera":
-        noise[:, 2] = 0.0
-        obs.measured = pred + noise
-        obs = obs.subset((pred[:, 0] > 0) & (pred[:, 0] < 1280) & (pred[:, 1] > 0) & (pred[:, 1] < 1024))
-    else:
-        obs.measured = pred + noise
-    return ArmModel(chain, pts, [s], effects, load=load, link_names=names), obs
-
-
-def scenario(case, seed=0, noise=True):
-    """The near-flat directions of issue 24, on the panda: (a) a joint's offset against a turn of the marker body
-    (per-marker points, a camera) when the joint after it barely turns; (b) link lengths from poses that barely
-    move the wrist (a self-touch-like narrow set); (c) a tracker's one reflector with a free position, the wrist
-    barely moving. Returns (model, observations, truth, the parameters the flat direction is mostly made of); `seed`
-    draws other errors and poses (benchmarks/bench_arm_priors.py)."""
-    rng = np.random.default_rng(5 + seed)
-    errors = true_errors(1 + seed)
-    truth = {k: v for k, v in errors.items() if k.startswith("joint_offset.")}
-    if case == "a":
-        markers = ("m1", "m2", "m3", "m4")
-        truth.update({f"point.{m}.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for m in markers for a in "xyz"})
-        model, obs = narrow("camera", markers, ("joint_offsets", "points"), truth, still=[6], width=0.003, seed=seed, noise=noise)
-        return model, obs, truth, ("joint_offset.panda_joint7",)
-    truth.update({k: v for k, v in errors.items() if k.startswith("link_length.")})
-    if case == "b":
-        model, obs = narrow("tracker", ("t1", "t2", "t3"), ("joint_offsets", "link_lengths"), truth, still=[4, 5, 6],
-                            width=0.001, seed=seed, noise=noise)
-        return model, obs, truth, ("link_length.panda_link4", "link_length.panda_link6")  # +-0.64 each
-    truth.update({f"point.t1.{a}": rng.uniform(1e-3, 2e-3) * rng.choice((-1, 1)) for a in "xyz"})
-    model, obs = narrow("tracker", ("t1",), ("joint_offsets", "link_lengths", "points"), truth, still=[4, 5, 6],
-                        width=0.003, seed=seed, noise=noise)
-    return model, obs, truth, ("joint_offset.panda_joint6",)
 
 
 @pytest.mark.parametrize("case", ["a", "b", "c"])
@@ -269,13 +208,8 @@ def one_sensor_dataset(directory, model, obs, sensors, name, noise_px=0.2):
     return directory
 
 
-def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_reflectors_are_unknown(tmp_path):
-    """Calibrated from a camera alone; the tracker's data (another session: other poses, its frame unknown, its
-    reflectors 1-2 mm off where dataset.json puts them) judged with the arm held: with the reflectors refitted
-    (--refit sensors,points) the calibration is still good at the tracker's noise; without, the misplaced reflectors
-    look like drift; and the URDF (no calibration) is drifted even with the reflectors refitted."""
-    import json
-
+def camera_calibration_and_tracker(tmp_path):
+    """(calibration file from a camera alone, another session's tracker dataset, its reflectors' true positions)."""
     from tests.cli_runner import naocal
     from tests.test_arm import synthetic
 
@@ -291,11 +225,24 @@ def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_refle
     tracker = one_sensor_dataset(tmp_path / "tracker", model, obs, sensors, "tracker")
     cal = tmp_path / "from_cameras.json"
     assert naocal("identify", cameras, "--out", cal).returncode == 0
+    return cal, tracker, reflectors
 
+
+def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_reflectors_are_unknown(tmp_path):
+    """Calibrated from a camera alone; the tracker's data (another session: other poses, its frame unknown, its
+    reflectors 1-2 mm off where dataset.json puts them) judged with the arm held: with the reflectors refitted
+    (--refit sensors,points) the calibration is still good at the tracker's noise; without, the misplaced reflectors
+    look like drift; and the URDF (no calibration) is drifted even with the reflectors refitted."""
+    import json
+
+    from tests.cli_runner import naocal
+
+    cal, tracker, reflectors = camera_calibration_and_tracker(tmp_path)
     refitted = naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,points", "--json")
     assert refitted.returncode == 0, refitted.stdout + refitted.stderr
     verdict = json.loads(refitted.stdout)
     assert verdict["good"] and verdict["per_sensor"]["tracker"]["ratio"] < 1.3
+    assert verdict["absorbed"]["chi2"] < verdict["absorbed"]["bound"] and not verdict["absorbed"]["beyond"]
     found = {e["parameter"]: e["value"] for e in verdict["refitted"]}
     for name, value in reflectors.items():  # where the reflectors really are, from the tracker with the arm held
         assert abs(found[name] - value) < 3e-4, name
@@ -315,6 +262,30 @@ def test_a_camera_made_calibration_is_checked_on_a_tracker_whose_frame_and_refle
     urdf_only.write_text(json.dumps(nominal))
     refuted = naocal("verify", tracker, "--offsets", urdf_only, "--refit", "sensors,points", "--json")
     assert refuted.returncode == 1 and json.loads(refuted.stdout)["per_sensor"]["tracker"]["ratio"] > 3
+
+
+def test_verify_refit_points_cannot_hide_a_wrong_calibration_in_the_reflectors(tmp_path):
+    """The flange's offset 10 deg wrong: the three reflectors 0.1 m around its axis turn by 17 mm, all in the tool's
+    frame, which refitting where they sit absorbs whole: the tracker's residual stays at its noise and verify said
+    "still good". What the refit absorbed is now judged against the reflectors' prior (3 mm): beyond it, drifted."""
+    import json
+    import math
+
+    from tests.cli_runner import naocal
+
+    cal, tracker, _ = camera_calibration_and_tracker(tmp_path)
+    wrong = json.loads(cal.read_text())
+    wrong["model"]["parameters"]["joint_offset.panda_joint7"]["value"] += math.radians(10.0)
+    wrong["joint_offsets_rad"]["panda_joint7"] += math.radians(10.0)
+    wrong_path = tmp_path / "wrong.json"
+    wrong_path.write_text(json.dumps(wrong))
+    run = naocal("verify", tracker, "--offsets", wrong_path, "--refit", "sensors,points", "--json")
+    verdict = json.loads(run.stdout)
+    assert verdict["per_sensor"]["tracker"]["ratio"] < 1.3  # the residual alone is fooled
+    assert run.returncode == 1 and not verdict["good"] and verdict["absorbed"]["beyond"]
+    assert verdict["absorbed"]["chi2"] > 3 * verdict["absorbed"]["bound"]
+    text = naocal("verify", tracker, "--offsets", wrong_path, "--refit", "sensors,points").stdout
+    assert "BEYOND what the prior allows" in text and "an arm error can hide there" in text.splitlines()[-1]
 
 
 @pytest.mark.parametrize("option, problem", [

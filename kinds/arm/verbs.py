@@ -260,6 +260,8 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
            "robot": dict(report["robot"], urdf=str(Path(dataset.urdf_path).resolve()),
                          id=str(dataset.meta.get("robot", {}).get("id", "unknown"))),
            **sections,
+           **({"chains": {ac.name: {"base": ac.chain.base, "tip": ac.chain.tip} for ac in dataset.chain}}
+              if isinstance(dataset.chain, tuple) else {}),  # several chains: the names tool.<chain> uses
            "model": {"effects": report["effects"], "parameters": params, "fixed": report["fixed"],
                      "priors": report["priors"], "held_by_prior": report["held_by_prior"]},
            "fit": {"rms": report["rms"], "noise": report["noise"], "heldout": report["heldout"],
@@ -426,6 +428,7 @@ def run_simulate_dualarm(args, out) -> int:
         info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
                                 noise_px=args.noise_px)
     print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
-          f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); hidden "
-          f"truth in {out / 'truth.json'}", file=sys.stdout)
+          f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); "
+          f"{info['refused_colliding']} drawn stances refused as colliding (arms, tools, torso); hidden truth in "
+          f"{out / 'truth.json'}", file=sys.stdout)
     return 0
