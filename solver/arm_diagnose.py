@@ -34,10 +34,10 @@ from naocal.solver.arm import ArmModel
 from naocal.solver.arm_identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
                                        whitened)
 from naocal.solver.effects import ARM_EFFECTS
+from naocal.solver.diagnostics import FAMILY_ALPHA
 from naocal.solver.identify import UNIDENTIFIABLE_RATIO
 from naocal.solver.scoretest import score_test
 
-FAMILY_LEVEL = 0.001
 RANK_TOLERANCE = 1e-6
 # A held-out RMS more than this share above the model's without the candidate is worse: the candidate fits the
 # pixels only. Set from benchmarks/bench_arm_physical.py (simulated dual arm, seeds 1-4, docs/ARM.md): effects the
@@ -368,7 +368,7 @@ def diagnose(fit: ArmFit, n_folds: int = 5, *, physical: bool = True, sessions: 
     (`physical_checks`; sessions: how many blocks of consecutive poses, 0: none)."""
     model, obs = fit.model, fit.obs
     candidates = score_tests(fit, candidate_groups(fit))
-    threshold = FAMILY_LEVEL / max(1, sum(1 for c in candidates if c.k > 0))
+    threshold = FAMILY_ALPHA / max(1, sum(1 for c in candidates if c.k > 0))
     for c in candidates:
         c.significant = c.k > 0 and c.p_value < threshold
     # Ranked by what they explain less (1 + log M) times what they would take from the errors alone (BIC, with
@@ -439,7 +439,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
     for t in d.location[:6]:
         lines.append(f"  {t.label:32s} dRSS {t.drss:10.1f} on {t.k} dof  p {t.p_value:.1e}")
     lines += ["", f"NAMES (candidate effects, best first; significant: p < {d.threshold:.1e}, i.e. "
-                  f"{FAMILY_LEVEL} over {sum(1 for c in d.candidates if c.k > 0)} tests)"]
+                  f"{FAMILY_ALPHA} over {sum(1 for c in d.candidates if c.k > 0)} tests)"]
     for c in d.candidates:
         predicted = ", ".join(f"{s} {shown_rms(v, kinds[s])}" for s, v in c.predicted_rms.items())
         top = sorted(c.values.items(), key=lambda kv: -abs(kv[1]))[:3]

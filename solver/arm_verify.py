@@ -96,12 +96,12 @@ def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors:
 def absorbed_beyond_prior(fit_, names) -> dict | None:
     """What the refitted nuisances `names` (the free ones) of the nuisance fit `fit_` absorbed, against their prior
     N(0, plausible size) (solver.arm_identify.prior_sizes; 0: where dataset.json puts them): {"size" (per
-    parameter, in plausible sizes), "chi2" (sum of their squares), "bound" (its 1 - FAMILY_LEVEL quantile with as
+    parameter, in plausible sizes), "chi2" (sum of their squares), "bound" (its 1 - FAMILY_ALPHA quantile with as
     many degrees of freedom: what gluing errors as plausible as the prior says leave), "beyond"}; None if none is
     refitted. Beyond the bound the nuisances carry more than the setup explains: an arm error hides in them."""
     from scipy.stats import chi2
 
-    from naocal.solver.arm_diagnose import FAMILY_LEVEL
+    from naocal.solver.diagnostics import FAMILY_ALPHA
     from naocal.solver.arm_identify import prior_sizes
 
     size = prior_sizes(fit_.model)
@@ -110,7 +110,7 @@ def absorbed_beyond_prior(fit_, names) -> dict | None:
         return None
     z = {fit_.model.names[i]: float(fit_.x[i] / size[i]) for i in index}
     total = float(sum(v * v for v in z.values()))
-    bound = float(chi2.ppf(1.0 - FAMILY_LEVEL, len(index)))
+    bound = float(chi2.ppf(1.0 - FAMILY_ALPHA, len(index)))
     return {"size": z, "chi2": total, "bound": bound, "beyond": total > bound}
 
 

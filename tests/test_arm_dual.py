@@ -481,7 +481,7 @@ def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
     (None, "no chains section naming them"),
     ({"left": {"base": "base_link", "tip": "right_tool"}, "right": {"base": "base_link", "tip": "left_tool"}},
      "the chains' tips are not robot.tip"),
-    ({"left": {"base": "base_link"}}, "expected {base, tip}")])
+    ({"left": {"base": "base_link"}}, "missing required field")])
 def test_a_calibration_of_several_chains_names_them_or_is_refused(tmp_path, chains, problem):
     from naocal.backends.arm_sim import DUALARM_URDF
     from naocal.solver.arm_calibration import SCHEMA
