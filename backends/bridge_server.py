@@ -38,7 +38,7 @@ from naocal.backends.bridge_endpoint import (check_bind_address, check_bound_end
 from naocal.backends.bridge_guard import HANDSHAKE_TIMEOUT_S, ConnectionGuard
 from naocal.backends.bridge_keys import is_curve_key, load_client_keys, load_key_file, warn_if_others_can_read
 from naocal.backends.bridge_lease import TOKEN_BYTES, LeaseJournal, MotionLease, digest
-from naocal.backends.protocol import MOTION_COMMANDS, ControlError, ProtocolError
+from naocal.backends.protocol import ControlError, ProtocolError, is_motion_command
 from naocal.backends.errors import BridgeError, RobotFault, RobotTimeout
 from naocal.solver.errors import NaocalError, SafetyError
 from naocal.solver.fileio import atomic_write_bytes
@@ -285,7 +285,7 @@ class BridgeServer:
         if self._guard is not None:
             self._guard.note_request(source_fd, controller=controller)
 
-        if cmd in MOTION_COMMANDS:
+        if is_motion_command(cmd):
             reply = self._motion(request_id, client, seq, cmd, args, lease if controller else None)
             if reply is None:
                 return  # answered from the lease's replies

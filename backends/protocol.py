@@ -11,7 +11,7 @@ Motion needs the lease: `acquire` answers the controller alone with a secret tok
 carries (backends/bridge_lease.py).
 
 One protocol for every robot kind: the session commands (hello, acquire, release) and each kind's own (COMMANDS,
-the NAO's; DUCKIEBOT_COMMANDS). A server serves one robot and answers only its kind's commands (UnknownCommand for
+the NAO's, and each other kind's, registered by the kind: register_kind_commands). A server serves one robot and answers only its kind's commands (UnknownCommand for
 the others). `v` versions the framing; PROTOCOL_REVISION counts the commands added since (hello says it, and the
 server's kind): adding a kind's commands changes no request or reply an older client sends or reads.
 """
@@ -30,7 +30,7 @@ from naocal.backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
 # Commands and hello keys added since version 1, compatibly: 1 = the NAO's commands; 2 = hello's `kind` and
-# `revision`, the Duckiebot's commands (DUCKIEBOT_COMMANDS). hello without `revision` is a revision-1 server.
+# `revision`, the Duckiebot's commands (kinds/duckiebot/bridge.py). hello without `revision` is a revision-1 server.
 PROTOCOL_REVISION = 2
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply
 ZMQ_MAX_INBOUND_BYTES = 4 << 20  # ZMQ_MAXMSGSIZE of the server socket: libzmq drops the peer beyond this
@@ -73,7 +73,7 @@ class ControlError(BridgeError):
 
 
 # ---------------------------------------------------------------------------------------------- arguments
-def _finite_or_nan_float(value, key):
+def finite_or_nan_float(value, key):
     # Non-finite numbers are passed through so the backend refuses them with a SafetyError, like a direct call.
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ProtocolError(f"args.{key} must be a number, got {type(value).__name__}")
@@ -87,7 +87,7 @@ def _float_map(value, key):
     for name, number in value.items():
         if not isinstance(name, str):
             raise ProtocolError(f"args.{key} keys must be strings")
-        out[name] = _finite_or_nan_float(number, f"{key}.{name}")
+        out[name] = finite_or_nan_float(number, f"{key}.{name}")
     return out
 
 
@@ -112,7 +112,7 @@ def _camera_name(value, key):
     return value
 
 
-def _time_s(value, key):
+def time_s(value, key):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ProtocolError(f"args.{key} must be a finite number of seconds, got {value!r}"[:200])
     return float(value)
@@ -134,26 +134,33 @@ COMMANDS = {
     "capture": ({"camera": _camera_name}, False),
     "now": ({}, False),
     "status": ({}, False),
-    "command": ({"targets_rad": _float_map, "speed_fraction": _finite_or_nan_float}, True),
-    "set_stiffness": ({"names": _str_list, "stiffness": _finite_or_nan_float}, True),
-    "sleep": ({"duration_s": _finite_or_nan_float}, True),
+    "command": ({"targets_rad": _float_map, "speed_fraction": finite_or_nan_float}, True),
+    "set_stiffness": ({"names": _str_list, "stiffness": finite_or_nan_float}, True),
+    "sleep": ({"duration_s": finite_or_nan_float}, True),
     "acquire": ({"nonce": _secret}, False),  # -> {"token", "lease_timeout_s"}; ControlError if another holds it
     "release": ({}, False),
 }
-# The Duckiebot's commands (revision 2; docs/PROTOCOL.md). Duties are fractions of full power in [-1, 1]; passed
-# through unclipped (NaN too) so that the server's one check (kinds.duckiebot.kinematics.duty_problem) refuses
-# them with a SafetyError. `grab` steps a simulated robot's clock (the wheels in force move it): it needs the lease.
-DUCKIEBOT_COMMANDS = {
-    **{cmd: COMMANDS[cmd] for cmd in ("hello", "robot_identity", "now", "sleep", "acquire", "release")},
-    "facts": ({}, False),  # -> robot id and model, camera size, wheels (radius, baseline, encoders), duty limit
-    "encoder_ticks": ({"from_s": _time_s, "to_s": _time_s}, False),  # -> {ticks_per_revolution, rows [[t, l, r]]}
-    "wheels": ({"left_duty": _finite_or_nan_float, "right_duty": _finite_or_nan_float}, True),  # -> {t_s}
-    "stop": ({}, True),  # both duties 0 -> {t_s}; never refused for a fault (the unwinding must not fail)
-    "grab": ({}, True),  # -> {image (bin), format png|jpeg, t_exposure_s (mid-exposure), width_px, height_px}
-}
-KIND_COMMANDS = {"nao": COMMANDS, "duckiebot": DUCKIEBOT_COMMANDS}
-MOTION_COMMANDS = frozenset(cmd for table in KIND_COMMANDS.values() for cmd, (_, motion) in table.items()
-                            if motion)
+# Each robot kind's commands: kind -> {cmd: (argument validators, needs the lease)}. The NAO's are the protocol's
+# first; another kind registers its own table (register_kind_commands) where its served robot and client are
+# defined (kinds/<kind>/bridge.py), so the protocol names no other robot.
+KIND_COMMANDS = {"nao": COMMANDS}
+SESSION_COMMANDS = ("hello", "robot_identity", "now", "sleep", "acquire", "release")  # every kind's
+
+
+def register_kind_commands(kind: str, commands: dict) -> dict:
+    """Add robot `kind`'s command table (cmd -> (validators, needs the lease)) with the session commands; returns
+    it. Registering one kind twice with another table is a programming error."""
+    table = {**{cmd: COMMANDS[cmd] for cmd in SESSION_COMMANDS}, **commands}
+    if KIND_COMMANDS.setdefault(kind, table) != table:
+        raise ValueError(f"robot kind {kind!r} registered two command tables")
+    return table
+
+
+def is_motion_command(cmd: str) -> bool:
+    """Whether `cmd` needs the lease in any registered kind's table (a motion: it moves the robot or its clock)."""
+    return any(cmd in table and table[cmd][1] for table in KIND_COMMANDS.values())
+
+
 # Motion commands whose replies the lease journal does not keep on disk: repeating one after a restart of the
 # server moves nothing unasked (a sleep waits, a grab takes a new frame), and a frame is too big to fsync each time.
 NOT_JOURNALED = frozenset({"sleep", "grab"})

@@ -4,7 +4,7 @@ security model with the NAO's: this module only adds the kind's two ends.
 
 - `ServedDuckiebot`: the server's end. Wraps a driver with the mission's robot interface (now, command, advance,
   grab; kinds.duckiebot.ros_driver.RosDuckiebot on a DB21, kinds.duckiebot.mock.DuckiebotMock for tests and
-  teaching) and answers protocol.DUCKIEBOT_COMMANDS.
+  teaching) and answers its COMMANDS (registered with the protocol).
 - `DuckiebotBridge`: the client's end, the mission's robot interface over the bridge (`naocal calibrate --robot
   duckiebot --backend bridge --endpoint URL`).
 
@@ -36,7 +36,8 @@ import numpy as np
 from naocal.backends.bridge import BridgeClient
 from naocal.backends.bridge_server import ServedRobot, check_sleep
 from naocal.backends.errors import BridgeError, RobotFault
-from naocal.backends.protocol import MOTION_COMMANDS, ProtocolError
+from naocal.backends.protocol import (ProtocolError, finite_or_nan_float, is_motion_command, register_kind_commands,
+                                     time_s)
 from naocal.kinds.duckiebot.drive_log import MAX_TICKS, write_encoders
 from naocal.kinds.duckiebot.kinematics import duty_problem
 from naocal.kinds.duckiebot.robot import DEFAULT_LIMIT, MODELS, duckiebot, robot_name_problem
@@ -48,6 +49,18 @@ DEFAULT_WATCHDOG_S = 1.0  # as the ROS driver's: the mission never leaves the wh
 MAX_ENCODER_ROWS = 200_000  # per encoder_ticks reply (about 4 MB): 30 Hz for 1.8 h
 IMAGE_FORMATS = {"png": ".png", "jpeg": ".jpg"}
 PNG_COMPRESSION = 1  # fastest: a 640 x 480 grey frame in about 5 ms, lossless (the mission sees what the robot saw)
+
+# The Duckiebot's commands (protocol revision 2; docs/PROTOCOL.md), beside the session commands every kind has.
+# Duties are fractions of full power in [-1, 1]; passed through unclipped (NaN too) so that the server's one check
+# (kinematics.duty_problem) refuses them with a SafetyError. `grab` steps a simulated robot's clock (the wheels in
+# force move it): it needs the lease.
+COMMANDS = register_kind_commands("duckiebot", {
+    "facts": ({}, False),  # -> robot id and model, camera size, wheels (radius, baseline, encoders), duty limit
+    "encoder_ticks": ({"from_s": time_s, "to_s": time_s}, False),  # -> {ticks_per_revolution, rows [[t, l, r]]}
+    "wheels": ({"left_duty": finite_or_nan_float, "right_duty": finite_or_nan_float}, True),  # -> {t_s}
+    "stop": ({}, True),  # both duties 0 -> {t_s}; never refused for a fault (the unwinding must not fail)
+    "grab": ({}, True),  # -> {image (bin), format png|jpeg, t_exposure_s (mid-exposure), width_px, height_px}
+})
 
 
 def _finite_time(value, what: str) -> float:
@@ -124,7 +137,7 @@ class ServedDuckiebot(ServedRobot):
             try:
                 return self._run(cmd, args)
             finally:
-                if cmd in MOTION_COMMANDS:  # the controller's requests only keep the wheels turning
+                if is_motion_command(cmd):  # the controller's requests only keep the wheels turning
                     self._last_motion = time.monotonic()
 
     def control_granted(self) -> None:
@@ -211,7 +224,7 @@ class ServedDuckiebot(ServedRobot):
             return self._grab()
         if cmd == "encoder_ticks":
             return self._encoder_ticks(args["from_s"], args["to_s"])
-        raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # DUCKIEBOT_COMMANDS and this disagree
+        raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this disagree
 
     def _wheels(self, left: float, right: float) -> float:
         for name, duty in (("left", left), ("right", right)):
