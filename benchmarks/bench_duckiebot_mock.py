@@ -10,7 +10,7 @@ Measured under each result, on the hidden robot:
 - speed: its mean speed over the last 1.5 m against 0.3 m/s;
 - trim error: |trim / gain - true trim / true gain| x true gain (in the log's k);
 - intrinsics: kinds.duckiebot.intrinsics.camera_difference_px of the chosen lens against the true camera, over the
-  whole image;
+  whole image, beside its std from the fit (LensFit.whole_image_std_px);
 - homography: bench_duckiebot.homography_error_m (floor 0.15-0.6 m ahead, |y| <= 0.15 m);
 - robot time: the mock's clock at the end of the identification (calibration) and at the end of the mission;
 - z: the largest |error / std| over gain, trim, baseline and the camera's six pose parameters.
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
         print(f"| {seed} | naocal mission ({cal.lens.camera.model}, {len(fit.sightings.frame)} corners) | "
               f"{result.final} | {trim_error:.4f} (std {fit.stdev('trim'):.4f}) | {dev * 100:.1f} cm "
               f"({floor_dev * 100:.1f} cm) | {exact_dev * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.2f} % | "
-              f"{intrinsics_px:.2f} px | {h_error * 1000:.1f} mm | {robot_cal_s:.0f} s / {robot.now():.0f} s | "
+              f"{intrinsics_px:.2f} px (std {cal.lens.whole_image_std_px:.2f}) | {h_error * 1000:.1f} mm | {robot_cal_s:.0f} s / {robot.now():.0f} s | "
               f"{z[worst]:.1f} ({worst}) | {cpu:.0f} / {wall:.0f} |")
         cpu0 = time.process_time()
         lens = cal.lens_fits["plumb_bob"].camera
