@@ -10,7 +10,8 @@ its detection's errors). OpenCV's calibrateCamera / fisheye.calibrate only give 
 
 Why k3 is not fitted in plumb_bob: the set-up's boards stand at the camera's height while the camera looks 19 deg
 down, so every board view lies in the image's upper 40 % (rendered logs, seeds 1-5: v < 192 px); a fifth radial
-term then bends the lower corners freely (seed 5: 0.53 px off over the whole image with k3, 0.18 without).
+term then bends the lower corners freely (seed 5: 0.53 px off over the whole image with k3, 0.18 without). The
+lower half is seen through the floor markers (FloorMarkers: fitted with the boards when given).
 
 A low training reprojection error proves nothing (the reference: 0.07-0.09 px while the camera is 5-12 px wrong over
 the whole image), so each model is judged on views it was not fitted to: views are split into groups, each group
