@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,8 +21,8 @@ from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 from naocal.kinds.duckiebot.intrinsics import LensCamera
 from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
-                                            MissionContext, MissionSettings, Session, drive_watching, log_meta,
-                                            run_mission)
+                                            MissionContext, MissionSettings, Session, Validation, drive_watching,
+                                            log_meta, run_mission)
 from naocal.kinds.duckiebot.mock import DuckiebotMock
 from naocal.solver.errors import NaocalError, SafetyError
 
@@ -224,6 +225,29 @@ def test_no_marker_in_view_stops_within_the_bound(tmp_path):
         robot.close()
 
 
+def test_a_validation_curving_off_the_line_stops_and_is_measured_not_failed(tmp_path):
+    """A compensation that curves the robot off the marker line (the PWM floor alone may, 20-34 cm over 2 m on the
+    realistic mock): the drive stops where the markers leave the view (never farther than max_blind_m and a check
+    beyond them) and the validation reports the drift measured at the last frame that saw them, with the bound the
+    PWM floor allows, instead of failing."""
+    robot = short_mock(realism="realistic", start_pose=(0.0, 0.0, math.pi))  # facing along the marker line
+    try:
+        settings = MissionSettings(max_blind_m=0.3, check_every_m=0.1)
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), settings, 0.0)
+        lens = SimpleNamespace(camera=LensCamera.from_intrinsics(robot.truth.camera))
+        true = robot.truth.kinematics_at(settings.speed_mps)
+        calibration = SimpleNamespace(kinematics=replace(true, trim=true.trim + 0.04), lens=lens,
+                                      T_base_camera=robot.truth.T_base_camera, drive_fit=SimpleNamespace(names=[]))
+        ctx = MissionContext(robot, tmp_path, settings, session, calibration=calibration)
+        outcome = Validation().run(ctx)
+        v = ctx.validation
+        assert outcome.name == "ok" and "stopped: curved off the marker line" in outcome.reason
+        assert 0.2 < v["measured_at_m"] < v["driven_m"] < settings.validation_m
+        assert abs(v["deviation_m"]) > 0.02 and 0.0 < v["pwm_bound_m"] < 0.4  # the bound over the distance measured
+    finally:
+        robot.close()
+
+
 def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, capsys):
     from naocal.kinds.duckiebot.calibrate import _record, check_out_dir
 
@@ -263,7 +287,7 @@ def test_a_fit_that_does_not_explain_the_drive_is_refused_and_not_written(tmp_pa
         written = []
         ctx = MissionContext(robot, tmp_path, SHORT, session, driven=True, on_calibration=written.append)
         bad = SimpleNamespace(drive_fit=SimpleNamespace(rms_px=26.5))  # realistic seed 1's local minimum
-        monkeypatch.setattr(mission, "identify_log", lambda _: bad)
+        monkeypatch.setattr(mission, "identify_log", lambda _, **options: bad)
         outcome = IdentifyDrive().run(ctx)
         assert outcome.name == "implausible" and "26.50 px" in outcome.reason
         assert written == [] and ctx.calibration is None

@@ -13,7 +13,9 @@ Unknowns (`DriveFit.names`):
   model without the long lever arm of the turns before it;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
 - optional wheel effects, each off unless named (`fit_drive(effects=...)`, EFFECTS): `dead_zone`, `slip_s_per_m`,
-  `wheel_lag_s`, `speed_trim` (kinds.duckiebot.diagnose names the missing one);
+  `wheel_lag_s`, `speed_trim`, `wheel_lag_difference_s` (kinds.duckiebot.diagnose names the missing one); and,
+  where the log's robot is known to have it, Duckietown's 8-bit PWM wheel driver between the duties and the motors
+  (Drive.pwm_driver);
 - `marker<id>.x_m .y_m .yaw_rad` of every marker seen but one, the reference (the gauge): the floor's frame is
   arbitrary (a planar rigid motion, 3 DoF), so the reference marker's pose is the world frame (0, 0, 0). The
   reference is the marker seen in the most frames (ties: the smallest id): it is the best tied to the drive, so the
@@ -36,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from naocal.kinds.duckiebot.kinematics import PWM_MAX, PWM_MIN, duty_to_pwm
 from naocal.solver.camera import project
 from naocal.solver.errors import SolveError
 from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable,
@@ -63,13 +66,19 @@ MARKER_SCALES = (0.05, 0.05, 0.05)  # x, y, yaw
 # - slip: v and omega scaled by 1 - slip_s_per_m r |w_r - w_l| (ground speed lost in turns, growing with the rate);
 # - wheel_lag: each wheel's speed follows its command with a first-order lag of time constant wheel_lag_s;
 # - speed_trim: the trim grows with the duty's magnitude, trim + speed_trim |u|.
+# - lag_difference: the wheels' lags differ, left wheel_lag_s - wheel_lag_difference_s / 2, right + / 2 (with
+#   wheel_lag): at every start and stop one wheel leads, the robot turns and turns back, and creeps sideways (the
+#   realistic mock, seed 1, lags +-5 % of 20-60 ms: 15 mm over the mission's drives, most of the joint fit's 2.9 px
+#   RMS, and the trim biased 0.004).
 EFFECTS = {"dead_zone": ("dead_zone",), "slip": ("slip_s_per_m",), "wheel_lag": ("wheel_lag_s",),
-           "speed_trim": ("speed_trim",)}
-SCALES.update({"dead_zone": 0.03, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.05})
+           "speed_trim": ("speed_trim",), "lag_difference": ("wheel_lag_difference_s",)}
+SCALES.update({"dead_zone": 0.03, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.05,
+               "wheel_lag_difference_s": 0.005})
 # Where each effect's parameter starts (0 unless listed): wheel_lag_s's signature on frames grabbed at rest after the
 # wheels settle is what they still turn at the grab, exp(-t / lag), whose derivative at lag 0 is 0: a fit started
 # there stays there, and a score test there sees nothing. 0.06 s: a typical small geared motor's.
 EFFECT_START = {"wheel_lag_s": 0.06}
+LAG_EFFECTS = ("wheel_lag", "lag_difference")  # fitted from the fit without them (fit_drive)
 LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
 
@@ -113,11 +122,23 @@ class Drive:
     radius_m: float
     baseline_m: float  # the log's nominal: the start value
     limit: float = 1.0
+    # the duties went through Duckietown's wheel driver (kinematics.duty_to_pwm: an 8-bit PWM, floored): the
+    # motors receive motor_duties(), not the duties logged. Only where the log's robot is known to have that driver
+    # (the mission's mock and ROS bridge): an independent log generator may send exact duties
+    pwm_driver: bool = False
 
     @classmethod
-    def of_log(cls, log) -> "Drive":
+    def of_log(cls, log, *, pwm_driver: bool = False) -> "Drive":
         return cls(log.wheel_t_s, log.left_duty, log.right_duty, log.frame_t_s, log.wheels.k, log.wheels.radius_m,
-                   log.wheels.baseline_m, log.wheels.limit)
+                   log.wheels.baseline_m, log.wheels.limit, pwm_driver)
+
+    def motor_duties(self) -> tuple[np.ndarray, np.ndarray]:
+        """(left, right) duties as the motors receive them: as logged, or with pwm_driver the driver's PWM above its
+        floor PWM_MIN as a duty, sign(u) (pwm - PWM_MIN) / (PWM_MAX - PWM_MIN) (0 where it sends no PWM)."""
+        if not self.pwm_driver:
+            return self.left_duty, self.right_duty
+        return tuple(np.sign(u) * np.maximum(duty_to_pwm(u) - PWM_MIN, 0) / (PWM_MAX - PWM_MIN)
+                     for u in (self.left_duty, self.right_duty))
 
 
 def pose_parameters(T_base_camera) -> np.ndarray:
@@ -154,7 +175,7 @@ def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor
     times_s = np.asarray(times_s, dtype=float)
     col = {n: i for i, n in enumerate(KINEMATIC + ANCHOR + tuple(effects))}
     p = {"gain": gain, "trim": trim, "baseline_m": baseline_m, **effects}
-    lag = "wheel_lag_s" in effects
+    lag = "wheel_lag_s" in effects or "wheel_lag_difference_s" in effects
     start = min(float(drive.wheel_t_s[0]), float(anchor_t_s)) if lag and len(drive.wheel_t_s) else float(anchor_t_s)
     knots = np.union1d(drive.wheel_t_s[drive.wheel_t_s > start], times_s)
     if lag:
@@ -165,6 +186,7 @@ def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor
     poses, jacobians = np.zeros((len(times_s), 3)), np.zeros((len(times_s), 3, len(col)))
     want = {float(t): i for i, t in enumerate(times_s)}
     r, k, t_prev = drive.radius_m, drive.k, start
+    left_duty, right_duty = drive.motor_duties()
     w, dw = np.zeros(2), np.zeros((2, len(col)))  # the lagged wheel speeds (left, right) and their derivatives
     if t_prev in want:
         poses[want[t_prev]], jacobians[want[t_prev]] = pose, J
@@ -172,7 +194,7 @@ def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor
         dt = float(t) - t_prev
         if dt > 0:
             row = np.searchsorted(drive.wheel_t_s, t_prev, side="right") - 1
-            u_l, u_r = (drive.left_duty[row], drive.right_duty[row]) if row >= 0 else (0.0, 0.0)
+            u_l, u_r = (left_duty[row], right_duty[row]) if row >= 0 else (0.0, 0.0)
             moving = t_prev >= anchor_t_s
             if lag:
                 wc, dwc = commanded_wheel_speeds(u_l, u_r, p, k, col)
@@ -244,16 +266,23 @@ def _lagged(pose, J, w, dw, wc, dwc, p, col, r, dt, moving):
     constant wheel_lag_s; the pose moves (if `moving`: from the anchor on) by one arc per step at the mean speeds."""
     steps = max(1, math.ceil(dt / LAG_SUBSTEP_S - 1e-9))
     h = dt / steps
-    e, m, de, dm = lag_factors(p["wheel_lag_s"], h)
-    tau = col["wheel_lag_s"]
+    lag, half = p.get("wheel_lag_s", 0.0), p.get("wheel_lag_difference_s", 0.0) / 2.0
+    sides = np.array([-1.0, 1.0])
+    factors = np.array([lag_factors(t, h) for t in (lag - half, lag + half)])  # (2 wheels, e m de dm)
+    e, m, de, dm = factors[:, 0], factors[:, 1], factors[:, 2], factors[:, 3]
+    # d / d wheel_lag_s and d / d wheel_lag_difference_s of each wheel's factors (its lag's derivative: 1, -+1/2)
+    lag_columns = [(col[n], d) for n, d in (("wheel_lag_s", 1.0), ("wheel_lag_difference_s", sides / 2.0))
+                   if n in col]
     for _ in range(steps):
         gap, dgap = w - wc, dw - dwc
         if moving and (np.any(w) or np.any(wc) or np.any(dgap)):  # at rest with every derivative 0: no move
-            mean, dmean = wc + gap * m, dwc + dgap * m
-            dmean[:, tau] += gap * dm
+            mean, dmean = wc + gap * m, dwc + dgap * m[:, None]
+            for c, d in lag_columns:
+                dmean[:, c] += gap * dm * d
             pose, J = _arc(pose, J, *body_motion(mean, dmean, p, col, r), h)
-        w, dw = wc + gap * e, dwc + dgap * e
-        dw[:, tau] += gap * de
+        w, dw = wc + gap * e, dwc + dgap * e[:, None]
+        for c, d in lag_columns:
+            dw[:, c] += gap * de * d
     return pose, J, w, dw
 
 
@@ -484,6 +513,7 @@ class DriveFit:
     weak_directions: list
     anchor_t_s: float
     warnings: list = field(default_factory=list)
+    covariance: np.ndarray | None = field(default=None, repr=False)  # cluster-robust, names' order (0: fixed)
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -526,6 +556,14 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
+    lags = tuple(e for e in effects if e in LAG_EFFECTS)
+    if lags and not any(n in (start or {}) for e in lags for n in EFFECTS[e]):
+        # the lags from the fit without them: from the detections' start values the first steps took wheel_lag_s
+        # below 0, where a lag has no gradient, and stayed (realistic mock, seed 4: 4.2 px RMS, lag -0.23 s)
+        base = fit_drive(drive, sightings, K, marker_size_m, T_base_camera_start, fixed=fixed, start=start,
+                         loss=loss, loss_scale_px=loss_scale_px, robust=robust,
+                         effects=tuple(e for e in effects if e not in LAG_EFFECTS))
+        start = {**dict(zip(base.names, base.x)), **(start or {})}
     reference = _reference_marker(sightings)
     K = np.asarray(K, dtype=float)
     frames, markers, gain0 = start_values(drive, sightings, K, marker_size_m, np.asarray(T_base_camera_start),
@@ -570,10 +608,38 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
         kept = np.delete(kept, bad)
     spread = solution.spread(equations.row_frame, [names[i] for i in equations.index])
     std, std_iid = np.zeros(len(x)), np.zeros(len(x))
+    covariance = np.zeros((len(x), len(x)))
+    covariance[np.ix_(free, free)] = spread.covariance
     std[free] = np.sqrt(np.clip(np.diag(spread.covariance), 0.0, None))
     std_iid[free] = np.sqrt(np.clip(np.diag(spread.covariance_iid), 0.0, None))
     residuals = solution.final.residuals * obs.sigma_px[:, None]
     outliers = all_obs.subset(np.setdiff1d(np.arange(len(all_obs.frame)), kept))
     return DriveFit(names, x, std, std_iid, free, reference, residuals, obs, outliers,
                     float(np.sqrt(np.mean(residuals ** 2))), solution.success, solution.message, solution.n_jac,
-                    spread.condition_number, spread.weak_directions, equations.anchor_t_s, spread.warnings())
+                    spread.condition_number, spread.weak_directions, equations.anchor_t_s, spread.warnings(),
+                    covariance)
+
+
+def duty_offset(fit: DriveFit, pwm_driver: bool) -> tuple[float, np.ndarray]:
+    """(c, d c / d x): the duty a wheel loses before it turns, on average over the duties near any one: the fitted
+    dead_zone (0 without it) plus, with Duckietown's driver (`pwm_driver`: Drive.pwm_driver), half a PWM step (its floor drops
+    0-1 step, 0.5 on average over speeds)."""
+    grad = np.zeros(len(fit.names))
+    c = 0.5 / (PWM_MAX - PWM_MIN) if pwm_driver else 0.0
+    if "dead_zone" in fit.names:
+        c += fit.value("dead_zone")
+        grad[fit.names.index("dead_zone")] = 1.0
+    return c, grad
+
+
+def secant_gain(drive: Drive, fit: DriveFit, speed_mps: float) -> tuple[float, float]:
+    """(gain, std) with which Duckietown's dead-zone-free inverse kinematics drives the fitted robot at `speed_mps`
+    straight: a wheel turning at w needs the duty c + (gain -+ trim) w / k (c: duty_offset), i.e. the secant
+    gain + c k r / v at w = v / r; the trim is the slope's (c is the same on both wheels). Its std from the fit's
+    covariance."""
+    c, grad = duty_offset(fit, drive.pwm_driver)
+    scale = drive.k * drive.radius_m / speed_mps
+    grad = grad * scale
+    grad[fit.names.index("gain")] += 1.0
+    variance = float(grad @ fit.covariance @ grad) if fit.covariance is not None else float("nan")
+    return fit.value("gain") + c * scale, math.sqrt(max(variance, 0.0))

@@ -13,7 +13,7 @@ import numpy as np
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
 from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
-from naocal.kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive
+from naocal.kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive, secant_gain
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
@@ -24,6 +24,7 @@ from naocal.solver.errors import NaocalError
 # 0.34 px at 15-20, 0.64 px below 15: about (UNIT_NOISE_SIDE_PX / side)^2 px, never below MIN_NOISE_PX.
 UNIT_NOISE_SIDE_PX = 10.0
 MIN_NOISE_PX = 0.15
+SPEED_MPS = 0.3  # the speed the exported gain is the secant at (the issue's validation drive; Duckietown's lanes)
 HELD_OUT_GROUPS = 3  # board views split into this many runs of consecutive views, each held out in turn
 MIN_BOARD_VIEWS = 6  # two per group at least, so that each fit without one group still has 4 views
 
@@ -97,6 +98,46 @@ def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings
     return Sightings(raw.frame, raw.marker, raw.corner, rect, raw.noise_px)
 
 
+def add_lens_covariance(fit: DriveFit, drive: Drive, detections: Detections, lens: LensFit,
+                        marker_size_m: float) -> None:
+    """Carry the lens's uncertainty into the joint fit's covariance and stds (in place): the joint fit takes the
+    intrinsics as known, but they are estimated (lens.covariance, clustered by board view, independent of the
+    drive), and every rectified corner moves with them. Each lens parameter's effect on the fit is one Gauss-Newton
+    step from the solution with the corners rectified (and projected) through the lens moved by a small step; the
+    covariance adds S cov(lens) S^T. Without it the stds left the realistic mock's gain 3-26 stds off (seeds 1-5)."""
+    if lens.covariance is None or fit.covariance is None:
+        return
+    from naocal.kinds.duckiebot.fit import DriveEquations
+
+    keys = {(f, m, c): i for i, (f, m, c) in enumerate(zip(fit.sightings.frame, fit.sightings.marker,
+                                                           fit.sightings.corner))}
+
+    def step_of(camera):
+        everything = rectified_sightings(detections, camera)
+        rows = np.full(len(keys), -1)
+        for i, key in enumerate(zip(everything.frame, everything.marker, everything.corner)):
+            if key in keys:
+                rows[keys[key]] = i
+        obs = everything.subset(rows)
+        equations = DriveEquations(drive, obs, camera.K, marker_size_m, fit.reference_marker, fit.names, fit.x,
+                                   fit.free)
+        normal = equations(fit.x[equations.index])
+        return normal.A, normal.g, equations.scales
+
+    A, g0, scales = step_of(lens.camera)
+    p0 = lens.camera.parameters
+    S = np.zeros((int(fit.free.sum()), len(p0)))
+    for j in range(len(p0)):
+        h = 1e-4 * max(abs(p0[j]), 1e-2)
+        p = p0.copy()
+        p[j] += h
+        _, g, _ = step_of(type(lens.camera).of_parameters(lens.camera.model, p))
+        S[:, j] = -np.linalg.solve(A, g - g0) * scales / h
+    added = S @ lens.covariance @ S.T
+    fit.covariance[np.ix_(fit.free, fit.free)] += added
+    fit.std[fit.free] = np.sqrt(np.clip(np.diag(fit.covariance)[fit.free], 0.0, None))
+
+
 @dataclass
 class DuckiebotCalibration:
     """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
@@ -144,14 +185,20 @@ class DuckiebotCalibration:
                 "outliers": int(len(fit.outliers.frame)), "warnings": list(fit.warnings)}
 
 
-def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: dict, **fit_options):
-    """The joint fit of a log's detections through a fitted lens, as a DuckiebotCalibration."""
+def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: dict, *, pwm_driver: bool = False,
+              speed_mps: float = SPEED_MPS, **fit_options):
+    """The joint fit of a log's detections through a fitted lens, as a DuckiebotCalibration. `pwm_driver`: the log's
+    duties went through Duckietown's wheel driver (fit.Drive.pwm_driver). The kinematics' gain is the secant at
+    `speed_mps` (fit.secant_gain: the fitted dead zone and the driver's PWM floor folded in, what Duckietown's
+    inverse kinematics needs to drive that fast); the trim is the fit's."""
     sightings = rectified_sightings(detections, lens.camera)
-    drive_fit = fit_drive(Drive.of_log(log), sightings, lens.camera.K, log.marker_size_m,
+    drive = Drive.of_log(log, pwm_driver=pwm_driver)
+    drive_fit = fit_drive(drive, sightings, lens.camera.K, log.marker_size_m,
                           duckiebot(log.model).T_base_camera, **fit_options)
+    add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)
+    gain, _ = secant_gain(drive, drive_fit, speed_mps)
     kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
-                     gain=drive_fit.value("gain"), trim=drive_fit.value("trim"), k=log.wheels.k,
-                     limit=log.wheels.limit)
+                     gain=gain, trim=drive_fit.value("trim"), k=log.wheels.k, limit=log.wheels.limit)
     return DuckiebotCalibration(log.robot_id, kin, lens, lens_fits, drive_fit)
 
 

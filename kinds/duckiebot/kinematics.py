@@ -73,6 +73,15 @@ def duty_to_pwm(duty):
     return np.where(magnitude > DUTY_DEAD_ZONE, pwm, 0)
 
 
+def pwm_drift_bound_m(duty: float, duty_offset: float, baseline_m: float, distance_m: float) -> float:
+    """The lateral drift over `distance_m` straight that the wheel driver's PWM floor alone allows at `duty` (the
+    mean of the two wheels'): each wheel's PWM is floored, losing 0-1 step, so the wheels may differ by up to one
+    step, a relative speed difference d = (1 / 195) / (|duty| - duty_offset) (duty_offset: what the motor loses
+    before it turns, fit.duty_offset), turning the robot at d v / b: d L^2 / (2 b) off its line after L."""
+    relative = 1.0 / (PWM_MAX - PWM_MIN) / max(abs(duty) - duty_offset, 1e-6)
+    return relative * distance_m ** 2 / (2.0 * baseline_m)
+
+
 def integrate_pose(pose, v_mps, omega_radps, dt_s):
     """The planar pose (x, y, theta) after moving at constant (v, omega) for dt_s: the exact arc (a straight line
     when omega is 0). Vectorised over the leading axis of `pose` (..., 3) and the broadcasting velocities."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,7 @@ N_MARKERS = 20  # the marker line: 0.3-3.2 m behind the start, so a 2 m validati
 COM_IN_BASE_M = np.array([-0.03, 0.0, 0.02])  # the chassis' centre of mass, behind the axle: the caster carries some
 # PyBullet reports a body's pose at its centre of mass and places links relative to it: both shifted by this
 WHEEL_FRICTION = 1.0
+TRUTH_SPEED_MPS = 0.3  # truth.json's kinematics: what drives the robot straight this fast (the issue's drive)
 RESTORE_GAP_S = 1e-3  # a restored mock resumes this long after its saved time, wheels stopped (the driver's watchdog)
 
 
@@ -70,6 +71,7 @@ class DuckiebotTruth:
     slip_right: float
     camera: CameraIntrinsics
     T_base_camera: np.ndarray
+    pwm_driver: bool = True  # the duties pass kinematics.duty_to_pwm (realistic); ideal: the motor gets the duty
 
     def kinematics(self) -> Kinematics:
         """Duckietown's parameters that describe this robot (in the log's k = 27, the nominal radius): its forward
@@ -78,6 +80,22 @@ class DuckiebotTruth:
         a_right = WHEEL_RADIUS_M * LOG_K / (self.radius_right_m * self.motor_right_radps * (1.0 - self.slip_right))
         return Kinematics(baseline_m=self.baseline_m, radius_m=WHEEL_RADIUS_M, gain=(a_left + a_right) / 2.0,
                           trim=(a_right - a_left) / 2.0, k=LOG_K)
+
+    def duty_offset(self) -> float:
+        """The duty a wheel loses before it turns, on average over the duties near any one: (pwm_dead - 60) / 195
+        (the motor's start against the driver's floor), plus half a PWM step the driver's floor drops on average
+        (realistic only: `pwm_driver`); the same for both wheels, as fit.duty_offset models it."""
+        if self.pwm_driver:
+            return (self.pwm_dead - PWM_MIN + 0.5) / (PWM_MAX - PWM_MIN)
+        return (self.pwm_dead - PWM_MIN) / (PWM_MAX - PWM_MIN)
+
+    def kinematics_at(self, speed_mps: float) -> Kinematics:
+        """What a user needs: the parameters with which Duckietown's inverse kinematics (no dead zone) drives this
+        robot at `speed_mps` straight, on average over the PWM steps near it. A wheel turning at w needs the duty
+        c + a w / k (c: duty_offset, the same on both wheels; a = gain -+ trim of `kinematics()`, the motor's
+        slope): the secant gain + c k r / v, the slope's trim (fit.secant_gain is the fit's)."""
+        slope = self.kinematics()
+        return replace(slope, gain=slope.gain + self.duty_offset() * slope.k * slope.radius_m / speed_mps)
 
     def hidden_robot(self) -> HiddenRobot:
         """The renderer's HiddenRobot of this truth (for methods written against it, e.g. the paper's)."""
@@ -110,7 +128,7 @@ def draw_truth(seed: int, realism: str = "realistic") -> DuckiebotTruth:
     slips = rng.uniform(0.0, 0.02, 2) if realistic else np.zeros(2)
     return DuckiebotTruth(float(radii[0]), float(radii[1]), motor * (1.0 - asymmetry), motor * (1.0 + asymmetry),
                      float(baseline), float(pwm_dead), float(lags[0]), float(lags[1]), float(slips[0]),
-                     float(slips[1]), camera_truth.camera, camera_truth.T_base_camera)
+                     float(slips[1]), camera_truth.camera, camera_truth.T_base_camera, realistic)
 
 
 def truth_document(truth: DuckiebotTruth, seed: int, realism: str) -> dict:
@@ -118,16 +136,21 @@ def truth_document(truth: DuckiebotTruth, seed: int, realism: str) -> dict:
     `parameters` the joint fit's camera.* names), with the mock's own hidden effects beside them."""
     from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 
-    kin = truth.kinematics()
+    kin, at_speed = truth.kinematics(), truth.kinematics_at(TRUTH_SPEED_MPS)
     camera = truth.camera
     K = [[camera.fx_px, 0.0, camera.cx_px], [0.0, camera.fy_px, camera.cy_px], [0.0, 0.0, 1.0]]
-    parameters = {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m}
+    # the joint fit's names: the motors' slope (gain, trim) and start (dead_zone: with the driver's floor modelled)
+    parameters = {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m,
+                  "dead_zone": (truth.pwm_dead - PWM_MIN) / (PWM_MAX - PWM_MIN)}
     parameters.update(zip(CAMERA, (float(v) for v in pose_parameters(truth.T_base_camera))))
     return {"schema": "naocal.duckiebot_truth/1", "mock": {"seed": int(seed), "realism": realism},
             "camera": {"width_px": camera.width_px, "height_px": camera.height_px, "lens_model": "plumb_bob",
                        "lenses": {"plumb_bob": {"K": K, "distortion": [float(d) for d in camera.distortion]}}},
-            "kinematics": {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m, "k": kin.k,
-                           "radius_m": kin.radius_m, "limit": kin.limit},
+            # what Duckietown's files need to drive TRUTH_SPEED_MPS straight (DuckiebotTruth.kinematics_at), and
+            # the motors' slope (the same trim: the start PWM is both wheels')
+            "kinematics": {"gain": at_speed.gain, "trim": at_speed.trim, "baseline_m": kin.baseline_m,
+                           "k": kin.k, "radius_m": kin.radius_m, "limit": kin.limit, "speed_mps": TRUTH_SPEED_MPS},
+            "kinematics_slope": {"gain": kin.gain, "trim": kin.trim},
             "parameters": {n: {"value": float(v)} for n, v in parameters.items()},
             "T_base_camera": np.asarray(truth.T_base_camera).tolist(),
             "hidden": {"radius_left_m": truth.radius_left_m, "radius_right_m": truth.radius_right_m,
@@ -154,6 +177,7 @@ class DuckiebotMock:
         self.seed, self.realism = int(seed), realism
         self.truth = draw_truth(seed, realism)
         self.ideal = realism == "ideal"
+        self.pwm_driver = not self.ideal  # its duties pass kinematics.duty_to_pwm (the mission's fit models it)
         self.exposure_s = 0.02  # the ideal mock too: a frame takes time (but renders its mid-exposure pose, sharp)
         self.noise_grey = 0.0 if self.ideal else 1.5
         self.scene = scene or mock_scene()

@@ -72,6 +72,8 @@ class RobotError(NaocalError):
 class RosDuckiebot:
     """The mission's robot over Duckietown's ROS topics. `vehicle`: the robot's name (its topics' namespace)."""
 
+    pwm_driver = True  # its wheel commands go through Duckietown's wheel driver (kinematics.duty_to_pwm)
+
     def __init__(self, vehicle: str, *, watchdog_s: float = 1.0, image_timeout_s: float = 2.0,
                  connect_timeout_s: float = 10.0, clock_slack_s: float = 2.0,
                  ticks_per_revolution: int = DB21_TICKS_PER_REVOLUTION, node_name: str = "naocal"):
