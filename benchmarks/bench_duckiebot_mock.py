@@ -14,7 +14,7 @@ inverse kinematics needs to drive it 0.3 m/s straight, the PWM floor averaged; t
 - speed: its mean speed over the last 1.5 m against 0.3 m/s;
 - trim error: |trim - true trim| (in the log's k);
 - intrinsics: kinds.duckiebot.intrinsics.camera_difference_px of the chosen lens against the true camera, over the
-  whole image;
+  whole image, beside its std from the fit (LensFit.whole_image_std_px);
 - homography: bench_duckiebot.homography_error_m (floor 0.15-0.6 m ahead, |y| <= 0.15 m);
 - robot time: the mock's clock at the end of the identification (calibration) and at the end of the mission;
 - z: the largest |error / std| over the joint fit's gain and trim (the motors' slope), dead_zone, baseline and the
@@ -149,7 +149,8 @@ def main(argv=None) -> int:
               f"{result.final} | {trim_error:.4f} ({fit.stdev('trim'):.4f}) | {dev * 100:+.1f} cm "
               f"({floor_dev * 100:+.1f} cm) | {cm_sweep(result_sweep)} cm ({cm_sweep(floor_sweep)} cm) | "
               f"{100 * bound:.1f} cm | {exact_dev * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.2f} % | "
-              f"{intrinsics_px:.2f} px | {h_error * 1000:.1f} mm | {robot_cal_s:.0f} s / {robot.now():.0f} s | "
+              f"{intrinsics_px:.2f} px ({cal.lens.whole_image_std_px:.2f}) | {h_error * 1000:.1f} mm | "
+              f"{robot_cal_s:.0f} s / {robot.now():.0f} s | "
               f"{z[worst]:.1f} ({worst}) | {cpu:.0f} / {wall:.0f} |")
         if validation:
             print(f"|  | (the mission's validation: {100 * validation['deviation_m']:+.1f} cm at "

@@ -14,7 +14,7 @@ from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duck
 from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
 from naocal.kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive, secant_gain
-from naocal.kinds.duckiebot.intrinsics import LensCamera, LensFit, board_points, choose_lens
+from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import NaocalError
@@ -49,23 +49,27 @@ def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
 
 
 def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict]:
-    """(chosen LensFit, {model: LensFit}) from every board view, the lens model by held-out error
-    (kinds.duckiebot.intrinsics.choose_lens). A board seen is not told from the others (they are identical), so the
-    held-out groups are runs of consecutive views: the robot turns in steps, so a run is one stretch of the turn."""
+    """(chosen LensFit, {model: LensFit}) from every board view and the floor markers seen (the image's lower half:
+    kinds.duckiebot.intrinsics.FloorMarkers), the lens model by held-out error (choose_lens). A board seen is not
+    told from the others (they are identical), so the held-out groups are runs of consecutive views: the robot turns
+    in steps, so a run is one stretch of the turn."""
     obj = board_points(log.board_inner_corners, log.board_square_m)
     views = [sighting.corners_px.reshape(-1, 2) for boards in detections.boards for sighting in boards]
     if len(views) < MIN_BOARD_VIEWS:
         raise NaocalError(f"{log.path}: {len(views)} board views found, at least {MIN_BOARD_VIEWS} are needed to "
                           "fit the camera's intrinsics")
     groups = np.arange(len(views)) * HELD_OUT_GROUPS // len(views)
-    prior = duckiebot(log.model).camera
+    nominal = duckiebot(log.model)
+    prior = nominal.camera
     K_guess = [[prior.fx_px, 0.0, prior.cx_px], [0.0, prior.fy_px, prior.cy_px], [0.0, 0.0, 1.0]]
-    return choose_lens([obj] * len(views), views, (log.width_px, log.height_px), groups, K_guess=K_guess)
+    floor = FloorMarkers(marker_sightings(detections), log.marker_size_m, nominal.T_base_camera).usable()
+    return choose_lens([obj] * len(views), views, (log.width_px, log.height_px), groups, K_guess=K_guess,
+                       floor=floor)
 
 
-def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings:
-    """Every detected marker corner, undistorted with `camera` and re-projected with its K (rectified pixels), with
-    its expected noise from the marker's smallest side in the image."""
+def marker_sightings(detections: Detections) -> Sightings:
+    """Every detected marker corner (raw pixels) with its expected noise from the marker's smallest side in the
+    image ((UNIT_NOISE_SIDE_PX / side)^2 px, at least MIN_NOISE_PX)."""
     frame, marker, corner, uv, noise = [], [], [], [], []
     for f, sightings in enumerate(detections.markers):
         for s in sightings:
@@ -76,12 +80,22 @@ def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings
             side = np.linalg.norm(np.roll(s.corners_px, -1, axis=0) - s.corners_px, axis=1).min()
             noise += [max(MIN_NOISE_PX, (UNIT_NOISE_SIDE_PX / max(side, 1.0)) ** 2)] * 4
     if not uv:
+        return Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros(0))
+    return Sightings(np.array(frame), np.array(marker), np.array(corner), np.concatenate(uv).astype(float),
+                     np.array(noise))
+
+
+def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings:
+    """Every detected marker corner, undistorted with `camera` and re-projected with its K (rectified pixels), with
+    its expected noise (marker_sightings)."""
+    raw = marker_sightings(detections)
+    if not len(raw.frame):
         return Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
-    normalised = camera.normalised(np.concatenate(uv))
+    normalised = camera.normalised(raw.uv_px)
     K = camera.K
     rect = np.column_stack([K[0, 0] * normalised[:, 0] + K[0, 1] * normalised[:, 1] + K[0, 2],
                             K[1, 1] * normalised[:, 1] + K[1, 2]])
-    return Sightings(np.array(frame), np.array(marker), np.array(corner), rect, np.array(noise))
+    return Sightings(raw.frame, raw.marker, raw.corner, rect, raw.noise_px)
 
 
 def add_lens_covariance(fit: DriveFit, drive: Drive, detections: Detections, lens: LensFit,

@@ -10,7 +10,8 @@ its detection's errors). OpenCV's calibrateCamera / fisheye.calibrate only give 
 
 Why k3 is not fitted in plumb_bob: the set-up's boards stand at the camera's height while the camera looks 19 deg
 down, so every board view lies in the image's upper 40 % (rendered logs, seeds 1-5: v < 192 px); a fifth radial
-term then bends the lower corners freely (seed 5: 0.53 px off over the whole image with k3, 0.18 without).
+term then bends the lower corners freely (seed 5: 0.53 px off over the whole image with k3, 0.18 without). The
+lower half is seen through the floor markers (FloorMarkers: fitted with the boards when given).
 
 A low training reprojection error proves nothing (the reference: 0.07-0.09 px while the camera is 5-12 px wrong over
 the whole image), so each model is judged on views it was not fitted to: views are split into groups, each group
@@ -28,8 +29,11 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from naocal.kinds.duckiebot.fit import (BIAS, Sightings, _compose, _inverse, camera_transform, marker_offsets,
+                                       marker_on_floor, pose_parameters)
 from naocal.solver.errors import NaocalError
 from naocal.solver.identify import Normal, check_identifiable, last_pass_cached, solve
+from naocal.solver.transforms import d_rot_x, d_rot_y, rot_rpy, rot_x, rot_y
 
 LENS_MODELS = ("plumb_bob", "rational", "fisheye")
 INTRINSIC_NAMES = ("fx_px", "fy_px", "cx_px", "cy_px")
@@ -174,13 +178,202 @@ def opencv_start(object_points, image_points, size, model: str, K_guess=None):
     return camera, [np.ravel(r) for r in rvecs], [np.ravel(t) for t in tvecs]
 
 
+# ------------------------------------------------------------------------------------------------ the floor markers
+
+# The floor markers as lens observations: the boards are seen only in the image's upper 40 % (they stand at the
+# camera's height while it looks 19 deg down), the markers lie on the floor, in its lower half. Each marker alone is
+# a weak view (4 corners, 6 pose unknowns), so they are fitted as what they are: all on one floor, each at one pose
+# (x, y, yaw) shared by every frame that sees it, the camera at one height and attitude over the floor in every frame
+# (the robot stands on it: frames are grabbed at rest), each frame a planar pose (x, y, theta). The detector's
+# corners lie inside the true ones (kinds.duckiebot.fit's BIAS, fitted here as there: one bias along each marker's
+# image diagonal); a marker whose smallest side is under FLOOR_MIN_SIDE_PX is left out: the bias is about constant for
+# sides of 30-100 px (0.20 px) and grows below (0.36-0.41 at 15-30, 0.70 under 15); with sides down to 20 px the one
+# fitted bias came out -0.83 px and the lens 2.0 px off over the image (mock seed 5; 0.15 px with 30).
+FLOOR_MIN_SIDE_PX = 30.0
+FLOOR_MOUNT = ("floor.camera.z_m", "floor.camera.roll_rad", "floor.camera.pitch_rad")
+FLOOR_BIAS = "floor." + BIAS
+_FLOOR_SCALES = {"mount": (0.005, 0.02, 0.03), "frame": (0.05, 0.05, 0.05), "marker": (0.05, 0.05, 0.05),
+                 "bias": 0.1}
+# naocal's camera frame (x along the optical axis, y left, z up) to OpenCV's (x right, y down, z along the axis)
+_NAOCAL_TO_OPENCV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+# The floor block's board noise: the rows' residuals are divided by their expected noise, the boards' by this (their
+# corners are 0.031-0.039 px RMS from the truth on rendered logs), the markers' by identify's noise model
+BOARD_NOISE_PX = 0.04
+
+
+@dataclass(frozen=True)
+class FloorMarkers:
+    """Detected floor-marker corners for the lens fit: kinds.duckiebot.fit.Sightings of RAW (distorted) pixels, the
+    markers' side (m) and a camera pose on the body to start from (T_base_camera: its height, roll and pitch)."""
+
+    sightings: Sightings
+    size_m: float
+    T_base_camera_start: np.ndarray
+
+    def usable(self) -> "FloorMarkers":
+        """The sightings whose marker is large enough (FLOOR_MIN_SIDE_PX), seen in two frames or more, in the
+        largest group of frames and markers tied to each other."""
+        s = self.sightings
+        keep = np.zeros(len(s.frame), bool)
+        for f, m in set(zip(s.frame.tolist(), s.marker.tolist())):
+            rows = np.flatnonzero((s.frame == f) & (s.marker == m))
+            if len(rows) == 4 and _smallest_side(s.uv_px[rows[np.argsort(s.corner[rows])]]) >= FLOOR_MIN_SIDE_PX:
+                keep[rows] = True
+        s = s.subset(np.flatnonzero(keep))
+        pairs = set(zip(s.frame.tolist(), s.marker.tolist()))
+        seen = np.bincount([m for _, m in pairs], minlength=int(s.marker.max(initial=0)) + 1)
+        s = s.subset(np.flatnonzero(seen[s.marker] >= 2))  # a marker seen once fixes nothing of the lens
+        # one floor: the frames and markers linked (a frame seeing a marker) to the most corners; another group's
+        # poses could not be tied to it
+        group = {}
+
+        def root(node):
+            while group.get(node, node) != node:
+                node = group[node]
+            return node
+        for f, m in zip(s.frame.tolist(), s.marker.tolist()):
+            a, b = root(("frame", f)), root(("marker", m))
+            if a != b:
+                group[a] = b
+        roots = [root(("marker", m)) for m in s.marker.tolist()]
+        if roots:  # the most corners; ties: the group of the smallest marker id (a function of the data alone)
+            size = {r: (roots.count(r), -min(m for m, q in zip(s.marker.tolist(), roots) if q == r)) for r in roots}
+            largest = max(size, key=size.get)
+            s = s.subset(np.flatnonzero([r == largest for r in roots]))
+        return FloorMarkers(s, self.size_m, self.T_base_camera_start)
+
+
+def _smallest_side(corners_px) -> float:
+    return float(np.linalg.norm(np.roll(corners_px, -1, axis=0) - corners_px, axis=1).min())
+
+
+class FloorBlock:
+    """The floor markers' part of LensEquations: parameters (after the lens's and the boards' poses) the camera's
+    height, roll and pitch over the floor, each frame's planar pose, each marker's but the reference's (the gauge:
+    the floor's frame) pose, the corner bias; residuals (predicted - detected) / the corner's expected noise."""
+
+    def __init__(self, floor: FloorMarkers, first_column: int):
+        s = floor.sightings
+        self.obs, self.size_m, self.T_start = s, floor.size_m, np.asarray(floor.T_base_camera_start, dtype=float)
+        self.offsets = marker_offsets(floor.size_m)[s.corner]
+        self.frames = np.unique(s.frame)
+        self.row_frame = np.searchsorted(self.frames, s.frame)
+        counts = {m: len(set(s.frame[s.marker == m].tolist())) for m in np.unique(s.marker).tolist()}
+        self.reference = min(counts, key=lambda m: (-counts[m], m))  # seen in the most frames (ties: smallest id)
+        self.markers = [m for m in sorted(counts) if m != self.reference]
+        self.names = list(FLOOR_MOUNT) + [f"floor.frame{f}.{a}" for f in self.frames.tolist()
+                                          for a in ("x_m", "y_m", "theta_rad")]
+        self.names += [f"floor.marker{m}.{a}" for m in self.markers for a in ("x_m", "y_m", "yaw_rad")] + [FLOOR_BIAS]
+        self.scales = np.array(list(_FLOOR_SCALES["mount"]) + list(_FLOOR_SCALES["frame"]) * len(self.frames) +
+                               list(_FLOOR_SCALES["marker"]) * len(self.markers) + [_FLOOR_SCALES["bias"]])
+        c0 = first_column
+        self.mount_cols = c0 + np.arange(3)
+        self.frame_cols = c0 + 3 + 3 * self.row_frame[:, None] + np.arange(3)  # (N, 3)
+        marker_index = {m: i for i, m in enumerate(self.markers)}
+        at = c0 + 3 + 3 * len(self.frames)
+        self.marker_cols = np.array([[-1] * 3 if m == self.reference else at + 3 * marker_index[m] + np.arange(3)
+                                     for m in s.marker.tolist()]).reshape(-1, 3)
+        self.bias_col = c0 + len(self.names) - 1
+        self.weight = BOARD_NOISE_PX / s.sigma_px  # in the boards' units: their rows are in px
+        self.cluster_rows = [np.flatnonzero(self.row_frame == i) for i in range(len(self.frames))]
+
+    def _points(self, x, o):
+        """(OpenCV camera-frame points (N, 3), d points / d x (N, 3, P)) of the offsets o (N, 2) in each row's
+        marker frame."""
+        N, P = len(o), len(x)
+        others = self.marker_cols[:, 0] >= 0
+        m = np.zeros((N, 3))
+        m[others] = x[self.marker_cols[others]]
+        cy, sy = np.cos(m[:, 2]), np.sin(m[:, 2])
+        world = m[:, :2] + np.stack([cy * o[:, 0] - sy * o[:, 1], sy * o[:, 0] + cy * o[:, 1]], axis=1)
+        pose = x[self.frame_cols]
+        ct, st = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        rel = world - pose[:, :2]
+        base = np.stack([ct * rel[:, 0] + st * rel[:, 1], -st * rel[:, 0] + ct * rel[:, 1], np.zeros(N)], axis=1)
+        h, roll, pitch = x[self.mount_cols]
+        R = rot_rpy(roll, pitch, 0.0)
+        d = base - np.array([0.0, 0.0, h])
+        points = (d @ R) @ _NAOCAL_TO_OPENCV.T  # R^T d per row, then OpenCV's axes
+        J = np.zeros((N, 3, P))
+        CRt = _NAOCAL_TO_OPENCV @ R.T  # d points / d base
+        J[:, :, self.mount_cols[0]] = -CRt[:, 2]
+        for col, D in ((self.mount_cols[1], rot_y(pitch) @ d_rot_x(roll)),
+                       (self.mount_cols[2], d_rot_y(pitch) @ rot_x(roll))):
+            J[:, :, col] = (d @ D) @ _NAOCAL_TO_OPENCV.T
+        B = CRt[:, :2]  # d points / d base xy (3, 2)
+        RT = np.stack([np.stack([ct, st], -1), np.stack([-st, ct], -1)], axis=1)  # (N, 2, 2): R(theta)^T
+        dRT = np.stack([np.stack([-st, ct], -1), np.stack([-ct, -st], -1)], axis=1)
+        rows = np.arange(N)
+        d_frame = np.concatenate([-RT, np.einsum("nij,nj->ni", dRT, rel)[:, :, None]], axis=2)  # d base xy / d pose
+        J[rows[:, None], :, self.frame_cols] = np.einsum("ij,njk->nki", B, d_frame)
+        BR = np.einsum("ij,njk->nik", B, RT)  # d points / d world xy (N, 3, 2)
+        d_world_d_yaw = np.stack([-sy * o[:, 0] - cy * o[:, 1], cy * o[:, 0] - sy * o[:, 1]], axis=1)
+        r = np.flatnonzero(others)
+        J[r, :, self.marker_cols[r, 0]] = BR[r, :, 0]
+        J[r, :, self.marker_cols[r, 1]] = BR[r, :, 1]
+        J[r, :, self.marker_cols[r, 2]] = np.einsum("nij,nj->ni", BR[r], d_world_d_yaw[r])
+        return points, J
+
+    def predict(self, camera: "LensCamera", x, q: int, jacobian: bool = True):
+        """(pixels (N, 2), d pixels / d x (N, 2, P) or None): each corner's projection moved outward along its
+        marker's image diagonal by the bias (as kinds.duckiebot.fit.DriveEquations.predict)."""
+        N = len(self.obs.frame)
+        corners, d_corners = self._points(x, self.offsets)
+        centres, d_centres = self._points(x, np.zeros((N, 2)))
+        both, dboth = np.concatenate([corners, centres]), np.concatenate([d_corners, d_centres])
+        uv, J_lens, J_pose = camera.project_with_jacobian(both, np.zeros(3), np.zeros(3), jacobian)
+        corner_uv, centre_uv = uv[:N], uv[N:]
+        d = corner_uv - centre_uv
+        L = np.linalg.norm(d, axis=1)
+        b = x[self.bias_col]
+        out = corner_uv + b * d / L[:, None]
+        if not jacobian:
+            return out, None
+        Jall = np.einsum("nij,njp->nip", J_pose[:, :, 3:6], dboth)  # at the identity pose, d/d tvec = d/d point
+        Jall[:, :, :q] += J_lens
+        corner_J, centre_J = Jall[:N], Jall[N:]
+        M = np.eye(2)[None] / L[:, None, None] - d[:, :, None] * d[:, None, :] / (L ** 3)[:, None, None]
+        J = corner_J + b * M @ (corner_J - centre_J)
+        J[:, :, self.bias_col] = d / L[:, None]
+        return out, J
+
+    def start(self, camera: "LensCamera") -> np.ndarray:
+        """Start values: the mount's height, roll and pitch as given; each marker's pose in a frame from its corners'
+        floor points (kinds.duckiebot.fit.marker_on_floor) under the camera's footprint, chained from the reference
+        marker through the frames (breadth first); bias 0."""
+        s = self.obs
+        z, roll, pitch = pose_parameters(self.T_start)[[2, 3, 4]]
+        footprint = camera_transform([0.0, 0.0, z, roll, pitch, 0.0])
+        rect = camera.normalised(s.uv_px) @ camera.K[:2, :2].T + camera.K[:2, 2]
+        local = {}
+        for f, m in set(zip(s.frame.tolist(), s.marker.tolist())):
+            rows = np.flatnonzero((s.frame == f) & (s.marker == m))
+            local[f, m] = marker_on_floor(rect[rows], s.corner[rows], camera.K, footprint, self.size_m)
+        frames, markers = {}, {self.reference: np.zeros(3)}
+        changed = True
+        while changed:
+            changed = False
+            for (f, m), pose in sorted(local.items()):
+                if m in markers and f not in frames:
+                    frames[f] = _compose(markers[m], _inverse(pose))
+                    changed = True
+                elif f in frames and m not in markers:
+                    markers[m] = _compose(frames[f], pose)
+                    changed = True
+        if len(frames) < len(self.frames) or len(markers) < len(self.markers) + 1:
+            raise NaocalError("the floor markers do not chain into one floor")
+        return np.concatenate([[z, roll, pitch], *[frames[f] for f in self.frames.tolist()],
+                               *[markers[m] for m in self.markers], [0.0]])
+
+
 class LensEquations:
     """The intrinsics' normal equations for solver.identify.solve (as kinds.duckiebot.fit.DriveEquations are the
     joint fit's): unknowns the lens's `parameter_names(model)`, then each view's pose (`view<i>.rx .ry .rz`: OpenCV's
     rotation vector, `.tx_m .ty_m .tz_m`); residuals (projected - detected) px, one row per corner; each view's
     score for the cluster-robust covariance (its cluster: the view)."""
 
-    def __init__(self, model: str, object_points, image_points, camera: LensCamera, rvecs, tvecs):
+    def __init__(self, model: str, object_points, image_points, camera: LensCamera, rvecs, tvecs,
+                 floor: FloorMarkers | None = None):
         self.model = model
         self.obj = [np.asarray(o, dtype=float).reshape(-1, 3) for o in object_points]
         self.img = [np.asarray(i, dtype=float).reshape(-1, 2) for i in image_points]
@@ -192,6 +385,12 @@ class LensEquations:
                                pose_scales * len(self.obj))
         self.start = np.concatenate([camera.parameters] + [np.concatenate([r, t]) for r, t in zip(rvecs, tvecs)])
         self.first_row = np.concatenate([[0], np.cumsum([len(o) for o in self.obj])])
+        # the floor markers (optional): their parameters after the views' poses, a cluster per frame after the views'
+        self.floor = None if floor is None or not len(floor.sightings.frame) else FloorBlock(floor, len(self.names))
+        if self.floor is not None:
+            self.names += self.floor.names
+            self.scales = np.concatenate([self.scales, self.floor.scales])
+            self.start = np.concatenate([self.start, self.floor.start(camera)])
 
     def camera(self, free) -> LensCamera:
         return LensCamera.of_parameters(self.model, free[:self.q])
@@ -205,9 +404,17 @@ class LensEquations:
             columns = np.r_[0:self.q, at:at + 6]
             yield columns, uv - img, None if J_lens is None else np.concatenate([J_lens, J_pose], axis=2)
 
+    def _floor(self, free, jacobian):
+        """(residuals (N, 2), Jacobian (N, 2, P) or None) of the floor markers, each divided by its expected noise
+        and multiplied by BOARD_NOISE_PX: in the boards' units."""
+        uv, J = self.floor.predict(self.camera(free), free, self.q, jacobian)
+        w = self.floor.weight[:, None]
+        return (uv - self.floor.obs.uv_px) * w, None if J is None else J * w[:, :, None]
+
     def __call__(self, free, *, weights=None, jacobian: bool = True) -> Normal:
         P, M = len(free), len(self.obj)
-        A, g, scores, rss, residuals = np.zeros((P, P)), np.zeros(P), np.zeros((M, P)), 0.0, []
+        clusters = M + (0 if self.floor is None else len(self.floor.frames))
+        A, g, scores, rss, residuals = np.zeros((P, P)), np.zeros(P), np.zeros((clusters, P)), 0.0, []
         for m, (columns, r, J) in enumerate(self._views(free, jacobian)):
             residuals.append(r)
             rw = r if weights is None else r * np.sqrt(weights[self.first_row[m]:self.first_row[m + 1]])[:, None]
@@ -217,6 +424,19 @@ class LensEquations:
                 A[np.ix_(columns, columns)] += Js.T @ Js
                 scores[m, columns] = Js.T @ rw.reshape(-1)
                 g[columns] += scores[m, columns]
+        if self.floor is not None:
+            r, J = self._floor(free, jacobian)
+            residuals.append(r)
+            rw = r if weights is None else r * np.sqrt(weights[self.first_row[-1]:])[:, None]
+            rss += float(np.sum(rw ** 2))
+            if jacobian:
+                Js = J * self.scales
+                flat = Js.reshape(-1, P)
+                A += flat.T @ flat
+                per_row = np.einsum("ncp,nc->np", Js, rw)
+                for k, rows in enumerate(self.floor.cluster_rows):
+                    scores[M + k] = per_row[rows].sum(axis=0)
+                g += per_row.sum(axis=0)
         return Normal(A, g, 0.5 * rss, np.concatenate(residuals), scores)
 
     def dense(self, free):
@@ -227,29 +447,36 @@ class LensEquations:
             full[:, columns] = J.reshape(r.size, -1)
             rs.append(r.reshape(-1))
             Js.append(full)
+        if self.floor is not None:
+            r, J = self._floor(free, True)
+            rs.append(r.reshape(-1))
+            Js.append(J.reshape(r.size, -1))
         return np.concatenate(rs), np.concatenate(Js)
 
 
-def fit_camera(object_points, image_points, size, model: str, K_guess=None, *, with_covariance: bool = False):
-    """(camera, training RMS px per corner[, covariance of camera.parameters]) of one lens model fitted to views
-    (lists of (n, 3) and (n, 2)); `size` (w, h). OpenCV's calibration gives the start; naocal's LM
-    (solver.identify.solve) the fit; the covariance is cluster-robust with a view per cluster."""
+def fit_camera(object_points, image_points, size, model: str, K_guess=None, *, with_covariance: bool = False,
+               floor: FloorMarkers | None = None):
+    """(camera, training RMS px per board corner[, covariance of camera.parameters]) of one lens model fitted to
+    board views (lists of (n, 3) and (n, 2)) and the floor markers if given; `size` (w, h). OpenCV's calibration of
+    the boards gives the start; naocal's LM (solver.identify.solve) the fit; the covariance is cluster-robust with a
+    view, and a floor frame, per cluster."""
     if model not in LENS_MODELS:
         raise NaocalError(f"unknown lens model {model!r}: expected one of {', '.join(LENS_MODELS)}")
     if len(object_points) < 3:
         raise NaocalError(f"{len(object_points)} board views: at least 3 are needed to fit a camera")
     camera, rvecs, tvecs = opencv_start(object_points, image_points, size, model, K_guess)
-    equations = LensEquations(model, object_points, image_points, camera, rvecs, tvecs)
+    equations = LensEquations(model, object_points, image_points, camera, rvecs, tvecs, floor)
     normal_at = last_pass_cached(equations)
     check_identifiable(normal_at(equations.start).A, equations.names)
     solution = solve(equations, normal_at, equations.start, max_iterations=MAX_ITERATIONS)
     if not solution.success:
         raise NaocalError(f"the {model} lens fit did not converge ({solution.message})")
     camera = equations.camera(solution.free)
-    train = float(np.sqrt(np.mean(np.sum(solution.final.residuals ** 2, axis=1))))
+    boards = solution.final.residuals[:equations.first_row[-1]]
+    train = float(np.sqrt(np.mean(np.sum(boards ** 2, axis=1))))
     if not with_covariance:
         return camera, train
-    spread = solution.spread(np.arange(len(object_points)), equations.names)
+    spread = solution.spread(np.arange(len(solution.final.image_scores)), equations.names)
     return camera, train, spread.covariance[:equations.q, :equations.q]
 
 
@@ -278,18 +505,20 @@ def view_rms_px(camera: LensCamera, object_points, image_points) -> float:
     return float(np.sqrt(np.mean(residual ** 2)))
 
 
-def fit_lens(object_points, image_points, size, model: str, groups, K_guess=None) -> LensFit:
+def fit_lens(object_points, image_points, size, model: str, groups, K_guess=None, floor=None) -> LensFit:
     """One lens model: fitted to all views (with its stds), and held out group by group (`groups`: a label per
-    view, at least two different ones)."""
+    board view, at least two different ones); the floor markers (optional) are in every fit, none held out (a
+    marker's four corners give no pose of their own to judge it by)."""
     labels = _group_labels(groups)
     groups = np.asarray(groups)
-    camera, train, covariance = fit_camera(object_points, image_points, size, model, K_guess, with_covariance=True)
+    camera, train, covariance = fit_camera(object_points, image_points, size, model, K_guess, with_covariance=True,
+                                           floor=floor)
     squares = np.full(len(object_points), np.inf)
     for label in labels:
         train_idx, test_idx = np.flatnonzero(groups != label), np.flatnonzero(groups == label)
         try:
             held, _ = fit_camera([object_points[i] for i in train_idx], [image_points[i] for i in train_idx], size,
-                                 model, K_guess)
+                                 model, K_guess, floor=floor)
             squares[test_idx] = [view_rms_px(held, object_points[i], image_points[i]) ** 2 for i in test_idx]
         except (cv2.error, NaocalError):  # too few views left, or the fit diverged: the model cannot be judged
             pass
@@ -319,14 +548,15 @@ def significantly_worse(a: LensFit, b: LensFit) -> bool:
     return bool(d.mean() > CHOICE_SE * d.std(ddof=1) / np.sqrt(len(d)))
 
 
-def choose_lens(object_points, image_points, size, groups, models=LENS_MODELS, K_guess=None):
+def choose_lens(object_points, image_points, size, groups, models=LENS_MODELS, K_guess=None, floor=None):
     """(chosen LensFit, {model: LensFit}): the simplest model (fewest parameters; ties: the order of `models`) whose
-    held-out error is not significantly worse than the smallest one's (significantly_worse)."""
+    held-out error is not significantly worse than the smallest one's (significantly_worse). `floor`: the floor
+    markers (FloorMarkers) fitted with the boards."""
     _group_labels(groups)
     fits = {}
     for model in models:
         try:
-            fits[model] = fit_lens(object_points, image_points, size, model, groups, K_guess)
+            fits[model] = fit_lens(object_points, image_points, size, model, groups, K_guess, floor)
         except (cv2.error, NaocalError):
             continue  # refused on these views (e.g. OpenCV's fisheye ill-conditioned check, an undetermined term)
     if not fits:
