@@ -215,9 +215,10 @@ def test_the_running_estimate_is_not_pulled_by_corners_a_square_off():
 def test_the_bridge_serves_the_realistic_mock_when_asked():
     import argparse
 
-    from naocal.tools.cmd_bridge import _open_backend
+    from naocal.kinds.nao.bridge import open_served
 
-    backend, clock, persists = _open_backend(argparse.Namespace(driver="mock", seed=4, effect=[], mock="realistic"))
+    backend, clock, persists = open_served(argparse.Namespace(driver="mock", seed=4, effect=[], mock="realistic",
+                                                              watchdog_s=None))
     try:
         assert backend.realism.name == "realistic" and clock == "simulated" and not persists
         assert backend.intrinsics().fx_px == 618.0

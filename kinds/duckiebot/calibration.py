@@ -233,6 +233,8 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
                                  ("gain", "trim", "baseline_m", "k", "radius_m", "limit"), ())
     numbers = {key: fields.number(v, path, f"kinematics.{key}", limit=MAX_PARAMETER_SIZE) for key, v in section.items()}
     for name in KINEMATIC:
+        if name == "gain" and "dead_zone" in parameters:
+            continue  # kinematics.gain is then the secant at the drive speed (fit.secant_gain), parameters.gain the slope
         if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
             fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
                  f"kinematics.{name}")
