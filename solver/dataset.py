@@ -37,7 +37,7 @@ import numpy as np
 from naocal.solver import fields
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
-    atomic_write_text, decode_text, disk_full_as_error, fsync_directory, interrupts_deferred, parse_json_text,
+    append_durably, atomic_write_text, decode_text, interrupts_deferred, parse_json_text,
     read_bytes, read_json, read_text,
 )
 from naocal.solver.joints import JOINTS
@@ -977,33 +977,7 @@ class DatasetAppender:
         return n
 
     def _write_all(self, data: bytes, *, new_file: bool) -> None:
-        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT
-        if new_file:
-            flags |= os.O_TRUNC  # an empty or torn-away file is rewritten from its header
-        with disk_full_as_error(self.obs_path):
-            fd = os.open(self.obs_path, flags, 0o644)
-            size_before = os.fstat(fd).st_size
-            try:
-                view = memoryview(data)
-                while view:  # one write for a regular file; loop only in case of a short write
-                    written = os.write(fd, view)
-                    view = view[written:]
-                os.fsync(fd)
-            except OSError:
-                _truncate_quietly(fd, size_before)  # no half capture left behind (a disk full mid-write)
-                raise
-            finally:
-                os.close(fd)
-        if new_file:
-            fsync_directory(self.path)
-
-
-def _truncate_quietly(fd: int, size: int) -> None:
-    try:
-        os.ftruncate(fd, size)
-        os.fsync(fd)
-    except OSError:
-        pass  # the next open cuts a torn capture off anyway
+        append_durably(self.obs_path, data, new_file=new_file)  # an empty or torn-away file: rewritten from its header
 
 
 def _append_and_sync(path: Path, data: bytes) -> None:

@@ -188,6 +188,33 @@ _FILE_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pip
                (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
+def append_durably(path, data: bytes, *, new_file: bool = False) -> None:
+    """Append `data` to the file at `path` and fsync it (`new_file`: truncate it first and fsync its directory after):
+    what a journal appends is on disk when this returns, or nothing of it is (a failed write, e.g. a full disk, is
+    cut off again; DiskFullError for a full disk)."""
+    path = Path(path)
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | (os.O_TRUNC if new_file else 0)
+    with disk_full_as_error(path):
+        fd = os.open(path, flags, 0o644)
+        size_before = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:  # one write for a regular file; loop only in case of a short write
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        except OSError:
+            try:  # no half record left behind; else the reader's next open cuts it off
+                os.ftruncate(fd, size_before)
+                os.fsync(fd)
+            except OSError:
+                pass
+            raise
+        finally:
+            os.close(fd)
+    if new_file:
+        fsync_directory(path.parent)
+
+
 def _kind(mode: int) -> str:
     return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
 

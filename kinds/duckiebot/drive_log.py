@@ -31,7 +31,7 @@ import numpy as np
 from naocal.kinds.duckiebot.robot import robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
-from naocal.solver.fileio import (atomic_write_bytes, atomic_write_text, disk_full_as_error, fsync_directory,
+from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
                                   read_bytes, read_json, read_text)
 
 SCHEMA = "naocal.drive_log/1"
@@ -458,25 +458,6 @@ class EncoderJournal:
             previous = t
         text = csv_text(ENCODERS_HEADER, ([repr(t), str(a), str(b)] for t, a, b in rows))
         data = (text if self._new_file else text.split("\n", 1)[1]).encode("utf-8")
-        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | (os.O_TRUNC if self._new_file else 0)
-        with disk_full_as_error(self.path):
-            fd = os.open(self.path, flags, 0o644)
-            size_before = os.fstat(fd).st_size
-            try:
-                view = memoryview(data)
-                while view:  # one write for a regular file; loop only in case of a short write
-                    view = view[os.write(fd, view):]
-                os.fsync(fd)
-            except OSError:
-                try:  # no half row left behind (a disk full mid-write); else the next open cuts it off
-                    os.ftruncate(fd, size_before)
-                    os.fsync(fd)
-                except OSError:
-                    pass
-                raise
-            finally:
-                os.close(fd)
-        if self._new_file:
-            fsync_directory(self.path.parent)
-            self._new_file = False
+        append_durably(self.path, data, new_file=self._new_file)
+        self._new_file = False
         self.rows += rows

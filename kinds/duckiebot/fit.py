@@ -464,6 +464,24 @@ def _inverse(a):
     return np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
 
 
+def chain_floor(seen: dict, reference: int) -> tuple[dict, dict]:
+    """(frames, markers): planar poses (x, y, yaw) on the floor of every frame and marker that `seen` {(frame,
+    marker): the marker's pose relative to the frame's} ties to the `reference` marker (the floor's frame, 0),
+    through frames that see two markers; what is not tied is left out."""
+    markers, frames = {reference: np.zeros(3)}, {}
+    changed = True
+    while changed:
+        changed = False
+        for (f, m), relative in sorted(seen.items()):
+            if m in markers and f not in frames:
+                frames[f] = _compose(markers[m], _inverse(relative))
+                changed = True
+            elif f in frames and m not in markers:
+                markers[m] = _compose(frames[f], relative)
+                changed = True
+    return frames, markers
+
+
 def start_values(drive: Drive, obs: Sightings, K, marker_size_m, T_base_camera, reference):
     """(frame poses {frame: (x, y, theta)}, marker poses {id: (x, y, yaw)}, gain) from the detections alone: each
     marker's pose in the body frame from its corners' floor points under the nominal camera pose, chained from the
@@ -472,17 +490,7 @@ def start_values(drive: Drive, obs: Sightings, K, marker_size_m, T_base_camera, 
     for f, m in {(int(f), int(m)) for f, m in zip(obs.frame, obs.marker)}:
         rows = np.flatnonzero((obs.frame == f) & (obs.marker == m))
         seen[(f, m)] = marker_on_floor(obs.uv_px[rows], obs.corner[rows], K, T_base_camera, marker_size_m)
-    markers, frames = {int(reference): np.zeros(3)}, {}
-    changed = True
-    while changed:
-        changed = False
-        for (f, m), body_marker in sorted(seen.items()):
-            if m in markers and f not in frames:
-                frames[f] = _compose(markers[m], _inverse(body_marker))
-                changed = True
-            elif f in frames and m not in markers:
-                markers[m] = _compose(frames[f], body_marker)
-                changed = True
+    frames, markers = chain_floor(seen, int(reference))
     ordered = sorted(frames)
     nominal, _ = trajectory(drive, 1.0, 0.0, drive.baseline_m, np.zeros(3), drive.frame_t_s[ordered[0]],
                             drive.frame_t_s[ordered])

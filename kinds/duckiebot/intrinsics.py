@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.fit import (BIAS, Sightings, _compose, _inverse, camera_transform, marker_offsets,
+from naocal.kinds.duckiebot.fit import (BIAS, Sightings, camera_transform, chain_floor, marker_offsets,
                                        marker_on_floor, pose_parameters)
 from naocal.solver.errors import NaocalError
 from naocal.solver.identify import Normal, check_identifiable, last_pass_cached, solve
@@ -349,17 +349,7 @@ class FloorBlock:
         for f, m in set(zip(s.frame.tolist(), s.marker.tolist())):
             rows = np.flatnonzero((s.frame == f) & (s.marker == m))
             local[f, m] = marker_on_floor(rect[rows], s.corner[rows], camera.K, footprint, self.size_m)
-        frames, markers = {}, {self.reference: np.zeros(3)}
-        changed = True
-        while changed:
-            changed = False
-            for (f, m), pose in sorted(local.items()):
-                if m in markers and f not in frames:
-                    frames[f] = _compose(markers[m], _inverse(pose))
-                    changed = True
-                elif f in frames and m not in markers:
-                    markers[m] = _compose(frames[f], pose)
-                    changed = True
+        frames, markers = chain_floor(local, self.reference)
         if len(frames) < len(self.frames) or len(markers) < len(self.markers) + 1:
             raise NaocalError("the floor markers do not chain into one floor")
         return np.concatenate([[z, roll, pitch], *[frames[f] for f in self.frames.tolist()],
