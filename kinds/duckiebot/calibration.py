@@ -8,7 +8,8 @@
                 (plumb_bob always: Duckietown's files hold it)
      "kinematics": {"gain", "trim", "baseline_m", "k", "radius_m", "limit"},
      "parameters": {NAME: {"value", "std", "fixed"}}   the joint fit (kinds.duckiebot.fit), SI, cluster-robust stds
-     "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings"},
+     "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings", "pwm_driver"},
+            (pwm_driver: fitted through Duckietown's wheel driver, identify --effects pwm_driver; absent: false)
      "source", "created"}
 
 `parameters` is the file's truth: `kinematics` repeats gain, trim and baseline_m from it (for people and other
@@ -85,6 +86,11 @@ class CalibrationFile:
     def lens(self) -> LensCamera:
         return self.lenses[self.lens_model]
 
+    @property
+    def pwm_driver(self) -> bool:
+        """Fitted through Duckietown's wheel driver (fit.PWM_DRIVER): a refit of it (verify, refine) must be too."""
+        return bool(self.fit.get("pwm_driver", False))
+
     def duckietown(self, calibration_time: str = "") -> DuckietownCalibration:
         """Duckietown's three files' content (calibration_files.write_calibration writes them)."""
         return duckietown_calibration(self.robot_id, self.kinematics, plumb_bob_intrinsics(
@@ -122,7 +128,8 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
                        for n, v, s, free in zip(fit.names, fit.x, fit.std, fit.free)},
         "fit": {"rms_px": float(fit.rms_px), "corners": int(len(fit.sightings.frame)),
                 "outliers": int(len(fit.outliers.frame)), "reference_marker": int(fit.reference_marker),
-                "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings]},
+                "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings],
+                "pwm_driver": bool(fit.pwm_driver)},
         "source": source or "naocal identify",
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
@@ -241,11 +248,13 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
     except ValueError as err:
         fail(path, str(err), "kinematics")
     fit = fields.json_object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
-                                                       "warnings"), ())
+                                                       "warnings"), ("pwm_driver",))
     fields.number(fit["rms_px"], path, "fit.rms_px", limit=MAX_PIXELS, unit="px")
     for key in ("corners", "outliers", "reference_marker"):
         fields.count(fit[key], path, f"fit.{key}")
-    fields.flag(fit["converged"], path, "fit.converged")
+    for key in ("converged", "pwm_driver"):
+        if key in fit:
+            fields.flag(fit[key], path, f"fit.{key}")
     if not isinstance(fit["warnings"], list):
         fail(path, f"expected a list of text, got {fields.shown(fit['warnings'])}", "fit.warnings")
     for i, warning in enumerate(fit["warnings"]):
