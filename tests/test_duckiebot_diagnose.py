@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from test_duckiebot_fit import LOG_K, synthetic
+from test_duckiebot_fit import LOG_K, pwm_motor_poses, synthetic
 
 from naocal.kinds.duckiebot.diagnose import LENS_CHOICES, parse_effects, run_diagnose
 from naocal.kinds.duckiebot.drive_diagnostics import diagnose_fit, lens_verdict
@@ -155,6 +155,21 @@ def test_duckietowns_wheel_driver_is_named_only_where_the_duties_were_quantised(
     assert quantised.named == PWM_DRIVER, [(t.effect, t.statistic, t.p_value, t.refit_rms_px) for t in quantised.tests]
     assert test.p_value < quantised.threshold and quantised.rms_px > 1.03 * clean.rms_px
     assert quantised.after["added"] == [PWM_DRIVER] and quantised.after["rms_px"] < 1.02 * clean.rms_px
+
+
+def test_the_simulated_drive_hides_duckietowns_wheel_driver():
+    """`naocal simulate --hidden-effects pwm_driver`: the duties logged, the motors driven by the driver's floored PWM
+    (the test's own small simulator, pwm_motor_poses, agrees to 1e-9 m); truth.json records it; off without it."""
+    assert parse_hidden("pwm_driver") == {PWM_DRIVER: 1.0}
+    robot = hidden_robot(2, {PWM_DRIVER: 1.0})
+    assert robot.truth()["effects"] == {PWM_DRIVER: 1.0}
+    steps = diagnose_program(board_steps=0)
+    drive = simulate_drive(steps, robot.kinematics, effects=robot.effects)
+    expected = pwm_motor_poses(drive, robot.kinematics, 60.0)
+    assert np.abs(drive.frame_poses - expected).max() < 1e-9
+    exact = simulate_drive(steps, robot.kinematics)
+    assert np.abs(exact.frame_poses[:, :2] - expected[:, :2]).max() > 1e-3  # the floor matters: not a no-op
+    assert np.array_equal(exact.left_duty, drive.left_duty)  # the duties logged are those sent
 
 
 def board_views(hidden, noise_px=0.1):

@@ -236,17 +236,6 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
         fail(path, f"{str(camera['lens_model'])[:40]!r} is not one of the lenses given ({', '.join(fitted)})",
              "camera.lens_model")
     parameters = _parameters(doc["parameters"], path)
-    section = fields.json_object(doc["kinematics"], path, "kinematics",
-                                 ("gain", "trim", "baseline_m", "k", "radius_m", "limit"), ())
-    numbers = {key: fields.number(v, path, f"kinematics.{key}", limit=MAX_PARAMETER_SIZE) for key, v in section.items()}
-    for name in KINEMATIC:
-        if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
-            fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
-                 f"kinematics.{name}")
-    try:
-        kinematics = Kinematics(**numbers)
-    except ValueError as err:
-        fail(path, str(err), "kinematics")
     fit = fields.json_object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
                                                        "warnings"), ("pwm_driver",))
     fields.number(fit["rms_px"], path, "fit.rms_px", limit=MAX_PIXELS, unit="px")
@@ -259,6 +248,21 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
         fail(path, f"expected a list of text, got {fields.shown(fit['warnings'])}", "fit.warnings")
     for i, warning in enumerate(fit["warnings"]):
         fields.text(warning, path, f"fit.warnings[{i}]", max_chars=MAX_TEXT)
+    section = fields.json_object(doc["kinematics"], path, "kinematics",
+                                 ("gain", "trim", "baseline_m", "k", "radius_m", "limit"), ())
+    numbers = {key: fields.number(v, path, f"kinematics.{key}", limit=MAX_PARAMETER_SIZE) for key, v in section.items()}
+    for name in KINEMATIC:
+        if name == "gain" and ("dead_zone" in parameters or fit.get("pwm_driver")):
+            # kinematics.gain is then the secant at the drive speed (fit.secant_gain: the dead zone and the driver's
+            # floor folded in), parameters.gain the slope
+            continue
+        if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
+            fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
+                 f"kinematics.{name}")
+    try:
+        kinematics = Kinematics(**numbers)
+    except ValueError as err:
+        fail(path, str(err), "kinematics")
     result = CalibrationFile(str(path), robot["id"], width, height, camera["lens_model"],
                              {m: lens for m, (lens, _) in fitted.items()},
                              {m: errors for m, (_, errors) in fitted.items()}, kinematics, parameters, fit,

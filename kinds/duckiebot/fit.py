@@ -138,12 +138,17 @@ class Drive:
                    log.wheels.baseline_m, log.wheels.limit, pwm_driver)
 
     def motor_duties(self) -> tuple[np.ndarray, np.ndarray]:
-        """(left, right) duties as the motors receive them: as logged, or with pwm_driver the driver's PWM above its
-        floor PWM_MIN as a duty, sign(u) (pwm - PWM_MIN) / (PWM_MAX - PWM_MIN) (0 where it sends no PWM)."""
+        """(left, right) duties as the motors receive them: as logged, or with pwm_driver driver_duty's."""
         if not self.pwm_driver:
             return self.left_duty, self.right_duty
-        return tuple(np.sign(u) * np.maximum(duty_to_pwm(u) - PWM_MIN, 0) / (PWM_MAX - PWM_MIN)
-                     for u in (self.left_duty, self.right_duty))
+        return driver_duty(self.left_duty), driver_duty(self.right_duty)
+
+
+def driver_duty(u):
+    """The duty Duckietown's wheel driver gives the motors for the duty `u` sent: its PWM (kinematics.duty_to_pwm,
+    floored) above its floor PWM_MIN as a duty, sign(u) (pwm - PWM_MIN) / (PWM_MAX - PWM_MIN) (0 where it sends no
+    PWM)."""
+    return np.sign(u) * np.maximum(duty_to_pwm(u) - PWM_MIN, 0) / (PWM_MAX - PWM_MIN)
 
 
 def pose_parameters(T_base_camera) -> np.ndarray:
