@@ -60,6 +60,7 @@ class EffectTest:
     predicted_rms_px: float = float("nan")
     predicted_values: dict = field(default_factory=dict)
     refit_rms_px: float = float("nan")  # the RMS the model with it leaves (significant ones, when refitted)
+    refit_whitened_rss: float = float("nan")  # the same refit's whitened RSS (the ranking's: rank_key)
     confirmed_by_refit: bool = False  # far from the floor, named by its refit (FAR_FROM_FLOOR), not its score
 
     def as_dict(self) -> dict:
@@ -162,15 +163,22 @@ def score_effects(drive: Drive, fit: DriveFit, K, marker_size_m: float, candidat
     return tests, threshold
 
 
+def whitened_rss(fit: DriveFit) -> float:
+    return float(np.sum((fit.residuals_px / fit.sightings.sigma_px[:, None]) ** 2))
+
+
+def rank_key(t: EffectTest):
+    """Significant tests first, by their refit's Akaike criterion (whitened RSS + 2 per parameter added: the
+    driver, which adds none, is preferred to a dead zone that fits the same offset no better), then the others."""
+    return (not t.significant, t.refit_whitened_rss + 2 * len(t.parameters) if t.significant else 0.0)
+
+
 def driver_test(fit: DriveFit, with_driver: DriveFit) -> EffectTest:
     """Duckietown's wheel driver (fit.PWM_DRIVER) judged by its refit `with_driver`, both models with the same
     parameters: the drop of the whitened RSS, over the refit's residual variance (at least 1: the expected noise,
     so that a fit above the floor, e.g. a rendered log's detector bias, needs a larger drop), against chi-square
     with 1 dof (the choice counted as a parameter: conservative). A drive without the driver's floor fits worse
     with it (the floor moves every duty off the one sent), so the drop is negative there."""
-    def whitened_rss(f):
-        return float(np.sum((f.residuals_px / f.sightings.sigma_px[:, None]) ** 2))
-
     from scipy.stats import chi2
 
     before, after = whitened_rss(fit), whitened_rss(with_driver)
@@ -178,7 +186,8 @@ def driver_test(fit: DriveFit, with_driver: DriveFit) -> EffectTest:
     statistic = (before - after) / variance
     return EffectTest(PWM_DRIVER, (), dof=1, delta_rss=before - after, excess_rss=statistic - 1.0,
                       statistic=statistic, p_value=float(chi2.sf(statistic, 1)) if statistic > 0 else 1.0,
-                      uniqueness=1.0, predicted_rms_px=with_driver.rms_px, refit_rms_px=with_driver.rms_px)
+                      uniqueness=1.0, predicted_rms_px=with_driver.rms_px, refit_rms_px=with_driver.rms_px,
+                      refit_whitened_rss=after)
 
 
 def phase_table(drive: Drive, fit: DriveFit) -> list[dict]:
@@ -217,8 +226,8 @@ def lens_verdict(lens_fits: dict, in_use: str) -> LensVerdict:
 def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(), lens: str = "",
                  lens_fits: dict | None = None, refit=None) -> DriveDiagnosis:
     """Compare, locate and name (module docstring) for a fitted model with `effects`. `refit(effects)`: the fit
-    with other effects (a DriveFit); given, each significant candidate is refitted and they are ranked by the RMS
-    their refits leave (the score test screens, the refit confirms: far from the floor a one-step prediction can
+    with other effects (a DriveFit); given, each significant candidate is refitted and they are ranked by what
+    their refits leave (rank_key; the score test screens, the refit confirms: far from the floor a one-step prediction can
     rank a stand-in first), and the best's refit is DriveDiagnosis.after."""
     effects = tuple(effects)
     candidates = [e for e in EFFECTS if e not in effects]
@@ -251,10 +260,10 @@ def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(
         if result is None or not result.success:
             t.significant = False
             continue
-        refits[t.effect], t.refit_rms_px = result, result.rms_px
+        refits[t.effect], t.refit_rms_px, t.refit_whitened_rss = result, result.rms_px, whitened_rss(result)
         if far and not t.significant and (fit.rms_px / result.rms_px) ** 2 >= FAR_RSS_RATIO:
             t.significant, t.confirmed_by_refit = True, True
-    tests.sort(key=lambda t: (not t.significant, t.refit_rms_px if t.significant else 0.0))
+    tests.sort(key=rank_key)
     if diagnosis.named is not None:
         diagnosis.after = refit_summary(refits[diagnosis.named], effects + (diagnosis.named,))
     return diagnosis
