@@ -143,6 +143,7 @@ def test_identify_never_writes_over_its_input(calibrated, tmp_path):
     (("kinematics", "gain"), 2.0, "kinematics.gain"),  # disagrees with parameters.gain
     (("robot", "id"), "no/such robot", "robot.id"),
     (("fit", "extra"), 1, "fit.extra"),
+    (("fit", "pwm_driver"), "yes", "fit.pwm_driver"),
 ])
 def test_a_bad_calibration_file_is_refused_naming_its_field(calibrated, tmp_path, where, value, field):
     doc = json.loads(calibrated.cal.read_text())
@@ -210,6 +211,15 @@ def test_identify_adds_the_wheel_effects_diagnose_names(calibrated, tmp_path):
     assert result.returncode == 0, result.stderr
     cal = read_calibration_file(out)
     assert "dead_zone" in cal.parameters and cal.std("dead_zone") > 0
+    assert not cal.pwm_driver and not read_calibration_file(calibrated.cal).pwm_driver
+    # Duckietown's wheel driver, named like an effect (a log does not say which driver sent its duties): recorded
+    # in the file, and verify refits through it
+    driven = tmp_path / "PWM.json"
+    result = naocal("identify", calibrated.log, "--effects", "pwm_driver,dead_zone", "--out", driven)
+    assert result.returncode == 0, result.stderr
+    assert read_calibration_file(driven).pwm_driver and json.loads(driven.read_text())["fit"]["pwm_driver"] is True
+    verified = naocal("verify", calibrated.log, "--offsets", driven, "--json")
+    assert verified.returncode in (0, 1), verified.stderr
     bad = naocal("identify", calibrated.log, "--effects", "wobble", "--out", tmp_path / "BAD.json")
     one_line_error(bad, "wobble")
     assert not (tmp_path / "BAD.json").exists()

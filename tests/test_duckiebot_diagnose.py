@@ -8,11 +8,11 @@ import json
 
 import numpy as np
 import pytest
-from test_duckiebot_fit import LOG_K, synthetic
+from test_duckiebot_fit import LOG_K, pwm_motor_poses, synthetic
 
 from naocal.kinds.duckiebot.diagnose import LENS_CHOICES, parse_effects, run_diagnose
 from naocal.kinds.duckiebot.drive_diagnostics import diagnose_fit, lens_verdict
-from naocal.kinds.duckiebot.fit import EFFECTS, DriveEquations, Sightings, fit_drive, trajectory
+from naocal.kinds.duckiebot.fit import EFFECTS, PWM_DRIVER, DriveEquations, Sightings, fit_drive, trajectory
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, board_points, choose_lens
 from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, diagnose_program, hidden_robot,
                                            paper_program, simulate_drive)
@@ -125,7 +125,51 @@ def test_a_clean_drive_names_nothing(seed):
     """No false alarm: the base model on a drive with nothing hidden names no effect (Bonferroni over the tests)."""
     diagnosis, _, _ = diagnosed(seed)
     assert diagnosis.named is None and diagnosis.after is None, [(t.effect, t.p_value) for t in diagnosis.tests]
-    assert {t.effect for t in diagnosis.tests} == set(EFFECTS)
+    assert {t.effect for t in diagnosis.tests} == set(EFFECTS) | {PWM_DRIVER}
+
+
+def with_expected_noise(sightings, noise_px=0.3):
+    """synthetic()'s corners with their expected noise, as a log's detections have it (the whitened statistics')."""
+    return Sightings(sightings.frame, sightings.marker, sightings.corner, sightings.uv_px,
+                     np.full(len(sightings.frame), noise_px))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_duckietowns_wheel_driver_is_named_only_where_the_duties_were_quantised(seed):
+    """The duties through Duckietown's 8-bit driver (floored PWM; the motors start at its floor, PWM 60): the base
+    model names the driver (its refit's likelihood ratio, drive_diagnostics.driver_test) and with it the RMS is the
+    clean drive's; on the clean drive the driver fits worse and is not named."""
+    def diagnosed_drive(pwm_start):
+        _, drive, sightings, K = synthetic(seed, steps=diagnose_program(board_steps=0), pwm_start=pwm_start)
+        sightings = with_expected_noise(sightings)
+
+        def refit(effects):
+            return fit_drive(drive, sightings, K, 0.065, camera_mount(), effects=effects)
+
+        diagnosis = diagnose_fit(drive, refit(()), K, 0.065, refit=refit)
+        return diagnosis, next(t for t in diagnosis.tests if t.effect == PWM_DRIVER)
+
+    clean, clean_test = diagnosed_drive(None)
+    assert clean.named is None and clean_test.statistic < 0 and not clean_test.significant
+    quantised, test = diagnosed_drive(60.0)
+    assert quantised.named == PWM_DRIVER, [(t.effect, t.statistic, t.p_value, t.refit_rms_px) for t in quantised.tests]
+    assert test.p_value < quantised.threshold and quantised.rms_px > 1.03 * clean.rms_px
+    assert quantised.after["added"] == [PWM_DRIVER] and quantised.after["rms_px"] < 1.02 * clean.rms_px
+
+
+def test_the_simulated_drive_hides_duckietowns_wheel_driver():
+    """`naocal simulate --hidden-effects pwm_driver`: the duties logged, the motors driven by the driver's floored PWM
+    (the test's own small simulator, pwm_motor_poses, agrees to 1e-9 m); truth.json records it; off without it."""
+    assert parse_hidden("pwm_driver") == {PWM_DRIVER: 1.0}
+    robot = hidden_robot(2, {PWM_DRIVER: 1.0})
+    assert robot.truth()["effects"] == {PWM_DRIVER: 1.0}
+    steps = diagnose_program(board_steps=0)
+    drive = simulate_drive(steps, robot.kinematics, effects=robot.effects)
+    expected = pwm_motor_poses(drive, robot.kinematics, 60.0)
+    assert np.abs(drive.frame_poses - expected).max() < 1e-9
+    exact = simulate_drive(steps, robot.kinematics)
+    assert np.abs(exact.frame_poses[:, :2] - expected[:, :2]).max() > 1e-3  # the floor matters: not a no-op
+    assert np.array_equal(exact.left_duty, drive.left_duty)  # the duties logged are those sent
 
 
 def board_views(hidden, noise_px=0.1):
@@ -166,6 +210,7 @@ def test_bad_hidden_and_effects_are_refused_in_one_line():
         with pytest.raises(NaocalError, match=message):
             parse_hidden(text)
     assert parse_effects("slip,dead_zone") == ("dead_zone", "slip")
+    assert parse_effects("pwm_driver,dead_zone") == ("dead_zone", PWM_DRIVER)  # the driver model: identify --effects
     assert LENS_CHOICES == LENS_MODELS  # --lens's choices, listed without importing cv2
     with pytest.raises(NaocalError, match="unknown Duckiebot effect 'camera_tilt'"):
         parse_effects("camera_tilt")

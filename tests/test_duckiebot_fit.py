@@ -8,7 +8,7 @@ import pytest
 
 from naocal.kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
 from naocal.kinds.duckiebot.detect import detect_markers
-from naocal.kinds.duckiebot.fit import (CAMERA, Drive, DriveEquations, Sightings, fit_drive,
+from naocal.kinds.duckiebot.fit import (CAMERA, PWM_DRIVER, Drive, DriveEquations, Sightings, fit_drive,
                                  pose_parameters, secant_gain, trajectory)
 from naocal.kinds.duckiebot.kinematics import body_velocity, duty_to_pwm, integrate_pose
 from naocal.kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
@@ -152,15 +152,15 @@ def test_a_pwm_driver_and_the_motors_start_are_modelled():
     steps = joint_program(board_steps=0, drive_duties=(0.3, 0.45))
     robot, drive, sightings, K = synthetic(3, steps=steps, pwm_start=65.0)
     truth = truth_of(robot)
-    quantised = Drive(drive.wheel_t_s, drive.left_duty, drive.right_duty, drive.frame_t_s, LOG_K, 0.0318, 0.1,
-                      pwm_driver=True)
-    fit = fit_drive(quantised, sightings, K, 0.065, camera_mount(), effects=("dead_zone",))
+    # the driver named like an effect (identify --effects pwm_driver,dead_zone): the log does not say
+    fit = fit_drive(drive, sightings, K, 0.065, camera_mount(), effects=(PWM_DRIVER, "dead_zone"))
+    assert fit.pwm_driver and not drive.pwm_driver
     assert abs(fit.value("trim") - truth["trim"]) < 0.0005
     assert abs(fit.value("dead_zone") - 5.0 / 195.0) < 3 * fit.stdev("dead_zone")
     for name in ("gain", "trim", "baseline_m"):
         assert abs(fit.value(name) - truth[name]) < Z_LIMIT * fit.stdev(name), name
     # the exported gain drives it 0.3 m/s: the secant with the start and the driver's mean half step folded in
-    gain, std = secant_gain(quantised, fit, 0.3)
+    gain, std = secant_gain(drive, fit, 0.3)
     needed = truth["gain"] + 5.5 / 195.0 * LOG_K * 0.0318 / 0.3
     assert abs(gain - needed) < Z_LIMIT * std and abs(gain / needed - 1.0) < 0.01
     naive = fit_drive(drive, sightings, K, 0.065, camera_mount())

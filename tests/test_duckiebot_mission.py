@@ -237,7 +237,8 @@ def test_a_validation_curving_off_the_line_stops_and_is_measured_not_failed(tmp_
         lens = SimpleNamespace(camera=LensCamera.from_intrinsics(robot.truth.camera))
         true = robot.truth.kinematics_at(settings.speed_mps)
         calibration = SimpleNamespace(kinematics=replace(true, trim=true.trim + 0.04), lens=lens,
-                                      T_base_camera=robot.truth.T_base_camera, drive_fit=SimpleNamespace(names=[]))
+                                      T_base_camera=robot.truth.T_base_camera,
+                                      drive_fit=SimpleNamespace(names=[], pwm_driver=True))  # fitted through it
         ctx = MissionContext(robot, tmp_path, settings, session, calibration=calibration)
         outcome = Validation().run(ctx)
         v = ctx.validation

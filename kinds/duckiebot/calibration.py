@@ -8,7 +8,8 @@
                 (plumb_bob always: Duckietown's files hold it)
      "kinematics": {"gain", "trim", "baseline_m", "k", "radius_m", "limit"},
      "parameters": {NAME: {"value", "std", "fixed"}}   the joint fit (kinds.duckiebot.fit), SI, cluster-robust stds
-     "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings"},
+     "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings", "pwm_driver"},
+            (pwm_driver: fitted through Duckietown's wheel driver, identify --effects pwm_driver; absent: false)
      "source", "created"}
 
 `parameters` is the file's truth: `kinematics` repeats gain, trim and baseline_m from it (for people and other
@@ -85,6 +86,11 @@ class CalibrationFile:
     def lens(self) -> LensCamera:
         return self.lenses[self.lens_model]
 
+    @property
+    def pwm_driver(self) -> bool:
+        """Fitted through Duckietown's wheel driver (fit.PWM_DRIVER): a refit of it (verify, refine) must be too."""
+        return bool(self.fit.get("pwm_driver", False))
+
     def duckietown(self, calibration_time: str = "") -> DuckietownCalibration:
         """Duckietown's three files' content (calibration_files.write_calibration writes them)."""
         return duckietown_calibration(self.robot_id, self.kinematics, plumb_bob_intrinsics(
@@ -122,7 +128,8 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
                        for n, v, s, free in zip(fit.names, fit.x, fit.std, fit.free)},
         "fit": {"rms_px": float(fit.rms_px), "corners": int(len(fit.sightings.frame)),
                 "outliers": int(len(fit.outliers.frame)), "reference_marker": int(fit.reference_marker),
-                "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings]},
+                "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings],
+                "pwm_driver": bool(fit.pwm_driver)},
         "source": source or "naocal identify",
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
@@ -229,12 +236,26 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
         fail(path, f"{str(camera['lens_model'])[:40]!r} is not one of the lenses given ({', '.join(fitted)})",
              "camera.lens_model")
     parameters = _parameters(doc["parameters"], path)
+    fit = fields.json_object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
+                                                       "warnings"), ("pwm_driver",))
+    fields.number(fit["rms_px"], path, "fit.rms_px", limit=MAX_PIXELS, unit="px")
+    for key in ("corners", "outliers", "reference_marker"):
+        fields.count(fit[key], path, f"fit.{key}")
+    for key in ("converged", "pwm_driver"):
+        if key in fit:
+            fields.flag(fit[key], path, f"fit.{key}")
+    if not isinstance(fit["warnings"], list):
+        fail(path, f"expected a list of text, got {fields.shown(fit['warnings'])}", "fit.warnings")
+    for i, warning in enumerate(fit["warnings"]):
+        fields.text(warning, path, f"fit.warnings[{i}]", max_chars=MAX_TEXT)
     section = fields.json_object(doc["kinematics"], path, "kinematics",
                                  ("gain", "trim", "baseline_m", "k", "radius_m", "limit"), ())
     numbers = {key: fields.number(v, path, f"kinematics.{key}", limit=MAX_PARAMETER_SIZE) for key, v in section.items()}
     for name in KINEMATIC:
-        if name == "gain" and "dead_zone" in parameters:
-            continue  # kinematics.gain is then the secant at the drive speed (fit.secant_gain), parameters.gain the slope
+        if name == "gain" and ("dead_zone" in parameters or fit.get("pwm_driver")):
+            # kinematics.gain is then the secant at the drive speed (fit.secant_gain: the dead zone and the driver's
+            # floor folded in), parameters.gain the slope
+            continue
         if abs(numbers[name] - parameters[name]["value"]) > AGREEMENT * max(1.0, abs(numbers[name])):
             fail(path, f"{numbers[name]!r} disagrees with parameters.{name} ({parameters[name]['value']!r})",
                  f"kinematics.{name}")
@@ -242,16 +263,6 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
         kinematics = Kinematics(**numbers)
     except ValueError as err:
         fail(path, str(err), "kinematics")
-    fit = fields.json_object(doc["fit"], path, "fit", ("rms_px", "corners", "outliers", "reference_marker", "converged",
-                                                       "warnings"), ())
-    fields.number(fit["rms_px"], path, "fit.rms_px", limit=MAX_PIXELS, unit="px")
-    for key in ("corners", "outliers", "reference_marker"):
-        fields.count(fit[key], path, f"fit.{key}")
-    fields.flag(fit["converged"], path, "fit.converged")
-    if not isinstance(fit["warnings"], list):
-        fail(path, f"expected a list of text, got {fields.shown(fit['warnings'])}", "fit.warnings")
-    for i, warning in enumerate(fit["warnings"]):
-        fields.text(warning, path, f"fit.warnings[{i}]", max_chars=MAX_TEXT)
     result = CalibrationFile(str(path), robot["id"], width, height, camera["lens_model"],
                              {m: lens for m, (lens, _) in fitted.items()},
                              {m: errors for m, (_, errors) in fitted.items()}, kinematics, parameters, fit,

@@ -17,9 +17,9 @@ def add_options(parser) -> None:
 
 
 def parse_effects(text) -> tuple:
-    """'dead_zone,slip' -> the effects (kinds.duckiebot.fit.EFFECTS, in its order); NaocalError naming an unknown
-    one."""
-    from naocal.kinds.duckiebot.fit import EFFECTS
+    """'dead_zone,slip' -> the effects (kinds.duckiebot.fit.EFFECTS, in its order, then fit.PWM_DRIVER: Duckietown's
+    wheel driver, a choice of model); NaocalError naming an unknown one."""
+    from naocal.kinds.duckiebot.fit import ALL_EFFECTS
     from naocal.solver.effects import comma_list
     from naocal.solver.errors import NaocalError
 
@@ -27,9 +27,9 @@ def parse_effects(text) -> tuple:
         return ()
     names = comma_list(text, "--effects")
     for name in names:
-        if name not in EFFECTS:
-            raise NaocalError(f"--effects: unknown Duckiebot effect {name!r} (expected {', '.join(EFFECTS)})")
-    return tuple(e for e in EFFECTS if e in names)
+        if name not in ALL_EFFECTS:
+            raise NaocalError(f"--effects: unknown Duckiebot effect {name!r} (expected {', '.join(ALL_EFFECTS)})")
+    return tuple(e for e in ALL_EFFECTS if e in names)
 
 
 def run_diagnose(args) -> int:

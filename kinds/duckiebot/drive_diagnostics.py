@@ -12,18 +12,20 @@ kinds.duckiebot.diagnose).
   ranked by what they explain beyond what they would fit of noise alone. The lens is judged by the lens fits
   (kinds.duckiebot.intrinsics: held-out board error per model): a lens model whose held-out error is below the
   model in use by more than LENS_RATIO names "the wrong lens model", and comes first (a camera that is wrong bends
-  every marker, and every wheel test with it);
+  every marker, and every wheel test with it). Duckietown's wheel driver (fit.PWM_DRIVER: the motors get the
+  floored PWM, not the duty logged) has no parameter to score: it is judged by its refit, a likelihood ratio of
+  the two models (driver_test);
 - add: the named effect (or lens) refitted, the RMS before and after.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from naocal.kinds.duckiebot.fit import (EFFECT_START, EFFECTS, KINEMATIC, Drive, DriveEquations, DriveFit,
-                                        fit_drive, parameter_scales)
+from naocal.kinds.duckiebot.fit import (ALL_EFFECTS, EFFECT_START, EFFECTS, KINEMATIC, PWM_DRIVER, Drive,
+                                        DriveEquations, DriveFit, fit_drive, parameter_scales)
 from naocal.solver.diagnostics import FAMILY_ALPHA
 from naocal.solver.errors import NaocalError, SolveError
 from naocal.solver.scoretest import orthonormal_basis, project_off, score_test
@@ -58,6 +60,7 @@ class EffectTest:
     predicted_rms_px: float = float("nan")
     predicted_values: dict = field(default_factory=dict)
     refit_rms_px: float = float("nan")  # the RMS the model with it leaves (significant ones, when refitted)
+    refit_whitened_rss: float = float("nan")  # the same refit's whitened RSS (the ranking's: rank_key)
     confirmed_by_refit: bool = False  # far from the floor, named by its refit (FAR_FROM_FLOOR), not its score
 
     def as_dict(self) -> dict:
@@ -115,6 +118,7 @@ def floor_and_whitened(fit: DriveFit) -> tuple[float, float]:
 def score_effects(drive: Drive, fit: DriveFit, K, marker_size_m: float, candidates) -> list[EffectTest]:
     """A score test (solver.scoretest.score_test) per candidate effect of fit.EFFECTS not in the fit, clustered by
     frame."""
+    drive = replace(drive, pwm_driver=fit.pwm_driver)  # the model fitted
     extra = [n for e in candidates for n in EFFECTS[e] if n not in fit.names]
     names = list(fit.names) + extra
     # each taken where a fit of it starts (fit.EFFECT_START: a wheel lag's signature vanishes at 0); any fixed
@@ -159,6 +163,33 @@ def score_effects(drive: Drive, fit: DriveFit, K, marker_size_m: float, candidat
     return tests, threshold
 
 
+def whitened_rss(fit: DriveFit) -> float:
+    return float(np.sum((fit.residuals_px / fit.sightings.sigma_px[:, None]) ** 2))
+
+
+def rank_key(t: EffectTest):
+    """Significant tests first, by their refit's Akaike criterion (whitened RSS + 2 per parameter added: the
+    driver, which adds none, is preferred to a dead zone that fits the same offset no better), then the others."""
+    return (not t.significant, t.refit_whitened_rss + 2 * len(t.parameters) if t.significant else 0.0)
+
+
+def driver_test(fit: DriveFit, with_driver: DriveFit) -> EffectTest:
+    """Duckietown's wheel driver (fit.PWM_DRIVER) judged by its refit `with_driver`, both models with the same
+    parameters: the drop of the whitened RSS, over the refit's residual variance (at least 1: the expected noise,
+    so that a fit above the floor, e.g. a rendered log's detector bias, needs a larger drop), against chi-square
+    with 1 dof (the choice counted as a parameter: conservative). A drive without the driver's floor fits worse
+    with it (the floor moves every duty off the one sent), so the drop is negative there."""
+    from scipy.stats import chi2
+
+    before, after = whitened_rss(fit), whitened_rss(with_driver)
+    variance = max(1.0, after / max(1, with_driver.residuals_px.size - int(with_driver.free.sum())))
+    statistic = (before - after) / variance
+    return EffectTest(PWM_DRIVER, (), dof=1, delta_rss=before - after, excess_rss=statistic - 1.0,
+                      statistic=statistic, p_value=float(chi2.sf(statistic, 1)) if statistic > 0 else 1.0,
+                      uniqueness=1.0, predicted_rms_px=with_driver.rms_px, refit_rms_px=with_driver.rms_px,
+                      refit_whitened_rss=after)
+
+
 def phase_table(drive: Drive, fit: DriveFit) -> list[dict]:
     """The fit's corner RMS (px) by the phase of the drive before each frame: the last command that moved the robot
     (turning: the wheels' duties differ; straight: alike), by the faster wheel's |duty| (DUTY_BINS)."""
@@ -195,12 +226,23 @@ def lens_verdict(lens_fits: dict, in_use: str) -> LensVerdict:
 def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(), lens: str = "",
                  lens_fits: dict | None = None, refit=None) -> DriveDiagnosis:
     """Compare, locate and name (module docstring) for a fitted model with `effects`. `refit(effects)`: the fit
-    with other effects (a DriveFit); given, each significant candidate is refitted and they are ranked by the RMS
-    their refits leave (the score test screens, the refit confirms: far from the floor a one-step prediction can
+    with other effects (a DriveFit); given, each significant candidate is refitted and they are ranked by what
+    their refits leave (rank_key; the score test screens, the refit confirms: far from the floor a one-step prediction can
     rank a stand-in first), and the best's refit is DriveDiagnosis.after."""
     effects = tuple(effects)
     candidates = [e for e in EFFECTS if e not in effects]
     tests, threshold = score_effects(drive, fit, K, marker_size_m, candidates)
+    refits = {}
+    if refit is not None and PWM_DRIVER not in effects:  # no score without a parameter: judged by its refit
+        try:
+            refits[PWM_DRIVER] = refit(tuple(e for e in ALL_EFFECTS if e in effects + (PWM_DRIVER,)))
+        except SolveError:
+            pass
+        if PWM_DRIVER in refits and refits[PWM_DRIVER].success:
+            tests.append(driver_test(fit, refits[PWM_DRIVER]))
+            threshold = FAMILY_ALPHA / sum(1 for t in tests if t.dof > 0)
+            for t in tests:
+                t.significant = t.dof > 0 and t.p_value < threshold
     floor, whitened = floor_and_whitened(fit)
     verdict = lens_verdict(lens_fits, lens) if lens_fits and lens in lens_fits else None
     diagnosis = DriveDiagnosis(effects, lens, fit, fit.rms_px, floor, whitened, phase_table(drive, fit), tests,
@@ -208,21 +250,20 @@ def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(
     if refit is None or (verdict is not None and verdict.wrong):
         return diagnosis
     far = whitened > FAR_FROM_FLOOR
-    refits = {}
     for t in tests:
-        if not (t.significant or (far and t.dof > 0)):
+        if t.effect in refits or not (t.significant or (far and t.dof > 0)):
             continue
         try:
-            result = refit(tuple(e for e in EFFECTS if e in effects + (t.effect,)))
+            result = refit(tuple(e for e in ALL_EFFECTS if e in effects + (t.effect,)))
         except SolveError:  # the data cannot determine it beside the model: not a remedy
             result = None
         if result is None or not result.success:
             t.significant = False
             continue
-        refits[t.effect], t.refit_rms_px = result, result.rms_px
+        refits[t.effect], t.refit_rms_px, t.refit_whitened_rss = result, result.rms_px, whitened_rss(result)
         if far and not t.significant and (fit.rms_px / result.rms_px) ** 2 >= FAR_RSS_RATIO:
             t.significant, t.confirmed_by_refit = True, True
-    tests.sort(key=lambda t: (not t.significant, t.refit_rms_px if t.significant else 0.0))
+    tests.sort(key=rank_key)
     if diagnosis.named is not None:
         diagnosis.after = refit_summary(refits[diagnosis.named], effects + (diagnosis.named,))
     return diagnosis
@@ -231,7 +272,7 @@ def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(
 def refit_summary(refit: DriveFit, effects) -> dict:
     floor, whitened = floor_and_whitened(refit)
     return {"added": [e for e in effects], "rms_px": refit.rms_px, "whitened_rms": whitened, "floor_px": floor,
-            "values": {n: {"value": refit.value(n), "std": refit.stdev(n)} for e in effects for n in EFFECTS[e]}}
+            "values": {n: {"value": refit.value(n), "std": refit.stdev(n)} for e in effects for n in EFFECTS.get(e, ())}}
 
 
 # ------------------------------------------------------------------------------------------------ a drive log
@@ -327,7 +368,8 @@ def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
         lines.append("VERDICT: no missing effect: the model explains the drive to the noise floor's test")
     else:
         what = (f"the wrong lens model: {d.lens_verdict.best} instead of {d.lens}" if d.named.startswith("lens=")
-                else f"{d.named} ({', '.join(EFFECTS[d.named])})")
+                else f"{d.named} ({', '.join(EFFECTS[d.named])})" if d.named in EFFECTS
+                else f"{d.named} (Duckietown's wheel driver: the motors get the floored PWM, not the duty logged)")
         lines.append(f"VERDICT: missing {what}")
         lines.append(f"  add it: {add_command(log_label, d)}")
         if d.after is not None and "error" in d.after:

@@ -13,9 +13,9 @@ Unknowns (`DriveFit.names`):
   model without the long lever arm of the turns before it;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
 - optional wheel effects, each off unless named (`fit_drive(effects=...)`, EFFECTS): `dead_zone`, `slip_s_per_m`,
-  `wheel_lag_s`, `speed_trim`, `wheel_lag_difference_s` (kinds.duckiebot.diagnose names the missing one); and,
-  where the log's robot is known to have it, Duckietown's 8-bit PWM wheel driver between the duties and the motors
-  (Drive.pwm_driver);
+  `wheel_lag_s`, `speed_trim`, `wheel_lag_difference_s` (kinds.duckiebot.diagnose names the missing one); and
+  Duckietown's 8-bit PWM wheel driver between the duties and the motors (PWM_DRIVER, Drive.pwm_driver: a choice
+  of model without a parameter; named where the log's robot is known to have it, or by identify --effects);
 - `marker<id>.x_m .y_m .yaw_rad` of every marker seen but one, the reference (the gauge): the floor's frame is
   arbitrary (a planar rigid motion, 3 DoF), so the reference marker's pose is the world frame (0, 0, 0). The
   reference is the marker seen in the most frames (ties: the smallest id): it is the best tied to the drive, so the
@@ -34,7 +34,7 @@ clusters for 20-50 parameters, far too few for the sandwich.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -78,6 +78,11 @@ SCALES.update({"dead_zone": 0.03, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "spe
 # wheels settle is what they still turn at the grab, exp(-t / lag), whose derivative at lag 0 is 0: a fit started
 # there stays there, and a score test there sees nothing. 0.06 s: a typical small geared motor's.
 EFFECT_START = {"wheel_lag_s": 0.06}
+# Duckietown's wheel driver (Drive.pwm_driver) named like a wheel effect (identify --effects, diagnose's candidates):
+# a choice of model, not a parameter: fit_drive(effects=(PWM_DRIVER, ...)) fits the drive through it; a drive log
+# does not say which driver produced it
+PWM_DRIVER = "pwm_driver"
+ALL_EFFECTS = (*EFFECTS, PWM_DRIVER)  # every name fit_drive(effects=...) takes, in its order
 LAG_EFFECTS = ("wheel_lag", "lag_difference")  # fitted from the fit without them (fit_drive)
 LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
@@ -133,12 +138,17 @@ class Drive:
                    log.wheels.baseline_m, log.wheels.limit, pwm_driver)
 
     def motor_duties(self) -> tuple[np.ndarray, np.ndarray]:
-        """(left, right) duties as the motors receive them: as logged, or with pwm_driver the driver's PWM above its
-        floor PWM_MIN as a duty, sign(u) (pwm - PWM_MIN) / (PWM_MAX - PWM_MIN) (0 where it sends no PWM)."""
+        """(left, right) duties as the motors receive them: as logged, or with pwm_driver driver_duty's."""
         if not self.pwm_driver:
             return self.left_duty, self.right_duty
-        return tuple(np.sign(u) * np.maximum(duty_to_pwm(u) - PWM_MIN, 0) / (PWM_MAX - PWM_MIN)
-                     for u in (self.left_duty, self.right_duty))
+        return driver_duty(self.left_duty), driver_duty(self.right_duty)
+
+
+def driver_duty(u):
+    """The duty Duckietown's wheel driver gives the motors for the duty `u` sent: its PWM (kinematics.duty_to_pwm,
+    floored) above its floor PWM_MIN as a duty, sign(u) (pwm - PWM_MIN) / (PWM_MAX - PWM_MIN) (0 where it sends no
+    PWM)."""
+    return np.sign(u) * np.maximum(duty_to_pwm(u) - PWM_MIN, 0) / (PWM_MAX - PWM_MIN)
 
 
 def pose_parameters(T_base_camera) -> np.ndarray:
@@ -522,6 +532,7 @@ class DriveFit:
     anchor_t_s: float
     warnings: list = field(default_factory=list)
     covariance: np.ndarray | None = field(default=None, repr=False)  # cluster-robust, names' order (0: fixed)
+    pwm_driver: bool = False  # fitted through Duckietown's wheel driver (Drive.pwm_driver)
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -544,10 +555,11 @@ def _reference_marker(obs: Sightings) -> int:
 
 
 def effect_parameters(effects) -> tuple:
-    """The parameters of the named effects (EFFECTS), in EFFECTS' order; ValueError naming an unknown effect."""
+    """The parameters of the named effects (EFFECTS; PWM_DRIVER has none), in EFFECTS' order; ValueError naming an
+    unknown effect."""
     for e in effects:
-        if e not in EFFECTS:
-            raise ValueError(f"unknown effect {e!r} (expected one of {', '.join(EFFECTS)})")
+        if e not in ALL_EFFECTS:
+            raise ValueError(f"unknown effect {e!r} (expected one of {', '.join(ALL_EFFECTS)})")
     return tuple(n for e, names in EFFECTS.items() if e in effects for n in names)
 
 
@@ -556,7 +568,7 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
               effects=()) -> DriveFit:
     """The joint fit (module docstring) of the rectified corners `sightings` seen through camera matrix K, from the
     nominal camera pose `T_base_camera_start`. `effects`: wheel effects added to the model (EFFECTS), each from 0
-    (the base model). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
+    (the base model), and PWM_DRIVER: the duties through Duckietown's driver (as Drive.pwm_driver). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
     the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the corners no model explains
     (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by default: on rendered
     logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-tailed, not
@@ -564,6 +576,8 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
+    if PWM_DRIVER in effects:
+        drive = replace(drive, pwm_driver=True)
     lags = tuple(e for e in effects if e in LAG_EFFECTS)
     if lags and not any(n in (start or {}) for e in lags for n in EFFECTS[e]):
         # the lags from the fit without them: from the detections' start values the first steps took wheel_lag_s
@@ -625,15 +639,15 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     return DriveFit(names, x, std, std_iid, free, reference, residuals, obs, outliers,
                     float(np.sqrt(np.mean(residuals ** 2))), solution.success, solution.message, solution.n_jac,
                     spread.condition_number, spread.weak_directions, equations.anchor_t_s, spread.warnings(),
-                    covariance)
+                    covariance, drive.pwm_driver)
 
 
-def duty_offset(fit: DriveFit, pwm_driver: bool) -> tuple[float, np.ndarray]:
+def duty_offset(fit: DriveFit) -> tuple[float, np.ndarray]:
     """(c, d c / d x): the duty a wheel loses before it turns, on average over the duties near any one: the fitted
-    dead_zone (0 without it) plus, with Duckietown's driver (`pwm_driver`: Drive.pwm_driver), half a PWM step (its floor drops
-    0-1 step, 0.5 on average over speeds)."""
+    dead_zone (0 without it) plus, fitted with Duckietown's driver (DriveFit.pwm_driver), half a PWM step (its floor
+    drops 0-1 step, 0.5 on average over speeds)."""
     grad = np.zeros(len(fit.names))
-    c = 0.5 / (PWM_MAX - PWM_MIN) if pwm_driver else 0.0
+    c = 0.5 / (PWM_MAX - PWM_MIN) if fit.pwm_driver else 0.0
     if "dead_zone" in fit.names:
         c += fit.value("dead_zone")
         grad[fit.names.index("dead_zone")] = 1.0
@@ -645,7 +659,7 @@ def secant_gain(drive: Drive, fit: DriveFit, speed_mps: float) -> tuple[float, f
     straight: a wheel turning at w needs the duty c + (gain -+ trim) w / k (c: duty_offset), i.e. the secant
     gain + c k r / v at w = v / r; the trim is the slope's (c is the same on both wheels). Its std from the fit's
     covariance."""
-    c, grad = duty_offset(fit, drive.pwm_driver)
+    c, grad = duty_offset(fit)
     scale = drive.k * drive.radius_m / speed_mps
     grad = grad * scale
     grad[fit.names.index("gain")] += 1.0

@@ -13,7 +13,7 @@ import numpy as np
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
 from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
-from naocal.kinds.duckiebot.fit import Drive, DriveFit, Sightings, fit_drive, secant_gain
+from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, fit_drive, secant_gain
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
@@ -185,14 +185,14 @@ class DuckiebotCalibration:
                 "outliers": int(len(fit.outliers.frame)), "warnings": list(fit.warnings)}
 
 
-def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: dict, *, pwm_driver: bool = False,
-              speed_mps: float = SPEED_MPS, **fit_options):
-    """The joint fit of a log's detections through a fitted lens, as a DuckiebotCalibration. `pwm_driver`: the log's
-    duties went through Duckietown's wheel driver (fit.Drive.pwm_driver). The kinematics' gain is the secant at
-    `speed_mps` (fit.secant_gain: the fitted dead zone and the driver's PWM floor folded in, what Duckietown's
+def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: dict, *, speed_mps: float = SPEED_MPS,
+              **fit_options):
+    """The joint fit of a log's detections through a fitted lens, as a DuckiebotCalibration (fit_options: fit_drive's;
+    effects with fit.PWM_DRIVER: the log's duties went through Duckietown's wheel driver). The kinematics' gain is
+    the secant at `speed_mps` (fit.secant_gain: the fitted dead zone and the driver's PWM floor folded in, what Duckietown's
     inverse kinematics needs to drive that fast); the trim is the fit's."""
     sightings = rectified_sightings(detections, lens.camera)
-    drive = Drive.of_log(log, pwm_driver=pwm_driver)
+    drive = Drive.of_log(log, pwm_driver=PWM_DRIVER in fit_options.get("effects", ()))
     drive_fit = fit_drive(drive, sightings, lens.camera.K, log.marker_size_m,
                           duckiebot(log.model).T_base_camera, **fit_options)
     add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)

@@ -43,7 +43,7 @@ import numpy as np
 from naocal.agent.machine import DONE, FAILED, Machine, Outcome, State
 from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
 from naocal.kinds.duckiebot.drive_log import MAX_IMAGE_BYTES, SCHEMA, DriveLogAppender, decode_image, read_drive_log
-from naocal.kinds.duckiebot.fit import duty_offset, marker_on_floor
+from naocal.kinds.duckiebot.fit import PWM_DRIVER, duty_offset, marker_on_floor
 from naocal.kinds.duckiebot.identify import Detections, fit_intrinsics, identify_log
 from naocal.kinds.duckiebot.kinematics import duty_problem, inverse_kinematics, pwm_drift_bound_m
 from naocal.kinds.duckiebot.render import BOARD_INNER_CORNERS, BOARD_SQUARE_M, MARKER_SIZE_M
@@ -497,8 +497,8 @@ class IdentifyDrive(State):
     produces = ("calibration",)
 
     def run(self, ctx: MissionContext) -> Outcome:
-        calibration = identify_log(ctx.session.log.directory, pwm_driver=ctx.pwm_driver,
-                                   speed_mps=ctx.settings.speed_mps, effects=FIT_EFFECTS)
+        calibration = identify_log(ctx.session.log.directory, speed_mps=ctx.settings.speed_mps,
+                                   effects=FIT_EFFECTS + ((PWM_DRIVER,) if ctx.pwm_driver else ()))
         rms = calibration.drive_fit.rms_px
         if not rms <= ctx.settings.max_fit_rms_px:  # never drive on (nor write) what does not explain the drive
             return Outcome("implausible", f"the joint fit leaves {rms:.2f} px RMS (more than "
@@ -572,7 +572,7 @@ class Validation(State):
         # align_tolerance_rad: 7 cm over 2 m at 2 deg): the drift is what is left, off the start's own heading
         drift = after - before - measured_m * math.sin(heading)
         fit = ctx.calibration.drive_fit
-        offset, _ = duty_offset(fit, ctx.pwm_driver)
+        offset, _ = duty_offset(fit)
         bound = pwm_drift_bound_m(float(np.mean(compensated_duties(ctx))), offset, ctx.calibration.kinematics.baseline_m,
                                   measured_m) if ctx.pwm_driver else 0.0
         ctx.validation = {"driven_m": driven, "measured_at_m": measured_m, "lateral_start_m": before,

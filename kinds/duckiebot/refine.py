@@ -91,7 +91,8 @@ def refine_trim(log_dir, calibration: CalibrationFile, *, max_step: float = MAX_
     kin = calibration.kinematics
     # (gain, trim) in the calibration's k and radius -> the log's: the speed is r u k / (gain +- trim)
     to_log = (log.wheels.k * log.wheels.radius_m) / (kin.k * kin.radius_m)
-    drive = dataclasses.replace(Drive.of_log(log), baseline_m=kin.baseline_m)
+    # through the calibration's model of the wheel driver: the trim it refines is that model's
+    drive = dataclasses.replace(Drive.of_log(log, pwm_driver=calibration.pwm_driver), baseline_m=kin.baseline_m)
     sightings = rectified_sightings(detections, calibration.lens)
     try:
         fit = fit_drive(drive, sightings, calibration.lens.K, log.marker_size_m, calibration.T_base_camera,

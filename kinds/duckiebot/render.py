@@ -29,7 +29,8 @@ import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import SCHEMA, DriveLog, write_drive_log, write_frame
-from naocal.kinds.duckiebot.fit import EFFECTS, body_motion, commanded_wheel_speeds, lag_factors
+from naocal.kinds.duckiebot.fit import (EFFECTS, PWM_DRIVER, body_motion, commanded_wheel_speeds, driver_duty,
+                                        lag_factors)
 from naocal.kinds.duckiebot.intrinsics import LensCamera
 from naocal.kinds.duckiebot.kinematics import integrate_pose
 from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
@@ -311,7 +312,7 @@ class HiddenRobot:
     kinematics: Kinematics
     camera: CameraIntrinsics
     T_base_camera: np.ndarray = field(repr=False)
-    effects: dict = field(default_factory=dict)  # hidden wheel effects {parameter (fit.EFFECTS): value}
+    effects: dict = field(default_factory=dict)  # hidden wheel effects {parameter (fit.EFFECTS): value, pwm_driver}
     lens: LensCamera | None = None  # a hidden wide (fisheye) lens, which `camera` then only sizes
 
     def truth(self) -> dict:
@@ -332,14 +333,17 @@ WIDE_LENS_K = (0.03, -0.01, 0.0, 0.0)
 
 def hidden_robot(seed: int, hidden=None) -> HiddenRobot:
     """The hidden robot `seed` (`_drawn_robot`) with the hidden effects `hidden` {name: value}: the wheel effects of
-    fit.EFFECTS (their parameter's value), `wide_lens` (a fisheye lens instead of the drawn plumb_bob one, any
-    value)."""
+    fit.EFFECTS (their parameter's value), `pwm_driver` (the duties through Duckietown's wheel driver: on for a
+    value above 0), `wide_lens` (a fisheye lens instead of the drawn plumb_bob one, any value)."""
     robot = _drawn_robot(seed)
     hidden = dict(hidden or {})
     for name in hidden:
-        if name not in EFFECTS and name != "wide_lens":
-            raise ValueError(f"unknown hidden effect {name!r} (expected one of {', '.join(EFFECTS)}, wide_lens)")
+        if name not in EFFECTS and name not in (PWM_DRIVER, "wide_lens"):
+            raise ValueError(f"unknown hidden effect {name!r} (expected one of {', '.join(EFFECTS)}, {PWM_DRIVER}, "
+                             "wide_lens)")
     effects = {EFFECTS[name][0]: float(value) for name, value in hidden.items() if name in EFFECTS}
+    if hidden.get(PWM_DRIVER, 0.0) > 0:
+        effects[PWM_DRIVER] = 1.0
     lens = None
     if "wide_lens" in hidden:
         c = robot.camera
@@ -464,9 +468,11 @@ class SimulatedDrive:
 def simulate_drive(steps, truth: Kinematics, start_pose=(0.0, 0.0, 0.0), t0_s: float = 0.0,
                    ticks_per_revolution: int = 135, encoder_period_s: float = 0.05, effects=None) -> SimulatedDrive:
     """Run a program on a robot whose true parameters are `truth` (Duckietown's forward kinematics, exact arcs), with
-    the hidden wheel `effects` {parameter (fit.EFFECTS): value} (the fit's formulas: commanded_wheel_speeds,
-    body_motion; a wheel lag integrated exactly in SIMULATION_STEP_S steps)."""
+    the hidden wheel `effects` {parameter (fit.EFFECTS): value; pwm_driver: the duties logged reach the motors
+    through Duckietown's wheel driver, fit.driver_duty} (the fit's formulas: commanded_wheel_speeds, body_motion; a
+    wheel lag integrated exactly in SIMULATION_STEP_S steps)."""
     effects = dict(effects or {})
+    driver = effects.pop(PWM_DRIVER, 0.0) > 0
     p = {"gain": truth.gain, "trim": truth.trim, "baseline_m": truth.baseline_m, **effects}
     lag = effects.get("wheel_lag_s", 0.0)
     t, pose = t0_s, np.asarray(start_pose, dtype=float)
@@ -475,15 +481,19 @@ def simulate_drive(steps, truth: Kinematics, start_pose=(0.0, 0.0, 0.0), t0_s: f
     w = np.zeros(2)  # the true wheel speeds (left, right), rad/s
     segments = []  # (start t, duration, (w_left, w_right), angles at its start) for the encoders
 
+    def motor(left, right):  # the duties the motors receive for those logged
+        return (float(driver_duty(left)), float(driver_duty(right))) if driver else (left, right)
+
     def motion(left, right):
-        return body_motion(commanded_wheel_speeds(left, right, p, truth.k)[0], None, p, None, truth.radius_m)[:2]
+        return body_motion(commanded_wheel_speeds(*motor(left, right), p, truth.k)[0], None, p, None,
+                           truth.radius_m)[:2]
 
     def hold(duration, left, right):
         nonlocal t, pose, angle, w
         if duration <= 0:
             return
         wheel_rows.append((t, left, right))
-        command = commanded_wheel_speeds(left, right, p, truth.k)[0]
+        command = commanded_wheel_speeds(*motor(left, right), p, truth.k)[0]
         steps = max(1, math.ceil(duration / SIMULATION_STEP_S)) if lag > 0 else 1
         h = duration / steps
         e, m, _, _ = lag_factors(lag, h)

@@ -10,9 +10,10 @@ import sys
 from pathlib import Path
 
 # A hidden effect's value when --hidden-effects names it without one (the parameter of fit.EFFECTS, SI units; for
-# wide_lens any value: render.hidden_robot's fisheye): each well above what the joint fit resolves, well inside what
+# wide_lens any value: render.hidden_robot's fisheye; pwm_driver: on above 0, Duckietown's wheel driver): each well above what the joint fit resolves, well inside what
 # a worn Duckiebot shows. Here, not in render.py: this module is imported to build the command line (argparse only).
-HIDDEN_DEFAULTS = {"dead_zone": 0.08, "slip": 0.5, "wheel_lag": 0.08, "speed_trim": 0.08, "wide_lens": 1.0}
+HIDDEN_DEFAULTS = {"dead_zone": 0.08, "slip": 0.5, "wheel_lag": 0.08, "speed_trim": 0.08, "pwm_driver": 1.0,
+                   "wide_lens": 1.0}
 
 
 def add_options(parser) -> None:

@@ -222,7 +222,8 @@ def run_verify(args, kind) -> int:
                for i in range(len(log.frame_files))]
     if not any(markers):
         raise _no_marker(log)
-    drive = dataclasses.replace(Drive.of_log(log), baseline_m=cal.value("baseline_m"))
+    # through the calibration's model of the wheel driver (its trim is that model's)
+    drive = dataclasses.replace(Drive.of_log(log, pwm_driver=cal.pwm_driver), baseline_m=cal.value("baseline_m"))
     fit = fit_drive(drive, rectified_sightings(Detections(markers, []), cal.lens), cal.lens.K, log.marker_size_m,
                     cal.T_base_camera, fixed=CAMERA + ("baseline_m",))
     if not fit.success:
