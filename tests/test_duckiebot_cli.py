@@ -172,7 +172,7 @@ def test_an_implausible_calibration_is_never_written(calibrated, tmp_path):
                  for (m, c), e in zip(cal.lenses.items(), cal.lens_errors.values())}
     fit = SimpleNamespace(names=names, x=x, std=np.full(len(x), 1e-3), free=np.ones(len(x), bool), rms_px=0.3,
                           sightings=SimpleNamespace(frame=np.zeros(8)), outliers=SimpleNamespace(frame=np.zeros(0)),
-                          reference_marker=0, success=True, warnings=[])
+                          reference_marker=0, success=True, warnings=[], pwm_driver=False)
     fake = SimpleNamespace(robot_id="rendered", kinematics=kinematics, lens=lens_fits[cal.lens_model],
                            lens_fits=lens_fits, drive_fit=fit)
     target = tmp_path / "CAL.json"
