@@ -16,6 +16,7 @@ from naocal.backends import protocol
 from naocal.backends.bridge import BridgeBackend
 from naocal.backends.bridge_server import BridgeServer, FaultInjector
 from naocal.backends.errors import BridgeError
+from naocal.solver.errors import NaocalError
 from tests.bridge_fakes import FakeBackend, serving
 
 TIMEOUT_S = 0.2
@@ -128,7 +129,15 @@ def test_a_restarted_mock_server_is_not_silently_taken_for_the_same_robot():
     bridge.sleep(0.3)
     bridge.command(TARGETS[0], 0.2)
     first.stop()
-    second = BridgeServer(FakeBackend(), endpoint, clock="simulated", state_persists=False).start_thread()
+    deadline = time.monotonic() + 5.0
+    while True:  # libzmq releases the first server's port in its I/O thread, a moment after stop() returns
+        try:
+            second = BridgeServer(FakeBackend(), endpoint, clock="simulated", state_persists=False).start_thread()
+            break
+        except NaocalError as err:
+            if "Address already in use" not in str(err) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
     try:
         with pytest.raises(BridgeError, match="restarted.*--resume"):
             bridge.now()
