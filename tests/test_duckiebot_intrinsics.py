@@ -39,6 +39,15 @@ def views(camera: LensCamera, n=18, noise_px=0.05, seed=0, v_max_px=SIZE[1] - 6)
     return O, I, groups
 
 
+
+def central_differences(equations, x) -> np.ndarray:
+    """The Jacobian of `equations.dense` at x by central differences, a step of 1e-6 of each parameter's scale."""
+    numeric = np.zeros((equations.dense(x)[0].size, len(x)))
+    for j in range(len(x)):
+        step = np.eye(len(x))[j] * 1e-6 * equations.scales[j]
+        numeric[:, j] = (equations.dense(x + step)[0] - equations.dense(x - step)[0]) / (2 * step[j])
+    return numeric
+
 def test_camera_difference_is_zero_for_one_camera_and_measures_a_shift():
     truth = LensCamera.from_intrinsics(hidden_robot(1).camera)
     assert camera_difference_px(truth, truth, SIZE) < 1e-3
@@ -87,11 +96,7 @@ def test_the_lens_equations_jacobian_is_exact(model, distortion):
     x = equations.start + np.random.default_rng(3).normal(0, 1e-3, len(equations.start)) * equations.scales
     r, J = equations.dense(x)
     assert J.shape == (r.size, len(parameter_names(model)) + 6 * len(O))
-    numeric = np.zeros_like(J)
-    for j in range(len(x)):
-        h = 1e-6 * equations.scales[j]
-        step = np.eye(len(x))[j] * h
-        numeric[:, j] = (equations.dense(x + step)[0] - equations.dense(x - step)[0]) / (2 * h)
+    numeric = central_differences(equations, x)
     assert np.max(np.abs(J - numeric) * equations.scales) < 1e-5 * np.max(np.abs(J) * equations.scales)
     normal = equations(x)  # the normal equations are those of the dense Jacobian, in scaled units
     Js = J * equations.scales
@@ -200,11 +205,7 @@ def test_the_lens_equations_jacobian_with_floor_markers_is_exact(floor_case):
     x = equations.start + np.random.default_rng(3).normal(0, 1e-2, len(equations.start)) * equations.scales
     x[equations.names.index(FLOOR_BIAS)] = -0.3
     r, J = equations.dense(x)
-    numeric = np.zeros_like(J)
-    for j in range(len(x)):
-        h = 1e-6 * equations.scales[j]
-        step = np.eye(len(x))[j] * h
-        numeric[:, j] = (equations.dense(x + step)[0] - equations.dense(x - step)[0]) / (2 * h)
+    numeric = central_differences(equations, x)
     assert np.max(np.abs(J - numeric) * equations.scales) < 1e-5 * np.max(np.abs(J) * equations.scales)
     normal = equations(x)
     Js = J * equations.scales

@@ -30,13 +30,13 @@ def register(subparsers) -> None:
     actions.required = True
 
     serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM")
-    serve.add_argument("--robot", choices=tuple(k.name for k in kinds.registered() if hasattr(k, "open_served")),
-                       default=kinds.default().name,
-                       help="the robot kind to serve (default nao); its driver is --driver's")
-    serve.add_argument("--driver", choices=("mock", "naoqi", "lola", "ros"), required=True,
-                       help="the robot to serve: the simulated robot (either kind); a NAO through NAOqi (stock "
-                            "image) or LoLA (team images, V6); a Duckiebot through its ROS topics (ros: run in "
-                            "Duckietown's dt-ros-commons container on the robot, docs/DEPLOY.md)")
+    served = [k for k in kinds.registered() if hasattr(k, "open_served")]  # each kind says what it serves
+    serve.add_argument("--robot", choices=tuple(k.name for k in served), default=kinds.default().name,
+                       help=f"the robot kind to serve (default {kinds.default().name}); its driver is --driver's")
+    serve.add_argument("--driver", choices=tuple(dict.fromkeys(d for k in served for d in k.served_drivers)),
+                       required=True, help="the robot to serve, by kind: " + "; ".join(
+                           f"{k.name}: " + ", ".join(f"{d} ({what})" for d, what in k.served_drivers.items())
+                           for k in served))
     serve.add_argument("--watchdog-s", type=float, default=None, metavar="S",
                        help="duckiebot: stop the wheels when they turn and the controlling client has sent no motion "
                             "request for this long (default 1)")

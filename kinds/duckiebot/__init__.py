@@ -50,6 +50,9 @@ class DuckiebotKind:
     run_options = {"--max-blind-m": "the out-of-area bound the mission drove under"}
     calibrate_backends = {"mock": "the simulated Duckiebot", "ros": "a Duckiebot's own ROS topics, naocal on the robot",
                           "bridge": "a Duckiebot behind `naocal bridge serve --robot duckiebot`"}
+    # the robots `naocal bridge serve --robot duckiebot --driver D` serves (bridge.open_served)
+    served_drivers = {"mock": "the simulated Duckiebot",
+                      "ros": "a Duckiebot through its ROS topics (in dt-ros-commons on the robot, docs/DEPLOY.md)"}
     data_help = f"a drive log directory (log.json of {LOG_SCHEMA}, wheels.csv, frames.csv; docs/DUCKIEBOT.md)"
     calibration_help = f"a {CALIBRATION_SCHEMA} file"
     model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "

@@ -16,6 +16,9 @@ class NaoKind:
     rank = 1000  # asked last, so the default kind: it reads what no other kind claims and names what is wrong
     export_formats = ("bhuman", "hulks", "naodevils", "urdf", "json")  # tools/export/
     calibrate_backends = {"mock": "the simulated NAO in this process", "bridge": "a NAO behind `naocal bridge serve`"}
+    # the robots `naocal bridge serve --robot nao --driver D` serves (kinds.nao.bridge.open_served)
+    served_drivers = {"mock": "the simulated NAO", "naoqi": "a NAO through NAOqi (stock image)",
+                      "lola": "a NAO V6 through LoLA (team images)"}
     data_help = "a naocal.dataset/2 (or /1) directory, or a `naocal calibrate --out` run (its dataset/)"
     calibration_help = "a naocal.offsets/2 (or /1) file"
     model_help = ("the paper's 21 parameters (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per leg) "
