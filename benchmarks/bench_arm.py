@@ -2,9 +2,9 @@
 
 Data: the Franka Panda (pybullet_data's URDF), joint offsets and link lengths hidden (0.01-0.5 deg, 0.1-2 mm), a
 tracker seeing 3 reflectors (0.1 mm noise) and a camera 4 markers (0.2 px) at each of 100 / 1000 / 10000 random
-stances; the measurements are naocal's own model at the truth plus noise (solver/arm.py).
+stances; the measurements are naocal's own model at the truth plus noise (kinds/arm/model.py).
 
-naocal: solver.arm_identify.fit (its identifiability check, Levenberg-Marquardt with the analytic Jacobian,
+naocal: kinds.arm.identify.fit (its identifiability check, Levenberg-Marquardt with the analytic Jacobian,
 standard deviations and weak directions). Straightforward: scipy.optimize.least_squares(method='lm') on the same
 whitened residuals and the same free parameters with a finite-difference Jacobian ('2-point'), nothing else.
 Memory: tracemalloc's peak (numpy reports its arrays to it) in a second run of each.
@@ -25,9 +25,9 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.solver.arm import ArmModel, Observations, Sensor, exp_so3  # noqa: E402
-from naocal.solver.arm_dataset import arm_chain, resolve_robot  # noqa: E402
-from naocal.solver.arm_identify import fit, initialise_sensors, whitened  # noqa: E402
+from naocal.kinds.arm.model import ArmModel, Observations, Sensor, exp_so3  # noqa: E402
+from naocal.kinds.arm.dataset import arm_chain, resolve_robot  # noqa: E402
+from naocal.kinds.arm.identify import fit, initialise_sensors, whitened  # noqa: E402
 
 CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
           "distortion": [0.0] * 5}

@@ -1,5 +1,5 @@
 """Do the arm's standard deviations cover the truth? z = (identified - true) / std of every identified joint offset
-and link length, on the simulated KUKA iiwa and Franka Panda (backends/arm_sim.py: PyBullet's kinematics, hidden
+and link length, on the simulated KUKA iiwa and Franka Panda (kinds/arm/sim.py: PyBullet's kinematics, hidden
 offsets of 0.01-0.5 deg and link errors of 0.1-2 mm, a tracker at 0.1 mm and a camera at 0.2 px), 8 seeds each.
 
 Two kinds of data: the arm goes exactly where its readings say (errors independent per detection), and the arm
@@ -23,9 +23,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.backends.arm_sim import simulate_arm  # noqa: E402
-from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot  # noqa: E402
-from naocal.solver.arm_identify import identify_dataset  # noqa: E402
+from naocal.kinds.arm.sim import simulate_arm  # noqa: E402
+from naocal.kinds.arm.dataset import read_arm_dataset, resolve_robot  # noqa: E402
+from naocal.kinds.arm.identify import identify_dataset  # noqa: E402
 
 ROBOTS = ("kuka_iiwa", "franka_panda")
 POSE_ERROR_DEG = 0.02

@@ -1,8 +1,8 @@
-"""Where diagnose's physical check should call a held-out RMS "worse" (solver.arm_diagnose.HELDOUT_TOLERANCE).
+"""Where diagnose's physical check should call a held-out RMS "worse" (kinds.arm.diagnose.HELDOUT_TOLERANCE).
 
-The simulated dual-arm robot (backends/arm_sim.py simulate_dualarm: two torso cameras, a tracker, markers and the
+The simulated dual-arm robot (kinds/arm/sim.py simulate_dualarm: two torso cameras, a tracker, markers and the
 reflector glued 1-2 mm off, tool mounts off, 2 % wrong detections). Each significant candidate is judged on data its
-fit did not see (solver.arm_diagnose.physical_checks: the tracker with the arm fitted from the cameras, the cameras
+fit did not see (kinds.arm.diagnose.physical_checks: the tracker with the arm fitted from the cameras, the cameras
 with the arm fitted from the tracker, each camera with the arm fitted from the other, blocks of poses held out); a
 check is "worse" when a held-out RMS grows by more than the tolerance. Two kinds of candidate, by construction:
 
@@ -26,10 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.backends.arm_sim import dualarm_model, simulate_dualarm  # noqa: E402
-from naocal.solver.arm import Sensor  # noqa: E402
-from naocal.solver.arm_diagnose import HELDOUT_TOLERANCE, Test, physical_checks  # noqa: E402
-from naocal.solver.arm_identify import fit, initialise_sensors  # noqa: E402
+from naocal.kinds.arm.sim import dualarm_model, simulate_dualarm  # noqa: E402
+from naocal.kinds.arm.model import Sensor  # noqa: E402
+from naocal.kinds.arm.diagnose import HELDOUT_TOLERANCE, Test, physical_checks  # noqa: E402
+from naocal.kinds.arm.identify import fit, initialise_sensors  # noqa: E402
 
 FULL = ("joint_offsets", "link_lengths", "tool", "points")
 FOCAL_ERROR = 0.01

@@ -1,9 +1,9 @@
-"""The arm's priors on the near-flat directions of issue 24 (backends/arm_scenarios.py, on the panda; tests/test_arm_priors.py runs them too):
+"""The arm's priors on the near-flat directions of issue 24 (kinds/arm/scenarios.py, on the panda; tests/test_arm_priors.py runs them too):
 (a) a joint offset against a turn of the marker body (per-marker points, a camera, the last joint barely turning),
 (b) link lengths from poses that barely move the wrist, (c) a tracker's one reflector with a free position, the
 wrist barely moving; 8 seeds each (other errors, poses and noise).
 
-Per scenario: with the priors (the default), how many fits converge to plausible values (solver.arm_identify.ran_off
+Per scenario: with the priors (the default), how many fits converge to plausible values (kinds.arm.identify.ran_off
 finds nothing) and the largest |z| = (identified - true) / std over every free physical parameter (do the
 posterior stds cover the truth, prior-held ones included?), and the largest error in plausible sizes; without
 (--no-priors), how many stop with the run-off message and the largest value in plausible sizes. The truth is taken
@@ -22,8 +22,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.solver.arm_identify import fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
-from naocal.backends.arm_scenarios import scenario  # noqa: E402  (the scenarios' one home, shared with the tests)
+from naocal.kinds.arm.identify import fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
+from naocal.kinds.arm.scenarios import scenario  # noqa: E402  (the scenarios' one home, shared with the tests)
 
 CASES = {"a": "joint offset vs marker-body turn (camera, points)", "b": "link lengths, wrist barely moving (tracker)",
          "c": "free reflector, wrist barely moving (tracker)"}

@@ -1,6 +1,6 @@
 """Issue 24's must-show: a dual-arm robot calibrated from its cameras alone, checked on an independent laser tracker.
 
-The simulated robot (backends/arm_sim.py, simulate_dualarm): a torso turning about the vertical, two 6-DoF arms,
+The simulated robot (kinds/arm/sim.py, simulate_dualarm): a torso turning about the vertical, two 6-DoF arms,
 two cameras on the torso seeing ArUco-like markers on both tools (glued 1-2 mm off, each tool's mount off by 1-3 mm
 and 0.2-0.6 deg), 2 % of the detections wrong by 8-40 px, a tracker on the floor reading a reflector on the right
 tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5 deg and link lengths 0.1-2 mm; PyBullet's kinematics.
@@ -30,9 +30,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.backends.arm_sim import simulate_dualarm  # noqa: E402
-from naocal.solver.arm import ArmModel  # noqa: E402
-from naocal.solver.arm_identify import fit, initialise_sensors, pose_folds  # noqa: E402
+from naocal.kinds.arm.sim import simulate_dualarm  # noqa: E402
+from naocal.kinds.arm.model import ArmModel  # noqa: E402
+from naocal.kinds.arm.identify import fit, initialise_sensors, pose_folds  # noqa: E402
 from naocal.solver.errors import SolveError  # noqa: E402
 
 EFFECTS = ("joint_offsets", "link_lengths", "tool", "points")
@@ -64,8 +64,8 @@ def camera_fit(sim, priors: bool):
 
 
 def dualarm_chains():
-    from naocal.backends.arm_sim import DUALARM_CHAINS, DUALARM_URDF
-    from naocal.solver.arm_dataset import arm_chains
+    from naocal.kinds.arm.sim import DUALARM_CHAINS, DUALARM_URDF
+    from naocal.kinds.arm.dataset import arm_chains
 
     return arm_chains(DUALARM_URDF, DUALARM_CHAINS)
 

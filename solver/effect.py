@@ -42,7 +42,7 @@ class Parameter:
     `joint`, `camera`, `target` name what the parameter belongs to (None if nothing); `component` says which of
     its effect's quantities it is (e.g. 'pitch', 'fx', 'trans_x', 'L.thigh').
     `tied_to` names the parameter whose value this one always takes.
-    An arm's parameter (solver.arm.ArmModel) that belongs to no joint says which of the arm's things it belongs to
+    An arm's parameter (kinds.arm.model.ArmModel) that belongs to no joint says which of the arm's things it belongs to
     by `index` (the joint origin, chain, point or sensor number) and `axis` (0-2: along x, y, z; 3-5: about x, y,
     z; POSE_COMPONENTS).
     """
@@ -232,7 +232,7 @@ class Effect:
     # its random stream (None: one derived from the name; the older effects keep the numbers they had).
     mock_size_unit: str | None = None
     mock_stream: int | None = None
-    # The arm (solver.arm.ArmModel, solver.arm_identify): the plausible size per unit, the std of the Gaussian prior
+    # The arm (kinds.arm.model.ArmModel, kinds.arm.identify): the plausible size per unit, the std of the Gaussian prior
     # about the URDF's value (every correction 0; none: anywhere, a sensor's frame); the order of the gauges (of
     # parameters the data cannot tell apart, the lower priority's stay free, the later are fixed: also the order of
     # the arm's parameters); in every arm's model whatever the effects chosen (the sensors' frames).
@@ -251,7 +251,7 @@ class Effect:
         return []
 
     def arm_parameters(self, arm) -> list[Parameter]:
-        """The effect's parameters for an arm (solver.arm.ArmModel, its layout made: joint_names, prismatic,
+        """The effect's parameters for an arm (kinds.arm.model.ArmModel, its layout made: joint_names, prismatic,
         origin_keys, origin_names, directions, arm_chains, point_names, sensors), each of the arm's `scale` (the
         arm's solver works in mm and mrad); an effect that defines none is not one of the arm's."""
         return []

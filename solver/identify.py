@@ -180,7 +180,7 @@ def gauges(As: np.ndarray, order, fixable) -> dict[int, tuple[list[int], float]]
     return out
 
 
-# Outliers, for every kind (solver.fit for the NAO's corners, solver.arm_identify for the arm's detections): a
+# Outliers, for every kind (solver.fit for the NAO's corners, kinds.arm.identify for the arm's detections): a
 # measurement whose residual exceeds OUTLIER_SCALES robust (MAD) scales is a mis-detection (2-D Gaussian: 4e-6 of
 # good ones, 3-D: 1.4e-5); only the worst of its group (image, pose) each round, since a bad one drags its group's
 # fit and so its neighbours; at most MAX_TRIM_ROUNDS rounds, refitting after each.
@@ -611,7 +611,7 @@ def solve(equations, normal_at, free0, *, loss: str = "linear", loss_scale: floa
     """The one solve of every robot kind: Levenberg-Marquardt on the normal equations (`levenberg_marquardt`), or,
     for a robust loss or 'minpack', scipy.optimize.least_squares on the whole Jacobian.
 
-    equations : the problem (NormalEquations, or an arm's solver.arm_identify.ArmEquations): `scales`,
+    equations : the problem (NormalEquations, or an arm's kinds.arm.identify.ArmEquations): `scales`,
         `equations(free, weights=)` -> Normal and `equations.dense(free)` -> (r over the measured components, J).
     normal_at : `equations` at a free vector, cached (LM and the checks ask at one x twice).
     loss, loss_scale : 'linear' or a robust loss of ROBUST_WEIGHT; the residual size (in the residuals' units) where

@@ -1,5 +1,5 @@
 """Measurement kinds: what a sensor reports of a point y in its own frame, as a prediction and its exact Jacobian
-d prediction / d y. Every robot kind's model ends in one of these (the arm's sensors: solver.arm; the NAO's
+d prediction / d y. Every robot kind's model ends in one of these (the arm's sensors: kinds.arm.model; the NAO's
 cameras project through the same solver.camera.project inside solver.model's factored Jacobian).
 
 A prediction has 3 components; a kind that measures fewer (a pixel: u, v) leaves the rest 0 and says which are

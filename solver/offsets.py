@@ -561,7 +561,7 @@ def check_one_value(sections: dict, parameters: dict, robot, path, *, section_fi
     A file holds each fitted value twice: in model.parameters (with its std) and in the people's sections (body,
     head, targets), which `sections_from_values` derives from it. An edited file whose two copies disagree (show,
     export and apply read the sections, verify the parameters) is refused naming both fields, as the arm's file is
-    (solver.arm_calibration). section_field(section, key path) and parameter_field(name) name a field as the
+    (kinds.arm.calibration). section_field(section, key path) and parameter_field(name) name a field as the
     file spells it (version 1: no section level, older parameter names); sections: {"body", "head", "targets"}.
     only_keys_held: compare only the keys the file's sections have (version 1 had no section for the effects).
     """

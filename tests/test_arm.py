@@ -1,4 +1,4 @@
-"""The arm model (solver/arm.py), its dataset format, identification and diagnostics on synthetic data, and the
+"""The arm model (kinds/arm/model.py), its dataset format, identification and diagnostics on synthetic data, and the
 simulated PyBullet arm against naocal's kinematics (docs/ARM.md)."""
 
 import json
@@ -8,16 +8,16 @@ import os
 import numpy as np
 import pytest
 
-from naocal.solver.arm import ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
-from naocal.solver.arm_dataset import read_arm_dataset, resolve_robot, write_arm_dataset
-from naocal.solver.arm_identify import camera_pose_dlt, fit, initialise_sensors
+from naocal.kinds.arm.model import ArmModel, Observations, Sensor, exp_so3, left_jacobian, log_so3
+from naocal.kinds.arm.dataset import read_arm_dataset, resolve_robot, write_arm_dataset
+from naocal.kinds.arm.identify import camera_pose_dlt, fit, initialise_sensors
 from naocal.solver.effects import ARM_EFFECTS, EFFECTS
 from naocal.solver.errors import DataError
-from naocal.backends.arm_scenarios import CAMERA, panda, true_errors  # noqa: F401  (the arm's tests' one home)
+from naocal.kinds.arm.scenarios import CAMERA, panda, true_errors  # noqa: F401  (the arm's tests' one home)
 from tests.cli_runner import naocal as naocal_in_process, naocal_process
 
 def tool():
-    from naocal.backends.arm_sim import tool_points
+    from naocal.kinds.arm.sim import tool_points
 
     return tool_points()
 
@@ -134,7 +134,7 @@ def test_measurement_kinds_give_their_exact_jacobian():
 def test_the_arm_s_normal_equations_in_chunks_equal_one_pass_and_its_jacobian():
     """ArmEquations (the arm's side of solver.identify.solve) accumulated over chunks of 7 observations: the same
     normal matrix, gradient, cost and per-observation scores as one pass, and A = Js^T Js of the dense Jacobian."""
-    from naocal.solver.arm_identify import ArmEquations
+    from naocal.kinds.arm.identify import ArmEquations
 
     model, obs, truth, _ = synthetic(("joint_offsets", "link_lengths", "elasticity"), true_errors(), n_poses=9)
     x = initialise_sensors(model, obs)
@@ -204,7 +204,7 @@ def test_two_percent_wrong_detections_are_set_aside_listed_and_change_nothing(lo
             assert abs(values[name] - truth[name]) < 3.5 * result.std[i], name
             if loss == "linear":  # the same fit less the wrong detections
                 assert abs(result.x[i] - clean.x[i]) < 0.5 * clean.std[i], name
-    assert "set aside" in __import__("naocal.solver.arm_identify", fromlist=["x"]).describe_outliers(result.outliers)
+    assert "set aside" in __import__("naocal.kinds.arm.identify", fromlist=["x"]).describe_outliers(result.outliers)
 
 
 def test_arm_gauges_are_fixed_at_the_nao_s_threshold_and_a_sensor_never_is():
@@ -268,7 +268,7 @@ def test_identify_refuses_a_camera_without_enough_observations():
 
 
 def test_diagnose_names_link_lengths_when_missing_and_nothing_when_complete():
-    from naocal.solver.arm_diagnose import diagnose
+    from naocal.kinds.arm.diagnose import diagnose
 
     truth = true_errors(seed=4)
     complete, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=40, seed=5)
@@ -286,7 +286,7 @@ def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate()
     readings share a random 0.3 mm shift (the camera's a 0.6 px one) beyond the stated 0.1 mm / 0.2 px noise, and
     the model is complete. Counted per measurement, the misfit above the noise makes some candidate significant;
     judged per pose (the poses are the independent units), none is. A real missing effect is still named."""
-    from naocal.solver.arm_diagnose import diagnose
+    from naocal.kinds.arm.diagnose import diagnose
 
     truth = true_errors(seed=12)
     complete, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), truth, n_poses=60, seed=13)
@@ -307,7 +307,7 @@ def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate()
 def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
     """Significance counts poses: 12 poses cannot judge link poses (13 directions) or points (19); they are marked
     n/a and not named, the 5-parameter elasticity is still tested."""
-    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
+    from naocal.kinds.arm.diagnose import diagnose, format_diagnosis
 
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=3), n_poses=12, seed=4)
     d = diagnose(fit(model, obs, initialise_sensors(model, obs)), n_folds=0)
@@ -317,7 +317,7 @@ def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
 
 
 def test_diagnose_names_elasticity_under_gravity():
-    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
+    from naocal.kinds.arm.diagnose import diagnose, format_diagnosis
 
     truth = true_errors(seed=6)
     truth.update({f"elasticity.panda_joint{k}": 2e-3 for k in (2, 4)})  # 2 mrad per N m
@@ -489,7 +489,7 @@ def test_arm_simulate_takes_its_directory_s_lock_and_only_a_new_or_empty_one(tmp
 @pytest.mark.parametrize("robot", ["kuka_iiwa", "franka_panda"])
 def test_simulated_arm_agrees_with_the_model_at_its_hidden_truth(robot):
     """PyBullet's forward kinematics of the perturbed URDF equals naocal's model at the truth (to 1 um)."""
-    from naocal.backends.arm_sim import SimulatedArm
+    from naocal.kinds.arm.sim import SimulatedArm
 
     urdf, base, tip = resolve_robot(robot, None)
     with SimulatedArm(urdf, base, tip, seed=2) as arm:
@@ -554,7 +554,7 @@ def test_the_arm_s_effects_are_the_effect_modules_the_nao_s_model_shares():
     """One home for each effect (solver/effects/): the arm's joint_offsets, link_lengths and elasticity are the NAO's
     modules, its own (sensors, tool, points, link_poses) modules beside them; each declares what the arm needs (its
     parameters, prior size per unit, gauge order) and the arm model has no registry of its own."""
-    import naocal.solver.arm as arm
+    import naocal.kinds.arm.model as arm
     from naocal.solver.effects import ALL_EFFECTS, ARM_MODEL_EFFECTS, parse_effect_names
     from naocal.solver.errors import NaocalError
 

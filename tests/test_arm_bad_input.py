@@ -70,7 +70,7 @@ def test_an_implausible_number_anywhere_in_an_arm_calibration_is_named_by_every_
 
 
 def test_an_implausible_compliance_is_refused(arm, tmp_path):
-    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.kinds.arm.calibration import read_arm_calibration
     from naocal.solver.errors import DataError
 
     doc = json.loads(arm[1].read_text())
@@ -106,7 +106,7 @@ URDF_DAMAGE = [  # (what is replaced in panda_joint3 or panda_link4, by what, th
 
 @pytest.mark.parametrize("old, new, words", URDF_DAMAGE)
 def test_an_arm_urdf_with_a_non_finite_or_degenerate_attribute_is_refused_when_read(arm, tmp_path, old, new, words):
-    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.kinds.arm.dataset import read_arm_dataset
 
     text = read_arm_dataset(arm[0]).urdf_path.read_text()
     start = text.index('<link name="panda_link4">' if "mass" in old else '<joint name="panda_joint3"')

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from naocal.solver.arm import ArmModel, Observations, Sensor
+from naocal.kinds.arm.model import ArmModel, Observations, Sensor
 from naocal.solver.effects import ARM_EFFECTS
 from naocal.solver.errors import DataError
 
@@ -39,14 +39,14 @@ def assert_exact_jacobian(model, x, obs):
 @pytest.fixture(scope="module")
 def dual():
     """A small noise-free, outlier-free measurement of the simulated dual-arm robot (PyBullet's kinematics)."""
-    from naocal.backends.arm_sim import simulate_dualarm
+    from naocal.kinds.arm.sim import simulate_dualarm
 
     return simulate_dualarm(None, seed=5, n_poses=12, noise_m=1e-12, noise_px=1e-9, outlier_fraction=0.0,
                             write=False)
 
 
 def dual_model(dual, effects):
-    from naocal.backends.arm_sim import dualarm_model
+    from naocal.kinds.arm.sim import dualarm_model
 
     return dualarm_model(effects, sensors=dual["sensors"])
 
@@ -86,7 +86,7 @@ def test_the_dual_arm_jacobian_is_exact_for_every_effect(dual):
 
 def test_a_point_on_a_single_chain_model_keeps_its_names_and_the_tool_effect():
     """A one-chain model has the names it always had, and its tool is named by its tip."""
-    from naocal.solver.arm_dataset import arm_chain
+    from naocal.kinds.arm.dataset import arm_chain
 
     chain, names, load = arm_chain(SLIDE_URDF, "base", "tool", SLIDE_URDF)
     model = ArmModel(chain, {"p": (0.0, 0.0, 0.05)}, [Sensor("t", "points")], ("joint_offsets", "link_lengths",
@@ -101,7 +101,7 @@ def test_a_point_on_a_single_chain_model_keeps_its_names_and_the_tool_effect():
 
 
 def slide_model(effects=("joint_offsets", "link_lengths", "tool", "points", "link_poses")):
-    from naocal.solver.arm_dataset import arm_chain
+    from naocal.kinds.arm.dataset import arm_chain
 
     chain, names, load = arm_chain(SLIDE_URDF, "base", "tool", SLIDE_URDF)
     points = {"a": (0.02, 0.01, 0.03), "b": (-0.03, 0.02, 0.0), "c": (0.0, -0.04, 0.01)}
@@ -152,8 +152,8 @@ def test_a_prismatic_joint_slides_as_pybullet_says_and_its_jacobian_is_exact():
 
 
 def test_a_prismatic_joint_is_read_in_metres_or_millimetres_and_its_offset_identified(tmp_path):
-    from naocal.solver.arm_dataset import read_arm_dataset
-    from naocal.solver.arm_identify import identify_dataset
+    from naocal.kinds.arm.dataset import read_arm_dataset
+    from naocal.kinds.arm.identify import identify_dataset
 
     model = slide_model(("joint_offsets",))
     rng = np.random.default_rng(3)
@@ -203,7 +203,7 @@ def test_a_prismatic_joint_is_read_in_metres_or_millimetres_and_its_offset_ident
 
 @pytest.fixture(scope="module")
 def dual_dir(tmp_path_factory):
-    from naocal.backends.arm_sim import simulate_dualarm
+    from naocal.kinds.arm.sim import simulate_dualarm
 
     out = tmp_path_factory.mktemp("dual") / "d"
     simulate_dualarm(out, seed=3, n_poses=30)
@@ -211,8 +211,8 @@ def dual_dir(tmp_path_factory):
 
 
 def test_a_dual_arm_dataset_round_trips_with_its_chains_and_sensor_mounts(dual_dir):
-    from naocal.solver.arm_dataset import read_arm_dataset
-    from naocal.solver.arm_identify import model_for
+    from naocal.kinds.arm.dataset import read_arm_dataset
+    from naocal.kinds.arm.identify import model_for
 
     doc = json.loads((dual_dir / "dataset.json").read_text())
     assert doc["chains"] == {"left": {"base": "base_link", "tip": "left_tool"},
@@ -286,7 +286,7 @@ BAD = [
 @pytest.mark.parametrize("label, change, file, field, problem", BAD, ids=[b[0] for b in BAD])
 def test_a_bad_dual_arm_dataset_is_refused_naming_file_line_and_field(dual_dir, tmp_path, label, change, file,
                                                                      field, problem):
-    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.kinds.arm.dataset import read_arm_dataset
 
     with pytest.raises(DataError) as err:
         read_arm_dataset(edited(dual_dir, tmp_path, **change))
@@ -297,7 +297,7 @@ def test_a_bad_dual_arm_dataset_is_refused_naming_file_line_and_field(dual_dir, 
 
 
 def test_a_joint_off_the_row_s_chain_may_be_empty(dual_dir, tmp_path):
-    from naocal.solver.arm_dataset import read_arm_dataset
+    from naocal.kinds.arm.dataset import read_arm_dataset
 
     def empty_right(rows):
         for r in rows:
@@ -312,7 +312,7 @@ def test_a_joint_off_the_row_s_chain_may_be_empty(dual_dir, tmp_path):
 
 
 def test_dualarm_urdf_is_what_its_generator_writes():
-    from naocal.backends.arm_sim import DUALARM_URDF, dualarm_urdf
+    from naocal.kinds.arm.sim import DUALARM_URDF, dualarm_urdf
 
     assert DUALARM_URDF.read_text() == dualarm_urdf()
 
@@ -325,7 +325,7 @@ CROSSED_ARMS = (-0.426, -0.27, 2.292, -0.119, 1.757, -0.633, 0.177, 0.378, 2.02,
 def deepest_contact(true_angles) -> float:
     """The deepest contact (m, negative: through each other) between the two arms or an arm and the torso or
     pedestal in the dual-arm URDF's collision shapes (0.0: none), checked apart from the simulator's own check."""
-    from naocal.backends.arm_sim import DUALARM_URDF, dualarm_model
+    from naocal.kinds.arm.sim import DUALARM_URDF, dualarm_model
     from naocal.body.pybullet_quiet import pybullet as p
 
     client = p.connect(p.DIRECT)
@@ -350,7 +350,7 @@ def deepest_contact(true_angles) -> float:
 
 
 def test_the_dual_arm_simulator_never_draws_a_stance_whose_arms_or_torso_collide():
-    from naocal.backends.arm_sim import dualarm_model, simulate_dualarm
+    from naocal.kinds.arm.sim import dualarm_model, simulate_dualarm
 
     assert deepest_contact(CROSSED_ARMS) < -0.05  # the URDF has the arms' shapes (it had none: nothing collided)
     sim = simulate_dualarm(None, seed=1, n_poses=60, outlier_fraction=0.0, write=False)
@@ -388,9 +388,9 @@ def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(t
 
 def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):
     """LOCATE's groups are the chains' shared joints and origins (the torso joint once, each shoulder its own)."""
-    from naocal.solver.arm_dataset import read_arm_dataset
-    from naocal.solver.arm_diagnose import diagnose, location_groups
-    from naocal.solver.arm_identify import identify_dataset
+    from naocal.kinds.arm.dataset import read_arm_dataset
+    from naocal.kinds.arm.diagnose import diagnose, location_groups
+    from naocal.kinds.arm.identify import identify_dataset
 
     fit = identify_dataset(read_arm_dataset(dual_dir), ("joint_offsets", "link_lengths"))
     groups = location_groups(fit)
@@ -405,7 +405,7 @@ def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):
 
 def _exported_calibration(tmp_path, values, units, chains, urdf, effects):
     """A naocal.arm_calibration/1 of these values (SI) exported to a URDF by `naocal offsets export`; its path."""
-    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.kinds.arm.calibration import SCHEMA
     from tests.cli_runner import naocal
 
     doc = {"schema": SCHEMA, "created": "2026-11-27T20:00:00Z",
@@ -426,8 +426,8 @@ def test_the_exported_urdf_of_several_chains_and_their_tools_predicts_as_the_cal
     """Joint offsets (the torso's shared by both arms), link lengths, link poses and each tool's mount written into
     one URDF: read again (naocal's URDF reader, every correction 0 but the markers', which a URDF cannot hold), it
     puts every marker of both chains where the calibrated model does, to 1e-9 m."""
-    from naocal.backends.arm_sim import DUALARM_CHAINS, DUALARM_URDF, dualarm_points
-    from naocal.solver.arm_dataset import arm_chains
+    from naocal.kinds.arm.sim import DUALARM_CHAINS, DUALARM_URDF, dualarm_points
+    from naocal.kinds.arm.dataset import arm_chains
     from tests.test_arm import panda
 
     if robot == "dualarm":
@@ -462,8 +462,8 @@ def test_the_exported_urdf_of_several_chains_and_their_tools_predicts_as_the_cal
 
 def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
     """The KUKA iiwa's flange link is the last joint's child: no fixed joint can carry the tool's pose."""
-    from naocal.solver.arm_calibration import SCHEMA
-    from naocal.solver.arm_dataset import resolve_robot as resolve
+    from naocal.kinds.arm.calibration import SCHEMA
+    from naocal.kinds.arm.dataset import resolve_robot as resolve
     from tests.cli_runner import naocal
 
     urdf, base, tip = resolve("kuka_iiwa", None)
@@ -483,8 +483,8 @@ def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
      "the chains' tips are not robot.tip"),
     ({"left": {"base": "base_link"}}, "missing required field")])
 def test_a_calibration_of_several_chains_names_them_or_is_refused(tmp_path, chains, problem):
-    from naocal.backends.arm_sim import DUALARM_URDF
-    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.kinds.arm.sim import DUALARM_URDF
+    from naocal.kinds.arm.calibration import SCHEMA
     from tests.cli_runner import naocal
 
     doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},

@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from naocal.solver.arm_dataset import read_arm_dataset
+from naocal.kinds.arm.dataset import read_arm_dataset
 from naocal.solver.errors import DataError
 from test_arm import synthetic, true_errors, write
 from naocal.tools.cli import main
@@ -213,7 +213,7 @@ def test_the_examples_in_formats_md_read_as_documented(tmp_path, capsys):
     import shutil
     from pathlib import Path
 
-    from naocal.solver.arm_dataset import resolve_robot
+    from naocal.kinds.arm.dataset import resolve_robot
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "FORMATS.md").read_text()
     section = text[text.index("## `naocal.arm_dataset/1`"):]

@@ -4,9 +4,9 @@ see, which the pixels cannot fool: the tracker with the arm fitted from the came
 import numpy as np
 import pytest
 
-from naocal.solver.arm import ArmModel, Observations
-from naocal.solver.arm_diagnose import diagnose, format_diagnosis, session_folds
-from naocal.solver.arm_identify import fit, initialise_sensors
+from naocal.kinds.arm.model import ArmModel, Observations
+from naocal.kinds.arm.diagnose import diagnose, format_diagnosis, session_folds
+from naocal.kinds.arm.identify import fit, initialise_sensors
 from tests.test_arm import synthetic, true_errors
 
 
@@ -102,7 +102,7 @@ def test_an_effect_that_fits_the_tracker_only_is_named_so():
 @pytest.fixture(scope="module")
 def two_cameras():
     """The dual-arm robot seen by its two torso cameras (60 poses, no tracker rows, no outliers)."""
-    from naocal.backends.arm_sim import simulate_dualarm
+    from naocal.kinds.arm.sim import simulate_dualarm
 
     sim = simulate_dualarm(None, seed=2, n_poses=60, outlier_fraction=0.0, write=False)
     sim["observations"] = sim["observations"].subset(sim["observations"].sensor < 2)
@@ -114,9 +114,9 @@ def test_leave_one_camera_out_names_an_effect_that_fits_one_camera_only(two_came
     """cam_left's focal length 2 % off what the model is told: elasticity (no arm here has any) bends the arm to
     fit its pixels; the arm fitted from cam_left alone then puts cam_right's markers worse. With the focal length
     right it is not refuted (no false alarm)."""
-    from naocal.backends.arm_sim import dualarm_model
-    from naocal.solver.arm import Sensor
-    from naocal.solver.arm_diagnose import Test, physical_checks
+    from naocal.kinds.arm.sim import dualarm_model
+    from naocal.kinds.arm.model import Sensor
+    from naocal.kinds.arm.diagnose import Test, physical_checks
 
     obs = two_cameras["observations"]
     sensors = [Sensor(s.name, s.kind, {**s.intrinsics, **({"fx_px": s.intrinsics["fx_px"] * (1 + focal_error),
@@ -139,7 +139,7 @@ def test_leave_one_camera_out_names_an_effect_that_fits_one_camera_only(two_came
 def test_a_refit_that_sets_aside_other_detections_is_judged_on_its_own_rows(monkeypatch):
     """With the candidate, the fit may set aside other wrong detections than without (fewer rows): the sessions'
     blocks are its own rows' (diagnose crashed with an IndexError on the simulated dual arm, seed 1, 300 poses)."""
-    import naocal.solver.arm_diagnose as arm_diagnose
+    import naocal.kinds.arm.diagnose as arm_diagnose
 
     refit_with = arm_diagnose.refit_with
 

@@ -74,8 +74,8 @@ def test_a_robust_loss_bends_the_data_but_never_the_prior(loss):
 
 
 from naocal.solver.effects import EFFECTS  # noqa: E402
-from naocal.solver.arm_identify import RUNOFF_FACTOR, fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
-from naocal.backends.arm_scenarios import CAMERA, panda, scenario, true_errors  # noqa: E402,F401
+from naocal.kinds.arm.identify import RUNOFF_FACTOR, fit, initialise_sensors, prior_sizes, ran_off  # noqa: E402
+from naocal.kinds.arm.scenarios import CAMERA, panda, scenario, true_errors  # noqa: E402,F401
 
 
 
@@ -115,7 +115,7 @@ def test_the_report_says_which_parameters_the_prior_held():
 
 
 def write_scenario(directory, case):
-    from naocal.solver.arm_dataset import write_arm_dataset
+    from naocal.kinds.arm.dataset import write_arm_dataset
 
     model, obs, truth, flat = scenario(case)
     urdf, base, tip, *_ = panda()
@@ -195,7 +195,7 @@ def test_start_refuses_a_calibration_of_a_parameter_the_model_lacks(tmp_path):
 def one_sensor_dataset(directory, model, obs, sensors, name, noise_px=0.2):
     """The observations of sensor `name` only, as a dataset whose dataset.json states that sensor alone (its frame
     not given: found from the data)."""
-    from naocal.solver.arm_dataset import write_arm_dataset
+    from naocal.kinds.arm.dataset import write_arm_dataset
 
     urdf, base, tip, *_ = panda()
     s = [x.name for x in sensors].index(name)

@@ -178,7 +178,7 @@ def test_offsets_validate_show_and_apply_an_arm_calibration(two_sessions, capsys
 
 def _calibration_file(path, values, urdf):
     """A naocal.arm_calibration/1 with these parameter values (SI) of the panda."""
-    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.kinds.arm.calibration import SCHEMA
 
     params = {n: {"value": v, "std": 0.0, "unit": "m" if n.startswith("link_length.") or n.split(".")[-1] in "xyz"
                   else "rad", "fixed": False} for n, v in values.items()}
@@ -193,7 +193,7 @@ def test_offsets_export_urdf_gives_the_calibrated_arm_to_pybullet(tmp_path, caps
     """The exported URDF loaded into PyBullet (an independent forward kinematics) at the joint readings puts the
     hand where naocal's model of the calibration does, for joint offsets, link lengths and full link poses."""
     from naocal.body.pybullet_quiet import pybullet
-    from naocal.solver.arm import ArmModel, Observations
+    from naocal.kinds.arm.model import ArmModel, Observations
     from test_arm import panda
 
     urdf, base, tip, chain, names, load = panda()

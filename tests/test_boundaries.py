@@ -26,7 +26,7 @@ FORBIDDEN = {
 
 
 def local(name: str) -> str:
-    """An imported module's name in the repository's layout: naocal.solver.arm -> solver.arm (the folders are the
+    """An imported module's name in the repository's layout: naocal.kinds.arm.model -> kinds.arm.model (the folders are the
     import package naocal's subpackages); other names as they are."""
     return name[len("naocal."):] if name.startswith("naocal.") else name
 
@@ -149,9 +149,9 @@ def test_the_import_graph_sees_the_package_s_imports():
     """The modules import each other as naocal.<folder>.<module>: the graph and the layer check must see those
     (they saw none once the folders became the naocal package, and passed whatever was imported)."""
     graph = import_graph()
-    assert "solver.effects" in graph["solver.arm"] and "solver.effect" in graph["solver.effects.joint_offsets"]
+    assert "solver.effects" in graph["kinds.arm.model"] and "solver.effect" in graph["solver.effects.joint_offsets"]
     assert sum(len(targets) for targets in graph.values()) > len(graph)
-    assert "solver.arm" in set(imports_of(ROOT / "solver" / "arm_identify.py"))
+    assert "kinds.arm.model" in set(imports_of(ROOT / "kinds" / "arm" / "identify.py"))
 
 
 def test_every_module_imports_and_no_import_forms_a_cycle():
@@ -198,3 +198,15 @@ def test_no_private_name_is_imported_from_another_module():
                     bad += [f"{path.relative_to(ROOT)} imports {node.module}.{alias.name}" for alias in node.names
                             if alias.name.startswith("_")]
     assert not bad, bad
+
+
+def test_the_kinds_beside_the_nao_live_in_their_folders():
+    """A plug-in kind's modules (its model, dataset, identify, diagnose, verify, simulator, exports) are in
+    kinds/<name>/, not beside the core's: the arm's stack once sat in solver/arm_*.py and backends/arm_*.py."""
+    import naocal.kinds as kinds
+
+    names = [kind.name for kind in kinds.registered() if kind is not kinds.default()]
+    assert "arm" in names and "duckiebot" in names
+    stray = [str(path.relative_to(ROOT)) for package in PACKAGES if package != "kinds"
+             for path in python_files(package) for name in names if path.stem.startswith(name)]
+    assert not stray, stray

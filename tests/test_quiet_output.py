@@ -16,8 +16,8 @@ def test_loading_and_connecting_pybullet_prints_nothing():
 
 
 def test_the_simulated_arm_prints_nothing_of_pybullet(tmp_path):
-    code = ("from backends.arm_sim import SimulatedArm\n"
-            "from solver.arm_dataset import resolve_robot\n"
+    code = ("from kinds.arm.sim import SimulatedArm\n"
+            "from kinds.arm.dataset import resolve_robot\n"
             "with SimulatedArm(*resolve_robot('franka_panda', None)) as arm:\n"
             "    arm.measure(arm.sample_stances(2), 1e-4, 0.2)\n"
             "print('ok')\n")

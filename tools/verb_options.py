@@ -4,7 +4,7 @@ identify's options (the NAO's diagnose parses the identify command it suggests) 
 
 def effect_names() -> str:
     """The candidate effects, for --help (solver/effects/, one module each: an arm's model takes some of them too)."""
-    from naocal.solver.arm import DEFAULT_EFFECTS
+    from naocal.kinds.arm.model import DEFAULT_EFFECTS
     from naocal.solver.effects import ARM_EFFECTS, EXTRA_EFFECTS
 
     return (", ".join(EXTRA_EFFECTS) + f"; an arm's model (default {','.join(DEFAULT_EFFECTS)}): "

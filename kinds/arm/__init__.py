@@ -20,8 +20,8 @@ class ArmKind:
                         or getattr(source, "no_priors", False) or getattr(source, "start", None)  # not silence
                         or getattr(source, "refit", "sensors") != "sensors"
                         or (getattr(source, "verb", "") == "verify" and getattr(source, "fix", None)))
-        from naocal.solver.arm_calibration import is_arm_calibration
-        from naocal.solver.arm_dataset import is_arm_dataset
+        from naocal.kinds.arm.calibration import is_arm_calibration
+        from naocal.kinds.arm.dataset import is_arm_dataset
 
         return is_arm_dataset(source) or is_arm_calibration(source)
 

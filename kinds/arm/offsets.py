@@ -57,7 +57,7 @@ def format_arm_diff(a, b, name_a: str, name_b: str):
 
 
 def _arm_pair(path_a, path_b):
-    from naocal.solver.arm_calibration import is_arm_calibration, read_arm_calibration
+    from naocal.kinds.arm.calibration import is_arm_calibration, read_arm_calibration
 
     arm_a, arm_b = is_arm_calibration(path_a), is_arm_calibration(path_b)
     if arm_a != arm_b:
@@ -75,7 +75,7 @@ def run_diff(args, out) -> int:
 
 
 def run_validate(args, out) -> int:
-    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.kinds.arm.calibration import read_arm_calibration
 
     read_arm_calibration(args.file)
     out.write("ok\n")
@@ -101,7 +101,7 @@ def build_export(args):
     be exported to."""
     import json
 
-    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.kinds.arm.calibration import read_arm_calibration
 
     if args.format not in ARM_EXPORT_FORMATS:
         raise NaocalError(f"--format {args.format}: an arm's calibration exports to {' or '.join(ARM_EXPORT_FORMATS)} "
@@ -114,7 +114,7 @@ def build_export(args):
         from naocal.solver.fileio import read_json
 
         return "calibration.json", json.dumps(read_json(args.file), indent=1, allow_nan=False) + "\n", [args.file]
-    from naocal.tools.export.arm_urdf import export_arm_urdf
+    from naocal.kinds.arm.urdf_export import export_arm_urdf
 
     urdf = _urdf_of(cal, args)
     return "calibrated.urdf", export_arm_urdf(cal, urdf, source_name=Path(args.file).name,
@@ -139,7 +139,7 @@ def run_export(args, out) -> int:
 
 def run_apply(args, out) -> int:
     """Compensated commands (requested + c) or corrected readings (measured - c) of the arm's joints."""
-    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.kinds.arm.calibration import read_arm_calibration
 
     cal = read_arm_calibration(args.file)
     offsets = {n.split(".", 1)[1]: e["value"] for n, e in cal.parameters.items() if n.startswith("joint_offset.")}

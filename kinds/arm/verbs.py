@@ -40,7 +40,7 @@ def add_arm_options(parser, *, simulate=False, verb="") -> None:
 
 
 def parse_arm_effects(text: str):
-    from naocal.solver.arm import DEFAULT_EFFECTS
+    from naocal.kinds.arm.model import DEFAULT_EFFECTS
     from naocal.solver.effects import ARM_EFFECTS, comma_list
     from naocal.solver.errors import NaocalError
 
@@ -66,8 +66,8 @@ def fixed_and_start(args, dataset, effects):
     """(names or effects held, {name: SI start value}) from --start CAL.json and --fix NAME[=VALUE] (VALUE in the
     units the report shows: deg, mm; a bare NAME is held at its start value, the URDF's unless --start gives one).
     NaocalError naming the option, DataError naming the file's field."""
-    from naocal.solver.arm_calibration import LIMITS
-    from naocal.solver.arm_identify import model_for
+    from naocal.kinds.arm.calibration import LIMITS
+    from naocal.kinds.arm.identify import model_for
     from naocal.solver.effect import DISPLAY_UNITS
     from naocal.solver.effects import ARM_EFFECTS
     from naocal.solver.errors import DataError, NaocalError
@@ -75,8 +75,8 @@ def fixed_and_start(args, dataset, effects):
     model = model_for(dataset, effects)
     start = {}
     if getattr(args, "start", None):
-        from naocal.solver.arm_calibration import read_arm_calibration
-        from naocal.solver.arm_verify import check_same_arm
+        from naocal.kinds.arm.calibration import read_arm_calibration
+        from naocal.kinds.arm.verify import check_same_arm
 
         cal = read_arm_calibration(args.start)
         check_same_arm(cal, dataset)
@@ -115,7 +115,7 @@ def fixed_and_start(args, dataset, effects):
 
 
 def _load(args):
-    from naocal.solver.arm_dataset import is_arm_dataset, read_arm_dataset
+    from naocal.kinds.arm.dataset import is_arm_dataset, read_arm_dataset
 
     if not (args.robot or args.chain) and not is_arm_dataset(args.dataset):  # claimed by an arm-only option
         from naocal.solver.errors import NaocalError
@@ -165,8 +165,8 @@ def _shown(value, unit):
 
 
 def format_table(report: dict) -> str:
-    from naocal.solver.arm_identify import shown_rms
-    from naocal.solver.arm_identify import PRIOR_HELD
+    from naocal.kinds.arm.identify import shown_rms
+    from naocal.kinds.arm.identify import PRIOR_HELD
 
     kind = {s: ("points" if v["unit"] == "m" else "camera") for s, v in report["rms"].items()}
     lines = ["fit: " + "; ".join(f"{s} RMS {shown_rms(v['value'], kind[s])} per axis" for s, v in
@@ -196,7 +196,7 @@ def format_table(report: dict) -> str:
                         f"{PRIOR_HELD:g} x the prior's)"))
     else:
         lines.append("priors: off (--no-priors): the data alone")
-    from naocal.solver.arm_identify import ArmOutlier, describe_outliers
+    from naocal.kinds.arm.identify import ArmOutlier, describe_outliers
 
     lines.append(describe_outliers([ArmOutlier(**o) for o in report["outliers"]]))
     lines.append(f"condition number (scaled Jacobian): {report['condition_number']:.3g}")
@@ -208,7 +208,7 @@ def format_table(report: dict) -> str:
 
 
 def run_identify(args) -> int:
-    from naocal.solver.arm_identify import heldout_rms, identify_dataset
+    from naocal.kinds.arm.identify import heldout_rms, identify_dataset
     from naocal.solver.errors import SolveError
 
     _check_nao_only(args)
@@ -222,7 +222,7 @@ def run_identify(args) -> int:
     fixed, start = fixed_and_start(args, dataset, effects)
     fit = identify_dataset(dataset, effects, fixed=fixed, start=start, loss=args.loss, robust=not args.keep_outliers,
                            priors=not args.no_priors)
-    from naocal.solver.arm_identify import ran_off
+    from naocal.kinds.arm.identify import ran_off
 
     runoff = ran_off(fit)  # first: a fit that ran off often does not converge either, and this says why
     if runoff:
@@ -241,7 +241,7 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
     """naocal.arm_calibration/1: per section as identify --json names them, plus the fit and its source."""
     from pathlib import Path
 
-    from naocal.solver.arm_calibration import SCHEMA
+    from naocal.kinds.arm.calibration import SCHEMA
     from naocal.solver.fileio import atomic_write_text
     from naocal.solver.offsets import utc_now_iso
 
@@ -272,7 +272,7 @@ def write_calibration(path, report, dataset, dataset_path) -> None:
 
 def format_calibration(path) -> str:
     """`naocal offsets show` of an arm calibration file; DataError naming the field when it is damaged."""
-    from naocal.solver.arm_calibration import read_arm_calibration
+    from naocal.kinds.arm.calibration import read_arm_calibration
 
     cal = read_arm_calibration(path)
     robot = cal.robot
@@ -286,7 +286,7 @@ def format_calibration(path) -> str:
     for name, reason in cal.fixed_reasons.items():
         lines.append(f"fixed: {name}: {reason}")
     if cal.rms:
-        from naocal.solver.arm_identify import shown_rms
+        from naocal.kinds.arm.identify import shown_rms
 
         lines += ["", "fit: " + "; ".join(f"{s} RMS {shown_rms(v, 'points' if u == 'm' else 'camera')} per axis"
                                           for s, (v, u) in cal.rms.items())]
@@ -295,9 +295,9 @@ def format_calibration(path) -> str:
 
 def run_verify(args) -> int:
     """`naocal verify` of an arm dataset under an arm calibration: exit 0 still good, 1 drifted."""
-    from naocal.solver.arm_calibration import read_arm_calibration
-    from naocal.solver.arm_identify import model_for
-    from naocal.solver.arm_verify import format_arm_verdict, verify_arm
+    from naocal.kinds.arm.calibration import read_arm_calibration
+    from naocal.kinds.arm.identify import model_for
+    from naocal.kinds.arm.verify import format_arm_verdict, verify_arm
 
     from naocal.solver.errors import NaocalError
 
@@ -325,7 +325,7 @@ def run_verify(args) -> int:
 
 def parse_refit(text: str) -> tuple:
     """--refit sensors[,points]: the nuisance effects beyond the sensors' frames (always refitted)."""
-    from naocal.solver.arm_verify import NUISANCE_EFFECTS
+    from naocal.kinds.arm.verify import NUISANCE_EFFECTS
     from naocal.solver.effects import comma_list
     from naocal.solver.errors import NaocalError
 
@@ -338,15 +338,15 @@ def parse_refit(text: str) -> tuple:
 
 
 def run_diagnose(args) -> int:
-    from naocal.solver.arm_diagnose import diagnose, format_diagnosis
-    from naocal.solver.arm_identify import identify_dataset
+    from naocal.kinds.arm.diagnose import diagnose, format_diagnosis
+    from naocal.kinds.arm.identify import identify_dataset
     from naocal.solver.errors import SolveError
 
     effects = parse_arm_effects(args.effects)
     dataset = _load(args)
     fixed, start = fixed_and_start(args, dataset, effects)
     fit = identify_dataset(dataset, effects, fixed=fixed, start=start, priors=not args.no_priors)
-    from naocal.solver.arm_identify import ran_off
+    from naocal.kinds.arm.identify import ran_off
 
     runoff = ran_off(fit)
     if runoff:  # the diagnosis of a fit that ran off would name effects for the wrong reason
@@ -366,8 +366,8 @@ def run_simulate(args) -> int:
     from pathlib import Path
 
     from naocal.agent.rundir import RunLock, entries
-    from naocal.backends.arm_sim import simulate_arm
-    from naocal.solver.arm_dataset import PYBULLET_ARMS, resolve_robot
+    from naocal.kinds.arm.sim import simulate_arm
+    from naocal.kinds.arm.dataset import PYBULLET_ARMS, resolve_robot
     from naocal.solver.errors import NaocalError
 
     from naocal.solver.effects import comma_list
@@ -404,7 +404,7 @@ def run_simulate(args) -> int:
     return 0
 
 
-DUALARM = "dualarm"  # --robot dualarm: naocal's two arms on a torso (backends/arm_sim.py simulate_dualarm)
+DUALARM = "dualarm"  # --robot dualarm: naocal's two arms on a torso (kinds/arm/sim.py simulate_dualarm)
 
 
 def run_simulate_dualarm(args, out) -> int:
@@ -412,7 +412,7 @@ def run_simulate_dualarm(args, out) -> int:
     import shlex
 
     from naocal.agent.rundir import RunLock, entries
-    from naocal.backends.arm_sim import simulate_dualarm
+    from naocal.kinds.arm.sim import simulate_dualarm
     from naocal.solver.errors import NaocalError
 
     if args.chain is not None:

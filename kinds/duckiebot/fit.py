@@ -316,7 +316,7 @@ def _arc(pose, J, v, omega, dv, domega, dt):
 # ------------------------------------------------------------------------------------------------ the equations
 
 class DriveEquations:
-    """The joint fit's normal equations for solver.identify.solve (as solver.arm_identify.ArmEquations are the
+    """The joint fit's normal equations for solver.identify.solve (as kinds.arm.identify.ArmEquations are the
     arm's): residuals = (predicted - detected rectified pixels) / the corner's expected noise (N, 2), one row per
     corner, each row's score for the cluster-robust covariance (its cluster: its frame)."""
 

@@ -5,7 +5,7 @@ solver.effect.Effect. `EFFECTS` maps names to them in their `order`, whatever th
 of the model it defines parameters for:
 - the NAO's model (solver.model.Model, `parameters(setup)`): the base model (the paper's) is the effects with
   `base = True`, the others are the candidates the diagnostics can add (BASE_EFFECTS, EXTRA_EFFECTS);
-- an arm's model (solver.arm.ArmModel, `arm_parameters(arm)`): ARM_MODEL_EFFECTS in their gauge order, the sensors'
+- an arm's model (kinds.arm.model.ArmModel, `arm_parameters(arm)`): ARM_MODEL_EFFECTS in their gauge order, the sensors'
   frames always, the others (ARM_EFFECTS) chosen by --effects.
 `joint_offsets`, `link_lengths` and `elasticity` are terms of both.
 """

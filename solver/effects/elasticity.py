@@ -7,7 +7,7 @@ gravity turns the joint in +q, taken at the joint's own, sagging angle (the mode
 differentiates it exactly). Modelled for chains that hang free (a robot on its back with sandals); a chain that
 carries the body (a standing robot's support leg) has no such term.
 
-An arm (solver.arm.ArmModel) has the term on every revolute joint, tau from the URDF's masses and what the tip
+An arm (kinds.arm.model.ArmModel) has the term on every revolute joint, tau from the URDF's masses and what the tip
 carries, taken at the readings (a fixed regressor: the sag's own change of tau is second order in C).
 """
 

@@ -3,7 +3,7 @@
     the origin of the joint at the link's end moves by delta along the link (its origin offset's direction)
 
 The robot description names the links (`link_lengths`: label -> the joint at the link's end): the NAO's thigh
-(hip to knee) and tibia (knee to ankle) of each leg, `link_length.L.thigh` etc. An arm (solver.arm.ArmModel) has
+(hip to knee) and tibia (knee to ankle) of each leg, `link_length.L.thigh` etc. An arm (kinds.arm.model.ArmModel) has
 one per joint origin (and chain tip) with an offset, named by the URDF link it ends: `link_length.panda_link4`.
 """
 

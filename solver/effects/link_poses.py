@@ -1,10 +1,10 @@
-"""Link poses (an arm's, solver.arm.ArmModel): the full pose error of each joint origin.
+"""Link poses (an arm's, kinds.arm.model.ArmModel): the full pose error of each joint origin.
 
     A_k = F_{k-1} @ T_origin_k @ Trans(t_k) @ Exp(r_k)         in the joint's frame, before its motion
 
 `link_pose.<origin>.<x|y|z>` t_k (m) and `link_pose.<origin>.<rx|ry|rz>` r_k (rad); the origin named by the URDF
 link it ends, as link_lengths names it. A superset of link_lengths and, about the joint's axis, of joint_offsets:
-the gauges (solver.arm_identify.identifiable) keep those and fix what they already say.
+the gauges (kinds.arm.identify.identifiable) keep those and fix what they already say.
 """
 
 import math

@@ -1,4 +1,4 @@
-"""Points (an arm's, solver.arm.ArmModel): where each observed point (marker, reflector) sits on the tool.
+"""Points (an arm's, kinds.arm.model.ArmModel): where each observed point (marker, reflector) sits on the tool.
 
     p_tool = p0 + dp          p0 the point's nominal position in the tip frame (dataset.json)
 

@@ -1,4 +1,4 @@
-"""Sensors (an arm's, solver.arm.ArmModel): the frame of each external sensor that sees the arm's points.
+"""Sensors (an arm's, kinds.arm.model.ArmModel): the frame of each external sensor that sees the arm's points.
 
     y = Exp(rotation correction) @ R0 @ p + translation          T_sensor_mount = (R, t)
 

@@ -1,4 +1,4 @@
-"""Tool (an arm's, solver.arm.ArmModel): the pose error of the tool (the end-effector mount) on each chain's tip.
+"""Tool (an arm's, kinds.arm.model.ArmModel): the pose error of the tool (the end-effector mount) on each chain's tip.
 
     p_tip = Trans(t_T) @ Exp(r_T) @ p_tool        p_tool a point on the tool (its nominal position plus `points`)
 

@@ -30,8 +30,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from naocal.solver.arm import ArmModel
-from naocal.solver.arm_identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
+from naocal.kinds.arm.model import ArmModel
+from naocal.kinds.arm.identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
                                        whitened)
 from naocal.solver.effects import ARM_EFFECTS
 from naocal.solver.diagnostics import FAMILY_ALPHA
@@ -248,9 +248,9 @@ def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=Non
     """{judged sensor: RMS (its unit)} of its data with the arm fitted with `effects` from the `fitted_from`
     sensors alone (default: the cameras; judged: the 3-D sensors), then held while the judged sensors' frames (and,
     if the model has points, the points the fitting sensors never saw: a tracker's reflector) are refitted:
-    solver.arm_verify.nuisance_fit, what verify --refit does. Only the judged rows of chains the fitting sensors
+    kinds.arm.verify.nuisance_fit, what verify --refit does. Only the judged rows of chains the fitting sensors
     saw count (a tracker on one arm says nothing of the other's); the nuisances the fit held stay held."""
-    from naocal.solver.arm_verify import NUISANCE_EFFECTS, nuisance_fit
+    from naocal.kinds.arm.verify import NUISANCE_EFFECTS, nuisance_fit
 
     if fitted_from is None:
         fitted_from, judged = sensor_groups(fit.model)

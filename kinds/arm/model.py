@@ -196,7 +196,7 @@ class ArmModel:
         unknown = [e for e in effects if e not in ARM_EFFECTS]
         if unknown:
             raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(ARM_EFFECTS)})")
-        self.chain = chain  # as given: a model with other effects is made from it (solver.arm_diagnose)
+        self.chain = chain  # as given: a model with other effects is made from it (kinds.arm.diagnose)
         if isinstance(chain, (tuple, list)):
             self.arm_chains = tuple(chain)
         else:

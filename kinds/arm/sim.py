@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver.arm import Observations, Sensor, exp_so3, log_so3
-from naocal.solver.arm_dataset import arm_chain
+from naocal.kinds.arm.model import Observations, Sensor, exp_so3, log_so3
+from naocal.kinds.arm.dataset import arm_chain
 from naocal.solver.effect import POSE_COMPONENTS
 from naocal.solver.errors import NaocalError
 
@@ -301,7 +301,7 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
     import json
     import shutil
 
-    from naocal.solver.arm_dataset import write_arm_dataset
+    from naocal.kinds.arm.dataset import write_arm_dataset
     from naocal.solver.fileio import atomic_write_text
 
     out = Path(out)
@@ -331,7 +331,7 @@ def simulate_arm(out, urdf_path, base, tip, *, seed=0, n_poses=60, noise_m=1e-4,
 
 # ------------------------------------------------------------------------------------------------ the dual-arm robot
 # Two 6-DoF arms on a torso that turns about the vertical (a dual-arm industrial robot's layout, issue 24): naocal's
-# own URDF (backends/data/dualarm.urdf, written by dualarm_urdf: no third-party file), two cameras on the torso, a
+# own URDF (kinds/arm/data/dualarm.urdf, written by dualarm_urdf: no third-party file), two cameras on the torso, a
 # laser tracker on the floor seeing a reflector on the right tool, ArUco-like markers glued on each tool.
 
 DUALARM_URDF = Path(__file__).with_name("data") / "dualarm.urdf"
@@ -393,7 +393,7 @@ def dualarm_urdf(origins: dict | None = None) -> str:
                 f'{yaw:.9g}"/><geometry><capsule radius="{radius:g}" length="{length:.6g}"/></geometry></collision>')
 
     lines = ['<?xml version="1.0"?>',
-             "<!-- naocal's simulated dual-arm robot (backends/arm_sim.py dualarm_urdf; written for naocal, no "
+             "<!-- naocal's simulated dual-arm robot (kinds/arm/sim.py dualarm_urdf; written for naocal, no "
              "third-party content): a torso turning about z, two 6-DoF arms, a tool on each -->",
              '<robot name="dualarm">',
              f'  <link name="base_link">{inertial(40.0, (0.0, 0.0, 0.4))}'
@@ -442,9 +442,9 @@ def dualarm_sensors(noise_m, noise_px) -> list:
 
 
 def dualarm_model(effects, sensors=None, noise_m=5e-5, noise_px=0.3):
-    """The nominal ArmModel of the dual-arm robot (backends/data/dualarm.urdf) with these effects."""
-    from naocal.solver.arm import ArmModel
-    from naocal.solver.arm_dataset import arm_chains
+    """The nominal ArmModel of the dual-arm robot (kinds/arm/data/dualarm.urdf) with these effects."""
+    from naocal.kinds.arm.model import ArmModel
+    from naocal.kinds.arm.dataset import arm_chains
 
     chains = arm_chains(DUALARM_URDF, DUALARM_CHAINS)
     points = {name: xyz for name, (xyz, _, _) in dualarm_points().items()}
@@ -631,7 +631,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
               "points": {n: xyz for n, (xyz, _, _) in points.items()}, "n_poses": n_poses, "x_true": x_true,
               "refused_colliding": colliding}
     if write:
-        from naocal.solver.arm_dataset import write_arm_dataset
+        from naocal.kinds.arm.dataset import write_arm_dataset
         from naocal.solver.fileio import atomic_write_text
 
         out = Path(out)

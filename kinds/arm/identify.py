@@ -1,4 +1,4 @@
-"""Identification of an arm's parameters (solver.arm) from a naocal.arm_dataset/1 (docs/ARM.md).
+"""Identification of an arm's parameters (kinds.arm.model) from a naocal.arm_dataset/1 (docs/ARM.md).
 
 1. Each sensor's frame is found from the data first (it may be anywhere): a 3-D sensor by the least-squares rigid
    alignment of the nominal points with its readings (Kabsch), a camera by the direct linear transform of its
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.solver.arm import ArmModel, Observations
+from naocal.kinds.arm.model import ArmModel, Observations
 from naocal.solver.effects import EFFECTS
 from naocal.solver.errors import DataError, SolveError
 from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
@@ -483,10 +483,10 @@ def data_weakest(model, obs, x, free, sigma, count: int = 3):
 
 def ran_off(fit_: ArmFit):
     """None, or one line: the parameter furthest beyond RUNOFF_FACTOR of its plausible size (or beyond what a
-    calibration file may hold, solver.arm_calibration.LIMITS), the data's weak direction at the solution it moves
+    calibration file may hold, kinds.arm.calibration.LIMITS), the data's weak direction at the solution it moves
     most cheaply along, and the `--fix` that removes that direction: its largest physical parameter held at the
     URDF's value."""
-    from naocal.solver.arm_calibration import LIMITS
+    from naocal.kinds.arm.calibration import LIMITS
     from naocal.solver.effect import shown
 
     model = fit_.model

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from naocal.solver import fields
-from naocal.solver.arm import POINT_KINDS, ArmChain, Observations, Sensor
+from naocal.kinds.arm.model import POINT_KINDS, ArmChain, Observations, Sensor
 from naocal.solver.errors import DataError
 from naocal.solver.fields import fail
 from naocal.solver.fileio import read_json, read_text
@@ -48,7 +48,7 @@ class ArmDataset:
     urdf_path: Path
     base: str
     tip: str  # several chains: their tips joined by '+'
-    chain: object  # solver.robot.Chain; several chains (or a sensor on a link): a tuple of solver.arm.ArmChain
+    chain: object  # solver.robot.Chain; several chains (or a sensor on a link): a tuple of kinds.arm.model.ArmChain
     link_names: tuple  # the link each joint origin (and the tip offset) ends, for link_length.<link> (first chain)
     load: tuple  # (mass kg, com in the tip frame) hanging off the last joint by fixed joints
     sensors: tuple

@@ -86,7 +86,7 @@ def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors:
     """The ArmFit of the sensors' frames and the `refit_effects` (NUISANCE_EFFECTS) to `obs`, the arm's other
     parameters held at `values` ({name: SI}, the URDF's where missing; also where the nuisances start); `held`
     nuisance names held too. Every detection kept: a verdict is on all the data, as the NAO's verify."""
-    from naocal.solver.arm_identify import fit, initialise_sensors
+    from naocal.kinds.arm.identify import fit, initialise_sensors
 
     x0 = initialise_sensors(model, obs, path, {n: v for n, v in values.items() if n in model.names})
     arm = tuple(p.name for p in model.parameters if p.effect != "sensors" and p.effect not in refit_effects)
@@ -95,14 +95,14 @@ def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors:
 
 def absorbed_beyond_prior(fit_, names) -> dict | None:
     """What the refitted nuisances `names` (the free ones) of the nuisance fit `fit_` absorbed, against their prior
-    N(0, plausible size) (solver.arm_identify.prior_sizes; 0: where dataset.json puts them): {"size" (per
+    N(0, plausible size) (kinds.arm.identify.prior_sizes; 0: where dataset.json puts them): {"size" (per
     parameter, in plausible sizes), "chi2" (sum of their squares), "bound" (its 1 - FAMILY_ALPHA quantile with as
     many degrees of freedom: what gluing errors as plausible as the prior says leave), "beyond"}; None if none is
     refitted. Beyond the bound the nuisances carry more than the setup explains: an arm error hides in them."""
     from scipy.stats import chi2
 
     from naocal.solver.diagnostics import FAMILY_ALPHA
-    from naocal.solver.arm_identify import prior_sizes
+    from naocal.kinds.arm.identify import prior_sizes
 
     size = prior_sizes(fit_.model)
     index = [i for i, n in enumerate(fit_.model.names) if n in names and fit_.free[i] and size[i] > 0]
@@ -115,13 +115,13 @@ def absorbed_beyond_prior(fit_, names) -> dict | None:
 
 
 def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), start=None) -> ArmVerdict:
-    """The verdict of the calibration `cal` (solver.arm_calibration) on `dataset` (solver.arm_dataset).
+    """The verdict of the calibration `cal` (kinds.arm.calibration) on `dataset` (kinds.arm.dataset).
 
     refit_effects : NUISANCE_EFFECTS refitted from the new data beside the sensors' frames, the arm held.
-    priors : the nuisance parameters' priors (solver.arm_identify.arm_prior).
+    priors : the nuisance parameters' priors (kinds.arm.identify.arm_prior).
     held, start : nuisance parameters held, and {name: SI value} to start them from (--fix NAME[=VALUE]).
     """
-    from naocal.solver.arm_identify import fit, model_for
+    from naocal.kinds.arm.identify import fit, model_for
 
     check_same_arm(cal, dataset)
     model = model_for(dataset, tuple(cal.effects) + tuple(e for e in refit_effects if e not in cal.effects))
@@ -221,7 +221,7 @@ def _group(name: str) -> str:
 
 
 def _shown(value, unit) -> str:
-    from naocal.solver.arm_identify import shown_rms
+    from naocal.kinds.arm.identify import shown_rms
 
     return shown_rms(value, "points" if unit == "m" else "camera")
 

@@ -1,7 +1,7 @@
 """An arm's calibration as a corrected URDF (`naocal offsets export CAL --format urdf`, docs/ARM.md).
 
 The arm's URDF with the calibration written into its joint origins, so that any URDF reader's forward kinematics
-at the joint READINGS gives the calibrated pose (solver/arm.py's model):
+at the joint READINGS gives the calibrated pose (kinds/arm/model.py's model):
 
 - link_length.<link> L: the chain's origin ending that link moves by L along its offset. The origin may be folded
   from several joints (fixed joints before a revolute one, or between the last revolute joint and the tip); the
@@ -12,7 +12,7 @@ at the joint READINGS gives the calibrated pose (solver/arm.py's model):
 - tool.<chain>.{x,y,z,rx,ry,rz}: the tip frame times the tool's pose, on the fixed joint whose child is the tip.
 
 Several chains (two arms on one torso: the file's `chains`) are written into one URDF, a joint they share
-(the torso's) once; the parameters' names are the model's (solver.arm.ArmModel), e.g. link_length.torso_to_left_j1.
+(the torso's) once; the parameters' names are the model's (kinds.arm.model.ArmModel), e.g. link_length.torso_to_left_j1.
 
 Not in a URDF, and said so in its header comment: the sensors' frames (the setup, not the arm), the points on the
 tool (points effect) and elasticity. Relative mesh file names are made absolute (the file loads from anywhere);
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver.arm import exp_so3
+from naocal.kinds.arm.model import exp_so3
 from naocal.solver.errors import DataError, NaocalError
 from naocal.solver.fileio import read_bytes
 from naocal.solver.transforms import rot_axis_angle, rot_rpy, rpy_from_rot
@@ -98,17 +98,17 @@ POSE = ("x", "y", "z", "rx", "ry", "rz")
 
 def _origin_names(cal, urdf_path) -> dict:
     """{("joint", joint) or ("tip", chain name): the name its link_length / link_pose parameters carry}: the
-    model's own naming (solver.arm.ArmModel: a link ending several origins is named by the joint or chain each
+    model's own naming (kinds.arm.model.ArmModel: a link ending several origins is named by the joint or chain each
     leads to), so the export places exactly what identify fitted."""
-    from naocal.solver.arm import ArmModel
-    from naocal.solver.arm_dataset import arm_chains
+    from naocal.kinds.arm.model import ArmModel
+    from naocal.kinds.arm.dataset import arm_chains
 
     model = ArmModel(arm_chains(urdf_path, cal.chains), {}, [], ())
     return dict(zip(model.origin_keys, model.origin_names))
 
 
 def _place_tool(fold, chain_name, values, used) -> None:
-    """tool.<chain>.{x,y,z,rx,ry,rz}: the tip frame becomes T_tip @ [Exp(r), t] (solver/arm.py: p_tip = t +
+    """tool.<chain>.{x,y,z,rx,ry,rz}: the tip frame becomes T_tip @ [Exp(r), t] (kinds/arm/model.py: p_tip = t +
     Exp(r) p), i.e. the origin of the fold's last fixed joint (the one whose child is the tip) times that pose.
     A tip moved directly by a joint has no fixed joint to carry it: refused, naming the parameter."""
     tool = np.array([values.get(f"tool.{chain_name}.{q}", 0.0) for q in POSE])
@@ -125,7 +125,7 @@ def _place_tool(fold, chain_name, values, used) -> None:
 
 
 def export_arm_urdf(cal, urdf_path, *, source_name="a calibration file", strip_meshes=False) -> str:
-    """Text of the corrected URDF of the calibration `cal` (solver.arm_calibration.ArmCalibration)."""
+    """Text of the corrected URDF of the calibration `cal` (kinds.arm.calibration.ArmCalibration)."""
     urdf_path = Path(urdf_path)
     try:
         root = ET.fromstring(read_bytes(urdf_path), parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))

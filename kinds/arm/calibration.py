@@ -16,7 +16,7 @@ from naocal.solver.fileio import read_json
 from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
 
 SCHEMA = "naocal.arm_calibration/1"
-# The units a parameter of each kind is stored in (solver/arm.py), by the first part of its name.
+# The units a parameter of each kind is stored in (kinds/arm/model.py), by the first part of its name.
 UNITS = {"joint_offset": "rad", "link_length": "m", "point": "m", "elasticity": "rad/(N m)"}
 POSE_KINDS = ("link_pose", "tool")  # x, y, z in m and rx, ry, rz in rad: a joint origin's pose error, a tool mount's
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets

@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from naocal.solver.arm import ArmModel, Observations, Sensor
-from naocal.solver.arm_dataset import resolve_robot
+from naocal.kinds.arm.model import ArmModel, Observations, Sensor
+from naocal.kinds.arm.dataset import resolve_robot
 
 CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 639.5, "cy_px": 511.5,
           "distortion": [0.02, -0.01, 0.001, -0.0005, 0.0]}
@@ -17,14 +17,14 @@ CAMERA = {"width_px": 1280, "height_px": 1024, "fx_px": 1400.0, "fy_px": 1400.0,
 
 def panda():
     """(URDF path, base, tip, chain, link names, load) of pybullet_data's Franka Panda, base to hand."""
-    from naocal.solver.arm_dataset import arm_chain
+    from naocal.kinds.arm.dataset import arm_chain
 
     urdf, base, tip = resolve_robot("franka_panda", None)
     return (urdf, base, tip) + arm_chain(urdf, base, tip, urdf)
 
 
 def tool() -> dict:
-    from naocal.backends.arm_sim import tool_points
+    from naocal.kinds.arm.sim import tool_points
 
     return tool_points()
 
