@@ -387,6 +387,11 @@ class BridgeClient:
             if remaining_s < 1e-9:
                 break
 
+    def stop(self):
+        """Stop the robot: its kind's safe state (a Duckiebot's wheels at 0, a NAO driver's release_control), moving
+        nothing. Needs no lease: any client may (the controller is told at its next motion request)."""
+        return self._call("stop")
+
     def release(self) -> None:
         """Give up control of motion so another client may command."""
         if self._token is not None:

@@ -8,9 +8,9 @@ Only msgpack's plain types cross the wire (nil, bool, int, float, str, bin, arra
 no eval, no msgpack extension types. Arrays travel as raw bytes with an explicit shape and dtype. Argument keys
 carry their unit (`targets_rad`, `duration_s`); unknown keys are refused, so a key in the wrong unit never passes.
 Motion needs the lease: `acquire` answers the controller alone with a secret token, which every later request
-carries (backends/bridge_lease.py).
+carries (backends/bridge_lease.py). `stop` does not: any client may make the robot safe.
 
-One protocol for every robot kind: the session commands (hello, acquire, release) and each kind's own (COMMANDS,
+One protocol for every robot kind: the session commands (hello, acquire, release, stop) and each kind's own (COMMANDS,
 the NAO's, and each other kind's, registered by the kind: register_kind_commands). A server serves one robot and answers only its kind's commands (UnknownCommand for
 the others). `v` versions the framing; PROTOCOL_REVISION counts the commands added since (hello says it, and the
 server's kind): adding a kind's commands changes no request or reply an older client sends or reads.
@@ -30,8 +30,9 @@ from naocal.backends.errors import BridgeError
 
 PROTOCOL_VERSION = 1
 # Commands and hello keys added since version 1, compatibly: 1 = the NAO's commands; 2 = hello's `kind` and
-# `revision`, the Duckiebot's commands (kinds/duckiebot/bridge.py). hello without `revision` is a revision-1 server.
-PROTOCOL_REVISION = 2
+# `revision`, the Duckiebot's commands (kinds/duckiebot/bridge.py); 3 = `stop` for every kind, from any client.
+# hello without `revision` is a revision-1 server.
+PROTOCOL_REVISION = 3
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply
 ZMQ_MAX_INBOUND_BYTES = 4 << 20  # ZMQ_MAXMSGSIZE of the server socket: libzmq drops the peer beyond this
 MAX_REPLY_BYTES = 16 << 20  # ZMQ_MAXMSGSIZE of the client socket (a VGA BGR image is 0.9 MiB)
@@ -139,12 +140,15 @@ COMMANDS = {
     "sleep": ({"duration_s": finite_or_nan_float}, True),
     "acquire": ({"nonce": _secret}, False),  # -> {"token", "lease_timeout_s"}; ControlError if another holds it
     "release": ({}, False),
+    # The stop: the robot's safe state now (the kind's; it moves nothing). Any client may send it, lease or not
+    # (CURVE, when on, still admits only its keys): stopping only makes the robot safer.
+    "stop": ({}, False),
 }
 # Each robot kind's commands: kind -> {cmd: (argument validators, needs the lease)}. The NAO's are the protocol's
 # first; another kind registers its own table (register_kind_commands) where its served robot and client are
 # defined (kinds/<kind>/bridge.py), so the protocol names no other robot.
 KIND_COMMANDS = {"nao": COMMANDS}
-SESSION_COMMANDS = ("hello", "robot_identity", "now", "sleep", "acquire", "release")  # every kind's
+SESSION_COMMANDS = ("hello", "robot_identity", "now", "sleep", "acquire", "release", "stop")  # every kind's
 
 
 def register_kind_commands(kind: str, commands: dict) -> dict:

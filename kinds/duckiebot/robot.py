@@ -133,3 +133,19 @@ def robot_name_problem(name) -> str | None:
         return (f"robot name {name[:40]!r} is not a Duckiebot name: letters, digits and underscores, a letter "
                 "first, at most 63 characters")
     return None
+
+
+def decoded_frame(data, width_px: int = IMAGE_WIDTH_PX, height_px: int = IMAGE_HEIGHT_PX):
+    """The 8-bit grey image a compressed camera frame (PNG or JPEG bytes) holds, checked before it is used or echoed
+    (the ROS driver's frames, the bridge client's): (image, None), or (None, why not) when it does not decode or is
+    not `width_px` x `height_px`."""
+    import cv2  # here: the description itself needs no OpenCV
+
+    if not isinstance(data, (bytes, bytearray)) or not data:
+        return None, f"no image bytes (got {type(data).__name__} of {len(data) if hasattr(data, '__len__') else '?'})"
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        return None, f"does not decode as an image ({len(data)} bytes)"
+    if image.shape != (height_px, width_px):
+        return None, f"is {image.shape[1]} x {image.shape[0]}, expected {width_px} x {height_px}"
+    return image, None
