@@ -213,9 +213,12 @@ class BridgeClient:
             except ProtocolError as err:
                 raise BridgeError(f"{self.endpoint}: {cmd}: unreadable reply: {err}") from None
             if isinstance(message, dict) and message.get("id") is None and message.get("ok") is False:
-                error = message.get("error") or {}
+                try:
+                    error = protocol.checked_error(message.get("error"))  # checked before it is echoed
+                except ProtocolError as err:
+                    raise BridgeError(f"{self.endpoint}: {cmd}: malformed reply: {err}") from None
                 raise BridgeError(f"{self.endpoint}: {cmd}: server refused the request: "
-                                  f"{error.get('type')}: {error.get('message')}")
+                                  f"{error['type']}: {error['message']}")
             if isinstance(message, dict) and message.get("id") != request_id:
                 log.debug("discarding a reply to %r while waiting for %s", message.get("id"), request_id)
                 continue
