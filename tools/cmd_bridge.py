@@ -180,7 +180,7 @@ def _ping(args) -> int:
     bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=0,
                            curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
-        info = bridge.server_info()
+        info = _shown_hello(bridge.server_info(), args.endpoint)
         round_trips_s = []
         for _ in range(args.count):
             start = time.perf_counter()
@@ -200,12 +200,23 @@ def _stop(args) -> int:
     bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=1,
                           curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
-        info = bridge.server_info()
+        info = _shown_hello(bridge.server_info(), args.endpoint)
         bridge.stop()
     finally:
         bridge.close()
-    print(f"{args.endpoint}: stopped the {info.get('kind', 'nao')} {info['robot_id']} (driver {info['driver']})")
+    print(f"{args.endpoint}: stopped the {info['kind']} {info['robot_id']} (driver {info['driver']})")
     return 0
+
+
+def _shown_hello(info: dict, endpoint: str) -> dict:
+    """The hello's values a command prints, checked before they are echoed: one short printable line each."""
+    from naocal.solver import fields
+
+    shown = {"kind": info.get("kind", "nao"),  # a revision-1 server serves a NAO and does not say so
+             **{key: info.get(key) for key in ("driver", "robot_id", "clock", "server_id")}}
+    for key, value in shown.items():
+        fields.text(value, f"{endpoint}: hello", key, max_chars=100, non_empty=True)
+    return {**info, **shown}
 
 
 def _keygen(args) -> int:
