@@ -462,7 +462,6 @@ class BridgeServer:
             return None
         return self._robot.dispatch(cmd, args)
 
-
     def _stop_robot(self, token: str | None):
         """`stop`, from any client: the served robot's safe state (its kind's `stop` command, which moves nothing).
         Sent by anyone but the controller, it is told to the controller at its next motion request."""
