@@ -213,9 +213,12 @@ class BridgeClient:
             except ProtocolError as err:
                 raise BridgeError(f"{self.endpoint}: {cmd}: unreadable reply: {err}") from None
             if isinstance(message, dict) and message.get("id") is None and message.get("ok") is False:
-                error = message.get("error") or {}
+                try:
+                    error = protocol.checked_error(message.get("error"))  # checked before it is echoed
+                except ProtocolError as err:
+                    raise BridgeError(f"{self.endpoint}: {cmd}: malformed reply: {err}") from None
                 raise BridgeError(f"{self.endpoint}: {cmd}: server refused the request: "
-                                  f"{error.get('type')}: {error.get('message')}")
+                                  f"{error['type']}: {error['message']}")
             if isinstance(message, dict) and message.get("id") != request_id:
                 log.debug("discarding a reply to %r while waiting for %s", message.get("id"), request_id)
                 continue
@@ -386,6 +389,11 @@ class BridgeClient:
             remaining_s -= step_s
             if remaining_s < 1e-9:
                 break
+
+    def stop(self):
+        """Stop the robot: its kind's safe state (a Duckiebot's wheels at 0, a NAO driver's release_control), moving
+        nothing. Needs no lease: any client may (the controller is told at its next motion request)."""
+        return self._call("stop")
 
     def release(self) -> None:
         """Give up control of motion so another client may command."""

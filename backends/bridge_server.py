@@ -13,6 +13,9 @@ Guarantees (docs/PROTOCOL.md):
 - one client at a time controls motion (`command`, `set_stiffness`, `sleep`): the one `acquire` gave the lease
   token to, until it sends `release` or stays silent for `lease_timeout_s`; the others may still read. Control is
   bound to that secret, not to a client id anyone can copy (backends/bridge_lease.py);
+- any client may `stop` the robot, lease or not (CURVE, when on, still admits only its keys): the kind's safe state,
+  which moves nothing (a Duckiebot's wheels at 0; a NAO's `release_control`). A stop the controller did not send is
+  told to it at its next motion request (RobotFault, once, nothing executed): what it planned no longer holds;
 - a motion is executed once: the replies of the controller's last `replies_kept_per_client` motion requests are
   kept under its lease, a retried one is answered from them and NOT executed again, whatever other clients send;
   with `journal_path` they (and the lease) also survive a restart of the server;
@@ -138,6 +141,7 @@ class BridgeServer:
         self._stop = threading.Event()
         self._thread = None
         self._robot_id = None
+        self._stop_notice = None  # (lease, why): a stop its holder did not send, told at its next motion request
         self.requests_served = 0
 
     # ------------------------------------------------------------------------------------------ lifecycle
@@ -317,6 +321,12 @@ class BridgeServer:
             return protocol.pack(protocol.error_reply(
                 request_id, "StaleRequest", f"request {request_id} is older than the replies this server keeps; "
                                             "not executed"))
+        notice = self._stop_notice
+        if notice is not None and notice[0] is lease:
+            self._stop_notice = None
+            reply = protocol.pack(protocol.error_reply(request_id, "RobotFault", f"{notice[1]}; {cmd} not executed"))
+            lease.store(client, seq, reply)  # a retry of this request hears the same
+            return reply
         journaled = self._journal is not None and cmd not in protocol.NOT_JOURNALED
         if journaled:
             try:
@@ -440,6 +450,8 @@ class BridgeServer:
             }
         if cmd == "acquire":
             return self._acquire(token, args["nonce"])
+        if cmd == "stop":
+            return self._stop_robot(token)
         if cmd == "release":
             lease = self._lease
             if lease is not None and lease.held_by(token):
@@ -449,6 +461,16 @@ class BridgeServer:
                 self._release_control()
             return None
         return self._robot.dispatch(cmd, args)
+
+    def _stop_robot(self, token: str | None):
+        """`stop`, from any client: the served robot's safe state (its kind's `stop` command, which moves nothing).
+        Sent by anyone but the controller, it is told to the controller at its next motion request."""
+        lease = self._lease
+        result = self._robot.dispatch("stop", {})
+        if lease is not None and not lease.held_by(token):
+            log.warning("a client without the lease stopped the robot")
+            self._stop_notice = (lease, "another client stopped the robot (stop without the lease)")
+        return result
 
 
 def check_sleep(duration_s: float) -> float:
@@ -473,7 +495,8 @@ class ServedRobot:
 
     def dispatch(self, cmd: str, args: dict):
         """Run one of this kind's commands (validated arguments; motion ones from the lease holder only): its result,
-        plain msgpack types. Raises SafetyError, RobotFault, RobotTimeout, NaocalError as a driver does."""
+        plain msgpack types. Raises SafetyError, RobotFault, RobotTimeout, NaocalError as a driver does. `stop` comes
+        from any client: the robot's safe state, moving nothing."""
         raise NotImplementedError
 
     def control_granted(self) -> None:
@@ -537,6 +560,9 @@ class ServedNao(ServedRobot):
             return None
         if cmd == "sleep":
             backend.sleep(check_sleep(args["duration_s"]))
+            return None
+        if cmd == "stop":  # the NAO's safe state is the one control ending gives: the driver's, no motion invented
+            backend.release_control()
             return None
         raise ProtocolError(f"unknown command {cmd!r}", "UnknownCommand")  # COMMANDS and this table disagree
 

@@ -41,7 +41,7 @@ import time
 import numpy as np
 
 from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
-from naocal.solver import limits
+from naocal.solver import fields, limits
 from naocal.backends.errors import RobotFault, RobotTimeout
 from naocal.solver.errors import NaocalError, SafetyError
 from naocal.solver.joints import HEAD_JOINTS, JOINTS
@@ -135,13 +135,9 @@ class NaoqiBackend(Backend):
             return self._wait(getattr(service, method)(*args, _async=True), method)
 
     def _number(self, value, what: str, low: float = -math.inf) -> float:
-        """A number NAOqi reported, checked before use: a string, a bool, NaN or a value below `low` is refused
-        with one line naming what was asked (NAOqi's dynamic values carry any type)."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or value < low:
-            raise NaocalError(f"NAOqi at {self.url}: {what} reported {str(value)[:40]!r}: not a finite number"
-                              + (f" >= {low:g}" if low > -math.inf else ""))
-        return float(value)
+        """A number NAOqi reported, checked before use (solver.fields.number): a string, a bool, NaN or a value below
+        `low` is refused with one line naming what was asked (NAOqi's dynamic values carry any type)."""
+        return fields.number(value, f"NAOqi at {self.url}", what, low=low)
 
     def _read_limits(self):
         model_limits, model_speeds = limits.joint_limits(), limits.max_speeds()
@@ -258,17 +254,23 @@ class NaoqiBackend(Backend):
         if not raw or len(raw) < 7:
             return None
         width, height, layers, colorspace, seconds, microseconds, data = raw[:7]
+        source = f"NAOqi at {self.url}: ALVideoDevice.getImageRemote"  # each value checked before use
+        width, height = (fields.count(n, source, name, 1, 1 << 16)
+                         for n, name in ((width, "width"), (height, "height")))
+        layers, colorspace = fields.count(layers, source, "layers"), fields.count(colorspace, source, "colorspace")
+        seconds, microseconds = fields.count(seconds, source, "seconds"), fields.count(microseconds, source,
+                                                                                         "microseconds", 0, 10 ** 6)
         if isinstance(data, str):
             raise NaocalError("ALVideoDevice.getImageRemote delivered the pixels as text, not bytes (the qi bytes "
                               "problem: the service must declare a raw-buffer field)")
-        if (int(layers), int(colorspace)) != (3, BGR_COLORSPACE):
+        if (layers, colorspace) != (3, BGR_COLORSPACE):
             raise NaocalError(f"camera image has {layers} layers in colour space {colorspace}; expected 3, BGR (13)")
         pixels = np.frombuffer(bytes(data), dtype=np.uint8)
-        if pixels.size != int(width) * int(height) * 3:
+        if pixels.size != width * height * 3:
             raise NaocalError(f"camera image of {width} x {height} x 3 arrived with {pixels.size} bytes")
-        stamp_s = int(seconds) + int(microseconds) * 1e-6
+        stamp_s = seconds + microseconds * 1e-6
         t_exposure_s = self._image_stamp_to_robot_s(stamp_s) + self.image_stamp_offset_s
-        return CameraImage(pixels=pixels.reshape(int(height), int(width), 3).copy(),
+        return CameraImage(pixels=pixels.reshape(height, width, 3).copy(),
                            t_exposure_s=min(t_exposure_s, self.now()), camera=camera)
 
     def _image_stamp_to_robot_s(self, stamp_s: float) -> float:

@@ -8,9 +8,9 @@ Only msgpack's plain types cross the wire (nil, bool, int, float, str, bin, arra
 no eval, no msgpack extension types. Arrays travel as raw bytes with an explicit shape and dtype. Argument keys
 carry their unit (`targets_rad`, `duration_s`); unknown keys are refused, so a key in the wrong unit never passes.
 Motion needs the lease: `acquire` answers the controller alone with a secret token, which every later request
-carries (backends/bridge_lease.py).
+carries (backends/bridge_lease.py). `stop` does not: any client may make the robot safe.
 
-One protocol for every robot kind: the session commands (hello, acquire, release) and each kind's own (COMMANDS,
+One protocol for every robot kind: the session commands (hello, acquire, release, stop) and each kind's own (COMMANDS,
 the NAO's, and each other kind's, registered by the kind: register_kind_commands). A server serves one robot and answers only its kind's commands (UnknownCommand for
 the others). `v` versions the framing; PROTOCOL_REVISION counts the commands added since (hello says it, and the
 server's kind): adding a kind's commands changes no request or reply an older client sends or reads.
@@ -18,6 +18,7 @@ server's kind): adding a kind's commands changes no request or reply an older cl
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import threading
@@ -27,15 +28,20 @@ import numpy as np
 
 from naocal.backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
 from naocal.backends.errors import BridgeError
+from naocal.solver import fields
+from naocal.solver.errors import DataError
 
 PROTOCOL_VERSION = 1
 # Commands and hello keys added since version 1, compatibly: 1 = the NAO's commands; 2 = hello's `kind` and
-# `revision`, the Duckiebot's commands (kinds/duckiebot/bridge.py). hello without `revision` is a revision-1 server.
-PROTOCOL_REVISION = 2
+# `revision`, the Duckiebot's commands (kinds/duckiebot/bridge.py); 3 = `stop` for every kind, from any client.
+# hello without `revision` is a revision-1 server.
+PROTOCOL_REVISION = 3
 MAX_REQUEST_BYTES = 1 << 20  # larger requests get a "TooLarge" error reply
 ZMQ_MAX_INBOUND_BYTES = 4 << 20  # ZMQ_MAXMSGSIZE of the server socket: libzmq drops the peer beyond this
 MAX_REPLY_BYTES = 16 << 20  # ZMQ_MAXMSGSIZE of the client socket (a VGA BGR image is 0.9 MiB)
 MAX_SLEEP_S = 60.0  # longest single `sleep` the server accepts
+MAX_ERROR_CHARS = 500  # an error reply's message, one line (error_reply cuts it there)
+MAX_IMAGE_SIDE_PX = 1 << 16
 
 REQUEST_KEYS = frozenset({"v", "id", "cmd", "args"})
 OPTIONAL_REQUEST_KEYS = frozenset({"token"})  # the lease token, on every request of the controller
@@ -70,6 +76,16 @@ class ProtocolError(BridgeError):
 
 class ControlError(BridgeError):
     """A motion command refused because another client controls the robot."""
+
+
+@contextlib.contextmanager
+def field_checks():
+    """Check a message's fields with solver.fields (the one home of the field checks and their message style,
+    "WHAT, field 'F': expected ..., got ..."): its refusal raised as a ProtocolError."""
+    try:
+        yield
+    except DataError as err:
+        raise ProtocolError(str(err)) from None
 
 
 # ---------------------------------------------------------------------------------------------- arguments
@@ -113,9 +129,8 @@ def _camera_name(value, key):
 
 
 def time_s(value, key):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ProtocolError(f"args.{key} must be a finite number of seconds, got {value!r}"[:200])
-    return float(value)
+    with field_checks():
+        return fields.number(value, "the request", f"args.{key}")
 
 
 # Arguments a request may leave out, with the value they then take (requests of clients older than the argument).
@@ -139,12 +154,15 @@ COMMANDS = {
     "sleep": ({"duration_s": finite_or_nan_float}, True),
     "acquire": ({"nonce": _secret}, False),  # -> {"token", "lease_timeout_s"}; ControlError if another holds it
     "release": ({}, False),
+    # The stop: the robot's safe state now (the kind's; it moves nothing). Any client may send it, lease or not
+    # (CURVE, when on, still admits only its keys): stopping only makes the robot safer.
+    "stop": ({}, False),
 }
 # Each robot kind's commands: kind -> {cmd: (argument validators, needs the lease)}. The NAO's are the protocol's
 # first; another kind registers its own table (register_kind_commands) where its served robot and client are
 # defined (kinds/<kind>/bridge.py), so the protocol names no other robot.
 KIND_COMMANDS = {"nao": COMMANDS}
-SESSION_COMMANDS = ("hello", "robot_identity", "now", "sleep", "acquire", "release")  # every kind's
+SESSION_COMMANDS = ("hello", "robot_identity", "now", "sleep", "acquire", "release", "stop")  # every kind's
 
 
 def register_kind_commands(kind: str, commands: dict) -> dict:
@@ -289,11 +307,20 @@ def validate_reply(message, request_id) -> dict:
         raise ProtocolError(f"reply id {message.get('id')!r} does not match request id {request_id!r}")
     if message.get("ok") is True and "result" in message:
         return message
-    error = message.get("error")
-    if message.get("ok") is False and isinstance(error, dict) and isinstance(error.get("type"), str) \
-            and isinstance(error.get("message"), str):
+    if message.get("ok") is False and "error" in message:
+        checked_error(message["error"])
         return message
     raise ProtocolError("reply has neither ok+result nor an error {type, message}")
+
+
+def checked_error(error) -> dict:
+    """An error reply's {type, message}, checked before the client echoes it: one line of printable text each, the
+    message at most MAX_ERROR_CHARS (what error_reply sends); ProtocolError otherwise."""
+    with field_checks():
+        fields.json_object(error, "the error reply", "error", ("type", "message"), ())
+        fields.text(error["type"], "the error reply", "error.type", max_chars=64, non_empty=True)
+        fields.text(error["message"], "the error reply", "error.message", max_chars=MAX_ERROR_CHARS)
+    return error
 
 
 # ---------------------------------------------------------------------------------------------- payloads
@@ -327,16 +354,20 @@ def image_to_wire(image: CameraImage | None):
 
 
 def image_from_wire(data) -> CameraImage | None:
+    """The server's image, each field checked (solver.fields) before it is used: ProtocolError naming it."""
     if data is None:
         return None
-    try:
-        raw, shape, dtype = data["pixels"], data["shape"], data["dtype"]
-        t_exposure_s, camera = float(data["t_exposure_s"]), str(data["camera"])
-    except (TypeError, KeyError, ValueError) as err:
-        raise ProtocolError(f"malformed image: {err}") from None
-    if not isinstance(raw, bytes) or dtype not in IMAGE_DTYPES or not isinstance(shape, list) \
-            or not all(isinstance(n, int) and not isinstance(n, bool) and 0 < n < 1 << 16 for n in shape):
-        raise ProtocolError("malformed image: need pixels (bin), shape (array of int) and dtype 'uint8'")
+    what = "the image reply"
+    with field_checks():
+        fields.json_object(data, what, "", ("pixels", "shape", "dtype", "t_exposure_s", "camera"), ())
+        raw, dtype = data["pixels"], fields.choice(data["dtype"], sorted(IMAGE_DTYPES), what, "dtype")
+        if not isinstance(raw, bytes):
+            fields.fail(what, f"expected bytes, got {type(raw).__name__}", "pixels")
+        if not isinstance(data["shape"], list) or not 2 <= len(data["shape"]) <= 3:
+            fields.fail(what, f"expected a list of 2 or 3 sizes, got {fields.shown(data['shape'])}", "shape")
+        shape = [fields.count(n, what, f"shape[{i}]", 1, MAX_IMAGE_SIDE_PX) for i, n in enumerate(data["shape"])]
+        t_exposure_s = fields.number(data["t_exposure_s"], what, "t_exposure_s")
+        camera = fields.choice(data["camera"], CAMERA_NAMES, what, "camera")
     if math.prod(shape) * np.dtype(dtype).itemsize != len(raw):
         raise ProtocolError(f"image of shape {shape} and dtype {dtype} cannot hold {len(raw)} bytes")
     # bytearray: the array owns writable memory (consumers may draw on it).
@@ -345,15 +376,13 @@ def image_from_wire(data) -> CameraImage | None:
 
 
 def intrinsics_from_wire(data) -> CameraIntrinsics:
-    try:
-        return CameraIntrinsics(
-            width_px=int(data["width_px"]),
-            height_px=int(data["height_px"]),
-            fx_px=float(data["fx_px"]),
-            fy_px=float(data["fy_px"]),
-            cx_px=float(data["cx_px"]),
-            cy_px=float(data["cy_px"]),
-            distortion=tuple(float(d) for d in data["distortion"]),
-        )
-    except (TypeError, KeyError, ValueError) as err:
-        raise ProtocolError(f"malformed intrinsics: {err}") from None
+    """The server's intrinsics, each field checked (solver.fields, as v4l2_camera.read_intrinsics checks a file's):
+    sizes whole pixels, focal lengths and centre positive, five distortion coefficients; ProtocolError naming it."""
+    what, sizes, pinhole = "the intrinsics reply", ("width_px", "height_px"), ("fx_px", "fy_px", "cx_px", "cy_px")
+    with field_checks():
+        fields.json_object(data, what, "", sizes + pinhole + ("distortion",), ("name",))
+        width, height = (fields.count(data[key], what, key, 1, MAX_IMAGE_SIDE_PX) for key in sizes)
+        fx, fy, cx, cy = (fields.number(data[key], what, key, positive=True) for key in pinhole)
+        distortion = fields.vector(data["distortion"], 5, what, "distortion")
+    return CameraIntrinsics(width_px=width, height_px=height, fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy,
+                            distortion=distortion)

@@ -1,5 +1,6 @@
 """The Duckiebot over the bridge on loopback: round trips of `now`, `wheels` and `grab` (a frame as PNG), with the CPU
-each end spends, against the same calls made directly.
+each end spends, against the same calls made directly; and the CPU per frame of checking a camera frame before it
+is echoed (the ROS driver's JPEG decode and size check, robot.decoded_frame) and of the server's PNG encoding.
 
     python benchmarks/bench_duckiebot_bridge.py [--calls 500] [--grabs 100]
 
@@ -69,6 +70,31 @@ def serve(frame, ready, done, cpu):
     served.close()
 
 
+def frame_check_cpu(frame, n):
+    """(CPU s per frame of the robot's check of a camera node's JPEG, CPU s per frame of the server's grab reply: its
+    array check and PNG encoding), each over n frames in this process."""
+    import cv2
+
+    from naocal.kinds.duckiebot.bridge import ServedDuckiebot
+    from naocal.kinds.duckiebot.robot import decoded_frame
+
+    jpeg = bytes(cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])[1])  # as the camera node sends it
+    cpu0 = time.process_time()
+    for _ in range(n):
+        image, problem = decoded_frame(jpeg)
+        assert problem is None, problem
+    check_s = (time.process_time() - cpu0) / n
+    served = ServedDuckiebot(InstantDuckiebot(frame), robot_id="bench", watchdog_s=10.0)
+    try:
+        cpu0 = time.process_time()
+        for _ in range(n):
+            served.dispatch("grab", {})
+        reply_s = (time.process_time() - cpu0) / n
+    finally:
+        served.close()
+    return check_s, reply_s, len(jpeg)
+
+
 def timed(call, n):
     """(median wall s per call, client CPU s per call)."""
     walls = []
@@ -118,6 +144,10 @@ def main():
         print(f"{name:8} {n:5d} {wall * 1e3:10.3f} {client_cpu * 1e3:14.3f} {direct_wall * 1e3:10.4f}")
     requests = sum(n for _, n, *_ in rows) + 6  # and hello, facts, acquire, two commands, release
     print(f"server CPU: {server_cpu:.2f} s over its {requests} requests (mostly the grabs' PNG encoding)")
+    check_s, reply_s, jpeg_bytes = frame_check_cpu(frame, args.grabs)
+    print(f"frame check on the robot (a {jpeg_bytes // 1024} KiB JPEG decoded, its size checked): "
+          f"{check_s * 1e3:.2f} ms CPU per frame; the server's grab reply (array check, PNG): "
+          f"{reply_s * 1e3:.2f} ms CPU per frame")
 
 
 if __name__ == "__main__":

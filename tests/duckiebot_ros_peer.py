@@ -2,7 +2,11 @@
 and `sensor_msgs.msg` modules (put into sys.modules by the test) over a simulated ROS graph on the robot:
 
 - a wheels driver node on /<veh>/wheels_driver_node/wheels_cmd that hands every command to a hidden robot (the
-  PyBullet DuckiebotMock: its physics integrates the duties) and records what it received;
+  PyBullet DuckiebotMock: its physics integrates the duties), records what it received and reports each command it
+  executed on ~wheels_cmd_executed, stamped when executed (as dt-duckiebot-interface's wheels_driver_node does);
+- with `queued=True`, publishing as rospy does with a queue_size: a message goes out from a sender thread a moment
+  later, and one still queued when its publisher unregisters is dropped (rospy.impl.tcpros_pubsub.QueuedConnection:
+  its thread ends when the connection is done, whatever is queued);
 - a camera node publishing, every 1/30 s of robot time, a JPEG of kinds.duckiebot.render's Renderer at the hidden
   robot's pose (rendered and encoded only when a subscriber reads msg.data: most frames are never looked at);
 - two encoder nodes publishing cumulative ticks (135 per revolution) of the hidden wheels' angles.
@@ -16,6 +20,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 import types
 from dataclasses import dataclass, field
 
@@ -72,8 +77,9 @@ class LazyJpeg:
 
 class FakeRosGraph:
     def __init__(self, vehicle="db21", seed=4, realism="ideal", *, encoders=True, wheels_node=True,
-                 start_pose=(0, 0, 0), scene=None):
+                 start_pose=(0, 0, 0), scene=None, queued=False, send_delay_s=0.02):
         self.vehicle = vehicle
+        self.queued, self.send_delay_s = queued, send_delay_s
         self.robot = DuckiebotMock(seed, realism, supersample=1, start_pose=start_pose, scene=scene)
         self.lock = threading.RLock()
         self.subscribers = {}  # topic -> [Subscriber]
@@ -110,6 +116,8 @@ class FakeRosGraph:
                 self.robot.command(left, right)
             except Exception as exc:  # a real wheels driver would clip or misbehave: the test fails on it
                 self.refused.append(str(exc))
+            executed = WheelsCmdStamped(Header(self.Time(self.robot.t_s)), left, right)
+        self._deliver(f"/{self.vehicle}/wheels_driver_node/wheels_cmd_executed", executed)
 
     def time(self) -> float:
         return self.robot.t_s
@@ -163,16 +171,41 @@ class FakeRosGraph:
         class Publisher:
             def __init__(self, topic, msg_type, queue_size=None):
                 self.topic, self.msg_type, self.registered = topic, msg_type, True
+                self.queue, self.cond = [], threading.Condition()
+                if graph.queued:
+                    threading.Thread(target=self._send, daemon=True).start()
 
             def publish(self, msg):
                 assert isinstance(msg, self.msg_type) and self.registered
-                graph._deliver(self.topic, msg)
+                if not graph.queued:
+                    graph._deliver(self.topic, msg)
+                    return
+                with self.cond:
+                    self.queue.append(msg)
+                    self.cond.notify()
+
+            def _send(self):  # rospy's sender thread: out a moment later, unless unregistered meanwhile
+                while True:
+                    with self.cond:
+                        while not self.queue and self.registered:
+                            self.cond.wait()
+                        if not self.registered:
+                            return
+                    time.sleep(graph.send_delay_s)
+                    with self.cond:
+                        if not self.registered:
+                            return
+                        queue, self.queue = self.queue, []
+                    for msg in queue:
+                        graph._deliver(self.topic, msg)
 
             def get_num_connections(self):
                 return len(graph.subscribers.get(self.topic, ()))
 
             def unregister(self):
-                self.registered = False
+                with self.cond:
+                    self.registered = False
+                    self.cond.notify()
 
         def Subscriber(topic, msg_type, callback, callback_args=None, queue_size=None, buff_size=None):
             return graph._subscribe(topic, callback, callback_args)

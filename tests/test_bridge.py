@@ -12,7 +12,7 @@ import pytest
 import zmq
 
 from naocal.backends import protocol
-from naocal.backends.base import CameraImage
+from naocal.backends.base import CameraImage, CameraIntrinsics
 from naocal.backends.bridge import BridgeBackend
 from naocal.backends.bridge_server import DEFAULT_BIND, BridgeServer, check_bind_address, write_curve_keys
 from naocal.backends.protocol import ControlError, ProtocolError
@@ -52,6 +52,50 @@ def test_image_round_trip_is_exact_and_writable():
     wire["shape"], wire["dtype"] = [480, 640, 3], "float64"
     with pytest.raises(ProtocolError):
         protocol.image_from_wire(wire)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(fx_px=float("nan")), "the intrinsics reply, field 'fx_px': expected a finite number, got nan"),
+    (dict(width_px=True), "the intrinsics reply, field 'width_px': expected a whole number from 1 to 65536, got True"),
+    (dict(height_px=480.5), "field 'height_px': expected a whole number from 1 to 65536, got 480.5"),
+    (dict(cy_px=-1.0), "the intrinsics reply, field 'cy_px': must be positive, got -1.0"),
+    (dict(distortion=[0.1, "x", 0, 0, 0]), "field 'distortion[1]': expected a finite number, got 'x'"),
+    (dict(skew=0.0), "the intrinsics reply, field 'skew': unknown field"),
+])
+def test_the_servers_intrinsics_are_checked_field_by_field_before_use(change, message):
+    wire = protocol.unpack(protocol.pack(CameraIntrinsics(640, 480, 600.0, 600.0, 319.5, 239.5).to_dict()),
+                           max_bytes=1 << 16)
+    assert protocol.intrinsics_from_wire(wire) == CameraIntrinsics(640, 480, 600.0, 600.0, 319.5, 239.5)
+    with pytest.raises(ProtocolError) as refused:
+        protocol.intrinsics_from_wire({**wire, **change})
+    assert message in str(refused.value), str(refused.value)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(t_exposure_s=float("inf")), "the image reply, field 't_exposure_s': expected a finite number, got inf"),
+    (dict(camera="side"), "the image reply, field 'camera': expected one of bottom, top, got 'side'"),
+    (dict(shape=[480, 640, 3.0]), "field 'shape[2]': expected a whole number from 1 to 65536, got 3.0"),
+])
+def test_the_servers_images_are_checked_field_by_field_before_use(change, message):
+    wire = protocol.unpack(protocol.pack(protocol.image_to_wire(CameraImage(np.zeros((480, 640, 3), np.uint8), 1.0))),
+                           max_bytes=2 << 20)
+    with pytest.raises(ProtocolError) as refused:
+        protocol.image_from_wire({**wire, **change})
+    assert message in str(refused.value), str(refused.value)
+
+
+@pytest.mark.parametrize("error, message", [
+    ({"type": "NaocalError", "message": "two\nlines"}, "field 'error.message': expected a single line of printable"),
+    ({"type": "NaocalError", "message": "x" * 501}, "field 'error.message': expected a single line"),
+    ({"type": 7, "message": "m"}, "field 'error.type': expected non-empty a single line"),
+    ({"type": "NaocalError"}, "field 'error.message': missing required field"),
+])
+def test_an_error_reply_is_checked_before_the_client_echoes_it(error, message):
+    reply = {"v": 1, "id": "c:1", "ok": False, "error": error}
+    with pytest.raises(ProtocolError) as refused:
+        protocol.validate_reply(reply, "c:1")
+    assert message in str(refused.value), str(refused.value)
+    assert protocol.validate_reply({**reply, "error": {"type": "NaocalError", "message": "one line"}}, "c:1")
 
 
 def test_requests_with_keys_in_the_wrong_unit_or_type_are_refused():

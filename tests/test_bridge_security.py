@@ -44,7 +44,7 @@ def one_line_error(result, *fragments):
 
 
 # ---------------------------------------------------------------------------------------------- lease hijack
-def test_a_stranger_who_copies_everything_hello_shows_cannot_move_the_robot_or_stop_the_run():
+def test_a_stranger_who_copies_everything_hello_shows_cannot_move_the_robot_or_take_control():
     fake = FakeBackend()
     with serving(fake, lease_timeout_s=60.0) as server:
         agent = BridgeBackend(server.endpoint, timeout_s=1.0, client_id="agent")
@@ -68,6 +68,32 @@ def test_a_stranger_who_copies_everything_hello_shows_cannot_move_the_robot_or_s
         assert fake.executed == {"command": 1}  # nothing the stranger sent moved or stopped anything
         agent.command(TARGETS[1], 0.2)  # the agent keeps control: no StaleRequest, no ControlError
         agent.sleep(0.1)
+    assert sent_targets(fake) == TARGETS[:2]
+
+
+def test_any_client_stops_a_nao_without_the_lease_into_its_drivers_safe_state_and_the_agent_is_told_once():
+    """The stop is the safe state control ending gives (Backend.release_control: the LoLA driver holds, then ramps
+    limp): no motion is invented. The agent holding the lease keeps it and hears of the stop once."""
+    from naocal.backends.errors import RobotFault
+
+    class Released(FakeBackend):
+        def release_control(self):
+            self.executed["release_control"] += 1
+
+    fake = Released()
+    with serving(fake, lease_timeout_s=60.0) as server:
+        agent = BridgeBackend(server.endpoint, timeout_s=1.0, client_id="agent")
+        agent.command(TARGETS[0], 0.2)
+        observer = BridgeBackend(server.endpoint, timeout_s=1.0, client_id="observer")
+        assert observer.stop() is None and observer._token is None
+        assert fake.executed == {"command": 1, "release_control": 1}  # nothing moved: the driver's safe state
+        with pytest.raises(ControlError):
+            observer.command(TARGETS[5], 0.2)  # the stop gave it no control
+        with pytest.raises(RobotFault, match="another client stopped the robot.*command not executed"):
+            agent.command(TARGETS[1], 0.2)
+        agent.command(TARGETS[1], 0.2)  # told once
+        observer.close()
+        agent.close()
     assert sent_targets(fake) == TARGETS[:2]
 
 

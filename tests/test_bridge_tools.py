@@ -159,3 +159,21 @@ def test_status_of_a_faulted_robot_exits_3_so_that_a_script_stops(json_flag, cap
         backend.close()
     assert code == 3, (out, err)
     assert "cannot be trusted" in out
+
+
+def test_ping_and_stop_check_the_hello_they_echo(capsys):
+    """A server's hello is read before ping or stop prints it: a robot id holding a terminal escape is refused."""
+    from tests.bridge_fakes import FakeBackend, serving
+
+    class Odd(FakeBackend):
+        def robot_identity(self):
+            return {**super().robot_identity(), "id": "fake\x1b]0;owned\x07"}
+
+    with serving(Odd()) as server:
+        for verb in ("ping", "stop"):
+            assert cli.main(["bridge", verb, "--endpoint", server.endpoint]) == 2
+            err = capsys.readouterr().err
+            assert "hello, field 'robot_id': expected non-empty a single line of printable text" in err and "\x1b" not in err
+    with serving(FakeBackend()) as server:
+        assert cli.main(["bridge", "stop", "--endpoint", server.endpoint]) == 0
+        assert capsys.readouterr().out.strip() == f"{server.endpoint}: stopped the nao fake-0 (driver fake)"

@@ -12,6 +12,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -104,13 +105,47 @@ def test_without_the_lease_nothing_moves_and_reads_still_work(tmp_path, served, 
         controller = DuckiebotBridge(server.endpoint)
         controller.command(0.2, 0.2)
         stranger = RawClient(server.endpoint)
-        for seq, (cmd, args) in enumerate([("wheels", {"left_duty": 0.9, "right_duty": -0.9}), ("stop", {}),
+        for seq, (cmd, args) in enumerate([("wheels", {"left_duty": 0.9, "right_duty": -0.9}),
                                            ("grab", {}), ("sleep", {"duration_s": 1.0})], 1):
             reply = stranger.request(f"s:{seq}", cmd, args, token="t" * 22)
             assert reply["error"]["type"] == "ControlError", reply
         assert stranger.request("s:9", "now")["ok"] is True
         assert [(l, r) for _, l, r in mock.received] == [(0.2, 0.2)] and mock.t_s == 0.0
         stranger.close()
+        controller.close()
+
+
+def test_any_client_stops_the_wheels_without_the_lease_and_the_controller_is_told_once(tmp_path, served, mock,
+                                                                                      capsys):
+    """The emergency stop: a second client, which never asked for the lease, stops the wheels the controller set
+    turning; it moves nothing else, takes no control, and the controller hears of it at its next motion request."""
+    from naocal.tools import cli
+
+    with serving(served, ipc(tmp_path)) as server:
+        controller = DuckiebotBridge(server.endpoint)
+        controller.command(0.3, 0.3)
+        observer = DuckiebotBridge(server.endpoint)
+        assert observer.stop()["t_s"] >= 0.0 and mock.duties.tolist() == [0.0, 0.0]
+        assert observer._token is None and observer.server_info()["controlled"] is True  # no control taken
+        with pytest.raises(BridgeError, match="another client controls the robot"):
+            observer.command(0.2, 0.2)  # stopping gives no right to drive
+        with pytest.raises(RobotFault, match="another client stopped the robot.*wheels not executed"):
+            controller.command(0.4, 0.4)
+        assert mock.duties.tolist() == [0.0, 0.0]
+        controller.command(0.4, 0.4)  # told once: it may drive again
+        assert mock.duties.tolist() == [0.4, 0.4]
+        # the command line's stop, from a third client
+        assert cli.main(["bridge", "stop", "--endpoint", server.endpoint]) == 0
+        assert "stopped the duckiebot mock4" in capsys.readouterr().out and mock.duties.tolist() == [0.0, 0.0]
+        with pytest.raises(RobotFault, match="another client stopped the robot"):
+            controller.advance(0.1)
+        observer.stop()  # a stop of a standing robot: duties 0 again, nothing else; the controller is told all the same
+        controller.command(0.0, 0.0)  # its own stop is never refused (nor does it use up the notice)
+        with pytest.raises(RobotFault, match="another client stopped the robot"):
+            controller.command(0.1, 0.1)
+        controller.command(0.1, 0.1)
+        assert {tuple(d) for _, *d in mock.received} == {(0.0, 0.0), (0.3, 0.3), (0.4, 0.4), (0.1, 0.1)}
+        observer.close()
         controller.close()
 
 
@@ -274,6 +309,42 @@ def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
         served.close()
 
 
+@pytest.mark.parametrize("damage, message", [
+    (lambda msg: setattr(msg, "data", b"\xff\xd8 not a jpeg"), "does not decode as an image \\(13 bytes\\)"),
+    (lambda msg: setattr(msg, "data", bytes(cv2.imencode(".jpg", np.zeros((240, 320), np.uint8))[1])),
+     "is 320 x 240, expected 640 x 480"),
+])
+def test_a_bad_camera_frame_from_ros_is_never_echoed_the_client_hears_why_and_the_server_goes_on(
+        tmp_path, monkeypatch, damage, message):
+    """The camera node's JPEG is decoded and its size checked on the robot before anything of it crosses the bridge:
+    a frame that fails is answered with one error naming the topic, the wheels stopped, the server still serving."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from duckiebot_ros_peer import FakeRosGraph
+    from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+    graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
+    served = ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=10.0)
+    try:
+        with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
+            client = DuckiebotBridge(server.endpoint)
+            client.command(0.2, 0.2)
+
+            def damaged(msg):
+                damage(msg)
+                return msg
+
+            graph.frame_hook = damaged
+            with pytest.raises(BridgeError, match=f"/db21/camera_node/image/compressed: the frame stamped .* {message}"
+                                                  ".*the wheels were stopped") as refused:
+                client.grab()
+            assert "\n" not in str(refused.value) and graph.robot.duties.tolist() == [0.0, 0.0]
+            assert client.now() > 0.0  # the server goes on
+            client.close()
+    finally:
+        served.close()
+        graph.close()
+
+
 def test_with_curve_clients_an_unknown_key_moves_nothing_and_an_admitted_one_drives(tmp_path, served, mock):
     from naocal.backends.bridge_server import write_curve_keys
 
@@ -284,14 +355,26 @@ def test_with_curve_clients_an_unknown_key_moves_nothing_and_an_admitted_one_dri
                  curve_clients_dir=tmp_path / "clients") as server:
         for kwargs in ({}, {"curve_server_key": server_public, "curve_client_key": stranger_secret}):
             stranger = DuckiebotBridge(server.endpoint, timeout_s=1.0, retries=0, **kwargs)
-            with pytest.raises(BridgeError, match="requires CURVE keys|does not admit this client"):
-                stranger.command(0.5, 0.5)
+            for attempt in (lambda: stranger.command(0.5, 0.5), stranger.stop):
+                with pytest.raises(BridgeError, match="requires CURVE keys|does not admit this client"):
+                    attempt()
             stranger.close()
         assert mock.received == []
         laptop = DuckiebotBridge(server.endpoint, curve_server_key=server_public,
                                  curve_client_key=tmp_path / "clients" / "laptop.key_secret")
         laptop.command(0.5, 0.5)
         assert mock.duties.tolist() == [0.5, 0.5]
+        stranger = DuckiebotBridge(server.endpoint, timeout_s=1.0, retries=0, curve_server_key=server_public,
+                                   curve_client_key=stranger_secret)
+        with pytest.raises(BridgeError, match="does not admit this client"):
+            stranger.stop()  # the stop needs no lease, but CURVE's credentials still
+        stranger.close()
+        assert mock.duties.tolist() == [0.5, 0.5]
+        observer = DuckiebotBridge(server.endpoint, curve_server_key=server_public,
+                                   curve_client_key=tmp_path / "clients" / "laptop.key_secret")
+        observer.stop()  # an admitted key without the lease
+        assert mock.duties.tolist() == [0.0, 0.0]
+        observer.close()
         laptop.close()
         assert mock.duties.tolist() == [0.0, 0.0]
 
@@ -307,3 +390,102 @@ def test_bridge_serve_bad_robot_options_are_one_line_exit_2(argv, message, capsy
     code = cli.main(["bridge", "serve", *argv])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and message in err, err
+
+
+SERVE_RECORDING = textwrap.dedent("""
+    import os, sys
+    sys.path.insert(0, {parent!r})
+    sys.path.insert(0, {root!r})
+    from naocal.backends.bridge_server import BridgeServer
+    from naocal.kinds.duckiebot.mock import DuckiebotMock
+    from naocal.tools import cli
+
+    duties_file, crash_file = sys.argv[1], sys.argv[2]
+    command = DuckiebotMock.command
+
+    def recorded(self, left, right):  # every duty the mock's wheels received, as they received it
+        t = command(self, left, right)
+        with open(duties_file, "a") as file:
+            file.write(f"{{left}} {{right}}\\n")
+        return t
+
+    DuckiebotMock.command = recorded
+    expire = BridgeServer._expire_idle_lease
+
+    def crash_on_request(self):  # the serving loop ends on an exception when the test asks
+        if os.path.exists(crash_file):
+            raise RuntimeError("a bug in the serving loop")
+        return expire(self)
+
+    BridgeServer._expire_idle_lease = crash_on_request
+    sys.exit(cli.main(["bridge", "serve", "--robot", "duckiebot", "--driver", "mock", "--mock", "ideal", "--seed",
+                       "4", "--watchdog-s", "10", "--bind", "tcp://127.0.0.1:0"]))
+""")
+
+
+@pytest.mark.parametrize("ending", ["SIGTERM", "SIGINT", "SIGHUP", "exception"])
+def test_every_end_of_bridge_serve_leaves_the_wheels_stopped(tmp_path, ending):
+    """`naocal bridge serve --robot duckiebot` in its own process, the wheels turning (the watchdog far off), ended by a
+    signal or by an exception in its loop: the last duties its driver received are 0, 0."""
+    duties, crash = tmp_path / "duties.txt", tmp_path / "crash"
+    script = SERVE_RECORDING.format(parent=str(ROOT.parent), root=str(ROOT))
+    server = subprocess.Popen([sys.executable, "-c", script, str(duties), str(crash)], cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        line = server.stdout.readline()
+        assert " on tcp://" in line, (line, server.stderr.read() if server.poll() is not None else "")
+        client = DuckiebotBridge(line.split(" on ")[1].strip(), timeout_s=5.0, retries=0)
+        client.command(0.3, 0.25)
+        client._drop_socket()  # the client is gone without a word: only the server can stop the wheels now
+        assert duties.read_text().splitlines()[-1] == "0.3 0.25"
+        if ending == "exception":
+            crash.touch()
+        else:
+            server.send_signal(getattr(signal, ending))
+        code = server.wait(timeout=20)
+    finally:
+        server.kill()
+        server.wait()
+    stderr = server.stderr.read()
+    assert duties.read_text().splitlines()[-1] == "0.0 0.0", (duties.read_text(), stderr)
+    if ending == "exception":
+        assert code != 0 and "a bug in the serving loop" in stderr
+    else:
+        assert code == 0 and "Traceback" not in stderr and "naocal bridge: stopped" in server.stdout.read(), stderr
+
+
+@pytest.mark.parametrize("ending", ["the server SIGKILLed", "the wrapper SIGTERMed"])
+def test_the_deploy_wrapper_publishes_zero_duties_however_the_server_ended(tmp_path, ending):
+    """docs/DEPLOY.md's wrapper around `naocal bridge serve --robot duckiebot`, run as written with stand-ins for naocal
+    (a server that stops on SIGTERM) and rostopic (records what it would publish)."""
+    import re
+
+    wrapper = re.search(r"```\n(#!/bin/sh\n# /data/naocal/serve-duckiebot.*?)```", (ROOT / "docs" / "DEPLOY.md")
+                        .read_text(), re.S).group(1)
+    (tmp_path / "serve").write_text(wrapper)
+    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
+    bin_dir.mkdir()
+    (bin_dir / "naocal").write_text(f"#!/bin/sh\necho \"naocal $*\" >> {calls}\necho $$ > {tmp_path}/pid\n"
+                                    f"trap 'echo stopped >> {calls}; exit 0' TERM\nwhile true; do sleep 0.02; done\n")
+    (bin_dir / "rostopic").write_text(f"#!/bin/sh\necho \"rostopic $*\" >> {calls}\n")
+    for stand_in in bin_dir.iterdir():
+        stand_in.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "VEHICLE_NAME": "db21"}
+    wrapper_process = subprocess.Popen(["sh", str(tmp_path / "serve"), "--bind", "tcp://127.0.0.1:7790"], env=env)
+    try:
+        deadline = time.monotonic() + 10.0
+        while not (tmp_path / "pid").exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)  # the server's trap is set
+        if ending == "the server SIGKILLed":
+            os.kill(int((tmp_path / "pid").read_text()), signal.SIGKILL)
+        else:
+            wrapper_process.send_signal(signal.SIGTERM)
+        assert wrapper_process.wait(timeout=10) == 0
+    finally:
+        wrapper_process.kill()
+    lines = calls.read_text().splitlines()
+    assert lines[0] == "naocal bridge serve --robot duckiebot --driver ros --bind tcp://127.0.0.1:7790"
+    assert lines[-1] == ("rostopic pub -1 /db21/wheels_driver_node/wheels_cmd duckietown_msgs/WheelsCmdStamped "
+                         "{header: auto, vel_left: 0.0, vel_right: 0.0}")
+    assert ("stopped" in lines) == (ending == "the wrapper SIGTERMed")  # a signal reaches the server: its own stop

@@ -7,7 +7,7 @@ from naocal.kinds.duckiebot.kinematics import (body_velocity, duty_to_pwm, forwa
                                         inverse_kinematics, wheel_speeds)
 from naocal.kinds.duckiebot.robot import Kinematics, camera_mount, duckiebot
 from naocal.solver.camera import project_points
-from naocal.solver.errors import NaocalError
+from naocal.solver.errors import DataError, NaocalError
 from naocal.solver.transforms import invert_transform, transform_points
 
 
@@ -111,8 +111,29 @@ def test_duty_to_pwm_has_the_drivers_dead_zone_and_jump():
                                   [0, 0, 0, 61, 157, 255, 255, 255])
 
 
-@pytest.mark.parametrize("bad", [dict(radius_m=0.0), dict(k=-1.0), dict(limit=1.5), dict(gain=0.1, trim=0.1),
-                                 dict(trim=float("nan")), dict(baseline_m=True)])
-def test_kinematics_refuses_impossible_parameters(bad):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize("bad, message", [
+    (dict(radius_m=0.0), "kinematics, field 'radius_m': must be positive, got 0.0"),
+    (dict(k=-1.0), "kinematics, field 'k': must be positive, got -1.0"),
+    (dict(limit=1.5), "kinematics, field 'limit': must be within (0, 1], got 1.5"),
+    (dict(gain=0.1, trim=0.1), "kinematics, field 'trim': gain +- trim must not be 0"),
+    (dict(trim=float("nan")), "kinematics, field 'trim': expected a finite number, got nan"),
+    (dict(baseline_m=True), "kinematics, field 'baseline_m': expected a finite number, got True")])
+def test_kinematics_refuses_impossible_parameters_naming_the_field(bad, message):
+    """One home for the field checks (solver.fields): its messages, naming the field."""
+    with pytest.raises(DataError) as refused:
         Kinematics(**bad)
+    assert str(refused.value).startswith(message), str(refused.value)
+
+
+@pytest.mark.parametrize("key, value, message", [("limit", "1.5", "field 'limit': must be within (0, 1], got 1.5"),
+                                                 ("baseline", "-0.1", "field 'baseline': must be positive, got -0.1")])
+def test_a_kinematics_file_value_kinematics_refuses_is_named_by_the_files_key(tmp_path, key, value, message):
+    from naocal.kinds.duckiebot.calibration_files import kinematics_yaml, read_kinematics
+
+    text = kinematics_yaml(duckiebot("DB21").nominal_kinematics(), "2026-01-01-00-00-00")
+    path = tmp_path / "db21.yaml"
+    path.write_text("".join(f"{key}: {value}\n" if line.startswith(f"{key}:") else line + "\n"
+                            for line in text.splitlines()))
+    with pytest.raises(DataError) as refused:
+        read_kinematics(path)
+    assert str(refused.value) == f"{path}, {message}"

@@ -145,6 +145,36 @@ def test_stopped_on_close_and_on_ros_shutdown(graph):
     assert stopped(graph)
 
 
+def test_close_sends_the_stop_before_it_leaves_the_topic_as_rospy_queues_it(monkeypatch, caplog):
+    """rospy publishes from a queue thread: a stop published just before the publisher unregisters would be dropped.
+    close() waits until the wheels driver reports the stop executed; if it never does, it says so within its
+    deadline."""
+    from naocal.kinds.duckiebot.ros_driver import STOP_CONFIRM_S
+
+    graph = FakeRosGraph(VEHICLE, queued=True).install(monkeypatch)
+    try:
+        def drive(left, right):
+            robot.command(left, right)
+            deadline = time.monotonic() + 5.0
+            while graph.robot.duties.tolist() != [left, right] and time.monotonic() < deadline:
+                time.sleep(0.005)
+            assert graph.robot.duties.tolist() == [left, right]
+
+        robot = driver()
+        drive(0.4, 0.2)
+        robot.close()
+        assert stopped(graph), graph.received[-3:]
+        robot = driver()
+        drive(0.3, 0.3)
+        graph.send_delay_s = 30.0  # the next message takes longer than close() waits
+        started = time.monotonic()
+        robot.close()
+        assert time.monotonic() - started < STOP_CONFIRM_S + 1.0
+        assert "did not report the stop executed within 0.5 s" in caplog.text
+    finally:
+        graph.close()
+
+
 def test_sigterm_mid_drive_stops_the_wheels(graph, tmp_path):
     from naocal.tools.cli import _terminate_like_ctrl_c
 
@@ -219,7 +249,7 @@ def _jpeg(image):
 
 @pytest.mark.parametrize("damage, message", [
     (lambda msg: setattr(msg, "data", b"not a jpeg"), "does not decode as an image"),
-    (lambda msg: setattr(msg, "data", _jpeg(np.zeros((240, 320), np.uint8))), "a 320 x 240 frame, expected 640 x 480"),
+    (lambda msg: setattr(msg, "data", _jpeg(np.zeros((240, 320), np.uint8))), "is 320 x 240, expected 640 x 480"),
 ])
 def test_a_frame_that_is_not_a_camera_image_is_refused(graph, damage, message):
     robot = driver()

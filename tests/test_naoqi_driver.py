@@ -133,6 +133,28 @@ def test_image_bytes_that_arrive_as_text_are_reported():
         backend.close()
 
 
+@pytest.mark.parametrize("index, value, message", [
+    (0, 640.5, "field 'width': expected a whole number from 1 to 65536, got 640.5"),
+    (2, True, "field 'layers': expected a whole number at least 0, got True"),
+    (4, -3, "field 'seconds': expected a whole number at least 0, got -3"),
+])
+def test_an_image_header_naoqi_sends_is_checked_before_use_naming_the_field(index, value, message):
+    """getImageRemote's size, layers and stamp, as NAOqi's dynamic values may carry any type (they were int()-ed:
+    640.5 became 640, True a layer)."""
+    class OddHeader(TextImageVideoDevice):
+        def getImageRemote(self, handle):
+            header = [640, 480, 3, 13, 0, 0]
+            header[index] = value
+            return header + [b"pixels"]
+
+    with fake_naoqi(video_class=OddHeader) as (url, _):
+        backend = NaoqiBackend(url)
+        with pytest.raises(NaocalError) as refused:
+            backend.capture()
+        assert "ALVideoDevice.getImageRemote, " + message in str(refused.value), str(refused.value)
+        backend.close()
+
+
 def test_every_naoqi_call_has_a_deadline(naoqi):
     url, robot = naoqi
     backend = NaoqiBackend(url, call_timeout_s=0.2)

@@ -4,11 +4,15 @@
                       [--allow-remote] [--curve-secret-key FILE [--curve-clients DIR]] [--journal FILE]
   naocal bridge serve --robot duckiebot --driver mock|ros [--seed N] [--watchdog-s S] --bind URL ... (the same)
   naocal bridge ping --endpoint URL [--timeout-s S] [--count N] [--curve-server-key FILE]
+  naocal bridge stop --endpoint URL [--timeout-s S] [--curve-server-key FILE] [--curve-client-key FILE]
   naocal bridge keygen --out DIR [--name NAME]
   naocal bridge status --endpoint URL [--offsets FILE] [--json]
   naocal bridge move --endpoint URL [--offsets FILE] [--speed F] JOINT=DEG ...
 
-`serve` runs until SIGINT or SIGTERM. It binds 127.0.0.1 unless --allow-remote is given. The agent connects
+`stop` stops the robot now, from any client, without the motion lease (a Duckiebot's wheels at 0; a NAO driver's
+safe state, as when control ends): it moves nothing, and the controlling agent's next motion is refused.
+`serve` runs until SIGINT, SIGTERM or SIGHUP, then leaves the robot in its safe state (docs/DEPLOY.md). It binds
+127.0.0.1 unless --allow-remote is given. The agent connects
 with `naocal calibrate [--robot duckiebot] --backend bridge --endpoint URL`. Protocol: docs/PROTOCOL.md; deployment: docs/DEPLOY.md.
 """
 
@@ -29,7 +33,7 @@ def register(subparsers) -> None:
     actions = parser.add_subparsers(dest="bridge_action", metavar="ACTION")
     actions.required = True
 
-    serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM")
+    serve = actions.add_parser("serve", help="serve a robot until SIGINT/SIGTERM/SIGHUP")
     served = [k for k in kinds.registered() if hasattr(k, "open_served")]  # each kind says what it serves
     serve.add_argument("--robot", choices=tuple(k.name for k in served), default=kinds.default().name,
                        help=f"the robot kind to serve (default {kinds.default().name}); its driver is --driver's")
@@ -95,6 +99,12 @@ def register(subparsers) -> None:
     ping.add_argument("--curve-server-key", metavar="FILE", help="the server's public CURVE key file")
     ping.add_argument("--curve-client-key", metavar="FILE", help="this client's CURVE secret key file")
 
+    stop = actions.add_parser("stop", help="stop the robot now (no lease needed): its safe state, moving nothing")
+    stop.add_argument("--endpoint", required=True, metavar="URL", help="e.g. tcp://duckiebot.local:7790")
+    stop.add_argument("--timeout-s", type=float, default=2.0, help="give up after this long (default 2, at most 3600)")
+    stop.add_argument("--curve-server-key", metavar="FILE", help="the server's public CURVE key file")
+    stop.add_argument("--curve-client-key", metavar="FILE", help="this client's CURVE secret key file")
+
     keygen = actions.add_parser("keygen", help="write a CURVE key pair NAME.key and NAME.key_secret")
     keygen.add_argument("--out", required=True, metavar="DIR", help="directory for the key files")
     keygen.add_argument("--name", default="server", help="file name stem (default 'server')")
@@ -104,7 +114,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    return {"serve": _serve, "ping": _ping, "keygen": _keygen, "status": cmd_bridge_tools.run_status,
+    return {"serve": _serve, "ping": _ping, "stop": _stop, "keygen": _keygen, "status": cmd_bridge_tools.run_status,
             "move": cmd_bridge_tools.run_move}[args.bridge_action](args)
 
 
@@ -136,8 +146,12 @@ def _serve(args) -> int:
             logging.getLogger("naocal.bridge.server").info("signal %d: stopping", signum)
             server.stop()
 
+        # Each ends the loop, and the robot is closed into its safe state below (a Duckiebot's wheels at 0). A closing
+        # terminal's SIGHUP too, unless ignored (nohup): left to cli's handler it could interrupt that close.
         signal.signal(signal.SIGINT, request_stop)
         signal.signal(signal.SIGTERM, request_stop)
+        if signal.getsignal(signal.SIGHUP) != signal.SIG_IGN:
+            signal.signal(signal.SIGHUP, request_stop)
         # The first line stays "serving DRIVER on ENDPOINT" (scripts read the endpoint after " on "); the next
         # says whether CURVE is on.
         print(f"naocal bridge: serving {args.driver} on {server.endpoint}\n"
@@ -166,7 +180,7 @@ def _ping(args) -> int:
     bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=0,
                            curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
     try:
-        info = bridge.server_info()
+        info = _shown_hello(bridge.server_info(), args.endpoint)
         round_trips_s = []
         for _ in range(args.count):
             start = time.perf_counter()
@@ -178,6 +192,31 @@ def _ping(args) -> int:
           f"(median of {len(round_trips_s)}), driver {info['driver']}, robot {info['robot_id']}, "
           f"clock {info['clock']}, server {info['server_id']}")
     return 0
+
+
+def _stop(args) -> int:
+    from naocal.backends.bridge import BridgeClient
+
+    bridge = BridgeClient(args.endpoint, timeout_s=args.timeout_s, retries=1,
+                          curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key)
+    try:
+        info = _shown_hello(bridge.server_info(), args.endpoint)
+        bridge.stop()
+    finally:
+        bridge.close()
+    print(f"{args.endpoint}: stopped the {info['kind']} {info['robot_id']} (driver {info['driver']})")
+    return 0
+
+
+def _shown_hello(info: dict, endpoint: str) -> dict:
+    """The hello's values a command prints, checked before they are echoed: one short printable line each."""
+    from naocal.solver import fields
+
+    shown = {"kind": info.get("kind", "nao"),  # a revision-1 server serves a NAO and does not say so
+             **{key: info.get(key) for key in ("driver", "robot_id", "clock", "server_id")}}
+    for key, value in shown.items():
+        fields.text(value, f"{endpoint}: hello", key, max_chars=100, non_empty=True)
+    return {**info, **shown}
 
 
 def _keygen(args) -> int:

@@ -11,8 +11,10 @@ security model with the NAO's: this module only adds the kind's two ends.
 Safety on the server, whatever the client sends (the safe state = both duties 0):
 - every duty is checked before the driver hears it (kinematics.duty_problem: finite, within [-limit, limit]),
   refused with a SafetyError, never clipped;
-- a watchdog stops the wheels when they turn and no motion request (wheels, stop, sleep, grab: the lease holder's
-  only) has come for `watchdog_s` (a dead or hung client), and when control ends (release, the lease lapsing); the
+- any client may `stop` the wheels (both duties 0), lease or not: stopping only makes the robot safer; the
+  controller is told at its next motion request (backends/bridge_server.py);
+- a watchdog stops the wheels when they turn and no motion request (wheels, sleep, grab: the lease holder's only)
+  has come for `watchdog_s` (a dead or hung client), and when control ends (release, the lease lapsing); the
   controller's next motion request is then refused once (RobotFault: its log would not be what happened; `stop`
   never is), a new controller's is not;
 - the wheels stop when the server shuts down (close);
@@ -40,7 +42,7 @@ from naocal.backends.protocol import (ProtocolError, finite_or_nan_float, is_mot
                                      time_s)
 from naocal.kinds.duckiebot.drive_log import MAX_TICKS, write_encoders
 from naocal.kinds.duckiebot.kinematics import duty_problem
-from naocal.kinds.duckiebot.robot import DEFAULT_LIMIT, MODELS, duckiebot, robot_name_problem
+from naocal.kinds.duckiebot.robot import DEFAULT_LIMIT, MODELS, decoded_frame, duckiebot, robot_name_problem
 from naocal.solver.errors import NaocalError, SafetyError
 
 log = logging.getLogger("naocal.bridge.duckiebot")
@@ -53,12 +55,12 @@ PNG_COMPRESSION = 1  # fastest: a 640 x 480 grey frame in about 5 ms, lossless (
 # The Duckiebot's commands (protocol revision 2; docs/PROTOCOL.md), beside the session commands every kind has.
 # Duties are fractions of full power in [-1, 1]; passed through unclipped (NaN too) so that the server's one check
 # (kinematics.duty_problem) refuses them with a SafetyError. `grab` steps a simulated robot's clock (the wheels in
-# force move it): it needs the lease.
+# force move it): it needs the lease. `stop` (both duties 0 -> {t_s}) is the session's: any client may send it, lease or
+# not, and it is never refused for a fault (the unwinding must not fail).
 COMMANDS = register_kind_commands("duckiebot", {
     "facts": ({}, False),  # -> robot id and model, camera size, wheels (radius, baseline, encoders), duty limit
     "encoder_ticks": ({"from_s": time_s, "to_s": time_s}, False),  # -> {ticks_per_revolution, rows [[t, l, r]]}
     "wheels": ({"left_duty": finite_or_nan_float, "right_duty": finite_or_nan_float}, True),  # -> {t_s}
-    "stop": ({}, True),  # both duties 0 -> {t_s}; never refused for a fault (the unwinding must not fail)
     "grab": ({}, True),  # -> {image (bin), format png|jpeg, t_exposure_s (mid-exposure), width_px, height_px}
 })
 
@@ -362,7 +364,7 @@ class DuckiebotBridge(BridgeClient):
         """The duties, held until the next command (the server checks them: SafetyError, nothing sent); returns the
         robot time they took effect. (0, 0) is `stop`, which the server never refuses."""
         if (left, right) == (0.0, 0.0):
-            result = self._motion_call("stop", {})
+            result = self._call("stop")  # needs no lease; with ours, the server knows it is the controller's own
         else:
             result = self._motion_call("wheels", {"left_duty": float(left), "right_duty": float(right)})
         return self._robot_time(result.get("t_s") if isinstance(result, dict) else None, "the command's time")
@@ -379,11 +381,9 @@ class DuckiebotBridge(BridgeClient):
                 or not isinstance(result.get("image"), bytes):
             raise BridgeError(f"{self.endpoint}: grab: the reply holds no PNG or JPEG image")
         t = self._robot_time(result.get("t_exposure_s"), "the frame's time")
-        image = cv2.imdecode(np.frombuffer(result["image"], np.uint8), cv2.IMREAD_GRAYSCALE)
-        if image is None or image.shape != (facts["height_px"], facts["width_px"]):
-            shape = "nothing" if image is None else f"{image.shape[1]} x {image.shape[0]}"
-            raise BridgeError(f"{self.endpoint}: grab: the frame of {t:.3f} s decodes to {shape}, expected "
-                              f"{facts['width_px']} x {facts['height_px']}")
+        image, problem = decoded_frame(result["image"], facts["width_px"], facts["height_px"])
+        if problem:
+            raise BridgeError(f"{self.endpoint}: grab: the frame of {t:.3f} s {problem}")
         return t, image
 
     def encoder_ticks(self, t_from_s: float, t_to_s: float) -> list:

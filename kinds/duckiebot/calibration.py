@@ -261,8 +261,8 @@ def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:
                  f"kinematics.{name}")
     try:
         kinematics = Kinematics(**numbers)
-    except ValueError as err:
-        fail(path, str(err), "kinematics")
+    except DataError as err:  # Kinematics' own check of a field (solver.fields): named as this file's
+        fail(path, err.problem, f"kinematics.{err.field}")
     result = CalibrationFile(str(path), robot["id"], width, height, camera["lens_model"],
                              {m: lens for m, (lens, _) in fitted.items()},
                              {m: errors for m, (_, errors) in fitted.items()}, kinematics, parameters, fit,

@@ -41,6 +41,9 @@ KINEMATICS_DIR, INTRINSIC_DIR, EXTRINSIC_DIR = "kinematics", "camera_intrinsic",
 DISTORTION_MODEL = "plumb_bob"  # what Duckietown's files hold and its rectification assumes
 KINEMATICS_KEYS = ("baseline", "calibration_time", "gain", "k", "limit", "radius", "trim")
 KINEMATICS_OPTIONAL_KEYS = ("v_max", "omega_max")
+# each number's key in the file -> its Kinematics field
+KINEMATICS_FIELDS = {"baseline": "baseline_m", "gain": "gain", "k": "k", "limit": "limit",
+                     "omega_max": "omega_max_radps", "radius": "radius_m", "trim": "trim", "v_max": "v_max_mps"}
 INTRINSIC_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
                   "distortion_coefficients", "rectification_matrix", "projection_matrix")
 MATRIX_SHAPES = {"camera_matrix": (3, 3), "distortion_coefficients": (1, 5), "rectification_matrix": (3, 3),
@@ -243,8 +246,7 @@ def _matrix(name: str, values) -> str:
 
 
 def kinematics_yaml(kin: Kinematics, calibration_time: str) -> str:
-    values = {"baseline": kin.baseline_m, "gain": kin.gain, "k": kin.k, "limit": kin.limit,
-              "omega_max": kin.omega_max_radps, "radius": kin.radius_m, "trim": kin.trim, "v_max": kin.v_max_mps}
+    values = {key: getattr(kin, name) for key, name in KINEMATICS_FIELDS.items()}
     lines = {key: f"{key}: {yaml_float(value)}" for key, value in values.items()}
     lines["calibration_time"] = f"calibration_time: {calibration_time}"
     return "".join(lines[key] + "\n" for key in sorted(lines))  # sorted keys, as Duckietown's saves
@@ -429,12 +431,10 @@ def read_kinematics(path, *, strict: bool = True) -> tuple[Kinematics, str, list
     numbers = {key: fields.number_text(doc[key], path, key) for key in KINEMATICS_KEYS + KINEMATICS_OPTIONAL_KEYS
                if key != "calibration_time" and key in doc}
     try:
-        kin = Kinematics(baseline_m=numbers["baseline"], radius_m=numbers["radius"], gain=numbers["gain"],
-                         trim=numbers["trim"], k=numbers["k"], limit=numbers["limit"],
-                         **({"v_max_mps": numbers["v_max"]} if "v_max" in numbers else {}),
-                         **({"omega_max_radps": numbers["omega_max"]} if "omega_max" in numbers else {}))
-    except ValueError as err:
-        raise DataError(path, str(err)) from None
+        kin = Kinematics(**{name: numbers[key] for key, name in KINEMATICS_FIELDS.items() if key in numbers})
+    except DataError as err:  # Kinematics' own check of a field (solver.fields): named by this file's key
+        key = next(key for key, name in KINEMATICS_FIELDS.items() if name == err.field)
+        raise DataError(path, err.problem, field=key) from None
     return kin, stamp, _refuse_findings(check_kinematics(kin), path, strict)
 
 

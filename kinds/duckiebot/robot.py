@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from naocal.solver import fields
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import NaocalError
 from naocal.solver.transforms import make_transform, rot_x, rot_y, rot_z
@@ -45,6 +46,10 @@ CAMERA_HEIGHT_M = 0.108  # above the floor
 CAMERA_PITCH_RAD = math.radians(19.0)  # down
 
 
+KINEMATICS = "kinematics"  # what Kinematics' refusals name in place of a file
+POSITIVE_KINEMATICS = ("baseline_m", "radius_m", "k", "limit", "v_max_mps", "omega_max_radps")
+
+
 @dataclass(frozen=True)
 class Kinematics:
     """Duckietown's kinematics parameters (the keys of its kinematics/<robot>.yaml), SI.
@@ -62,18 +67,14 @@ class Kinematics:
     omega_max_radps: float = DEFAULT_OMEGA_MAX_RADPS
 
     def __post_init__(self):
+        """Each value checked by solver.fields: DataError naming the field ("kinematics, field 'limit': ..."); a
+        reader re-raises it naming its file and its own key for the field."""
         for name in ("baseline_m", "radius_m", "gain", "trim", "k", "limit", "v_max_mps", "omega_max_radps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"kinematics {name} must be a finite number, got {value!r}")
-        for name in ("baseline_m", "radius_m", "k", "limit", "v_max_mps", "omega_max_radps"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"kinematics {name} must be positive, got {getattr(self, name)!r}")
-        if self.limit > 1.0:
-            raise ValueError(f"kinematics limit must be at most 1 (the largest duty), got {self.limit!r}")
+            fields.number(getattr(self, name), KINEMATICS, name, positive=name in POSITIVE_KINEMATICS,
+                          high=1.0 if name == "limit" else math.inf)  # the largest duty is 1
         if self.gain + self.trim == 0 or self.gain - self.trim == 0:
-            raise ValueError(f"kinematics gain +- trim must not be 0 (gain {self.gain!r}, trim {self.trim!r}): "
-                             "a wheel would need an infinite duty")
+            fields.fail(KINEMATICS, f"gain +- trim must not be 0 (gain {self.gain!r}, trim {self.trim!r}): a wheel "
+                                    "would need an infinite duty", "trim")
 
 
 @dataclass(frozen=True)
@@ -133,3 +134,19 @@ def robot_name_problem(name) -> str | None:
         return (f"robot name {name[:40]!r} is not a Duckiebot name: letters, digits and underscores, a letter "
                 "first, at most 63 characters")
     return None
+
+
+def decoded_frame(data, width_px: int = IMAGE_WIDTH_PX, height_px: int = IMAGE_HEIGHT_PX):
+    """The 8-bit grey image a compressed camera frame (PNG or JPEG bytes) holds, checked before it is used or echoed
+    (the ROS driver's frames, the bridge client's): (image, None), or (None, why not) when it does not decode or is
+    not `width_px` x `height_px`."""
+    import cv2  # here: the description itself needs no OpenCV
+
+    if not isinstance(data, (bytes, bytearray)) or not data:
+        return None, f"no image bytes (got {type(data).__name__} of {len(data) if hasattr(data, '__len__') else '?'})"
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        return None, f"does not decode as an image ({len(data)} bytes)"
+    if image.shape != (height_px, width_px):
+        return None, f"is {image.shape[1]} x {image.shape[0]}, expected {width_px} x {height_px}"
+    return image, None

@@ -7,6 +7,8 @@ NAO). The topics (dt-duckiebot-interface, Duckietown's robot-side stack; `<veh>`
 
     /<veh>/wheels_driver_node/wheels_cmd           duckietown_msgs/WheelsCmdStamped     published: vel_left,
                                                                                         vel_right duties in [-1, 1]
+    /<veh>/wheels_driver_node/wheels_cmd_executed  duckietown_msgs/WheelsCmdStamped     subscribed: each command the
+                                                                                        wheels driver executed
     /<veh>/camera_node/image/compressed            sensor_msgs/CompressedImage          subscribed: JPEG, header.stamp
     /<veh>/left_wheel_encoder_node/tick, right_... duckietown_msgs/WheelEncoderStamped  subscribed: data = cumulative
                                                                                         ticks, resolution 135 / rev
@@ -17,6 +19,8 @@ Safety (the safe state = both duties 0):
   `watchdog_s` (wall time): a hung agent never leaves the robot driving; the next call then fails (the drive's log
   would not be what happened);
 - zero duties on close(), on any refused reading, on every deadline missed, and from rospy's shutdown hook;
+  close() waits (STOP_CONFIRM_S) until the wheels driver reports the zero executed before it leaves the topic:
+  rospy sends from a queue thread, and a message still queued when its publisher unregisters is dropped;
   the node is started with disable_signals=True so that Ctrl-C / SIGTERM reach naocal's own handler (tools.cli),
   whose unwinding stops the wheels through this driver (rospy's would shut the node down first: no publisher left);
 - every wait has a deadline: the wheels driver listening (connect_timeout_s), a frame after the request
@@ -37,12 +41,11 @@ import math
 import threading
 import time
 
-import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.drive_log import EncoderJournal, write_encoders
 from naocal.kinds.duckiebot.kinematics import duty_problem
-from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX,
+from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX, decoded_frame,
                                          robot_name_problem)
 from naocal.solver.errors import NaocalError, SafetyError
 
@@ -52,11 +55,13 @@ MAX_WHEEL_RADPS = 60.0  # no Duckiebot wheel turns faster (k 27 rad/s per duty, 
 TICK_SLACK = 3  # ticks an encoder may count beyond MAX_WHEEL_RADPS over one interval (edges, jitter)
 MAX_ADVANCE_S = 60.0  # one advance() longer than this is a caller's bug (the mission waits at most seconds)
 ENCODER_SAVE_S = 0.2  # the ticks are appended to the journal (keep_encoders) at least this often (wall time)
+STOP_CONFIRM_S = 0.5  # close(): how long (wall time) to wait for the wheels driver to report the stop executed
 
 
 def topics(vehicle: str) -> dict:
     """Duckietown's topic names for robot `vehicle` (dt-duckiebot-interface)."""
     return {"wheels": f"/{vehicle}/wheels_driver_node/wheels_cmd",
+            "executed": f"/{vehicle}/wheels_driver_node/wheels_cmd_executed",
             "camera": f"/{vehicle}/camera_node/image/compressed",
             "left_ticks": f"/{vehicle}/left_wheel_encoder_node/tick",
             "right_ticks": f"/{vehicle}/right_wheel_encoder_node/tick"}
@@ -101,12 +106,15 @@ class RosDuckiebot:
         self._journal_lock = threading.Lock()  # one append at a time, in order (taken before self._lock)
         self._saved_at = time.monotonic()
         self._closed = False
+        self._executed = None  # (stamp s, vel_left, vel_right): the wheels driver's newest executed command
+        self._executed_changed = threading.Condition()
         rospy.init_node(node_name, anonymous=True, disable_signals=True)
         self._wheels = rospy.Publisher(self.topics["wheels"], WheelsCmdStamped, queue_size=1)
         self._subscribers = [
             rospy.Subscriber(self.topics["camera"], CompressedImage, self._on_frame, queue_size=1, buff_size=2 ** 22),
             rospy.Subscriber(self.topics["left_ticks"], WheelEncoderStamped, self._on_ticks, callback_args="left"),
-            rospy.Subscriber(self.topics["right_ticks"], WheelEncoderStamped, self._on_ticks, callback_args="right")]
+            rospy.Subscriber(self.topics["right_ticks"], WheelEncoderStamped, self._on_ticks, callback_args="right"),
+            rospy.Subscriber(self.topics["executed"], WheelsCmdStamped, self._on_executed, queue_size=1)]
         rospy.on_shutdown(self._stop_quietly)
         deadline = time.monotonic() + connect_timeout_s
         while self._wheels.get_num_connections() < 1:
@@ -134,12 +142,37 @@ class RosDuckiebot:
             self._duties = (float(left), float(right))
         return stamp.to_sec()
 
-    def _stop_quietly(self) -> None:
-        """The safe state, from any thread; never raises (the stop must not hide why we stopped)."""
+    def _stop_quietly(self) -> float | None:
+        """The safe state, from any thread; never raises (the stop must not hide why we stopped). The stop's stamp,
+        None if it could not be published (after close(): its stop was confirmed or warned about then)."""
+        if self._closed:
+            return None
         try:
-            self._publish(0.0, 0.0)
+            return self._publish(0.0, 0.0)
         except Exception:  # a node already shut down: the wheels driver's own shutdown stops the motors
             log.exception("could not publish the stop")
+            return None
+
+    def _on_executed(self, msg) -> None:
+        with self._executed_changed:
+            self._executed = (msg.header.stamp.to_sec(), msg.vel_left, msg.vel_right)
+            self._executed_changed.notify_all()
+
+    def _stop_confirmed(self, timeout_s: float) -> bool:
+        """Publish the stop and wait, at most `timeout_s` of wall time, until the wheels driver reports (0, 0)
+        executed at or after it."""
+        t_stop = self._stop_quietly()
+        if t_stop is None:
+            return False
+        deadline = time.monotonic() + timeout_s
+        with self._executed_changed:
+            while not (self._executed is not None and self._executed[0] >= t_stop
+                       and self._executed[1:] == (0.0, 0.0)):
+                remaining_s = deadline - time.monotonic()
+                if remaining_s <= 0:
+                    return False
+                self._executed_changed.wait(remaining_s)
+        return True
 
     def _refuse(self, problem: str) -> None:
         """A reading refused (from a subscriber's thread): stop now, fail the agent's next call."""
@@ -298,12 +331,9 @@ class RosDuckiebot:
         now = self.now()
         if stamp > now + self.clock_slack_s:  # another clock: its frames would pass for fresh ones forever
             self._fail(f"{topic}: a frame stamped {stamp:.3f} s, {stamp - now:.1f} s ahead of the robot's clock")
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
-        if image is None:
-            self._fail(f"{topic}: the frame stamped {stamp:.3f} s does not decode as an image ({len(data)} bytes)")
-        if image.shape != (IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX):
-            self._fail(f"{topic}: a {image.shape[1]} x {image.shape[0]} frame, expected {IMAGE_WIDTH_PX} x "
-                       f"{IMAGE_HEIGHT_PX} (the camera node's resolution)")
+        image, problem = decoded_frame(data, IMAGE_WIDTH_PX, IMAGE_HEIGHT_PX)  # the camera node's resolution
+        if problem:
+            self._fail(f"{topic}: the frame stamped {stamp:.3f} s {problem}")
         return stamp, image
 
     def encoder_ticks(self, t_from_s: float, t_to_s: float) -> list:
@@ -319,10 +349,14 @@ class RosDuckiebot:
         return write_encoders(log_dir, self.encoder_ticks(t_from_s, t_to_s), self.ticks_per_revolution)
 
     def close(self) -> None:
-        """Wheels stopped, watchdog ended, topics left. Safe to call twice."""
+        """Wheels stopped (the wheels driver's report awaited: STOP_CONFIRM_S), watchdog ended, topics left. Safe to
+        call twice."""
         if self._closed:
             return
-        self._stop_quietly()
+        if not self._stop_confirmed(STOP_CONFIRM_S):
+            log.warning("%s: the wheels driver did not report the stop executed within %g s (is "
+                        "dt-duckiebot-interface running?): the wheels may still turn; docs/DEPLOY.md says how to stop "
+                        "them", self.topics["executed"], STOP_CONFIRM_S)
         self._closed = True
         for subscriber in self._subscribers:
             subscriber.unregister()

@@ -8,6 +8,7 @@ import json
 import re
 from dataclasses import dataclass, field
 
+from naocal.solver import fields
 from naocal.solver.errors import DataError
 
 _NUMBER = re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?")
@@ -115,12 +116,11 @@ def parse_json(text: str, path) -> tuple[JsonNode, object]:
     skip()
     if position != len(text):
         fail("text after the document")
-    if root.kind != "object":
-        raise DataError(path, "expected a JSON object at the top level")
     try:
-        return root, json.loads(text)
+        document = json.loads(text)
     except ValueError as err:  # e.g. an integer beyond Python's digit limit
         raise DataError(path, f"invalid JSON: {err}") from None
+    return root, fields.json_object(document, path, "")
 
 
 def _indent_of(text: str, position: int) -> str:
@@ -142,7 +142,7 @@ def set_values(text: str, new_values: dict[tuple, object], path) -> str:
         node, where = root, []
         for depth, key in enumerate(keys):
             if node.kind != "object":
-                raise DataError(path, "expected a JSON object here", field=".".join(where))
+                fields.json_object(json.loads(text[node.start:node.end]), path, ".".join(where))  # refuses it
             if key not in node.members:
                 text = _insert_member(text, node, keys[depth:], value)
                 break
