@@ -122,9 +122,10 @@ def text(value, path, field, *, max_chars: int | None = None, non_empty: bool = 
     that another program's config file or a one-line message will hold); `non_empty`: not ""."""
     if not isinstance(value, str) or (max_chars is not None and len(value) > max_chars) \
             or (non_empty and not value) or (one_line and not value.isprintable()):
-        kind = "a single line of printable text" if one_line else "text"
+        kind = {(True, False): "a single line of printable text", (True, True): "a non-empty single line of printable "
+                "text", (False, False): "text", (False, True): "non-empty text"}[(one_line, non_empty)]
         most = "" if max_chars is None else f" (at most {max_chars} characters)"
-        fail(path, f"expected {'non-empty ' if non_empty else ''}{kind}{most}, got {shown(value)}", field)
+        fail(path, f"expected {kind}{most}, got {shown(value)}", field)
     return value
 
 

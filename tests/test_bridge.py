@@ -87,7 +87,7 @@ def test_the_servers_images_are_checked_field_by_field_before_use(change, messag
 @pytest.mark.parametrize("error, message", [
     ({"type": "NaocalError", "message": "two\nlines"}, "field 'error.message': expected a single line of printable"),
     ({"type": "NaocalError", "message": "x" * 501}, "field 'error.message': expected a single line"),
-    ({"type": 7, "message": "m"}, "field 'error.type': expected non-empty a single line"),
+    ({"type": 7, "message": "m"}, "field 'error.type': expected a non-empty single line"),
     ({"type": "NaocalError"}, "field 'error.message': missing required field"),
 ])
 def test_an_error_reply_is_checked_before_the_client_echoes_it(error, message):

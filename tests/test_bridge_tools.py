@@ -173,7 +173,7 @@ def test_ping_and_stop_check_the_hello_they_echo(capsys):
         for verb in ("ping", "stop"):
             assert cli.main(["bridge", verb, "--endpoint", server.endpoint]) == 2
             err = capsys.readouterr().err
-            assert "hello, field 'robot_id': expected non-empty a single line of printable text" in err and "\x1b" not in err
+            assert "hello, field 'robot_id': expected a non-empty single line of printable text" in err and "\x1b" not in err
     with serving(FakeBackend()) as server:
         assert cli.main(["bridge", "stop", "--endpoint", server.endpoint]) == 0
         assert capsys.readouterr().out.strip() == f"{server.endpoint}: stopped the nao fake-0 (driver fake)"
