@@ -29,6 +29,7 @@ import numpy as np
 from naocal.backends.base import CameraImage, CameraIntrinsics, JointReading, checked_reading
 from naocal.backends.errors import BridgeError
 from naocal.solver import fields
+from naocal.solver.camera import INTRINSICS_KEYS
 from naocal.solver.errors import DataError
 
 PROTOCOL_VERSION = 1
@@ -376,13 +377,9 @@ def image_from_wire(data) -> CameraImage | None:
 
 
 def intrinsics_from_wire(data) -> CameraIntrinsics:
-    """The server's intrinsics, each field checked (solver.fields, as v4l2_camera.read_intrinsics checks a file's):
-    sizes whole pixels, focal lengths and centre positive, five distortion coefficients; ProtocolError naming it."""
-    what, sizes, pinhole = "the intrinsics reply", ("width_px", "height_px"), ("fx_px", "fy_px", "cx_px", "cy_px")
+    """The server's intrinsics, each field checked by the one intrinsics check (CameraIntrinsics.from_fields, as a
+    dataset's or a prior file's), five distortion coefficients required; ProtocolError naming the field."""
+    what = "the intrinsics reply"
     with field_checks():
-        fields.json_object(data, what, "", sizes + pinhole + ("distortion",), ("name",))
-        width, height = (fields.count(data[key], what, key, 1, MAX_IMAGE_SIDE_PX) for key in sizes)
-        fx, fy, cx, cy = (fields.number(data[key], what, key, positive=True) for key in pinhole)
-        distortion = fields.vector(data["distortion"], 5, what, "distortion")
-    return CameraIntrinsics(width_px=width, height_px=height, fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy,
-                            distortion=distortion)
+        fields.json_object(data, what, "", INTRINSICS_KEYS + ("distortion",), ("name",))
+        return CameraIntrinsics.from_fields(data, what)

@@ -46,6 +46,7 @@ import numpy as np
 
 from naocal.backends.base import CameraImage, CameraIntrinsics, nominal_intrinsics
 from naocal.backends.errors import RobotTimeout
+from naocal.solver.camera import INTRINSICS_KEYS
 from naocal.solver.errors import NaocalError
 
 log = logging.getLogger("naocal.v4l2")
@@ -84,18 +85,13 @@ def open_v4l2(device: str):
 
 def read_intrinsics(path) -> CameraIntrinsics:
     """Prior intrinsics from a JSON file {width_px, height_px, fx_px, fy_px, cx_px, cy_px[, distortion]} (pixels;
-    distortion as OpenCV's k1, k2, p1, p2, k3). DataError naming the file and field."""
+    distortion as OpenCV's k1, k2, p1, p2, k3), checked as every intrinsics are (CameraIntrinsics.from_fields).
+    DataError naming the file and field."""
     from naocal.solver import fields
     from naocal.solver.fileio import read_json
 
-    sizes, focals, centres = ("width_px", "height_px"), ("fx_px", "fy_px"), ("cx_px", "cy_px")
-    doc = fields.json_object(read_json(path), path, "", sizes + focals + centres, ("distortion", "name"))
-    values = {key: fields.number(doc[key], path, key, positive=True, integer=key in sizes)
-              for key in sizes + focals + centres}
-    distortion = fields.vector(doc.get("distortion", [0.0] * 5), 5, path, "distortion")
-    return CameraIntrinsics(width_px=int(values["width_px"]), height_px=int(values["height_px"]),
-                            fx_px=values["fx_px"], fy_px=values["fy_px"], cx_px=values["cx_px"], cy_px=values["cy_px"],
-                            distortion=distortion)
+    doc = fields.json_object(read_json(path), path, "", INTRINSICS_KEYS, ("distortion", "name"))
+    return CameraIntrinsics.from_fields(doc, path)
 
 
 def yuyv_problem(raw, width: int, height: int) -> str | None:

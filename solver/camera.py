@@ -16,9 +16,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from naocal.solver import fields
+
 # The intrinsic components, in the order of `Projection.intrinsic_jacobian` columns.
 COMPONENTS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 NO_DISTORTION = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+INTRINSICS_KEYS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
+# Beyond these a value is damaged or a unit mix-up, not a camera.
+MAX_IMAGE_SIDE_PX = 10_000
+MAX_FOCAL_LENGTH_PX = 100_000.0
+MAX_DISTORTION = 100.0  # OpenCV's coefficients; a NAO's or a Duckiebot's lens needs |k| < 1, a fisheye's a few
 
 
 @dataclass(frozen=True)
@@ -45,6 +54,31 @@ class CameraIntrinsics:
         """As the bridge protocol sends it: the dict with the camera's name (a backend's intrinsics() are its
         bottom camera's)."""
         return {"name": getattr(self, "name", "bottom"), **self.intrinsics()}
+
+    @classmethod
+    def from_fields(cls, doc: dict, path, where: str = "") -> "CameraIntrinsics":
+        """The intrinsics in a JSON object's fields (INTRINSICS_KEYS, distortion optional), each checked
+        (solver.fields; DataError naming `path` and the field under `where`): the one check of a camera's intrinsics
+        however they arrive (a dataset, a prior file, the bridge, an arm's sensor). Whole positive image sides, positive
+        focal lengths, the principal point inside the image, plausible sizes."""
+        def name(key):
+            return f"{where}.{key}" if where else key
+
+        for key in INTRINSICS_KEYS:
+            if key not in doc:
+                fields.fail(path, "missing required field", name(key))
+        width, height = (int(fields.number(doc[key], path, name(key), positive=True, integer=True,
+                                           limit=MAX_IMAGE_SIDE_PX)) for key in ("width_px", "height_px"))
+        fx, fy = (fields.number(doc[key], path, name(key), positive=True, limit=MAX_FOCAL_LENGTH_PX)
+                  for key in ("fx_px", "fy_px"))
+        cx, cy = (fields.number(doc[key], path, name(key)) for key in ("cx_px", "cy_px"))
+        for key, value, side in (("cx_px", cx, width), ("cy_px", cy, height)):
+            if not 0 <= value <= side:
+                fields.fail(path, f"principal point outside the {width} x {height} image, got {value!r}", name(key))
+        distortion = fields.vector(doc.get("distortion", list(NO_DISTORTION)), 5, path, name("distortion"),
+                                   limit=MAX_DISTORTION)
+        return cls(width_px=width, height_px=height, fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy,
+                   distortion=tuple(distortion))
 
     def project(self, p_cam) -> np.ndarray:
         """Pixels (..., 2) of points (..., 3) in the camera frame (`project_points`; depth > 0 in front)."""

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from naocal.solver import fields
+from naocal.solver.camera import INTRINSICS_KEYS, CameraIntrinsics
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import (  # noqa: F401 (read_text, parse_json_text: also used from here by agent/)
     append_durably, atomic_write_text, decode_text, interrupts_deferred, parse_json_text,
@@ -53,10 +54,7 @@ IMAGES_DIR = "images"
 DEFAULT_GRAVITY_TORSO_MPS2 = (-9.81, 0.0, 0.0)  # a robot lying on its back
 
 # Plausible sizes, generous: a number beyond is damage or a unit mix-up (and would overflow the maths downstream).
-MAX_IMAGE_SIDE_PX = 10_000
-CAMERA_KEYS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
-MAX_FOCAL_LENGTH_PX = 100_000.0
-MAX_DISTORTION = 100.0  # OpenCV coefficients; a NAO lens needs |k| < 1
+CAMERA_KEYS = INTRINSICS_KEYS
 MAX_BOARD_SQUARES = 100
 MAX_LENGTH_M = 1.0  # board square, board centre, sole coordinates: the NAO's foot is 0.16 m long
 MAX_MOUNT_M = 5.0  # version 2: a target's vertex in its frame (a floor board in front of the robot, in r_sole)
@@ -210,16 +208,7 @@ def _short(value) -> str:
 def _check_camera(camera, path, where) -> None:
     """A camera's image size and prior intrinsics (both versions)."""
     fields.json_object(camera, path, where, CAMERA_KEYS)
-    for key in ("width_px", "height_px"):
-        fields.number(camera[key], path, f"{where}.{key}", positive=True, integer=True, limit=MAX_IMAGE_SIDE_PX)
-    for key in ("fx_px", "fy_px"):
-        fields.number(camera[key], path, f"{where}.{key}", positive=True, limit=MAX_FOCAL_LENGTH_PX)
-    for key, side in (("cx_px", "width_px"), ("cy_px", "height_px")):
-        if not 0 <= fields.number(camera[key], path, f"{where}.{key}") <= camera[side]:
-            fields.fail(path, f"principal point outside the {camera['width_px']} x {camera['height_px']} image, got "
-                              f"{camera[key]!r}", f"{where}.{key}")
-    if "distortion" in camera:
-        fields.vector(camera["distortion"], 5, path, f"{where}.distortion", limit=MAX_DISTORTION)
+    CameraIntrinsics.from_fields(camera, path, where)
 
 
 def _check_board(board, path, where, required) -> None:

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from naocal.solver import fields
 from naocal.kinds.arm.model import POINT_KINDS, ArmChain, Observations, Sensor
+from naocal.solver import fields
+from naocal.solver.camera import INTRINSICS_KEYS, CameraIntrinsics
 from naocal.solver.errors import DataError
 from naocal.solver.fields import fail
 from naocal.solver.fileio import read_json, read_text
@@ -31,8 +32,6 @@ ANGLE_MARGIN = math.radians(10.0)  # readings beyond a joint's URDF limits by mo
 SLIDE_MARGIN = 0.01  # m, the same for a prismatic joint
 MAX_POINT_M = 100.0  # a 3-D reading farther from its sensor is refused
 WORKSPACE_M = 10.0  # a point on the tip farther from the tip frame is refused
-MAX_PIXELS = 1e5  # image sizes, focal lengths and principal points, px
-MAX_DISTORTION = 1e3  # OpenCV distortion coefficients
 MAX_NAME = 200  # characters of a name (a link, a sensor, a point)
 MAX_NOISE = {"noise_m": 1.0, "noise_px": 1e3}
 PYBULLET_ARMS = {  # --robot NAME: URDFs that ship with pybullet (pybullet_data), with their chain and tool
@@ -138,13 +137,10 @@ def _name(value, path, field) -> str:
     return fields.text(value, path, field, max_chars=MAX_NAME, non_empty=True)
 
 
-CAMERA_FIELDS = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")
-
-
 def _sensor(name, doc, path) -> Sensor:
     where = f"sensors.{name}"
     doc = fields.json_object(doc, path, where, ("kind",),
-                             ("noise_m", "noise_px", "pose", "about", "distortion", "link") + CAMERA_FIELDS)
+                             ("noise_m", "noise_px", "pose", "about", "distortion", "link") + INTRINSICS_KEYS)
     kind = fields.choice(doc["kind"], POINT_KINDS, path, f"{where}.kind")
     noise_key = "noise_m" if kind == "points" else "noise_px"
     wrong = "noise_px" if kind == "points" else "noise_m"
@@ -154,15 +150,9 @@ def _sensor(name, doc, path) -> Sensor:
                           limit=MAX_NOISE[noise_key]) if noise_key in doc else None
     intrinsics = None
     if kind == "camera":
-        for key in CAMERA_FIELDS:
-            if key not in doc:
-                fail(path, "missing required field (a camera needs its intrinsics)", f"{where}.{key}")
-        intrinsics = {key: fields.number(doc[key], path, f"{where}.{key}", positive=key not in ("cx_px", "cy_px"),
-                                         limit=MAX_PIXELS) for key in CAMERA_FIELDS}
-        intrinsics["distortion"] = list(fields.vector(doc.get("distortion", [0.0] * 5), 5, path, f"{where}.distortion",
-                                                      limit=MAX_DISTORTION))
+        intrinsics = CameraIntrinsics.from_fields(doc, path, where).intrinsics()
     else:
-        for key in CAMERA_FIELDS + ("distortion",):
+        for key in INTRINSICS_KEYS + ("distortion",):
             if key in doc:
                 fail(path, "only a camera has intrinsics", f"{where}.{key}")
     rotation = translation = None
