@@ -234,6 +234,8 @@ def test_the_examples_in_formats_md_read_as_documented(tmp_path, capsys):
 @pytest.mark.parametrize("edit, field", [
     (lambda m: m["sensors"]["camera"].update(fx_px=1e308), "sensors.camera.fx_px"),  # once an SVD failure
     (lambda m: m["sensors"]["camera"].update(distortion=[1e300, 0, 0, 0, 0]), "sensors.camera.distortion[0]"),
+    (lambda m: m["sensors"]["camera"].update(width_px=640.5), "sensors.camera.width_px"),  # the intrinsics' one check
+    (lambda m: m["sensors"]["camera"].update(cx_px=-5.0), "sensors.camera.cx_px"),
     (lambda m: m["sensors"]["tracker"].update(noise_m=5.0), "sensors.tracker.noise_m"),
     (lambda m: m["sensors"]["tracker"].update(pose={"rotation_rad": [1e300, 0, 0], "translation_m": [0, 0, 0]}),
      "sensors.tracker.pose.rotation_rad[0]"),
