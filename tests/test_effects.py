@@ -271,3 +271,12 @@ def test_each_effects_report_picture_is_well_formed(name):
         assert len(x) == len(y) == len(groups) > 0 and len(line_x) == len(line_y)
         assert np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(line_y))
         assert xlabel and ylabel and set(groups) <= {"L", "R"}
+
+
+def test_docs_effects_table_has_a_row_for_every_module():
+    """docs/EFFECTS.md's one table names every module of the registry, whatever kind's model takes it."""
+    from conftest import ROOT
+
+    rows = {line.split("|")[1].strip() for line in (ROOT / "docs" / "EFFECTS.md").read_text().splitlines()
+            if line.startswith("| ")}
+    assert set(EFFECTS) <= rows, sorted(set(EFFECTS) - rows)
