@@ -33,6 +33,12 @@ class Kind(Protocol):
     data_help: str
     calibration_help: str
     model_help: str
+    # What the effect registry (solver/effects/) has for its model, for identify's and diagnose's --effects (a
+    # property: it reads the registry when --help is built); what diagnose's --help says of its output: the sections
+    # it prints (help_blocks_by_kind) and its --json object.
+    effects_help: str
+    diagnose_help: str
+    diagnose_json_help: str
 
     def claims(self, source) -> bool:
         """Whether `source` is this kind's: a path (a dataset directory, a calibration file), decided from the data
@@ -81,12 +87,23 @@ def named(name: str) -> Kind:
     raise KeyError(name)
 
 
-def help_by_kind(attribute: str, verb: str) -> str:
-    """For a verb's --help: what each kind with a body for `verb` says in `attribute` (data_help, calibration_help,
-    model_help), the default kind first: 'nao: ...; arm: ...'."""
+def _helping(attribute: str, verb: str) -> list:
+    """[(kind, its text)] of the kinds with a body for `verb` that say something in `attribute`, the default first."""
     kinds = capable(verb)
     ordered = [k for k in kinds if k is default()] + [k for k in kinds if k is not default()]
-    return "; ".join(f"{k.name}: {getattr(k, attribute)}" for k in ordered if getattr(k, attribute, ""))
+    return [(k, getattr(k, attribute, "")) for k in ordered if getattr(k, attribute, "")]
+
+
+def help_by_kind(attribute: str, verb: str) -> str:
+    """For a verb's --help: what each kind with a body for `verb` says in `attribute` (data_help, calibration_help,
+    model_help, effects_help, diagnose_json_help), the default kind first: 'nao: ...; arm: ...'."""
+    return "; ".join(f"{k.name}: {text}" for k, text in _helping(attribute, verb))
+
+
+def help_blocks_by_kind(attribute: str, verb: str) -> str:
+    """For a verb's --help epilog: each kind's text of several lines (diagnose_help) under its name, indented."""
+    return "\n".join(f"{k.name}:\n" + "\n".join("  " + line if line else line for line in text.splitlines())
+                     for k, text in _helping(attribute, verb))
 
 
 def export_formats() -> tuple[str, ...]:

@@ -10,6 +10,9 @@ An effect owns
     target_terms      the target's vertices moved in the frame the target is attached to (board mount);
     projection_terms  a camera's intrinsic components (focal lengths, principal point, distortion);
   each hook returns plain descriptions of the term (below); the model composes them and differentiates exactly;
+  a differential drive's model (wheel speeds from duties, the ground motion from wheel speeds) takes its terms by
+  `drive_parameters`: the quantities that model has a term for (dead zone, slip, wheel lag, ...), with their
+  scales and start values;
 - its diagnostics: plausible size, why it cannot be tested on some data, what to do when the data do not excite it,
   and the partial-residual view of the report (`partial_residual_panels`);
 - its display (unit shown to people) and its section of the offsets file (`offsets_section`, `offsets_key`,
@@ -28,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "1")
+ALLOWED_UNITS = ("rad", "m", "px", "s", "rad/(N m)", "s/m", "1")
 # A pose error's six components (an arm's Parameter.axis): along x, y, z, then about x, y, z.
 POSE_COMPONENTS = (("x", "m"), ("y", "m"), ("z", "m"), ("rx", "rad"), ("ry", "rad"), ("rz", "rad"))
 SECTIONS = ("body", "head", "targets")
@@ -42,6 +45,8 @@ class Parameter:
     `joint`, `camera`, `target` name what the parameter belongs to (None if nothing); `component` says which of
     its effect's quantities it is (e.g. 'pitch', 'fx', 'trans_x', 'L.thigh').
     `tied_to` names the parameter whose value this one always takes.
+    `start` is where a fit starts it: 0, the model without the effect, unless the effect's signature vanishes there
+    (a wheel lag's: Effect.drive_parameters).
     An arm's parameter (kinds.arm.model.ArmModel) that belongs to no joint says which of the arm's things it belongs to
     by `index` (the joint origin, chain, point or sensor number) and `axis` (0-2: along x, y, z; 3-5: about x, y,
     z; POSE_COMPONENTS).
@@ -58,6 +63,7 @@ class Parameter:
     component: str | None = None
     index: int | None = None
     axis: int | None = None
+    start: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -196,6 +202,7 @@ DISPLAY_UNITS = {
     "rad/(N m)": ("deg/(N m)", math.degrees(1.0)),
     "m": ("mm", 1e3),
     "s": ("ms", 1e3),
+    "s/m": ("s/m", 1.0),
     "px": ("px", 1.0),
     "1": ("", 1.0),
 }
@@ -239,6 +246,9 @@ class Effect:
     prior_size: dict = {}
     gauge_priority: int = 100
     arm_always: bool = False
+    # A differential drive's model: a term fitted from the fit without it (its start values that fit's; from the
+    # detections' start a wheel lag went below 0, where it has no gradient, and stayed).
+    drive_from_base_fit: bool = False
 
     @property
     def mock_size_min(self) -> float:
@@ -254,6 +264,13 @@ class Effect:
         """The effect's parameters for an arm (kinds.arm.model.ArmModel, its layout made: joint_names, prismatic,
         origin_keys, origin_names, directions, arm_chains, point_names, sensors), each of the arm's `scale` (the
         arm's solver works in mm and mrad); an effect that defines none is not one of the arm's."""
+        return []
+
+    def drive_parameters(self) -> list[Parameter]:
+        """The effect's parameters of a differential drive's model, each with its scale (the solver works on
+        value / scale) and `start`; the drive model's term for each is keyed by the parameter's `component`. An
+        effect that defines this hook is a term of that model even without a parameter: a choice of model (a PWM
+        driver between the duties and the motors)."""
         return []
 
     def tie(self, parameter: Parameter, setup: Setup) -> str | None:

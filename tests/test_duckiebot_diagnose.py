@@ -18,6 +18,8 @@ from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, diagnose
                                            paper_program, simulate_drive)
 from naocal.kinds.duckiebot.robot import camera_mount
 from naocal.kinds.duckiebot.simulate import parse_hidden, run_simulate
+from naocal.solver.effects import DRIVE_EFFECTS
+from naocal.solver.effects import EFFECTS as REGISTRY
 from naocal.solver.errors import NaocalError
 
 ALL_EFFECTS = {"dead_zone": 0.05, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.04}
@@ -59,6 +61,27 @@ def test_the_trajectory_jacobian_with_every_effect_is_exact(values):
         numeric = central_difference(lambda v: poses(v)[0], x, j)
         np.testing.assert_allclose(J[:, :, j], numeric, atol=1e-6, rtol=1e-5, err_msg=f"column {j}")
     assert np.abs(J[:, :, 6:]).max() > 0.01  # every effect moves the robot
+
+
+@pytest.mark.parametrize("parameter", [p for e in DRIVE_EFFECTS for p in REGISTRY[e].drive_parameters()],
+                         ids=lambda p: p.name)
+def test_every_registered_wheel_parameter_has_an_exact_term_in_the_drive_model(parameter):
+    """Issue 22: each parameter of a wheel effect module (solver/effects/, drive_parameters) moves the robot in
+    the Duckiebot's drive model, its Jacobian column exact (a module without a term there would fail here, not fit
+    a parameter of zero signature)."""
+    _, drive, _, _ = drive_of(2)
+    values = {"wheel_lag_s": 0.04, parameter.name: parameter.scale}  # a lag difference needs a lag
+    names = list(values)
+    x = np.array([1.1, 0.04, 0.102, 0.3, -0.2, 2.9] + [values[n] for n in names])
+    anchor_t, times = drive.frame_t_s[3], drive.frame_t_s[3:]
+
+    def poses(v):
+        return trajectory(drive, *v[:3], v[3:6], anchor_t, times, dict(zip(names, v[6:])))
+
+    j = 6 + names.index(parameter.name)
+    column = poses(x)[1][:, :, j]
+    np.testing.assert_allclose(column, central_difference(lambda v: poses(v)[0], x, j), atol=1e-6, rtol=1e-5)
+    assert np.abs(column).max() > 1e-3
 
 
 def test_the_equations_jacobian_with_effects_is_exact():

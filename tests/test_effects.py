@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from naocal.solver.effect import Effect, Setup
+from naocal.solver.effect import ALLOWED_UNITS, Effect, Setup
 from naocal.solver.effects import ALL_EFFECTS, BASE_EFFECTS, EFFECTS, EXTRA_EFFECTS, owner_of, parse_effect_names
 from naocal.solver.errors import NaocalError
 from naocal.solver.identify import identify
@@ -35,6 +35,28 @@ def test_every_module_is_discovered_in_order():
     assert ALL_EFFECTS == BASE_EFFECTS + EXTRA_EFFECTS
     for name, effect in EFFECTS.items():
         assert isinstance(effect, Effect) and effect.name == name
+
+
+def test_the_wheel_effects_are_modules_of_the_registry():
+    """Issue 22: a differential drive's effects are modules of solver/effects/ with the drive_parameters hook (the
+    Duckiebot's fit takes them from there: their parameters, units, scales and starts); pwm_driver is a choice of
+    model without a parameter; none is a term of the NAO's model or an arm's."""
+    from naocal.kinds.duckiebot import fit
+    from naocal.solver.effects import ARM_MODEL_EFFECTS, DRIVE_EFFECTS
+
+    assert DRIVE_EFFECTS == ("dead_zone", "slip", "wheel_lag", "speed_trim", "lag_difference", "pwm_driver")
+    assert not set(DRIVE_EFFECTS) & set(ALL_EFFECTS + ARM_MODEL_EFFECTS)
+    assert fit.ALL_EFFECTS == DRIVE_EFFECTS and fit.LAG_EFFECTS == ("wheel_lag", "lag_difference")
+    for name in DRIVE_EFFECTS:
+        effect = EFFECTS[name]
+        assert effect.summary and not effect.parameters(Setup.everything())
+        for p in effect.drive_parameters():
+            assert p.effect == name and p.unit in ALLOWED_UNITS and p.scale > 0 and p.component == p.name
+            assert fit.SCALES[p.name] == p.scale and fit.EFFECT_START.get(p.name, 0.0) == p.start
+    assert {n: names for n, names in fit.EFFECTS.items()} == {
+        "dead_zone": ("dead_zone",), "slip": ("slip_s_per_m",), "wheel_lag": ("wheel_lag_s",),
+        "speed_trim": ("speed_trim",), "lag_difference": ("wheel_lag_difference_s",)}
+    assert EFFECTS["pwm_driver"].drive_parameters() == [] and fit.EFFECT_START == {"wheel_lag_s": 0.06}
 
 
 @pytest.mark.parametrize("name", ALL_EFFECTS)
@@ -249,3 +271,12 @@ def test_each_effects_report_picture_is_well_formed(name):
         assert len(x) == len(y) == len(groups) > 0 and len(line_x) == len(line_y)
         assert np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(line_y))
         assert xlabel and ylabel and set(groups) <= {"L", "R"}
+
+
+def test_docs_effects_table_has_a_row_for_every_module():
+    """docs/EFFECTS.md's one table names every module of the registry, whatever kind's model takes it."""
+    from conftest import ROOT
+
+    rows = {line.split("|")[1].strip() for line in (ROOT / "docs" / "EFFECTS.md").read_text().splitlines()
+            if line.startswith("| ")}
+    assert set(EFFECTS) <= rows, sorted(set(EFFECTS) - rows)

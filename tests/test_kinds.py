@@ -79,6 +79,25 @@ def test_the_verbs_help_names_every_kinds_data():
                 assert what and f"{kind.name}:{''.join(what.split())}" in text, (verb, kind.name, attribute)
 
 
+def test_the_effects_and_diagnose_help_come_from_every_kind():
+    """Issue 22: identify's and diagnose's --effects list each kind's effects of the one registry under its name
+    (the Duckiebot's wheel effects too), and diagnose's epilog and --json describe every kind's output."""
+    from naocal.solver.effects import ARM_EFFECTS, DRIVE_EFFECTS, EXTRA_EFFECTS
+    from naocal.tools.cli import build_parser
+
+    verbs = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    said = {"identify": ("effects_help",), "diagnose": ("effects_help", "diagnose_json_help", "diagnose_help")}
+    for verb, attributes in said.items():
+        text = "".join(verbs[verb].format_help().split())
+        for kind in kinds.registered():
+            for attribute in attributes:
+                what = getattr(kind, attribute, "")
+                assert what and f"{kind.name}:{''.join(what.split())}" in text, (verb, kind.name, attribute)
+        for effect in EXTRA_EFFECTS + ARM_EFFECTS + DRIVE_EFFECTS:
+            assert effect in text, (verb, effect)
+    assert "duckiebot:dead_zone,slip,wheel_lag,speed_trim,lag_difference,pwm_driver" in text
+
+
 KIND_SOURCE = """
 import argparse
 

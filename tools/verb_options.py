@@ -2,13 +2,12 @@
 identify's options (the NAO's diagnose parses the identify command it suggests) without importing the verb."""
 
 
-def effect_names() -> str:
-    """The candidate effects, for --help (solver/effects/, one module each: an arm's model takes some of them too)."""
-    from naocal.kinds.arm.model import DEFAULT_EFFECTS
-    from naocal.solver.effects import ARM_EFFECTS, EXTRA_EFFECTS
+def effect_names(verb: str) -> str:
+    """The effects --effects takes, by kind (each kind's effects_help: its model's effects of the one registry,
+    solver/effects/, one module each), for --help."""
+    from naocal.kinds import help_by_kind
 
-    return (", ".join(EXTRA_EFFECTS) + f"; an arm's model (default {','.join(DEFAULT_EFFECTS)}): "
-            + ", ".join(ARM_EFFECTS))
+    return help_by_kind("effects_help", verb)
 
 
 def add_dataset_argument(p, verb: str) -> None:
@@ -22,7 +21,8 @@ def add_identify_options(p) -> None:
     from naocal.kinds import help_by_kind
 
     add_dataset_argument(p, "identify")
-    p.add_argument("--effects", default="", help="extra model terms, comma separated: " + effect_names())
+    p.add_argument("--effects", default="",
+                   help="extra model terms, comma separated, by kind: " + effect_names("identify"))
     p.add_argument("--out", metavar="FILE", help="write the calibration file (atomic, an old one kept as .bak), by "
                                                  "kind: " + help_by_kind("calibration_help", "identify"))
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")

@@ -13,6 +13,20 @@ class ArmKind:
     calibration_help = "a naocal.arm_calibration/1 file"
     model_help = ("its sensors' frames plus joint_offsets and link_lengths, or the --effects named (docs/ARM.md), on "
                   "the 3-D and pixel error of its sensors' readings")
+    diagnose_help = """\
+COMPARE  RMS per sensor against its noise, the held-out poses' RMS, the worst poses.
+LOCATE   the misfit a joint's or a link's missing parameters would explain.
+NAMES    the candidate effects (score test, clustered by pose), best first; PHYSICAL? each significant one on
+         data its fit did not see; the verdict names the effect to add with its identify command."""
+    diagnose_json_help = '{"rms": {...}, "noise": {...}, "candidates": [...], "verdict": NAME or null, ...}'
+
+    @property
+    def effects_help(self) -> str:
+        """The effects of the registry an arm's model takes (with `arm_parameters`; its sensors' frames always)."""
+        from naocal.kinds.arm.model import DEFAULT_EFFECTS
+        from naocal.solver.effects import ARM_EFFECTS
+
+        return f"{', '.join(ARM_EFFECTS)} (default {','.join(DEFAULT_EFFECTS)})"
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # options that exist only for an arm: a NAO's data given them

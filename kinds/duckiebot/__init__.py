@@ -57,6 +57,22 @@ class DuckiebotKind:
     calibration_help = f"a {CALIBRATION_SCHEMA} file"
     model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "
                   "poses on the pixel error of the marker corners")
+    diagnose_help = """\
+COMPARE  the marker corners' RMS against their expected detection noise (whitened RMS: 1 at the floor).
+LOCATE   the corners' RMS by the drive phase before each frame (turning or straight, by duty).
+LENS     each lens model's held-out board RMS: one well below the lens in use's is named first.
+NAMES    a score test per wheel effect not in the model (clustered by frame; Bonferroni, family-wise 0.001), each
+         significant one refitted; pwm_driver, without a parameter, judged by its refit.
+VERDICT  the missing effect or lens, the command that adds it, and the RMS before and after."""
+    diagnose_json_help = ('{"rms_px": f, "floor_px": f, "tests": [...], "named": NAME or null, "after": {...}, '
+                          '...}')
+
+    @property
+    def effects_help(self) -> str:
+        """The registry's differential-drive effects (those with `drive_parameters`), each off unless named."""
+        from naocal.solver.effects import DRIVE_EFFECTS
+
+        return ", ".join(DRIVE_EFFECTS) + " (pwm_driver: the PWM driver, a choice of model without a parameter)"
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind

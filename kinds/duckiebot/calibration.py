@@ -45,7 +45,7 @@ DUCKIETOWN_LENS = "plumb_bob"  # the lens model Duckietown's camera_intrinsic fi
 DISTORTION_SIZES = {"plumb_bob": (5,), "rational": (8, 12, 14), "fisheye": (4,)}  # OpenCV's coefficient counts
 MARKER_PARAMETER = re.compile(r"marker\d{1,9}\.(x_m|y_m|yaw_rad)")
 REQUIRED_PARAMETERS = KINEMATIC + CAMERA
-# the base model's and every optional wheel effect's (fit.EFFECTS: identify --effects)
+# the base model's and every optional wheel effect's (fit.EFFECTS, the registry's drive effects: identify --effects)
 KNOWN_PARAMETERS = KINEMATIC + CAMERA + ANCHOR + (BIAS,) + tuple(n for names in EFFECTS.values() for n in names)
 MAX_PARAMETER_SIZE = 1e3  # SI: metres, radians, gain; a marker 1 km away is a damaged file
 MAX_PIXELS = 1e5

@@ -17,8 +17,9 @@ def add_options(parser) -> None:
 
 
 def parse_effects(text) -> tuple:
-    """'dead_zone,slip' -> the effects (kinds.duckiebot.fit.EFFECTS, in its order, then fit.PWM_DRIVER: Duckietown's
-    wheel driver, a choice of model); NaocalError naming an unknown one."""
+    """'dead_zone,slip' -> the wheel effects (the registry's differential-drive effects, solver/effects/ with
+    drive_parameters: fit.ALL_EFFECTS, in the registry's order; pwm_driver, Duckietown's wheel driver, a choice of
+    model); NaocalError naming an unknown one."""
     from naocal.kinds.duckiebot.fit import ALL_EFFECTS
     from naocal.solver.effects import comma_list
     from naocal.solver.errors import NaocalError

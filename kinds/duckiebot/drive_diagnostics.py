@@ -5,7 +5,7 @@ kinds.duckiebot.diagnose).
 - compare: the fit's corner RMS against the noise floor (what the detector's noise alone leaves: the corners'
   expected noise, identify.py's model), whitened (1 at the floor) and in pixels;
 - locate: the RMS of the frames by the drive phase before them (turning or straight, by duty);
-- name: a score test per wheel effect not in the model (kinds.duckiebot.fit.EFFECTS), the one engine of
+- name: a score test per wheel effect not in the model (fit.EFFECTS: the registry's, solver/effects/), the one engine of
   solver.scoretest: the effect's Jacobian columns at the fit, projected off the fitted model's, against the
   whitened residuals, the variance clustered by frame (what a frame's corners share: its pose), leverage-corrected;
   significant below solver.diagnostics.FAMILY_ALPHA over the number of tests (Bonferroni); the significant ones

@@ -12,7 +12,8 @@ Unknowns (`DriveFit.names`):
   the log's start would absorb all motion before the anchor exactly; anchoring at the first seen frame is the same
   model without the long lever arm of the turns before it;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
-- optional wheel effects, each off unless named (`fit_drive(effects=...)`, EFFECTS): `dead_zone`, `slip_s_per_m`,
+- optional wheel effects, each off unless named (`fit_drive(effects=...)`; the registry's differential-drive
+  effects, solver/effects/ with the drive_parameters hook: WHEEL_EFFECTS): `dead_zone`, `slip_s_per_m`,
   `wheel_lag_s`, `speed_trim`, `wheel_lag_difference_s` (kinds.duckiebot.diagnose names the missing one); and
   Duckietown's 8-bit PWM wheel driver between the duties and the motors (PWM_DRIVER, Drive.pwm_driver: a choice
   of model without a parameter; named where the log's robot is known to have it, or by identify --effects);
@@ -40,6 +41,8 @@ import numpy as np
 
 from naocal.kinds.duckiebot.kinematics import PWM_MAX, PWM_MIN, duty_to_pwm
 from naocal.solver.camera import project
+from naocal.solver.effects import DRIVE_EFFECTS
+from naocal.solver.effects import EFFECTS as REGISTRY
 from naocal.solver.errors import SolveError
 from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable,
                                     last_pass_cached, solve, worst_of_group_beyond)
@@ -60,30 +63,22 @@ SCALES = {"gain": 0.1, "trim": 0.05, "baseline_m": 0.003, "camera.x_m": 0.005, "
           "camera.z_m": 0.005, "camera.roll_rad": 0.02, "camera.pitch_rad": 0.03, "camera.yaw_rad": 0.03,
           "anchor.x_m": 0.05, "anchor.y_m": 0.05, "anchor.theta_rad": 0.05, BIAS: 0.1}
 MARKER_SCALES = (0.05, 0.05, 0.05)  # x, y, yaw
-# Optional effects of the wheels (each off unless named: fit_drive(effects=...)), {effect: its parameters}; each
-# parameter's value 0 is the base model (commanded_wheel_speeds, body_motion, _lagged):
-# - dead_zone: the duty's magnitude less dead_zone drives the wheel (0 inside it), both wheels alike;
-# - slip: v and omega scaled by 1 - slip_s_per_m r |w_r - w_l| (ground speed lost in turns, growing with the rate);
-# - wheel_lag: each wheel's speed follows its command with a first-order lag of time constant wheel_lag_s;
-# - speed_trim: the trim grows with the duty's magnitude, trim + speed_trim |u|.
-# - lag_difference: the wheels' lags differ, left wheel_lag_s - wheel_lag_difference_s / 2, right + / 2 (with
-#   wheel_lag): at every start and stop one wheel leads, the robot turns and turns back, and creeps sideways (the
-#   realistic mock, seed 1, lags +-5 % of 20-60 ms: 15 mm over the mission's drives, most of the joint fit's 2.9 px
-#   RMS, and the trim biased 0.004).
-EFFECTS = {"dead_zone": ("dead_zone",), "slip": ("slip_s_per_m",), "wheel_lag": ("wheel_lag_s",),
-           "speed_trim": ("speed_trim",), "lag_difference": ("wheel_lag_difference_s",)}
-SCALES.update({"dead_zone": 0.03, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.05,
-               "wheel_lag_difference_s": 0.005})
-# Where each effect's parameter starts (0 unless listed): wheel_lag_s's signature on frames grabbed at rest after the
-# wheels settle is what they still turn at the grab, exp(-t / lag), whose derivative at lag 0 is 0: a fit started
-# there stays there, and a score test there sees nothing. 0.06 s: a typical small geared motor's.
-EFFECT_START = {"wheel_lag_s": 0.06}
-# Duckietown's wheel driver (Drive.pwm_driver) named like a wheel effect (identify --effects, diagnose's candidates):
-# a choice of model, not a parameter: fit_drive(effects=(PWM_DRIVER, ...)) fits the drive through it; a drive log
-# does not say which driver produced it
-PWM_DRIVER = "pwm_driver"
-ALL_EFFECTS = (*EFFECTS, PWM_DRIVER)  # every name fit_drive(effects=...) takes, in its order
-LAG_EFFECTS = ("wheel_lag", "lag_difference")  # fitted from the fit without them (fit_drive)
+# The wheel effects: the differential drive's terms of the effect registry (solver/effects/, each one module with
+# the drive_parameters hook; docs/EFFECTS.md), each off unless named (fit_drive(effects=...)), in the registry's
+# order. Each parameter's value 0 is the base model; this model's term for each (keyed by the parameter's name):
+# dead_zone and speed_trim in commanded_wheel_speeds, slip_s_per_m in body_motion, wheel_lag_s and
+# wheel_lag_difference_s in _lagged; pwm_driver, a choice of model without a parameter: Drive.pwm_driver.
+WHEEL_EFFECTS = {name: REGISTRY[name] for name in DRIVE_EFFECTS}
+ALL_EFFECTS = tuple(WHEEL_EFFECTS)  # every name fit_drive(effects=...) takes, in its order
+# {effect: its parameters' names} of the effects that have parameters
+EFFECTS = {name: tuple(p.name for p in e.drive_parameters()) for name, e in WHEEL_EFFECTS.items()
+           if e.drive_parameters()}
+SCALES.update({p.name: p.scale for e in WHEEL_EFFECTS.values() for p in e.drive_parameters()})
+# where each effect's parameter starts (0 unless its effect says: a wheel lag's signature vanishes at 0)
+EFFECT_START = {p.name: p.start for e in WHEEL_EFFECTS.values() for p in e.drive_parameters() if p.start}
+PWM_DRIVER = "pwm_driver"  # the effect whose term is Drive.pwm_driver (kinematics.duty_to_pwm's driver)
+# fitted from the fit without them (fit_drive)
+LAG_EFFECTS = tuple(name for name, e in WHEEL_EFFECTS.items() if e.drive_from_base_fit)
 LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
 

@@ -23,6 +23,33 @@ class NaoKind:
     calibration_help = "a naocal.offsets/2 (or /1) file"
     model_help = ("the paper's 21 parameters (12 leg joint offsets, camera roll/pitch/yaw, board rot_z/x/y per leg) "
                   "on the pixel error of the board vertices")
+    diagnose_help = """\
+compare  RMS overall, per leg, per head posture and the worst stances, against the noise floor: detector noise
+         (the dataset's pixel_noise_px, else estimated from what no rigid board motion and no camera term can
+         explain) combined with the error of quantised joint readings (step found in the data).
+locate   worst images; the rigid (kinematic) and non-rigid (camera, board) parts of the residuals; left against
+         right board; the regressors (joint angles, gravity torques, approach directions, velocities, capture
+         time, image position) a board motion proportional to which would explain most of the misfit.
+names    every effect not yet in the model (score test), ranked by the misfit it would explain beyond what its
+         parameters would fit of pure noise, with the RMS predicted after adding it, a significance test
+         clustered by stance (images of one stance share their errors; Bonferroni over the candidates,
+         family-wise level 0.001) and its uniqueness (share of its signature the model cannot already produce;
+         near 0: these data can hardly tell it apart, whatever its p-value). The default model's assumptions
+         are candidates too, each dropped by its candidate: untie_shared_motors (the HipYawPitch pair's one
+         offset; dropped by --no-tie-hip-yaw-pitch) and rigid_board (each board flat and as printed; no model
+         drops it: the verdict says what to measure). With --angles X, the other angle hypotheses are fitted
+         too and a better one is named ("assumption contradicted").
+Add the top significant candidate with `naocal identify DATASET --effects NAME --out offsets.json` (its cv_rms_px
+shows the error on stances the fit did not see), then diagnose again with --effects NAME; the verdict prints both
+commands, ready to paste (with --fix for the candidate's parameters these data cannot tell from the model)."""
+    diagnose_json_help = '{"rms_px": [x, y], "noise_px": f, "candidates": [...], "verdict": {...}, ...}'
+
+    @property
+    def effects_help(self) -> str:
+        """The effects of the registry the NAO's model can add (those with `parameters(setup)`, not its base)."""
+        from naocal.solver.effects import EXTRA_EFFECTS
+
+        return ", ".join(EXTRA_EFFECTS)
 
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # no option is the NAO's alone: it is the default kind

@@ -1,5 +1,5 @@
 """The NAO's `naocal diagnose DATASET`: compare the model with the measurements, locate where it fails, name what is
-missing (the sections: tools/cmd_diagnose.py's EPILOG)."""
+missing (the sections: KIND.diagnose_help, in diagnose's --help)."""
 
 from __future__ import annotations
 

@@ -6,8 +6,10 @@ of the model it defines parameters for:
 - the NAO's model (solver.model.Model, `parameters(setup)`): the base model (the paper's) is the effects with
   `base = True`, the others are the candidates the diagnostics can add (BASE_EFFECTS, EXTRA_EFFECTS);
 - an arm's model (kinds.arm.model.ArmModel, `arm_parameters(arm)`): ARM_MODEL_EFFECTS in their gauge order, the sensors'
-  frames always, the others (ARM_EFFECTS) chosen by --effects.
-`joint_offsets`, `link_lengths` and `elasticity` are terms of both.
+  frames always, the others (ARM_EFFECTS) chosen by --effects;
+- a differential drive's model (a wheeled kind's joint fit, `drive_parameters()`): DRIVE_EFFECTS, each off unless
+  chosen by --effects (pwm_driver among them: a choice of model without a parameter).
+`joint_offsets`, `link_lengths` and `elasticity` are terms of the first two.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ ALL_EFFECTS = BASE_EFFECTS + EXTRA_EFFECTS
 ARM_MODEL_EFFECTS = tuple(sorted((name for name, e in EFFECTS.items() if defines(e, "arm_parameters")),
                                  key=lambda name: (EFFECTS[name].gauge_priority, name)))
 ARM_EFFECTS = tuple(name for name in ARM_MODEL_EFFECTS if not EFFECTS[name].arm_always)
+DRIVE_EFFECTS = tuple(name for name, e in EFFECTS.items() if defines(e, "drive_parameters"))
 
 
 def effect(name: str):
