@@ -538,6 +538,26 @@ def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
     assert not (tmp_path / "cal.urdf").exists()
 
 
+@pytest.mark.parametrize("unit, ok", [("rad", True), ("m", False)])
+def test_a_calibration_holds_a_marker_s_turn_in_radians(tmp_path, unit, ok):
+    """A marker's pose (point.<marker>.rx, ...) is read back from the calibration identify wrote (verify refused
+    it: 'unit rad, expected m')."""
+    from naocal.kinds.arm.calibration import SCHEMA, read_arm_calibration
+    from naocal.kinds.arm.sim import DUALARM_CHAINS, DUALARM_URDF
+
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},
+           "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
+           "model": {"effects": ["points"], "parameters": {
+               "point.L_m1.x": {"value": 0.001, "std": 1e-4, "unit": "m"},
+               "point.L_m1.rx": {"value": 0.01, "std": 1e-3, "unit": unit}}}}
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    if ok:
+        assert read_arm_calibration(tmp_path / "cal.json").parameters["point.L_m1.rx"]["value"] == 0.01
+    else:
+        with pytest.raises(DataError, match="point.L_m1.rx.unit.*expected 'rad'"):
+            read_arm_calibration(tmp_path / "cal.json")
+
+
 @pytest.mark.parametrize("chains, problem", [
     (None, "no chains section naming them"),
     ({"left": {"base": "base_link", "tip": "right_tool"}, "right": {"base": "base_link", "tip": "left_tool"}},
