@@ -84,6 +84,40 @@ def test_the_dual_arm_jacobian_is_exact_for_every_effect(dual):
     assert_exact_jacobian(model, x, dual["observations"].subset(np.arange(0, len(dual["observations"]), 4)))
 
 
+def test_a_printed_marker_gives_the_cameras_a_metric_scale(dual):
+    """Grow the robot the torso cameras see (every link after the torso joint, the tool, the cameras' distance) by
+    a factor: with each marker corner a point of its own the pixels do not change (pixels hold no metre: the cause
+    of issue 24's seed 3 fitting its arm 0.48 mm per metre short); with each marker rigid at its printed size they
+    do, by the growth of its corners' spacing."""
+    from naocal.kinds.arm.sim import dualarm_markers
+
+    rigid = dual_model(dual, ("link_lengths", "points"))
+    loose = ArmModel(rigid.arm_chains, dict(zip(rigid.point_names, rigid.point_xyz)), rigid.sensors,
+                     ("link_lengths", "points"))
+    assert set(rigid.markers) == set(dualarm_markers()) and not loose.markers
+    obs = dual["observations"].subset(np.flatnonzero(dual["observations"].sensor < 2))  # the cameras' rows
+    growth = 1e-3
+    moved = {}
+    for model in (rigid, loose):
+        x = np.array([dual["truth"][p.name] if p.effect == "sensors" else 0.0 for p in model.parameters])
+        grown = x.copy()
+        for i, p in model.params("sensors"):
+            grown[i] *= 1.0 + growth if p.axis < 3 else 1.0  # the cameras' translations
+        for o, (key, direction) in enumerate(zip(model.origin_keys, model.directions)):
+            if direction is not None and key != ("joint", "torso_joint"):  # the torso's origin: before the cameras
+                ac, k = next((ac, list(ac.chain.joint_names).index(key[1]) if key[0] == "joint" else None)
+                             for ac in model.arm_chains if key[1] in ac.chain.joint_names or key[1] == ac.name)
+                offset = ac.chain.T_origin[k, :3, 3] if k is not None else ac.chain.T_end[:3, 3]
+                grown[model.names.index(f"link_length.{model.origin_names[o]}")] = growth * np.linalg.norm(offset)
+        centres = model.point_xyz - model.point_lever
+        for i, p in model.params("points"):
+            if p.axis < 3:  # each body's centre moves out with the tool
+                grown[i] = growth * centres[model.point_body == p.index][0, p.axis]
+        moved[model is rigid] = np.abs(model.predict(grown, obs) - model.predict(x, obs))[:, :2].max()
+    assert moved[False] < 1e-6  # px: the exact null direction the printed size removes
+    assert moved[True] > 0.02  # px: a 30 mm marker 0.4-0.9 m away, grown by 1e-3
+
+
 def test_a_point_on_a_single_chain_model_keeps_its_names_and_the_tool_effect():
     """A one-chain model has the names it always had, and its tool is named by its tip."""
     from naocal.kinds.arm.dataset import arm_chain
@@ -229,6 +263,21 @@ def test_a_dual_arm_dataset_round_trips_with_its_chains_and_sensor_mounts(dual_d
     assert model.sensors[0].link == "torso"
 
 
+def test_the_session_column_is_read_and_diagnose_holds_each_session_out(dual_dir):
+    """Issue 24's sessions: observations.csv's `session` column, each of diagnose's held-out folds one session (no
+    longer blocks of consecutive poses standing in for them)."""
+    from naocal.kinds.arm.dataset import read_arm_dataset
+    from naocal.kinds.arm.diagnose import session_folds
+
+    obs = read_arm_dataset(dual_dir).observations
+    assert obs.session_labels == ("s1", "s2", "s3")
+    folds = session_folds(obs)
+    assert len(folds) == 3
+    for k, fold in enumerate(folds):
+        assert {obs.pose_name(p)[:2] for p in obs.pose[fold]} == {f"s{k + 1}"}  # the sim labels poses by session
+    assert len(session_folds(obs.subset(obs.session == 0))) == 5  # one session: blocks of poses again
+
+
 def edited(dual_dir, tmp_path, meta_change=None, row_change=None, header_change=None):
     out = tmp_path / "d"
     shutil.copytree(dual_dir, out)
@@ -275,9 +324,21 @@ BAD = [
     ("an unknown chain", dict(row_change=set_row(0, chain="middle")), "observations.csv", "chain",
      "unknown chain 'middle'"),
     ("a marker seen on the other chain", dict(row_change=lambda rows: rows[first_row(
-        rows, point="L_m1")].update(chain="right")), "observations.csv", "chain", "on one chain's tool"),
+        rows, point="L_m1_c1")].update(chain="right")), "observations.csv", "chain", "on one chain's tool"),
+    ("a marker of two corners", dict(meta_change=lambda d: [d["points"][f"L_m1_c{k}"].update(marker="L_mx")
+                                                             for k in (3, 4)]),
+     "dataset.json", "points.L_m1_c1.marker", "marker 'L_m1' has 2 corner(s)"),
+    ("a marker named as a point", dict(meta_change=lambda d: [d["points"][f"L_m1_c{k}"].update(marker="R_smr")
+                                                               for k in range(1, 5)]),
+     "dataset.json", "points.L_m1_c1.marker", "names both a point and a marker"),
     ("a camera on a link the chain does not carry", dict(meta_change=lambda d: d["sensors"]["cam_left"].update(
         link="left_link1")), "observations.csv", "sensor", "cannot see"),
+    ("a pose in two sessions", dict(row_change=lambda rows: rows[first_row(rows, pose=rows[0]["pose"],
+                                                                          sensor="tracker")].update(session="s9")),
+     "observations.csv", "session", "a pose is in one session"),
+    ("an empty session", dict(row_change=set_row(0, session="")), "observations.csv", "session", "empty cell"),
+    ("a session without poses", dict(header_change=lambda h: [c if c != "pose" else "stance" for c in h]),
+     "observations.csv", "session", "needs a pose column"),
     ("the row's own joint empty", dict(row_change=lambda rows: rows[first_row(rows, chain="left")].update(
         left_j3_rad="")), "observations.csv", "left_j3_rad", "empty cell"),
 ]
@@ -475,6 +536,26 @@ def test_a_tool_on_a_tip_a_joint_moves_directly_is_refused_naming_it(tmp_path):
     run = naocal("offsets", "export", tmp_path / "cal.json", "--format", "urdf", "--out", tmp_path / "cal.urdf")
     assert run.returncode != 0 and f"tool.{tip}.x" in run.stderr and run.stderr.count("\n") == 1
     assert not (tmp_path / "cal.urdf").exists()
+
+
+@pytest.mark.parametrize("unit, ok", [("rad", True), ("m", False)])
+def test_a_calibration_holds_a_marker_s_turn_in_radians(tmp_path, unit, ok):
+    """A marker's pose (point.<marker>.rx, ...) is read back from the calibration identify wrote (verify refused
+    it: 'unit rad, expected m')."""
+    from naocal.kinds.arm.calibration import SCHEMA, read_arm_calibration
+    from naocal.kinds.arm.sim import DUALARM_CHAINS, DUALARM_URDF
+
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},
+           "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
+           "model": {"effects": ["points"], "parameters": {
+               "point.L_m1.x": {"value": 0.001, "std": 1e-4, "unit": "m"},
+               "point.L_m1.rx": {"value": 0.01, "std": 1e-3, "unit": unit}}}}
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    if ok:
+        assert read_arm_calibration(tmp_path / "cal.json").parameters["point.L_m1.rx"]["value"] == 0.01
+    else:
+        with pytest.raises(DataError, match="point.L_m1.rx.unit.*expected 'rad'"):
+            read_arm_calibration(tmp_path / "cal.json")
 
 
 @pytest.mark.parametrize("chains, problem", [

@@ -17,8 +17,9 @@ from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds 
 
 SCHEMA = "naocal.arm_calibration/1"
 # The units a parameter of each kind is stored in (kinds/arm/model.py), by the first part of its name.
-UNITS = {"joint_offset": "rad", "link_length": "m", "point": "m", "elasticity": "rad/(N m)"}
-POSE_KINDS = ("link_pose", "tool")  # x, y, z in m and rx, ry, rz in rad: a joint origin's pose error, a tool mount's
+UNITS = {"joint_offset": "rad", "link_length": "m", "elasticity": "rad/(N m)"}
+# x, y, z in m and rx, ry, rz in rad: a joint origin's pose error, a tool mount's, a marker's (a point's: x, y, z)
+POSE_KINDS = ("link_pose", "tool", "point")
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
 # limit), 0.1 m of link length or point position.
 LIMITS = {"rad": math.radians(20.0), "m": 0.1, "rad/(N m)": MAX_PARAMETER_SIZE["rad/(N m)"]}

@@ -55,6 +55,7 @@ class ArmDataset:
     observations: Observations
     gravity_mps2: tuple
     notes: list = None  # what the reader left out and why (printed by the commands)
+    markers: dict = None  # corner point -> the printed marker it is a corner of (kinds.arm.model.ArmModel markers)
 
     @property
     def joints(self) -> tuple:
@@ -186,16 +187,25 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
             fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
         urdf_path = directory / robot_meta["urdf"]
     specs = _chain_specs(meta, robot_meta, base, tip, meta_path)
-    points = {}
+    points, markers = {}, {}  # markers: corner -> the printed marker it is a corner of
     for name, point in fields.json_object(meta["points"], meta_path, "points").items():
         _name(name, meta_path, "points")
-        point = fields.json_object(point, meta_path, f"points.{name}", ("xyz_m",), ("xyz_m", "about"))
+        point = fields.json_object(point, meta_path, f"points.{name}", ("xyz_m",), ("xyz_m", "marker", "about"))
         points[name] = fields.vector(point["xyz_m"], 3, meta_path, f"points.{name}.xyz_m")
+        if "marker" in point:
+            markers[name] = _name(point["marker"], meta_path, f"points.{name}.marker")
         if max(abs(v) for v in points[name]) > WORKSPACE_M:
             fail(meta_path, f"more than {WORKSPACE_M:.0f} m from the tip frame (millimetres? xyz_m is in m)",
                  f"points.{name}.xyz_m")
     if not points:
         fail(meta_path, "no points: name at least one point on the end effector", "points")
+    for marker in dict.fromkeys(markers.values()):
+        corners = [p for p, m in markers.items() if m == marker]
+        if marker in points and marker not in markers:
+            fail(meta_path, f"{marker!r} names both a point and a marker", f"points.{corners[0]}.marker")
+        if len(corners) < 3:
+            fail(meta_path, f"marker {marker!r} has {len(corners)} corner(s): its corners (3 or more, at their printed "
+                 "positions) make it one rigid body", f"points.{corners[0]}.marker")
     sensors = tuple(_sensor(_name(name, meta_path, "sensors"), doc, meta_path)
                     for name, doc in fields.json_object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
@@ -230,7 +240,7 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         obs.sensor = np.searchsorted(seen, obs.sensor)
         sensors = tuple(sensors[i] for i in seen)
     return ArmDataset(directory, meta, Path(urdf_path), base, tip, kin_chain, link_names, load, sensors, points, obs,
-                      gravity, notes)
+                      gravity, notes, markers)
 
 
 def _chain_specs(meta, robot_meta, base, tip, meta_path) -> dict:
@@ -336,8 +346,12 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
     xyz_cols = ([col[f"{a}{units[0]}"] for a in "xyz"], POINT_UNITS[units[0]], units[0]) if units else None
     sensor_index = {s.name: i for i, s in enumerate(sensors)}
     point_index = {p: i for i, p in enumerate(points)}
-    pose_col = col.get("pose")
+    pose_col, session_col = col.get("pose"), col.get("session")
+    if session_col is not None and pose_col is None:
+        fail(path, "a session column needs a pose column (a session is a set of poses)", field="session",
+             line=header_line)
     theta, pose, sensor, point, measured, rows_read, row_chain = [], [], [], [], [], [], []
+    session, session_of_pose = [], {}  # pose label -> (its session, first line): a pose is in one session
     unseen = 0
     line = header_line
 
@@ -427,6 +441,15 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
                 if not row[pose_col]:
                     fail(path, "empty cell: the pose column needs a value on every row", field="pose", line=line)
                 pose.append(row[pose_col])
+            if session_col is not None:
+                if not row[session_col]:
+                    fail(path, "empty cell: the session column needs a value on every row", field="session",
+                         line=line)
+                first = session_of_pose.setdefault(row[pose_col], (row[session_col], line))
+                if first[0] != row[session_col]:
+                    fail(path, f"pose {row[pose_col][:40]} is in session {first[0][:40]} (line {first[1]}), here in "
+                         f"{row[session_col][:40]}: a pose is in one session", field="session", line=line)
+                session.append(row[session_col])
             theta.append(reading)
             measured.append(values)
             sensor.append(s)
@@ -450,9 +473,12 @@ def _read_observations(path, joints, sensors, points, limits=None, notes=None, *
             labels = {}
             pose = [labels.setdefault(p, len(labels)) for p in pose]
             pose_labels = tuple(labels)
+    session_labels = tuple(dict.fromkeys(session)) if session_col is not None else None
     return Observations(theta, np.asarray(pose, dtype=np.int64).ravel(), np.array(sensor), np.array(point),
                         np.array(measured, dtype=float).reshape(-1, 3), np.array(rows_read), pose_labels,
-                        None if chains is None else np.array(row_chain, dtype=int))
+                        None if chains is None else np.array(row_chain, dtype=int),
+                        None if session_labels is None else np.array([session_labels.index(v) for v in session]),
+                        session_labels)
 
 
 def _cell(text, path, line, field) -> float:
@@ -464,12 +490,14 @@ def _cell(text, path, line, field) -> float:
 def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors, points, *, chain_names=None,
                       slides=()) -> None:
     """Write dataset.json and observations.csv (joints in rad, prismatic `slides` in m, points in m, pixels)
-    atomically; with `chain_names` (several chains) each row's chain in a `chain` column."""
+    atomically; with `chain_names` (several chains) each row's chain in a `chain` column; each row's session in a
+    `session` column when the observations have sessions."""
     from naocal.solver.fileio import atomic_write_text
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    header = (["pose"] + (["chain"] if chain_names else []) + ["sensor", "point"]
+    sessions = obs.session is not None
+    header = (["pose"] + (["session"] if sessions else []) + (["chain"] if chain_names else []) + ["sensor", "point"]
               + [f"{j}_m" if j in slides else f"{j}_rad" for j in joints] + ["x_m", "y_m", "z_m", "u_px", "v_px"])
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
@@ -483,7 +511,9 @@ def write_arm_dataset(directory, meta: dict, joints, obs: Observations, sensors,
         values = [repr(float(v)) for v in m[:3]] + ["", ""] if s.kind == "points" else \
             ["", "", ""] + [repr(float(v)) for v in m[:2]]
         chain = [chain_names[row_chain[i]]] if chain_names else []
-        writer.writerow([obs.pose_name(obs.pose[i])] + chain + [names[obs.sensor[i]], point_names[obs.point[i]]]
+        session = [obs.session_labels[obs.session[i]]] if sessions else []
+        writer.writerow([obs.pose_name(obs.pose[i])] + session + chain + [names[obs.sensor[i]],
+                                                                          point_names[obs.point[i]]]
                         + [repr(float(v)) for v in obs.theta[i]] + values)
     atomic_write_text(directory / "observations.csv", out.getvalue())
     atomic_write_text(directory / "dataset.json", json.dumps(dict(meta, schema=SCHEMA), indent=1) + "\n")

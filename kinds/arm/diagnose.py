@@ -20,7 +20,7 @@ candidate is also judged on data its fit did not see and the pixels cannot fool 
 sensor (the arm fitted from the cameras alone, with and without it, then held while the 3-D sensors' frames, and
 their reflectors if the model has points, are refitted as verify --refit does; the other way round, the cameras
 judging the 3-D sensors' arm; and each of two or more cameras judging the others' arm) and other sessions (leave
-one block of consecutive poses out). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
+one session of observations.csv's session column out, or without one a block of consecutive poses). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
 only and is not recommended; the verdict is the best candidate that is physical.
 """
 
@@ -45,7 +45,7 @@ RANK_TOLERANCE = 1e-6
 # effects it lacks that absorb a camera's 1 % focal error by 14.4 % at least: at 2 % 5 of the 8 physical candidates
 # were refuted, at 10 % those 2, and no fooled one passed at either.
 HELDOUT_TOLERANCE = 0.10
-SESSIONS = 5  # blocks of consecutive poses standing in for sessions (the dataset has no session column)
+SESSIONS = 5  # blocks of consecutive poses standing in for sessions when the dataset has no session column
 
 
 @dataclass
@@ -200,7 +200,7 @@ def location_groups(fit: ArmFit) -> dict:
 def _model_like(model: ArmModel, effects, sensors) -> ArmModel:
     """The model's arm with `effects` and only the sensors of indices `sensors` (their starting frames kept)."""
     out = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), [model.sensors[s] for s in sensors],
-                   effects, model.gravity_mps2, model.load, model.link_names)
+                   effects, model.gravity_mps2, model.load, model.link_names, markers=model.markers)
     out.R0 = model.R0[list(sensors)].copy()
     return out
 
@@ -262,7 +262,8 @@ def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=Non
     held_nuisances = [n for n, free in zip(fit.model.names, fit.free)  # what the user holds stays held (--fix points)
                       if not free and fit.model.parameters[fit.model.names.index(n)].effect in nuisances]
     seen = np.isin(fit.obs.sensor, fitted_from)
-    held_nuisances += [f"point.{fit.model.point_names[i]}.{a}" for i in np.unique(fit.obs.point[seen]) for a in "xyz"]
+    bodies = set(fit.model.point_body[np.unique(fit.obs.point[seen])].tolist())  # the markers and points they saw
+    held_nuisances += [p.name for _, p in fit.model.params("points") if p.index in bodies]
     rows = np.isin(fit.obs.sensor, judged) & np.isin(fit.obs.chains(), np.unique(fit.obs.chains()[seen]))
     check = nuisance_fit(model, _sensor_rows(fit.obs.subset(rows), judged), arm, nuisances,
                          held=[n for n in dict.fromkeys(held_nuisances) if n in model.names], priors=fit.priors)
@@ -270,8 +271,11 @@ def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=Non
 
 
 def session_folds(obs, n_blocks: int = SESSIONS) -> list:
-    """Row masks of `n_blocks` blocks of consecutive poses in the file's order (a pose's place: its first row):
-    sessions' stand-in, as a session's poses are measured together and share what drifts between sessions."""
+    """Row masks of the sessions observations.csv names (its `session` column), each held out in turn; without
+    one, of `n_blocks` blocks of consecutive poses in the file's order (a pose's place: its first row): sessions'
+    stand-in, as a session's poses are measured together and share what drifts between sessions."""
+    if obs.session is not None and len(np.unique(obs.session)) > 1:
+        return [obs.session == k for k in np.unique(obs.session)]
     poses, first = np.unique(obs.pose, return_index=True)
     ordered = poses[np.argsort(first)]
     return [np.isin(obs.pose, block) for block in np.array_split(ordered, min(n_blocks, len(ordered)))]
@@ -296,8 +300,10 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
     if not judged:
         return {}
     folds = session_folds(fit.obs, sessions) if sessions > 1 else []
-    how_sessions = (f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session "
-                    "column: they stand in for sessions)")
+    named = fit.obs.session is not None and len(np.unique(fit.obs.session)) > 1
+    how_sessions = (f"{len(folds)} sessions (observations.csv's session column) held out in turn" if named else
+                    f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session column: "
+                    "they stand in for sessions)")
 
     def session_rms(fit_):  # the blocks of fit_'s own rows: a refit may set other detections aside
         return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, session_folds(fit_.obs, sessions)))

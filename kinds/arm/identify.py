@@ -580,7 +580,7 @@ def heldout_residuals(fit_: ArmFit, folds, free=None) -> np.ndarray:
 def model_for(dataset, effects) -> ArmModel:
     """The ArmModel of a read naocal.arm_dataset/1 with these effects."""
     return ArmModel(dataset.chain, dataset.points, dataset.sensors, effects, dataset.gravity_mps2, dataset.load,
-                    dataset.link_names)
+                    dataset.link_names, markers=dataset.markers)
 
 
 def identify_dataset(dataset, effects, *, fixed=(), start=None, loss: str = "linear", robust: bool = True,

@@ -6,7 +6,9 @@ For one observation (joint readings theta, a point p on the tip link of the obse
     q_k   = theta_k - c_k + C_k * tau_k(theta)            c: joint_offset (the NAO's sign), C: elasticity
     A_k   = F_{k-1} @ T_origin_k(+ length_k along its offset) @ Trans(t_k) @ Exp(r_k)      link_pose (t, r)
     F_k   = A_k @ Rot(axis_k, q_k)   (prismatic: A_k @ Trans(axis_k q_k))   F_{-1} = the sensor's mount (the base)
-    p_b   = F_{n-1} @ T_end(+ length_n along its offset) @ (t_T + Exp(r_T) (p0 + dp))   tool (t_T, r_T), points (dp)
+    p_b   = F_{n-1} @ T_end(+ length_n along its offset) @ (t_T + Exp(r_T) p_tool)     tool (t_T, r_T)
+    p_tool = p0 + t_m + (Exp(r_m) - I)(p0 - c_m)      points: a marker's corners move as one rigid body (t_m, r_m
+                                                      about its centre c_m: its printed size is kept), a lone point by t_m
     y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_mount = (R_s, t_s)
 
 Several chains (two arms on one torso) share joints, joint origins and sensors by name: a joint's offset is one
@@ -69,7 +71,8 @@ class Observations:
     """N observations: joint readings theta (N, n) in the model's joint order (one chain: its order), pose id,
     sensor and point indices, the measured point (N, 3) for 3-D sensors or pixel (N, 2 in [:, :2]) for cameras;
     `source_line` for messages; `pose_labels` the file's text label of each pose id (None: the ids are the file's
-    own numbers); `chain` the index of each observation's chain (None: all on the first)."""
+    own numbers); `chain` the index of each observation's chain (None: all on the first); `session` the index
+    into `session_labels` of each observation's session (None: the file names none)."""
 
     theta: np.ndarray
     pose: np.ndarray
@@ -79,6 +82,8 @@ class Observations:
     source_line: np.ndarray | None = None
     pose_labels: tuple | None = None
     chain: np.ndarray | None = None
+    session: np.ndarray | None = None
+    session_labels: tuple | None = None
 
     def __len__(self):
         return len(self.pose)
@@ -90,7 +95,8 @@ class Observations:
     def subset(self, rows) -> "Observations":
         return Observations(self.theta[rows], self.pose[rows], self.sensor[rows], self.point[rows],
                             self.measured[rows], None if self.source_line is None else self.source_line[rows],
-                            self.pose_labels, None if self.chain is None else self.chain[rows])
+                            self.pose_labels, None if self.chain is None else self.chain[rows],
+                            None if self.session is None else self.session[rows], self.session_labels)
 
     def chains(self) -> np.ndarray:
         """(N,) each observation's chain index."""
@@ -181,7 +187,9 @@ class ArmModel:
     """The arm's parameters and its model for its chains, one set of sensors and points, and a choice of effects.
 
     chain: solver.robot.Chain (base to tip), or several chains as a sequence of ArmChain (sharing a base);
-    points: {name: (3,) nominal position in the tip frame of the chain that carries it, m}; sensors: [Sensor];
+    points: {name: (3,) nominal position in the tip frame of the chain that carries it, m}; markers: {point name:
+    marker name} for the corners of printed markers (each marker one rigid body; the other points each their own);
+    sensors: [Sensor];
     effects: names of solver.effects.ARM_EFFECTS (the sensors' frames are always in); gravity_mps2 (3,) in the
     base frame; load, link_names: of a single Chain (an ArmChain carries its own): (mass kg, com (3,) in the tip
     frame) of what the tip carries, for the gravity torques, and the link each joint origin ends.
@@ -192,7 +200,7 @@ class ArmModel:
     scale = 1e-3
 
     def __init__(self, chain, points: dict, sensors, effects=DEFAULT_EFFECTS, gravity_mps2=(0.0, 0.0, -9.81),
-                 load=(0.0, (0.0, 0.0, 0.0)), link_names=None):
+                 load=(0.0, (0.0, 0.0, 0.0)), link_names=None, markers=None):
         unknown = [e for e in effects if e not in ARM_EFFECTS]
         if unknown:
             raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(ARM_EFFECTS)})")
@@ -208,6 +216,7 @@ class ArmModel:
         self.link_names = first.link_names
         self.point_names = tuple(points)
         self.point_xyz = np.array([points[p] for p in self.point_names], dtype=float).reshape(-1, 3)
+        self._point_bodies(markers or {})
         self.sensors = tuple(sensors)
         self.effects = tuple(e for e in ARM_EFFECTS if e in effects)
         self.gravity_mps2 = np.asarray(gravity_mps2, dtype=float)
@@ -275,6 +284,27 @@ class ArmModel:
                 else:
                     self.sees[s, c] = False
 
+    def _point_bodies(self, markers):
+        """The rigid bodies the points sit on (the points effect's one correction each): each marker (its corners,
+        printed at a known size) and each point of no marker: `body_names`, `body_rigid` (a marker: it turns too),
+        `point_body` (each point's body), `point_lever` (each point from its body's centre, the mean of its points)."""
+        unknown = sorted(set(markers) - set(self.point_names))
+        if unknown:
+            raise ValueError(f"marker corner {unknown[0]!r} is not a point")
+        self.markers = {p: markers[p] for p in self.point_names if p in markers}
+        bodies = list(dict.fromkeys(self.markers.get(p, p) for p in self.point_names))
+        clash = sorted((set(self.point_names) - set(self.markers)) & set(self.markers.values()))
+        if clash:
+            raise ValueError(f"{clash[0]!r} names both a marker and a point")
+        few = [m for m in set(self.markers.values()) if list(self.markers.values()).count(m) < 3]
+        if few:  # fewer corners do not fix its turn
+            raise ValueError(f"marker {sorted(few)[0]!r} has fewer than 3 corners")
+        self.body_names = tuple(bodies)
+        self.point_body = np.array([bodies.index(self.markers.get(p, p)) for p in self.point_names], dtype=int)
+        self.body_rigid = tuple(b in self.markers.values() for b in bodies)
+        centres = np.array([self.point_xyz[self.point_body == b].mean(axis=0) for b in range(len(bodies))])
+        self.point_lever = self.point_xyz - centres.reshape(-1, 3)[self.point_body] if bodies else self.point_xyz
+
     # -- parameters
 
     def _index_parameters(self):
@@ -282,14 +312,14 @@ class ArmModel:
         effects' joint_terms)."""
         O, C = len(self.origin_keys), len(self.arm_chains)
         self._pose_i = np.full((O, 6), -1)
-        self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 3), -1)
+        self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 6), -1)
         for i, p in enumerate(self.parameters):
             if p.effect == "link_poses":
                 self._pose_i[p.index, p.axis] = i
             elif p.effect == "tool":
                 self._tool_i[p.index, p.axis] = i
-            elif p.effect == "points":
-                self._point_i[p.index, p.axis] = i
+            elif p.effect == "points":  # each point of the body
+                self._point_i[self.point_body == p.index, p.axis] = i
 
     def params(self, effect):
         return self._by_effect.get(effect, [])
@@ -341,6 +371,13 @@ class ArmModel:
             for c, a in enumerate("xyz"):
                 out[f"sensor.{sensor.name}.rotation.{a}"] = float(rotvec[c])
         return out
+
+    def tool_points(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """((n_points, 3) each point on its tool, before the tool's pose: nominal plus the points effect,
+        (n_points, 3) each point's lever from its body's centre as the body's turn has turned it)."""
+        value = np.where(self._point_i >= 0, np.asarray(x, dtype=float)[np.maximum(self._point_i, 0)], 0.0)
+        turned = np.array([exp_so3(r) @ lever for r, lever in zip(value[:, 3:], self.point_lever)]).reshape(-1, 3)
+        return self.point_xyz + value[:, :3] + turned - self.point_lever, turned
 
     # -- gravity
 
@@ -483,7 +520,8 @@ class ArmModel:
         point = obs.point[rows]
         tool = value(self._tool_i[c])
         E_tool = exp_so3(tool[3:])
-        on_tool = self.point_xyz[point] + value(self._point_i)[point]  # (M, 3) on the tool, before its pose
+        on_tools, levers = self.tool_points(x)
+        on_tool = on_tools[point]  # (M, 3) on the tool, before its pose
         p_tip = on_tool @ E_tool.T + tool[:3]
         p = t_end + np.einsum("nij,nj->ni", R_end, p_tip)
         if not jacobian:
@@ -516,10 +554,13 @@ class ArmModel:
                                               np.einsum("nij,nj->ni", R_end, np.cross(w[:, comp - 3], turned)))
         for pi in np.unique(point):
             sel = point == pi
-            for comp in range(3):
+            turn = value(self._point_i[pi, 3:])
+            w = left_jacobian(turn)
+            for comp in range(6):
                 i = self._point_i[pi, comp]
                 if i >= 0:
-                    Jb[sel, :, i] = _times(R_end[sel], E_tool[:, comp])
+                    along = E_tool[:, comp] if comp < 3 else E_tool @ np.cross(w[:, comp - 3], levers[pi])
+                    Jb[sel, :, i] = _times(R_end[sel], along)
         return p, Jb
 
     def component_mask(self, obs: Observations) -> np.ndarray:

@@ -359,6 +359,7 @@ TORSO_LIMIT_RAD = 2.6
 DUAL_CAMERA = {"width_px": 1920, "height_px": 1200, "fx_px": 1100.0, "fy_px": 1100.0, "cx_px": 959.5,
                "cy_px": 599.5, "distortion": [0.0, 0.0, 0.0, 0.0, 0.0]}
 MARKER_RING_M, MARKER_HEIGHT_M = 0.035, 0.03  # four markers around the tool's z axis, one on top
+MARKER_SIZE_M = 0.03  # each marker's printed side: its corners' known spacing
 MARKER_VIEW_RAD = math.radians(65.0)  # a marker is detected when it faces the camera within this angle
 REFLECTOR_M = (0.0, 0.0, 0.06)  # the tracker's reflector on the right tool
 
@@ -421,18 +422,30 @@ def dualarm_urdf(origins: dict | None = None) -> str:
 
 
 def dualarm_points() -> dict:
-    """{name: (xyz in its tool frame, outward normal or None, chain)}: markers L_m1..L_m5 and R_m1..R_m5 (four
-    around the tool, one on top), the tracker's reflector R_smr on the right tool."""
+    """{name: (xyz in its tool frame, outward normal or None, chain)}: the corners L_m1_c1..L_m1_c4, ... of the
+    printed markers L_m1..L_m5 and R_m1..R_m5 (MARKER_SIZE_M square; four around the tool, one on top; their
+    grouping: dualarm_markers), the tracker's reflector R_smr on the right tool."""
     points = {}
     for side, prefix in (("left", "L"), ("right", "R")):
+        faces = []
         for i in range(4):
             a = math.pi / 2.0 * i
-            normal = (math.cos(a), math.sin(a), 0.0)
-            points[f"{prefix}_m{i + 1}"] = (tuple(MARKER_RING_M * v for v in normal[:2]) + (MARKER_HEIGHT_M,),
-                                            normal, side)
-        points[f"{prefix}_m5"] = ((0.0, 0.0, MARKER_HEIGHT_M + 0.02), (0.0, 0.0, 1.0), side)
+            normal = np.array([math.cos(a), math.sin(a), 0.0])
+            faces.append((normal * MARKER_RING_M + [0.0, 0.0, MARKER_HEIGHT_M], normal,
+                          np.array([-math.sin(a), math.cos(a), 0.0])))
+        faces.append((np.array([0.0, 0.0, MARKER_HEIGHT_M + 0.02]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0, 0])))
+        for i, (centre, normal, u) in enumerate(faces):
+            w = np.cross(normal, u)
+            for k, (a, b) in enumerate(((-1, 1), (1, 1), (1, -1), (-1, -1))):  # ArUco's order seen from the front
+                corner = centre + MARKER_SIZE_M / 2.0 * (a * u + b * w)
+                points[f"{prefix}_m{i + 1}_c{k + 1}"] = (tuple(round(float(v), 12) for v in corner), tuple(normal), side)
     points["R_smr"] = (REFLECTOR_M, None, "right")
     return points
+
+
+def dualarm_markers() -> dict:
+    """{corner point: its marker} of dualarm_points (the reflector is no marker's)."""
+    return {name: name.rpartition("_")[0] for name, (_, normal, _) in dualarm_points().items() if normal is not None}
 
 
 def dualarm_sensors(noise_m, noise_px) -> list:
@@ -448,7 +461,8 @@ def dualarm_model(effects, sensors=None, noise_m=5e-5, noise_px=0.3):
 
     chains = arm_chains(DUALARM_URDF, DUALARM_CHAINS)
     points = {name: xyz for name, (xyz, _, _) in dualarm_points().items()}
-    return ArmModel(chains, points, sensors if sensors is not None else dualarm_sensors(noise_m, noise_px), effects)
+    return ArmModel(chains, points, sensors if sensors is not None else dualarm_sensors(noise_m, noise_px), effects,
+                    markers=dualarm_markers())
 
 
 def _random_vector(rng, low, high) -> np.ndarray:
@@ -461,7 +475,7 @@ DUAL_LINK_ERROR_M = (2e-5, 2e-4)  # an industrial robot's machined links: within
 
 def dualarm_truth(rng) -> dict:
     """Hidden errors by parameter name: joint offsets 0.01-0.5 deg, link lengths 0.02-0.2 mm (DUAL_LINK_ERROR_M),
-    each tool's mount 1-3 mm and 0.2-0.6 deg, each marker and the reflector glued 1-2 mm off."""
+    each tool's mount 1-3 mm and 0.2-0.6 deg, each marker glued 1-2 mm and 0.5-2 deg off, the reflector 1-2 mm."""
     model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"))
     truth = {}
     for _, p in model.params("joint_offsets"):
@@ -472,10 +486,11 @@ def dualarm_truth(rng) -> dict:
         t, r = _random_vector(rng, 1e-3, 3e-3), _random_vector(rng, math.radians(0.2), math.radians(0.6))
         for c, (q, _) in enumerate(POSE_COMPONENTS):
             truth[f"tool.{ac.name}.{q}"] = float((t if c < 3 else r)[c % 3])
-    for name in model.point_names:
-        d = _random_vector(rng, 1e-3, 2e-3)
-        for c, a in enumerate("xyz"):
-            truth[f"point.{name}.{a}"] = float(d[c])
+    for name, rigid in zip(model.body_names, model.body_rigid):
+        d = np.concatenate([_random_vector(rng, 1e-3, 2e-3)]
+                           + ([_random_vector(rng, math.radians(0.5), math.radians(2.0))] if rigid else []))
+        for (q, _), v in zip(POSE_COMPONENTS, d):
+            truth[f"point.{name}.{q}"] = float(v)
     return truth
 
 
@@ -506,7 +521,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     clearance); the true robot is PyBullet's (the URDF with the true link lengths) at q = theta - c, the tool
     mounts and markers placed on its tool links. A camera detects a marker in its image that faces it within 65
     deg (pixel noise `noise_px`); `outlier_fraction` of the detections are wrong by 8-40 px (a corner mistaken).
-    The tracker reads the reflector at every pose (noise `noise_m` per axis). Poses are labelled by session."""
+    The tracker reads the reflector at every pose (noise `noise_m` per axis). Poses are labelled by session, and
+    each row says its session (`sessions` blocks of consecutive poses)."""
     import json
 
     from naocal.body.pybullet_quiet import c_output_silenced, pybullet
@@ -535,7 +551,10 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
         v = [truth[f"tool.{ac.name}.{q}"] for q, _ in POSE_COMPONENTS]
         tools[ac.name] = (exp_so3(v[3:]), np.array(v[:3]))
     points = dualarm_points()
-    on_tool = {n: np.array(xyz) + [truth[f"point.{n}.{a}"] for a in "xyz"] for n, (xyz, _, _) in points.items()}
+    markers = {}  # marker (the reflector: its own) -> its corners
+    for name in points:
+        markers.setdefault(dualarm_markers().get(name, name), []).append(name)
+    on_tool = dict(zip(model.point_names, model.tool_points(x_true)[0]))  # the markers' corners as glued
 
     client = pybullet.connect(pybullet.DIRECT)
     tmp = tempfile.TemporaryDirectory(prefix="naocal-dualarm-")
@@ -590,31 +609,33 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                 continue
             pose = len(pose_labels)
             seen = []
-            for name, (_, normal, chain) in points.items():
+            for marker, corners in markers.items():
+                _, normal, chain = points[corners[0]]
                 R_tool, t_tool = tool_frames[chain]
-                p_base = R_tool @ on_tool[name] + t_tool
                 c = 0 if chain == "left" else 1
+                p_base = np.array([R_tool @ on_tool[name] + t_tool for name in corners])
                 if normal is None:  # the reflector: the tracker, in the base frame
                     R, t = frames["tracker"]
-                    seen.append((pose, c, 2, name, theta, R @ p_base + t + rng.normal(0.0, noise_m, 3)))
+                    seen.append((pose, c, 2, marker, theta, R @ p_base[0] + t + rng.normal(0.0, noise_m, 3)))
                     continue
-                p_torso = R_torso.T @ (p_base - t_torso)
+                p_torso = (p_base - t_torso) @ R_torso
                 n_torso = R_torso.T @ (R_tool @ normal)
                 for s, cam in enumerate(("cam_left", "cam_right")):
                     R, t = frames[cam]
-                    p_cam = R @ p_torso + t
                     eye = -R.T @ t
-                    to_eye = eye - p_torso
+                    to_eye = eye - p_torso.mean(axis=0)
                     if n_torso @ to_eye < math.cos(MARKER_VIEW_RAD) * np.linalg.norm(to_eye):
                         continue
-                    uv, depth = project_points(p_cam, DUAL_CAMERA)
-                    if not (depth > 0.2 and IMAGE_MARGIN_PX <= uv[0] <= DUAL_CAMERA["width_px"] - 1 - IMAGE_MARGIN_PX
-                            and IMAGE_MARGIN_PX <= uv[1] <= DUAL_CAMERA["height_px"] - 1 - IMAGE_MARGIN_PX):
-                        continue
-                    uv = uv + rng.normal(0.0, noise_px, 2)
-                    if rng.random() < outlier_fraction:
-                        uv = uv + _random_vector(rng, 8.0, 40.0)[:2]
-                    seen.append((pose, c, s, name, theta, np.array([uv[0], uv[1], 0.0])))
+                    uv, depth = project_points(p_torso @ R.T + t, DUAL_CAMERA)
+                    if not (np.all(depth > 0.2) and np.all(uv >= IMAGE_MARGIN_PX)
+                            and np.all(uv[:, 0] <= DUAL_CAMERA["width_px"] - 1 - IMAGE_MARGIN_PX)
+                            and np.all(uv[:, 1] <= DUAL_CAMERA["height_px"] - 1 - IMAGE_MARGIN_PX)):
+                        continue  # a marker is detected with all its corners in the image
+                    for name, corner in zip(corners, uv):
+                        corner = corner + rng.normal(0.0, noise_px, 2)
+                        if rng.random() < outlier_fraction:
+                            corner = corner + _random_vector(rng, 8.0, 40.0)[:2]
+                        seen.append((pose, c, s, name, theta, np.array([corner[0], corner[1], 0.0])))
             if len({(r[1], r[2]) for r in seen if r[2] < 2}) < 3:  # each stance was chosen for the cameras to see
                 continue  # markers of both tools: at least three (tool, camera) pairs
             rows += seen
@@ -623,12 +644,15 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
         pybullet.disconnect(physicsClientId=client)
         tmp.cleanup()
     names = list(points)
-    obs = Observations(np.array([r[4] for r in rows]), np.array([r[0] for r in rows]),
-                       np.array([r[2] for r in rows]), np.array([names.index(r[3]) for r in rows]),
-                       np.array([r[5] for r in rows]), None, tuple(pose_labels), np.array([r[1] for r in rows]))
+    pose = np.array([r[0] for r in rows])
+    obs = Observations(np.array([r[4] for r in rows]), pose, np.array([r[2] for r in rows]),
+                       np.array([names.index(r[3]) for r in rows]), np.array([r[5] for r in rows]), None,
+                       tuple(pose_labels), np.array([r[1] for r in rows]), pose * sessions // n_poses,
+                       tuple(f"s{k + 1}" for k in range(sessions)))
     sensors = dualarm_sensors(noise_m, noise_px)
     result = {"observations": obs, "truth": truth, "sensors": sensors,
-              "points": {n: xyz for n, (xyz, _, _) in points.items()}, "n_poses": n_poses, "x_true": x_true,
+              "points": {n: xyz for n, (xyz, _, _) in points.items()}, "markers": dualarm_markers(),
+              "n_poses": n_poses, "x_true": x_true,
               "refused_colliding": colliding}
     if write:
         from naocal.kinds.arm.dataset import write_arm_dataset
@@ -640,7 +664,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
         meta = {
             "robot": {"id": f"simulated-dualarm-{seed}", "model": "dualarm", "urdf": "robot.urdf"},
             "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
-            "points": {n: {"xyz_m": list(xyz)} for n, xyz in result["points"].items()},
+            "points": {n: dict({"xyz_m": list(xyz)}, **({"marker": result["markers"][n]} if n in result["markers"]
+                                                         else {})) for n, xyz in result["points"].items()},
             "sensors": {"cam_left": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "cam_right": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "tracker": {"kind": "points", "noise_m": noise_m}},
