@@ -147,7 +147,7 @@ class V4L2Camera:
         self._cond = threading.Condition()
         self._stop = False
         self._error: str | None = None
-        self._wanted = False
+        self._wanted_since_s: float | None = None  # a capture() waits for a frame dequeued after this time
         self._latest: CameraImage | None = None
         self._latest_seq = 0
         self._previous_raw: bytes | None = None
@@ -235,7 +235,9 @@ class V4L2Camera:
     def _read_frames(self) -> None:
         stalled = corrupted = 0
         while not self._stop:
-            if not self._cap.grab():
+            grabbed = self._cap.grab()
+            grabbed_s = time.monotonic()
+            if not grabbed:
                 self.frames_dropped["failed"] += 1
                 if not self._reopen("no frame (grab failed)"):
                     return
@@ -254,8 +256,8 @@ class V4L2Camera:
             stalled = 0
             self._last_stamp_s = stamp_s
             with self._cond:
-                wanted = self._wanted
-            if not wanted:
+                wanted_since_s = self._wanted_since_s
+            if wanted_since_s is None or grabbed_s < wanted_since_s:  # nobody waits, or dequeued before the call
                 continue
             ok, raw = self._cap.retrieve()
             problem = "retrieve failed" if not ok else yuyv_problem(raw, self.width, self.height)
@@ -283,7 +285,7 @@ class V4L2Camera:
             with self._cond:
                 self._latest = image
                 self._latest_seq += 1
-                self._wanted = False
+                self._wanted_since_s = None
                 self._cond.notify_all()
 
     def _image(self, raw, stamp_s: float) -> CameraImage | None:
@@ -301,16 +303,17 @@ class V4L2Camera:
 
     # ------------------------------------------------------------------------------------------ API
     def capture(self) -> CameraImage:
-        """The next good frame after this call (at most a frame period away when the camera runs).
+        """The next good frame dequeued after this call (at most a frame period away when the camera runs).
 
         NaocalError if the device is missing or broken beyond reopening; RobotTimeout if no good frame arrives
         within frame_timeout_s.
         """
         self._ensure_started()
-        deadline = time.monotonic() + self.frame_timeout_s
+        called_s = time.monotonic()
+        deadline = called_s + self.frame_timeout_s
         with self._cond:
             seen = self._latest_seq
-            self._wanted = True
+            self._wanted_since_s = called_s
             while self._latest_seq == seen:
                 if self._error is not None:
                     raise NaocalError(self._error)

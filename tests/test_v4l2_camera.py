@@ -84,6 +84,28 @@ def test_the_exposure_time_is_the_buffer_timestamp_moved_by_the_rolling_shutter_
         camera.close()
 
 
+class SlowReader(SyntheticCapture):
+    """A frame source whose reader is held up after each grab (a loaded robot): the frame in hand when capture() is
+    called was dequeued before the call."""
+
+    def get(self, prop):
+        if prop == cv2.CAP_PROP_POS_MSEC:
+            time.sleep(0.05)
+        return super().get(prop)
+
+
+def test_a_frame_dequeued_before_the_call_is_never_returned():
+    camera = V4L2Camera("bottom", open_capture=lambda device: SlowReader(device, stamp_lag_s=0.0), frame_timeout_s=2.0)
+    try:
+        camera.capture()
+        for _ in range(6):
+            time.sleep(0.02)
+            t_before = time.monotonic()
+            assert camera.capture().t_exposure_s >= t_before
+    finally:
+        camera.close()
+
+
 def test_capture_returns_a_new_frame_each_time():
     camera, _ = camera_with()
     try:
