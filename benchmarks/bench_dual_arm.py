@@ -17,7 +17,12 @@ fit (2-fold over the tracker's poses: fitted on one half, the error measured on 
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
 is within 1.3 x its noise (the free row is shown beside it). CPU s: each fit's process time (one BLAS thread).
 
-    python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500]
+    python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500] [--camera-error [PART ...]]
+
+--camera-error: the true cameras' intrinsics are off what the dataset files by a separate checkerboard
+calibration's error (kinds/arm/sim.py, CAMERA_FILING_ERROR: focal lengths 0.3 %, principal point 1.5 px, k1 0.002,
+one standard deviation, drawn per camera); the fits hold the filed intrinsics, as on a real robot. With PARTs
+(f_rel, c_px, k1) only those parts are off, drawn as with all of them.
 
 Exit 1 if a seed's priors row is beyond 1.3 x the tracker's noise.
 """
@@ -38,7 +43,7 @@ import numpy as np  # noqa: E402  (after the BLAS threads are set)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.kinds.arm.sim import simulate_dualarm  # noqa: E402
+from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, simulate_dualarm  # noqa: E402
 from naocal.kinds.arm.model import ArmModel  # noqa: E402
 from naocal.kinds.arm.identify import fit, initialise_sensors, pose_folds  # noqa: E402
 from naocal.solver.errors import SolveError  # noqa: E402
@@ -114,15 +119,28 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--poses", type=int, default=1500)
+    parser.add_argument("--camera-error", nargs="*", choices=sorted(CAMERA_FILING_ERROR), metavar="PART",
+                        help="the true cameras off their filed intrinsics by CAMERA_FILING_ERROR (kinds/arm/sim.py); "
+                             "PARTs (f_rel, c_px, k1): only those, the others exact (the same draws)")
     args = parser.parse_args(argv)
+    camera_error = None if args.camera_error is None else {
+        part: size if not args.camera_error or part in args.camera_error else 0.0
+        for part, size in CAMERA_FILING_ERROR.items()}
     print(f"dual-arm robot, {args.poses} stances per seed in 3 sessions; tracker noise {NOISE_M * 1e3:.3f} mm per "
-          f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}")
+          f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}; cameras' filed intrinsics "
+          + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)"))
     print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>24s} {'tracker held-out':>16s} {'/ noise':>8s} "
           f"{'camera RMS':>10s} {'outliers':>8s} {'CPU s':>6s} {'wall s':>6s}")
     worst, zs = 0.0, []
     for seed in args.seeds:
         wall, cpu = time.perf_counter(), time.process_time()
-        sim = simulate_dualarm(None, seed=seed, n_poses=args.poses, noise_m=NOISE_M, noise_px=NOISE_PX, write=False)
+        sim = simulate_dualarm(None, seed=seed, n_poses=args.poses, noise_m=NOISE_M, noise_px=NOISE_PX,
+                               camera_error=camera_error, write=False)
+        if camera_error is not None:
+            print("     (true cameras: " + "; ".join(
+                f"{cam} fx {k['fx_px']:.1f} fy {k['fy_px']:.1f} cx {k['cx_px']:.1f} cy {k['cy_px']:.1f} "
+                f"k1 {k['distortion'][0]:+.4f}" for cam, k in sim["intrinsics"].items()) + "; filed fx fy 1100.0, "
+                "cx 959.5, cy 599.5, k1 0)")
         n_cam = int(np.sum(sim["observations"].sensor < 2))
         t_sim = (time.process_time() - cpu, time.perf_counter() - wall)
         truth = sim["truth"]

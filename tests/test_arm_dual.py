@@ -5,6 +5,7 @@ import csv
 import json
 import math
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,37 @@ def test_the_dual_arm_jacobian_is_exact_for_every_effect(dual):
     x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
     x += rng.normal(0.0, 1.0, len(x)) * model.scales * 3
     assert_exact_jacobian(model, x, dual["observations"].subset(np.arange(0, len(dual["observations"]), 4)))
+
+
+def test_the_camera_error_option_files_intrinsics_off_the_true_cameras_and_keeps_both(tmp_path):
+    """simulate_dualarm(camera_error=...): the pixels are the true cameras' (the model at the truth with them
+    predicts to the thousandth of a pixel), dataset.json files DUAL_CAMERA (off by pixels), truth.json holds the
+    true intrinsics, drawn off the filed ones at the stated size; without the option the cameras are as filed."""
+    from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, DUAL_CAMERA, dualarm_model, simulate_dualarm
+
+    out = tmp_path / "d"
+    sim = simulate_dualarm(out, seed=5, n_poses=8, noise_m=1e-12, noise_px=1e-9, outlier_fraction=0.0,
+                           camera_error=CAMERA_FILING_ERROR)
+    filed = json.loads((out / "dataset.json").read_text())["sensors"]
+    true = json.loads((out / "truth.json").read_text())["intrinsics"]
+    assert true == sim["intrinsics"] and set(true) == {"cam_left", "cam_right"}
+    for cam, k in true.items():
+        assert all(filed[cam][key] == DUAL_CAMERA[key] for key in ("fx_px", "fy_px", "cx_px", "cy_px"))
+        off = [abs(k[key] / DUAL_CAMERA[key] - 1.0) for key in ("fx_px", "fy_px")]
+        assert 0.0 < max(off) < 5 * CAMERA_FILING_ERROR["f_rel"]
+        shift = max(abs(k[key] - DUAL_CAMERA[key]) for key in ("cx_px", "cy_px"))
+        assert 0.0 < shift < 5 * CAMERA_FILING_ERROR["c_px"]
+        assert 0.0 < abs(k["distortion"][0]) < 5 * CAMERA_FILING_ERROR["k1"]
+    obs = sim["observations"].subset(np.flatnonzero(sim["observations"].sensor < 2))
+    error = {}
+    for label, sensors in (("filed", sim["sensors"]),
+                           ("true", [replace(s, intrinsics=true.get(s.name, s.intrinsics)) for s in sim["sensors"]])):
+        model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"), sensors=sensors)
+        x = np.array([sim["truth"].get(n, 0.0) for n in model.names])
+        error[label] = np.abs(model.predict(x, obs) - obs.measured)[:, :2].max()
+    assert error["true"] < 1e-3 < 0.5 < error["filed"]  # px
+    exact = simulate_dualarm(None, seed=5, n_poses=2, outlier_fraction=0.0, write=False)["intrinsics"]
+    assert all(k == DUAL_CAMERA for k in exact.values())
 
 
 def test_a_printed_marker_gives_the_cameras_a_metric_scale(dual):

@@ -358,6 +358,12 @@ TOOL_MASS_KG = 0.8
 TORSO_LIMIT_RAD = 2.6
 DUAL_CAMERA = {"width_px": 1920, "height_px": 1200, "fx_px": 1100.0, "fy_px": 1100.0, "cx_px": 959.5,
                "cy_px": 599.5, "distortion": [0.0, 0.0, 0.0, 0.0, 0.0]}
+# How far a camera's filed intrinsics are from the camera (`simulate_dualarm(camera_error=...)`), one standard
+# deviation: focal lengths 0.3 % relative, the principal point 1.5 px, k1 0.002, the middle of what a separate
+# checkerboard calibration leaves on a real robot's cameras (0.1-0.5 % and 1-2 px: the lens's focus and temperature
+# since, the board's coverage of the image). One checkerboard session's own stated error is smaller (Bouguet's
+# Camera Calibration Toolbox, its first example: fc +-0.05 %, cc +-0.6 px, kc(1) +-0.0025, about 3 sigma).
+CAMERA_FILING_ERROR = {"f_rel": 3e-3, "c_px": 1.5, "k1": 2e-3}
 MARKER_RING_M, MARKER_HEIGHT_M = 0.035, 0.03  # four markers around the tool's z axis, one on top
 MARKER_SIZE_M = 0.03  # each marker's printed side: its corners' known spacing
 MARKER_VIEW_RAD = math.radians(65.0)  # a marker is detected when it faces the camera within this angle
@@ -443,6 +449,18 @@ def dualarm_points() -> dict:
     return points
 
 
+def true_intrinsics(filed: dict, error: dict, rng) -> dict:
+    """A camera as it is, its calibration filed as `filed`: fx, fy off by N(0, error["f_rel"]) relative, cx, cy by
+    N(0, error["c_px"]) px, k1 by N(0, error["k1"]) (CAMERA_FILING_ERROR)."""
+    true = dict(filed, distortion=list(filed["distortion"]))
+    for key in ("fx_px", "fy_px"):
+        true[key] = float(filed[key] * (1.0 + rng.normal(0.0, error["f_rel"])))
+    for key in ("cx_px", "cy_px"):
+        true[key] = float(filed[key] + rng.normal(0.0, error["c_px"]))
+    true["distortion"][0] = float(filed["distortion"][0] + rng.normal(0.0, error["k1"]))
+    return true
+
+
 def dualarm_markers() -> dict:
     """{corner point: its marker} of dualarm_points (the reflector is no marker's)."""
     return {name: name.rpartition("_")[0] for name, (_, normal, _) in dualarm_points().items() if normal is not None}
@@ -511,7 +529,7 @@ def _true_origins(model, truth) -> dict:
 
 
 def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, noise_px=0.3, outlier_fraction=0.02,
-                     write=True):
+                     camera_error=None, write=True):
     """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
     on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
     "truth", "sensors", "points", "n_poses"}.
@@ -522,7 +540,12 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     mounts and markers placed on its tool links. A camera detects a marker in its image that faces it within 65
     deg (pixel noise `noise_px`); `outlier_fraction` of the detections are wrong by 8-40 px (a corner mistaken).
     The tracker reads the reflector at every pose (noise `noise_m` per axis). Poses are labelled by session, and
-    each row says its session (`sessions` blocks of consecutive poses)."""
+    each row says its session (`sessions` blocks of consecutive poses).
+
+    `camera_error` (None: the cameras are exactly as filed; else sizes as CAMERA_FILING_ERROR): each camera's true
+    intrinsics drawn off the filed DUAL_CAMERA (true_intrinsics; its own random stream, so the rest of the draws
+    stay the seed's); the pixels are the true cameras', the dataset files DUAL_CAMERA, and the returned
+    "intrinsics" and truth.json's "intrinsics" hold the true ones."""
     import json
 
     from naocal.body.pybullet_quiet import c_output_silenced, pybullet
@@ -555,6 +578,10 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     for name in points:
         markers.setdefault(dualarm_markers().get(name, name), []).append(name)
     on_tool = dict(zip(model.point_names, model.tool_points(x_true)[0]))  # the markers' corners as glued
+    cameras = ("cam_left", "cam_right")
+    camera_rng = np.random.default_rng([seed, 24, 1])
+    intrinsics = {cam: dict(DUAL_CAMERA) if camera_error is None else true_intrinsics(DUAL_CAMERA, camera_error,
+                                                                                      camera_rng) for cam in cameras}
 
     client = pybullet.connect(pybullet.DIRECT)
     tmp = tempfile.TemporaryDirectory(prefix="naocal-dualarm-")
@@ -620,13 +647,13 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                     continue
                 p_torso = (p_base - t_torso) @ R_torso
                 n_torso = R_torso.T @ (R_tool @ normal)
-                for s, cam in enumerate(("cam_left", "cam_right")):
+                for s, cam in enumerate(cameras):
                     R, t = frames[cam]
                     eye = -R.T @ t
                     to_eye = eye - p_torso.mean(axis=0)
                     if n_torso @ to_eye < math.cos(MARKER_VIEW_RAD) * np.linalg.norm(to_eye):
                         continue
-                    uv, depth = project_points(p_torso @ R.T + t, DUAL_CAMERA)
+                    uv, depth = project_points(p_torso @ R.T + t, intrinsics[cam])
                     if not (np.all(depth > 0.2) and np.all(uv >= IMAGE_MARGIN_PX)
                             and np.all(uv[:, 0] <= DUAL_CAMERA["width_px"] - 1 - IMAGE_MARGIN_PX)
                             and np.all(uv[:, 1] <= DUAL_CAMERA["height_px"] - 1 - IMAGE_MARGIN_PX)):
@@ -652,7 +679,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     sensors = dualarm_sensors(noise_m, noise_px)
     result = {"observations": obs, "truth": truth, "sensors": sensors,
               "points": {n: xyz for n, (xyz, _, _) in points.items()}, "markers": dualarm_markers(),
-              "n_poses": n_poses, "x_true": x_true,
+              "n_poses": n_poses, "x_true": x_true, "intrinsics": intrinsics,
               "refused_colliding": colliding}
     if write:
         from naocal.kinds.arm.dataset import write_arm_dataset
@@ -676,6 +703,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                           chain_names=[ac.name for ac in model.arm_chains])
         truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
                      "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
-                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"]}
+                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"], "intrinsics": intrinsics,
+                     "camera_error": camera_error}
         atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
     return result
