@@ -349,7 +349,8 @@ def diagnose_lenses(drive: Drive, fit_with, marker_size_m: float, effects=(), le
                                  refit=lambda with_effects: fit_with(lens, with_effects)[0])
     if diagnosis.named is not None and diagnosis.named.startswith("lens="):
         # from the fit's kinematics, which another lens does not change: from the detections' start (their rays
-        # through a wide lens reach 67 deg off the axis) seed 3's refit ended at 98.7 px, from these at 0.56 px
+        # through a wide lens reach 67 deg off the axis) an earlier render of seed 3's log ended at 98.7 px, from
+        # these at 0.56 px; without a fit, from the detections' (docs/DUCKIEBOT.md: where that fails)
         start = None if fit is None else {n: fit.value(n) for n in KINEMATIC}
         try:
             diagnosis.after = refit_summary(fit_with(diagnosis.lens_verdict.best, effects, start)[0], effects)
@@ -382,8 +383,8 @@ def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
     else:
         lines = [f"{model}; {len(fit.sightings.frame)} marker corners in {len(np.unique(fit.sightings.frame))} "
                  "frames", "", "COMPARE",
-                 f"  RMS {d.rms_px:.3f} px; noise floor {d.floor_px:.3f} px (the corners' expected detection noise); "
-                 f"whitened RMS {d.whitened_rms:.2f} (1 at the floor)", "",
+                 f"  RMS {d.rms_px:.3f} px; noise floor {d.floor_px:.3f} px (the corners' expected detection "
+                 f"noise); whitened RMS {d.whitened_rms:.2f} (1 at the floor)", "",
                  "LOCATE (corner RMS of the frames by the drive phase before them)"]
     for row in d.phases:
         lines.append(f"  {row['phase']:28s} {row['frames']:4d} frames {row['corners']:5d} corners  "
