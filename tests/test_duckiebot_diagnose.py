@@ -5,13 +5,14 @@ diagnose bodies on a rendered log. Full-size numbers: benchmarks/bench_duckiebot
 
 import argparse
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from test_duckiebot_fit import LOG_K, pwm_motor_poses, synthetic
 
 from naocal.kinds.duckiebot.diagnose import LENS_CHOICES, parse_effects, run_diagnose
-from naocal.kinds.duckiebot.drive_diagnostics import diagnose_fit, lens_verdict
+from naocal.kinds.duckiebot.drive_diagnostics import diagnose_fit, diagnose_lenses, format_diagnosis, lens_verdict
 from naocal.kinds.duckiebot.fit import EFFECTS, PWM_DRIVER, DriveEquations, Sightings, fit_drive, trajectory
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, board_points, choose_lens
 from naocal.kinds.duckiebot.render import (Renderer, calibration_scene, diagnose_program, hidden_robot,
@@ -20,7 +21,7 @@ from naocal.kinds.duckiebot.robot import camera_mount
 from naocal.kinds.duckiebot.simulate import parse_hidden, run_simulate
 from naocal.solver.effects import DRIVE_EFFECTS
 from naocal.solver.effects import EFFECTS as REGISTRY
-from naocal.solver.errors import NaocalError
+from naocal.solver.errors import NaocalError, SolveError
 
 ALL_EFFECTS = {"dead_zone": 0.05, "slip_s_per_m": 0.3, "wheel_lag_s": 0.05, "speed_trim": 0.04}
 
@@ -271,3 +272,54 @@ def test_a_marker_tied_to_no_other_is_set_aside():
     fit = fit_drive(drive, lonely, K, 0.065, camera_mount())
     assert fit.success and set(fit.outliers.marker) == {99} and 99 not in set(fit.sightings.marker)
     assert not any(n.startswith("marker99.") for n in fit.names)
+
+
+def test_a_wrong_lens_that_leaves_the_joint_fit_undetermined_is_still_named():
+    """Seed 3's wide-lens log: the plumb_bob fitted to its boards put the principal point 116 px low (cy 335 px for
+    219), the first marker's rays then miss the floor, the start puts it 60 km away and the joint fit through
+    plumb_bob cannot be made (17 undetermined combinations). The lens is judged by the board views alone: the
+    diagnosis names it, says why the fit could not be made, and the refit with the right lens reaches the noise
+    (0.3 px). `naocal diagnose` refused the whole log. Without a wrong lens to name, the SolveError is the answer."""
+    _, drive, sightings, K = drive_of(3)
+    plumb_bob = K.copy()
+    plumb_bob[1, 2] += 116.0
+    cameras = {"plumb_bob": plumb_bob, "fisheye": K}  # the corners rectified with each: only K differs here
+
+    def fit_with(lens, effects, start=None):
+        return fit_drive(drive, sightings, cameras[lens], 0.065, camera_mount(), effects=effects,
+                         start=start), cameras[lens]
+
+    def held_out(**rms_px):  # the lens fits as lens_verdict reads them
+        return {m: SimpleNamespace(held_out_rms_px=v) for m, v in rms_px.items()}
+
+    with pytest.raises(SolveError, match="cannot determine"):
+        fit_with("plumb_bob", ())
+    wide = held_out(plumb_bob=0.376, rational=0.239, fisheye=0.039)  # seed 3's wide-lens log's, px
+    diagnosis = diagnose_lenses(drive, fit_with, 0.065, (), "plumb_bob", wide)
+    assert diagnosis.named == "lens=fisheye" and diagnosis.fit is None
+    assert "cannot determine" in diagnosis.fit_error
+    assert "error" not in diagnosis.after and diagnosis.after["rms_px"] < 0.33, diagnosis.after
+    text = format_diagnosis(diagnosis, "LOG")
+    assert "the joint fit cannot be made: the data cannot determine" in text
+    assert "add it: naocal diagnose LOG --lens fisheye" in text and "without it the fit could not be made" in text
+    json.dumps(diagnosis.as_dict(), default=float)
+    with pytest.raises(SolveError, match="cannot determine"):
+        diagnose_lenses(drive, fit_with, 0.065, (), "plumb_bob", held_out(plumb_bob=0.04, fisheye=0.039))
+
+
+def test_a_candidate_whose_refit_cannot_be_made_is_reported_not_named():
+    """A significant candidate whose refit the data cannot determine is no remedy: not named, and the report says
+    why (the SolveError's words) instead of dropping it silently."""
+    _, drive, sightings, K = drive_of(2, {"slip_s_per_m": 0.3})
+
+    def refit(effects):
+        if "slip" in effects:
+            raise SolveError("the data cannot determine 1 parameter combination(s) (slip_s_per_m)")
+        return fit_drive(drive, sightings, K, 0.065, camera_mount(), effects=effects)
+
+    diagnosis = diagnose_fit(drive, refit(()), K, 0.065, refit=refit)
+    slip = next(t for t in diagnosis.tests if t.effect == "slip")
+    assert diagnosis.named != "slip" and not slip.significant
+    assert slip.refit_error.startswith("the data cannot determine")
+    assert "slip" in format_diagnosis(diagnosis) and "its refit cannot be made: the data cannot" in \
+        format_diagnosis(diagnosis)

@@ -62,6 +62,7 @@ class EffectTest:
     refit_rms_px: float = float("nan")  # the RMS the model with it leaves (significant ones, when refitted)
     refit_whitened_rss: float = float("nan")  # the same refit's whitened RSS (the ranking's: rank_key)
     confirmed_by_refit: bool = False  # far from the floor, named by its refit (FAR_FROM_FLOOR), not its score
+    refit_error: str = ""  # why its refit could not be made (undetermined, or did not converge): not a remedy
 
     def as_dict(self) -> dict:
         return dict(self.__dict__, parameters=list(self.parameters))
@@ -83,7 +84,7 @@ class LensVerdict:
 class DriveDiagnosis:
     effects: tuple  # in the model
     lens: str  # the lens model the corners were rectified with
-    fit: DriveFit
+    fit: DriveFit | None  # None: the model in use cannot be fitted (fit_error), only the lens is judged
     rms_px: float
     floor_px: float  # the corners' expected noise, RMS
     whitened_rms: float  # residual / expected noise, RMS: 1 at the floor
@@ -92,6 +93,7 @@ class DriveDiagnosis:
     threshold: float
     lens_verdict: LensVerdict | None = None
     after: dict | None = None  # refit_summary of the refit with the named one added
+    fit_error: str = ""  # why the model in use could not be fitted (then fit is None)
 
     @property
     def named(self) -> str | None:
@@ -105,7 +107,8 @@ class DriveDiagnosis:
                 "whitened_rms": self.whitened_rms, "phases": self.phases,
                 "tests": [t.as_dict() for t in self.tests], "threshold": self.threshold,
                 "lens_verdict": None if self.lens_verdict is None else self.lens_verdict.as_dict(),
-                "named": self.named, "after": self.after, "parameters": self.fit.parameters_dict()}
+                "named": self.named, "after": self.after, "fit_error": self.fit_error,
+                "parameters": None if self.fit is None else self.fit.parameters_dict()}
 
 
 def floor_and_whitened(fit: DriveFit) -> tuple[float, float]:
@@ -255,9 +258,10 @@ def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(
             continue
         try:
             result = refit(tuple(e for e in ALL_EFFECTS if e in effects + (t.effect,)))
-        except SolveError:  # the data cannot determine it beside the model: not a remedy
-            result = None
-        if result is None or not result.success:
+            t.refit_error = refit_failure(result)
+        except SolveError as err:  # the data cannot determine it beside the model: not a remedy
+            t.refit_error = str(err)
+        if t.refit_error:
             t.significant = False
             continue
         refits[t.effect], t.refit_rms_px, t.refit_whitened_rss = result, result.rms_px, whitened_rss(result)
@@ -269,7 +273,17 @@ def diagnose_fit(drive: Drive, fit: DriveFit, K, marker_size_m: float, effects=(
     return diagnosis
 
 
+def refit_failure(fit: DriveFit) -> str:
+    """Why a fit is no model to compare ('' when it converged)."""
+    return "" if fit.success else (f"did not converge ({fit.message}; RMS {fit.rms_px:.3f} px after "
+                                   f"{fit.iterations} Jacobians)")
+
+
 def refit_summary(refit: DriveFit, effects) -> dict:
+    """The refit with `effects` (the named one added): its RMS, floor and the added parameters' values; only
+    {"added", "error"} when it did not converge (an RMS it stopped at is no error level to compare)."""
+    if refit_failure(refit):
+        return {"added": list(effects), "error": refit_failure(refit)}
     floor, whitened = floor_and_whitened(refit)
     return {"added": [e for e in effects], "rms_px": refit.rms_px, "whitened_rms": whitened, "floor_px": floor,
             "values": {n: {"value": refit.value(n), "std": refit.stdev(n)} for e in effects for n in EFFECTS.get(e, ())}}
@@ -298,8 +312,8 @@ class LogFit:
 
 
 def diagnose_log(log_dir, effects=(), lens: str = "plumb_bob") -> DriveDiagnosis:
-    """Read, detect, fit the lens models and the joint fit (`effects`, corners rectified with `lens`), diagnose, and
-    refit with what is named (DriveDiagnosis.after)."""
+    """Read, detect, fit the lens models, then diagnose_lenses with the log's joint fits (corners rectified with
+    each lens model)."""
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.identify import detect_log, fit_intrinsics
 
@@ -309,17 +323,39 @@ def diagnose_log(log_dir, effects=(), lens: str = "plumb_bob") -> DriveDiagnosis
     if lens not in lens_fits:
         raise NaocalError(f"{log_dir}: the {lens} lens model could not be fitted to the board views")
     source = LogFit(log, Drive.of_log(log), detections, lens_fits)
-    fit, K = source.fit(lens, effects)
-    diagnosis = diagnose_fit(source.drive, fit, K, log.marker_size_m, effects, lens, lens_fits,
-                             refit=lambda with_effects: source.fit(lens, with_effects)[0])
+    return diagnose_lenses(source.drive, source.fit, log.marker_size_m, effects, lens, lens_fits)
+
+
+def diagnose_lenses(drive: Drive, fit_with, marker_size_m: float, effects=(), lens: str = "plumb_bob",
+                    lens_fits: dict | None = None) -> DriveDiagnosis:
+    """The joint fit with `effects` through `lens` (fit_with(lens, effects, start=None) -> (DriveFit, K): the
+    corners rectified with that lens model), diagnosed (diagnose_fit, with refits), and refitted with what is named
+    (DriveDiagnosis.after). The lens is judged by the board views alone (lens_verdict), so a joint fit that the wrong
+    lens leaves undetermined does not stop it: a badly fitted plumb_bob on a 150-degree lens (seed 3: cy 335 px for
+    219) puts the first marker's rays above the horizon, its start 60 km away, and the fit cannot be made; the
+    diagnosis then says so (fit_error), names the lens, and tries the refit with the right one. Without a wrong lens
+    to name, a model that cannot be fitted is the SolveError it raised."""
+    effects = tuple(effects)
+    verdict = lens_verdict(lens_fits, lens) if lens_fits and lens in lens_fits else None
+    try:
+        fit, K = fit_with(lens, effects)
+    except SolveError as err:
+        if verdict is None or not verdict.wrong:
+            raise
+        fit, nan = None, float("nan")
+        diagnosis = DriveDiagnosis(effects, lens, None, nan, nan, nan, [], [], nan, verdict, fit_error=str(err))
+    else:
+        diagnosis = diagnose_fit(drive, fit, K, marker_size_m, effects, lens, lens_fits,
+                                 refit=lambda with_effects: fit_with(lens, with_effects)[0])
     if diagnosis.named is not None and diagnosis.named.startswith("lens="):
         # from the fit's kinematics, which another lens does not change: from the detections' start (their rays
-        # through a wide lens reach 67 deg off the axis) seed 3's refit ended at 98.7 px, from these at 0.56 px
-        start = {n: fit.value(n) for n in KINEMATIC}
+        # through a wide lens reach 67 deg off the axis) an earlier render of seed 3's log ended at 98.7 px, from
+        # these at 0.56 px; without a fit, from the detections' (docs/DUCKIEBOT.md: where that fails)
+        start = None if fit is None else {n: fit.value(n) for n in KINEMATIC}
         try:
-            diagnosis.after = refit_summary(source.fit(diagnosis.lens_verdict.best, effects, start)[0], effects)
+            diagnosis.after = refit_summary(fit_with(diagnosis.lens_verdict.best, effects, start)[0], effects)
         except SolveError as err:  # e.g. a marker seen once, far, that the other lens leaves undetermined
-            diagnosis.after = {"added": [], "error": str(err)}
+            diagnosis.after = {"added": list(effects), "error": str(err)}
     return diagnosis
 
 
@@ -340,12 +376,16 @@ def verdict(t: EffectTest) -> str:
 
 def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
     fit = d.fit
-    lines = [f"model: Duckietown's kinematics + {' + '.join(d.effects) or 'no wheel effect'}; lens {d.lens}; "
-             f"{len(fit.sightings.frame)} marker corners in {len(np.unique(fit.sightings.frame))} frames", "",
-             "COMPARE",
-             f"  RMS {d.rms_px:.3f} px; noise floor {d.floor_px:.3f} px (the corners' expected detection noise); "
-             f"whitened RMS {d.whitened_rms:.2f} (1 at the floor)", "",
-             "LOCATE (corner RMS of the frames by the drive phase before them)"]
+    model = f"model: Duckietown's kinematics + {' + '.join(d.effects) or 'no wheel effect'}; lens {d.lens}"
+    if fit is None:
+        lines = [f"{model}: the joint fit cannot be made: {d.fit_error}", "", "COMPARE, LOCATE, NAMES: none "
+                 "without a fit (the wheel effects are judged once the lens is right)"]
+    else:
+        lines = [f"{model}; {len(fit.sightings.frame)} marker corners in {len(np.unique(fit.sightings.frame))} "
+                 "frames", "", "COMPARE",
+                 f"  RMS {d.rms_px:.3f} px; noise floor {d.floor_px:.3f} px (the corners' expected detection "
+                 f"noise); whitened RMS {d.whitened_rms:.2f} (1 at the floor)", "",
+                 "LOCATE (corner RMS of the frames by the drive phase before them)"]
     for row in d.phases:
         lines.append(f"  {row['phase']:28s} {row['frames']:4d} frames {row['corners']:5d} corners  "
                      f"RMS {row['rms_px']:.3f} px")
@@ -355,13 +395,15 @@ def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
                   "  " + "; ".join(f"{m} {r:.3f} px" for m, r in v.held_out_rms_px.items())
                   + f"; in use {v.in_use}: {v.ratio:.2f} x the best ({v.best})"
                   + (f" >= {LENS_RATIO}: the wrong lens model" if v.wrong else "")]
-    lines += ["", f"NAMES (score test per wheel effect, clustered by frame; significant: p < {d.threshold:.1e})"]
+    if fit is not None:
+        lines += ["", f"NAMES (score test per wheel effect, clustered by frame; significant: p < {d.threshold:.1e})"]
     for t in d.tests:
         values = ", ".join(f"{n} {v:+.4g}" for n, v in t.predicted_values.items())
         lines.append(f"  {t.effect:11s} dof {t.dof}  dRSS {t.delta_rss:9.1f}  T2 {t.statistic:9.1f}  p {t.p_value:8.1e}"
                      f"  {verdict(t):5s}  uniqueness {t.uniqueness:.3f}  "
                      f"predicted RMS {t.predicted_rms_px:.3f} px"
                      + (f", refitted {t.refit_rms_px:.3f} px" if np.isfinite(t.refit_rms_px) else "")
+                     + (f"; its refit cannot be made: {t.refit_error}" if t.refit_error else "")
                      + (f"; {values}" if t.significant and values else ""))
     lines.append("")
     if d.named is None:
@@ -374,6 +416,9 @@ def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
         lines.append(f"  add it: {add_command(log_label, d)}")
         if d.after is not None and "error" in d.after:
             lines.append(f"  with it: the refit failed: {d.after['error']}")
+        elif d.after is not None and d.fit is None:
+            lines.append(f"  with it: RMS {d.after['rms_px']:.3f} px (floor {d.after['floor_px']:.3f} px; whitened "
+                         f"{d.after['whitened_rms']:.2f}); without it the fit could not be made")
         elif d.after is not None:
             values = ", ".join(f"{n} {v['value']:+.4g} +- {v['std']:.2g}" for n, v in d.after["values"].items())
             lines.append(f"  with it: RMS {d.rms_px:.3f} -> {d.after['rms_px']:.3f} px (floor "
