@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import tools.cli  # noqa: E402,F401  (one BLAS thread, as the command line)
+import naocal.tools.cli  # noqa: E402,F401  (one BLAS thread, as the command line)
 from naocal.kinds.duckiebot.drive_diagnostics import diagnose_log  # noqa: E402
 from naocal.kinds.duckiebot.simulate import run_simulate  # noqa: E402
 from naocal.solver.errors import NaocalError  # noqa: E402
