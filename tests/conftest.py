@@ -10,7 +10,7 @@ if str(ROOT) not in sys.path:
 
 # numpy in the tests as in the command line: one BLAS thread (tools/cli.py sets it before numpy is imported), so two
 # test workers on two cores do not start four threads.
-import tools.cli  # noqa: E402,F401
+import naocal.tools.cli  # noqa: E402,F401
 
 MOCK_RUN_SEED = 5  # the shared calibration run's mock (mock_run below)
 
