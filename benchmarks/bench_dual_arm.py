@@ -17,14 +17,19 @@ fit (2-fold over the tracker's poses: fitted on one half, the error measured on 
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
 is within 1.3 x its noise (the free row is shown beside it). CPU s: each fit's process time (one BLAS thread).
 
-    python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500] [--camera-error [PART ...]]
+    python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500] [--camera-error [PART ...]] [--intrinsics]
 
 --camera-error: the true cameras' intrinsics are off what the dataset files by a separate checkerboard
 calibration's error (kinds/arm/sim.py, CAMERA_FILING_ERROR: focal lengths 0.3 %, principal point 1.5 px, k1 0.002,
 one standard deviation, drawn per camera); the fits hold the filed intrinsics, as on a real robot. With PARTs
 (f_rel, c_px, k1) only those parts are off, drawn as with all of them.
 
-Exit 1 if a seed's priors row is beyond 1.3 x the tracker's noise.
+--intrinsics: two more rows, the same fits with the intrinsics effect (each camera's fx, fy, cx, cy, k1 refined
+with the arm; with the priors about the filed values at a checkerboard calibration's error,
+solver/effects/intrinsics.py ARM_PRIOR): "+ intrinsics, priors" and "+ intrinsics, free, no priors". Its z
+include the intrinsics' corrections (true minus filed).
+
+Exit 1 if a seed's priors row (with --intrinsics: its intrinsics priors row) is beyond 1.3 x the tracker's noise.
 """
 
 import argparse
@@ -54,7 +59,7 @@ NOISE_PX = 0.3
 MUST_RATIO = 1.3
 
 
-def camera_fit(sim, priors: bool):
+def camera_fit(sim, priors: bool, effects=EFFECTS):
     """(fit, [fixed names]): the arm fitted from the camera rows alone (the tracker's rows left out); what the
     data leave undetermined, refused, is fixed as the refusal says (without the priors: with them it is split by
     the priors, nothing is refused)."""
@@ -62,7 +67,7 @@ def camera_fit(sim, priors: bool):
     cameras = [s for s in sim["sensors"] if s.kind == "camera"]
     rows = np.flatnonzero(obs.sensor < len(cameras))  # the sensors are listed cameras first
     cam_obs = obs.subset(rows)
-    model = ArmModel(dualarm_chains(), sim["points"], cameras, EFFECTS, markers=sim["markers"])
+    model = ArmModel(dualarm_chains(), sim["points"], cameras, effects, markers=sim["markers"])
     x0 = initialise_sensors(model, cam_obs)
     fixed = []
     while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
@@ -107,6 +112,18 @@ def tracker_heldout(sim, arm_values: dict, n_folds: int = 2) -> float:
     return float(np.sqrt(np.mean(errors ** 2)))
 
 
+def true_corrections(sim) -> dict:
+    """{intrinsics.<camera>.<component>: true minus filed} of the simulated cameras (the intrinsics effect's truth)."""
+    from naocal.kinds.arm.sim import DUAL_CAMERA
+
+    out = {}
+    for cam, k in sim["intrinsics"].items():
+        for c in ("fx", "fy", "cx", "cy"):
+            out[f"intrinsics.{cam}.{c}"] = k[f"{c}_px"] - DUAL_CAMERA[f"{c}_px"]
+        out[f"intrinsics.{cam}.k1"] = k["distortion"][0] - DUAL_CAMERA["distortion"][0]
+    return out
+
+
 def coverage(result, truth: dict) -> np.ndarray:
     """z = (fitted - true) / std of every free parameter the simulation has a truth for (the sensor frames, gauges
     of the cameras, left out: their truth is in the frame the fit chose)."""
@@ -122,14 +139,21 @@ def main(argv=None) -> int:
     parser.add_argument("--camera-error", nargs="*", choices=sorted(CAMERA_FILING_ERROR), metavar="PART",
                         help="the true cameras off their filed intrinsics by CAMERA_FILING_ERROR (kinds/arm/sim.py); "
                              "PARTs (f_rel, c_px, k1): only those, the others exact (the same draws)")
+    parser.add_argument("--intrinsics", action="store_true",
+                        help="also the fits with the intrinsics effect (the cameras refined with the arm)")
     args = parser.parse_args(argv)
+    fits = [("cameras, priors", True, EFFECTS), ("cameras, free, no priors", False, EFFECTS)]
+    if args.intrinsics:
+        fits += [("+ intrinsics, priors", True, EFFECTS + ("intrinsics",)),
+                 ("+ intrinsics, free, no priors", False, EFFECTS + ("intrinsics",))]
+    must = fits[-2][0]
     camera_error = None if args.camera_error is None else {
         part: size if not args.camera_error or part in args.camera_error else 0.0
         for part, size in CAMERA_FILING_ERROR.items()}
     print(f"dual-arm robot, {args.poses} stances per seed in 3 sessions; tracker noise {NOISE_M * 1e3:.3f} mm per "
           f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}; cameras' filed intrinsics "
           + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)"))
-    print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>24s} {'tracker held-out':>16s} {'/ noise':>8s} "
+    print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>29s} {'tracker held-out':>16s} {'/ noise':>8s} "
           f"{'camera RMS':>10s} {'outliers':>8s} {'CPU s':>6s} {'wall s':>6s}")
     worst, zs = 0.0, []
     for seed in args.seeds:
@@ -143,11 +167,11 @@ def main(argv=None) -> int:
                 "cx 959.5, cy 599.5, k1 0)")
         n_cam = int(np.sum(sim["observations"].sensor < 2))
         t_sim = (time.process_time() - cpu, time.perf_counter() - wall)
-        truth = sim["truth"]
+        truth = dict(sim["truth"], **true_corrections(sim))
         rows = [("nominal (URDF)", {}, None, t_sim), ("true arm", truth, None, (0.0, 0.0))]
-        for label, priors in (("cameras, priors", True), ("cameras, free, no priors", False)):
+        for label, priors, effects in fits:
             wall, cpu = time.perf_counter(), time.process_time()
-            result, fixed = camera_fit(sim, priors)
+            result, fixed = camera_fit(sim, priors, effects)
             values = result.model.reported_values(result.x)
             if fixed:
                 print(f"     ({label}: the cameras alone do not determine {len(fixed)} combination(s); "
@@ -156,20 +180,22 @@ def main(argv=None) -> int:
         for label, values, result, (c, w) in rows:
             rms = tracker_heldout(sim, values)
             ratio = rms / NOISE_M
-            if label == "cameras, priors":
+            if label == must:
                 worst = max(worst, ratio)
+            if result is not None and result.priors:
                 z = coverage(result, truth)
-                zs.append(z)
-                print(f"     (cameras, priors: z = (fitted - true) / std over {len(z)} parameters with a truth: max "
+                if label == must:
+                    zs.append(z)
+                print(f"     ({label}: z = (fitted - true) / std over {len(z)} parameters with a truth: max "
                       f"|z| {np.max(np.abs(z)):.2f}, {int(np.sum(np.abs(z) > 3.5))} beyond 3.5)")
             cam = "" if result is None else f"{max(result.rms().values()):.3f} px"
             out = "" if result is None else str(len(result.outliers))
-            print(f"{seed:4d} {args.poses:5d} {n_cam:10d} {label:>24s} {rms * 1e3:13.4f} mm {ratio:8.2f} {cam:>10s} "
+            print(f"{seed:4d} {args.poses:5d} {n_cam:10d} {label:>29s} {rms * 1e3:13.4f} mm {ratio:8.2f} {cam:>10s} "
                   f"{out:>8s} {c:6.1f} {w:6.1f}")
     z = np.concatenate(zs)
-    print(f"stds against the truth (priors rows, every seed): {len(z)} z, max |z| {np.max(np.abs(z)):.2f}, "
+    print(f"stds against the truth ({must} rows, every seed): {len(z)} z, max |z| {np.max(np.abs(z)):.2f}, "
           f"{int(np.sum(np.abs(z) > 3.5))} beyond 3.5")
-    print(f"worst priors row: {worst:.2f} x the tracker's noise (must be within {MUST_RATIO})")
+    print(f"worst {must} row: {worst:.2f} x the tracker's noise (must be within {MUST_RATIO})")
     return 0 if worst <= MUST_RATIO else 1
 
 

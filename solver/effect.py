@@ -266,6 +266,12 @@ class Effect:
         arm's solver works in mm and mrad); an effect that defines none is not one of the arm's."""
         return []
 
+    def arm_prior_size(self, parameter: Parameter, arm) -> float:
+        """The std of the Gaussian prior of one of the effect's arm parameters about the URDF's (the filed) value:
+        `prior_size` of its unit (0: none), unless the effect's size depends on the parameter (a focal length's
+        error is relative to it)."""
+        return self.prior_size.get(parameter.unit, 0.0)
+
     def drive_parameters(self) -> list[Parameter]:
         """The effect's parameters of a differential drive's model, each with its scale (the solver works on
         value / scale) and `start`; the drive model's term for each is keyed by the parameter's `component`. An

@@ -34,10 +34,23 @@ class PixelMeasurement:
     unit = "px"
     measured = (True, True, False)
 
-    def predict(self, y: np.ndarray, sensor) -> tuple[np.ndarray, np.ndarray]:
+    @staticmethod
+    def projection(y: np.ndarray, sensor):
+        """solver.camera.Projection of y through the sensor's intrinsics."""
         k = sensor.intrinsics
-        proj = project(y, k["fx_px"], k["fy_px"], k["cx_px"], k["cy_px"],
+        return project(y, k["fx_px"], k["fy_px"], k["cx_px"], k["cy_px"],
                        tuple((k.get("distortion") or [0.0] * 5)[:5]))
+
+    def intrinsic_jacobian(self, y: np.ndarray, sensor, components) -> np.ndarray:
+        """(N, 3, K): d prediction / d each intrinsic component (solver.camera.COMPONENTS) of the sensor's."""
+        proj = self.projection(y, sensor)
+        J = np.zeros((len(y), 3, len(components)))
+        for c, component in enumerate(components):
+            J[:, :2, c] = proj.intrinsic_jacobian(component)
+        return J
+
+    def predict(self, y: np.ndarray, sensor) -> tuple[np.ndarray, np.ndarray]:
+        proj = self.projection(y, sensor)
         pred = np.zeros((len(y), 3))
         pred[:, :2] = proj.uv_px
         J = np.zeros((len(y), 3, 3))

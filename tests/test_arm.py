@@ -278,7 +278,7 @@ def test_diagnose_names_link_lengths_when_missing_and_nothing_when_complete():
     assert d.best is not None and d.best.label == "link_lengths"
     d = diagnose(fit(complete, obs, initialise_sensors(complete, obs)), n_folds=0)
     assert d.best is None
-    assert {c.label for c in d.candidates} == {"link_poses", "points", "elasticity", "tool"}
+    assert {c.label for c in d.candidates} == {"link_poses", "points", "elasticity", "tool", "intrinsics"}
 
 
 def test_diagnose_judges_per_pose_so_correlated_errors_do_not_name_a_candidate():
@@ -312,7 +312,7 @@ def test_diagnose_says_which_candidates_too_few_poses_cannot_judge():
     model, obs, _, _ = synthetic(("joint_offsets", "link_lengths"), true_errors(seed=3), n_poses=12, seed=4)
     d = diagnose(fit(model, obs, initialise_sensors(model, obs)), n_folds=0)
     testable = {c.label: c.testable for c in d.candidates}
-    assert testable == {"link_poses": False, "points": False, "elasticity": True, "tool": True}
+    assert testable == {"link_poses": False, "points": False, "elasticity": True, "tool": True, "intrinsics": True}
     assert d.best is None and "n/a: link_poses, points" in format_diagnosis(d)
 
 
@@ -561,7 +561,7 @@ def test_the_arm_s_effects_are_the_effect_modules_the_nao_s_model_shares():
     for old in ("ArmParameter", "PRIOR_SIZE", "PRIORITY"):
         assert not hasattr(arm, old), old
     assert getattr(arm, "EFFECTS", EFFECTS) is EFFECTS  # the one registry, not a dict of the arm's
-    assert set(ARM_EFFECTS) & set(ALL_EFFECTS) == {"joint_offsets", "link_lengths", "elasticity"}
+    assert set(ARM_EFFECTS) & set(ALL_EFFECTS) == {"joint_offsets", "link_lengths", "elasticity", "intrinsics"}
     assert ARM_MODEL_EFFECTS == ("sensors",) + ARM_EFFECTS
     assert len({EFFECTS[e].gauge_priority for e in ARM_MODEL_EFFECTS}) == len(ARM_MODEL_EFFECTS)
     with pytest.raises(NaocalError, match="unknown effect 'tool'"):

@@ -116,6 +116,81 @@ def test_the_camera_error_option_files_intrinsics_off_the_true_cameras_and_keeps
     assert all(k == DUAL_CAMERA for k in exact.values())
 
 
+def test_an_arm_camera_s_intrinsics_are_an_effect_with_an_exact_jacobian_and_a_calibration_s_prior(dual):
+    """The intrinsics effect on an arm (solver/effects/intrinsics.py arm_parameters): each camera's fx, fy, cx, cy
+    (px) and k1 moved off the filed intrinsics, exactly as that camera's intrinsics would be; the Jacobian exact;
+    the prior a checkerboard calibration's error (fx, fy 0.3 %, cx, cy 1.5 px, k1 0.002); the tracker has none."""
+    from naocal.kinds.arm.identify import prior_sizes
+
+    model = dual_model(dual, ("joint_offsets", "tool", "intrinsics"))
+    names = [p.name for _, p in model.params("intrinsics")]
+    assert names == [f"intrinsics.{c}.{k}" for c in ("cam_left", "cam_right") for k in ("fx", "fy", "cx", "cy", "k1")]
+    assert [p.effect for p in model.parameters][-len(names):] == ["intrinsics"] * len(names)  # the last gauges
+    size = dict(zip(model.names, prior_sizes(model)))
+    assert size["intrinsics.cam_left.fx"] == pytest.approx(3e-3 * 1100.0) and size["intrinsics.cam_right.cy"] == 1.5
+    assert size["intrinsics.cam_right.k1"] == 2e-3
+    rng = np.random.default_rng(2)
+    x = np.array([dual["truth"].get(n, 0.0) for n in model.names]) + rng.normal(0.0, 1.0, len(model.names)) * \
+        model.scales * 3
+    obs = dual["observations"].subset(np.arange(0, len(dual["observations"]), 3))
+    assert_exact_jacobian(model, x, obs)
+    # a correction is the camera with those intrinsics: the model without the effect, cameras so filed, agrees
+    moved = [replace(s, intrinsics=model.sensor_intrinsics(x, k)) for k, s in enumerate(model.sensors)]
+    plain = dualarm_model_with(("joint_offsets", "tool"), moved)
+    x_plain = np.array([x[model.names.index(n)] for n in plain.names])
+    assert np.abs(plain.predict(x_plain, obs) - model.predict(x, obs)).max() < 1e-9
+    assert moved[0].intrinsics["fx_px"] != dual["sensors"][0].intrinsics["fx_px"]
+    assert moved[2] == dual["sensors"][2]  # the tracker: no intrinsics
+
+
+def dualarm_model_with(effects, sensors):
+    from naocal.kinds.arm.sim import dualarm_model
+
+    return dualarm_model(effects, sensors=sensors)
+
+
+def test_cameras_filed_off_their_true_intrinsics_are_refined_with_the_arm():
+    """The cameras' filed intrinsics off the true ones by a calibration's error: fitted with the intrinsics effect,
+    the pixels are at their noise and each correction covers the truth (true minus filed) within 3.5 stds; without
+    it the pixels are several times their noise."""
+    from naocal.kinds.arm.identify import fit, initialise_sensors
+    from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, DUAL_CAMERA, simulate_dualarm
+
+    sim = simulate_dualarm(None, seed=5, n_poses=60, noise_m=1e-5, noise_px=0.1, outlier_fraction=0.0,
+                           camera_error=CAMERA_FILING_ERROR, write=False)
+    cameras = [s for s in sim["sensors"] if s.kind == "camera"]
+    obs = sim["observations"].subset(np.flatnonzero(sim["observations"].sensor < len(cameras)))
+    rms = {}
+    for effects in (("joint_offsets", "tool", "points"), ("joint_offsets", "tool", "points", "intrinsics")):
+        model = dualarm_model_with(effects, cameras)
+        result = fit(model, obs, initialise_sensors(model, obs), robust=False)
+        rms[effects[-1]] = max(result.rms().values())
+    assert rms["intrinsics"] < 0.15 and rms["points"] > 0.4  # px, noise 0.1
+    for i, p in model.params("intrinsics"):
+        true = sim["intrinsics"][p.camera]
+        error = (true["distortion"][0] if p.component == "k1" else
+                 true[f"{p.component}_px"] - DUAL_CAMERA[f"{p.component}_px"])
+        assert abs(result.x[i] - error) < 3.5 * result.std[i], p.name
+
+
+@pytest.mark.parametrize("unit, ok", [("1", True), ("px", False)])
+def test_a_calibration_holds_a_camera_s_intrinsics_in_pixels_and_k1_unitless(tmp_path, unit, ok):
+    from naocal.kinds.arm.calibration import SCHEMA, read_arm_calibration
+    from naocal.kinds.arm.sim import DUALARM_CHAINS, DUALARM_URDF
+
+    doc = {"schema": SCHEMA, "robot": {"urdf": str(DUALARM_URDF), "base": "base_link", "tip": "left_tool+right_tool"},
+           "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
+           "model": {"effects": ["intrinsics"], "parameters": {
+               "intrinsics.cam_left.fx": {"value": 2.5, "std": 0.1, "unit": "px"},
+               "intrinsics.cam_left.k1": {"value": -0.002, "std": 1e-4, "unit": unit}}}}
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
+    if ok:
+        assert read_arm_calibration(tmp_path / "cal.json").parameters["intrinsics.cam_left.fx"]["value"] == 2.5
+    else:
+        with pytest.raises(DataError, match="intrinsics.cam_left.k1.unit.*expected '1'"):
+            read_arm_calibration(tmp_path / "cal.json")
+
+
 def test_a_printed_marker_gives_the_cameras_a_metric_scale(dual):
     """Grow the robot the torso cameras see (every link after the torso joint, the tool, the cameras' distance) by
     a factor: with each marker corner a point of its own the pixels do not change (pixels hold no metre: the cause
@@ -477,6 +552,24 @@ def test_naocal_simulates_the_dual_arm_and_identifies_it_from_the_command_line(t
     assert run.returncode in (0, 1), run.stderr
     run = naocal("simulate", "--robot", "dualarm", "--chain", "a:b", "--out", str(tmp_path / "x"))
     assert run.returncode == 2 and "--chain" in run.stderr
+
+
+def test_identify_takes_the_intrinsics_effect_on_an_arm_and_writes_them_to_its_calibration(dual_dir, tmp_path):
+    from naocal.kinds.arm.calibration import read_arm_calibration
+    from tests.cli_runner import naocal
+
+    cal = tmp_path / "cal.json"
+    run = naocal("identify", str(dual_dir), "--effects", "joint_offsets,tool,intrinsics", "--out", str(cal))
+    assert run.returncode == 0, run.stderr
+    parameters = read_arm_calibration(cal).parameters
+    assert parameters["intrinsics.cam_right.cy"]["unit"] == "px" and parameters["intrinsics.cam_left.k1"]["unit"] == "1"
+    run = naocal("offsets", "validate", str(cal))
+    assert run.returncode == 0, run.stderr
+    run = naocal("identify", str(dual_dir), "--effects", "joint_offsets,tool,intrinsics", "--start", str(cal),
+                 "--fix", "intrinsics", "--json")
+    assert run.returncode == 0, run.stderr
+    started = json.loads(run.stdout)["parameters"]["intrinsics.cam_left.fx"]
+    assert started["fixed"] and started["value"] == parameters["intrinsics.cam_left.fx"]["value"]
 
 
 def test_diagnose_names_candidates_on_a_dual_arm_dataset(dual_dir):

@@ -16,7 +16,8 @@
 4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
    correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
 5. Priors (soft bounds, on by default): every physical parameter has a Gaussian prior about the URDF's value with
-   its effect's plausible size (its module's prior_size), one whitened pseudo-observation each (solver.identify.Prior),
+   its effect's plausible size (its module's prior_size; a camera's intrinsics: about the filed ones, at a
+   checkerboard calibration's error, arm_prior_size), one whitened pseudo-observation each (solver.identify.Prior),
    so that a direction the data hardly determine stays near the URDF instead of soaking up what the model lacks.
    A parameter whose posterior std is more than PRIOR_HELD of its prior's was held by the prior, not the data: the
    report says so. After the fit the weakest directions of the data's whitened Jacobian at the solution are
@@ -209,7 +210,7 @@ def initialise_sensors(model: ArmModel, obs: Observations, path="dataset", start
             if rows.sum() < 6:
                 raise DataError(path, f"camera {sensor.name}: needs 6 or more observations to find its pose (or give "
                                       "its pose in dataset.json)", field=f"sensors.{sensor.name}")
-            k = sensor.intrinsics
+            k = model.sensor_intrinsics(x, s)  # as filed, or as `start` corrects them
             K = np.array([[k["fx_px"], 0.0, k["cx_px"]], [0.0, k["fy_px"], k["cy_px"]], [0.0, 0.0, 1.0]])
             pose = camera_pose_dlt(p_b[rows], obs.measured[rows, :2], K)  # (the solver does without OpenCV)
             if pose is None:
@@ -304,8 +305,9 @@ class ArmEquations:
 
 
 def prior_sizes(model) -> np.ndarray:
-    """(P,) each parameter's plausible size (its effect's prior_size of its unit; 0: none, a sensor)."""
-    return np.array([EFFECTS[p.effect].prior_size.get(p.unit, 0.0) for p in model.parameters])
+    """(P,) each parameter's plausible size (its effect's arm_prior_size: its prior_size of its unit; 0: none, a
+    sensor)."""
+    return np.array([EFFECTS[p.effect].arm_prior_size(p, model) for p in model.parameters])
 
 
 def arm_prior(model, free, priors: bool = True):

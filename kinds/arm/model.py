@@ -10,11 +10,12 @@ For one observation (joint readings theta, a point p on the tip link of the obse
     p_tool = p0 + t_m + (Exp(r_m) - I)(p0 - c_m)      points: a marker's corners move as one rigid body (t_m, r_m
                                                       about its centre c_m: its printed size is kept), a lone point by t_m
     y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_mount = (R_s, t_s)
+    K_s   = the camera's filed intrinsics + (dfx, dfy, dcx, dcy, dk1)                 intrinsics (a camera's)
 
 Several chains (two arms on one torso) share joints, joint origins and sensors by name: a joint's offset is one
 parameter whichever chain moves it. A sensor mounted on a link of the chains (a camera on the torso) sees the
 points in that link's frame: the joints before it do not move them.
-    3-D sensor: residual = y - measured (m);  camera: residual = project(y) - measured (px, solver/camera.py)
+    3-D sensor: residual = y - measured (m);  camera: residual = project(y; K_s) - measured (px, solver/camera.py)
 
 tau_k is the static gravity torque about joint k of the links beyond it (URDF masses), at the readings theta: a
 fixed regressor, so the model stays exact in its parameters. Everything is pure and vectorised over observations.
@@ -22,16 +23,17 @@ Rotation corrections use the exponential map; their exact derivative is the left
 
 Each term is an effect of solver/effects/ (one module each, the NAO's too): the model takes its parameters from
 the effects' `arm_parameters`, in their gauge order (the sensors' frames, joint_offsets, link_lengths, tool,
-points, link_poses, elasticity), and the joint terms (c, C) from their `joint_terms`, the NAO model's hook.
+points, link_poses, elasticity, intrinsics), and the joint terms (c, C) from their `joint_terms`, the NAO model's hook.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from naocal.solver.camera import distortion_of
 from naocal.solver.effects import ARM_EFFECTS, ARM_MODEL_EFFECTS, EFFECTS, defines
 from naocal.solver.measurement import MEASUREMENTS
 from naocal.solver.transforms import rot_axis_angle, skew
@@ -313,7 +315,10 @@ class ArmModel:
         O, C = len(self.origin_keys), len(self.arm_chains)
         self._pose_i = np.full((O, 6), -1)
         self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 6), -1)
+        self._intrinsics_i = {}  # sensor -> [(parameter, component)]
         for i, p in enumerate(self.parameters):
+            if p.effect == "intrinsics":
+                self._intrinsics_i.setdefault(p.index, []).append((i, p.component))
             if p.effect == "link_poses":
                 self._pose_i[p.index, p.axis] = i
             elif p.effect == "tool":
@@ -351,6 +356,21 @@ class ArmModel:
             if p.index == s and p.axis < 3:
                 t[p.axis] = x[i]
         return exp_so3(self.sensor_correction(x, s)) @ self.R0[s], t
+
+    def sensor_intrinsics(self, x, s) -> dict | None:
+        """Sensor s's intrinsics at parameter values x: the filed ones plus the intrinsics effect's corrections."""
+        filed = self.sensors[s].intrinsics
+        if s not in self._intrinsics_i:
+            return filed
+        k = dict(filed)
+        distortion = distortion_of(filed)
+        for i, component in self._intrinsics_i[s]:
+            if component == "k1":
+                distortion[0] += x[i]
+            else:
+                k[f"{component}_px"] = filed[f"{component}_px"] + x[i]
+        k["distortion"] = [float(d) for d in distortion]
+        return k
 
     def rebase_sensors(self, x) -> np.ndarray:
         """Fold the sensors' rotation corrections of x into R0; returns x with those corrections zero."""
@@ -452,7 +472,11 @@ class ArmModel:
             y[rows] = p_b[rows] @ R_s[s].T + t_s[s]
         pred = np.empty_like(y)
         dpred_dy = {}  # per sensor: its rows and d prediction / d y, unless the identity (3-D points)
+        seen_by = {}  # per sensor: as it is at x (a camera's intrinsics corrected)
         for s, (sensor, rows) in enumerate(zip(self.sensors, rows_of)):
+            if s in self._intrinsics_i:
+                sensor = replace(sensor, intrinsics=self.sensor_intrinsics(x, s))
+            seen_by[s] = sensor
             pred[rows], D = MEASUREMENTS[sensor.kind].predict(y[rows], sensor)
             if sensor.kind != "points":
                 dpred_dy[s] = (rows, D)
@@ -472,6 +496,10 @@ class ArmModel:
             J[rows] += np.swapaxes(turned.reshape(len(rows), P, 3), 1, 2)
         for s, (rows, D) in dpred_dy.items():
             J[rows] = np.einsum("nij,njp->nip", D, J[rows])
+        for s, terms in self._intrinsics_i.items():  # the projection's own parameters: d pixel / d component
+            rows = rows_of[s]
+            dpred = MEASUREMENTS[seen_by[s].kind].intrinsic_jacobian(y[rows], seen_by[s], [c for _, c in terms])
+            J[np.ix_(rows, [0, 1, 2], [i for i, _ in terms])] = dpred  # (y does not depend on them)
         return pred, J
 
     def _forward(self, x, obs, rows, c, start, jacobian, joint_terms, chain_terms):

@@ -173,7 +173,7 @@ def export_arm_urdf(cal, urdf_path, *, source_name="a calibration file", strip_m
         raise NaocalError(f"{unplaced[0]}: no such joint, link or chain on the URDF's chain(s) {base} -> {tip} "
                           "(another arm's calibration?)")
     left_out = sorted({n.split(".", 1)[0] for n, v in values.items()
-                       if n.split(".", 1)[0] in ("point", "elasticity") and v != 0.0})
+                       if n.split(".", 1)[0] in ("point", "elasticity", "intrinsics") and v != 0.0})
     for mesh in root.iter("mesh"):
         name = mesh.get("filename", "")
         if name and "://" not in name and not name.startswith("/"):

@@ -1,25 +1,52 @@
 """Intrinsics: corrections of each camera's focal lengths and principal point to the dataset's prior.
 
     (u, v) = (cx + dcx + (fx + dfx) * xd, cy + dcy + (fy + dfy) * yd)
+
+The NAO's model: fx, fy, cx, cy per camera (a projection term). An arm's (kinds.arm.model.ArmModel,
+`arm_parameters`): fx, fy, cx, cy and the radial k1 (xd = xn (1 + (k1 + dk1) r^2 + ...)) of each camera sensor,
+refined with the arm about the intrinsics the dataset files, under a prior at a separate checkerboard calibration's
+error (ARM_PRIOR): `intrinsics.<camera>.<fx|fy|cx|cy>` (px), `intrinsics.<camera>.k1` (1).
 """
 
 import numpy as np
 
-from naocal.solver.effect import MockPerturbation
+from naocal.solver.effect import MockPerturbation, Parameter
 from naocal.solver.effects._common import CameraCorrections
 
 COMPONENTS = ("fx", "fy", "cx", "cy")
+ARM_COMPONENTS = COMPONENTS + ("k1",)
+# An arm camera's filed intrinsics are off by about this much (one std; what a checkerboard calibration leaves, and
+# the sizes kinds/arm/sim.py's CAMERA_FILING_ERROR draws): focal lengths 0.3 % of themselves, the principal point
+# 1.5 px, k1 0.002.
+ARM_PRIOR = {"f_rel": 3e-3, "px": 1.5, "1": 2e-3}
+# The arm's solver works on value / scale: a pixel, and k1 in thousandths (about a pixel at the image's edge).
+ARM_SCALE = {"px": 1.0, "1": 1e-3}
 
 
 class Intrinsics(CameraCorrections):
     name = "intrinsics"
     order = 50
-    summary = "corrections of each camera's fx, fy, cx, cy to the prior"
+    summary = "corrections of each camera's fx, fy, cx, cy to the prior (an arm's camera: and k1)"
     prefix, components, unit, scale = "intrinsics", COMPONENTS, "px", 5.0
     plausible_limit = 60.0  # px: 10 % of the focal length
     offsets_section, offsets_key = "head", "intrinsics_correction_px"
     offsets_limit = 200.0
     mock_size_unit, mock_stream = "px", 5
+    prior_size = {u: ARM_PRIOR[u] for u in ("px", "1")}  # the arm's: a focal length's is relative (arm_prior_size)
+    # Last of the arm's gauges: what the data cannot tell from the arm's geometry stays at the filed intrinsics
+    # (a separate calibration's), the arm's physical parameters take it; against a camera's frame (its turn moves
+    # the image as cx, cy do, but not exactly: perspective) the prior splits it.
+    gauge_priority = 7
+
+    def arm_parameters(self, arm):
+        return [Parameter(f"{self.prefix}.{sensor.name}.{k}", self.name, "1" if k == "k1" else "px",
+                          ARM_SCALE["1" if k == "k1" else "px"], camera=sensor.name, component=k, index=s)
+                for s, sensor in enumerate(arm.sensors) if sensor.kind == "camera" for k in ARM_COMPONENTS]
+
+    def arm_prior_size(self, parameter, arm):
+        if parameter.component in ("fx", "fy"):
+            return ARM_PRIOR["f_rel"] * arm.sensors[parameter.index].intrinsics[f"{parameter.component}_px"]
+        return super().arm_prior_size(parameter, arm)
 
     def partial_residual_panels(self, fit):
         from naocal.solver.diagnostics import partial_residuals
