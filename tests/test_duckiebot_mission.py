@@ -318,3 +318,34 @@ def test_a_replayed_command_matches_within_rounding_and_is_refused_beyond(tmp_pa
         assert len(robot.received) == sent
     finally:
         robot.close()
+
+
+def test_facing_the_markers_sees_one_large_low_in_the_image_on_both_sides(tmp_path):
+    """The lens fit sees the image's lower half only through the floor markers (the boards stand in its upper 40 %):
+    facing the line, the mission sees a marker large (usable by the lens fit), low in the image, near its left and
+    its right side (realistic seed 1 before lens_views: one usable marker, its corners within u 202-465 px), and
+    ends coaxial with the line again."""
+    from naocal.kinds.duckiebot.detect import detect_markers
+    from naocal.kinds.duckiebot.intrinsics import FLOOR_MIN_SIDE_PX
+
+    robot = short_mock(seed=1, realism="realistic", start_pose=(0.0, 0.0, math.pi))  # facing along the marker line
+    try:
+        session = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        lens = SimpleNamespace(camera=LensCamera.from_intrinsics(robot.truth.camera))
+        ctx = MissionContext(robot, tmp_path, SHORT, session, lens=lens)
+        session.command(0.0, 0.0)  # the safe state first, as the mission's first state does
+        assert FaceMarkers().run(ctx).name == "ok"
+        log = read_drive_log(tmp_path / "log")
+        low = []  # centres of the markers usable by the lens fit, below the image's middle
+        for i in range(len(log.frame_files)):
+            for s in detect_markers(log.load_frame(i)):
+                side = np.linalg.norm(np.roll(s.corners_px, -1, axis=0) - s.corners_px, axis=1).min()
+                centre = s.corners_px.mean(axis=0)
+                if side >= FLOOR_MIN_SIDE_PX and centre[1] >= 0.55 * 480:
+                    low.append(centre)
+        u = np.array(low)[:, 0]
+        assert u.min() < 0.25 * 640 and u.max() > 0.75 * 640, u
+        # coaxial again: within the alignment tolerance and the camera mount's yaw (the nominal mount steers)
+        assert abs(math.remainder(robot.pose()[2] - math.pi, 2 * math.pi)) < math.radians(5.0)
+    finally:
+        robot.close()

@@ -81,6 +81,8 @@ PWM_DRIVER = "pwm_driver"  # the effect whose term is Drive.pwm_driver (kinemati
 LAG_EFFECTS = tuple(name for name, e in WHEEL_EFFECTS.items() if e.drive_from_base_fit)
 LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
+# drive_start: the planar poses' scale (m; the heading's, POSE_SCALE_M / POSE_HEADING_M rad) and iterations
+POSE_SCALE_M, POSE_HEADING_M, POSE_FIT_ITERATIONS = 0.02, 0.2, 50
 
 
 def marker_offsets(size_m: float) -> np.ndarray:
@@ -487,6 +489,75 @@ def chain_floor(seen: dict, reference: int) -> tuple[dict, dict]:
     return frames, markers
 
 
+class PoseEquations:
+    """drive_start's problem for solver.identify.solve: the frames' planar poses seen from the markers (`seen`,
+    (F, 3)) against the drive's from the anchor at the first of them (trajectory), residuals (F, 3) in POSE_SCALE_M
+    (the heading's POSE_SCALE_M / POSE_HEADING_M rad); unknowns the kinematics, the anchor and the effects'
+    parameters (`columns` of the joint fit's `names`, those `free`)."""
+
+    def __init__(self, drive: Drive, times_s, seen, names, base, free):
+        self.drive, self.times_s, self.seen = drive, np.asarray(times_s), np.asarray(seen)
+        self.column = {n: i for i, n in enumerate(names)}
+        self.effects = tuple(n for ns in EFFECTS.values() for n in ns if n in self.column)
+        order = KINEMATIC + ANCHOR + self.effects
+        self.unknowns = [j for j, n in enumerate(order) if free[self.column[n]]]  # trajectory's columns
+        self.index = np.array([self.column[order[j]] for j in self.unknowns], dtype=int)
+        self.base = np.asarray(base, dtype=float)
+        self.scales = parameter_scales(names)[self.index]
+        self.unit = np.array([POSE_SCALE_M, POSE_SCALE_M, POSE_SCALE_M / POSE_HEADING_M])
+
+    def values(self, free) -> np.ndarray:
+        x = self.base.copy()
+        x[self.index] = free
+        return x
+
+    def dense(self, free):
+        """(r (3F,), J (3F, P)) unscaled."""
+        x, c = self.values(free), self.column
+        poses, J = trajectory(self.drive, x[c["gain"]], x[c["trim"]], x[c["baseline_m"]], x[[c[n] for n in ANCHOR]],
+                              self.times_s[0], self.times_s, {n: x[c[n]] for n in self.effects})
+        d = poses - self.seen
+        d[:, 2] = np.remainder(d[:, 2] + np.pi, 2 * np.pi) - np.pi
+        return (d / self.unit).reshape(-1), (J[:, :, self.unknowns] / self.unit[None, :, None]).reshape(
+            -1, len(self.unknowns))
+
+    def __call__(self, free, *, weights=None, jacobian: bool = True) -> Normal:
+        r, J = self.dense(free)
+        r = r.reshape(-1, 3)
+        rw = r if weights is None else r * np.sqrt(weights)[:, None]
+        Js = (J * self.scales).reshape(len(r), 3, -1)
+        flat = Js.reshape(-1, Js.shape[2])
+        return Normal(flat.T @ flat, flat.T @ rw.reshape(-1), 0.5 * float(np.sum(rw ** 2)), r,
+                      np.einsum("ncp,nc->np", Js, rw))
+
+
+def drive_start(drive: Drive, frames: dict, names, x0, free) -> np.ndarray:
+    """x0 with the kinematics, the anchor and the drive effects' parameters fitted to the frames' poses seen from the
+    markers (`frames`: start_values'; PoseEquations), instead of dead reckoning at the nominal wheels: over many
+    one-wheel turns (the mission's lens views: 50 half steps) that drifted so far that markers in view projected
+    behind the camera and the first Jacobian was meaningless (realistic mock, seed 3: 'cannot determine 8
+    parameter combinations'). Cauchy loss (a badly chained frame); kept only where it lowers that loss."""
+    ordered = sorted(frames)
+    if len(ordered) < 3:
+        return x0
+    equations = PoseEquations(drive, drive.frame_t_s[ordered], [frames[f] for f in ordered], names, x0, free)
+    if not len(equations.index):
+        return x0
+
+    def cost(free):
+        return float(np.sum(np.log1p(equations.dense(free)[0] ** 2)))
+
+    start = np.asarray(x0, dtype=float)[equations.index]
+    try:
+        solution = solve(equations, last_pass_cached(equations), start, loss="cauchy",
+                         max_iterations=POSE_FIT_ITERATIONS)
+    except SolveError:
+        return x0
+    if not np.all(np.isfinite(solution.free)) or not cost(solution.free) < cost(start):
+        return x0
+    return equations.values(solution.free)
+
+
 def start_values(drive: Drive, obs: Sightings, K, marker_size_m, T_base_camera, reference):
     """(frame poses {frame: (x, y, theta)}, marker poses {id: (x, y, yaw)}, gain) from the detections alone: each
     marker's pose in the body frame from its corners' floor points under the nominal camera pose, chained from the
@@ -595,6 +666,8 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     first = int(np.min(sightings.frame[connected]))
     x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0],
                          [EFFECT_START.get(n, 0.0) for n in added]] + [markers[m] for m in ids])
+    if not start:  # a start given (the fit without the lags, a known calibration) is closer than the poses'
+        x0 = drive_start(drive, frames, names, x0, np.array([n not in fixed for n in names]))
     for name in fixed:
         if name not in names:
             raise ValueError(f"unknown parameter {name!r} to fix")

@@ -10,7 +10,9 @@ however it ends.
 - camera: the intrinsics from every board view (kinds.duckiebot.identify.fit_intrinsics: lens model by held-out
   error).
 - face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
-  line (the markers' yaw, all oriented alike, through the fitted camera and the nominal mount).
+  line (the markers' yaw, all oriented alike, through the fitted camera and the nominal mount); then on to the
+  line's near end until a marker is low in the image and one-wheel steps left and right until it nears either side
+  (lens_views: the lens fit's view of the image's lower half), and coaxial again.
 - marker_drives: legs out along the line in short stretches (stop, grab) and back, longer each time, some ending with
   one-wheel turns (the joint fit needs turns in view of the markers to tell the baseline from trim), re-aligned at
   the start when the robot came back curved (kinds.duckiebot.render.joint_program's design, closed loop).
@@ -90,6 +92,11 @@ class MissionSettings:
     max_spin_steps: int = 30
     align_tolerance_rad: float = math.radians(2.0)
     max_align_steps: int = 12
+    lens_view_depths: tuple = (0.6, 0.75)  # lens views: drive on until the lowest marker's centre is this far down
+    # the image (of its height: 0.6, a marker about 0.16 m ahead of the camera; 0.75, its near edge at the bottom)
+    max_approach_steps: int = 10  # stretches of drive_s / 2 at drive_duties[0] (about 3 cm each) towards it
+    sweep_margin: float = 0.12  # then turn until the marker's centre is this near (of the width) an image edge
+    max_sweep_steps: int = 16  # one-wheel half steps (about 6 deg) each way
     drive_duties: tuple = (0.3, 0.45, 0.3)  # each leg's duty: two duties tell the motors' start (the fit's
     # dead_zone, with the driver's PWM floor) from their slope; they bracket the 0.3 m/s drive's (0.27-0.45 on real
     # robots' gains 0.7-1.3), where the exported gain is the secant (fit.secant_gain)
@@ -440,6 +447,70 @@ def align(ctx: MissionContext, lens, T_base_camera, session: Session, markers=No
     raise NaocalError(f"not coaxial with the marker line after {s.max_align_steps} steps")
 
 
+def marker_centres(image) -> dict:
+    """{id: (u, v) px} of the centres of the markers detected in a frame."""
+    return {s.id: tuple(s.corners_px.mean(axis=0)) for s in detect_markers(image)}
+
+
+def lens_views(ctx: MissionContext, session: Session) -> int:
+    """Frames of floor markers large in the image's lower half, from one side to the other: the lens fit's view of
+    the lower half (the boards are seen only in the upper 40 %, and the marker drives see the markers near the
+    image's middle column: realistic mock seed 1, one marker of 30 px or more, in u 202-465, v 255-435 px). From
+    coaxial with the line, for each of `lens_view_depths`: on along it in short stretches until the lowest marker's
+    centre is that far down the image, then one-wheel half steps left until that marker nears the image's right
+    edge (or leaves the view), right until it nears the left edge, and left until it is past the middle again; each
+    frame grabbed at rest. Returns the frames grabbed."""
+    s = ctx.settings
+    width, height = duckiebot("DB21").camera.width_px, duckiebot("DB21").camera.height_px
+    duty, duration = s.drive_duties[0], s.drive_s / 2
+    frames = 0
+
+    def look(distance_m):
+        nonlocal frames
+        frames += 1
+        centres = marker_centres(session.grab())
+        saw_marker(ctx, centres, distance_m)
+        return centres
+
+    def lowest(centres):
+        return max(centres, key=lambda i: centres[i][1]) if centres else None
+
+    def turn_until(target, direction, stop):
+        """Half steps towards `direction` until stop(centre, or None when the target has been missed twice in a row:
+        the detector misses a large marker now and then) once the target has been seen (max_sweep_steps at most);
+        returns whether it stopped so."""
+        seen, missed = False, 0
+        for step in range(s.max_sweep_steps):
+            turn_step(session, s, direction, step, s.step_s / 2)
+            centre = look(nominal_distance_bound(s.step_duty, s.step_s / 2)).get(target)
+            seen = seen or centre is not None
+            missed = 0 if centre is not None else missed + 1
+            if seen and (stop(centre) if centre is not None else missed >= 2 and stop(None)):
+                return True
+        return False
+
+    edge = (0.5 - s.sweep_margin) * width
+    centres = look(0.0)
+    for depth in s.lens_view_depths:
+        for _ in range(s.max_approach_steps):
+            target = lowest(centres)
+            if target is None:
+                raise NaocalError("lost the marker line while approaching it")
+            if centres[target][1] >= depth * height:
+                break
+            session.hold(duty, duty, duration)
+            previous, centres = centres[target], look(nominal_distance_bound(duty, duration))
+            if target not in centres and lowest(centres) is not None and centres[lowest(centres)][1] < previous[1]:
+                break  # the nearest has left the view at the bottom: sweep with the next
+        target = lowest(centres)
+        turn_until(target, +1, lambda c: c is None or c[0] - width / 2 >= edge)  # left: the floor moves right
+        turn_until(target, -1, lambda c: c is None or width / 2 - c[0] >= edge)
+        if not turn_until(target, +1, lambda c: c is not None and c[0] >= width / 2):
+            raise NaocalError("lost the marker line turning back to it")
+        centres = look(0.0)
+    return frames
+
+
 class FaceMarkers(State):
     name = "face_markers"
     needs = ("lens",)
@@ -456,8 +527,10 @@ class FaceMarkers(State):
         else:
             raise NaocalError(f"no floor marker in view after {s.max_spin_steps} turns on the spot")
         align(ctx, ctx.lens, mount, session, markers)
+        views = lens_views(ctx, session)
+        align(ctx, ctx.lens, mount, session)
         ctx.facing = True
-        return Outcome("ok")
+        return Outcome("ok", f"{views} frames of a marker low in the image, left to right")
 
 
 class MarkerDrives(State):
