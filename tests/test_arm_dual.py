@@ -701,3 +701,21 @@ def test_a_calibration_of_several_chains_names_them_or_is_refused(tmp_path, chai
     (tmp_path / "cal.json").write_text(json.dumps(doc))
     run = naocal("offsets", "validate", tmp_path / "cal.json")
     assert run.returncode == 2 and problem in run.stderr and "chains" in run.stderr and run.stderr.count("\n") == 1
+
+
+def test_simulate_dualarm_camera_error_on_the_command_line(tmp_path):
+    """`naocal simulate --robot dualarm --camera-error`: the data ARM.md's camera-error table is measured on, from
+    the command line; refused for another arm."""
+    from cli_runner import naocal
+
+    out = tmp_path / "cams"
+    done = naocal("simulate", "--robot", "dualarm", "--camera-error", "--poses", "10", "--seed", "2", "--out", out)
+    assert done.returncode == 0, done.stderr
+    truth = json.loads((out / "truth.json").read_text())
+    filed = json.loads((out / "dataset.json").read_text())["sensors"]
+    assert truth["camera_error"] and set(truth["intrinsics"]) == {"cam_left", "cam_right"}
+    for cam, true in truth["intrinsics"].items():
+        assert true["fx_px"] != filed[cam]["fx_px"] and true["cx_px"] != filed[cam]["cx_px"]
+    refused = naocal("simulate", "--robot", "franka_panda", "--chain", "panda_link0:panda_hand", "--camera-error",
+                     "--out", tmp_path / "panda")
+    assert refused.returncode == 2 and "--camera-error: only with --robot dualarm" in refused.stderr

@@ -4,6 +4,8 @@ import argparse
 import json
 import sys
 
+import pytest
+
 import naocal.kinds as kinds
 from conftest import ROOT
 from tests.cli_runner import naocal
@@ -194,3 +196,10 @@ def test_a_backend_of_another_kind_is_refused_by_the_nao_in_one_line(tmp_path):
     assert result.returncode == 2 and "--backend ros is another robot kind's (--robot duckiebot)" in result.stderr, \
         result.stderr
     assert "\n" not in result.stderr.strip() and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("option", [["--camera-error"], ["--poses", "20"], ["--noise-px", "0.5"]])
+def test_the_nao_simulate_refuses_another_kinds_option_instead_of_ignoring_it(tmp_path, option):
+    done = naocal("simulate", *option, "--out", tmp_path / "sim")
+    assert done.returncode == 2 and f"{option[0]} is not an option of the NAO's simulate" in done.stderr, done.stderr
+    assert not (tmp_path / "sim").exists()

@@ -51,6 +51,9 @@ NAMES    the candidate effects (score test, clustered by pose), best first; PHYS
                                 help="arm: the 3-D sensor's noise per axis (default 1e-4 m)")
             parser.add_argument("--noise-px", type=float, default=0.2,
                                 help="arm: the camera's noise per axis (default 0.2 px)")
+            parser.add_argument("--camera-error", action="store_true",
+                                help="dual arm: the cameras' true intrinsics off what dataset.json files, by a "
+                                     "separate checkerboard calibration's plausible error (docs/ARM.md)")
             parser.add_argument("--hidden", default="joint_offsets,link_lengths",
                                 help="arm: the hidden errors (default joint_offsets,link_lengths)")
 

@@ -385,6 +385,8 @@ def run_simulate(args) -> int:
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
     if args.robot == DUALARM:
         return run_simulate_dualarm(args, out)
+    if args.camera_error:
+        raise NaocalError("--camera-error: only with --robot dualarm")
     if args.robot is None:
         raise NaocalError("--robot kuka_iiwa|franka_panda|URDF is needed with --chain")
     urdf, base, tip = resolve_robot(args.robot, args.chain)
@@ -412,7 +414,7 @@ def run_simulate_dualarm(args, out) -> int:
     import shlex
 
     from naocal.agent.rundir import RunLock, entries
-    from naocal.kinds.arm.sim import simulate_dualarm
+    from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, simulate_dualarm
     from naocal.solver.errors import NaocalError
 
     if args.chain is not None:
@@ -421,12 +423,13 @@ def run_simulate_dualarm(args, out) -> int:
         raise NaocalError("--hidden: the dual-arm robot hides joint offsets, link lengths, tool mounts and marker "
                           "positions (not chosen)")
     command = shlex.join(["naocal", "simulate", "--robot", DUALARM, "--out", str(out), "--seed", str(args.seed),
-                          "--poses", str(args.poses)])
+                          "--poses", str(args.poses)] + (["--camera-error"] if args.camera_error else []))
     with RunLock(out, command):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
         info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
-                                noise_px=args.noise_px)
+                                noise_px=args.noise_px,
+                                camera_error=dict(CAMERA_FILING_ERROR) if args.camera_error else None)
     print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
           f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); "
           f"{info['refused_colliding']} drawn stances refused as colliding (arms, tools, torso); hidden truth in "

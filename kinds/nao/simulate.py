@@ -13,6 +13,12 @@ def run(args) -> int:
     from naocal.solver.errors import NaocalError
 
     check_common(args)
+    from naocal.kinds import foreign_options
+    from naocal.kinds.nao import KIND
+
+    given = foreign_options(args, KIND)
+    if given:  # another kind's option (an arm's --poses, --camera-error) would be silently ignored here
+        raise NaocalError(f"{given[0]} is not an option of the NAO's simulate (another robot kind's: give --robot)")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
