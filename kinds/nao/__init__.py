@@ -83,7 +83,7 @@ commands, ready to paste (with --fix for the candidate's parameters these data c
     def simulate(self, args) -> int:
         from naocal.kinds.nao.simulate import run
 
-        return run(args)
+        return run(args, self)
 
     def offsets(self, args, action: str, out) -> int:
         from naocal.kinds.nao import offsets

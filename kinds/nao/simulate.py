@@ -2,7 +2,7 @@
 NAO, with its hidden truth beside it."""
 
 
-def run(args) -> int:
+def run(args, kind) -> int:
     import json
     import shlex
     import sys
@@ -14,9 +14,8 @@ def run(args) -> int:
 
     check_common(args)
     from naocal.kinds import foreign_options
-    from naocal.kinds.nao import KIND
 
-    given = foreign_options(args, KIND)
+    given = foreign_options(args, kind)
     if given:  # another kind's option (an arm's --poses, --camera-error) would be silently ignored here
         raise NaocalError(f"{given[0]} is not an option of the NAO's simulate (another robot kind's: give --robot)")
     out = Path(args.out)
