@@ -282,9 +282,10 @@ def test_calibrate_over_the_bridge_needs_an_endpoint_one_line_exit_2(tmp_path):
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
 
 
-def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
-    """`naocal bridge serve --robot duckiebot --driver ros` as on a DB21: RosDuckiebot over Duckietown's topics (the
-    fake peer of tests/duckiebot_ros_peer.py) behind the server; the client drives, grabs and reads the encoders."""
+@pytest.fixture
+def ros_served(monkeypatch):
+    """RosDuckiebot over Duckietown's topics (the fake peer of tests/duckiebot_ros_peer.py), ready to be served:
+    (the fake ROS graph, the served robot); both closed after the test."""
     sys.path.insert(0, str(ROOT / "tests"))
     from duckiebot_ros_peer import FakeRosGraph
     from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
@@ -292,21 +293,29 @@ def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
     graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
     served = ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=10.0)
     try:
-        with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
-            client = DuckiebotBridge(server.endpoint)
-            assert client.facts()["ticks_per_revolution"] == 135 and client.robot_id == "db21"
-            t_start = client.command(0.4, 0.4)
-            client.advance(1.5)
-            client.command(0.0, 0.0)
-            t, image = client.grab()
-            assert t > t_start and image.shape == (480, 640) and image.dtype == np.uint8
-            rows = client.encoder_ticks(t_start, t)
-            assert len(rows) > 20 and rows[-1][1] - rows[0][1] > 50  # 1.5 s at about 0.4 x 27 rad/s
-            assert rows == [[r[0], r[1], r[2]] for r in served.driver.encoder_ticks(t_start, t)]
-            client.close()
-        assert graph.received[-1][1:] == (0.0, 0.0) and graph.refused == []
+        yield graph, served
     finally:
         served.close()
+        graph.close()
+
+
+def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, ros_served):
+    """`naocal bridge serve --robot duckiebot --driver ros` as on a DB21: RosDuckiebot over Duckietown's topics (the
+    fake peer of tests/duckiebot_ros_peer.py) behind the server; the client drives, grabs and reads the encoders."""
+    graph, served = ros_served
+    with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
+        client = DuckiebotBridge(server.endpoint)
+        assert client.facts()["ticks_per_revolution"] == 135 and client.robot_id == "db21"
+        t_start = client.command(0.4, 0.4)
+        client.advance(1.5)
+        client.command(0.0, 0.0)
+        t, image = client.grab()
+        assert t > t_start and image.shape == (480, 640) and image.dtype == np.uint8
+        rows = client.encoder_ticks(t_start, t)
+        assert len(rows) > 20 and rows[-1][1] - rows[0][1] > 50  # 1.5 s at about 0.4 x 27 rad/s
+        assert rows == [[r[0], r[1], r[2]] for r in served.driver.encoder_ticks(t_start, t)]
+        client.close()
+    assert graph.received[-1][1:] == (0.0, 0.0) and graph.refused == []
 
 
 @pytest.mark.parametrize("damage, message", [
@@ -315,34 +324,25 @@ def test_the_ros_driver_served_against_a_fake_ros_peer(tmp_path, monkeypatch):
      "is 320 x 240, expected 640 x 480"),
 ])
 def test_a_bad_camera_frame_from_ros_is_never_echoed_the_client_hears_why_and_the_server_goes_on(
-        tmp_path, monkeypatch, damage, message):
+        tmp_path, ros_served, damage, message):
     """The camera node's JPEG is decoded and its size checked on the robot before anything of it crosses the bridge:
     a frame that fails is answered with one error naming the topic, the wheels stopped, the server still serving."""
-    sys.path.insert(0, str(ROOT / "tests"))
-    from duckiebot_ros_peer import FakeRosGraph
-    from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+    graph, served = ros_served
+    with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
+        client = DuckiebotBridge(server.endpoint)
+        client.command(0.2, 0.2)
 
-    graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
-    served = ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=10.0)
-    try:
-        with serving(served, ipc(tmp_path), driver="ros", clock="wall") as server:
-            client = DuckiebotBridge(server.endpoint)
-            client.command(0.2, 0.2)
+        def damaged(msg):
+            damage(msg)
+            return msg
 
-            def damaged(msg):
-                damage(msg)
-                return msg
-
-            graph.frame_hook = damaged
-            with pytest.raises(BridgeError, match=f"/db21/camera_node/image/compressed: the frame stamped .* {message}"
-                                                  ".*the wheels were stopped") as refused:
-                client.grab()
-            assert "\n" not in str(refused.value) and graph.robot.duties.tolist() == [0.0, 0.0]
-            assert client.now() > 0.0  # the server goes on
-            client.close()
-    finally:
-        served.close()
-        graph.close()
+        graph.frame_hook = damaged
+        with pytest.raises(BridgeError, match=f"/db21/camera_node/image/compressed: the frame stamped .* {message}"
+                                              ".*the wheels were stopped") as refused:
+            client.grab()
+        assert "\n" not in str(refused.value) and graph.robot.duties.tolist() == [0.0, 0.0]
+        assert client.now() > 0.0  # the server goes on
+        client.close()
 
 
 def test_with_curve_clients_an_unknown_key_moves_nothing_and_an_admitted_one_drives(tmp_path, served, mock):
