@@ -16,6 +16,7 @@ import numpy as np
 from naocal.backends.errors import RobotFault
 from naocal.solver import limits as joint_limits_module
 from naocal.solver.camera import CameraIntrinsics  # noqa: F401  (the backends report the one intrinsics type)
+from naocal.solver.joints import JOINTS
 
 
 @dataclass(frozen=True)
@@ -151,3 +152,21 @@ class Backend(abc.ABC):
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+class JointTables:
+    """For a NAO backend that serves solver.joints.JOINTS with limit and speed tables it fills at start (`_limits`,
+    `_speeds`: the model's, or what the robot reports): Backend's three joint queries, answered with copies so that
+    no caller can change what the safety checks use."""
+
+    _limits: dict[str, tuple[float, float]]
+    _speeds: dict[str, float]
+
+    def joint_names(self) -> tuple[str, ...]:
+        return JOINTS
+
+    def joint_limits(self) -> dict[str, tuple[float, float]]:
+        return dict(self._limits)
+
+    def max_speeds(self) -> dict[str, float]:
+        return dict(self._speeds)

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
-from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading
+from naocal.backends.base import Backend, JointTables, CameraImage, CameraIntrinsics, JointReading
 from naocal.backends.errors import RobotFault, RobotTimeout
 from naocal.solver import limits
 from naocal.solver.errors import NaocalError, SafetyError
@@ -350,7 +350,7 @@ class JointControl:
         return self.setpoint.copy(), self.stiffness.copy()
 
 
-class LolaBackend(Backend):
+class LolaBackend(JointTables, Backend):
     """A NAO V6 through LoLA's socket at `socket_path` (see the module docstring).
 
     cameras : objects with `name` ('bottom' or 'top'), capture() -> CameraImage | None, intrinsics(), close()
@@ -532,15 +532,6 @@ class LolaBackend(Backend):
         body_id, body_version, head_id, head_version = self._frame.robot_config
         return {"id": body_id, "model": f"NAO V{body_version.split('.')[0]} (LoLA)", "body_id": body_id,
                 "head_id": head_id, "body_version": body_version, "head_version": head_version}
-
-    def joint_names(self) -> tuple[str, ...]:
-        return JOINTS
-
-    def joint_limits(self) -> dict[str, tuple[float, float]]:
-        return dict(self._limits)
-
-    def max_speeds(self) -> dict[str, float]:
-        return dict(self._speeds)
 
     def command(self, targets_rad: dict[str, float], speed_fraction: float) -> None:
         speed_fraction = limits.check_speed_fraction(speed_fraction)

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading
+from naocal.backends.base import Backend, JointTables, CameraImage, CameraIntrinsics, JointReading, checked_reading
 from naocal.solver.errors import SafetyError
 from naocal.backends.mock_realism import IDEAL, Realism, as_realism
 from naocal.backends.mock_render import RowBand, SceneRenderer, add_glare, board_outline_board_m, form_image
@@ -385,7 +385,7 @@ class _Frame:
     glare: tuple | None = None  # (leg, centre px, sigma px, amplitude) of a rendered specular patch
 
 
-class MockBackend(Backend):
+class MockBackend(JointTables, Backend):
     """A simulated NAO (PyBullet, simulated clock) with hidden truth `truth` / `truth_dict()`.
 
     Parameters
@@ -473,15 +473,6 @@ class MockBackend(Backend):
     def robot_identity(self) -> dict:
         return {"id": f"mock-{self.seed}", "model": f"{self.realism.robot_model} (naocal PyBullet mock)",
                 "body_id": f"mock-body-{self.seed}", "head_id": f"mock-head-{self.seed}"}
-
-    def joint_names(self) -> tuple[str, ...]:
-        return JOINTS
-
-    def joint_limits(self) -> dict[str, tuple[float, float]]:
-        return dict(self._limits)
-
-    def max_speeds(self) -> dict[str, float]:
-        return dict(self._speeds)
 
     def intrinsics(self) -> CameraIntrinsics:
         return self._nominal

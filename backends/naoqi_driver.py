@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 
-from naocal.backends.base import Backend, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
+from naocal.backends.base import Backend, JointTables, CameraImage, CameraIntrinsics, JointReading, checked_reading, nominal_intrinsics
 from naocal.solver import fields, limits
 from naocal.backends.errors import RobotFault, RobotTimeout
 from naocal.solver.errors import NaocalError, SafetyError
@@ -61,7 +61,7 @@ IMAGE_CLOCKS = ("auto", "dcm", "monotonic", "realtime")
 _CLOSED_SESSIONS: list = []
 
 
-class NaoqiBackend(Backend):
+class NaoqiBackend(JointTables, Backend):
     """A NAO reached through NAOqi at `url` (on the robot: tcp://127.0.0.1:9559).
 
     Parameters
@@ -181,15 +181,6 @@ class NaoqiBackend(Backend):
         head_id = memory_value("RobotConfig/Head/FullHeadId")
         model = f"NAO {memory_value('RobotConfig/Body/BaseVersion')}"
         return {"id": body_id, "model": model, "body_id": body_id, "head_id": head_id}
-
-    def joint_names(self) -> tuple[str, ...]:
-        return JOINTS
-
-    def joint_limits(self) -> dict[str, tuple[float, float]]:
-        return dict(self._limits)
-
-    def max_speeds(self) -> dict[str, float]:
-        return dict(self._speeds)
 
     def _refuse_if_faulted(self) -> None:
         if self._fault is not None:
