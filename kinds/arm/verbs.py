@@ -30,10 +30,11 @@ def add_arm_options(parser, *, simulate=False, verb="") -> None:
                         help="arm: start from the arm's parameters of this naocal.arm_calibration/1 (the priors "
                              "stay about the URDF)")
     if verb == "verify":
-        parser.add_argument("--refit", default="sensors", metavar="sensors[,points]",
+        parser.add_argument("--refit", default="sensors", metavar="sensors[,points][,intrinsics]",
                             help="arm: what the new data refit with the calibration's arm held (default: sensors, the "
                                  "sensors' frames; points: also where the reflectors / markers sit on the tool, "
-                                 "e.g. a tracker's reflector)")
+                                 "e.g. a tracker's reflector; intrinsics: the cameras' fx, fy, cx, cy, k1 of the "
+                                 "new session)")
         parser.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
                             help="arm: hold a refitted parameter (repeatable), at VALUE in the units the report "
                                  "shows (deg, mm)")
@@ -324,7 +325,7 @@ def run_verify(args) -> int:
 
 
 def parse_refit(text: str) -> tuple:
-    """--refit sensors[,points]: the nuisance effects beyond the sensors' frames (always refitted)."""
+    """--refit sensors[,points][,intrinsics]: the nuisance effects beyond the sensors' frames (always refitted)."""
     from naocal.kinds.arm.verify import NUISANCE_EFFECTS
     from naocal.solver.effects import comma_list
     from naocal.solver.errors import NaocalError

@@ -9,10 +9,13 @@ moved: a calibrated parameter whose refitted value differs from the calibration'
 and by DRIFT_MIN_SCALE of its typical size. As the NAO's (solver/verify.py), with sensors for cameras and poses
 for images.
 
-Nuisance parameters (`refit`, --refit sensors,points): what belongs to the new data's setup rather than to the arm,
-refitted with the calibration's arm held, e.g. where a laser tracker's reflector sits on the tool, so that a
-calibration made from cameras can be checked on a tracker's data (its frame and reflector unknown); the verdict is
-on the residual of that refit. They are never among what moved. A nuisance can hide a wrong arm (a reflector moved
+Nuisance parameters (`refit`, --refit sensors,points,intrinsics): what belongs to the new data's setup rather than
+to the arm, refitted with the calibration's arm held, e.g. where a laser tracker's reflector sits on the tool, so that
+a calibration made from cameras can be checked on a tracker's data (its frame and reflector unknown), or the
+cameras' intrinsics of a new session (refocused, warmed up); the verdict is on the residual of that refit. A nuisance
+the new data cannot determine (the identifiability check fixes it: it changes no prediction, or the data cannot
+tell it from the sensors' frames) is refused, naming it: its "refit" would be its start value. The calibration's
+intrinsics of a camera the new data lack (a tracker's data) belong to that camera, not to the arm: unused. They are never among what moved. A nuisance can hide a wrong arm (a reflector moved
 by 17 mm carries a flange turned by 10 deg), so what the refit absorbed is reported against the nuisances' prior
 (the plausible size of where a reflector is glued: the points effect's prior_size): beyond it
 (`absorbed_beyond_prior`) the verdict cannot be good.
@@ -25,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from naocal.solver.errors import DataError
+from naocal.solver.errors import DataError, NaocalError
 from naocal.solver.verify import DRIFT_MIN_SCALE, DRIFT_RATIO, DRIFT_Z, WORST_IMAGES, moved_text, verdict_text
 
 UNIT = {"points": "m", "camera": "px"}
@@ -79,7 +82,33 @@ def check_same_arm(cal, dataset) -> None:
 
 
 # What --refit may name: the sensors' frames (always refitted) and effects of the setup rather than the arm.
-NUISANCE_EFFECTS = ("points",)
+NUISANCE_EFFECTS = ("points", "intrinsics")
+
+
+def of_absent_sensors(cal, model) -> list:
+    """The calibration's parameters of its sensors that `model` lacks (a camera's intrinsics on a tracker's data):
+    they belong to that sensor, not to the arm."""
+    absent = {s for s in (*cal.rms, *cal.noise) if s not in {sensor.name for sensor in model.sensors}}
+    return [n for n in cal.arm_parameters if n.startswith("intrinsics.") and any(
+        n.startswith(f"intrinsics.{s}.") for s in absent)]
+
+
+def undetermined_nuisances(fit_, nuisance, held=()) -> None:
+    """SolveError naming the first of the refitted `nuisance` parameters that the identifiability check of `fit_`
+    fixed although it moves these data's predictions (the data cannot tell it from others: its refit would be its
+    start value), unless the user held it. One that moves none (a marker the tracker never sees) is no matter."""
+    from naocal.kinds.arm.identify import whitened
+    from naocal.solver.errors import SolveError
+
+    lost = [n for n in nuisance if n in fit_.fixed_reasons and n not in held]
+    if lost:
+        _, J = whitened(fit_.model, fit_.obs, fit_.x, fit_.sigma, jacobian=True)
+        moves = np.linalg.norm(J, axis=0) > 0
+        lost = [n for n in lost if moves[fit_.model.names.index(n)]]
+    if lost:
+        raise SolveError(f"--refit: these data cannot determine {lost[0]} ({len(lost)} such; "
+                         f"{fit_.fixed_reasons[lost[0]]}): hold it (--fix {lost[0]}[=VALUE]) or verify on data that "
+                         "determine it")
 
 
 def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors: bool = True, path="dataset"):
@@ -128,16 +157,22 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     obs = dataset.observations
     meta_path = dataset.path / "dataset.json"
     nuisance = [p.name for p in model.parameters if p.effect in refit_effects]
+    for effect in refit_effects:
+        if not model.params(effect):
+            raise NaocalError(f"--refit {effect}: {meta_path} has nothing it refits (sensors: "
+                              f"{', '.join(s.name + ' (' + s.kind + ')' for s in model.sensors)})")
     arm_names = [n for n in model.names if not n.startswith("sensor.") and n not in nuisance]
-    foreign = [n for n in cal.arm_parameters if n not in model.names]
+    unused = of_absent_sensors(cal, model)
+    foreign = [n for n in cal.arm_parameters if n not in model.names and n not in unused]
     if foreign:
         raise DataError(cal.path, f"{foreign[0]} is not a parameter of the dataset's chain ({len(foreign)} such): "
                                   "another arm's calibration", field=f"model.parameters.{foreign[0]}")
     missing = [n for n in arm_names if n not in cal.parameters]
-    values = {n: e["value"] for n, e in cal.arm_parameters.items()}
+    values = {n: e["value"] for n, e in cal.arm_parameters.items() if n not in unused}
     values.update(start or {})
     # 1. the calibration as it is; only the sensors' frames (and the nuisances) found from the new data
     fixed = nuisance_fit(model, obs, values, refit_effects, held=held, priors=priors, path=meta_path)
+    undetermined_nuisances(fixed, nuisance, held)
     # 2. a refit of what the calibration fitted: the noise floor (when the data state none) and what moved
     kept_fixed = tuple(n for n in arm_names if n in cal.parameters and cal.parameters[n]["fixed"]) + tuple(missing)
     refit = fit(model, obs, fixed.x, fixed=kept_fixed + tuple(held), path=meta_path, robust=False, priors=priors)
@@ -189,6 +224,14 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     suspects = list(dict.fromkeys(e["group"] for e in moved))
 
     warnings = []
+    if unused:
+        warnings.append(f"the calibration's {', '.join(sorted({n.rsplit('.', 1)[0] for n in unused}))} belong to "
+                        "sensors these data lack: unused")
+    held_by_prior = [n for n in fixed.held_by_prior if n in nuisance]
+    if held_by_prior:
+        warnings.append(f"{len(held_by_prior)} refitted nuisance(s) held by their prior, the data hardly inform them "
+                        f"({', '.join(held_by_prior[:6])}{' ...' if len(held_by_prior) > 6 else ''}): near their "
+                        "filed values")
     if missing:
         warnings.append(f"the calibration has no value for {len(missing)} parameter(s) of these data "
                         f"({', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}): taken as 0 (nominal)")

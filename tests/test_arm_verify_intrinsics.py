@@ -1,0 +1,93 @@
+"""verify with the cameras' intrinsics refitted as a nuisance (issue 24): a calibration made with the intrinsics
+effect is checked on a new session's camera data whose intrinsics moved (--refit sensors,intrinsics) and on the
+tracker's data (which has no camera); a nuisance the data cannot determine, or an effect with nothing to refit, is
+refused in one line."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.cli_runner import naocal
+from tests.test_arm_priors import one_sensor_dataset
+
+EFFECTS = ("joint_offsets", "link_lengths", "points", "intrinsics")
+# The camera's true intrinsics off what dataset.json files, in the calibration's session and in the next one (the
+# lens refocused): a few px, as a separate checkerboard calibration leaves them.
+FIRST = {"fx": 2.0, "fy": 1.5, "cx": -1.0, "cy": 1.2, "k1": 0.0}
+MOVED = {"fx": -3.0, "fy": -2.5, "cx": 2.0, "cy": -1.5, "k1": 0.002}
+
+
+def intrinsics(values):
+    return {f"intrinsics.camera.{k}": v for k, v in values.items()}
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """(calibration from the camera, its intrinsics refined, and the tracker; the next session's camera data; its
+    tracker data)."""
+    from naocal.kinds.arm.dataset import write_arm_dataset
+    from naocal.kinds.arm.scenarios import CAMERA, panda, true_errors
+    from tests.test_arm import synthetic
+
+    tmp = tmp_path_factory.mktemp("intrinsics")
+    truth = true_errors()
+    model, obs, _, sensors = synthetic(EFFECTS, dict(truth, **intrinsics(FIRST)), n_poses=80, seed=3, noise_px=0.05)
+    urdf, base, tip, *_ = panda()
+    points = dict(zip(model.point_names, map(tuple, model.point_xyz)))
+    meta = {"robot": {"id": "test", "urdf": str(urdf), "base": base, "tip": tip},
+            "points": {p: {"xyz_m": list(v)} for p, v in points.items()},
+            "sensors": {"tracker": {"kind": "points", "noise_m": 1e-4},
+                        "camera": dict({"kind": "camera", "noise_px": 0.05}, **CAMERA)}}
+    write_arm_dataset(tmp / "both", meta, model.chain.joint_names, obs, sensors, points)
+    cal = tmp / "cal.json"
+    run = naocal("identify", tmp / "both", "--effects", ",".join(EFFECTS), "--out", cal)
+    assert run.returncode == 0, run.stdout + run.stderr
+    model, obs, _, sensors = synthetic(EFFECTS, dict(truth, **intrinsics(MOVED)), n_poses=30, seed=4, noise_px=0.05)
+    return (cal, one_sensor_dataset(tmp / "next", model, obs, sensors, "camera", noise_px=0.05),
+            one_sensor_dataset(tmp / "tracker", model, obs, sensors, "tracker"))
+
+
+def test_a_new_session_s_moved_intrinsics_are_refitted_as_a_nuisance(sessions):
+    cal, next_session, _ = sessions
+    held = naocal("verify", next_session, "--offsets", cal, "--json")  # the calibration's intrinsics held
+    assert held.returncode == 1 and json.loads(held.stdout)["per_sensor"]["camera"]["ratio"] > 3
+    run = naocal("verify", next_session, "--offsets", cal, "--refit", "sensors,intrinsics", "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["good"] and verdict["per_sensor"]["camera"]["ratio"] < 1.3 and not verdict["absorbed"]["beyond"]
+    found = {e["parameter"]: e["value"] for e in verdict["refitted"]}
+    for name, value in intrinsics(MOVED).items():  # the new session's intrinsics, found with the arm held
+        assert abs(found[name] - value) < (0.5 if not name.endswith("k1") else 1e-3), (name, found[name])
+
+
+def test_a_calibration_with_intrinsics_is_checked_on_the_tracker(sessions):
+    """The tracker's data have no camera: the calibration's intrinsics belong to its camera, not to the arm (main
+    refused the file as 'another arm's calibration')."""
+    cal, _, tracker = sessions
+    run = naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,points", "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["good"] and any("intrinsics.camera belong to sensors these data lack" in w
+                                   for w in verdict["warnings"])
+    refused = naocal("verify", tracker, "--offsets", cal, "--refit", "sensors,intrinsics")
+    assert refused.returncode == 2 and "--refit intrinsics:" in refused.stderr and "has nothing it refits" in \
+        refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+
+
+def test_intrinsics_the_new_data_cannot_determine_are_refused(sessions, tmp_path):
+    """The camera sees its four points at one stance only (twice): 8 numbers for its frame's 6 and its 5
+    intrinsics. Without priors the refit would leave 3 of them at their start, so verify refuses naming one, exit 3,
+    rather than judge with them."""
+    from naocal.kinds.arm.scenarios import true_errors
+    from tests.test_arm import synthetic
+
+    cal, _, _ = sessions
+    model, obs, _, sensors = synthetic(EFFECTS, dict(true_errors(), **intrinsics(MOVED)), n_poses=1, seed=4,
+                                       noise_px=0.05)
+    twice = obs.subset(np.r_[np.arange(len(obs)), np.arange(len(obs))])
+    twice.pose = np.r_[obs.pose, obs.pose + 1]
+    one_stance = one_sensor_dataset(tmp_path / "one", model, twice, sensors, "camera", noise_px=0.05)
+    run = naocal("verify", one_stance, "--offsets", cal, "--refit", "sensors,intrinsics", "--no-priors")
+    assert run.returncode == 3 and "these data cannot determine intrinsics.camera." in run.stderr, run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1
