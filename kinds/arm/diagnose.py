@@ -45,6 +45,11 @@ RANK_TOLERANCE = 1e-6
 # effects it lacks that absorb a camera's 1 % focal error by 14.4 % at least: at 2 % 5 of the 8 physical candidates
 # were refuted, at 10 % those 2, and no fooled one passed at either.
 HELDOUT_TOLERANCE = 0.10
+# ... and only when the rise of its whitened sum of squares is beyond chance: the candidate's parameters, fitted
+# from the other sensors, carry their estimation noise to the judged sensor even where the arm has none of it (one
+# camera at 60 poses judging elasticity moved the other camera by 13 %, 1.5 sd of that noise: a false alarm).
+# Beyond CHANCE_Z sds of that noise (`chance_rise`), at diagnose's family level one-sided.
+CHANCE_Z = 3.090232306167813  # scipy.stats.norm.isf(FAMILY_ALPHA)
 SESSIONS = 5  # blocks of consecutive poses standing in for sessions when the dataset has no session column
 
 
@@ -101,14 +106,27 @@ class HeldOutCheck:
     how: str  # one phrase for the report
     without: dict
     with_effect: dict
+    # judged sensor -> {"rise": its whitened sum of squares with less without the candidate, "mean", "sd": that
+    # rise's under chance alone (`chance_rise`)}; empty: not known (the sessions' check)
+    chance: dict = field(default_factory=dict)
+
+    def within_chance(self, sensor) -> bool:
+        c = self.chance.get(sensor)
+        return c is not None and c["rise"] <= c["mean"] + CHANCE_Z * c["sd"]
+
+    def word(self, sensor) -> str:
+        """'worse', 'within chance' (worse beyond the tolerance, not beyond chance), 'better' or 'no better'."""
+        if self.with_effect[sensor] > (1.0 + HELDOUT_TOLERANCE) * self.without[sensor]:
+            return "within chance" if self.within_chance(sensor) else "worse"
+        return "better" if self.with_effect[sensor] < self.without[sensor] else "no better"
 
     @property
     def worse(self) -> list:
-        return [s for s, v in self.with_effect.items() if v > (1.0 + HELDOUT_TOLERANCE) * self.without[s]]
+        return [s for s in self.with_effect if self.word(s) == "worse"]
 
     def as_dict(self):
         return {"kind": self.kind, "how": self.how, "without": self.without, "with": self.with_effect,
-                "worse": self.worse}
+                "worse": self.worse, "chance": self.chance}
 
 
 def extended(fit: ArmFit, effects=ARM_EFFECTS):
@@ -244,12 +262,14 @@ def cross_checks(model: ArmModel) -> list:
     return out
 
 
-def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=None) -> dict:
-    """{judged sensor: RMS (its unit)} of its data with the arm fitted with `effects` from the `fitted_from`
-    sensors alone (default: the cameras; judged: the 3-D sensors), then held while the judged sensors' frames (and,
-    if the model has points, the points the fitting sensors never saw: a tracker's reflector) are refitted:
-    kinds.arm.verify.nuisance_fit, what verify --refit does. Only the judged rows of chains the fitting sensors
-    saw count (a tracker on one arm says nothing of the other's); the nuisances the fit held stay held."""
+def cross_sensor_fits(fit: ArmFit, effects, held=(), fitted_from=None, judged=None):
+    """(the arm fitted with `effects` from the `fitted_from` sensors alone (default: the cameras; judged: the 3-D
+    sensors), the judged sensors' fit with that arm held): in the latter only the judged sensors' frames and their
+    nuisances (kinds.arm.verify.NUISANCE_EFFECTS of the fit's own model: a tracker's reflectors the fitting sensors
+    never saw, a judged camera's intrinsics) are refitted, kinds.arm.verify.nuisance_fit, what verify --refit does;
+    a candidate's are never (it would give the judged sensor a freedom the comparison without it lacks). Only the
+    judged rows of chains the fitting sensors saw count (a tracker on one arm says nothing of the other's); the
+    nuisances the fit held stay held."""
     from naocal.kinds.arm.verify import NUISANCE_EFFECTS, nuisance_fit
 
     if fitted_from is None:
@@ -258,7 +278,7 @@ def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=Non
     from_them = refit_with(fit, effects, fitted_from, held)
     arm = {n: v for n, v in zip(from_them.model.names, from_them.x) if not n.startswith("sensor.")}
     model = _model_like(fit.model, effects, judged)
-    nuisances = tuple(e for e in NUISANCE_EFFECTS if e in effects)
+    nuisances = tuple(e for e in NUISANCE_EFFECTS if e in fit.model.effects)
     held_nuisances = [n for n, free in zip(fit.model.names, fit.free)  # what the user holds stays held (--fix points)
                       if not free and fit.model.parameters[fit.model.names.index(n)].effect in nuisances]
     seen = np.isin(fit.obs.sensor, fitted_from)
@@ -267,7 +287,55 @@ def cross_sensor_rms(fit: ArmFit, effects, held=(), fitted_from=None, judged=Non
     rows = np.isin(fit.obs.sensor, judged) & np.isin(fit.obs.chains(), np.unique(fit.obs.chains()[seen]))
     check = nuisance_fit(model, _sensor_rows(fit.obs.subset(rows), judged), arm, nuisances,
                          held=[n for n in dict.fromkeys(held_nuisances) if n in model.names], priors=fit.priors)
-    return check.rms()
+    return from_them, check
+
+
+def chance_rise(without, from_them, with_it, label) -> dict:
+    """{judged sensor: {"rise", "mean", "sd"}}: the rise of its whitened sum of squares from the judged fit
+    `without` to `with_it` (cross_sensor_fits' second, without and with the candidate effect `label`; the same rows),
+    and that rise's mean and sd if the candidate were nothing but noise: its parameters, fitted from the other
+    sensors (`from_them`, with it), move the arm by d ~ N(0, S), S the candidate's share of the fit's covariance
+    (its covariance with the candidate less without, as nested fits' estimates differ: Hausman), seen by the judged
+    sensor through its Jacobian G with its own frame and nuisances projected out; the rise 2 r0.G d + |G d|^2 has
+    mean tr(G S G') and variance 2 |G S G'|^2 + 4 r0' G S G' r0 (r0: its residual without). Linear about the fits."""
+    from naocal.kinds.arm.identify import prior_sizes
+
+    r0 = whitened(without.model, without.obs, without.x, without.sigma)
+    r1, J1 = whitened(with_it.model, with_it.obs, with_it.x, with_it.sigma, jacobian=True)
+    if len(r0) != len(r1):
+        return {}
+    m = from_them.model
+    index = np.flatnonzero(from_them.free)
+    _, JF = whitened(m, from_them.obs, from_them.x, from_them.sigma, jacobian=True)
+    JF = JF[:, index] * m.scales[index]
+    information = JF.T @ JF
+    if from_them.priors:
+        size = prior_sizes(m)[index]
+        information[np.diag_indices_from(information)] += np.where(
+            size > 0, (m.scales[index] / np.where(size > 0, size, 1.0)) ** 2, 0.0)
+    rest = np.flatnonzero([m.parameters[i].effect != label for i in index])
+    spread = np.linalg.pinv(information)
+    spread[np.ix_(rest, rest)] -= np.linalg.pinv(information[np.ix_(rest, rest)])
+    w, V = np.linalg.eigh((spread + spread.T) / 2)
+    root = V * np.sqrt(np.clip(w, 0.0, None))  # S = root root'
+    judged = with_it.model
+    column = {n: i for i, n in enumerate(judged.names)}
+    shared = [j for j, i in enumerate(index) if m.names[i] in column and not with_it.free[column[m.names[i]]]]
+    cols = [column[m.names[index[j]]] for j in shared]
+    G = J1[:, cols] * judged.scales[cols]
+    Q, _ = np.linalg.qr(J1[:, with_it.free] * judged.scales[with_it.free])
+    G -= Q @ (Q.T @ G)
+    B = G @ root[shared]
+    mask = judged.component_mask(with_it.obs)
+    sensor_rows = np.broadcast_to(with_it.obs.sensor[:, None], mask.shape)[mask]
+    out = {}
+    for s, sensor in enumerate(judged.sensors):
+        rows = sensor_rows == s
+        Bs, a, b = B[rows], r0[rows], r1[rows]
+        variance = 2.0 * float(np.sum((Bs.T @ Bs) ** 2)) + 4.0 * float(np.sum((Bs.T @ a) ** 2))
+        out[sensor.name] = {"rise": float(b @ b - a @ a), "mean": float(np.sum(Bs ** 2)),
+                            "sd": float(np.sqrt(variance))}
+    return out
 
 
 def session_folds(obs, n_blocks: int = SESSIONS) -> list:
@@ -310,23 +378,26 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
 
     names = [sensor.name for sensor in model.sensors]
     base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None
-    crosses = [(kind, a, b, _unless_unfit(lambda: cross_sensor_rms(fit, model.effects, (), a, b)))
+    crosses = [(kind, a, b, _unless_unfit(lambda: cross_sensor_fits(fit, model.effects, (), a, b)))
                for kind, a, b in cross_checks(model)]
     fits = {}
     rms = fit.rms()
     shown = [s.name for s in model.sensors if s.kind == "camera"] or list(rms)
+    reflectors = any(f for p, f in zip(model.parameters, fit.free) if p.effect == "points")
+    intrinsics = "intrinsics" in model.effects
     for c in judged:
         c.pixels = {s: [rms[s], c.predicted_rms[s]] for s in shown}
         effects = model.effects + (c.label,)
-        reflectors = c.label == "points" or any(f for p, f in zip(model.parameters, fit.free) if p.effect == "points")
         for kind, fitted_from, judged_by, without in crosses:
-            with_it = without and _unless_unfit(lambda: cross_sensor_rms(fit, effects, c.inert, fitted_from,
-                                                                         judged_by))
+            with_it = without and _unless_unfit(lambda: cross_sensor_fits(fit, effects, c.inert, fitted_from,
+                                                                          judged_by))
             if with_it:
-                what = {"sensor": " and reflectors", "reverse": " and markers"}.get(kind, "") if reflectors else ""
+                what = ({"sensor": " and reflectors", "reverse": " and markers"}.get(kind, "") if reflectors
+                        else "") + (" and intrinsics" if intrinsics and kind != "sensor" else "")
                 how = (f"{', '.join(names[s] for s in judged_by)} with the arm fitted from "
                        f"{', '.join(names[s] for s in fitted_from)} alone, then held (its frame{what} refitted)")
-                c.checks.append(HeldOutCheck(kind, how, without, with_it))
+                c.checks.append(HeldOutCheck(kind, how, without[1].rms(), with_it[1].rms(),
+                                             chance_rise(without[1], *with_it, c.label)))
         refit = base_sessions and _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
         with_it = refit and _unless_unfit(lambda: session_rms(refit))
         if with_it:
@@ -470,7 +541,7 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         for check in c.checks:
             change = "; ".join(f"{s} {shown_rms(check.without[s], kinds[s])} -> "
                                f"{shown_rms(check.with_effect[s], kinds[s])} "
-                               f"({'worse' if s in check.worse else 'better' if check.with_effect[s] < check.without[s] else 'no better'})"
+                               f"({check.word(s)})"
                                for s in check.with_effect)
             lines.append(f"    held-out {check.how}: {change}")
         lines.append("    -> " + ("physical" if c.physical else f"{c.refutation}: not recommended"))
