@@ -285,10 +285,13 @@ def format_arm_verdict(v: ArmVerdict) -> str:
     if v.refitted:
         from naocal.solver.effect import shown
 
+        def number(value, unit, sign=""):  # mm, deg, px to 3 decimals; a k1 (no unit, some 0.002) to 5
+            v, shown_unit = shown(value, unit)
+            return f"{v:{sign}.{3 if shown_unit else 5}f}{' ' + shown_unit if shown_unit else ''}"
+
         lines.append("refitted with the arm held: " + ", ".join(
-            "{} {:+.3f} {}".format(e["parameter"], *shown(e["value"], e["unit"]))
-            + (" (held)" if e["fixed"] else " +- {:.3f}".format(shown(e["std"], e["unit"])[0]))
-            for e in v.refitted))
+            f"{e['parameter']} {number(e['value'], e['unit'], '+')}"
+            + (" (held)" if e["fixed"] else f" +- {number(e['std'], e['unit']).split(' ')[0]}") for e in v.refitted))
     if v.absorbed:
         lines.append(f"the refitted nuisances absorbed chi2 {v.absorbed['chi2']:.1f} of their prior (largest "
                      f"{max(abs(z) for z in v.absorbed['size'].values()):.1f} plausible sizes; bound "
