@@ -106,9 +106,9 @@ def undetermined_nuisances(fit_, nuisance, held=()) -> None:
         moves = np.linalg.norm(J, axis=0) > 0
         lost = [n for n in lost if moves[fit_.model.names.index(n)]]
     if lost:
-        raise SolveError(f"--refit: these data cannot determine {lost[0]} ({len(lost)} such; "
-                         f"{fit_.fixed_reasons[lost[0]]}): hold it (--fix {lost[0]}[=VALUE]) or verify on data that "
-                         "determine it")
+        why = fit_.fixed_reasons[lost[0]].partition("; fixed at")[0]  # identify's reason, less what identify does
+        raise SolveError(f"--refit: these data cannot determine {lost[0]} ({len(lost)} such; {why}): hold it "
+                         f"(--fix {lost[0]}[=VALUE]) or verify on data that determine it")
 
 
 def nuisance_fit(model, obs, values: dict, refit_effects=(), *, held=(), priors: bool = True, path="dataset"):
