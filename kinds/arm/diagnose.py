@@ -20,7 +20,10 @@ candidate is also judged on data its fit did not see and the pixels cannot fool 
 sensor (the arm fitted from the cameras alone, with and without it, then held while the 3-D sensors' frames, and
 their reflectors if the model has points, are refitted as verify --refit does; the other way round, the cameras
 judging the 3-D sensors' arm; and each of two or more cameras judging the others' arm) and other sessions (leave
-one session of observations.csv's session column out, or without one a block of consecutive poses). A candidate that makes any of them worse by more than HELDOUT_TOLERANCE fits the pixels
+one session of observations.csv's session column out, or without one a block of consecutive poses). The judged
+sensors' nuisances (their reflectors, a camera's intrinsics) are those of the fitted model, with and without the
+candidate alike. A candidate that makes any of them worse by more than HELDOUT_TOLERANCE, and (the cross-sensor
+checks) beyond what its own estimation noise does to the judged sensor (`chance_rise`, CHANCE_Z), fits the pixels
 only and is not recommended; the verdict is the best candidate that is physical.
 """
 
@@ -30,6 +33,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import ndtri
+
 from naocal.kinds.arm.model import ArmModel
 from naocal.kinds.arm.identify import (ArmFit, fit as fit_arm, heldout_residuals, heldout_rms, sensor_rms, shown_rms,
                                        whitened)
@@ -49,7 +54,7 @@ HELDOUT_TOLERANCE = 0.10
 # from the other sensors, carry their estimation noise to the judged sensor even where the arm has none of it (one
 # camera at 60 poses judging elasticity moved the other camera by 13 %, 1.5 sd of that noise: a false alarm).
 # Beyond CHANCE_Z sds of that noise (`chance_rise`), at diagnose's family level one-sided.
-CHANCE_Z = 3.090232306167813  # scipy.stats.norm.isf(FAMILY_ALPHA)
+CHANCE_Z = float(-ndtri(FAMILY_ALPHA))  # 3.09 (scipy.special: scipy.stats is slow to import)
 SESSIONS = 5  # blocks of consecutive poses standing in for sessions when the dataset has no session column
 
 
