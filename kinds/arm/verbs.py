@@ -190,7 +190,7 @@ def format_table(report: dict) -> str:
     for name, reason in report["fixed"].items():
         lines.append(f"fixed: {name}: {reason}")
     if report["priors"]:
-        lines.append(f"priors: each physical parameter ~ N(URDF, its plausible size: the 'prior' column); "
+        lines.append("priors: each physical parameter ~ N(URDF, its plausible size: the 'prior' column); "
                      + (f"{len(held)} held by their prior (posterior std above {PRIOR_HELD:g} x the prior's: the "
                         f"data did not inform them): {', '.join(sorted(held))}" if held else
                         "the data informed every one (posterior std below "
