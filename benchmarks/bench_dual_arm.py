@@ -48,12 +48,12 @@ import numpy as np  # noqa: E402  (after the BLAS threads are set)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, simulate_dualarm  # noqa: E402
+from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, PRINT_SCALE_ERROR, simulate_dualarm  # noqa: E402
 from naocal.kinds.arm.model import ArmModel  # noqa: E402
 from naocal.kinds.arm.identify import fit, initialise_sensors, pose_folds  # noqa: E402
 from naocal.solver.errors import SolveError  # noqa: E402
 
-EFFECTS = ("joint_offsets", "link_lengths", "tool", "points")
+EFFECTS = ("joint_offsets", "link_lengths", "tool", "points", "marker_scale")
 NOISE_M = 1e-4  # the tracker with the robot's repeatability: what issue 24's tracker left fitted to itself
 NOISE_PX = 0.3
 MUST_RATIO = 1.3
@@ -67,18 +67,19 @@ def camera_fit(sim, priors: bool, effects=EFFECTS):
     cameras = [s for s in sim["sensors"] if s.kind == "camera"]
     rows = np.flatnonzero(obs.sensor < len(cameras))  # the sensors are listed cameras first
     cam_obs = obs.subset(rows)
-    model = ArmModel(dualarm_chains(), sim["points"], cameras, effects, markers=sim["markers"])
+    model = ArmModel(dualarm_chains(), sim["points"], cameras, effects, markers=sim["markers"], sheets=sim["sheets"])
     x0 = initialise_sensors(model, cam_obs)
     fixed = []
-    while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
+    while True:  # as a user follows the refusal: fix the parameter it names, else the one the combination moves most
         try:
             return fit(model, cam_obs, x0, fixed=tuple(fixed), priors=priors), fixed
         except SolveError as err:
             found = re.search(r"combination\(s\) \(([^)]*)\)", str(err))
             if found is None or len(fixed) >= 10:
                 raise
+            named = re.findall(r"--fix ([\w.]+)=", str(err))
             terms = [(abs(float(c)), name) for c, name in re.findall(r"([-+][0-9.]+)\*?\s?([\w.]+)", found.group(1))]
-            fixed.append(max(terms)[1])
+            fixed.append(named[0] if named else max(terms)[1])
 
 
 def dualarm_chains():

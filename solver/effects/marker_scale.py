@@ -1,0 +1,42 @@
+"""Marker scale (an arm's, kinds.arm.model.ArmModel): each sheet of printed markers printed larger than typed.
+
+    p_tool = p0 + t + ((1 + m) Exp(r) - I)(p0 - c)      the points effect's marker (t, r about its centre c), its
+                                                         corners (1 + m) times as far from c as dataset.json says
+
+A printer set to "actual size" prints a few tenths of a percent off (its paper feed, its drum or head, the paper's
+humidity), and every marker of one sheet shares that scale (dataset.json: a marker corner's `sheet`; a marker that
+names none is its own sheet). The markers' printed size is what gives cameras a metric scale: a sheet's scale is
+told apart from the arm's only by the URDF's link lengths (their priors: a machined arm is off by millimetres over
+a metre, a print by millimetres over a metre too, so the priors split it; docs/ARM.md "Print scale"). With the
+link lengths free and no priors, nothing fixes the scale: the identifiability check stops naming this parameter
+to fix (at the side measured on the print: --fix marker_scale.<sheet>=measured/typed - 1). Never a silent gauge.
+
+`marker_scale.<sheet>` m (1: relative, 0.001 = 0.1 % larger), prior PRINT_PRIOR.
+"""
+
+from naocal.solver.effect import Effect, Parameter
+
+# A sheet's print scale is off by about this much (one std, relative): an office printer at "actual size" is a
+# few tenths of a percent off (kinds/arm/sim.py's PRINT_SCALE_ERROR draws 0.3 %); a print scaled to fit the page
+# (several percent) is beyond it, caught as a run-off.
+PRINT_PRIOR = 1e-2
+
+
+class MarkerScale(Effect):
+    name = "marker_scale"
+    order = 84
+    summary = "print scale error of each sheet of markers (their corners further from their centres), relative"
+    prior_size = {"1": PRINT_PRIOR}
+    # Last of the arm's gauges: of the scale the data cannot tell between the arm's lengths and the print, the
+    # print's is the one to fix, but never silently (arm_gauge): at 0 it would be the typed size, the error itself.
+    gauge_priority = 8
+    arm_gauge = False
+    undetermined_hint = ("nothing else fixes the metric scale: measure the printed side and fix the sheet's scale "
+                         "(--fix {name}=MEASURED/TYPED-1), or fit with the priors on (the URDF's link lengths fix it)")
+
+    def arm_parameters(self, arm):
+        return [Parameter(f"marker_scale.{sheet}", self.name, "1", arm.scale, component=sheet, index=k)
+                for k, sheet in enumerate(arm.sheet_names)]
+
+
+EFFECT = MarkerScale()
