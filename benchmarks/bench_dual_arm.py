@@ -140,6 +140,9 @@ def main(argv=None) -> int:
     parser.add_argument("--camera-error", nargs="*", choices=sorted(CAMERA_FILING_ERROR), metavar="PART",
                         help="the true cameras off their filed intrinsics by CAMERA_FILING_ERROR (kinds/arm/sim.py); "
                              "PARTs (f_rel, c_px, k1): only those, the others exact (the same draws)")
+    parser.add_argument("--print-scale-error", type=float, default=PRINT_SCALE_ERROR, metavar="REL",
+                        help="each marker sheet printed at 1 + N(0, REL) of its typed size (default "
+                             f"{PRINT_SCALE_ERROR:g}, kinds/arm/sim.py PRINT_SCALE_ERROR; 0: printed exactly)")
     parser.add_argument("--intrinsics", action="store_true",
                         help="also the fits with the intrinsics effect (the cameras refined with the arm)")
     args = parser.parse_args(argv)
@@ -153,14 +156,15 @@ def main(argv=None) -> int:
         for part, size in CAMERA_FILING_ERROR.items()}
     print(f"dual-arm robot, {args.poses} stances per seed in 3 sessions; tracker noise {NOISE_M * 1e3:.3f} mm per "
           f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}; cameras' filed intrinsics "
-          + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)"))
+          + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)")
+          + f"; marker sheets printed at 1 + N(0, {args.print_scale_error:g}) of their size")
     print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>29s} {'tracker held-out':>16s} {'/ noise':>8s} "
           f"{'camera RMS':>10s} {'outliers':>8s} {'CPU s':>6s} {'wall s':>6s}")
     worst, zs = 0.0, []
     for seed in args.seeds:
         wall, cpu = time.perf_counter(), time.process_time()
         sim = simulate_dualarm(None, seed=seed, n_poses=args.poses, noise_m=NOISE_M, noise_px=NOISE_PX,
-                               camera_error=camera_error, write=False)
+                               camera_error=camera_error, print_scale_error=args.print_scale_error, write=False)
         if camera_error is not None:
             print("     (true cameras: " + "; ".join(
                 f"{cam} fx {k['fx_px']:.1f} fy {k['fy_px']:.1f} cx {k['cx_px']:.1f} cy {k['cy_px']:.1f} "
@@ -174,6 +178,12 @@ def main(argv=None) -> int:
             wall, cpu = time.perf_counter(), time.process_time()
             result, fixed = camera_fit(sim, priors, effects)
             values = result.model.reported_values(result.x)
+            scales = [(p.name.partition(".")[2], values[p.name], result.std[i], truth[p.name])
+                      for i, p in result.model.params("marker_scale") if p.name in truth]
+            if scales:
+                print(f"     ({label}: print scale, fitted (std) / true: " + "; ".join(
+                    f"{sheet} {v * 100:+.3f} % ({s * 100:.3f}) / {t * 100:+.3f} %" for sheet, v, s, t in scales)
+                    + ")")
             if fixed:
                 print(f"     ({label}: the cameras alone do not determine {len(fixed)} combination(s); "
                       f"fixed as the refusal says: {', '.join(fixed)})")

@@ -397,7 +397,7 @@ def _fix_advice(model, directions) -> str:
         named = [n for n in direction.coefficients if EFFECTS[effect_of[n]].undetermined_hint]
         if named:
             name = max(named, key=lambda n: (EFFECTS[effect_of[n]].gauge_priority, abs(direction.coefficients[n])))
-            said.append(f"{name}: " + EFFECTS[effect_of[name]].undetermined_hint.format(name=name))
+            said.append(f"This direction is {EFFECTS[effect_of[name]].undetermined_hint.format(name=name)}")
     return "; ".join(dict.fromkeys(said)) + ("." if said else "")
 
 

@@ -31,8 +31,9 @@ class MarkerScale(Effect):
     # print's is the one to fix, but never silently (arm_gauge): at 0 it would be the typed size, the error itself.
     gauge_priority = 8
     arm_gauge = False
-    undetermined_hint = ("nothing else fixes the metric scale: measure the printed side and fix the sheet's scale "
-                         "(--fix {name}=MEASURED/TYPED-1), or fit with the priors on (the URDF's link lengths fix it)")
+    undetermined_hint = ("the metric scale: the link lengths are free and the print's scale is unknown, nothing "
+                         "else holds it; fix {name} at the side measured on the print (--fix {name}=MEASURED/TYPED-1),"
+                         " or fit with the priors on (the URDF's link lengths hold it)")
 
     def arm_parameters(self, arm):
         return [Parameter(f"marker_scale.{sheet}", self.name, "1", arm.scale, component=sheet, index=k)
