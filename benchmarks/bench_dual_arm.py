@@ -4,20 +4,24 @@ The simulated robot (kinds/arm/sim.py, simulate_dualarm): a torso turning about 
 two cameras on the torso seeing the four corners of printed 30 mm ArUco-like markers on both tools (each marker
 glued 1-2 mm and 0.5-2 deg off, each tool's mount off by 1-3 mm and 0.2-0.6 deg), 2 % of the corners wrong by 8-40
 px, a tracker on the floor reading a reflector on the right tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5
-deg and link lengths 0.02-0.2 mm; PyBullet's kinematics. Each marker is fitted as one rigid body (its printed size
-kept: the cameras' metric scale).
+deg and link lengths 0.02-0.2 mm; each tool's sheet of markers printed 1 + N(0, 0.3 %) of its typed size
+(PRINT_SCALE_ERROR; --print-scale-error 0: exactly); PyBullet's kinematics. Each marker is fitted as one rigid body
+(its printed size kept: the cameras' metric scale) and each sheet's print scale as a nuisance (marker_scale).
 
-Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers) are fitted from the camera rows
-only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points` does: "priors", with the priors
-(soft bounds at each effect's plausible size, its module's prior_size) splitting what the data leave undetermined;
-"free, no priors", link lengths and everything else free and no priors (`--no-priors`), the combinations the data
-leave undetermined refused and fixed as the refusal says (its largest parameter, at the URDF's value). Then the
+Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers, the sheets' scales) are fitted
+from the camera rows only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points,marker_scale`
+does: "priors", with the priors (soft bounds at each effect's plausible size, its module's prior_size) splitting
+what the data leave undetermined (the metre between the link lengths and the print); "free, no priors", link
+lengths and everything else free and no priors (`--no-priors`), the combinations the data leave undetermined
+refused and fixed as the refusal says (the parameter it names, else its largest, at its start value: a sheet's
+scale at the typed size, as a user who did not measure the print). Then the
 tracker: its frame and the reflector's position on the tool are nuisance, refitted with the arm held at the camera
 fit (2-fold over the tracker's poses: fitted on one half, the error measured on the other); "nominal" holds the arm at the URDF, "true arm" at the hidden truth (what
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
 is within 1.3 x its noise (the free row is shown beside it). CPU s: each fit's process time (one BLAS thread).
 
     python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500] [--camera-error [PART ...]] [--intrinsics]
+                                        [--print-scale-error REL]
 
 --camera-error: the true cameras' intrinsics are off what the dataset files by a separate checkerboard
 calibration's error (kinds/arm/sim.py, CAMERA_FILING_ERROR: focal lengths 0.3 %, principal point 1.5 px, k1 0.002,
