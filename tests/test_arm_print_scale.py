@@ -6,6 +6,7 @@ the parameter to fix (docs/ARM.md "Print scale")."""
 import numpy as np
 import pytest
 
+from naocal.solver.effects.marker_scale import PRINT_PRIOR
 from naocal.solver.errors import SolveError
 
 EFFECTS = ("joint_offsets", "link_lengths", "tool", "points", "marker_scale")
@@ -57,7 +58,7 @@ def test_with_the_priors_each_sheets_scale_is_recovered_from_the_cameras(printed
     i = model.names.index("marker_scale.R_sheet")
     assert printed["truth"]["marker_scale.R_sheet"] < -0.015 and abs(result.x[i] - printed["truth"][
         "marker_scale.R_sheet"]) < 0.1 * abs(printed["truth"]["marker_scale.R_sheet"])
-    assert result.prior_std[i] == pytest.approx(0.01)  # the print's plausible size, reported as the prior
+    assert result.prior_std[i] == PRINT_PRIOR  # the print's plausible size, reported as the prior
     links = [result.x[i] for i, _ in model.params("link_lengths") if result.free[i]]
     assert max(np.abs(links)) < 1e-3  # m: the 1.9 % print is not in the links (0.36 m x 1.9 % = 7 mm)
 
@@ -85,12 +86,11 @@ def test_free_links_without_priors_stop_naming_the_scale_direction_and_the_sheet
 
 
 def test_a_sheet_named_for_no_marker_is_refused():
-    from naocal.kinds.arm.sim import dualarm_model
+    from naocal.kinds.arm.model import ArmModel
+    from naocal.kinds.arm.sim import dualarm_markers, dualarm_model, dualarm_points
 
+    model = dualarm_model(("points",))
+    points = {n: xyz for n, (xyz, _, _) in dualarm_points().items()}
     with pytest.raises(ValueError, match="'R_smr' has a sheet but is no marker"):
-        from naocal.kinds.arm.model import ArmModel
-        from naocal.kinds.arm.sim import dualarm_markers, dualarm_points
-
-        model = dualarm_model(("points",))
-        ArmModel(model.arm_chains, {n: xyz for n, (xyz, _, _) in dualarm_points().items()}, model.sensors,
-                 ("marker_scale",), markers=dualarm_markers(), sheets={"R_smr": "S"})
+        ArmModel(model.arm_chains, points, model.sensors, ("marker_scale",), markers=dualarm_markers(),
+                 sheets={"R_smr": "S"})
