@@ -94,3 +94,32 @@ def test_a_sheet_named_for_no_marker_is_refused():
     with pytest.raises(ValueError, match="'R_smr' has a sheet but is no marker"):
         ArmModel(model.arm_chains, points, model.sensors, ("marker_scale",), markers=dualarm_markers(),
                  sheets={"R_smr": "S"})
+
+
+def test_identify_fits_the_sheets_writes_them_and_refuses_free_links_without_priors_in_one_line(tmp_path):
+    """The command line: dataset.json's `sheet` read, marker_scale fitted and written to a calibration file that
+    offsets validates; --no-priors stops (exit 3) on one line naming the sheet to fix."""
+    import csv
+    import json
+
+    from naocal.kinds.arm.sim import simulate_dualarm
+    from tests.cli_runner import naocal
+
+    out = tmp_path / "dual"
+    simulate_dualarm(out, seed=2, n_poses=16, print_scale_error=0.01)
+    with open(out / "observations.csv", newline="") as f:
+        rows = [r for r in csv.reader(f)]
+    column = rows[0].index("sensor")
+    with open(out / "observations.csv", "w", newline="") as f:
+        csv.writer(f, lineterminator="\n").writerows([rows[0]] + [r for r in rows[1:] if r[column] != "tracker"])
+    assert json.loads((out / "dataset.json").read_text())["points"]["R_m1_c1"]["sheet"] == "R_sheet"
+    effects = "joint_offsets,link_lengths,tool,points,marker_scale"
+    cal = tmp_path / "cal.json"
+    run = naocal("identify", out, "--effects", effects, "--out", cal)
+    assert run.returncode == 0, run.stderr
+    assert {"marker_scale.L_sheet", "marker_scale.R_sheet"} <= set(json.loads(cal.read_text())["model"]["parameters"])
+    assert naocal("offsets", "validate", cal).returncode == 0
+    run = naocal("identify", out, "--effects", effects, "--no-priors", "--out", tmp_path / "free.json")
+    error = [line for line in run.stderr.splitlines() if "error" in line]
+    assert run.returncode == 3 and len(error) == 1 and "--fix marker_scale." in error[0], run.stderr
+    assert not (tmp_path / "free.json").exists()
