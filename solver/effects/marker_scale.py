@@ -5,13 +5,13 @@
 
 A printer set to "actual size" prints a few tenths of a percent off (its paper feed, its drum or head, the paper's
 humidity), and every marker of one sheet shares that scale (dataset.json: a marker corner's `sheet`; a marker that
-names none is its own sheet). The markers' printed size is what gives cameras a metric scale: a sheet's scale is
-told apart from the arm's only by the URDF's link lengths (their priors: a machined arm is off by millimetres over
-a metre, a print by millimetres over a metre too, so the priors split it; docs/ARM.md "Print scale"). With the
-link lengths free and no priors, nothing fixes the scale: the identifiability check stops naming this parameter
-to fix (at the side measured on the print: --fix marker_scale.<sheet>=measured/typed - 1). Never a silent gauge.
+names none is its own sheet). The markers' printed size is what gives cameras a metric scale: the cameras measure
+a sheet's scale against the arm's, not the metre, which only the URDF's link lengths hold (their priors; this
+effect's prior is wide against theirs, so the URDF's scale wins; docs/ARM.md "The print's scale"). With the link
+lengths free and no priors nothing holds the metre: the identifiability check stops naming this parameter to fix
+(at the side measured on the print: --fix marker_scale.<sheet>=measured/typed - 1). Never a silent gauge.
 
-`marker_scale.<sheet>` m (1: relative, 0.001 = 0.1 % larger), prior PRINT_PRIOR.
+`marker_scale.<sheet>` m (unit 1: relative, 0.001 = 0.1 % larger), prior PRINT_PRIOR.
 """
 
 from naocal.solver.effect import Effect, Parameter
@@ -19,7 +19,7 @@ from naocal.solver.effect import Effect, Parameter
 # A sheet's print scale is off by up to about this much (the prior's std, relative): a few tenths of a percent at
 # "actual size" (kinds/arm/sim.py's PRINT_SCALE_ERROR draws 0.3 %), 3-6 % when fitted to a page of the other size
 # (Letter on A4, A4 on Letter). Wide against what the link lengths' priors know of the arm's scale (2 mm each: 0.24 %
-# on the dual arm) so that the URDF holds the metre: at 1 % about 11 % of the sheets' mean error went into the arm
+# on the dual arm) so that the URDF holds the metre: at 1 % about 10 % of the sheets' mean error went into the arm
 # (seed 6: tracker 1.17 x its noise), at 2 % about 3 % (1.02 x; docs/ARM.md "The print's scale").
 PRINT_PRIOR = 2e-2
 
