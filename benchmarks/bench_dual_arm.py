@@ -4,20 +4,24 @@ The simulated robot (kinds/arm/sim.py, simulate_dualarm): a torso turning about 
 two cameras on the torso seeing the four corners of printed 30 mm ArUco-like markers on both tools (each marker
 glued 1-2 mm and 0.5-2 deg off, each tool's mount off by 1-3 mm and 0.2-0.6 deg), 2 % of the corners wrong by 8-40
 px, a tracker on the floor reading a reflector on the right tool (glued 1-2 mm off); hidden joint offsets 0.01-0.5
-deg and link lengths 0.02-0.2 mm; PyBullet's kinematics. Each marker is fitted as one rigid body (its printed size
-kept: the cameras' metric scale).
+deg and link lengths 0.02-0.2 mm; each tool's sheet of markers printed 1 + N(0, 0.3 %) of its typed size
+(PRINT_SCALE_ERROR; --print-scale-error 0: exactly); PyBullet's kinematics. Each marker is fitted as one rigid body
+(its printed size kept: the cameras' metric scale) and each sheet's print scale as a nuisance (marker_scale).
 
-Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers) are fitted from the camera rows
-only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points` does: "priors", with the priors
-(soft bounds at each effect's plausible size, its module's prior_size) splitting what the data leave undetermined;
-"free, no priors", link lengths and everything else free and no priors (`--no-priors`), the combinations the data
-leave undetermined refused and fixed as the refusal says (its largest parameter, at the URDF's value). Then the
+Per seed: the arm's parameters (joint offsets, link lengths, tool mounts, markers, the sheets' scales) are fitted
+from the camera rows only, as `naocal identify cams --effects joint_offsets,link_lengths,tool,points,marker_scale`
+does: "priors", with the priors (soft bounds at each effect's plausible size, its module's prior_size) splitting
+what the data leave undetermined (the metre between the link lengths and the print); "free, no priors", link
+lengths and everything else free and no priors (`--no-priors`), the combinations the data leave undetermined
+refused and fixed as the refusal says (the parameter it names, else its largest, at its start value: a sheet's
+scale at the typed size, as a user who did not measure the print). Then the
 tracker: its frame and the reflector's position on the tool are nuisance, refitted with the arm held at the camera
 fit (2-fold over the tracker's poses: fitted on one half, the error measured on the other); "nominal" holds the arm at the URDF, "true arm" at the hidden truth (what
 the tracker's noise and the nuisance refit leave). The must-show: with priors the tracker's held-out RMS per axis
 is within 1.3 x its noise (the free row is shown beside it). CPU s: each fit's process time (one BLAS thread).
 
     python benchmarks/bench_dual_arm.py [--seeds 1 2 3] [--poses 1500] [--camera-error [PART ...]] [--intrinsics]
+                                        [--print-scale-error REL]
 
 --camera-error: the true cameras' intrinsics are off what the dataset files by a separate checkerboard
 calibration's error (kinds/arm/sim.py, CAMERA_FILING_ERROR: focal lengths 0.3 %, principal point 1.5 px, k1 0.002,
@@ -48,12 +52,12 @@ import numpy as np  # noqa: E402  (after the BLAS threads are set)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, simulate_dualarm  # noqa: E402
+from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, PRINT_SCALE_ERROR, simulate_dualarm  # noqa: E402
 from naocal.kinds.arm.model import ArmModel  # noqa: E402
 from naocal.kinds.arm.identify import fit, initialise_sensors, pose_folds  # noqa: E402
 from naocal.solver.errors import SolveError  # noqa: E402
 
-EFFECTS = ("joint_offsets", "link_lengths", "tool", "points")
+EFFECTS = ("joint_offsets", "link_lengths", "tool", "points", "marker_scale")
 NOISE_M = 1e-4  # the tracker with the robot's repeatability: what issue 24's tracker left fitted to itself
 NOISE_PX = 0.3
 MUST_RATIO = 1.3
@@ -67,18 +71,19 @@ def camera_fit(sim, priors: bool, effects=EFFECTS):
     cameras = [s for s in sim["sensors"] if s.kind == "camera"]
     rows = np.flatnonzero(obs.sensor < len(cameras))  # the sensors are listed cameras first
     cam_obs = obs.subset(rows)
-    model = ArmModel(dualarm_chains(), sim["points"], cameras, effects, markers=sim["markers"])
+    model = ArmModel(dualarm_chains(), sim["points"], cameras, effects, markers=sim["markers"], sheets=sim["sheets"])
     x0 = initialise_sensors(model, cam_obs)
     fixed = []
-    while True:  # as a user follows the refusal: fix the parameter the undetermined combination moves most
+    while True:  # as a user follows the refusal: fix the parameter it names, else the one the combination moves most
         try:
             return fit(model, cam_obs, x0, fixed=tuple(fixed), priors=priors), fixed
         except SolveError as err:
             found = re.search(r"combination\(s\) \(([^)]*)\)", str(err))
             if found is None or len(fixed) >= 10:
                 raise
+            named = re.findall(r"--fix ([\w.]+)=", str(err))
             terms = [(abs(float(c)), name) for c, name in re.findall(r"([-+][0-9.]+)\*?\s?([\w.]+)", found.group(1))]
-            fixed.append(max(terms)[1])
+            fixed.append(named[0] if named else max(terms)[1])
 
 
 def dualarm_chains():
@@ -139,6 +144,9 @@ def main(argv=None) -> int:
     parser.add_argument("--camera-error", nargs="*", choices=sorted(CAMERA_FILING_ERROR), metavar="PART",
                         help="the true cameras off their filed intrinsics by CAMERA_FILING_ERROR (kinds/arm/sim.py); "
                              "PARTs (f_rel, c_px, k1): only those, the others exact (the same draws)")
+    parser.add_argument("--print-scale-error", type=float, default=PRINT_SCALE_ERROR, metavar="REL",
+                        help="each marker sheet printed at 1 + N(0, REL) of its typed size (default "
+                             f"{PRINT_SCALE_ERROR:g}, kinds/arm/sim.py PRINT_SCALE_ERROR; 0: printed exactly)")
     parser.add_argument("--intrinsics", action="store_true",
                         help="also the fits with the intrinsics effect (the cameras refined with the arm)")
     args = parser.parse_args(argv)
@@ -152,14 +160,15 @@ def main(argv=None) -> int:
         for part, size in CAMERA_FILING_ERROR.items()}
     print(f"dual-arm robot, {args.poses} stances per seed in 3 sessions; tracker noise {NOISE_M * 1e3:.3f} mm per "
           f"axis, cameras {NOISE_PX} px, 2 % outliers; effects {', '.join(EFFECTS)}; cameras' filed intrinsics "
-          + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)"))
+          + ("exact" if camera_error is None else f"off by {camera_error} (one standard deviation)")
+          + f"; marker sheets printed at 1 + N(0, {args.print_scale_error:g}) of their size")
     print(f"{'seed':>4s} {'poses':>5s} {'camera obs':>10s} {'fit':>29s} {'tracker held-out':>16s} {'/ noise':>8s} "
           f"{'camera RMS':>10s} {'outliers':>8s} {'CPU s':>6s} {'wall s':>6s}")
     worst, zs = 0.0, []
     for seed in args.seeds:
         wall, cpu = time.perf_counter(), time.process_time()
         sim = simulate_dualarm(None, seed=seed, n_poses=args.poses, noise_m=NOISE_M, noise_px=NOISE_PX,
-                               camera_error=camera_error, write=False)
+                               camera_error=camera_error, print_scale_error=args.print_scale_error, write=False)
         if camera_error is not None:
             print("     (true cameras: " + "; ".join(
                 f"{cam} fx {k['fx_px']:.1f} fy {k['fy_px']:.1f} cx {k['cx_px']:.1f} cy {k['cy_px']:.1f} "
@@ -173,6 +182,12 @@ def main(argv=None) -> int:
             wall, cpu = time.perf_counter(), time.process_time()
             result, fixed = camera_fit(sim, priors, effects)
             values = result.model.reported_values(result.x)
+            scales = [(p.name.partition(".")[2], values[p.name], result.std[i], truth[p.name])
+                      for i, p in result.model.params("marker_scale") if p.name in truth]
+            if scales:
+                print(f"     ({label}: print scale, fitted (std) / true: " + "; ".join(
+                    f"{sheet} {v * 100:+.3f} % ({s * 100:.3f}) / {t * 100:+.3f} %" for sheet, v, s, t in scales)
+                    + ")")
             if fixed:
                 print(f"     ({label}: the cameras alone do not determine {len(fixed)} combination(s); "
                       f"fixed as the refusal says: {', '.join(fixed)})")

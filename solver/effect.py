@@ -246,6 +246,12 @@ class Effect:
     prior_size: dict = {}
     gauge_priority: int = 100
     arm_always: bool = False
+    # Whether the arm's identifiability check may fix a parameter of it at its start value as a gauge (what the
+    # data cannot tell it from, parameters kept before it take): not a sensor's frame (it may be anywhere), not
+    # what is unknown until measured (a print's scale: its start is the typed size). What such a parameter leaves
+    # undetermined stops the fit, naming the parameter and `undetermined_hint` ({name}: the parameter) to fix it.
+    arm_gauge: bool = True
+    undetermined_hint: str = ""
     # A differential drive's model: a term fitted from the fit without it (its start values that fit's; from the
     # detections' start a wheel lag went below 0, where it has no gradient, and stayed).
     drive_from_base_fit: bool = False

@@ -128,18 +128,21 @@ def data_warnings(data: ModelData) -> list[str]:
     return warnings
 
 
-def check_identifiable(As: np.ndarray, names):
+def check_identifiable(As: np.ndarray, names, advice=None):
     """Raise SolveError naming the parameters that the data cannot determine at all (As: the scaled normal matrix
-    of the free parameters `names`)."""
+    of the free parameters `names`). advice([WeakDirection]) -> '' or what to do about those directions (a kind
+    that knows which parameter to fix), said instead of the general advice."""
     names = list(names)
     cond, sv, Vt = identifiability(As)
     bad = np.flatnonzero(sv < UNIDENTIFIABLE_RATIO * sv[0]) if sv[0] > 0 else np.arange(len(sv))
     if len(bad):
         involved = sorted({names[i] for k in bad for i in np.flatnonzero(np.abs(Vt[k]) > 0.05)})
-        combos = "; ".join(weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names).describe() for k in bad[:3])
+        directions = [weak_direction(sv[k] / max(sv[0], 1e-300), np.inf, Vt[k], names) for k in bad]
+        combos = "; ".join(d.describe() for d in directions[:3])
         raise SolveError(
             f"the data cannot determine {len(bad)} parameter combination(s) ({combos}); involved: "
-            f"{', '.join(involved)}. Measure more varied poses, or fix these parameters (--fix)."
+            f"{', '.join(involved)}. "
+            + ((advice(directions) if advice else "") or "Measure more varied poses, or fix these parameters (--fix).")
         )
 
 

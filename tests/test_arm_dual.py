@@ -57,8 +57,9 @@ def dual_model(dual, effects):
 
 def test_the_dual_arm_model_is_pybullets_robot_shared_torso_and_cameras_on_it(dual):
     """naocal's model of both chains (shared torso joint, cameras on the torso, tool mounts, glued markers) at the
-    hidden truth predicts what PyBullet's robot showed, to the micrometre and the thousandth of a pixel."""
-    model = dual_model(dual, ("joint_offsets", "link_lengths", "tool", "points"))
+    hidden truth predicts what PyBullet's robot showed, to the micrometre and the thousandth of a pixel (each tool's
+    marker sheet as printed: marker_scale)."""
+    model = dual_model(dual, ("joint_offsets", "link_lengths", "tool", "points", "marker_scale"))
     obs = dual["observations"]
     assert set(obs.chain.tolist()) == {0, 1} and set(obs.sensor.tolist()) == {0, 1, 2}
     x = np.array([dual["truth"].get(n, 0.0) for n in model.names])
@@ -108,7 +109,7 @@ def test_the_camera_error_option_files_intrinsics_off_the_true_cameras_and_keeps
     error = {}
     for label, sensors in (("filed", sim["sensors"]),
                            ("true", [replace(s, intrinsics=true.get(s.name, s.intrinsics)) for s in sim["sensors"]])):
-        model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"), sensors=sensors)
+        model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points", "marker_scale"), sensors=sensors)
         x = np.array([sim["truth"].get(n, 0.0) for n in model.names])
         error[label] = np.abs(model.predict(x, obs) - obs.measured)[:, :2].max()
     assert error["true"] < 1e-3 < 0.5 < error["filed"]  # px
@@ -438,6 +439,12 @@ BAD = [
     ("a marker named as a point", dict(meta_change=lambda d: [d["points"][f"L_m1_c{k}"].update(marker="R_smr")
                                                                for k in range(1, 5)]),
      "dataset.json", "points.L_m1_c1.marker", "names both a point and a marker"),
+    ("a sheet on a point of no marker", dict(meta_change=lambda d: d["points"]["R_smr"].update(sheet="S")),
+     "dataset.json", "points.R_smr.sheet", "a sheet is a printed marker's"),
+    ("a marker on two sheets", dict(meta_change=lambda d: d["points"]["L_m1_c2"].update(sheet="R_sheet")),
+     "dataset.json", "points.L_m1_c2.sheet", "marker 'L_m1''s corners name different sheets"),
+    ("an empty sheet", dict(meta_change=lambda d: d["points"]["L_m1_c1"].update(sheet="")),
+     "dataset.json", "points.L_m1_c1.sheet", "empty"),
     ("a camera on a link the chain does not carry", dict(meta_change=lambda d: d["sensors"]["cam_left"].update(
         link="left_link1")), "observations.csv", "sensor", "cannot see"),
     ("a pose in two sessions", dict(row_change=lambda rows: rows[first_row(rows, pose=rows[0]["pose"],

@@ -20,7 +20,7 @@ from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds 
 
 SCHEMA = "naocal.arm_calibration/1"
 # The units a parameter of each kind is stored in (kinds/arm/model.py), by the first part of its name.
-UNITS = {"joint_offset": "rad", "link_length": "m", "elasticity": "rad/(N m)", "intrinsics": "px"}
+UNITS = {"joint_offset": "rad", "link_length": "m", "elasticity": "rad/(N m)", "intrinsics": "px", "marker_scale": "1"}
 # x, y, z in m and rx, ry, rz in rad: a joint origin's pose error, a tool mount's, a marker's (a point's: x, y, z)
 POSE_KINDS = ("link_pose", "tool", "point")
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
@@ -108,7 +108,7 @@ def read_arm_calibration(path) -> ArmCalibration:
             expected = "rad" if ".rotation." in name else "m"
         if expected is None:
             fields.fail(path, "not an arm parameter (joint_offset., link_length., link_pose., tool., point., "
-                        "elasticity., intrinsics., sensor.)", where)
+                        "marker_scale., elasticity., intrinsics., sensor.)", where)
         if unit != expected:
             fields.fail(path, f"unit {unit[:20]!r}, expected {expected!r}", f"{where}.unit")
         fields.number(value, path, f"{where}.value", limit=(SENSOR_LIMITS if kind == "sensor" else LIMITS)[unit],

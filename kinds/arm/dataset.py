@@ -56,6 +56,7 @@ class ArmDataset:
     gravity_mps2: tuple
     notes: list = None  # what the reader left out and why (printed by the commands)
     markers: dict = None  # corner point -> the printed marker it is a corner of (kinds.arm.model.ArmModel markers)
+    sheets: dict = None  # marker -> the sheet it was printed on (its corners' `sheet`; ArmModel sheets)
 
     @property
     def joints(self) -> tuple:
@@ -187,13 +188,18 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
             fail(meta_path, "no URDF: name it here (robot.urdf, beside dataset.json) or give --robot URDF", "robot.urdf")
         urdf_path = directory / robot_meta["urdf"]
     specs = _chain_specs(meta, robot_meta, base, tip, meta_path)
-    points, markers = {}, {}  # markers: corner -> the printed marker it is a corner of
+    points, markers, sheets = {}, {}, {}  # markers: corner -> the printed marker; sheets: corner -> its sheet
     for name, point in fields.json_object(meta["points"], meta_path, "points").items():
         _name(name, meta_path, "points")
-        point = fields.json_object(point, meta_path, f"points.{name}", ("xyz_m",), ("xyz_m", "marker", "about"))
+        point = fields.json_object(point, meta_path, f"points.{name}", ("xyz_m",), ("xyz_m", "marker", "sheet", "about"))
         points[name] = fields.vector(point["xyz_m"], 3, meta_path, f"points.{name}.xyz_m")
         if "marker" in point:
             markers[name] = _name(point["marker"], meta_path, f"points.{name}.marker")
+        if "sheet" in point:
+            if "marker" not in point:
+                fail(meta_path, "a sheet is a printed marker's: name the marker this corner is of (marker)",
+                     f"points.{name}.sheet")
+            sheets[name] = _name(point["sheet"], meta_path, f"points.{name}.sheet")
         if max(abs(v) for v in points[name]) > WORKSPACE_M:
             fail(meta_path, f"more than {WORKSPACE_M:.0f} m from the tip frame (millimetres? xyz_m is in m)",
                  f"points.{name}.xyz_m")
@@ -206,6 +212,12 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         if len(corners) < 3:
             fail(meta_path, f"marker {marker!r} has {len(corners)} corner(s): its corners (3 or more, at their printed "
                  "positions) make it one rigid body", f"points.{corners[0]}.marker")
+        named = {sheets.get(p) for p in corners}
+        if len(named) > 1:  # one marker is printed on one sheet
+            odd = next(p for p in corners if sheets.get(p) != sheets.get(corners[0]))
+            fail(meta_path, f"marker {marker!r}'s corners name different sheets ({sheets.get(corners[0])!r}, "
+                 f"{sheets.get(odd)!r}): a marker is printed on one sheet (name it on every corner)",
+                 f"points.{odd}.sheet")
     sensors = tuple(_sensor(_name(name, meta_path, "sensors"), doc, meta_path)
                     for name, doc in fields.json_object(meta["sensors"], meta_path, "sensors").items())
     if not sensors:
@@ -240,7 +252,7 @@ def read_arm_dataset(directory, *, robot: str | None = None, chain: str | None =
         obs.sensor = np.searchsorted(seen, obs.sensor)
         sensors = tuple(sensors[i] for i in seen)
     return ArmDataset(directory, meta, Path(urdf_path), base, tip, kin_chain, link_names, load, sensors, points, obs,
-                      gravity, notes, markers)
+                      gravity, notes, markers, {markers[p]: sheet for p, sheet in sheets.items()})
 
 
 def _chain_specs(meta, robot_meta, base, tip, meta_path) -> dict:

@@ -365,7 +365,7 @@ def identifiable(model, obs, x, free, sigma, priors: bool = True):
     names = [model.names[i] for i in equations.index]
     effect = [model.parameters[i].effect for i in equations.index]
     order = sorted(range(len(names)), key=lambda j: (EFFECTS[effect[j]].gauge_priority, j))
-    fixable = [e != "sensors" for e in effect]
+    fixable = [EFFECTS[e].arm_gauge for e in effect]
     prior = arm_prior(model, free, priors)
     if prior is None or not len(prior):
         found = gauges(A, order, fixable)
@@ -382,10 +382,23 @@ def identifiable(model, obs, x, free, sigma, priors: bool = True):
                              f"the data cannot tell it from {', '.join(names[k] for k in partners)} (relative "
                              f"residual {residual:.1e}); fixed at its start value, its effect is absorbed there")
     keep = [j for j in range(len(names)) if j not in found]
-    check_identifiable(A[np.ix_(keep, keep)], [names[j] for j in keep])
+    check_identifiable(A[np.ix_(keep, keep)], [names[j] for j in keep], lambda d: _fix_advice(model, d))
     out = free.copy()
     out[equations.index[list(found)]] = False
     return out, reasons
+
+
+def _fix_advice(model, directions) -> str:
+    """What to fix for undetermined directions that move a parameter no gauge may be (solver.effect's arm_gauge:
+    a print's scale): that parameter, the last in the gauge order, as its effect says; '' when none does."""
+    effect_of = {p.name: p.effect for p in model.parameters}
+    said = []
+    for direction in directions:
+        named = [n for n in direction.coefficients if EFFECTS[effect_of[n]].undetermined_hint]
+        if named:
+            name = max(named, key=lambda n: (EFFECTS[effect_of[n]].gauge_priority, abs(direction.coefficients[n])))
+            said.append(f"This direction is {EFFECTS[effect_of[name]].undetermined_hint.format(name=name)}")
+    return "; ".join(dict.fromkeys(said)) + ("." if said else "")
 
 
 def _estimated_sigma(model, obs, residual, sigma, known, n_free):
@@ -582,7 +595,7 @@ def heldout_residuals(fit_: ArmFit, folds, free=None) -> np.ndarray:
 def model_for(dataset, effects) -> ArmModel:
     """The ArmModel of a read naocal.arm_dataset/1 with these effects."""
     return ArmModel(dataset.chain, dataset.points, dataset.sensors, effects, dataset.gravity_mps2, dataset.load,
-                    dataset.link_names, markers=dataset.markers)
+                    dataset.link_names, markers=dataset.markers, sheets=dataset.sheets)
 
 
 def identify_dataset(dataset, effects, *, fixed=(), start=None, loss: str = "linear", robust: bool = True,

@@ -7,8 +7,9 @@ For one observation (joint readings theta, a point p on the tip link of the obse
     A_k   = F_{k-1} @ T_origin_k(+ length_k along its offset) @ Trans(t_k) @ Exp(r_k)      link_pose (t, r)
     F_k   = A_k @ Rot(axis_k, q_k)   (prismatic: A_k @ Trans(axis_k q_k))   F_{-1} = the sensor's mount (the base)
     p_b   = F_{n-1} @ T_end(+ length_n along its offset) @ (t_T + Exp(r_T) p_tool)     tool (t_T, r_T)
-    p_tool = p0 + t_m + (Exp(r_m) - I)(p0 - c_m)      points: a marker's corners move as one rigid body (t_m, r_m
-                                                      about its centre c_m: its printed size is kept), a lone point by t_m
+    p_tool = p0 + t_m + ((1 + m_s) Exp(r_m) - I)(p0 - c_m)    points: a marker's corners move as one rigid body (t_m,
+                                                      r_m about its centre c_m: its printed size is kept), a lone point
+                                                      by t_m; marker_scale: m_s of the sheet s it was printed on
     y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_mount = (R_s, t_s)
     K_s   = the camera's filed intrinsics + (dfx, dfy, dcx, dcy, dk1)                 intrinsics (a camera's)
 
@@ -23,7 +24,7 @@ Rotation corrections use the exponential map; their exact derivative is the left
 
 Each term is an effect of solver/effects/ (one module each, the NAO's too): the model takes its parameters from
 the effects' `arm_parameters`, in their gauge order (the sensors' frames, joint_offsets, link_lengths, tool,
-points, link_poses, elasticity, intrinsics), and the joint terms (c, C) from their `joint_terms`, the NAO model's hook.
+points, marker_scale, link_poses, elasticity, intrinsics), and the joint terms (c, C) from their `joint_terms`, the NAO model's hook.
 """
 
 from __future__ import annotations
@@ -191,7 +192,8 @@ class ArmModel:
     chain: solver.robot.Chain (base to tip), or several chains as a sequence of ArmChain (sharing a base);
     points: {name: (3,) nominal position in the tip frame of the chain that carries it, m}; markers: {point name:
     marker name} for the corners of printed markers (each marker one rigid body; the other points each their own);
-    sensors: [Sensor];
+    sheets: {marker: sheet} the sheet each marker was printed on (the marker_scale effect's; a marker not named: its
+    own sheet); sensors: [Sensor];
     effects: names of solver.effects.ARM_EFFECTS (the sensors' frames are always in); gravity_mps2 (3,) in the
     base frame; load, link_names: of a single Chain (an ArmChain carries its own): (mass kg, com (3,) in the tip
     frame) of what the tip carries, for the gravity torques, and the link each joint origin ends.
@@ -202,7 +204,7 @@ class ArmModel:
     scale = 1e-3
 
     def __init__(self, chain, points: dict, sensors, effects=DEFAULT_EFFECTS, gravity_mps2=(0.0, 0.0, -9.81),
-                 load=(0.0, (0.0, 0.0, 0.0)), link_names=None, markers=None):
+                 load=(0.0, (0.0, 0.0, 0.0)), link_names=None, markers=None, sheets=None):
         unknown = [e for e in effects if e not in ARM_EFFECTS]
         if unknown:
             raise ValueError(f"unknown arm effect {unknown[0]!r} (expected one of {', '.join(ARM_EFFECTS)})")
@@ -218,7 +220,7 @@ class ArmModel:
         self.link_names = first.link_names
         self.point_names = tuple(points)
         self.point_xyz = np.array([points[p] for p in self.point_names], dtype=float).reshape(-1, 3)
-        self._point_bodies(markers or {})
+        self._point_bodies(markers or {}, sheets or {})
         self.sensors = tuple(sensors)
         self.effects = tuple(e for e in ARM_EFFECTS if e in effects)
         self.gravity_mps2 = np.asarray(gravity_mps2, dtype=float)
@@ -286,10 +288,12 @@ class ArmModel:
                 else:
                     self.sees[s, c] = False
 
-    def _point_bodies(self, markers):
+    def _point_bodies(self, markers, sheets):
         """The rigid bodies the points sit on (the points effect's one correction each): each marker (its corners,
         printed at a known size) and each point of no marker: `body_names`, `body_rigid` (a marker: it turns too),
-        `point_body` (each point's body), `point_lever` (each point from its body's centre, the mean of its points)."""
+        `point_body` (each point's body), `point_lever` (each point from its body's centre, the mean of its points);
+        the sheets the markers were printed on (the marker_scale effect's one scale each): `sheet_names`,
+        `point_sheet` (each point's sheet, -1: no marker's)."""
         unknown = sorted(set(markers) - set(self.point_names))
         if unknown:
             raise ValueError(f"marker corner {unknown[0]!r} is not a point")
@@ -306,6 +310,13 @@ class ArmModel:
         self.body_rigid = tuple(b in self.markers.values() for b in bodies)
         centres = np.array([self.point_xyz[self.point_body == b].mean(axis=0) for b in range(len(bodies))])
         self.point_lever = self.point_xyz - centres.reshape(-1, 3)[self.point_body] if bodies else self.point_xyz
+        unknown = sorted(set(sheets) - set(self.markers.values()))
+        if unknown:
+            raise ValueError(f"{unknown[0]!r} has a sheet but is no marker")
+        self.sheets = {m: sheets.get(m, m) for m in dict.fromkeys(self.markers.values())}
+        self.sheet_names = tuple(dict.fromkeys(self.sheets.values()))
+        self.point_sheet = np.array([self.sheet_names.index(self.sheets[self.markers[p]]) if p in self.markers else -1
+                                     for p in self.point_names], dtype=int)
 
     # -- parameters
 
@@ -315,6 +326,7 @@ class ArmModel:
         O, C = len(self.origin_keys), len(self.arm_chains)
         self._pose_i = np.full((O, 6), -1)
         self._tool_i, self._point_i = np.full((C, 6), -1), np.full((len(self.point_names), 6), -1)
+        self._scale_i = np.full(len(self.point_names), -1)  # each point's sheet's marker_scale
         self._intrinsics_i = {}  # sensor -> [(parameter, component)]
         for i, p in enumerate(self.parameters):
             if p.effect == "intrinsics":
@@ -325,6 +337,8 @@ class ArmModel:
                 self._tool_i[p.index, p.axis] = i
             elif p.effect == "points":  # each point of the body
                 self._point_i[self.point_body == p.index, p.axis] = i
+            elif p.effect == "marker_scale":  # each corner of the sheet's markers
+                self._scale_i[self.point_sheet == p.index] = i
 
     def params(self, effect):
         return self._by_effect.get(effect, [])
@@ -393,10 +407,14 @@ class ArmModel:
         return out
 
     def tool_points(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """((n_points, 3) each point on its tool, before the tool's pose: nominal plus the points effect,
-        (n_points, 3) each point's lever from its body's centre as the body's turn has turned it)."""
-        value = np.where(self._point_i >= 0, np.asarray(x, dtype=float)[np.maximum(self._point_i, 0)], 0.0)
+        """((n_points, 3) each point on its tool, before the tool's pose: nominal plus the points and marker_scale
+        effects, (n_points, 3) each point's lever from its body's centre as the body's turn has turned it and its
+        sheet's print has scaled it)."""
+        x = np.asarray(x, dtype=float)
+        value = np.where(self._point_i >= 0, x[np.maximum(self._point_i, 0)], 0.0)
+        printed = 1.0 + np.where(self._scale_i >= 0, x[np.maximum(self._scale_i, 0)], 0.0)
         turned = np.array([exp_so3(r) @ lever for r, lever in zip(value[:, 3:], self.point_lever)]).reshape(-1, 3)
+        turned = turned * printed[:, None]
         return self.point_xyz + value[:, :3] + turned - self.point_lever, turned
 
     # -- gravity
@@ -582,6 +600,9 @@ class ArmModel:
                                               np.einsum("nij,nj->ni", R_end, np.cross(w[:, comp - 3], turned)))
         for pi in np.unique(point):
             sel = point == pi
+            i = self._scale_i[pi]
+            if i >= 0:  # d lever / d m = Exp(r) lever, the scaled lever / (1 + m)
+                Jb[sel, :, i] = _times(R_end[sel], E_tool @ (levers[pi] / (1.0 + x[i])))
             turn = value(self._point_i[pi, 3:])
             w = left_jacobian(turn)
             for comp in range(6):

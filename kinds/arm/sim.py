@@ -366,6 +366,12 @@ DUAL_CAMERA = {"width_px": 1920, "height_px": 1200, "fx_px": 1100.0, "fy_px": 11
 CAMERA_FILING_ERROR = {"f_rel": 3e-3, "c_px": 1.5, "k1": 2e-3}
 MARKER_RING_M, MARKER_HEIGHT_M = 0.035, 0.03  # four markers around the tool's z axis, one on top
 MARKER_SIZE_M = 0.03  # each marker's printed side: its corners' known spacing
+# How far a printed marker sheet's scale is from the size typed (`simulate_dualarm(print_scale_error=...)`), one
+# standard deviation, relative: an office laser or inkjet printer set to "actual size" prints a few tenths of a
+# percent off (its paper feed and drum or head; the paper's humidity), so a 30 mm side comes out 29.9-30.1 mm unless
+# it is measured. Every marker of one sheet shares the sheet's scale: each tool's markers are one sheet (SHEETS).
+PRINT_SCALE_ERROR = 3e-3
+SHEETS = {"left": "L_sheet", "right": "R_sheet"}  # each tool's markers: printed on one sheet
 MARKER_VIEW_RAD = math.radians(65.0)  # a marker is detected when it faces the camera within this angle
 REFLECTOR_M = (0.0, 0.0, 0.06)  # the tracker's reflector on the right tool
 
@@ -466,6 +472,12 @@ def dualarm_markers() -> dict:
     return {name: name.rpartition("_")[0] for name, (_, normal, _) in dualarm_points().items() if normal is not None}
 
 
+def dualarm_sheets() -> dict:
+    """{marker: the sheet it was printed on} (SHEETS: each tool's markers one sheet)."""
+    return {marker: SHEETS["left" if marker.startswith("L_") else "right"]
+            for marker in dict.fromkeys(dualarm_markers().values())}
+
+
 def dualarm_sensors(noise_m, noise_px) -> list:
     return [Sensor("cam_left", "camera", dict(DUAL_CAMERA), noise_px, link="torso"),
             Sensor("cam_right", "camera", dict(DUAL_CAMERA), noise_px, link="torso"),
@@ -480,7 +492,7 @@ def dualarm_model(effects, sensors=None, noise_m=5e-5, noise_px=0.3):
     chains = arm_chains(DUALARM_URDF, DUALARM_CHAINS)
     points = {name: xyz for name, (xyz, _, _) in dualarm_points().items()}
     return ArmModel(chains, points, sensors if sensors is not None else dualarm_sensors(noise_m, noise_px), effects,
-                    markers=dualarm_markers())
+                    markers=dualarm_markers(), sheets=dualarm_sheets())
 
 
 def _random_vector(rng, low, high) -> np.ndarray:
@@ -529,7 +541,7 @@ def _true_origins(model, truth) -> dict:
 
 
 def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, noise_px=0.3, outlier_fraction=0.02,
-                     camera_error=None, write=True):
+                     camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True):
     """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
     on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
     "truth", "sensors", "points", "n_poses"}.
@@ -545,7 +557,13 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     `camera_error` (None: the cameras are exactly as filed; else sizes as CAMERA_FILING_ERROR): each camera's true
     intrinsics drawn off the filed DUAL_CAMERA (true_intrinsics; its own random stream, so the rest of the draws
     stay the seed's); the pixels are the true cameras', the dataset files DUAL_CAMERA, and the returned
-    "intrinsics" and truth.json's "intrinsics" hold the true ones."""
+    "intrinsics" and truth.json's "intrinsics" hold the true ones.
+
+    `print_scale_error` (default PRINT_SCALE_ERROR, 0.3 %; 0: printed exactly): each marker sheet (SHEETS: each
+    tool's five markers) printed at a scale 1 + N(0, print_scale_error), its own random stream (the rest of the
+    draws stay the seed's): every true corner lies that much further from its marker's centre than the dataset's
+    MARKER_SIZE_M says. The dataset names each marker's sheet (`"sheet"`); the returned "print_scale" and
+    truth.json's hold {sheet: scale}, and the truth's `marker_scale.<sheet>` the relative error (scale - 1)."""
     import json
 
     from naocal.body.pybullet_quiet import c_output_silenced, pybullet
@@ -577,7 +595,16 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     markers = {}  # marker (the reflector: its own) -> its corners
     for name in points:
         markers.setdefault(dualarm_markers().get(name, name), []).append(name)
-    on_tool = dict(zip(model.point_names, model.tool_points(x_true)[0]))  # the markers' corners as glued
+    glued, levers = model.tool_points(x_true)  # the markers' corners as glued, each from its marker's centre
+    scale_rng = np.random.default_rng([seed, 24, 2])
+    print_scale = {sheet: float(1.0 + (scale_rng.normal(0.0, print_scale_error) if print_scale_error else 0.0))
+                   for sheet in SHEETS.values()}
+    for sheet, scale in print_scale.items():
+        truth[f"marker_scale.{sheet}"] = scale - 1.0
+    sheet_of = dualarm_sheets()
+    printed = np.array([print_scale[sheet_of[model.markers[name]]] if name in model.markers else 1.0
+                        for name in model.point_names])
+    on_tool = dict(zip(model.point_names, glued + (printed - 1.0)[:, None] * levers))  # as printed and glued
     cameras = ("cam_left", "cam_right")
     camera_rng = np.random.default_rng([seed, 24, 1])
     intrinsics = {cam: dict(DUAL_CAMERA) if camera_error is None else true_intrinsics(DUAL_CAMERA, camera_error,
@@ -680,7 +707,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     result = {"observations": obs, "truth": truth, "sensors": sensors,
               "points": {n: xyz for n, (xyz, _, _) in points.items()}, "markers": dualarm_markers(),
               "n_poses": n_poses, "x_true": x_true, "intrinsics": intrinsics,
-              "refused_colliding": colliding}
+              "refused_colliding": colliding, "print_scale": print_scale, "sheets": dualarm_sheets()}
     if write:
         from naocal.kinds.arm.dataset import write_arm_dataset
         from naocal.solver.fileio import atomic_write_text
@@ -691,8 +718,10 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
         meta = {
             "robot": {"id": f"simulated-dualarm-{seed}", "model": "dualarm", "urdf": "robot.urdf"},
             "chains": {c: {"base": b, "tip": t} for c, (b, t) in DUALARM_CHAINS.items()},
-            "points": {n: dict({"xyz_m": list(xyz)}, **({"marker": result["markers"][n]} if n in result["markers"]
-                                                         else {})) for n, xyz in result["points"].items()},
+            "points": {n: dict({"xyz_m": list(xyz)}, **({"marker": result["markers"][n],
+                                                          "sheet": result["sheets"][result["markers"][n]]}
+                                                         if n in result["markers"] else {}))
+                       for n, xyz in result["points"].items()},
             "sensors": {"cam_left": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "cam_right": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "tracker": {"kind": "points", "noise_m": noise_m}},
@@ -704,6 +733,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
         truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
                      "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
                      "hidden": ["joint_offsets", "link_lengths", "tool", "points"], "intrinsics": intrinsics,
-                     "camera_error": camera_error}
+                     "camera_error": camera_error, "print_scale_error": print_scale_error,
+                     "print_scale": print_scale}
         atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
     return result

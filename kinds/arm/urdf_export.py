@@ -15,8 +15,8 @@ Several chains (two arms on one torso: the file's `chains`) are written into one
 (the torso's) once; the parameters' names are the model's (kinds.arm.model.ArmModel), e.g. link_length.torso_to_left_j1.
 
 Not in a URDF, and said so in its header comment: the sensors' frames (the setup, not the arm), the points on the
-tool (points effect) and elasticity. Relative mesh file names are made absolute (the file loads from anywhere);
-package:// names are kept. Every string written comes from the URDF itself (ElementTree escapes attributes) or
+tool (points effect), the markers' print scale (marker_scale) and elasticity. Relative mesh file names are made
+absolute (the file loads from anywhere); package:// names are kept. Every string written comes from the URDF itself (ElementTree escapes attributes) or
 is checked (the header comment: tools.export.common.comment_text).
 """
 
@@ -173,7 +173,7 @@ def export_arm_urdf(cal, urdf_path, *, source_name="a calibration file", strip_m
         raise NaocalError(f"{unplaced[0]}: no such joint, link or chain on the URDF's chain(s) {base} -> {tip} "
                           "(another arm's calibration?)")
     left_out = sorted({n.split(".", 1)[0] for n, v in values.items()
-                       if n.split(".", 1)[0] in ("point", "elasticity", "intrinsics") and v != 0.0})
+                       if n.split(".", 1)[0] in ("point", "elasticity", "intrinsics", "marker_scale") and v != 0.0})
     for mesh in root.iter("mesh"):
         name = mesh.get("filename", "")
         if name and "://" not in name and not name.startswith("/"):

@@ -19,6 +19,7 @@ class Sensors(Effect):
     scale = 0.01
     gauge_priority = 0
     arm_always = True
+    arm_gauge = False  # found from the data, anywhere
 
     def arm_parameters(self, arm):
         return [Parameter(f"sensor.{sensor.name}.{part}.{a}", self.name, unit, self.scale, component=f"{part}.{a}",
