@@ -123,3 +123,29 @@ def test_identify_fits_the_sheets_writes_them_and_refuses_free_links_without_pri
     error = [line for line in run.stderr.splitlines() if "error" in line]
     assert run.returncode == 3 and len(error) == 1 and "--fix marker_scale." in error[0], run.stderr
     assert not (tmp_path / "free.json").exists()
+
+
+def test_simulate_dualarm_print_scale_error_on_the_command_line(tmp_path):
+    """`naocal simulate --robot dualarm --print-scale-error REL`: 0 prints exactly, a spread is drawn per sheet and kept
+    in truth.json; NaN or beyond 5 % and another arm refused in one line, nothing written."""
+    import json
+
+    from tests.cli_runner import naocal
+
+    exact = naocal("simulate", "--robot", "dualarm", "--print-scale-error", "0", "--poses", "10", "--out",
+                   tmp_path / "exact")
+    assert exact.returncode == 0, exact.stderr
+    assert json.loads((tmp_path / "exact" / "truth.json").read_text())["print_scale"] == {"L_sheet": 1.0,
+                                                                                         "R_sheet": 1.0}
+    drawn = naocal("simulate", "--robot", "dualarm", "--print-scale-error", "0.01", "--poses", "10", "--out",
+                   tmp_path / "drawn")
+    assert drawn.returncode == 0, drawn.stderr
+    scales = json.loads((tmp_path / "drawn" / "truth.json").read_text())["print_scale"]
+    assert all(s != 1.0 and abs(s - 1.0) < 0.05 for s in scales.values())
+    for value in ("nan", "0.2", "-0.01"):
+        bad = naocal("simulate", "--robot", "dualarm", "--print-scale-error", value, "--out", tmp_path / value)
+        assert bad.returncode == 2 and "--print-scale-error" in bad.stderr and bad.stderr.count("\n") == 1
+        assert not (tmp_path / value).exists()
+    other = naocal("simulate", "--robot", "franka_panda", "--chain", "panda_link0:panda_hand", "--print-scale-error",
+                   "0.01", "--out", tmp_path / "panda")
+    assert other.returncode == 2 and "--print-scale-error: only with --robot dualarm" in other.stderr

@@ -198,7 +198,7 @@ def test_a_backend_of_another_kind_is_refused_by_the_nao_in_one_line(tmp_path):
     assert "\n" not in result.stderr.strip() and not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("option", [["--camera-error"], ["--poses", "20"], ["--noise-px", "0.5"]])
+@pytest.mark.parametrize("option", [["--camera-error"], ["--print-scale-error", "0"], ["--poses", "20"], ["--noise-px", "0.5"]])
 def test_the_nao_simulate_refuses_another_kinds_option_instead_of_ignoring_it(tmp_path, option):
     done = naocal("simulate", *option, "--out", tmp_path / "sim")
     assert done.returncode == 2 and f"{option[0]} is not an option of the NAO's simulate" in done.stderr, done.stderr

@@ -54,6 +54,9 @@ NAMES    the candidate effects (score test, clustered by pose), best first; PHYS
             parser.add_argument("--camera-error", action="store_true",
                                 help="dual arm: the cameras' true intrinsics off what dataset.json files, by a "
                                      "separate checkerboard calibration's plausible error (docs/ARM.md)")
+            parser.add_argument("--print-scale-error", type=float, default=None, metavar="REL",
+                                help="dual arm: the spread of each marker sheet's print scale (default 0.003: an "
+                                     "office printer's; 0: printed exactly; docs/ARM.md)")
             parser.add_argument("--hidden", default="joint_offsets,link_lengths",
                                 help="arm: the hidden errors (default joint_offsets,link_lengths)")
 

@@ -386,8 +386,9 @@ def run_simulate(args) -> int:
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
     if args.robot == DUALARM:
         return run_simulate_dualarm(args, out)
-    if args.camera_error:
-        raise NaocalError("--camera-error: only with --robot dualarm")
+    if args.camera_error or args.print_scale_error is not None:
+        raise NaocalError(f"{'--camera-error' if args.camera_error else '--print-scale-error'}: only with --robot "
+                          "dualarm")
     if args.robot is None:
         raise NaocalError("--robot kuka_iiwa|franka_panda|URDF is needed with --chain")
     urdf, base, tip = resolve_robot(args.robot, args.chain)
@@ -407,6 +408,7 @@ def run_simulate(args) -> int:
     return 0
 
 
+MAX_PRINT_SCALE_ERROR = 0.05  # 5 %: beyond it a print is not a misprint but the wrong size typed
 DUALARM = "dualarm"  # --robot dualarm: naocal's two arms on a torso (kinds/arm/sim.py simulate_dualarm)
 
 
@@ -415,7 +417,7 @@ def run_simulate_dualarm(args, out) -> int:
     import shlex
 
     from naocal.agent.rundir import RunLock, entries
-    from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, simulate_dualarm
+    from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, PRINT_SCALE_ERROR, simulate_dualarm
     from naocal.solver.errors import NaocalError
 
     if args.chain is not None:
@@ -423,14 +425,20 @@ def run_simulate_dualarm(args, out) -> int:
     if args.hidden != "joint_offsets,link_lengths":
         raise NaocalError("--hidden: the dual-arm robot hides joint offsets, link lengths, tool mounts and marker "
                           "positions (not chosen)")
+    print_scale_error = PRINT_SCALE_ERROR if args.print_scale_error is None else args.print_scale_error
+    if not 0.0 <= print_scale_error <= MAX_PRINT_SCALE_ERROR:  # NaN refused too
+        raise NaocalError(f"--print-scale-error: a relative spread in [0, {MAX_PRINT_SCALE_ERROR:g}], got "
+                          f"{args.print_scale_error}")
     command = shlex.join(["naocal", "simulate", "--robot", DUALARM, "--out", str(out), "--seed", str(args.seed),
-                          "--poses", str(args.poses)] + (["--camera-error"] if args.camera_error else []))
+                          "--poses", str(args.poses)] + (["--camera-error"] if args.camera_error else [])
+                         + ["--print-scale-error", f"{print_scale_error:g}"])
     with RunLock(out, command):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
         info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
                                 noise_px=args.noise_px,
-                                camera_error=dict(CAMERA_FILING_ERROR) if args.camera_error else None)
+                                camera_error=dict(CAMERA_FILING_ERROR) if args.camera_error else None,
+                                print_scale_error=print_scale_error)
     print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
           f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); "
           f"{info['refused_colliding']} drawn stances refused as colliding (arms, tools, torso); hidden truth in "
