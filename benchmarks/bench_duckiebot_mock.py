@@ -18,7 +18,7 @@ inverse kinematics needs to drive it 0.3 m/s straight, the PWM floor averaged; t
 - homography: bench_duckiebot.homography_error_m (floor 0.15-0.6 m ahead, |y| <= 0.15 m);
 - robot time: the mock's clock at the end of the identification (calibration) and at the end of the mission;
 - z: the largest |error / std| over the joint fit's gain and trim (the motors' slope), dead_zone, baseline and the
-  camera's six pose parameters, against truth.json's `parameters`.
+  camera's six pose parameters, against truth.json's `parameters`; each one's signed z on the row below.
 CPU and wall time of the whole mission (rendering, detection, the fits). Runs are kept in NAOCAL_BENCH_CACHE
 (default /tmp/naocal-bench-duckiebot-mock); `--fresh` runs again.
 
@@ -142,8 +142,8 @@ def main(argv=None) -> int:
         h_error = homography_error_m(files.homography, files.camera.K, files.camera.distortion, hidden)
         document = truth_document(truth, seed, args.mock)
         values = {n: v["value"] for n, v in document["parameters"].items() if n in fit.names}
-        z = {n: abs(fit.value(n) - v) / fit.stdev(n) for n, v in values.items()}
-        worst = max(z, key=z.get)
+        z = {n: (fit.value(n) - v) / fit.stdev(n) for n, v in values.items()}
+        worst = max(z, key=lambda n: abs(z[n]))
         validation = ctx.validation or {}
         print(f"| {seed} | naocal mission ({cal.lens.camera.model}, {len(fit.sightings.frame)} corners) | "
               f"{result.final} | {trim_error:.4f} ({fit.stdev('trim'):.4f}) | {dev * 100:+.1f} cm "
@@ -151,7 +151,8 @@ def main(argv=None) -> int:
               f"{100 * bound:.1f} cm | {exact_dev * 100:.1f} cm | {abs(speed / SPEED_MPS - 1) * 100:.2f} % | "
               f"{intrinsics_px:.2f} px ({cal.lens.whole_image_std_px:.2f}) | {h_error * 1000:.1f} mm | "
               f"{robot_cal_s:.0f} s / {robot.now():.0f} s | "
-              f"{z[worst]:.1f} ({worst}) | {cpu:.0f} / {wall:.0f} |")
+              f"{abs(z[worst]):.1f} ({worst}) | {cpu:.0f} / {wall:.0f} |")
+        print(f"|  | (z per parameter: {', '.join(f'{n} {v:+.1f}' for n, v in z.items())}) | | | | | | | | | | | | |")
         if validation:
             print(f"|  | (the mission's validation: {100 * validation['deviation_m']:+.1f} cm at "
                   f"{validation.get('measured_at_m', validation['driven_m']):.2f} m, PWM bound "

@@ -53,7 +53,7 @@ class Refinement:
     kinematics: Kinematics  # the calibration's, with the new trim (and gain, if `gain_refined`)
     trim_before: float
     trim_estimate: float  # what the pass says (at the new gain), before the bound on the step
-    trim_std: float  # cluster-robust (clusters: frames)
+    trim_std: float  # cluster-robust (clusters: fit.sighting_runs)
     step_bounded: bool  # the estimate was farther than max_step: trim moved max_step towards it
     gain_before: float
     gain_estimate: float

@@ -180,7 +180,7 @@ def format_calibration(cal, title: str = "") -> str:
     markers = sum(1 for n in cal.parameters if n.endswith(".yaw_rad") and n.startswith("marker")) + 1
     fit = cal.fit
     lines.append(f"fit: RMS {fit['rms_px']:.3f} px over {fit['corners']} marker corners ({fit['outliers']} set "
-                 f"aside), {markers} markers (reference {fit['reference_marker']}); stds clustered by frame"
+                 f"aside), {markers} markers (reference {fit['reference_marker']}); stds clustered by sighting run"
                  + ("" if fit["converged"] else "; NOT CONVERGED"))
     lines += [f"fit warning: {w}" for w in fit["warnings"]]
     return "\n".join(lines)
