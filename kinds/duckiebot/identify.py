@@ -12,13 +12,14 @@ import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
-from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers_and_repeats
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
 from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, fit_drive, secant_gain
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import NaocalError
+from naocal.solver.fields import fail
 
 # A marker corner's detection noise grows fast as the marker shrinks in the image: measured on a rendered log (seed
 # 1, detected vs true corners, after their common inward bias) 0.04 px sd for sides of 30-100 px, 0.32 px at 20-30,
@@ -51,7 +52,13 @@ def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
     search = board_search_frames(log.frame_t_s) if boards else np.zeros(len(log.frame_files), bool)
     for i in range(len(log.frame_files)):
         image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
-        markers.append(detect_markers(image, log.marker_family))
+        sightings, repeated = detect_markers_and_repeats(image, log.marker_family)
+        if repeated:
+            # the fit tells the floor's markers apart by id alone: markers sharing one would be one marker seen in
+            # several places (detect_markers drops them, so a log of identical markers looked markerless)
+            fail(log.frame_path(i), f"marker id {repeated[0]} is on several markers in this frame: naocal tells "
+                 "the floor markers apart by their ids, which must differ")
+        markers.append(sightings)
         found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if search[i] else [])
     return Detections(markers, found)
 
