@@ -102,3 +102,21 @@ def test_markers_sharing_an_id_are_refused_as_such(tmp_path):
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "0000.jpg" in lines[0] and "marker id 7 is on several markers" in lines[0], lines
     assert not (tmp_path / "CAL.json").exists()
+
+
+def test_a_log_names_its_robot_model_as_duckietown_sells_it(tmp_path):
+    # a generator writing "DB21M" (the DB21 Duckietown sells) read fine, then failed after a minute of detection:
+    # "unknown Duckiebot model"; an unknown model is refused when read, naming the field
+    from naocal.kinds.duckiebot.robot import duckiebot
+
+    for model, ticks in (("DB21M", 135), ("DB21J", 135), ("DB19", None)):
+        log = _blank_log(tmp_path / model, [0.0, 0.1])
+        doc = json.loads((log.path / "log.json").read_text())
+        doc["robot"]["model"] = model
+        (log.path / "log.json").write_text(json.dumps(doc))
+        assert duckiebot(read_drive_log(log.path).model).ticks_per_revolution == ticks
+    doc["robot"]["model"] = "DB99"
+    (log.path / "log.json").write_text(json.dumps(doc))
+    result = naocal("identify", log.path, "--out", tmp_path / "CAL.json")
+    assert result.returncode == 2 and "field 'robot.model'" in result.stderr and "DB99" in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "CAL.json").exists()
