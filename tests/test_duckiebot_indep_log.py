@@ -154,3 +154,22 @@ def test_the_start_gain_is_not_inflated_by_a_fast_cameras_noise():
                       27.0, 0.0318, 0.1)
     _, _, gain = fit.start_values(drive, obs, K, 0.065, T, fit._reference_marker(obs))
     assert abs(gain / true_gain - 1) < 0.05, gain
+
+
+def test_a_fit_gone_astray_is_a_failed_fit_not_a_bad_log(tmp_path, monkeypatch):
+    # an independent log's fit that ended at baseline -2.9 m was refused as bad input (exit 2, "kinematics, field
+    # 'baseline_m': must be positive"): the log was good, the fit failed (SolveError, exit 3)
+    from types import SimpleNamespace
+
+    from naocal.solver.errors import DataError, SolveError
+
+    astray = SimpleNamespace(value={"baseline_m": -2.9, "trim": 0.01}.get)
+    monkeypatch.setattr(identify, "fit_drive", lambda *a, **k: astray)
+    monkeypatch.setattr(identify, "add_lens_covariance", lambda *a, **k: None)
+    monkeypatch.setattr(identify, "secant_gain", lambda *a, **k: (1.0, 0.0))
+    log = _blank_log(tmp_path, [0.0, 0.1])
+    lens = SimpleNamespace(camera=SimpleNamespace(K=np.eye(3)))
+    monkeypatch.setattr(identify, "rectified_sightings", lambda *a: None)
+    with pytest.raises(SolveError, match="baseline_m") as refused:
+        identify.calibrate(log, identify.Detections([[], []], [[], []]), lens, {})
+    assert not isinstance(refused.value, DataError)

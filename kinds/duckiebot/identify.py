@@ -18,7 +18,7 @@ from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, f
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
-from naocal.solver.errors import NaocalError
+from naocal.solver.errors import DataError, NaocalError, SolveError
 from naocal.solver.fields import fail
 
 # A marker corner's detection noise grows fast as the marker shrinks in the image: measured on a rendered log (seed
@@ -223,8 +223,12 @@ def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: d
                           duckiebot(log.model).T_base_camera, **fit_options)
     add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)
     gain, _ = secant_gain(drive, drive_fit, speed_mps)
-    kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
-                     gain=gain, trim=drive_fit.value("trim"), k=log.wheels.k, limit=log.wheels.limit)
+    try:
+        kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
+                         gain=gain, trim=drive_fit.value("trim"), k=log.wheels.k, limit=log.wheels.limit)
+    except DataError as err:  # the fit's values, not the log's: a fit gone astray (exit 3), not a bad input (2)
+        raise SolveError(f"the joint fit of {log.path} ended at impossible kinematics ({err.field} {err.problem}): nothing "
+                         "calibrated") from None
     return DuckiebotCalibration(log.robot_id, kin, lens, lens_fits, drive_fit)
 
 
