@@ -9,9 +9,9 @@ What differs from render.py on purpose:
   gentle S-curve and an in-place wiggle in view of the markers; no encoders.
 - kinematics: integrated here from the issue's formulas (w_r = u_r k / (gain + trim), w_l = u_l k / (gain - trim),
   v = r (w_r + w_l) / 2, omega = r (w_r - w_l) / b), by exact arcs between breakpoints.
-- camera: OpenCV's own convention (z forward, x right, y down), rays from cv2.undistortPoints (iterated to 1e-12), truth pixels from
-  cv2.projectPoints; frames written as JPEG by cv2.imwrite; exposure blur by averaging sub-frames across the
-  exposure.
+- camera: OpenCV's own convention (z forward, x right, y down), rays from cv2.undistortPoints (iterated to
+  1e-12), truth pixels from cv2.projectPoints; frames written as JPEG by cv2.imwrite; each frame an instant but
+  `blur_frames`, averaged over 5 poses across a long exposure (motion blur).
 - scene: boards and markers where `Variation` puts them (the issue's description: 2-3 identical 7 x 5 inner-corner
   chessboards standing upright on a semicircle facing the start; a line of flat tag36h11 markers, 6.5 cm, about
   15 cm apart, all oriented alike).
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -293,7 +293,8 @@ class Camera:
         uu, vv = np.meshgrid(u, v)
         pts = np.stack([uu.ravel(), vv.ravel()], axis=1).reshape(-1, 1, 2).astype(np.float64)
         norm = cv2.undistortPoints(pts, truth.K, truth.dist,
-                                   criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)).reshape(-1, 2)
+                                   criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+        norm = norm.reshape(-1, 2)
         self.shape = uu.shape
         self.s = s
         self.rays = np.column_stack([norm, np.ones(len(norm))]).astype(np.float32)  # OpenCV camera frame
@@ -338,7 +339,8 @@ class Camera:
                 front &= inside
             if not front.any():
                 continue
-            sample = cv2.remap(p.texture, u.reshape(self.shape).astype(np.float32), v.reshape(self.shape).astype(np.float32),
+            sample = cv2.remap(p.texture, u.reshape(self.shape).astype(np.float32),
+                               v.reshape(self.shape).astype(np.float32),
                                cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                borderValue=p.background or 0.0).ravel()
             img = np.where(front, sample, img)
