@@ -57,15 +57,21 @@ def _marker_detector(family: str) -> cv2.aruco.ArucoDetector:
 def detect_markers(image: np.ndarray, family: str = "tag36h11") -> list[MarkerSighting]:
     """The markers of `family` in a BGR or grey uint8 image, sorted by id (each id once: a second sighting of an id
     is dropped with the first, since which is the true one cannot be told)."""
+    return detect_markers_and_repeats(image, family)[0]
+
+
+def detect_markers_and_repeats(image: np.ndarray, family: str = "tag36h11") -> tuple[list[MarkerSighting], list]:
+    """(detect_markers' sightings, the ids seen more than once, dropped from them): a caller can tell a log whose
+    markers share an id from one where none was seen."""
     grey = channel_image(image, "grey")
     corners, ids, _ = _marker_detector(family).detectMarkers(grey)
     if ids is None:
-        return []
+        return [], []
     ids = ids.ravel()
     unique, counts = np.unique(ids, return_counts=True)
     once = set(unique[counts == 1].tolist())
     return sorted((MarkerSighting(int(i), np.asarray(c, dtype=float).reshape(4, 2)) for i, c in zip(ids, corners)
-                   if int(i) in once), key=lambda s: s.id)
+                   if int(i) in once), key=lambda s: s.id), unique[counts > 1].tolist()
 
 
 def detect_boards(image: np.ndarray, inner_corners: tuple[int, int], square_m: float = float("nan"),

@@ -5,19 +5,21 @@ dispatch is redesigned (issue 22); it writes nothing.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
-from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers_and_repeats
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
 from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, fit_drive, secant_gain
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
 from naocal.solver.camera import CameraIntrinsics
-from naocal.solver.errors import NaocalError
+from naocal.solver.errors import DataError, NaocalError, SolveError
+from naocal.solver.fields import fail
 
 # A marker corner's detection noise grows fast as the marker shrinks in the image: measured on a rendered log (seed
 # 1, detected vs true corners, after their common inward bias) 0.04 px sd for sides of 30-100 px, 0.32 px at 20-30,
@@ -27,6 +29,12 @@ MIN_NOISE_PX = 0.15
 SPEED_MPS = 0.3  # the speed the exported gain is the secant at (the issue's validation drive; Duckietown's lanes)
 HELD_OUT_GROUPS = 3  # board views split into this many runs of consecutive views, each held out in turn
 MIN_BOARD_VIEWS = 6  # two per group at least, so that each fit without one group still has 4 views
+# Boards are searched for in frames at least this far apart on the log's clock: a board search costs about 0.35 s
+# CPU per 640 x 480 frame (kinds.duckiebot.detect), a camera streaming at 15-30 fps while the robot turns gives
+# near-identical views 33-67 ms apart (0.35 rad/s: 0.7 deg), which add cost, not information, and whose errors are
+# not independent as the lens fit's view clusters assume. The mission's logs (frames grabbed standing still, 0.5 s
+# or more apart) are searched in full.
+BOARD_SEARCH_INTERVAL_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -38,14 +46,32 @@ class Detections:
 
 
 def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
-    """Markers and (unless `boards` is False: a drive with none, e.g. kinds.duckiebot.refine's lane pass) boards
-    in every frame."""
+    """Markers in every frame and (unless `boards` is False: a drive with none, e.g. kinds.duckiebot.refine's lane
+    pass) boards in the frames board_search_frames picks."""
     markers, found = [], []
+    search = board_search_frames(log.frame_t_s) if boards else np.zeros(len(log.frame_files), bool)
     for i in range(len(log.frame_files)):
         image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
-        markers.append(detect_markers(image, log.marker_family))
-        found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if boards else [])
+        sightings, repeated = detect_markers_and_repeats(image, log.marker_family)
+        if repeated:
+            # the fit tells the floor's markers apart by id alone: markers sharing one would be one marker seen in
+            # several places (detect_markers drops them, so a log of identical markers looked markerless)
+            fail(log.frame_path(i), f"marker id {repeated[0]} is on several markers in this frame: naocal tells "
+                 "the floor markers apart by their ids, which must differ")
+        markers.append(sightings)
+        found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if search[i] else [])
     return Detections(markers, found)
+
+
+def board_search_frames(frame_t_s, interval_s: float = BOARD_SEARCH_INTERVAL_S) -> np.ndarray:
+    """Which frames to search for boards (bool per frame): the first, then each at least `interval_s` after the last
+    one searched."""
+    chosen = np.zeros(len(frame_t_s), bool)
+    last = -math.inf
+    for i, t in enumerate(frame_t_s):
+        if t - last >= interval_s:
+            chosen[i], last = True, t
+    return chosen
 
 
 def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict]:
@@ -197,8 +223,12 @@ def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: d
                           duckiebot(log.model).T_base_camera, **fit_options)
     add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)
     gain, _ = secant_gain(drive, drive_fit, speed_mps)
-    kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
-                     gain=gain, trim=drive_fit.value("trim"), k=log.wheels.k, limit=log.wheels.limit)
+    try:
+        kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,
+                         gain=gain, trim=drive_fit.value("trim"), k=log.wheels.k, limit=log.wheels.limit)
+    except DataError as err:  # the fit's values, not the log's: a fit gone astray (exit 3), not a bad input (2)
+        raise SolveError(f"the joint fit of {log.path} ended at impossible kinematics ({err.field} {err.problem}): nothing "
+                         "calibrated") from None
     return DuckiebotCalibration(log.robot_id, kin, lens, lens_fits, drive_fit)
 
 

@@ -109,15 +109,18 @@ def prior_camera() -> CameraIntrinsics:
                             PRIOR_DISTORTION)
 
 
-MODELS = ("DB21", "DB18")
+# The DB21 as Duckietown sells it is the DB21M or DB21J (the same chassis, wheels, encoders and camera); the DB19 is
+# the DB18's successor without encoders. A log recorded elsewhere names its robot's model as its maker does.
+ENCODER_MODELS = ("DB21", "DB21M", "DB21J")
+MODELS = ENCODER_MODELS + ("DB19", "DB18")
 
 
 def duckiebot(model: str = "DB21") -> Duckiebot:
-    """The description of a Duckiebot model: 'DB21' (wheel encoders, 135 ticks per revolution) or 'DB18' (none).
-    NaocalError for any other name."""
+    """The description of a Duckiebot model: the DB21 and its variants (ENCODER_MODELS: wheel encoders, 135 ticks per
+    revolution) or the DB18 / DB19 (none). NaocalError for any other name."""
     if model not in MODELS:
         raise NaocalError(f"unknown Duckiebot model {model!r}: expected one of {', '.join(MODELS)}")
-    ticks = DB21_TICKS_PER_REVOLUTION if model == "DB21" else None
+    ticks = DB21_TICKS_PER_REVOLUTION if model in ENCODER_MODELS else None
     return Duckiebot(model, WHEEL_RADIUS_M, BASELINE_M, ticks, prior_camera(), camera_mount())
 
 

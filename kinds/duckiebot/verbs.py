@@ -206,25 +206,21 @@ def run_verify(args, kind) -> int:
     """Does the robot still drive straight under CAL? Refit gain and trim on the new log (the camera's pose and the
     baseline held at CAL's: a lane pass without turns cannot tell the baseline from trim), predict the 2 m straight
     drive at 0.3 m/s commanded with CAL's gain and trim. Exit 0 still good, 1 drifted, 2 bad input."""
-    import cv2
-
     from naocal.kinds.duckiebot.calibration import read_calibration_file
-    from naocal.kinds.duckiebot.detect import detect_markers
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
-    from naocal.kinds.duckiebot.identify import Detections, rectified_sightings
+    from naocal.kinds.duckiebot.identify import detect_log, rectified_sightings
     from naocal.kinds.duckiebot.robot import Kinematics
 
     check_options(args, kind)
     cal = read_calibration_file(args.offsets)
     log = read_drive_log(args.dataset)
-    markers = [detect_markers(log.load_frame(i, cv2.IMREAD_GRAYSCALE), log.marker_family)
-               for i in range(len(log.frame_files))]
-    if not any(markers):
+    detections = detect_log(log, boards=False)
+    if not any(detections.markers):
         raise _no_marker(log)
     # through the calibration's model of the wheel driver (its trim is that model's)
     drive = dataclasses.replace(Drive.of_log(log, pwm_driver=cal.pwm_driver), baseline_m=cal.value("baseline_m"))
-    fit = fit_drive(drive, rectified_sightings(Detections(markers, []), cal.lens), cal.lens.K, log.marker_size_m,
+    fit = fit_drive(drive, rectified_sightings(detections, cal.lens), cal.lens.K, log.marker_size_m,
                     cal.T_base_camera, fixed=CAMERA + ("baseline_m",))
     if not fit.success:
         raise SolveError(f"the fit of {log.path} did not converge ({fit.message})")
