@@ -104,10 +104,11 @@ def test_markers_sharing_an_id_are_refused_as_such(tmp_path):
     assert not (tmp_path / "CAL.json").exists()
 
 
-def test_a_log_names_its_robot_model_as_duckietown_sells_it(tmp_path):
+def test_a_log_names_its_robot_model_as_duckietown_sells_it(tmp_path, caplog):
     # a generator writing "DB21M" (the DB21 Duckietown sells) read fine, then failed after a minute of detection:
-    # "unknown Duckiebot model"; an unknown model is refused when read, naming the field
-    from naocal.kinds.duckiebot.robot import duckiebot
+    # "unknown Duckiebot model". A model naocal does not know (a lab's own build) is read too: the log gives its
+    # wheels; the DB21's camera mount and lens prior start the fit, with a warning. An empty one is refused.
+    from naocal.kinds.duckiebot.robot import duckiebot, nominal_for
 
     for model, ticks in (("DB21M", 135), ("DB21J", 135), ("DB19", None)):
         log = _blank_log(tmp_path / model, [0.0, 0.1])
@@ -115,10 +116,16 @@ def test_a_log_names_its_robot_model_as_duckietown_sells_it(tmp_path):
         doc["robot"]["model"] = model
         (log.path / "log.json").write_text(json.dumps(doc))
         assert duckiebot(read_drive_log(log.path).model).ticks_per_revolution == ticks
-    doc["robot"]["model"] = "DB99"
+    doc["robot"]["model"] = "DB99-lab"
+    (log.path / "log.json").write_text(json.dumps(doc))
+    with caplog.at_level("WARNING"):
+        nominal = nominal_for(read_drive_log(log.path).model)
+    assert np.array_equal(nominal.T_base_camera, duckiebot("DB21").T_base_camera)
+    assert "DB99-lab" in caplog.text and "DB21's camera mount" in caplog.text
+    doc["robot"]["model"] = ""
     (log.path / "log.json").write_text(json.dumps(doc))
     result = naocal("identify", log.path, "--out", tmp_path / "CAL.json")
-    assert result.returncode == 2 and "field 'robot.model'" in result.stderr and "DB99" in result.stderr, result.stderr
+    assert result.returncode == 2 and "field 'robot.model'" in result.stderr, result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "CAL.json").exists()
 
 

@@ -302,12 +302,12 @@ class LogFit:
 
     def fit(self, lens: str, effects=(), start=None) -> tuple[DriveFit, np.ndarray]:
         from naocal.kinds.duckiebot.identify import rectified_sightings
-        from naocal.kinds.duckiebot.robot import duckiebot
+        from naocal.kinds.duckiebot.robot import nominal_for
 
         camera = self.lens_fits[lens].camera
         sightings = rectified_sightings(self.detections, camera)
         fit = fit_drive(self.drive, sightings, camera.K, self.log.marker_size_m,
-                        duckiebot(self.log.model).T_base_camera, effects=effects, start=start)
+                        nominal_for(self.log.model).T_base_camera, effects=effects, start=start)
         return fit, camera.K
 
 

@@ -28,7 +28,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.robot import MODELS, robot_name_problem
+from naocal.kinds.duckiebot.robot import robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
 from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
@@ -121,9 +121,6 @@ def parse_meta(doc, path) -> dict:
     problem = robot_name_problem(robot["id"])
     if problem:
         fail(path, problem, "robot.id")
-    if robot["model"] not in MODELS:  # here, not after a minute of detection (the nominal robot is the model's)
-        fail(path, f"unknown Duckiebot model {fields.shown(robot['model'])} (expected one of {', '.join(MODELS)})",
-             "robot.model")
     camera = fields.json_object(doc["camera"], path, "camera", ("width_px", "height_px"), ())
     wheels = fields.json_object(doc["wheels"], path, "wheels", ("radius_m", "baseline_m", "k", "limit"),
                                 ("ticks_per_revolution",))
@@ -139,7 +136,7 @@ def parse_meta(doc, path) -> dict:
     # agent.board_detect finds boards of 3..40 squares a side: 2..39 inner corners
     corners = tuple(fields.count(c, path, f"boards.inner_corners[{i}]", 2, 39) for i, c in enumerate(corners))
     return dict(
-        robot_id=robot["id"], model=robot["model"],
+        robot_id=robot["id"], model=fields.text(robot["model"], path, "robot.model", max_chars=40, non_empty=True),
         width_px=fields.count(camera["width_px"], path, "camera.width_px", 16, 10000),
         height_px=fields.count(camera["height_px"], path, "camera.height_px", 16, 10000),
         wheels=Wheels(radius_m=fields.number(wheels["radius_m"], path, "wheels.radius_m", high=1.0, positive=True),

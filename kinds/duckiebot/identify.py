@@ -16,7 +16,7 @@ from naocal.kinds.duckiebot.detect import detect_boards, detect_markers_and_repe
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
 from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, fit_drive, secant_gain
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
-from naocal.kinds.duckiebot.robot import Kinematics, duckiebot
+from naocal.kinds.duckiebot.robot import Kinematics, nominal_for
 from naocal.solver.camera import CameraIntrinsics
 from naocal.solver.errors import DataError, NaocalError, SolveError
 from naocal.solver.fields import fail
@@ -85,7 +85,7 @@ def fit_intrinsics(log: DriveLog, detections: Detections) -> tuple[LensFit, dict
         raise NaocalError(f"{log.path}: {len(views)} board views found, at least {MIN_BOARD_VIEWS} are needed to "
                           "fit the camera's intrinsics")
     groups = np.arange(len(views)) * HELD_OUT_GROUPS // len(views)
-    nominal = duckiebot(log.model)
+    nominal = nominal_for(log.model)
     prior = nominal.camera
     K_guess = [[prior.fx_px, 0.0, prior.cx_px], [0.0, prior.fy_px, prior.cy_px], [0.0, 0.0, 1.0]]
     floor = FloorMarkers(marker_sightings(detections), log.marker_size_m, nominal.T_base_camera).usable()
@@ -220,7 +220,7 @@ def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: d
     sightings = rectified_sightings(detections, lens.camera)
     drive = Drive.of_log(log, pwm_driver=PWM_DRIVER in fit_options.get("effects", ()))
     drive_fit = fit_drive(drive, sightings, lens.camera.K, log.marker_size_m,
-                          duckiebot(log.model).T_base_camera, **fit_options)
+                          nominal_for(log.model).T_base_camera, **fit_options)
     add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)
     gain, _ = secant_gain(drive, drive_fit, speed_mps)
     try:

@@ -14,6 +14,7 @@ calibration files (camera prior: fx 336.5 px, cx 316, cy 233, k1 -0.283, k2 0.05
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from dataclasses import dataclass, field
@@ -113,6 +114,19 @@ def prior_camera() -> CameraIntrinsics:
 # the DB18's successor without encoders. A log recorded elsewhere names its robot's model as its maker does.
 ENCODER_MODELS = ("DB21", "DB21M", "DB21J")
 MODELS = ENCODER_MODELS + ("DB19", "DB18")
+
+
+def nominal_for(model: str) -> Duckiebot:
+    """The nominal robot of a log's `robot.model`: the model's own description; a model naocal does not know (a
+    lab's own build, a newer name) is taken as a DB21 body (its camera mount, its lens prior: the start values of
+    the fit, which fits both), with a warning. The wheels are the log's own (radius, baseline, k, ticks), whatever
+    the model."""
+    if model in MODELS:
+        return duckiebot(model)
+    logging.getLogger(__name__).warning(
+        "robot.model %s is not a model naocal knows (%s): the DB21's camera mount and lens prior start the fit",
+        fields.shown(model), ", ".join(MODELS))
+    return duckiebot("DB21")
 
 
 def duckiebot(model: str = "DB21") -> Duckiebot:
