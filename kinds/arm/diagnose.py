@@ -22,9 +22,11 @@ their reflectors if the model has points, are refitted as verify --refit does; t
 judging the 3-D sensors' arm; and each of two or more cameras judging the others' arm) and other sessions (leave
 one session of observations.csv's session column out, or without one a block of consecutive poses). The judged
 sensors' nuisances (their reflectors, a camera's intrinsics) are those of the fitted model, with and without the
-candidate alike. A candidate that makes any of them worse by more than HELDOUT_TOLERANCE, and (the cross-sensor
-checks) beyond what its own estimation noise does to the judged sensor (`chance_rise`, CHANCE_Z), fits the pixels
-only and is not recommended; the verdict is the best candidate that is physical.
+candidate alike. A candidate that makes any of them worse by more than HELDOUT_TOLERANCE, and beyond what its own
+estimation noise does to the judged sensor (`chance_rise`, `session_chance`, CHANCE_Z), fits the pixels only and is
+not recommended. Not worse is not better: a candidate is confirmed only when a check of the most independent kind it
+has (CONFIRMING) is better beyond chance, the same band's other side; one that is not is said so ('not confirmed by
+tracker: no better, ...') and proposed after a confirmed one; the verdict is the best candidate that is physical.
 """
 
 from __future__ import annotations
@@ -162,8 +164,7 @@ class HeldOutCheck:
         candidate's estimation noise alone would do to it (one null, the candidate is nothing but noise, rejected
         on either side at diagnose's family level one-sided). Not a paired test of the rows with and without: both
         fits share the same data, and the rows' differences are correlated through the one estimate d that moves
-        them all; the band counts that (without it an effect of 10 free parameters fitted from one camera would
-        'improve' the other by chance as often as it rises). Unknown chance (the rows differ): fallen by more than
+        them all; the band counts that (without it any fall by chance was 'better'). Unknown chance (the rows differ): fallen by more than
         the tolerance, the same test 'worse' falls back on."""
         with_it, without = self.with_effect[sensor], self.without[sensor]
         c = self.chance.get(sensor)
@@ -357,8 +358,8 @@ def chance_rise(without, from_them, with_it, label) -> dict:
     """{judged sensor: {"rise", "mean", "sd"}}: the rise of its whitened sum of squares from the judged fit
     `without` to `with_it` (cross_sensor_fits' second, without and with the candidate effect `label`; the same rows),
     and that rise's mean and sd if the candidate were nothing but noise: its parameters, fitted from the other
-    sensors (`from_them`, with it), move the arm by d ~ N(0, S), S the candidate's share of the fit's covariance
-    (`_candidate_spread`), seen by the judged sensor through its Jacobian G with its own frame and nuisances
+    sensors (`from_them`, with it), move the arm by d ~ N(0, S), S the spread of the difference the candidate makes
+    to the estimates (`_candidate_spread`), seen by the judged sensor through its Jacobian G with its own frame and nuisances
     projected out (`_rise_under_chance`). Linear about the fits."""
     r0 = whitened(without.model, without.obs, without.x, without.sigma)
     r1, J1 = whitened(with_it.model, with_it.obs, with_it.x, with_it.sigma, jacobian=True)
