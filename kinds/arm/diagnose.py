@@ -32,7 +32,7 @@ tracker: no better, ...') and proposed after a confirmed one; the verdict is the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.special import ndtri
@@ -501,7 +501,6 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
 
     names = [sensor.name for sensor in model.sensors]
     base_errors = _unless_unfit(lambda: session_errors(fit)) if len(folds) > 1 else None
-    base_sessions = None if base_errors is None else sensor_rms(model, fit.obs, base_errors)
     crosses = [(kind, a, b, _unless_unfit(lambda: cross_sensor_fits(fit, model.effects, (), a, b)))
                for kind, a, b in cross_checks(model)]
     fits = {}
@@ -522,13 +521,23 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
                        f"{', '.join(names[s] for s in fitted_from)} alone, then held (its frame{what} refitted)")
                 c.checks.append(HeldOutCheck(kind, how, without[1].rms(), with_it[1].rms(),
                                              chance_rise(without[1], *with_it, c.label)))
-        refit = base_sessions and _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
-        errors = None if not refit else _unless_unfit(lambda: session_errors(refit))
-        if errors is not None:
-            fits[c.label] = refit
-            c.checks.append(HeldOutCheck("session", how_sessions, base_sessions, sensor_rms(refit.model, refit.obs, errors),
-                                         session_chance(fit, refit, base_errors, errors,
-                                                        session_folds(refit.obs, sessions), c.label)))
+        refit = None if base_errors is None else _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
+        errors = _unless_unfit(lambda: session_errors(refit)) if refit else None
+        if errors is None:
+            continue
+        # The refit may set aside more detections (a better model shows more outliers): the model without the
+        # candidate is then held out on the refit's rows too, so both sides and the chance bound see the same rows.
+        base, base_errors_here = ((fit, base_errors) if _same_rows(fit.obs, refit.obs) else
+                                  (replace(fit, obs=refit.obs), None))
+        if base_errors_here is None:
+            base_errors_here = _unless_unfit(lambda: session_errors(base))
+            if base_errors_here is None:
+                continue
+        fits[c.label] = refit
+        c.checks.append(HeldOutCheck("session", how_sessions, sensor_rms(model, base.obs, base_errors_here),
+                                     sensor_rms(refit.model, refit.obs, errors),
+                                     session_chance(base, refit, base_errors_here, errors,
+                                                    session_folds(refit.obs, sessions), c.label)))
     return fits
 
 
