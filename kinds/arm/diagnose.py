@@ -170,7 +170,9 @@ class HeldOutCheck:
         c = self.chance.get(sensor)
         if c is None:
             return with_it * (1.0 + HELDOUT_TOLERANCE) < without
-        return c["rise"] < min(0.0, c["mean"] - CHANCE_Z * c["sd"])
+        # a band of 0: the candidate cannot reach these rows (a camera's intrinsics, the arm fitted from the tracker):
+        # a fall there is the solver's rounding, nothing to confirm
+        return c["sd"] > 0.0 and c["rise"] < min(0.0, c["mean"] - CHANCE_Z * c["sd"])
 
     def word(self, sensor) -> str:
         """'worse', 'within chance' (worse beyond the tolerance, not beyond chance), 'better' (beyond chance) or
