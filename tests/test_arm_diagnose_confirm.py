@@ -60,7 +60,7 @@ def test_a_confirmed_effect_is_proposed_before_one_that_is_not():
     sensor frames. The link lengths and the link poses both fit the pixels; the lengths are confirmed (the camera,
     with the arm fitted from the tracker alone, better beyond chance), the poses are not (the tracker from the
     camera's arm rises, within chance): the lengths are proposed and the poses said not confirmed. Before, the
-    sessions' check, without a chance bound, refuted the lengths (the tracker's few held-out poses 15 % up, 1 sd of
+    sessions' check, without a chance bound, refuted the lengths (the tracker's few held-out poses 15 % up, 0.8 sd of
     chance) and nothing was proposed."""
     lengths = {k: 0.3 * v for k, v in true_errors(seed=4).items() if k.startswith("link_length")}
     d = camera_heavy({**lengths, **MARKERS_1MM}, ())
