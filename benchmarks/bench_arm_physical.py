@@ -12,7 +12,9 @@ check is "worse" when a held-out RMS grows by more than the tolerance. Two kinds
   told, the model complete, candidates `elasticity` and `link_poses`; passing one is a MISS.
 
 Each check's ratio (with / without, the largest over its sensors) is computed once; the sweep counts, for each
-tolerance, the false alarms and misses over the seeds.
+tolerance, the false alarms and misses over the seeds; then, at the tolerance diagnose uses with its chance bounds, how
+many of each kind are confirmed, not confirmed and refuted (a physical one refuted: a false alarm; a fooled one
+confirmed: a false confirmation).
 
     python benchmarks/bench_arm_physical.py [--seeds 1 2 3 4] [--poses 200]
 """
@@ -66,9 +68,10 @@ def main():
                 for check in c.checks:
                     ratio = max(check.with_effect[s] / check.without[s] for s in check.with_effect)
                     ratios[check.kind] = max(ratio, ratios.get(check.kind, 0.0))
-                judged.append((case, seed, c.label, physical, ratios))
+                standing = ("refuted", "not confirmed", "confirmed")[(c.physical is not False) + bool(c.confirmed)]
+                judged.append((case, seed, c.label, physical, ratios, standing))
                 print(f"seed {seed} {case:24s} {c.label:13s} {'physical' if physical else 'fooled  '} " + "  ".join(
-                    f"{kind} {ratio:.3f}" for kind, ratio in ratios.items()), flush=True)
+                    f"{kind} {ratio:.3f}" for kind, ratio in ratios.items()) + f"  -> {standing}", flush=True)
     print(f"\n{len(judged)} candidates judged ({sum(j[3] for j in judged)} physical, "
           f"{sum(not j[3] for j in judged)} fooled); {time.time() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU")
     kinds = ("sensor", "reverse", "camera", "session")
@@ -76,13 +79,19 @@ def main():
           + ", ".join(kinds) + " | misses if only that check |")
     print("|---:|---:|---:|---|---|")
     for tol in TOLERANCES:
-        worse = [{k for k, r in ratios.items() if r > 1 + tol} for *_, ratios in judged]
+        worse = [{k for k, r in ratios.items() if r > 1 + tol} for *_, ratios, _ in judged]
         alarms = sum(1 for j, w in zip(judged, worse) if j[3] and w)
         misses = sum(1 for j, w in zip(judged, worse) if not j[3] and not w)
         by_kind = ", ".join(str(sum(1 for j, w in zip(judged, worse) if j[3] and k in w)) for k in kinds)
         alone = ", ".join(str(sum(1 for j, w in zip(judged, worse) if not j[3] and k not in w)) for k in kinds)
         mark = " (now)" if tol == HELDOUT_TOLERANCE else ""
         print(f"| {tol:.1%}{mark} | {alarms} | {misses} | {by_kind} | {alone} |")
+    print("\nWith the chance bounds (diagnose's verdict: worse beyond the tolerance and chance; confirmed: the deciding "
+          "check better beyond chance):")
+    for physical in (True, False):
+        counts = {w: sum(1 for j in judged if j[3] == physical and j[5] == w)
+                  for w in ("confirmed", "not confirmed", "refuted")}
+        print(f"  {'physical' if physical else 'fooled'}: " + ", ".join(f"{w} {n}" for w, n in counts.items()))
 
 
 if __name__ == "__main__":

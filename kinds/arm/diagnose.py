@@ -22,15 +22,17 @@ their reflectors if the model has points, are refitted as verify --refit does; t
 judging the 3-D sensors' arm; and each of two or more cameras judging the others' arm) and other sessions (leave
 one session of observations.csv's session column out, or without one a block of consecutive poses). The judged
 sensors' nuisances (their reflectors, a camera's intrinsics) are those of the fitted model, with and without the
-candidate alike. A candidate that makes any of them worse by more than HELDOUT_TOLERANCE, and (the cross-sensor
-checks) beyond what its own estimation noise does to the judged sensor (`chance_rise`, CHANCE_Z), fits the pixels
-only and is not recommended; the verdict is the best candidate that is physical.
+candidate alike. A candidate that makes any of them worse by more than HELDOUT_TOLERANCE, and beyond what its own
+estimation noise does to the judged sensor (`chance_rise`, `session_chance`, CHANCE_Z), fits the pixels only and is
+not recommended. Not worse is not better: a candidate is confirmed only when a check of the most independent kind it
+has (CONFIRMING) is better beyond chance, the same band's other side; one that is not is said so ('not confirmed by
+tracker: no better, ...') and proposed after a confirmed one; the verdict is the best candidate that is physical.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.special import ndtri
@@ -55,6 +57,10 @@ HELDOUT_TOLERANCE = 0.10
 # camera at 60 poses judging elasticity moved the other camera by 13 %, 1.5 sd of that noise: a false alarm).
 # Beyond CHANCE_Z sds of that noise (`chance_rise`), at diagnose's family level one-sided.
 CHANCE_Z = float(-ndtri(FAMILY_ALPHA))  # 3.09 (scipy.special: scipy.stats is slow to import)
+# A candidate is confirmed when held-out data its pixels cannot fool are better with it beyond chance; the checks
+# asked, most independent first: another sensor (the tracker judging the cameras' arm, or the other way round), the
+# cameras one another, other sessions (which a sensor-model error fools alike in every session).
+CONFIRMING = (("sensor", "reverse"), ("camera",), ("session",))
 SESSIONS = 5  # blocks of consecutive poses standing in for sessions when the dataset has no session column
 
 
@@ -80,6 +86,37 @@ class Test:
         return None if not self.checks else not any(c.worse for c in self.checks)
 
     @property
+    def deciding(self) -> list:
+        """The checks that confirm it or not: those of the first of CONFIRMING present (another sensor's before the
+        cameras' one another's before other sessions')."""
+        for kinds in CONFIRMING:
+            checks = [c for c in self.checks if c.kind in kinds]
+            if checks:
+                return checks
+        return []
+
+    @property
+    def confirmed(self):
+        """True: not refuted, and a deciding check better beyond chance; False: refuted, or none is; None: not
+        judged."""
+        if not self.checks:
+            return None
+        return self.physical and any(c.better for c in self.deciding)
+
+    @property
+    def not_confirmed_by(self) -> list:
+        """[(check, sensor)] of the deciding checks' sensors that are neither better nor worse (a worse one is the
+        refutation) when none is better: what the report says 'not confirmed by' (of a refuted one too)."""
+        if any(c.better for c in self.deciding):
+            return []
+        return [(c, s) for c in self.deciding for s in c.with_effect if c.word(s) in ("no better", "within chance")]
+
+    @property
+    def standing(self) -> int:
+        """The order the judged candidates are proposed in: 0 confirmed, 1 not judged or not confirmed, 2 refuted."""
+        return 2 if self.physical is False else 0 if self.confirmed else 1
+
+    @property
     def refutation(self) -> str:
         """Why it is not recommended ('' if it is not refuted): the other sensor worse, or only other sessions."""
         worse = {c.kind for c in self.checks if c.worse}
@@ -99,7 +136,10 @@ class Test:
                 "uniqueness": self.uniqueness, "predicted_rms": self.predicted_rms, "values": self.values,
                 "significant": self.significant, "testable": self.testable, "inert": list(self.inert),
                 "checks": [c.as_dict() for c in self.checks], "physical": self.physical,
-                "refutation": self.refutation or None, "pixels": self.pixels}
+                "refutation": self.refutation or None, "pixels": self.pixels, "confirmed": self.confirmed,
+                "confirmed_by": sorted({s for c in self.deciding for s in c.better}) if self.confirmed else [],
+                "not_confirmed_by": [{"sensor": s, "check": c.kind, "word": c.word(s), "without": c.without[s],
+                                      "with": c.with_effect[s]} for c, s in self.not_confirmed_by]}
 
 
 @dataclass
@@ -112,26 +152,47 @@ class HeldOutCheck:
     without: dict
     with_effect: dict
     # judged sensor -> {"rise": its whitened sum of squares with less without the candidate, "mean", "sd": that
-    # rise's under chance alone (`chance_rise`)}; empty: not known (the sessions' check)
+    # rise's under chance alone (`chance_rise`, `session_chance`)}; empty: not known (the fits' rows differ)
     chance: dict = field(default_factory=dict)
 
     def within_chance(self, sensor) -> bool:
         c = self.chance.get(sensor)
         return c is not None and c["rise"] <= c["mean"] + CHANCE_Z * c["sd"]
 
+    def better_beyond_chance(self, sensor) -> bool:
+        """Its whitened sum of squares fell, and below the same band's other side: mean - CHANCE_Z sd of what the
+        candidate's estimation noise alone would do to it (one null, the candidate is nothing but noise, rejected
+        on either side at diagnose's family level one-sided). Not a paired test of the rows with and without: both
+        fits share the same data, and the rows' differences are correlated through the one estimate d that moves
+        them all; the band counts that (without it any fall by chance was 'better'). Unknown chance (the rows differ): fallen by more than
+        the tolerance, the same test 'worse' falls back on."""
+        with_it, without = self.with_effect[sensor], self.without[sensor]
+        c = self.chance.get(sensor)
+        if c is None:
+            return with_it * (1.0 + HELDOUT_TOLERANCE) < without
+        # a band of 0: the candidate cannot reach these rows (a camera's intrinsics, the arm fitted from the tracker):
+        # a fall there is the solver's rounding, nothing to confirm
+        return c["sd"] > 0.0 and c["rise"] < min(0.0, c["mean"] - CHANCE_Z * c["sd"])
+
     def word(self, sensor) -> str:
-        """'worse', 'within chance' (worse beyond the tolerance, not beyond chance), 'better' or 'no better'."""
+        """'worse', 'within chance' (worse beyond the tolerance, not beyond chance), 'better' (beyond chance) or
+        'no better' (a fall within chance, or a rise within the tolerance)."""
         if self.with_effect[sensor] > (1.0 + HELDOUT_TOLERANCE) * self.without[sensor]:
             return "within chance" if self.within_chance(sensor) else "worse"
-        return "better" if self.with_effect[sensor] < self.without[sensor] else "no better"
+        return "better" if self.better_beyond_chance(sensor) else "no better"
 
     @property
     def worse(self) -> list:
         return [s for s in self.with_effect if self.word(s) == "worse"]
 
+    @property
+    def better(self) -> list:
+        return [s for s in self.with_effect if self.word(s) == "better"]
+
     def as_dict(self):
         return {"kind": self.kind, "how": self.how, "without": self.without, "with": self.with_effect,
-                "worse": self.worse, "chance": self.chance}
+                "worse": self.worse, "better": self.better, "words": {s: self.word(s) for s in self.with_effect},
+                "chance": self.chance}
 
 
 def extended(fit: ArmFit, effects=ARM_EFFECTS):
@@ -299,30 +360,18 @@ def chance_rise(without, from_them, with_it, label) -> dict:
     """{judged sensor: {"rise", "mean", "sd"}}: the rise of its whitened sum of squares from the judged fit
     `without` to `with_it` (cross_sensor_fits' second, without and with the candidate effect `label`; the same rows),
     and that rise's mean and sd if the candidate were nothing but noise: its parameters, fitted from the other
-    sensors (`from_them`, with it), move the arm by d ~ N(0, S), S the candidate's share of the fit's covariance
-    (its covariance with the candidate less without, as nested fits' estimates differ: Hausman), seen by the judged
-    sensor through its Jacobian G with its own frame and nuisances projected out; the rise 2 r0.G d + |G d|^2 has
-    mean tr(G S G') and variance 2 |G S G'|^2 + 4 r0' G S G' r0 (r0: its residual without). Linear about the fits."""
-    from naocal.kinds.arm.identify import prior_sizes
-
+    sensors (`from_them`, with it), move the arm by d ~ N(0, S), S the spread of the difference the candidate makes
+    to the estimates (`_candidate_spread`), seen by the judged sensor through its Jacobian G with its own frame and nuisances
+    projected out (`_rise_under_chance`). Linear about the fits."""
     r0 = whitened(without.model, without.obs, without.x, without.sigma)
     r1, J1 = whitened(with_it.model, with_it.obs, with_it.x, with_it.sigma, jacobian=True)
-    if len(r0) != len(r1):
+    if not _same_rows(without.obs, with_it.obs):
         return {}
     m = from_them.model
     index = np.flatnonzero(from_them.free)
     _, JF = whitened(m, from_them.obs, from_them.x, from_them.sigma, jacobian=True)
     JF = JF[:, index] * m.scales[index]
-    information = JF.T @ JF
-    if from_them.priors:
-        size = prior_sizes(m)[index]
-        information[np.diag_indices_from(information)] += np.where(
-            size > 0, (m.scales[index] / np.where(size > 0, size, 1.0)) ** 2, 0.0)
-    rest = np.flatnonzero([m.parameters[i].effect != label for i in index])
-    spread = np.linalg.pinv(information)
-    spread[np.ix_(rest, rest)] -= np.linalg.pinv(information[np.ix_(rest, rest)])
-    w, V = np.linalg.eigh((spread + spread.T) / 2)
-    root = V * np.sqrt(np.clip(w, 0.0, None))  # S = root root'
+    root = _candidate_spread(m, index, JF.T @ JF, label, from_them.priors)
     judged = with_it.model
     column = {n: i for i, n in enumerate(judged.names)}
     shared = [j for j, i in enumerate(index) if m.names[i] in column and not with_it.free[column[m.names[i]]]]
@@ -330,16 +379,87 @@ def chance_rise(without, from_them, with_it, label) -> dict:
     G = J1[:, cols] * judged.scales[cols]
     Q, _ = np.linalg.qr(J1[:, with_it.free] * judged.scales[with_it.free])
     G -= Q @ (Q.T @ G)
-    B = G @ root[shared]
-    mask = judged.component_mask(with_it.obs)
-    sensor_rows = np.broadcast_to(with_it.obs.sensor[:, None], mask.shape)[mask]
+    return _rise_under_chance(G @ root[shared], r0, r1, _component_sensors(judged, with_it.obs), judged.sensors)
+
+
+def _same_rows(a, b) -> bool:
+    """Whether two fits' observations are the same rows (a refit may set other detections aside)."""
+    return len(a) == len(b) and np.array_equal(a.pose, b.pose) and np.array_equal(a.sensor, b.sensor) and \
+        np.array_equal(a.point, b.point)
+
+
+def _candidate_spread(model, index, information, label, priors):
+    """root (len(index), r), S = root root': the covariance of the difference between the fits with and without the
+    candidate effect `label` of the free parameters `index` (scaled) under chance alone; `information` H = J'J of the
+    scaled (whitened) free columns. Linear in the data's whitened noise e both estimates are A^-1 J'e, A = H + the
+    priors' information as the fit adds it, and the one without the candidate the same on the other parameters
+    (`rest`): the difference K J'e, K = A^-1 - pad(A_rest^-1), has covariance S = K H K'. Without priors that is
+    Hausman's difference of the nested fits' covariances, A^-1 - pad(A_rest^-1); with them, not: A^-1 is the
+    priors' spread where the data say nothing, which the estimates, held at the URDF there, do not have (link poses
+    fitted from the cameras had a tracker's band of 340000 +- 390000 for actual rises of 100-700)."""
+    from naocal.kinds.arm.identify import prior_sizes
+
+    A = information.copy()
+    if priors:
+        size = prior_sizes(model)[index]
+        A[np.diag_indices_from(A)] += np.where(size > 0, (model.scales[index] / np.where(size > 0, size, 1.0)) ** 2,
+                                               0.0)
+    rest = np.flatnonzero([model.parameters[i].effect != label for i in index])
+    K = np.linalg.pinv(A)
+    K[np.ix_(rest, rest)] -= np.linalg.pinv(A[np.ix_(rest, rest)])
+    spread = K @ information @ K.T
+    w, V = np.linalg.eigh((spread + spread.T) / 2)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _component_sensors(model, obs):
+    """The sensor index of each measured component (whitened's rows)."""
+    mask = model.component_mask(obs)
+    return np.broadcast_to(obs.sensor[:, None], mask.shape)[mask]
+
+
+def _rise_under_chance(B, r0, r1, sensor_rows, sensors) -> dict:
+    """{sensor name: {"rise", "mean", "sd"}}: the rise |r1|^2 - |r0|^2 of each sensor's whitened residuals and its
+    mean and sd when r1 = r0 + B z, z ~ N(0, I) (the candidate's estimation noise seen by the judged rows): the rise
+    2 r0.B z + |B z|^2 has mean tr(B B') and variance 2 |B'B|^2 + 4 |B'r0|^2."""
     out = {}
-    for s, sensor in enumerate(judged.sensors):
+    for s, sensor in enumerate(sensors):
         rows = sensor_rows == s
         Bs, a, b = B[rows], r0[rows], r1[rows]
         variance = 2.0 * float(np.sum((Bs.T @ Bs) ** 2)) + 4.0 * float(np.sum((Bs.T @ a) ** 2))
         out[sensor.name] = {"rise": float(b @ b - a @ a), "mean": float(np.sum(Bs ** 2)),
                             "sd": float(np.sqrt(variance))}
+    return out
+
+
+def session_chance(without, with_it, errors_without, errors_with, folds, label) -> dict:
+    """chance_rise for the sessions' check: {sensor: {"rise", "mean", "sd"}} of the held-out sessions' whitened sum
+    of squares from `without` to `with_it` (the fits on all the data; `errors_*` heldout_residuals over `folds` of
+    their rows, the same rows). A fold's held-out rows are predicted by every free parameter fitted to the other
+    rows, so the candidate's estimation noise reaches them through their whole Jacobian (nothing is refitted on
+    them): per fold S from the training rows' information (linear about `with_it`'s fit on all the data), the rise's
+    mean and sd as chance_rise's. The folds' training rows overlap (each shares all but two blocks with another), so
+    their noises are correlated: the means add, and the sds are added too, the bound for fully correlated folds
+    (the widest band, never narrower than the truth: no false refutation nor confirmation from assuming them
+    independent)."""
+    if not _same_rows(without.obs, with_it.obs):
+        return {}
+    model = with_it.model
+    index = np.flatnonzero(with_it.free)
+    _, J = whitened(model, with_it.obs, with_it.x, with_it.sigma, jacobian=True)
+    J = J[:, index] * model.scales[index]
+    mask = model.component_mask(with_it.obs)
+    w = 1.0 / with_it.sigma[with_it.obs.sensor][:, None]  # one noise for both: the rise is the residuals' alone
+    r0, r1 = (errors_without * w)[mask], (errors_with * w)[mask]
+    sensor_rows = _component_sensors(model, with_it.obs)
+    out = {s.name: {"rise": 0.0, "mean": 0.0, "sd": 0.0} for s in model.sensors}
+    for fold in folds:
+        test = np.broadcast_to(fold[:, None], mask.shape)[mask]
+        root = _candidate_spread(model, index, J[~test].T @ J[~test], label, with_it.priors)
+        for name, c in _rise_under_chance(J[test] @ root, r0[test], r1[test], sensor_rows[test],
+                                          model.sensors).items():
+            for key in c:
+                out[name][key] += c[key]
     return out
 
 
@@ -378,11 +498,11 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
                     f"{len(folds)} blocks of consecutive poses held out in turn (the dataset has no session column: "
                     "they stand in for sessions)")
 
-    def session_rms(fit_):  # the blocks of fit_'s own rows: a refit may set other detections aside
-        return sensor_rms(fit_.model, fit_.obs, heldout_residuals(fit_, session_folds(fit_.obs, sessions)))
+    def session_errors(fit_):  # the blocks of fit_'s own rows: a refit may set other detections aside
+        return heldout_residuals(fit_, session_folds(fit_.obs, sessions))
 
     names = [sensor.name for sensor in model.sensors]
-    base_sessions = _unless_unfit(lambda: session_rms(fit)) if len(folds) > 1 else None
+    base_errors = _unless_unfit(lambda: session_errors(fit)) if len(folds) > 1 else None
     crosses = [(kind, a, b, _unless_unfit(lambda: cross_sensor_fits(fit, model.effects, (), a, b)))
                for kind, a, b in cross_checks(model)]
     fits = {}
@@ -403,11 +523,23 @@ def physical_checks(fit: ArmFit, candidates, sessions: int = SESSIONS) -> dict:
                        f"{', '.join(names[s] for s in fitted_from)} alone, then held (its frame{what} refitted)")
                 c.checks.append(HeldOutCheck(kind, how, without[1].rms(), with_it[1].rms(),
                                              chance_rise(without[1], *with_it, c.label)))
-        refit = base_sessions and _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
-        with_it = refit and _unless_unfit(lambda: session_rms(refit))
-        if with_it:
-            fits[c.label] = refit
-            c.checks.append(HeldOutCheck("session", how_sessions, base_sessions, with_it))
+        refit = None if base_errors is None else _unless_unfit(lambda: refit_with(fit, effects, held=c.inert))
+        errors = _unless_unfit(lambda: session_errors(refit)) if refit else None
+        if errors is None:
+            continue
+        # The refit may set aside more detections (a better model shows more outliers): the model without the
+        # candidate is then held out on the refit's rows too, so both sides and the chance bound see the same rows.
+        base, base_errors_here = ((fit, base_errors) if _same_rows(fit.obs, refit.obs) else
+                                  (replace(fit, obs=refit.obs), None))
+        if base_errors_here is None:
+            base_errors_here = _unless_unfit(lambda: session_errors(base))
+            if base_errors_here is None:
+                continue
+        fits[c.label] = refit
+        c.checks.append(HeldOutCheck("session", how_sessions, sensor_rms(model, base.obs, base_errors_here),
+                                     sensor_rms(refit.model, refit.obs, errors),
+                                     session_chance(base, refit, base_errors_here, errors,
+                                                    session_folds(refit.obs, sessions), c.label)))
     return fits
 
 
@@ -426,7 +558,8 @@ class ArmDiagnosis:
 
     @property
     def best(self):
-        """The best significant candidate the held-out checks do not refute (fits the pixels only)."""
+        """The best significant candidate the held-out checks do not refute (fits the pixels only): a confirmed one
+        if there is one (the candidates' order)."""
         return next((c for c in self.candidates if c.significant and c.physical is not False), None)
 
     @property
@@ -442,6 +575,9 @@ class ArmDiagnosis:
                 "heldout": self.heldout, "heldout_with_best": self.heldout_with,
                 "verdict": None if self.best is None else self.best.label,
                 "fits_the_pixels_only": [c.label for c in self.refuted],
+                "verdict_confirmed": None if self.best is None else self.best.confirmed,
+                "not_confirmed": {c.label: not_confirmed_text(c, self.fit.model)
+                                  for c in self.candidates if c.not_confirmed_by},
                 "fixed": self.fit.fixed_reasons}
 
 
@@ -470,6 +606,8 @@ def diagnose(fit: ArmFit, n_folds: int = 5, *, physical: bool = True, sessions: 
     per_pose.sort(reverse=True)
     heldout = heldout_rms(fit, n_folds) if n_folds > 1 else {}
     fits = physical_checks(fit, candidates, sessions) if physical else {}
+    # A confirmed candidate before one that is not, before a refuted one (stable: each in the order above).
+    candidates.sort(key=lambda c: (not c.significant, c.standing))
     heldout_with = {}
     best = next((c for c in candidates if c.significant and c.physical is not False), None)
     if best is not None and n_folds > 1:
@@ -499,6 +637,15 @@ def _held_options(fit: ArmFit) -> str:
             value = shown(fit.x[i], p.unit)[0]
             out += f" --fix {p.name}" + (f"={value:.6g}" if fit.x[i] != 0.0 else "")
     return out + ("" if fit.priors else " --no-priors")
+
+
+def not_confirmed_text(c: Test, model) -> str:
+    """'not confirmed by tracker: no better, 0.465 mm -> 0.468 mm; ...' ('' if nothing to say)."""
+    kinds = {s.name: s.kind for s in model.sensors}
+    said = [f"{s}{' (sessions held out)' if check.kind == 'session' else ''}: {check.word(s)}, "
+            f"{shown_rms(check.without[s], kinds[s])} -> {shown_rms(check.with_effect[s], kinds[s])}"
+            for check, s in c.not_confirmed_by]
+    return "not confirmed by " + "; ".join(said) if said else ""
 
 
 def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
@@ -549,7 +696,15 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
                                f"({check.word(s)})"
                                for s in check.with_effect)
             lines.append(f"    held-out {check.how}: {change}")
-        lines.append("    -> " + ("physical" if c.physical else f"{c.refutation}: not recommended"))
+        unconfirmed = not_confirmed_text(c, model)
+        if c.physical is False:
+            lines.append(f"    -> {c.refutation}: not recommended" + (f"; {unconfirmed}" if unconfirmed else ""))
+        elif c.confirmed:
+            lines.append("    -> physical: confirmed by " + ", ".join(
+                sorted({s for check in c.deciding for s in check.better})) + " (better beyond chance)")
+        else:
+            lines.append(f"    -> not refuted, {unconfirmed or 'not confirmed'}: it may fit the pixels only "
+                         "(proposed after any confirmed candidate)")
     best = d.best
     lines.append("")
     if best is None and d.refuted:
@@ -571,7 +726,12 @@ def format_diagnosis(d: ArmDiagnosis, dataset_label="DATASET") -> str:
         if d.refuted:
             lines.append("  (the best physical candidate; not recommended: "
                          + "; ".join(f"{c.label} {c.refutation}" for c in d.refuted) + ")")
+        if best.confirmed is False:
+            lines.append(f"  (not confirmed: no significant candidate is better beyond chance on held-out data its "
+                         f"fit did not see; {best.label} may fit the pixels only)")
         if d.heldout_with:
             lines.append("  held-out poses with it: " + "; ".join(
                 f"{s} {shown_rms(v['calibrated'], kinds[s])}" for s, v in d.heldout_with.items()))
+    lines += [f"  {c.label} {not_confirmed_text(c, model)}" for c in d.candidates if c.significant and
+              c.not_confirmed_by]  # what the pixels say and held-out data do not confirm
     return "\n".join(lines)
