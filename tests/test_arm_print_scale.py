@@ -149,3 +149,15 @@ def test_simulate_dualarm_print_scale_error_on_the_command_line(tmp_path):
     other = naocal("simulate", "--robot", "franka_panda", "--chain", "panda_link0:panda_hand", "--print-scale-error",
                    "0.01", "--out", tmp_path / "panda")
     assert other.returncode == 2 and "--print-scale-error: only with --robot dualarm" in other.stderr
+
+
+def test_diagnose_s_refits_keep_the_sheets_one_scale_each():
+    """diagnose refits a model like the fitted one (kinds.arm.diagnose._model_like): its markers keep their sheets
+    (they were dropped: a marker_scale candidate got one scale per marker, ten where the print has two)."""
+    from naocal.kinds.arm.diagnose import _model_like
+    from naocal.kinds.arm.sim import dualarm_markers, dualarm_model
+
+    model = dualarm_model(("joint_offsets", "marker_scale"))
+    assert len(model.sheet_names) == 2 and len(set(dualarm_markers().values())) > 2
+    like = _model_like(model, ("joint_offsets", "marker_scale"), range(len(model.sensors)))
+    assert like.sheet_names == model.sheet_names and like.sheets == model.sheets

@@ -284,7 +284,8 @@ def location_groups(fit: ArmFit) -> dict:
 def _model_like(model: ArmModel, effects, sensors) -> ArmModel:
     """The model's arm with `effects` and only the sensors of indices `sensors` (their starting frames kept)."""
     out = ArmModel(model.chain, dict(zip(model.point_names, model.point_xyz)), [model.sensors[s] for s in sensors],
-                   effects, model.gravity_mps2, model.load, model.link_names, markers=model.markers)
+                   effects, model.gravity_mps2, model.load, model.link_names, markers=model.markers,
+                   sheets=model.sheets)
     out.R0 = model.R0[list(sensors)].copy()
     return out
 
