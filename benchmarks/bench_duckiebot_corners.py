@@ -46,8 +46,18 @@ def detector(refine: str) -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(base.getDictionary(), parameters)
 
 
+def refinement_window_px(quad: np.ndarray) -> int:
+    """The half-width of OpenCV's cornerSubPix window for a detected quad with detect.py's settings (ArucoDetector:
+    relativeCornerRefinmentWinSize x the mean marker cell, rounded, 1 at least, at most cornerRefinementWinSize)."""
+    parameters = detect._marker_detector("tag36h11").getDetectorParameters()
+    cell = np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).sum() / (4 * 8)  # tag36h11: 8 cells a side
+    return int(min(parameters.cornerRefinementWinSize,
+                   max(1, round(parameters.relativeCornerRefinmentWinSize * cell))))
+
+
 def corner_errors(seeds, frames: int, blur_px: float, noise_grey: float, refine: str = "subpix"):
-    """Rows (edge px, foreshortening, outward error px, across error px) over every corner detected."""
+    """Rows (edge px, foreshortening, outward error px, across error px, detect.py's refinement window half-width
+    px) over every corner detected."""
     scene = calibration_scene(n_markers=12)
     world = scene.marker_corners()
     aruco = detector(refine)
@@ -78,7 +88,8 @@ def corner_errors(seeds, frames: int, blur_px: float, noise_grey: float, refine:
                     out /= np.linalg.norm(out)
                     error = found[i] - true[i]
                     local = (edges[i] + edges[i - 1]) / 2.0
-                    rows.append((local, height / width, error @ out, out[0] * error[1] - out[1] * error[0]))
+                    rows.append((local, height / width, error @ out, out[0] * error[1] - out[1] * error[0],
+                                 refinement_window_px(found)))
     return np.array(rows)
 
 
@@ -100,6 +111,12 @@ def table(rows: np.ndarray, title: str) -> str:
         third_text = " / ".join(f"{t.mean():+.3f}" if len(t) >= 4 else "-" for t in thirds)
         lines.append(f"| {lo}-{hi} | {len(sel)} | {out.mean():+.3f} ({out.std() / np.sqrt(len(sel)):.3f}) | "
                      f"{100 * share.mean():+.2f} | {out.std():.3f} | {sel[:, 3].mean():+.3f} | {third_text} |")
+    lines += ["", "| refinement window half-width px | corners | outward px (se) | outward px x window |", "|---|---|---|---|"]
+    for window in np.unique(rows[:, 4]) if len(rows) else ():
+        out = rows[rows[:, 4] == window, 2]
+        if len(out) >= 8:
+            lines.append(f"| {window:.0f} | {len(out)} | {out.mean():+.3f} ({out.std() / np.sqrt(len(out)):.3f}) | "
+                         f"{out.mean() * window:+.3f} |")
     return "\n".join(lines)
 
 
