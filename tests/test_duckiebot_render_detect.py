@@ -151,24 +151,3 @@ def test_the_exported_homography_puts_detected_markers_where_they_lie(rendered, 
     errors = np.concatenate(errors)
     assert len(errors) >= 8 and errors.max() < 0.002  # m (seeds 1, 3: 0.7, 1.3 mm): the corners' 0.1-0.6 px
 
-
-def test_rendered_marker_corners_are_not_shifted_inward():
-    """cornerSubPix pulls a blurred corner into the dark marker by about 1 px^2 / its window (0.2-0.6 px here):
-    detect.py moves it back. Rendered floor markers (seed 1's lens, the mock's blur and noise) against their true
-    corners: the mean shift along the diagonal (outward +) within 0.1 px (0.3 px inward before)."""
-    scene = calibration_scene(n_markers=6)
-    robot = hidden_robot(1)
-    renderer = Renderer(scene, robot.camera, robot.T_base_camera, supersample=2)
-    world = scene.marker_corners()
-    outward = []
-    for pose in [(-0.15, 0.0, np.pi), (-0.3, 0.03, np.pi + 0.3), (-0.1, -0.03, np.pi - 0.3)]:
-        image = renderer.render(pose, np.random.default_rng(7), noise_grey=1.5, blur_px=0.5)
-        for s in detect_markers(image):
-            true, visible = renderer.project(pose, world[scene.marker_ids.index(s.id)])
-            if not visible.all() or not renderer.in_image(true, 3.0).all():
-                continue
-            direction = true - true.mean(axis=0)
-            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-            outward += list(np.sum((s.corners_px - true) * direction, axis=1))
-    assert len(outward) >= 24
-    assert abs(np.mean(outward)) < 0.1, np.mean(outward)

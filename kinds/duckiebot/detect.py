@@ -23,13 +23,6 @@ from naocal.agent.board_detect import BoardSpec, channel_image, detect_board
 
 MARKER_FAMILIES = {"tag36h11": cv2.aruco.DICT_APRILTAG_36h11}
 MAX_BOARDS = 3  # the set-up's boards on their semicircle; never more in one image
-# cornerSubPix takes the corner where the window's gradients are orthogonal to their offsets from it; a blurred
-# corner's rounded tip breaks that, pulling the corner into the dark marker by about sigma^2 / w (sigma the image's
-# whole blur, w the window's half-width, px). Measured on rendered floor markers against their true corners
-# (benchmarks/bench_duckiebot_corners.py, the mock's blur 0.5 px and noise, seeds 1-3): 0.59, 0.38, 0.23 px inward
-# at w = 2, 3, 4 (shift x w 1.2, 1.1, 0.9 px^2; 0.8-1.2 without blur or noise, 1.2-1.4 at blur 1 px except w = 2).
-# Detected corners are moved back out along their angle's bisector by this over w.
-TIP_BIAS_PX2 = 1.0
 
 
 @dataclass(frozen=True)
@@ -77,25 +70,8 @@ def detect_markers_and_repeats(image: np.ndarray, family: str = "tag36h11") -> t
     ids = ids.ravel()
     unique, counts = np.unique(ids, return_counts=True)
     once = set(unique[counts == 1].tolist())
-    detector = _marker_detector(family)
-    return sorted((MarkerSighting(int(i), _tip_corrected(np.asarray(c, dtype=float).reshape(4, 2), detector))
-                   for i, c in zip(ids, corners) if int(i) in once), key=lambda s: s.id), unique[counts > 1].tolist()
-
-
-def _tip_corrected(quad: np.ndarray, detector: cv2.aruco.ArucoDetector) -> np.ndarray:
-    """The quad's corners moved outward along their angle's bisector by TIP_BIAS_PX2 / w, w the half-width of the
-    window OpenCV refined them in (its rule: relativeCornerRefinmentWinSize x the mean cell, rounded, at least 1,
-    at most cornerRefinementWinSize)."""
-    parameters = detector.getDetectorParameters()
-    cells = detector.getDictionary().markerSize + 2 * parameters.markerBorderBits
-    cell_px = np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).sum() / (4 * cells)
-    window = min(parameters.cornerRefinementWinSize, max(1, round(parameters.relativeCornerRefinmentWinSize * cell_px)))
-    to_next = np.roll(quad, -1, axis=0) - quad
-    to_previous = np.roll(quad, 1, axis=0) - quad
-    inward = (to_next / np.linalg.norm(to_next, axis=1, keepdims=True) +
-              to_previous / np.linalg.norm(to_previous, axis=1, keepdims=True))
-    inward /= np.maximum(np.linalg.norm(inward, axis=1, keepdims=True), 1e-12)
-    return quad - inward * (TIP_BIAS_PX2 / window)
+    return sorted((MarkerSighting(int(i), np.asarray(c, dtype=float).reshape(4, 2)) for i, c in zip(ids, corners)
+                   if int(i) in once), key=lambda s: s.id), unique[counts > 1].tolist()
 
 
 def detect_boards(image: np.ndarray, inner_corners: tuple[int, int], square_m: float = float("nan"),
