@@ -150,4 +150,3 @@ def test_the_exported_homography_puts_detected_markers_where_they_lie(rendered, 
                 errors.append(np.linalg.norm(ground - true, axis=1))
     errors = np.concatenate(errors)
     assert len(errors) >= 8 and errors.max() < 0.002  # m (seeds 1, 3: 0.7, 1.3 mm): the corners' 0.1-0.6 px
-
