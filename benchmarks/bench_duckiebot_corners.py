@@ -6,7 +6,8 @@ markers' foreshortening on the floor from the camera's ~19 deg pitch, optical bl
 Each corner's error (detected - true) is split along the marker's image diagonal through it (outward +: a negative
 mean is an inward shift, the marker seen too small) and across it; both in px and as a share of the local edge
 length (the mean of the two true edges meeting at the corner). Rows are bins of that edge length; columns the
-foreshortening (the marker's image height along the view over its width) and the renders' blur / noise.
+foreshortening (the marker's image height along the view over its width) and the renders' blur / noise; a second
+table groups the same corners by the half-width of the window OpenCV's cornerSubPix refined them in.
 
 Robot poses: facing the marker line (render.calibration_scene: markers along -x), at random places along it, a
 few cm aside, turned up to +-0.5 rad, as the mission's drives see them. Deterministic (seeded).
