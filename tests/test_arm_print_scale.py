@@ -137,10 +137,13 @@ def test_simulate_dualarm_print_scale_error_on_the_command_line(tmp_path):
     assert exact.returncode == 0, exact.stderr
     assert json.loads((tmp_path / "exact" / "truth.json").read_text())["print_scale"] == {"L_sheet": 1.0,
                                                                                          "R_sheet": 1.0}
+    assert "marker_scale" not in json.loads((tmp_path / "exact" / "truth.json").read_text())["hidden"]
     drawn = naocal("simulate", "--robot", "dualarm", "--print-scale-error", "0.01", "--poses", "10", "--out",
                    tmp_path / "drawn")
     assert drawn.returncode == 0, drawn.stderr
-    scales = json.loads((tmp_path / "drawn" / "truth.json").read_text())["print_scale"]
+    truth = json.loads((tmp_path / "drawn" / "truth.json").read_text())
+    scales = truth["print_scale"]
+    assert "marker_scale" in truth["hidden"]
     assert all(s != 1.0 and abs(s - 1.0) < 0.05 for s in scales.values())
     for value in ("nan", "0.2", "-0.01"):
         bad = naocal("simulate", "--robot", "dualarm", "--print-scale-error", value, "--out", tmp_path / value)

@@ -732,7 +732,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                           chain_names=[ac.name for ac in model.arm_chains])
         truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
                      "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
-                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"], "intrinsics": intrinsics,
+                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"]
+                     + (["marker_scale"] if print_scale_error else []), "intrinsics": intrinsics,
                      "camera_error": camera_error, "print_scale_error": print_scale_error,
                      "print_scale": print_scale}
         atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
