@@ -357,6 +357,13 @@ def cross_sensor_fits(fit: ArmFit, effects, held=(), fitted_from=None, judged=No
     return from_them, check
 
 
+def _free_jacobian(fit_: ArmFit):
+    """(the free parameters' indices, the whitened residuals' Jacobian in them, scaled as the solver sees them)."""
+    index = np.flatnonzero(fit_.free)
+    _, J = whitened(fit_.model, fit_.obs, fit_.x, fit_.sigma, jacobian=True)
+    return index, J[:, index] * fit_.model.scales[index]
+
+
 def chance_rise(without, from_them, with_it, label) -> dict:
     """{judged sensor: {"rise", "mean", "sd"}}: the rise of its whitened sum of squares from the judged fit
     `without` to `with_it` (cross_sensor_fits' second, without and with the candidate effect `label`; the same rows),
@@ -369,9 +376,7 @@ def chance_rise(without, from_them, with_it, label) -> dict:
     if not _same_rows(without.obs, with_it.obs):
         return {}
     m = from_them.model
-    index = np.flatnonzero(from_them.free)
-    _, JF = whitened(m, from_them.obs, from_them.x, from_them.sigma, jacobian=True)
-    JF = JF[:, index] * m.scales[index]
+    index, JF = _free_jacobian(from_them)
     root = _candidate_spread(m, index, JF.T @ JF, label, from_them.priors)
     judged = with_it.model
     column = {n: i for i, n in enumerate(judged.names)}
@@ -446,9 +451,7 @@ def session_chance(without, with_it, errors_without, errors_with, folds, label) 
     if not _same_rows(without.obs, with_it.obs):
         return {}
     model = with_it.model
-    index = np.flatnonzero(with_it.free)
-    _, J = whitened(model, with_it.obs, with_it.x, with_it.sigma, jacobian=True)
-    J = J[:, index] * model.scales[index]
+    index, J = _free_jacobian(with_it)
     mask = model.component_mask(with_it.obs)
     w = 1.0 / with_it.sigma[with_it.obs.sensor][:, None]  # one noise for both: the rise is the residuals' alone
     r0, r1 = (errors_without * w)[mask], (errors_with * w)[mask]
