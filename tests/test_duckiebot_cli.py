@@ -1,5 +1,5 @@
 """The Duckiebot through the command line (issues 22, 23): `naocal identify LOG --out CAL.json`, `naocal offsets
-show|validate|diff|export CAL`, `naocal verify LOG [--offsets CAL|DIR]`, and bad logs refused in one line (exit 2, nothing
+show|validate|diff|export CAL`, `naocal verify LOG [--offsets CAL|DIR]`, bad logs refused in one line (exit 2, nothing
 written). Independent data: a small log made by kinds/duckiebot/render.py (OpenCV, not PyBullet)."""
 
 import json
@@ -164,11 +164,11 @@ def test_verify_takes_the_robots_kinematics_file_when_it_has_no_camera_files(tmp
     from naocal.kinds.duckiebot.robot import Kinematics
     from naocal.kinds.duckiebot.verbs import robot_kinematics
 
-    log = SimpleNamespace(model="DB21", robot_id="rendered")
-    assert robot_kinematics(log, None)[0] == Kinematics()
+    log = SimpleNamespace(model="DB21")
+    assert robot_kinematics(log, "rendered", None)[0] == Kinematics()
     path = tmp_path / "rendered.yaml"
     path.write_text(kinematics_yaml(Kinematics(gain=1.25, trim=0.05), "2026-11-28-05-00-00"))
-    kinematics, label = robot_kinematics(log, path)
+    kinematics, label = robot_kinematics(log, "rendered", path)
     assert (kinematics.gain, kinematics.trim) == (1.25, 0.05) and str(path) in label
 
 

@@ -1,4 +1,5 @@
-"""`naocal verify DATASET --offsets FILE` (a Duckiebot's: `naocal verify LOG [--offsets CAL.json|DIR]`): is a calibration still good on new data? (its values are not refitted)"""
+"""`naocal verify DATASET --offsets FILE`: is a calibration still good on new data? (its values are not refitted; a
+Duckiebot's `naocal verify LOG` finds its calibration without --offsets, docs/DUCKIEBOT.md)"""
 
 import naocal.kinds as kinds
 from naocal.solver.errors import NaocalError
@@ -27,7 +28,8 @@ def register(subparsers):
     p.add_argument("--offsets", metavar="FILE",
                    help="the calibration (identify --out's), by kind: " + kinds.help_by_kind("calibration_help",
                                                                                             "verify")
-                   + "; required unless the kind finds its robot's calibration itself (a Duckiebot's: see --robot-name)")
+                   + "; required unless the kind finds its robot's calibration itself (a Duckiebot's: "
+                     "see --robot-name)")
     p.add_argument("--json", action="store_true", help="print one JSON object (docs/DIAGNOSTICS.md) instead of text")
     kinds.add_options(p, "verify")  # each kind's own, its help saying whose
     p.set_defaults(run=run)

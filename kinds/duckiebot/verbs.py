@@ -1,4 +1,4 @@
-"""The Duckiebot's bodies of `naocal identify LOG`, `naocal verify LOG [--offsets CAL.json|DIR]` and `naocal offsets` (show,
+"""The Duckiebot's bodies of `naocal identify LOG`, `naocal verify LOG [--offsets CAL|DIR]` and `naocal offsets` (show,
 validate, diff, export --format duckietown|json); the kind (kinds/duckiebot/__init__.py) claims drive logs, its
 calibration files and `--robot duckiebot` (docs/DUCKIEBOT.md)."""
 
@@ -257,24 +257,24 @@ def judged_calibration(args, log) -> Judged:
                       "duckietown")
     missing = ", ".join(str(path) for path in paths.values() if not path.exists())
     kinematics_file = paths[KINEMATICS_DIR] if paths[KINEMATICS_DIR].exists() else None
-    return _own_camera(log, kinematics_file, missing)
+    return _own_camera(log, robot, kinematics_file, missing)
 
 
-def robot_kinematics(log, kinematics_file) -> tuple:
-    """(Kinematics, its label) the robot runs: its kinematics file (None: it has none) or Duckietown's defaults."""
+def robot_kinematics(log, robot: str, kinematics_file) -> tuple:
+    """(Kinematics, its label) `robot` runs: its kinematics file (None: it has none) or Duckietown's defaults."""
     from naocal.kinds.duckiebot.calibration_files import read_kinematics
     from naocal.kinds.duckiebot.robot import nominal_for
 
     if kinematics_file is None:
         kinematics = nominal_for(log.model).nominal_kinematics()
         return kinematics, (f"Duckietown's default kinematics (gain {kinematics.gain:g}, trim {kinematics.trim:g}: "
-                            f"no calibration of {log.robot_id} found) with the log's own camera")
+                            f"no kinematics file of {robot} found) with the log's own camera")
     kinematics, _, findings = read_kinematics(kinematics_file)
     _warn("verify", findings)
-    return kinematics, f"{kinematics_file} with the log's own camera (no camera files of {log.robot_id})"
+    return kinematics, f"{kinematics_file} with the log's own camera (no camera files of {robot})"
 
 
-def _own_camera(log, kinematics_file, missing: str) -> Judged:
+def _own_camera(log, robot: str, kinematics_file, missing: str) -> Judged:
     """The log's own camera (identify's intrinsics and joint fit on it) under the robot's kinematics file, or
     Duckietown's defaults without one."""
     from naocal.kinds.duckiebot.calibration import checked_document
@@ -294,7 +294,7 @@ def _own_camera(log, kinematics_file, missing: str) -> Judged:
         raise SolveError(f"the joint fit of {log.path} did not converge ({fitted.drive_fit.message})")
     _, own = checked_document(fitted, log.path, width_px=log.width_px, height_px=log.height_px,
                               source=f"naocal verify {log.path}: the log's own camera")
-    kinematics, label = robot_kinematics(log, kinematics_file)
+    kinematics, label = robot_kinematics(log, robot, kinematics_file)
     return Judged(dataclasses.replace(own, kinematics=kinematics, fit={**own.fit, "pwm_driver": False}), label, "log",
                   detections)
 
