@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from naocal.kinds.duckiebot.calibration_files import (CameraCalibration, DuckietownCalibration, apply_homography,
+                                               camera_pose_from_homography,
                                                check_calibration, ground_homography, parse_simple_yaml,
                                                read_calibration, read_extrinsic, read_intrinsic, read_kinematics,
                                                write_calibration, yaml_float)
@@ -86,6 +87,20 @@ def test_homography_maps_rectified_pixels_to_the_ground_like_real_robots():
     np.testing.assert_allclose(apply_homography(H, uv), apply_homography(median, uv), atol=0.03)
     # the principal point's ray meets the floor at height / tan(pitch) ahead of the camera
     assert apply_homography(H, [c.cx_px, c.cy_px]) == pytest.approx((0.066 + 0.108 / np.tan(np.radians(19)), 0.0))
+
+
+def test_the_camera_pose_comes_back_from_its_homography():
+    """camera_pose_from_homography inverts ground_homography: the pose to rounding, whatever H's scale and sign,
+    for a rectified camera other than K; a homography no camera gives is refused."""
+    P = np.array([[250.5, 0.0, 320.0, 0.0], [0.0, 251.25, 240.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    for T in (camera_mount(), camera_mount(ahead_m=0.05, height_m=0.12, pitch_down_rad=0.34, lateral_m=0.012,
+                                           roll_rad=0.02, yaw_rad=-0.03)):
+        H = ground_homography(T, P)
+        for scale in (1.0, -3.0, 1e-3):
+            np.testing.assert_allclose(camera_pose_from_homography(scale * H, P), T, atol=1e-12)
+        np.testing.assert_allclose(ground_homography(camera_pose_from_homography(H, P), P), H, atol=1e-12)
+    with pytest.raises(ValueError, match="no camera gives it"):
+        camera_pose_from_homography(np.diag([1.0, 2.0, 1.0]) @ H, P)
 
 
 @pytest.mark.parametrize("change, match", [

@@ -1,5 +1,5 @@
 """The Duckiebot through the command line (issues 22, 23): `naocal identify LOG --out CAL.json`, `naocal offsets
-show|validate|diff|export CAL`, `naocal verify LOG --offsets CAL`, and bad logs refused in one line (exit 2, nothing
+show|validate|diff|export CAL`, `naocal verify LOG [--offsets CAL|DIR]`, bad logs refused in one line (exit 2, nothing
 written). Independent data: a small log made by kinds/duckiebot/render.py (OpenCV, not PyBullet)."""
 
 import json
@@ -83,6 +83,93 @@ def test_verify_says_whether_the_robot_still_drives_straight(calibrated, tmp_pat
     report = json.loads(drifted.stdout)
     assert drifted.returncode == 1 and report["verdict"] == "drifted"
     assert abs(report["lateral_deviation_m"]) > 0.1 and report["lateral_deviation_std_m"] < 0.05
+
+
+def _verify_json(*argv):
+    result = naocal("verify", *argv, "--json")
+    assert result.returncode in (0, 1), result.stdout + result.stderr
+    return json.loads(result.stdout)
+
+
+def test_verify_reads_duckietowns_calibration_files_as_it_reads_the_calibration(calibrated, tmp_path, monkeypatch):
+    """`verify LOG --offsets DIR` on the files `offsets export --format duckietown` wrote judges as `--offsets
+    CAL.json` does (the camera's pose recovered from the homography), and so does a bare `verify LOG` with them in
+    the default directory; a broken directory is one line naming the file and field, exit 2."""
+    out = tmp_path / "calibrations"
+    assert naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out).returncode == 0
+    reference = _verify_json(calibrated.log, "--offsets", calibrated.cal)
+    from_files = _verify_json(calibrated.log, "--offsets", out)
+    monkeypatch.setenv("NAOCAL_DUCKIETOWN_CALIBRATIONS", str(out))
+    bare = _verify_json(calibrated.log)
+    for report in (from_files, bare):
+        assert report["calibration_source"] == "duckietown" and str(out) in report["calibration"]
+        assert report["verdict"] == reference["verdict"]
+        for key in ("lateral_deviation_m", "lateral_deviation_std_m", "predicted_speed_mps"):
+            assert report[key] == pytest.approx(reference[key], abs=1e-7), key
+        for name in ("gain", "trim"):
+            assert report["now"][name]["value"] == pytest.approx(reference["now"][name]["value"], abs=1e-8)
+    assert reference["calibration_source"] == "naocal" and from_files["calibration_rms_px"] is None
+    # the robot's name, checked before it becomes a file name; a missing file; a bad value
+    one_line_error(naocal("verify", calibrated.log, "--offsets", out, "--robot-name", "../etc"), "--robot-name")
+    one_line_error(naocal("verify", calibrated.log, "--offsets", out, "--robot-name", "other"),
+                   out / "kinematics" / "other.yaml", "not found")
+    kinematics = out / "kinematics" / "rendered.yaml"
+    good = kinematics.read_text()
+    kinematics.write_text(good.replace("trim: ", "trim: x"))
+    one_line_error(naocal("verify", calibrated.log, "--offsets", out), kinematics, "trim")
+    kinematics.write_text(good)
+    (out / "camera_extrinsic" / "rendered.yaml").unlink()
+    one_line_error(naocal("verify", calibrated.log, "--offsets", out), out / "camera_extrinsic" / "rendered.yaml")
+
+
+def test_bare_verify_judges_the_logs_own_camera_under_duckietowns_defaults(calibrated, tmp_path, monkeypatch):
+    """Without --offsets and without the robot's files (an empty default directory), a log with board views is
+    judged by its own camera under Duckietown's default kinematics (gain 1, trim 0): the rendered robot (trim 0.052
+    in its k) then curves about 1.3 m off over 2 m, drifted, exit 1; the deviation is the 2 m drive of the robot
+    identify found, commanded with the defaults."""
+    from naocal.kinds.duckiebot.robot import Kinematics
+    from naocal.kinds.duckiebot.verbs import straight_drive
+
+    monkeypatch.setenv("NAOCAL_DUCKIETOWN_CALIBRATIONS", str(tmp_path))
+    result = naocal("verify", calibrated.log)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Duckietown's default kinematics" in result.stdout and "verdict: drifted" in result.stdout
+    assert f"naocal identify {calibrated.log}" in result.stdout
+    cal = read_calibration_file(calibrated.cal)
+    robot = Kinematics(baseline_m=cal.value("baseline_m"), gain=cal.value("gain"), trim=cal.value("trim"), k=LOG_K)
+    lateral, _ = straight_drive(Kinematics(), robot)
+    assert abs(lateral) > 0.5
+    shown = float(result.stdout.split("lateral deviation ")[1].split(" +-")[0]) / 100
+    assert shown == pytest.approx(lateral, abs=0.002)
+
+
+def test_bare_verify_with_no_calibration_and_no_boards_is_one_line(tmp_path, monkeypatch):
+    """A lane pass (no board in view) and no files of its robot: one line naming what is needed, exit 2; another
+    kind's data without --offsets: one line, exit 2."""
+    from naocal.kinds.duckiebot.render import DriveStep
+
+    steps = [DriveStep(0.0, -0.3, 0.3, grab=False, face_rad=np.pi)] + [DriveStep(0.25, 0.2, 0.2, settle_s=0.0)] * 3
+    render_drive_log(tmp_path / "LANE", seed=1, steps=steps)
+    monkeypatch.setenv("NAOCAL_DUCKIETOWN_CALIBRATIONS", str(tmp_path / "none"))
+    one_line_error(naocal("verify", tmp_path / "LANE"), "--offsets CAL.json", "--offsets DIR",
+                   tmp_path / "none" / "kinematics" / "rendered.yaml", "board views")
+    (tmp_path / "nao").mkdir()
+    one_line_error(naocal("verify", tmp_path / "nao"), "--offsets FILE is required")
+
+
+def test_verify_takes_the_robots_kinematics_file_when_it_has_no_camera_files(tmp_path):
+    """With only kinematics/<robot>.yaml in the default directory, the log's own camera is judged under that file
+    (what the robot runs), not under Duckietown's defaults."""
+    from naocal.kinds.duckiebot.calibration_files import kinematics_yaml
+    from naocal.kinds.duckiebot.robot import Kinematics
+    from naocal.kinds.duckiebot.verbs import robot_kinematics
+
+    log = SimpleNamespace(model="DB21")
+    assert robot_kinematics(log, "rendered", None)[0] == Kinematics()
+    path = tmp_path / "rendered.yaml"
+    path.write_text(kinematics_yaml(Kinematics(gain=1.25, trim=0.05), "2026-11-28-05-00-00"))
+    kinematics, label = robot_kinematics(log, "rendered", path)
+    assert (kinematics.gain, kinematics.trim) == (1.25, 0.05) and str(path) in label
 
 
 def _blank(path):

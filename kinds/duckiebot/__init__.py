@@ -54,7 +54,11 @@ class DuckiebotKind:
     served_drivers = {"mock": "the simulated Duckiebot",
                       "ros": "a Duckiebot through its ROS topics (in dt-ros-commons on the robot, docs/DEPLOY.md)"}
     data_help = f"a drive log directory (log.json of {LOG_SCHEMA}, wheels.csv, frames.csv; docs/DUCKIEBOT.md)"
-    calibration_help = f"a {CALIBRATION_SCHEMA} file"
+    calibration_help = (f"a {CALIBRATION_SCHEMA} file, or a directory of Duckietown's calibration files "
+                        "(kinematics/, camera_intrinsic/, camera_extrinsic/<robot>.yaml)")
+    # `naocal verify LOG` without --offsets: the robot's files in Duckietown's calibrations directory, else the log's
+    # own camera under Duckietown's default kinematics (verbs.judged_calibration)
+    verify_finds_calibration = True
     model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "
                   "poses on the pixel error of the marker corners")
     diagnose_help = """\
@@ -77,7 +81,7 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
     def claims(self, source) -> bool:
         if isinstance(source, argparse.Namespace):  # --robot duckiebot, or identify's options of this kind
             return getattr(source, "robot", None) == NAME or any(
-                getattr(source, option, None) is not None for option in ("refine", "max_step"))
+                getattr(source, option, None) is not None for option in ("refine", "max_step", "robot_name"))
         path = Path(source)
         if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset
             return json_schema(path / "log.json") == LOG_SCHEMA or (
@@ -93,6 +97,13 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
             parser.add_argument("--max-step", type=float, default=None, metavar="TRIM",
                                 help="duckiebot, with --refine: the most trim may change (default 0.02; the pass's "
                                      "estimate is still printed)")
+        if verb == "verify":  # whose files in a calibrations directory (verbs.judged_calibration)
+            parser.add_argument("--robot-name", default=None, metavar="NAME",
+                                help="duckiebot: read NAME's files (<kind>/NAME.yaml) in --offsets DIR or, without "
+                                     "--offsets, in $NAOCAL_DUCKIETOWN_CALIBRATIONS (default /data/config/calibrations)"
+                                     "; default: the log's robot.id. Without --offsets and without the robot's three "
+                                     "files there, the log's own camera (its board views) is judged under the "
+                                     "robot's kinematics file there, else Duckietown's defaults (gain 1, trim 0)")
         if verb in VERB_MODULES:
             module = _verb_module(verb)
             if module is not None:

@@ -289,6 +289,30 @@ def file_field(duckietown_field: str) -> str:
     return duckietown_field
 
 
+def from_duckietown(files: DuckietownCalibration, where: str, findings=()) -> CalibrationFile:
+    """Duckietown's three files (calibration_files.read_calibration) as the calibration naocal's verbs use: the
+    kinematics as they are, the plumb_bob lens, the camera's pose on the body recovered from the homography
+    (calibration_files.camera_pose_from_homography). What the files do not hold is absent: no stds (0, every value
+    fixed), no lens errors, no fit (rms_px None), not fitted through Duckietown's wheel driver (pwm_driver false).
+    DataError naming the extrinsic file when no camera pose gives its homography."""
+    from naocal.kinds.duckiebot.calibration_files import EXTRINSIC_DIR, calibration_paths, camera_pose_from_homography
+    from naocal.kinds.duckiebot.fit import pose_parameters
+
+    camera = files.camera
+    try:
+        pose = pose_parameters(camera_pose_from_homography(files.homography, camera.projection(), camera.R))
+    except ValueError as err:
+        raise DataError(calibration_paths(where, files.robot)[EXTRINSIC_DIR], f"no camera pose on the body follows "
+                        f"from it: {err}", field="homography") from None
+    kin = files.kinematics
+    values = {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m, **dict(zip(CAMERA, pose))}
+    return CalibrationFile(str(where), files.robot, camera.width_px, camera.height_px, DUCKIETOWN_LENS,
+                           {DUCKIETOWN_LENS: LensCamera(DUCKIETOWN_LENS, camera.K, camera.distortion)}, {}, kin,
+                           {n: {"value": float(v), "std": 0.0, "fixed": True} for n, v in values.items()},
+                           {"rms_px": None, "pwm_driver": False}, "Duckietown's calibration files",
+                           files.calibration_time, tuple(findings))
+
+
 def read_calibration_file(path, *, strict: bool = True) -> CalibrationFile:
     """The Duckiebot calibration file at `path`, checked (parse_calibration). DataError naming the file and field."""
     return parse_calibration(read_json(path), path, strict=strict)

@@ -23,6 +23,7 @@ the reader raises); values outside the real robots' usual ranges are warnings th
 from __future__ import annotations
 
 import math
+import os
 import re
 import time
 from dataclasses import dataclass, field
@@ -49,6 +50,10 @@ INTRINSIC_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix",
 MATRIX_SHAPES = {"camera_matrix": (3, 3), "distortion_coefficients": (1, 5), "rectification_matrix": (3, 3),
                  "projection_matrix": (3, 4)}
 CALIBRATION_TIME = re.compile(r"\d{4}-\d\d-\d\d-\d\d-\d\d-\d\d")  # Duckietown's %Y-%m-%d-%H-%M-%S
+# Where a Duckiebot's own software reads its calibration (`naocal verify LOG` looks there without --offsets); the
+# environment variable moves it (a copy of a robot's files on a laptop; the tests).
+DEFAULT_CALIBRATIONS_DIR = "/data/config/calibrations"
+CALIBRATIONS_DIR_VARIABLE = "NAOCAL_DUCKIETOWN_CALIBRATIONS"
 
 
 @dataclass(frozen=True)
@@ -101,6 +106,36 @@ def ground_homography(T_base_camera, P) -> np.ndarray:
     ground_to_pixel = plane_homography(invert_transform(np.asarray(T_base_camera, dtype=float)), pinhole)
     H = np.linalg.inv(ground_to_pixel)
     return H / H[2, 2]
+
+
+# naocal's camera frame (x optical axis, y left, z up; docs/CONVENTIONS.md) -> OpenCV's (x right, y down, z optical)
+NAOCAL_TO_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def camera_pose_from_homography(H, P, R=None) -> np.ndarray:
+    """T_base_camera (4, 4) of the camera whose ground homography is H (rectified pixels -> ground, any scale), the
+    rectified camera being P (3, 4) after the rectification R (3, 3; the identity of a monocular camera): the inverse
+    of ground_homography. inv(H) ~ A [r0 r1 t] with A = P[:, :3] R (optical <- naocal camera frame) and [r0 r1 t] the
+    base's x and y axes and origin in the camera frame; of the two signs of the scale the one that puts the camera
+    above the floor (the other sees the floor from below). ValueError for a P with a stereo baseline or an H that no
+    camera gives."""
+    P = np.asarray(P, dtype=float)
+    if P.shape != (3, 4) or np.any(np.abs(P[:, 3]) > 1e-9):
+        raise ValueError("only a rectified camera without stereo baseline is supported")
+    A = P[:, :3] @ (np.eye(3) if R is None else np.asarray(R, dtype=float)) @ NAOCAL_TO_OPTICAL
+    M = np.linalg.solve(A, np.linalg.inv(np.asarray(H, dtype=float)))
+    norms = np.linalg.norm(M[:, :2], axis=0)
+    if not np.all(np.isfinite(norms)) or norms.min() <= 0 or abs(norms[0] / norms[1] - 1.0) > 0.05:
+        raise ValueError(f"no camera gives it (its ground axes scale {norms[0]:.4g} and {norms[1]:.4g} differ)")
+    r0, r1, t = M.T / norms.mean()
+    R_cam_base = np.column_stack([r0, r1, np.cross(r0, r1)])
+    U, _, Vt = np.linalg.svd(R_cam_base)  # the nearest rotation (exact data: already one, to rounding)
+    R_cam_base = U @ Vt
+    T_base_camera = invert_transform(np.vstack([np.column_stack([R_cam_base, t]), [0.0, 0.0, 0.0, 1.0]]))
+    if T_base_camera[2, 3] < 0:  # the other sign: R's first two columns and t negated, the height flips
+        R_cam_base = R_cam_base @ np.diag([-1.0, -1.0, 1.0])
+        T_base_camera = invert_transform(np.vstack([np.column_stack([R_cam_base, -t]), [0.0, 0.0, 0.0, 1.0]]))
+    return T_base_camera
 
 
 def duckietown_calibration(robot: str, kinematics: Kinematics, camera, T_base_camera,
@@ -261,6 +296,11 @@ def intrinsic_yaml(robot: str, camera: CameraCalibration) -> str:
 
 def extrinsic_yaml(H, calibration_time: str) -> str:
     return f"homography: {_flow(H)}\n# Calibrated on {calibration_time} by naocal\n"
+
+
+def default_calibrations_dir() -> Path:
+    """Duckietown's calibrations directory: $NAOCAL_DUCKIETOWN_CALIBRATIONS, else /data/config/calibrations."""
+    return Path(os.environ.get(CALIBRATIONS_DIR_VARIABLE) or DEFAULT_CALIBRATIONS_DIR)
 
 
 def calibration_paths(directory, robot: str) -> dict:

@@ -1,4 +1,4 @@
-"""The Duckiebot's bodies of `naocal identify LOG`, `naocal verify LOG --offsets CAL` and `naocal offsets` (show,
+"""The Duckiebot's bodies of `naocal identify LOG`, `naocal verify LOG [--offsets CAL|DIR]` and `naocal offsets` (show,
 validate, diff, export --format duckietown|json); the kind (kinds/duckiebot/__init__.py) claims drive logs, its
 calibration files and `--robot duckiebot` (docs/DUCKIEBOT.md)."""
 
@@ -202,20 +202,118 @@ def straight_drive(commanded, true, distance_m: float = STRAIGHT_DISTANCE_M, spe
     return float(pose[1]), float(v)
 
 
-def run_verify(args, kind) -> int:
-    """Does the robot still drive straight under CAL? Refit gain and trim on the new log (the camera's pose and the
-    baseline held at CAL's: a lane pass without turns cannot tell the baseline from trim), predict the 2 m straight
-    drive at 0.3 m/s commanded with CAL's gain and trim. Exit 0 still good, 1 drifted, 2 bad input."""
+@dataclasses.dataclass(frozen=True)
+class Judged:
+    """The calibration verify judges a log under (kinds.duckiebot.calibration.CalibrationFile), what it is, said in
+    words (`label`) and as a key (`source`: naocal, duckietown, or log, the log's own camera with `label`'s
+    kinematics), and the log's detections when finding it needed them (the log's own camera)."""
+
+    calibration: object
+    label: str
+    source: str
+    detections: object = None
+
+
+def duckietown_directory(directory, robot: str):
+    """The calibration in Duckietown's three files of `robot` under `directory` (calibration_files.read_calibration:
+    DataError naming the file and field), its warnings shown."""
+    from naocal.kinds.duckiebot.calibration import from_duckietown
+    from naocal.kinds.duckiebot.calibration_files import read_calibration
+
+    files, findings = read_calibration(directory, robot)
+    _warn("verify", findings)
+    return from_duckietown(files, str(directory), findings)
+
+
+def judged_calibration(args, log) -> Judged:
+    """What verify judges LOG under: --offsets CAL.json (naocal's file) or a calibrations DIR (Duckietown's three
+    files of --robot-name, default the log's robot.id); without --offsets, the robot's files in Duckietown's own
+    directory (calibration_files.default_calibrations_dir), else the log's own camera (its board views: identify's
+    intrinsics and joint fit) under the robot's kinematics file there or, without one, Duckietown's defaults (gain
+    1, trim 0: default.yaml, what a robot never calibrated runs). NaocalError (exit 2) when none of these is
+    possible."""
+    from pathlib import Path
+
     from naocal.kinds.duckiebot.calibration import read_calibration_file
+    from naocal.kinds.duckiebot.calibration_files import KINEMATICS_DIR, calibration_paths, default_calibrations_dir
+    from naocal.kinds.duckiebot.robot import robot_name_problem
+
+    given_name = getattr(args, "robot_name", None)
+    if given_name is not None and robot_name_problem(given_name):
+        raise NaocalError(f"--robot-name: {robot_name_problem(given_name)}")
+    robot = given_name or log.robot_id
+    if args.offsets is not None:
+        if Path(args.offsets).is_dir():
+            return Judged(duckietown_directory(args.offsets, robot), f"{args.offsets} (Duckietown's files of {robot})",
+                          "duckietown")
+        if given_name is not None:
+            raise NaocalError("--robot-name picks a robot's files in a calibrations directory: --offsets "
+                              f"{args.offsets} is a file")
+        return Judged(read_calibration_file(args.offsets), str(args.offsets), "naocal")
+    directory = default_calibrations_dir()
+    paths = calibration_paths(directory, robot)
+    if all(path.exists() for path in paths.values()):
+        return Judged(duckietown_directory(directory, robot), f"{directory} (Duckietown's files of {robot})",
+                      "duckietown")
+    missing = ", ".join(str(path) for path in paths.values() if not path.exists())
+    kinematics_file = paths[KINEMATICS_DIR] if paths[KINEMATICS_DIR].exists() else None
+    return _own_camera(log, robot, kinematics_file, missing)
+
+
+def robot_kinematics(log, robot: str, kinematics_file) -> tuple:
+    """(Kinematics, its label) `robot` runs: its kinematics file (None: it has none) or Duckietown's defaults."""
+    from naocal.kinds.duckiebot.calibration_files import read_kinematics
+    from naocal.kinds.duckiebot.robot import nominal_for
+
+    if kinematics_file is None:
+        kinematics = nominal_for(log.model).nominal_kinematics()
+        return kinematics, (f"Duckietown's default kinematics (gain {kinematics.gain:g}, trim {kinematics.trim:g}: "
+                            f"no kinematics file of {robot} found) with the log's own camera")
+    kinematics, _, findings = read_kinematics(kinematics_file)
+    _warn("verify", findings)
+    return kinematics, f"{kinematics_file} with the log's own camera (no camera files of {robot})"
+
+
+def _own_camera(log, robot: str, kinematics_file, missing: str) -> Judged:
+    """The log's own camera (identify's intrinsics and joint fit on it) under the robot's kinematics file, or
+    Duckietown's defaults without one."""
+    from naocal.kinds.duckiebot.calibration import checked_document
+    from naocal.kinds.duckiebot.identify import MIN_BOARD_VIEWS, calibrate, detect_log, fit_intrinsics
+
+    detections = detect_log(log)
+    views = sum(len(boards) for boards in detections.boards)
+    if views < MIN_BOARD_VIEWS:
+        raise NaocalError(f"no calibration to verify {log.path} under: give --offsets CAL.json (naocal identify's) "
+                          f"or --offsets DIR (Duckietown's calibrations); not found: {missing}; the log's own camera "
+                          f"needs {MIN_BOARD_VIEWS} board views, it has {views}")
+    if not any(detections.markers):
+        raise _no_marker(log)
+    lens, fits = fit_intrinsics(log, detections)
+    fitted = calibrate(log, detections, lens, fits)
+    if not fitted.drive_fit.success:
+        raise SolveError(f"the joint fit of {log.path} did not converge ({fitted.drive_fit.message})")
+    _, own = checked_document(fitted, log.path, width_px=log.width_px, height_px=log.height_px,
+                              source=f"naocal verify {log.path}: the log's own camera")
+    kinematics, label = robot_kinematics(log, robot, kinematics_file)
+    return Judged(dataclasses.replace(own, kinematics=kinematics, fit={**own.fit, "pwm_driver": False}), label, "log",
+                  detections)
+
+
+def run_verify(args, kind) -> int:
+    """Does the robot still drive straight under the calibration (judged_calibration)? Refit gain and trim on the
+    new log (the camera's pose and the baseline held at the calibration's: a lane pass without turns cannot tell the
+    baseline from trim), predict the 2 m straight drive at 0.3 m/s commanded with the calibration's gain and trim.
+    Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed."""
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
     from naocal.kinds.duckiebot.identify import detect_log, rectified_sightings
     from naocal.kinds.duckiebot.robot import Kinematics
 
     check_options(args, kind)
-    cal = read_calibration_file(args.offsets)
     log = read_drive_log(args.dataset)
-    detections = detect_log(log, boards=False)
+    judged = judged_calibration(args, log)
+    cal = judged.calibration
+    detections = judged.detections or detect_log(log, boards=False)
     if not any(detections.markers):
         raise _no_marker(log)
     # through the calibration's model of the wheel driver (its trim is that model's)
@@ -241,32 +339,36 @@ def run_verify(args, kind) -> int:
         variance += ((moved - lateral) / step * std[name]) ** 2
     lateral_std = math.sqrt(variance)
     good = abs(lateral) <= DUCKIETOWN_RULE_M
-    report = {"log": str(log.path), "calibration": str(args.offsets),
+    calibration_rms = cal.fit["rms_px"]  # None: Duckietown's files record no fit
+    report = {"log": str(log.path), "calibration": judged.label, "calibration_source": judged.source,
               "calibrated": {"gain": cal.kinematics.gain, "trim": cal.kinematics.trim},
               "now": {n: {"value": now[n], "std": std[n]} for n in now}, "fit_rms_px": fit.rms_px,
-              "calibration_rms_px": cal.fit["rms_px"], "distance_m": STRAIGHT_DISTANCE_M,
+              "calibration_rms_px": calibration_rms, "distance_m": STRAIGHT_DISTANCE_M,
               "speed_mps": STRAIGHT_SPEED_MPS, "lateral_deviation_m": lateral, "lateral_deviation_std_m": lateral_std,
               "predicted_speed_mps": speed, "rule_m": DUCKIETOWN_RULE_M, "goal_m": GOAL_M,
               "verdict": "still good" if good else "drifted"}
     if args.json:
         print(json.dumps(report, indent=1, allow_nan=False))
         return 0 if good else 1
-    print(f"{log.path} under {args.offsets} (gain {cal.kinematics.gain:.4f}, trim {cal.kinematics.trim:.5f}): the "
+    own = "the calibration's " + ("not recorded" if calibration_rms is None else f"{calibration_rms:.3f} px")
+    print(f"{log.path} under {judged.label} (gain {cal.kinematics.gain:.4f}, trim {cal.kinematics.trim:.5f}): the "
           f"robot now has gain {_pm(now['gain'], std['gain'])}, trim {_pm(now['trim'], std['trim'], digits=5)} "
-          f"(baseline and camera pose held at the calibration's; fit RMS {fit.rms_px:.3f} px, the calibration's "
-          f"{cal.fit['rms_px']:.3f} px)")
+          f"(baseline and camera pose held at the calibration's; fit RMS {fit.rms_px:.3f} px, {own})")
     print(f"commanded straight at {STRAIGHT_SPEED_MPS:g} m/s for {STRAIGHT_DISTANCE_M:g} m with the calibration: "
           f"lateral deviation {_pm(lateral, lateral_std, 100, 1)} cm (positive: left), speed {speed:.3f} m/s "
           f"({100 * (speed / STRAIGHT_SPEED_MPS - 1):+.1f} %)")
     certain = abs(lateral) + 2 * lateral_std <= DUCKIETOWN_RULE_M if good else \
         abs(lateral) - 2 * lateral_std > DUCKIETOWN_RULE_M
     hedge = "" if certain else " (within 2 stds of the limit: drive again to be sure)"
+    remedy = (f"run naocal identify {log.path} --out CAL.json (this log has board views), then naocal offsets "
+              "export CAL.json --format duckietown --out DIR" if judged.source == "log" else
+              "recalibrate (naocal identify LOG --out CAL.json on a calibration drive)")
     if good:
         goal = "and naocal's 2 cm goal" if abs(lateral) <= GOAL_M else "but not naocal's 2 cm goal"
         print(f"verdict: still good: within Duckietown's {DUCKIETOWN_RULE_M * 100:g} cm rule {goal}{hedge}")
     else:
         print(f"verdict: drifted: beyond Duckietown's {DUCKIETOWN_RULE_M * 100:g} cm rule{hedge}; the log says trim "
-              f"{now['trim']:.5f}: recalibrate (naocal identify LOG --out CAL.json on a calibration drive)")
+              f"{now['trim']:.5f}: {remedy}")
     return 0 if good else 1
 
 
