@@ -101,3 +101,37 @@ def test_intrinsics_the_new_data_cannot_determine_are_refused(sessions, tmp_path
     # no trace at all)
     assert run.returncode == 3 and re.search(r"cannot determine .*intrinsics\.camera\.", run.stderr), run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_a_new_session_s_lens_k2_p1_p2_is_refitted_and_start_and_fix_take_them(sessions, tmp_path):
+    """The next session's lens moved beyond k1 (k2, p1, p2: issue 24's industrial cameras): --refit intrinsics
+    refits the whole plumb_bob distortion; --fix holds a coefficient at a value (unitless) and --start takes the
+    calibration's."""
+    from argparse import Namespace
+
+    from naocal.kinds.arm.dataset import read_arm_dataset
+    from naocal.kinds.arm.scenarios import true_errors
+    from naocal.kinds.arm.verbs import fixed_and_start
+    from tests.test_arm import synthetic
+
+    cal, _, _ = sessions
+    lens = dict(MOVED, k2=-0.01, p1=0.001, p2=-0.0008)
+    model, obs, _, sensors = synthetic(EFFECTS, dict(true_errors(), **intrinsics(lens)), n_poses=30, seed=4,
+                                       noise_px=0.05)
+    moved = one_sensor_dataset(tmp_path / "lens", model, obs, sensors, "camera", noise_px=0.05)
+    run = naocal("verify", moved, "--offsets", cal, "--refit", "sensors,intrinsics", "--fix", "intrinsics.camera.k3=0",
+                 "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["per_sensor"]["camera"]["ratio"] < 1.3
+    refitted = {e["parameter"]: e for e in verdict["refitted"]}
+    for k in ("p1", "p2"):
+        e = refitted[f"intrinsics.camera.{k}"]
+        assert e["unit"] == "1" and abs(e["value"] - lens[k]) < 3.5 * e["std"] < abs(lens[k]), (k, e)
+    assert abs(refitted["intrinsics.camera.k2"]["value"] - lens["k2"]) < 3.5 * refitted["intrinsics.camera.k2"]["std"]
+    assert refitted["intrinsics.camera.k3"]["fixed"] and refitted["intrinsics.camera.k3"]["value"] == 0.0
+    dataset = read_arm_dataset(moved)
+    fixed, start = fixed_and_start(Namespace(start=cal, fix=["intrinsics.camera.p1=0.0003"]), dataset, EFFECTS)
+    filed = json.loads(cal.read_text())["model"]["parameters"]
+    assert fixed == ("intrinsics.camera.p1",) and start["intrinsics.camera.p1"] == 0.0003
+    assert start["intrinsics.camera.k2"] == filed["intrinsics.camera.k2"]["value"] != 0.0
