@@ -163,7 +163,7 @@ def test_cameras_filed_off_their_true_intrinsics_are_refined_with_the_arm():
     correction covers the truth (true minus filed; k2, p1, p2, k3 are filed exactly) within 3.5 stds; without it the
     pixels are several times their noise. (Fitted without link_lengths, marker_scale, the pixels were 0.129 px against
     0.098: 0.077 px of the robot's link lengths left in the residual, benchmarks/bench_dual_arm_residual.py, which p1
-    took up at -4.5 stds.)"""
+    took up at -4.4 and -4.7 stds.)"""
     from naocal.kinds.arm.identify import fit, initialise_sensors
     from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, DUAL_CAMERA, DUAL_HIDDEN, simulate_dualarm
     from naocal.solver.effects.intrinsics import DISTORTION
