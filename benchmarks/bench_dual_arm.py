@@ -28,10 +28,11 @@ calibration's error (kinds/arm/sim.py, CAMERA_FILING_ERROR: focal lengths 0.3 %,
 one standard deviation, drawn per camera); the fits hold the filed intrinsics, as on a real robot. With PARTs
 (f_rel, c_px, k1) only those parts are off, drawn as with all of them.
 
---intrinsics: two more rows, the same fits with the intrinsics effect (each camera's fx, fy, cx, cy, k1 refined
-with the arm; with the priors about the filed values at a checkerboard calibration's error,
-solver/effects/intrinsics.py ARM_PRIOR): "+ intrinsics, priors" and "+ intrinsics, free, no priors". Its z
-include the intrinsics' corrections (true minus filed).
+--intrinsics: two more rows, the same fits with the intrinsics effect (each camera's fx, fy, cx, cy and its lens
+k1, k2, p1, p2, k3 refined with the arm; with the priors about the filed values at a checkerboard calibration's
+error, solver/effects/intrinsics.py ARM_PRIOR): "+ intrinsics, priors" and "+ intrinsics, free, no priors". Its z
+include the intrinsics' corrections (true minus filed; k2, p1, p2, k3 are filed exactly), and a line gives the
+lens's z alone.
 
 Exit 1 if a seed's priors row (with --intrinsics: its intrinsics priors row) is beyond 1.3 x the tracker's noise.
 """
@@ -55,6 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from naocal.kinds.arm.sim import CAMERA_FILING_ERROR, PRINT_SCALE_ERROR, simulate_dualarm  # noqa: E402
 from naocal.kinds.arm.model import ArmModel  # noqa: E402
 from naocal.kinds.arm.identify import fit, initialise_sensors, pose_folds  # noqa: E402
+from naocal.solver.effects.intrinsics import DISTORTION  # noqa: E402
 from naocal.solver.errors import SolveError  # noqa: E402
 
 EFFECTS = ("joint_offsets", "link_lengths", "tool", "points", "marker_scale")
@@ -125,16 +127,19 @@ def true_corrections(sim) -> dict:
     for cam, k in sim["intrinsics"].items():
         for c in ("fx", "fy", "cx", "cy"):
             out[f"intrinsics.{cam}.{c}"] = k[f"{c}_px"] - DUAL_CAMERA[f"{c}_px"]
-        out[f"intrinsics.{cam}.k1"] = k["distortion"][0] - DUAL_CAMERA["distortion"][0]
+        for c, component in enumerate(DISTORTION):  # the whole lens; the simulation files k2, p1, p2, k3 exactly
+            out[f"intrinsics.{cam}.{component}"] = k["distortion"][c] - DUAL_CAMERA["distortion"][c]
     return out
 
 
-def coverage(result, truth: dict) -> np.ndarray:
+def coverage(result, truth: dict, components=None) -> np.ndarray:
     """z = (fitted - true) / std of every free parameter the simulation has a truth for (the sensor frames, gauges
-    of the cameras, left out: their truth is in the frame the fit chose)."""
+    of the cameras, left out: their truth is in the frame the fit chose); `components`: only the parameters with
+    those components (e.g. the lens's DISTORTION), in the model's order."""
     values = result.model.reported_values(result.x)
     return np.array([(values[name] - truth[name]) / result.std[i] for i, name in enumerate(result.model.names)
-                     if result.free[i] and name in truth and not name.startswith("sensor.") and result.std[i] > 0])
+                     if result.free[i] and name in truth and not name.startswith("sensor.") and result.std[i] > 0
+                     and (components is None or result.model.parameters[i].component in components)])
 
 
 def main(argv=None) -> int:
@@ -199,6 +204,10 @@ def main(argv=None) -> int:
                 worst = max(worst, ratio)
             if result is not None and result.priors:
                 z = coverage(result, truth)
+                lens = coverage(result, truth, DISTORTION)
+                if len(lens):
+                    print(f"     ({label}: the lens's z, k1 k2 p1 p2 k3 per camera: "
+                          + " ".join(f"{v:+.2f}" for v in lens) + ")")
                 if label == must:
                     zs.append(z)
                 print(f"     ({label}: z = (fitted - true) / std over {len(z)} parameters with a truth: max "

@@ -3,8 +3,8 @@
 The reader is strict: every problem is one DataError naming the file and the field. `model.parameters` is the
 file's truth (every parameter by its identify --json name, SI value, std, unit, fixed); the sections
 `joint_offsets_rad`, `link_lengths_m` and `sensors` repeat it for people and other programs and must agree.
-A camera's intrinsics corrections (the intrinsics effect) are `intrinsics.<camera>.<fx|fy|cx|cy>` (px) and
-`intrinsics.<camera>.k1` (1), added to the dataset's filed intrinsics.
+A camera's intrinsics corrections (the intrinsics effect) are `intrinsics.<camera>.<fx|fy|cx|cy>` (px) and its
+distortion's `intrinsics.<camera>.<k1|k2|p1|p2|k3>` (1, OpenCV's plumb_bob), added to the dataset's filed intrinsics.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from naocal.solver import fields
 from naocal.solver.effects import EFFECTS
+from naocal.solver.effects.intrinsics import DISTORTION
 from naocal.solver.errors import DataError
 from naocal.solver.fileio import read_json
 from naocal.solver.offsets import MAX_PARAMETER_SIZE  # the NAO's file's bounds per unit, where the arm has none stricter
@@ -25,7 +26,7 @@ UNITS = {"joint_offset": "rad", "link_length": "m", "elasticity": "rad/(N m)", "
 POSE_KINDS = ("link_pose", "tool", "point")
 # Largest |value| a file may hold (SI) before it is taken as damaged or a unit mix-up: 20 deg (the NAO's offsets
 # limit), 0.1 m of link length or point position, a camera's intrinsics corrections as the NAO's offsets file's
-# (200 px, a k1 of 2).
+# (200 px, a distortion coefficient of 2).
 LIMITS = {"rad": math.radians(20.0), "m": 0.1, "rad/(N m)": MAX_PARAMETER_SIZE["rad/(N m)"],
           "px": EFFECTS["intrinsics"].offsets_limit, "1": EFFECTS["distortion"].offsets_limit}
 SENSOR_LIMITS = {"rad": 2 * math.pi, "m": 100.0}  # a sensor's frame: anywhere within 100 m
@@ -102,7 +103,7 @@ def read_arm_calibration(path) -> ArmCalibration:
             "m" if kind in POSE_KINDS else UNITS.get(kind)
         if kind == "joint_offset" and unit == "m":  # a prismatic joint's offset
             expected = "m"
-        if kind == "intrinsics" and name.endswith(".k1"):  # radial distortion: no unit
+        if kind == "intrinsics" and name.rsplit(".", 1)[-1] in DISTORTION:  # lens distortion: no unit
             expected = "1"
         if kind == "sensor":
             expected = "rad" if ".rotation." in name else "m"

@@ -11,7 +11,7 @@ For one observation (joint readings theta, a point p on the tip link of the obse
                                                       r_m about its centre c_m: its printed size is kept), a lone point
                                                       by t_m; marker_scale: m_s of the sheet s it was printed on
     y     = Exp(dR_s) @ R0_s @ p_b + t_s                 the sensor's frame: T_sensor_mount = (R_s, t_s)
-    K_s   = the camera's filed intrinsics + (dfx, dfy, dcx, dcy, dk1)                 intrinsics (a camera's)
+    K_s   = the camera's filed intrinsics + (dfx, dfy, dcx, dcy; dk1, dk2, dp1, dp2, dk3)  intrinsics (a camera's)
 
 Several chains (two arms on one torso) share joints, joint origins and sensors by name: a joint's offset is one
 parameter whichever chain moves it. A sensor mounted on a link of the chains (a camera on the torso) sees the
@@ -36,6 +36,7 @@ import numpy as np
 
 from naocal.solver.camera import distortion_of
 from naocal.solver.effects import ARM_EFFECTS, ARM_MODEL_EFFECTS, EFFECTS, defines
+from naocal.solver.effects.intrinsics import DISTORTION
 from naocal.solver.measurement import MEASUREMENTS
 from naocal.solver.transforms import rot_axis_angle, skew
 
@@ -379,8 +380,8 @@ class ArmModel:
         k = dict(filed)
         distortion = distortion_of(filed)
         for i, component in self._intrinsics_i[s]:
-            if component == "k1":
-                distortion[0] += x[i]
+            if component in DISTORTION:
+                distortion[DISTORTION.index(component)] += x[i]
             else:
                 k[f"{component}_px"] = filed[f"{component}_px"] + x[i]
         k["distortion"] = [float(d) for d in distortion]

@@ -540,8 +540,11 @@ def _true_origins(model, truth) -> dict:
     return out
 
 
+DUAL_HIDDEN = ("joint_offsets", "link_lengths", "tool", "points")  # the dual arm's hidden errors, by effect
+
+
 def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, noise_px=0.3, outlier_fraction=0.02,
-                     camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True):
+                     camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True, hidden=DUAL_HIDDEN):
     """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
     on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
     "truth", "sensors", "points", "n_poses"}.
@@ -563,7 +566,11 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
     tool's five markers) printed at a scale 1 + N(0, print_scale_error), its own random stream (the rest of the
     draws stay the seed's): every true corner lies that much further from its marker's centre than the dataset's
     MARKER_SIZE_M says. The dataset names each marker's sheet (`"sheet"`); the returned "print_scale" and
-    truth.json's hold {sheet: scale}, and the truth's `marker_scale.<sheet>` the relative error (scale - 1)."""
+    truth.json's hold {sheet: scale}, and the truth's `marker_scale.<sheet>` the relative error (scale - 1).
+
+    `hidden` (default DUAL_HIDDEN: all of them): the effects whose errors the robot has; the others' are drawn
+    as ever (the rest of the draws stay the seed's) and then made exact (0): what a fit lacking an effect leaves
+    in its residual is measured by switching that effect off here (benchmarks/bench_dual_arm_residual.py)."""
     import json
 
     from naocal.body.pybullet_quiet import c_output_silenced, pybullet
@@ -571,7 +578,11 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
 
     rng = np.random.default_rng([seed, 24])
     model = dualarm_model(("joint_offsets", "link_lengths", "tool", "points"), noise_m=noise_m, noise_px=noise_px)
-    truth = dualarm_truth(rng)
+    unknown = set(hidden) - set(DUAL_HIDDEN)
+    if unknown:
+        raise NaocalError(f"simulate_dualarm: hidden {sorted(unknown)}: not among {', '.join(DUAL_HIDDEN)}")
+    effect_of = {p.name: p.effect for p in model.parameters}
+    truth = {name: value if effect_of[name] in hidden else 0.0 for name, value in dualarm_truth(rng).items()}
     x_true = np.array([truth.get(n, 0.0) for n in model.names])
     # the sensors: cameras on the torso's head looking down at the work area, a tracker 2.5-3 m in front
     frames = {}
@@ -732,8 +743,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                           chain_names=[ac.name for ac in model.arm_chains])
         truth_doc = {"schema": "naocal.arm_truth/1", "parameters": truth,
                      "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
-                     "hidden": ["joint_offsets", "link_lengths", "tool", "points"]
-                     + (["marker_scale"] if print_scale_error else []), "intrinsics": intrinsics,
+                     "hidden": list(hidden) + (["marker_scale"] if print_scale_error else []), "intrinsics": intrinsics,
                      "camera_error": camera_error, "print_scale_error": print_scale_error,
                      "print_scale": print_scale}
         atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")

@@ -285,7 +285,7 @@ def format_arm_verdict(v: ArmVerdict) -> str:
     if v.refitted:
         from naocal.solver.effect import shown
 
-        def number(value, unit, sign=""):  # mm, deg, px to 3 decimals; a k1 (no unit, some 0.002) to 5
+        def number(value, unit, sign=""):  # mm, deg, px to 3 decimals; a lens coefficient (no unit, ~0.001) to 5
             v, shown_unit = shown(value, unit)
             return f"{v:{sign}.{3 if shown_unit else 5}f}{' ' + shown_unit if shown_unit else ''}"
 
