@@ -11,9 +11,9 @@ extra log.json keys. For each: `naocal identify LOG --out CAL.json` (trim agains
 named), `naocal offsets export CAL.json --format duckietown` (the three files).
 
 Variants whose files alone differ link the base log's frames (same scene and motion); when such a log reads exactly
-as the base log (every array and field naocal reads), diagnose is not run again: its input is the same. Logs are cached outside git
-(NAOCAL_BENCH_CACHE, default /tmp/naocal-bench-duckiebot-log-variants; about 55 s CPU to render one).
-Run: `python benchmarks/bench_duckiebot_log_variants.py [--only NAME ...] [--no-diagnose]`.
+as the base log (every array and field naocal reads), diagnose is not run again: its input is the same. Logs are
+cached outside git (NAOCAL_BENCH_CACHE, default /tmp/naocal-bench-duckiebot-log-variants; about 55 s CPU to render one).
+Run: `python benchmarks/bench_duckiebot_log_variants.py [--only NAME ...] [--no-diagnose] [--render]`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ VARIANTS = {
     "unix_1.78e9": ({"t0_s": 1.78e9}, False),
     "camera_first_1s": ({"camera_start_s": -1.0}, False),
     "wheels_first_1s": ({"camera_start_s": 1.0}, False),
-    "rows_at_frames": ({"wheel_rows_at_frames": True}, False),
+    "rows_at_frames": ({"wheel_rows_at_frames": True}, True),  # the motion is the same: so are the frames
     "rows_twice": ({"duplicate_wheel_rows": True}, True),
     "png": ({"image_ext": ".png"}, False),
     "encoders": ({"encoders": True}, True),
@@ -83,8 +83,9 @@ def last_line(text):
     return lines[-1][:110] if lines else ""
 
 
-def run(name, cache: Path, diagnose: bool):
+def run(name, cache: Path, diagnose: bool, render: bool = False):
     changes, linked = VARIANTS[name]
+    linked = linked and not render
     var = dataclasses.replace(SMALL, **changes)
     base_dir = cache / "base" / "LOG"
     log = cache / name / "LOG"
@@ -123,14 +124,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", choices=list(VARIANTS))
     parser.add_argument("--no-diagnose", action="store_true")
+    parser.add_argument("--render", action="store_true", help="render every variant's frames (link none)")
     args = parser.parse_args()
     cache = Path(os.environ.get("NAOCAL_BENCH_CACHE", "/tmp/naocal-bench-duckiebot-log-variants"))
     names = args.only or list(VARIANTS)
-    if any(VARIANTS[name][1] for name in names) and not (cache / "base" / "LOG" / "log.json").exists():
+    if not args.render and any(VARIANTS[name][1] for name in names) and not (cache / "base" / "LOG" / "log.json").exists():
         names = ["base"] + [name for name in names if name != "base"]
     for name in names:
         cpu0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.time()
-        row = run(name, cache, not args.no_diagnose)
+        row = run(name, cache, not args.no_diagnose, args.render)
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         row["naocal_cpu_s"] = round(cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime, 1)
         ok = row["identify"] == 0 and abs(row["trim_err"]) < 0.001 and abs(row["gain_err_pct"]) < 1.0

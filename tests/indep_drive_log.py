@@ -192,7 +192,7 @@ def simulate(var: Variation, truth: Truth):
         frame_t = np.sort(np.concatenate([still_grabs, cam]))
     else:
         first = var.t0_s + var.camera_start_s
-        frame_t = first + np.arange(0.0, t_end - first - 0.05, 1.0 / var.fps)
+        frame_t = first + np.arange(0.0, t_end - first - 0.029, 1.0 / var.fps)
     frame_t = frame_t + rng.uniform(-0.002, 0.002, len(frame_t))  # timestamp jitter
     frame_t = np.round(frame_t, 6)
     frame_t = frame_t[np.concatenate([[True], np.diff(frame_t) > 1e-4])]
