@@ -150,9 +150,11 @@ def test_log_json_keys_the_format_does_not_define_are_ignored_with_a_warning(log
 
 
 @pytest.mark.parametrize("name, text, match", [
-    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1,0.2,0.2\n0.5,0,0\n", r"wheels.csv, line 4, field 't_s'.*"
-                                                                             "times must increase"),
-    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n0,0.2,0.2\n", r"wheels.csv, line 3, field 't_s'.*other values"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1,0.2,0.2\n0.5,0,0\n", r"wheels.csv, line 4, field 't_s': "
+                                                                             r"time 0.5 s is before the previous row's "
+                                                                             r"1.0 s \(times must increase\)"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n0,0.2,0.2\n", r"wheels.csv, line 3, field 't_s': time 0.0 s "
+                                                                    "is also the previous row's, with other values"),
     ("frames.csv", "t_s,file\n0.1,frames/0000.png\n0.1,frames/0001.png\n", r"frames.csv, line 3, field 't_s'"),
     ("encoders.csv", "t_s,left_ticks,right_ticks\n1,0,0\n1,0,1\n", r"encoders.csv, line 3, field 't_s'"),
     ("wheels.csv", "\ufefft_s,left_duty,right_duty,stamp\r\n0,0,0,0\r\n", r"wheels.csv, line 1: expected the header"),

@@ -214,8 +214,8 @@ def _times(rows, path) -> np.ndarray:
     for i, (line, cells) in enumerate(rows):
         t[i] = fields.number_text(cells[0], path, "t_s", line=line, low=-MAX_TIME_S, high=MAX_TIME_S)
         if i and t[i] < t[i - 1]:
-            fail(path, f"time {t[i]!r} s is before the previous row's {t[i - 1]!r} s (times must increase)", "t_s",
-                 line)
+            fail(path, f"time {float(t[i])!r} s is before the previous row's {float(t[i - 1])!r} s (times must "
+                 "increase)", "t_s", line)
     return t
 
 
@@ -228,7 +228,7 @@ def _repeats_dropped(path, rows, t, values):
         if t[i] != t[i - 1]:
             keep.append(i)
         elif values[i] != values[i - 1]:
-            fail(path, f"time {t[i]!r} s is also the previous row's, with other values (times must increase; only "
+            fail(path, f"time {float(t[i])!r} s is also the previous row's, with other values (times must increase; only "
                  "a row repeated exactly is dropped)", "t_s", rows[i][0])
     return [rows[i] for i in keep], t[keep], [values[i] for i in keep]
 
