@@ -65,6 +65,9 @@ def test_encoders_are_optional(log):
     (log / "log.json").write_text(json.dumps(doc))
     drive = read_drive_log(log)
     assert drive.encoder_t_s is None and drive.wheels.ticks_per_revolution is None
+    doc["wheels"]["ticks_per_revolution"] = None  # an exporter's way of leaving it out
+    (log / "log.json").write_text(json.dumps(doc))
+    assert read_drive_log(log).wheels.ticks_per_revolution is None
 
 
 def refused(log, match):
