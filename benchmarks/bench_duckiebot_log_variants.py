@@ -26,7 +26,6 @@ import resource
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,7 +130,7 @@ def main() -> None:
     if not args.render and any(VARIANTS[name][1] for name in names) and not (cache / "base" / "LOG" / "log.json").exists():
         names = ["base"] + [name for name in names if name != "base"]
     for name in names:
-        cpu0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.time()
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         row = run(name, cache, not args.no_diagnose, args.render)
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         row["naocal_cpu_s"] = round(cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime, 1)
