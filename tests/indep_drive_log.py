@@ -6,7 +6,7 @@ What differs from render.py on purpose:
 - motion: the robot turns continuously in place (not in one-wheel steps) with frames grabbed WHILE moving, at a
   camera frame rate (15 fps by default) on a Unix-time clock; the commands are republished at 10 Hz, unrelated to the
   frame times, with many decimals; then it drives along the marker line forward and back at its own speed, with a
-  gentle S-curve and an in-place wiggle in view of the markers; no encoders.
+  gentle S-curve and an in-place wiggle in view of the markers; encoders.csv only with `encoders`.
 - kinematics: integrated here from the issue's formulas (w_r = u_r k / (gain + trim), w_l = u_l k / (gain - trim),
   v = r (w_r + w_l) / 2, omega = r (w_r - w_l) / b), by exact arcs between breakpoints.
 - camera: OpenCV's own convention (z forward, x right, y down), rays from cv2.undistortPoints (iterated to
@@ -16,13 +16,16 @@ What differs from render.py on purpose:
   chessboards standing upright on a semicircle facing the start; a line of flat tag36h11 markers, 6.5 cm, about
   15 cm apart, all oriented alike).
 
-`make_log(DIR, Variation(...))` writes LOG/log.json, wheels.csv, frames.csv, frames/*.jpg and returns the `Truth`.
+`make_log(DIR, Variation(...))` writes LOG/log.json, wheels.csv, frames.csv, frames/*.jpg (encoders.csv) and returns
+the `Truth`. `Variation` also varies what a ROS bag export may look like: the clock, when the camera starts, commands
+at the frames' times or written twice, the board's and markers' sizes, the model, CRLF, a BOM, extra log.json keys.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,7 +64,20 @@ class Variation:
     blur_frames: tuple = ()  # frame indices with a long exposure (motion blur)
     dark_frames: tuple = ()  # frame indices with nothing detectable (lens covered)
     noise_grey: float = 2.0
-    encoders: bool = False
+    encoders: bool = False  # write encoders.csv (cumulative signed ticks as Duckietown counts them, int32)
+    encoder_rate_hz: float = 30.0
+    encoder_start_ticks: tuple = (123456, -98765)  # the counters' values at the log's start (counted since boot)
+    ticks_per_revolution: int | None = 135  # in log.json when `encoders` (None: left out, as a DB18 log)
+    # how a ROS bag export can differ (one at a time)
+    camera_start_s: float = 0.021  # the first frame's time after the first wheel row (negative: the camera ran first)
+    wheel_rows_at_frames: bool = False  # commands republished at exactly the frames' times
+    duplicate_wheel_rows: bool = False  # every wheel row written twice (same time, same duties)
+    board_inner_corners: tuple = (7, 5)  # (columns, rows)
+    model: str = "DB21"
+    newline: str = "\n"  # the CSVs' line ending ("\r\n": a Windows export)
+    bom: bool = False  # a UTF-8 byte order mark before every text file
+    trailing_blank_line: bool = False
+    extra_meta: dict | None = None  # merged into log.json: {section or key: value}, a dict merges into a section
     seed: int = 0
 
 
@@ -169,9 +185,22 @@ def simulate(var: Variation, truth: Truth):
         t += dur
     t_end = t
     commands.append((t_end, 0.0, 0.0))
-    # rows as sent: republished at wheel_rate_hz with a phase of its own, plus a row at every change
+    # frame times: a free-running camera; with steps the frames at the grabs (mid-stop) only
+    if var.turn == "steps":
+        moving_from = commands[[i for i, s in enumerate(segs) if s[1] != 0 and abs(s[1] + s[2]) > 1e-9][0]][0]
+        cam = np.arange(moving_from, t_end, 1.0 / var.fps)
+        frame_t = np.sort(np.concatenate([still_grabs, cam]))
+    else:
+        first = var.t0_s + var.camera_start_s
+        frame_t = first + np.arange(0.0, t_end - first - 0.029, 1.0 / var.fps)
+    frame_t = frame_t + rng.uniform(-0.002, 0.002, len(frame_t))  # timestamp jitter
+    frame_t = np.round(frame_t, 6)
+    frame_t = frame_t[np.concatenate([[True], np.diff(frame_t) > 1e-4])]
+    # rows as sent: republished at wheel_rate_hz with a phase of its own (or at the frames' times), plus a row at
+    # every change
     period = 1.0 / var.wheel_rate_hz
-    ticks = var.t0_s + 0.0137 + np.arange(0.0, t_end - var.t0_s, period)
+    ticks = frame_t[(frame_t >= var.t0_s) & (frame_t < t_end)] if var.wheel_rows_at_frames else \
+        var.t0_s + 0.0137 + np.arange(0.0, t_end - var.t0_s, period)
     starts = np.array([c[0] for c in commands])
     rows = {}
     for c in commands:
@@ -180,16 +209,6 @@ def simulate(var: Variation, truth: Truth):
         i = int(np.searchsorted(starts, tk, side="right") - 1)
         rows.setdefault(round(tk, 6), (commands[i][1], commands[i][2]))
     wheel_rows = sorted((tk, round(l, var.duty_decimals), round(r, var.duty_decimals)) for tk, (l, r) in rows.items())
-    # frame times: a free-running camera; with steps the frames at the grabs (mid-stop) only
-    if var.turn == "steps":
-        moving_from = commands[[i for i, s in enumerate(segs) if s[1] != 0 and abs(s[1] + s[2]) > 1e-9][0]][0]
-        cam = np.arange(moving_from, t_end, 1.0 / var.fps)
-        frame_t = np.sort(np.concatenate([still_grabs, cam]))
-    else:
-        frame_t = var.t0_s + 0.021 + np.arange(0.0, t_end - var.t0_s - 0.05, 1.0 / var.fps)
-    frame_t = frame_t + rng.uniform(-0.002, 0.002, len(frame_t))  # timestamp jitter
-    frame_t = np.round(frame_t, 6)
-    frame_t = frame_t[np.concatenate([[True], np.diff(frame_t) > 1e-4])]
     wt = np.array([r[0] for r in wheel_rows])
     wl = np.array([r[1] for r in wheel_rows])
     wr = np.array([r[2] for r in wheel_rows])
@@ -213,6 +232,16 @@ def simulate(var: Variation, truth: Truth):
         return out
 
     return (wt, wl, wr), frame_t, poses_at
+
+
+def wheel_angles(wheel_rows, times, truth: Truth):
+    """(left, right) wheel angles (rad, 0 at the first row) at `times` of the commands as sent, each held."""
+    wt, wl, wr = wheel_rows
+    rates = np.array(wheel_rates(wl, wr, truth))  # (2, n): rad/s from each row to the next
+    at_rows = np.concatenate([np.zeros((2, 1)), np.cumsum(rates[:, :-1] * np.diff(wt), axis=1)], axis=1)
+    i = np.clip(np.searchsorted(wt, times, side="right") - 1, 0, None)
+    held = np.asarray(times) >= wt[0]
+    return np.where(held, at_rows[:, i] + rates[:, i] * (np.asarray(times) - wt[i]), 0.0)
 
 
 # ------------------------------------------------------------------------------------------------ scene
@@ -253,7 +282,7 @@ def marker_plane(var: Variation) -> Plane:
 def board_planes(var: Variation) -> list:
     sq = 24
     texel = var.board_square_m / sq
-    cols, rows = 8, 6  # squares of a 7 x 5 inner-corner board
+    cols, rows = var.board_inner_corners[0] + 1, var.board_inner_corners[1] + 1  # squares
     m = sq  # white margin
     w, h = cols * sq + 2 * m, rows * sq + 2 * m
     tex = np.full((h, w), PAPER, np.float32)
@@ -276,7 +305,7 @@ def board_corners_world(var: Variation) -> np.ndarray:
     for p in board_planes(var):
         sq = 24
         pts = [p.origin + (sq * (1 + c + 1)) * p.texel_m * p.a + (sq * (1 + r + 1)) * p.texel_m * p.b
-               for r in range(5) for c in range(7)]
+               for r in range(var.board_inner_corners[1]) for c in range(var.board_inner_corners[0])]
         out.append(np.array(pts))
     return np.array(out)
 
@@ -351,17 +380,23 @@ class Camera:
         return cv2.resize(img, (self.w, self.h), interpolation=cv2.INTER_AREA)
 
 
-def make_log(directory, var: Variation = Variation(), truth: Truth | None = None) -> Truth:
+def make_log(directory, var: Variation = Variation(), truth: Truth | None = None, frames_from=None) -> Truth:
+    """Write the log of `var` into `directory`; `frames_from`: a log made with the same scene, motion and frame count
+    (a Variation differing in its files only), whose frames are linked instead of rendered again."""
     directory = Path(directory)
     (directory / "frames").mkdir(parents=True, exist_ok=True)
     truth = truth or default_truth(var.seed)
     (wt, wl, wr), frame_t, poses_at = simulate(var, truth)
-    camera = Camera(truth)
+    camera = None if frames_from else Camera(truth)
     planes = [marker_plane(var)] + board_planes(var)
     rng = np.random.default_rng(var.seed + 7)
     names = []
     poses = poses_at(frame_t)
     for i, t in enumerate(frame_t):
+        if frames_from:
+            names.append(f"frames/f{i:05d}{var.image_ext}")
+            os.link(Path(frames_from) / names[-1], directory / names[-1])
+            continue
         exposure = var.exposure_s  # the blur frames only: the others are instants (the turn moves 0.2 px in 1 ms)
         sub = np.linspace(t - exposure / 2, t + exposure / 2, 5) if i in var.blur_frames else np.array([t])
         img = np.mean([camera.render_still(p, planes) for p in poses_at(sub)], axis=0)
@@ -373,25 +408,38 @@ def make_log(directory, var: Variation = Variation(), truth: Truth | None = None
                     [cv2.IMWRITE_JPEG_QUALITY, var.jpeg_quality] if var.image_ext != ".png" else [])
         names.append(name)
     fmt = f"{{:.{var.duty_decimals}f}}"
-    with open(directory / "wheels.csv", "w") as f:
-        f.write("t_s,left_duty,right_duty\n")
-        for t, l, r in zip(wt, wl, wr):
-            f.write(f"{t:.6f},{fmt.format(l)},{fmt.format(r)}\n")
-    with open(directory / "frames.csv", "w") as f:
-        f.write("t_s,file\n")
-        for t, n in zip(frame_t, names):
-            f.write(f"{t:.6f},{n}\n")
+    repeat = 2 if var.duplicate_wheel_rows else 1
+    write_csv(directory / "wheels.csv", "t_s,left_duty,right_duty",
+              [f"{t:.6f},{fmt.format(l)},{fmt.format(r)}" for t, l, r in zip(wt, wl, wr) for _ in range(repeat)], var)
+    write_csv(directory / "frames.csv", "t_s,file", [f"{t:.6f},{n}" for t, n in zip(frame_t, names)], var)
     wheels = {"radius_m": 0.0318, "baseline_m": 0.1, "k": 27.0, "limit": 1.0}
     if var.encoders:
-        wheels["ticks_per_revolution"] = 135
-    meta = {"schema": "naocal.drive_log/1", "robot": {"id": "indep", "model": "DB21"},
+        if var.ticks_per_revolution is not None:
+            wheels["ticks_per_revolution"] = var.ticks_per_revolution
+        enc_t = np.round(var.t0_s + 0.0071 + np.arange(0.0, wt[-1] - var.t0_s, 1.0 / var.encoder_rate_hz), 6)
+        angles = wheel_angles((wt, wl, wr), enc_t, truth)
+        ticks = np.floor(angles * 135 / (2 * math.pi)).astype(np.int64) + np.array(var.encoder_start_ticks)[:, None]
+        ticks = (ticks + 2 ** 31) % 2 ** 32 - 2 ** 31  # Duckietown's counters are int32
+        write_csv(directory / "encoders.csv", "t_s,left_ticks,right_ticks",
+                  [f"{t:.6f},{a},{b}" for t, a, b in zip(enc_t, ticks[0], ticks[1])], var)
+    meta = {"schema": "naocal.drive_log/1", "robot": {"id": "indep", "model": var.model},
             "camera": {"width_px": 640, "height_px": 480}, "wheels": wheels,
             "markers": {"family": "tag36h11", "size_m": var.marker_size_m},
-            "boards": {"inner_corners": [7, 5], "square_m": var.board_square_m},
+            "boards": {"inner_corners": list(var.board_inner_corners), "square_m": var.board_square_m},
             "source": "tests/indep_drive_log.py (an independent generator)"}
-    (directory / "log.json").write_text(json.dumps(meta, indent=1))
+    for key, value in (var.extra_meta or {}).items():
+        if isinstance(value, dict):
+            meta.setdefault(key, {}).update(value)
+        else:
+            meta[key] = value
+    (directory / "log.json").write_bytes((b"\xef\xbb\xbf" if var.bom else b"") + json.dumps(meta, indent=1).encode())
     truth.frame_t_s, truth.frame_poses = frame_t, poses
     return truth
+
+
+def write_csv(path, header, lines, var: Variation):
+    text = var.newline.join([header, *lines]) + var.newline + (var.newline if var.trailing_blank_line else "")
+    path.write_bytes((b"\xef\xbb\xbf" if var.bom else b"") + text.encode())
 
 
 if __name__ == "__main__":

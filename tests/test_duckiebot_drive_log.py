@@ -65,6 +65,9 @@ def test_encoders_are_optional(log):
     (log / "log.json").write_text(json.dumps(doc))
     drive = read_drive_log(log)
     assert drive.encoder_t_s is None and drive.wheels.ticks_per_revolution is None
+    doc["wheels"]["ticks_per_revolution"] = None  # an exporter's way of leaving it out
+    (log / "log.json").write_text(json.dumps(doc))
+    assert read_drive_log(log).wheels.ticks_per_revolution is None
 
 
 def refused(log, match):
@@ -84,16 +87,80 @@ def test_missing_files(log, name):
 
 
 def test_encoders_without_ticks_per_revolution(log):
+    # optional in the format: a DB21's encoders count 135 a revolution (a log exported without it was refused)
     doc = meta()
     del doc["wheels"]["ticks_per_revolution"]
     (log / "log.json").write_text(json.dumps(doc))
-    refused(log, r"log.json, field 'wheels.ticks_per_revolution': encoders.csv is present")
+    drive = read_drive_log(log)
+    assert drive.wheels.ticks_per_revolution == 135 and drive.meta()["wheels"]["ticks_per_revolution"] == 135
+    # a model whose encoders naocal does not know: the ticks cannot be read as angles
+    for model in ("DB18", "DB99-lab"):
+        doc["robot"]["model"] = model
+        (log / "log.json").write_text(json.dumps(doc))
+        refused(log, r"log.json, field 'wheels.ticks_per_revolution': encoders.csv is present.*nor known for the "
+                     "model")
+
+
+def test_windows_and_ros_bag_exports_read_as_written(log):
+    # CRLF line endings, a UTF-8 byte order mark, a trailing blank line; Unix-epoch times (a ROS bag's), each file
+    # starting at its own time
+    t0 = 1780000000.0
+    lines = {"wheels.csv": ["t_s,left_duty,right_duty", f"{t0 + 0.25:.6f},0,0", f"{t0 + 0.5:.6f},0.3,0.31",
+                            f"{t0 + 0.500001:.6f},-0.2,0.2"],
+             "frames.csv": ["t_s,file", f"{t0:.6f},frames/0000.png", f"{t0 + 0.5:.6f},frames/0001.png",
+                            f"{t0 + 0.9:.6f},frames/0002.jpg"],
+             "encoders.csv": ["t_s,left_ticks,right_ticks", f"{t0 + 0.3:.6f},2147483600,-2147483600",
+                              f"{t0 + 0.6:.6f},2147483647,-2147483648"]}
+    for name, rows in lines.items():
+        (log / name).write_bytes(b"\xef\xbb\xbf" + ("\r\n".join(rows) + "\r\n\r\n").encode())
+    (log / "log.json").write_bytes(b"\xef\xbb\xbf" + json.dumps(meta()).replace("\n", "\r\n").encode())
+    drive = read_drive_log(log)
+    assert drive.wheel_t_s.dtype == np.float64 and drive.wheel_t_s[0] == t0 + 0.25
+    # microseconds kept at 1.78e9 s (a double's step there: 2.4e-7 s; a float32's: 128 s)
+    np.testing.assert_allclose(np.diff(drive.wheel_t_s), [0.25, 0.000001], rtol=0, atol=2.5e-7)
+    np.testing.assert_array_equal(drive.frame_t_s, [t0, t0 + 0.5, t0 + 0.9])
+    np.testing.assert_array_equal(drive.left_ticks, [2147483600, 2147483647])
+    left, _ = drive.duties_at([t0, t0 + 0.5, t0 + 0.5000005, t0 + 0.9])  # a command at a frame's time holds there
+    np.testing.assert_array_equal(left, [0.0, 0.3, 0.3, -0.2])
+
+
+def test_a_row_written_twice_is_read_once(log):
+    # a recorder or export writing one message twice (the same time and values): read once; the same time with
+    # other values is refused (test_bad_csv_files)
+    (log / "wheels.csv").write_text("t_s,left_duty,right_duty\n0,0,0\n0.5,0.3,0.31\n0.5,0.3,0.31\n1,-0.2,0.2\n"
+                                    "1,-0.2,0.2\n")
+    (log / "frames.csv").write_text("t_s,file\n0.1,frames/0000.png\n0.1,frames/0000.png\n0.6,frames/0001.png\n"
+                                    "0.9,frames/0002.jpg\n")
+    (log / "encoders.csv").write_text("t_s,left_ticks,right_ticks\n0,0,0\n0,0,0\n0.5,40,41\n")
+    drive = read_drive_log(log)
+    np.testing.assert_array_equal(drive.wheel_t_s, [0.0, 0.5, 1.0])
+    np.testing.assert_array_equal(drive.right_duty, [0.0, 0.31, 0.2])
+    assert drive.frame_files == ("frames/0000.png", "frames/0001.png", "frames/0002.jpg")
+    np.testing.assert_array_equal(drive.encoder_t_s, [0.0, 0.5])
+    np.testing.assert_array_equal(drive.left_ticks, [0, 40])
+
+
+def test_log_json_keys_the_format_does_not_define_are_ignored_with_a_warning(log, caplog):
+    # an exporter's own notes (a bag's name, the camera's rate) made the log unreadable: "unknown field"
+    doc = meta(recorded_by="rosbag2csv 0.3")
+    doc["camera"]["fps"] = 15
+    (log / "log.json").write_text(json.dumps(doc))
+    with caplog.at_level("WARNING"):
+        drive = read_drive_log(log)
+    assert drive.meta() == meta()
+    assert "log.json: ignored the fields the drive log format does not define: 'recorded_by', 'camera.fps'" in \
+        caplog.text
 
 
 @pytest.mark.parametrize("name, text, match", [
-    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1,0.2,0.2\n0.5,0,0\n", r"wheels.csv, line 4, field 't_s'.*"
-                                                                             "strictly increase"),
-    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n0,0.2,0.2\n", r"wheels.csv, line 3, field 't_s'"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1,0.2,0.2\n0.5,0,0\n", r"wheels.csv, line 4, field 't_s': "
+                                                                             r"time 0.5 s is before the previous row's "
+                                                                             r"1.0 s \(times must increase\)"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n0,0.2,0.2\n", r"wheels.csv, line 3, field 't_s': time 0.0 s "
+                                                                    "is also the previous row's, with other values"),
+    ("frames.csv", "t_s,file\n0.1,frames/0000.png\n0.1,frames/0001.png\n", r"frames.csv, line 3, field 't_s'"),
+    ("encoders.csv", "t_s,left_ticks,right_ticks\n1,0,0\n1,0,1\n", r"encoders.csv, line 3, field 't_s'"),
+    ("wheels.csv", "\ufefft_s,left_duty,right_duty,stamp\r\n0,0,0,0\r\n", r"wheels.csv, line 1: expected the header"),
     ("frames.csv", "t_s,file\n0.6,frames/0001.png\n0.1,frames/0000.png\n", r"frames.csv, line 3, field 't_s'"),
     ("encoders.csv", "t_s,left_ticks,right_ticks\n1,0,0\n0,1,1\n", r"encoders.csv, line 3, field 't_s'"),
     ("wheels.csv", "t_s,left_duty,right_duty\n0,nan,0\n", r"wheels.csv, line 2, field 'left_duty'.*finite"),
@@ -138,7 +205,8 @@ def test_a_symbolic_link_out_of_the_log_is_refused(log, tmp_path):
 
 @pytest.mark.parametrize("change, match", [
     (dict(schema="naocal.drive_log/2"), r"field 'schema'"),
-    (dict(extra=1), r"field 'extra': unknown field"),
+    (dict(wheels={"radius_m": 0.03, "baseline_m": 0.1, "k": 27}), r"field 'wheels.limit': missing required"),
+    (dict(boards={"inner_corners": [7, 5], "square": 0.031}), r"field 'boards.square_m': missing required"),
     (dict(robot={"id": "../evil", "model": "DB21"}), r"field 'robot.id': robot name"),
     (dict(robot={"id": "autobot01"}), r"field 'robot.model': missing"),
     (dict(camera={"width_px": 64.5, "height_px": 48}), r"field 'camera.width_px'"),

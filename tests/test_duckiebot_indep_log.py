@@ -1,8 +1,10 @@
 """Logs from a second, independent generator (tests/indep_drive_log.py: continuous turning with frames grabbed while
-moving, 15 fps on a Unix-time clock, JPEG, 10 Hz command rows unrelated to the frames, no encoders) read, calibrate,
+moving, 15 fps on a Unix-time clock, JPEG, 10 Hz command rows unrelated to the frames; here written as a ROS bag
+export on Windows may write it) read, calibrate,
 export and verify through the command line, and recover the generator's truth (issue 23's "logs recorded
 elsewhere"); and what varying that generator broke, each fixed at its root."""
 
+import dataclasses
 import json
 import math
 
@@ -15,14 +17,23 @@ from indep_drive_log import Variation, make_log
 from naocal.kinds.duckiebot import identify
 from naocal.kinds.duckiebot.drive_log import SCHEMA, read_drive_log, write_drive_log, write_frame
 
-# A small log: a faster turn and a shorter marker drive than the generator's default (about 200 frames)
+# A small log: a faster turn and a shorter marker drive than the generator's default (about 270 frames)
 SMALL = Variation(turn_rate_radps=0.6, line_speed_mps=0.15, line_distance_m=0.4, n_markers=6)
+# ... written as a ROS bag export on Windows may write it, every way at once (one at a time, with the numbers:
+# benchmarks/bench_duckiebot_log_variants.py): a Unix-epoch clock, the camera running before the first command,
+# every command row written twice, encoders near int32's wrap without ticks_per_revolution (a DB21M's), CRLF, a
+# byte order mark, a trailing blank line, log.json keys of the exporter's own. On main, the rows written twice, the
+# extra keys and the missing ticks_per_revolution each made it a bad log (exit 2).
+EXPORTED = dataclasses.replace(SMALL, t0_s=1.78e9, camera_start_s=-0.5, duplicate_wheel_rows=True, encoders=True,
+                               encoder_start_ticks=(2 ** 31 - 60, -2 ** 31 + 60), ticks_per_revolution=None,
+                               model="DB21M", newline="\r\n", bom=True, trailing_blank_line=True,
+                               extra_meta={"bag": "autobot01_2026-11-28.bag", "camera": {"fps": 15}})
 
 
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     root = tmp_path_factory.mktemp("indep")
-    truth = make_log(root / "LOG", SMALL)
+    truth = make_log(root / "LOG", EXPORTED)
     result = naocal("identify", root / "LOG", "--out", root / "CAL.json")
     return root, truth, result
 
@@ -30,6 +41,9 @@ def calibrated(tmp_path_factory):
 def test_an_independent_log_calibrates_to_its_truth(calibrated):
     root, truth, result = calibrated
     assert result.returncode == 0, result.stderr
+    log = read_drive_log(root / "LOG", check_images=False)  # read as written
+    assert log.frame_t_s[0] < log.wheel_t_s[0] < 1.78e9 + 1 and log.wheels.ticks_per_revolution == 135
+    assert len(log.wheel_t_s) * 2 == len((root / "LOG" / "wheels.csv").read_text().splitlines()) - 2
     cal = json.loads((root / "CAL.json").read_text())
     kin = cal["kinematics"]
     assert abs(kin["trim"] - truth.trim) < 0.001

@@ -10,16 +10,20 @@
                                                   relative to LOG (PNG or JPEG)
     LOG/encoders.csv t_s,left_ticks,right_ticks   optional: cumulative signed ticks
 
-Strict: every problem is one DataError naming the file and the line or field (missing files, unknown or missing
-fields, times not strictly increasing, NaN or out-of-range duties, frames that are not PNG/JPEG images of the
-camera's size, paths that leave LOG). Every file is read through solver.fileio (regular files, bounded size).
+Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
+header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
+images of the camera's size, paths that leave LOG). Tolerant of what valid exports write (docs/DUCKIEBOT.md): any
+clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines, log.json keys the format does not
+define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -28,7 +32,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.robot import robot_name_problem
+from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
 from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
@@ -113,23 +117,34 @@ class DriveLog:
 # ------------------------------------------------------------------------------------------------ log.json
 
 def parse_meta(doc, path) -> dict:
-    """log.json checked: the keyword arguments of DriveLog's description fields. DataError naming the field."""
-    fields.json_object(doc, path, "", ("schema", "robot", "camera", "wheels", "markers", "boards", "source"), ())
+    """log.json checked: the keyword arguments of DriveLog's description fields. DataError naming the field. Keys
+    the format does not define are ignored, with one warning naming them (an exporter's own notes: the bag's name,
+    the camera's rate): everything naocal needs is required by name, so a misspelt one is refused as missing."""
+    unknown = []
+
+    def section(value, field, required, optional=()):
+        fields.json_object(value, path, field, required, None)
+        unknown.extend(f"{field}.{key}" if field else key for key in value if key not in (*required, *optional))
+        return value
+
+    section(doc, "", ("schema", "robot", "camera", "wheels", "markers", "boards", "source"))
     if doc["schema"] != SCHEMA:
         fail(path, f"expected {SCHEMA!r}, got {str(doc['schema'])[:40]!r}", "schema")
-    robot = fields.json_object(doc["robot"], path, "robot", ("id", "model"), ())
+    robot = section(doc["robot"], "robot", ("id", "model"))
     problem = robot_name_problem(robot["id"])
     if problem:
         fail(path, problem, "robot.id")
-    camera = fields.json_object(doc["camera"], path, "camera", ("width_px", "height_px"), ())
-    wheels = fields.json_object(doc["wheels"], path, "wheels", ("radius_m", "baseline_m", "k", "limit"),
-                                ("ticks_per_revolution",))
+    camera = section(doc["camera"], "camera", ("width_px", "height_px"))
+    wheels = section(doc["wheels"], "wheels", ("radius_m", "baseline_m", "k", "limit"), ("ticks_per_revolution",))
     ticks = wheels.get("ticks_per_revolution")
-    markers = fields.json_object(doc["markers"], path, "markers", ("family", "size_m"), ())
+    markers = section(doc["markers"], "markers", ("family", "size_m"))
     if markers["family"] not in MARKER_FAMILIES:
         fail(path, f"unsupported marker family {str(markers['family'])[:40]!r} (expected "
              f"{', '.join(MARKER_FAMILIES)})", "markers.family")
-    boards = fields.json_object(doc["boards"], path, "boards", ("inner_corners", "square_m"), ())
+    boards = section(doc["boards"], "boards", ("inner_corners", "square_m"))
+    if unknown:
+        logging.getLogger(__name__).warning("%s: ignored the fields the drive log format does not define: %s", path,
+                                            ", ".join(fields.shown(key) for key in unknown[:10]))
     corners = boards["inner_corners"]
     if not isinstance(corners, list) or len(corners) != 2:
         fail(path, "expected [columns, rows] of inner corners", "boards.inner_corners")
@@ -199,18 +214,34 @@ def _times(rows, path) -> np.ndarray:
     t = np.empty(len(rows))
     for i, (line, cells) in enumerate(rows):
         t[i] = fields.number_text(cells[0], path, "t_s", line=line, low=-MAX_TIME_S, high=MAX_TIME_S)
-        if i and t[i] <= t[i - 1]:
-            fail(path, f"time {t[i]!r} s does not follow the previous row's {t[i - 1]!r} s (times must "
-                 "strictly increase)", "t_s", line)
+        if i and t[i] < t[i - 1]:
+            fail(path, f"time {float(t[i])!r} s is before the previous row's {float(t[i - 1])!r} s (times must "
+                 "increase)", "t_s", line)
     return t
+
+
+def _repeats_dropped(path, rows, t, values):
+    """(rows, t, values) without the rows that repeat the previous row exactly (the same time and values: a recorder
+    or an export writing one message twice); a row at the previous row's time with other values is refused (which
+    of the two held is not known). `values`: one comparable item per row."""
+    keep = [0]
+    for i in range(1, len(rows)):
+        if t[i] != t[i - 1]:
+            keep.append(i)
+        elif values[i] != values[i - 1]:
+            fail(path, f"time {float(t[i])!r} s is also the previous row's, with other values (times must increase; only "
+                 "a row repeated exactly is dropped)", "t_s", rows[i][0])
+    return [rows[i] for i in keep], t[keep], [values[i] for i in keep]
 
 
 def read_wheels(path, text: str | None = None):
     """(t_s, left_duty, right_duty) of wheels.csv; duties finite and within [-1, 1]."""
     rows = _rows(path, WHEELS_HEADER, text)
     t = _times(rows, path)
-    duties = np.array([[fields.number_text(cells[c], path, WHEELS_HEADER[c], line=line, low=-1.0, high=1.0)
-                        for c in (1, 2)] for line, cells in rows])
+    duties = [tuple(fields.number_text(cells[c], path, WHEELS_HEADER[c], line=line, low=-1.0, high=1.0)
+                    for c in (1, 2)) for line, cells in rows]
+    _, t, duties = _repeats_dropped(path, rows, t, duties)
+    duties = np.array(duties)
     return t, duties[:, 0], duties[:, 1]
 
 
@@ -218,8 +249,9 @@ def read_encoders(path, text: str | None = None):
     """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64)."""
     rows = _rows(path, ENCODERS_HEADER, text)
     t = _times(rows, path)
-    ticks = np.array([[_int_cell(cells[c], path, line, ENCODERS_HEADER[c]) for c in (1, 2)] for line, cells in rows],
-                     dtype=np.int64)
+    ticks = [tuple(_int_cell(cells[c], path, line, ENCODERS_HEADER[c]) for c in (1, 2)) for line, cells in rows]
+    _, t, ticks = _repeats_dropped(path, rows, t, ticks)
+    ticks = np.array(ticks, dtype=np.int64)
     return t, ticks[:, 0], ticks[:, 1]
 
 
@@ -257,7 +289,7 @@ def read_frames(path, log_dir: Path, width_px: int, height_px: int, *, check_ima
     """(t_s, files) of frames.csv. Each file must name a distinct PNG/JPEG inside LOG; with `check_images` each is
     decoded and must be width_px x height_px (a frame that is not an image is refused before any work)."""
     rows = _rows(path, FRAMES_HEADER, text)
-    t = _times(rows, path)
+    rows, t, _ = _repeats_dropped(path, rows, _times(rows, path), [os.path.normpath(cells[1]) for _, cells in rows])
     files, seen = [], {}
     for line, cells in rows:
         name = cells[1]
@@ -293,8 +325,13 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     encoders_path = directory / ENCODERS_FILE
     if os.path.lexists(encoders_path):
         if meta["wheels"].ticks_per_revolution is None:
-            fail(directory / META_FILE, f"{ENCODERS_FILE} is present but the wheels' ticks_per_revolution is not "
-                                         "given", "wheels.ticks_per_revolution")
+            # optional in the format: a DB21's encoders count 135 a revolution, whatever recorded the log
+            if meta["model"] not in ENCODER_MODELS:
+                fail(directory / META_FILE, f"{ENCODERS_FILE} is present but the wheels' ticks_per_revolution is not "
+                     f"given, nor known for the model {fields.shown(meta['model'])} (known for "
+                     f"{', '.join(ENCODER_MODELS)})", "wheels.ticks_per_revolution")
+            meta["wheels"] = dataclasses.replace(
+                meta["wheels"], ticks_per_revolution=duckiebot(meta["model"]).ticks_per_revolution)
         encoders = read_encoders(encoders_path)
     return DriveLog(path=directory, **meta, wheel_t_s=wheel_t, left_duty=left, right_duty=right, frame_t_s=frame_t,
                     frame_files=files, encoder_t_s=encoders[0], left_ticks=encoders[1], right_ticks=encoders[2])
