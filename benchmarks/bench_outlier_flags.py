@@ -7,8 +7,9 @@ as mis-detections, against which ones the simulation made wrong.
 - the NAO's realistic mock (`naocal simulate`'s path, seeded: backends/mock_faults.py's FaultyDetector moves 0.4 %
   of the corners, a square off or 3-20 px; the faults it drew are its truth, matched to the dataset's corners by
   image time stamp, leg and vertex), then identified as `naocal identify DATASET` does (solver.fit.identify_dataset).
-  A corner of an image set aside whole is counted as flagged. A "square" fault moved onto a neighbour's position
-  is a true outlier too.
+  A corner of an image set aside whole is counted as flagged; the captures taken while moving, which the fit sets
+  aside (no time_lag), are left out of both counts. A "square" fault moved onto a neighbour's position is a true
+  outlier too.
 
 Each row: observations flagged, true outliers, flagged and true (tp), precision tp / flagged, recall tp / true, and
 the largest final residual of a good observation flagged.
@@ -112,6 +113,9 @@ def nao(seeds, base: Path):
         true &= vertices
         fit = identify_dataset(dataset)
         aside = {s.image for s in fit.images_set_aside}
+        judged = set(fit.data.image_id.tolist()) | aside | {o.image for o in fit.outliers}  # not the moving ones
+        vertices = {(i, v) for i, v in vertices if i in judged}
+        true &= vertices
         flagged = {(o.image, o.vertex): o.size_px for o in fit.outliers}
         flagged.update({(i, v): float("nan") for i, v in vertices if i in aside})
         good = [s for k, s in flagged.items() if k not in true and np.isfinite(s)]
