@@ -664,9 +664,9 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     (the base model), and PWM_DRIVER: the duties through Duckietown's driver (as Drive.pwm_driver). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
     the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the corners no model explains
     (solver.identify.trimmed: OUTLIER_SCALES robust scales, the worst of a frame each round, those the final fit
-    explains taken back). Off by default: on rendered
-    logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-tailed, not
-    mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
+    explains taken back). Off by default: on rendered logs it set aside 11-18 % of the corners (before the
+    re-admission), all of small markers (their errors are heavy-tailed, not mis-detections), and the stds left were
+    optimistic (z up to 4 where all stay below 2.1 without).
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
