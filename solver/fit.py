@@ -25,7 +25,7 @@ import numpy as np
 from naocal.solver.adapter import model_data_from_dataset
 from naocal.solver.effects import EFFECTS
 from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, IdentificationResult, identify,
-                             worst_of_group_beyond)
+                             trimmed)
 from naocal.solver.image_check import (ImageCheck, SetAsideImage, check_images, describe_set_aside, lost_too_many,
                                  without_images)
 from naocal.solver.model import ModelData
@@ -243,10 +243,12 @@ def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homograp
     first_data = data
     result = refit(data, x0)
     outliers, scale, rounds = [], float("nan"), MAX_TRIM_ROUNDS
+    kept = np.ones(data.n_rows, dtype=bool)  # of `data`'s rows: the images still in, all their corners
     for image_round in range(MAX_IMAGE_ROUNDS + 1 if robust else 0):
-        result, new, round_scale, used = _trimmed(result, refit, rounds)
-        outliers, rounds = outliers + new, rounds - used
-        scale = scale if round_scale is None else round_scale
+        result, kept, scale, used = _trimmed(result, refit, data, kept, rounds)
+        rounds -= used
+        outliers = [Outlier(int(data.image_id[data.image_of_row[i]]), int(data.vertex[i]), 0.0)
+                    for i in np.flatnonzero(~kept)]
         if image_round == MAX_IMAGE_ROUNDS or not result.success:
             break
         gone = _images_to_set_aside(result, first_data, outliers, homography_rms)
@@ -255,7 +257,9 @@ def robust_fit(data: ModelData, refit, x0=None, *, robust: bool = True, homograp
         ids = {g.image for g in gone}
         dropped += gone
         outliers = [o for o in outliers if o.image not in ids]  # reported as their image
-        result = refit(without_images(result.model.data, ids), result.values)
+        in_images = ~np.isin(data.image_id[data.image_of_row], list(ids))
+        data, kept = without_images(data, ids), kept[in_images]  # subset keeps the rows' order
+        result = refit(data.without_rows(np.flatnonzero(~kept)), result.values)
     if outliers:  # their size at the final fit, predicted from the corners that were kept
         kept = without_images(first_data, {g.image for g in dropped})
         original = Model(kept, result.registry).residuals(result.values)
@@ -337,24 +341,27 @@ def _rms_of(result, data: ModelData, image_id) -> float:
     return float(np.sqrt(np.mean(r ** 2)))
 
 
-def _trimmed(result, refit, rounds: int):
-    """(result, outliers, robust scale or None, rounds used): from a fit, set aside the worst corner of each image
-    while it is beyond the robust scale (`rounds` rounds at most), refitting after each round; outliers' sizes 0."""
+def _trimmed(result, refit, data: ModelData, kept, rounds: int):
+    """(result, kept, robust scale, rounds used): solver.identify.trimmed on the corners of `data` (`result` the fit
+    of its rows `kept`): a corner is judged by its non-rigid residual (what no rigid motion of its board explains,
+    the motion fitted to the board's kept corners) against max(OUTLIER_SCALES robust scales, OUTLIER_MIN_PX); the
+    worst of each image per round; those the final fit explains taken back."""
+    from naocal.solver.model import Model
     from naocal.solver.noisefloor import RigidSplit
 
-    outliers, scale, used = [], None, 0
-    while used < rounds:
-        nonrigid = RigidSplit(result.model, result.values)(result.residuals_px)[1]
-        scale = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid)))
-        size = np.linalg.norm(nonrigid, axis=1)
-        d = result.model.data
-        bad = worst_of_group_beyond(size, d.image_of_row, max(OUTLIER_SCALES * scale, OUTLIER_MIN_PX))
-        if not len(bad):
-            break
-        outliers += [Outlier(int(d.image_id[d.image_of_row[i]]), int(d.vertex[i]), 0.0) for i in bad]
-        result = refit(d.without_rows(bad), result.values)
-        used += 1
-    return result, outliers, scale, used
+    scale = [float("nan")]
+
+    def judge(result, kept):
+        model = Model(data, result.registry)
+        nonrigid = RigidSplit(model, result.values, kept)(model.residuals(result.values))[1]
+        scale[0] = MAD_TO_SIGMA * float(np.median(np.abs(nonrigid[kept])))
+        return np.linalg.norm(nonrigid, axis=1), max(OUTLIER_SCALES * scale[0], OUTLIER_MIN_PX)
+
+    def refit_kept(kept, result):
+        return refit(data.without_rows(np.flatnonzero(~kept)), result.values)
+
+    result, kept, used = trimmed(result, refit_kept, judge, data.image_of_row, kept, rounds=rounds)
+    return result, kept, scale[0], used
 
 
 def _flagged(fits) -> tuple[set, set]:

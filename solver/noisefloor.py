@@ -25,14 +25,18 @@ class RigidSplit:
     board-twist Jacobian (Model.board_twist_jacobian) at the fitted values; the rest is non-rigid.
     """
 
-    def __init__(self, model: Model, values):
+    def __init__(self, model: Model, values, fitted=None):
+        """fitted : (N,) bool, the rows each image's motion is fitted to (default all); the others are split by
+        that motion (a corner set aside, judged by the board motion its kept neighbours show)."""
         data = model.data
         L = model.board_twist_jacobian(values)
         starts = np.searchsorted(data.image_of_row, np.arange(data.n_images + 1))
         self.slices = [slice(a, b) for a, b in zip(starts[:-1], starts[1:])]
+        self.fitted = [np.arange(s.start, s.stop) if fitted is None else np.flatnonzero(fitted[s]) + s.start
+                       for s in self.slices]
         self.twist_columns = L  # (N, 2, 6)
         self._pinv = []
-        for rows in self.slices:
+        for rows in self.fitted:
             A = L[rows].reshape(-1, 6)
             scale = np.linalg.norm(A, axis=0)
             scale[scale == 0] = 1.0  # translations (m) and rotations (rad) differ by orders of magnitude
@@ -40,13 +44,13 @@ class RigidSplit:
 
     def twists(self, residuals) -> np.ndarray:
         """(M, 6) best rigid board twist (v in m, w in rad, camera frame) explaining each image's residual."""
-        return np.stack([P @ residuals[rows].reshape(-1) for P, rows in zip(self._pinv, self.slices)])
+        return np.stack([P @ residuals[rows].reshape(-1) for P, rows in zip(self._pinv, self.fitted)])
 
     def __call__(self, residuals) -> tuple[np.ndarray, np.ndarray]:
         """(rigid, nonrigid), both (N, 2) px, from residuals (N, 2)."""
         rigid = np.empty_like(residuals)
-        for P, rows in zip(self._pinv, self.slices):
-            rigid[rows] = (self.twist_columns[rows].reshape(-1, 6) @ (P @ residuals[rows].reshape(-1))).reshape(-1, 2)
+        for P, rows, fitted in zip(self._pinv, self.slices, self.fitted):
+            rigid[rows] = (self.twist_columns[rows].reshape(-1, 6) @ (P @ residuals[fitted].reshape(-1))).reshape(-1, 2)
         return rigid, residuals - rigid
 
 

@@ -12,7 +12,8 @@
    offset redundant, and a link along that axis): those are fixed at their start value and said so; whatever else is
    undetermined stops the fit. A sensor frame is never a gauge.
 3. Detections no model explains (a marker mistaken for another, a reflection) are set aside as the NAO's corners
-   are (solver.identify.OUTLIER_SCALES robust scales, the worst of a pose each round) and listed.
+   are (solver.identify.trimmed: OUTLIER_SCALES robust scales, the worst of a pose each round; those the final fit
+   explains taken back) and listed.
 4. Standard deviations are the NAO's cluster-robust ones, the cluster being the pose: a real arm's errors are
    correlated within a pose (its repeatability, what no model holds), never below the classic estimate.
 5. Priors (soft bounds, on by default): every physical parameter has a Gaussian prior about the URDF's value with
@@ -34,9 +35,9 @@ import numpy as np
 from naocal.kinds.arm.model import ArmModel, Observations
 from naocal.solver.effects import EFFECTS
 from naocal.solver.errors import DataError, SolveError
-from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, Prior,
+from naocal.solver.identify import (CHUNK_ROWS, LOSSES, MAD_TO_SIGMA, OUTLIER_SCALES, Normal, Prior,
                              WEAK_RATIO, check_identifiable, gauges, identifiability, last_pass_cached, solve,
-                             weak_direction, worst_of_group_beyond)
+                             trimmed, weak_direction)
 
 DEFAULT_NOISE = {"points": 1e-3, "camera": 1.0}  # m, px: the first fit's weights when the dataset states none
 CV_TO_NAO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV camera -> NAO camera axes
@@ -412,19 +413,20 @@ def _estimated_sigma(model, obs, residual, sigma, known, n_free):
     return sigma
 
 
-def _outlier_rows(model, obs, residual, sigma) -> np.ndarray:
-    """The trimming's round (solver.identify.worst_of_group_beyond): the worst detection of each pose beyond
-    OUTLIER_SCALES robust (MAD) scales of its sensor's residuals."""
+def _outlier_sizes(model, obs, residual, kept, sigma) -> tuple[np.ndarray, float]:
+    """(each detection's residual in robust (MAD) scales of its sensor's kept residuals, OUTLIER_SCALES): what
+    solver.identify.trimmed judges (the worst detection of each pose beyond it is set aside each round)."""
     mask = model.component_mask(obs)
     size = np.zeros(len(obs))
     for s in range(len(model.sensors)):
         rows = obs.sensor == s
         if not rows.any():
             continue
-        scale = MAD_TO_SIGMA * float(np.median(np.abs(residual[rows][mask[rows]])))
+        fitted = rows & kept
+        scale = MAD_TO_SIGMA * float(np.median(np.abs(residual[fitted][mask[fitted]]))) if fitted.any() else 0.0
         scale = scale if scale > 0 else sigma[s]
         size[rows] = np.linalg.norm(residual[rows] * mask[rows], axis=1) / scale
-    return worst_of_group_beyond(size, obs.pose, OUTLIER_SCALES)
+    return size, OUTLIER_SCALES
 
 
 def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path="dataset", loss: str = "linear",
@@ -433,7 +435,8 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
 
     fixed : names or effects held at their value in x0.
     loss : 'linear' or a robust loss (solver.identify.ROBUST_WEIGHT), bending at LOSS_SCALE_SIGMA noise stds.
-    robust : set aside the detections no model explains (`_outlier_rows`), refitting after each round.
+    robust : set aside the detections no model explains (`_outlier_sizes`, solver.identify.trimmed), refitting after
+        each round, and take back those the final fit explains.
     priors : each physical parameter's Gaussian prior (`arm_prior`); off, the data alone.
     """
     if loss not in LOSSES:
@@ -454,13 +457,17 @@ def fit(model: ArmModel, obs: Observations, x0, *, fixed=(), auto_fix=True, path
     if not known.all():  # weights from what the first fit left, then fit again
         sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
         x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)
-    for _ in range(MAX_TRIM_ROUNDS if robust else 0):
-        bad = _outlier_rows(model, obs, solution.final.residuals * sigma[obs.sensor][:, None], sigma)
-        if not len(bad):
-            break
-        kept = np.delete(kept, bad)
+    if robust:
+        def refit(keep, fitted):
+            x, _ = fitted
+            return _solve(model, all_obs.subset(np.flatnonzero(keep)), x, free, sigma, loss, priors)[:2]
+
+        def judge(fitted, keep):
+            return _outlier_sizes(model, all_obs, model.predict(fitted[0], all_obs) - all_obs.measured, keep, sigma)
+
+        (x, solution), keep, _ = trimmed((x, solution), refit, judge, all_obs.pose, np.ones(len(all_obs), bool))
+        kept = np.flatnonzero(keep)
         obs = all_obs.subset(kept)
-        x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)
     if len(kept) < len(all_obs) and not known.all():  # the noise from the detections kept
         sigma = _estimated_sigma(model, obs, model.predict(x, obs) - obs.measured, sigma, known, free.sum())
         x, solution, _ = _solve(model, obs, x, free, sigma, loss, priors)

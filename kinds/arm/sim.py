@@ -547,7 +547,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                      camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True, hidden=DUAL_HIDDEN):
     """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
     on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
-    "truth", "sensors", "points", "n_poses"}.
+    "mistaken" (a bool per observation: the outliers drawn; truth.json's "mistaken_detections"), "truth", "sensors",
+    "points", "n_poses"}.
 
     Readings are drawn uniformly inside the joint limits less a margin (the torso within +-0.6 rad) and kept when
     both tools are in front of the torso (torso frame x > 0.3 m, 0.25 m apart, neither below the torso's floor
@@ -681,7 +682,7 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                 p_base = np.array([R_tool @ on_tool[name] + t_tool for name in corners])
                 if normal is None:  # the reflector: the tracker, in the base frame
                     R, t = frames["tracker"]
-                    seen.append((pose, c, 2, marker, theta, R @ p_base[0] + t + rng.normal(0.0, noise_m, 3)))
+                    seen.append((pose, c, 2, marker, theta, R @ p_base[0] + t + rng.normal(0.0, noise_m, 3), False))
                     continue
                 p_torso = (p_base - t_torso) @ R_torso
                 n_torso = R_torso.T @ (R_tool @ normal)
@@ -698,9 +699,10 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                         continue  # a marker is detected with all its corners in the image
                     for name, corner in zip(corners, uv):
                         corner = corner + rng.normal(0.0, noise_px, 2)
-                        if rng.random() < outlier_fraction:
+                        mistaken = rng.random() < outlier_fraction
+                        if mistaken:
                             corner = corner + _random_vector(rng, 8.0, 40.0)[:2]
-                        seen.append((pose, c, s, name, theta, np.array([corner[0], corner[1], 0.0])))
+                        seen.append((pose, c, s, name, theta, np.array([corner[0], corner[1], 0.0]), mistaken))
             if len({(r[1], r[2]) for r in seen if r[2] < 2}) < 3:  # each stance was chosen for the cameras to see
                 continue  # markers of both tools: at least three (tool, camera) pairs
             rows += seen
@@ -715,7 +717,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                        tuple(pose_labels), np.array([r[1] for r in rows]), pose * sessions // n_poses,
                        tuple(f"s{k + 1}" for k in range(sessions)))
     sensors = dualarm_sensors(noise_m, noise_px)
-    result = {"observations": obs, "truth": truth, "sensors": sensors,
+    mistaken = np.array([r[6] for r in rows], dtype=bool)  # the truth of the outliers: which detections were made wrong
+    result = {"observations": obs, "truth": truth, "sensors": sensors, "mistaken": mistaken,
               "points": {n: xyz for n, (xyz, _, _) in points.items()}, "markers": dualarm_markers(),
               "n_poses": n_poses, "x_true": x_true, "intrinsics": intrinsics,
               "refused_colliding": colliding, "print_scale": print_scale, "sheets": dualarm_sheets()}
@@ -745,6 +748,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                      "noise": {"tracker_m": noise_m, "camera_px": noise_px, "outlier_fraction": outlier_fraction},
                      "hidden": list(hidden) + (["marker_scale"] if print_scale_error else []), "intrinsics": intrinsics,
                      "camera_error": camera_error, "print_scale_error": print_scale_error,
-                     "print_scale": print_scale}
+                     "print_scale": print_scale,
+                     "mistaken_detections": [{"pose": obs.pose_name(obs.pose[k]), "sensor": sensors[obs.sensor[k]].name,
+                                              "point": names[obs.point[k]]} for k in np.flatnonzero(mistaken)]}
         atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=1) + "\n")
     return result

@@ -47,8 +47,8 @@ from naocal.solver.camera import project
 from naocal.solver.effects import DRIVE_EFFECTS
 from naocal.solver.effects import EFFECTS as REGISTRY
 from naocal.solver.errors import SolveError
-from naocal.solver.identify import (MAD_TO_SIGMA, MAX_TRIM_ROUNDS, OUTLIER_SCALES, Normal, check_identifiable,
-                                    last_pass_cached, solve, worst_of_group_beyond)
+from naocal.solver.identify import (MAD_TO_SIGMA, OUTLIER_SCALES, Normal, check_identifiable, last_pass_cached,
+                                    solve, trimmed)
 from naocal.solver.transforms import d_rot_x, d_rot_y, d_rot_z, make_transform, rot_rpy, rot_x, rot_y, rot_z, rpy_from_rot
 
 KINEMATIC = ("gain", "trim", "baseline_m")
@@ -663,9 +663,10 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     nominal camera pose `T_base_camera_start`. `effects`: wheel effects added to the model (EFFECTS), each from 0
     (the base model), and PWM_DRIVER: the duties through Duckietown's driver (as Drive.pwm_driver). `fixed`: names kept at their start values. `start`: {name: value} start values instead of
     the detections' (e.g. a known calibration's gain and trim). `robust`: set aside the corners no model explains
-    (solver.identify.OUTLIER_SCALES robust scales, the worst of a frame each round). Off by default: on rendered
-    logs it set aside 11-18 % of the corners, all of small markers (their errors are heavy-tailed, not
-    mis-detections), and the stds left were optimistic (z up to 4 where all stay below 2.1 without).
+    (solver.identify.trimmed: OUTLIER_SCALES robust scales, the worst of a frame each round, those the final fit
+    explains taken back). Off by default: on rendered logs it set aside 11-18 % of the corners (before the
+    re-admission), all of small markers (their errors are heavy-tailed, not mis-detections), and the stds left were
+    optimistic (z up to 4 where all stay below 2.1 without).
     SolveError when the data cannot determine something (the core's one policy, 1e-6)."""
     if len(sightings.frame) == 0:
         raise SolveError("no marker was seen in any frame: the drive cannot be fitted")
@@ -703,26 +704,35 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
             raise ValueError(f"unknown parameter {name!r} to start from")
         x0[names.index(name)] = value
     free = np.array([n not in fixed for n in names])
-    all_obs, kept = sightings, np.flatnonzero(connected)
-    x = x0
-    for _ in range(1 + (MAX_TRIM_ROUNDS if robust else 0)):
-        obs = all_obs.subset(kept)
+    all_obs, connected_rows = sightings, np.flatnonzero(connected)
+
+    def fit_rows(keep, x):
+        """(x, solution, equations, sightings) of the connected rows `keep`, from x."""
+        obs = all_obs.subset(connected_rows[keep])
         equations = DriveEquations(drive, obs, K, marker_size_m, reference, names, x, free)
-        if 2 * len(kept) <= len(equations.index):
-            raise SolveError(f"{len(equations.index)} parameters but only {2 * len(kept)} corner coordinates")
+        if 2 * len(obs.frame) <= len(equations.index):
+            raise SolveError(f"{len(equations.index)} parameters but only {2 * len(obs.frame)} corner coordinates")
         check_identifiable(equations(x[equations.index]).A, [names[i] for i in equations.index])
-        solution = solve(equations, last_pass_cached(equations), x[equations.index], loss=loss, loss_scale=loss_scale_px,
-                         max_iterations=MAX_ITERATIONS)
-        x = equations.values(solution.free)
-        if not robust:
-            break
-        r = solution.final.residuals
-        size = np.linalg.norm(r, axis=1)
-        scale = MAD_TO_SIGMA * float(np.median(np.abs(r)))
-        bad = worst_of_group_beyond(size / max(scale, 1e-12), obs.frame, OUTLIER_SCALES)
-        if not len(bad):
-            break
-        kept = np.delete(kept, bad)
+        solution = solve(equations, last_pass_cached(equations), x[equations.index], loss=loss,
+                         loss_scale=loss_scale_px, max_iterations=MAX_ITERATIONS)
+        return equations.values(solution.free), solution, equations, obs
+
+    keep = np.ones(len(connected_rows), dtype=bool)
+    fitted = fit_rows(keep, x0)
+    if robust:
+        every = all_obs.subset(connected_rows)
+
+        def judge(fitted, keep):
+            x, _, equations, _ = fitted
+            judged = DriveEquations(drive, every, K, marker_size_m, reference, names, x, free)
+            judged.anchor_t_s = equations.anchor_t_s  # the fit's anchor frame, should it have lost its corners
+            r = judged(x[judged.index], jacobian=False).residuals
+            scale = MAD_TO_SIGMA * float(np.median(np.abs(r[keep])))
+            return np.linalg.norm(r, axis=1) / max(scale, 1e-12), OUTLIER_SCALES
+
+        fitted, keep, _ = trimmed(fitted, lambda keep, fitted: fit_rows(keep, fitted[0]), judge, every.frame, keep)
+    x, solution, equations, obs = fitted
+    kept = connected_rows[keep]
     spread = solution.spread(sighting_runs(obs.frame, obs.marker), [names[i] for i in equations.index])
     std, std_iid = np.zeros(len(x)), np.zeros(len(x))
     covariance = np.zeros((len(x), len(x)))
