@@ -42,7 +42,7 @@ def sessions(tmp_path_factory):
     return cal, cameras_only(tmp / "next", tmp / "next_cams")
 
 
-def test_another_session_shares_the_robot_and_none_of_the_stances(sessions, tmp_path):
+def test_another_session_shares_the_robot_and_none_of_the_stances():
     from naocal.kinds.arm.sim import simulate_dualarm
 
     first = simulate_dualarm(None, seed=3, n_poses=3, write=False, outlier_fraction=0.0)
@@ -81,3 +81,20 @@ def test_a_moved_joint_or_knocked_tool_is_still_drifted(sessions, tmp_path, name
     verdict = json.loads(run.stdout)
     assert verdict["ratio"] > 1.5 and len(verdict["outliers"]) < 0.05 * sum(
         s["n"] for s in verdict["per_sensor"].values()) * 4  # the drift was not set aside as mis-detections
+
+
+@pytest.mark.parametrize("argv, problem", [(("--robot", "franka_panda", "--stance-seed", "1"), "--stance-seed: only "
+                                            "with --robot dualarm"),
+                                           (("--robot", "dualarm", "--stance-seed", "-1"), "--stance-seed: a seed")])
+def test_simulate_stance_seed_bad_options_are_one_line_exit_2(tmp_path, argv, problem):
+    run = naocal("simulate", *argv, "--out", tmp_path / "x")
+    assert run.returncode == 2 and problem in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert not (tmp_path / "x" / "dataset.json").exists()
+
+
+def test_simulate_writes_another_session_of_the_dual_arm(tmp_path):
+    run = naocal("simulate", "--robot", "dualarm", "--seed", "3", "--stance-seed", "2", "--poses", "10", "--out",
+                 tmp_path / "next")
+    assert run.returncode == 0, run.stderr
+    meta = json.loads((tmp_path / "next" / "dataset.json").read_text())
+    assert "--stance-seed 2" in meta["source"] and meta["robot"]["id"] == "simulated-dualarm-3"
