@@ -3,7 +3,7 @@
 What identify sets aside (kinds.arm.identify.fit's robust trimming: detections no model explains, a corner
 mistaken) is set aside first, by identify's own rule, decided against a refit of every calibrated parameter so
 that a drift, which the refit follows, is never set aside; as the NAO's verify (solver/verify.py). Left in, 2 % of
-corners wrong by 8-40 px make an unchanged arm's camera RMS 6-10 times the calibration's (its RMS is over the
+corners wrong by 8-40 px made an unchanged dual arm's camera RMS 3-10 times the calibration's (its RMS is over the
 detections identify kept). The verdict and statistics are on the detections kept; those set aside are listed.
 
 The arm's parameters are the calibration's and are not refitted. The sensors' frames are found from the new data
