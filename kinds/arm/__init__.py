@@ -57,6 +57,10 @@ NAMES    the candidate effects (score test, clustered by pose), best first; PHYS
             parser.add_argument("--print-scale-error", type=float, default=None, metavar="REL",
                                 help="dual arm: the spread of each marker sheet's print scale (default 0.003: an "
                                      "office printer's; 0: printed exactly; docs/ARM.md)")
+            parser.add_argument("--stance-seed", type=int, default=None, metavar="K",
+                                help="dual arm: another session of the seed's robot (its errors, sensors and print "
+                                     "the seed's; stances, noise and outliers drawn for K): new data for "
+                                     "`naocal verify` (docs/ARM.md)")
             parser.add_argument("--hidden", default="joint_offsets,link_lengths",
                                 help="arm: the hidden errors (default joint_offsets,link_lengths)")
 

@@ -544,7 +544,8 @@ DUAL_HIDDEN = ("joint_offsets", "link_lengths", "tool", "points")  # the dual ar
 
 
 def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, noise_px=0.3, outlier_fraction=0.02,
-                     camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True, hidden=DUAL_HIDDEN):
+                     camera_error=None, print_scale_error=PRINT_SCALE_ERROR, write=True, hidden=DUAL_HIDDEN,
+                     stance_seed=None):
     """The dual-arm robot measured: a naocal.arm_dataset/1 directory `out` with chains (left, right), the cameras
     on the torso, the tracker, and out/truth.json (write=False: nothing written). Returns {"observations",
     "mistaken" (a bool per observation: the outliers drawn; truth.json's "mistaken_detections"), "truth", "sensors",
@@ -571,7 +572,11 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
 
     `hidden` (default DUAL_HIDDEN: all of them): the effects whose errors the robot has; the others' are drawn
     as ever (the rest of the draws stay the seed's) and then made exact (0): what a fit lacking an effect leaves
-    in its residual is measured by switching that effect off here (benchmarks/bench_dual_arm_residual.py)."""
+    in its residual is measured by switching that effect off here (benchmarks/bench_dual_arm_residual.py).
+
+    `stance_seed` (None: the seed's own stream): another session of the same robot. The robot (its hidden errors,
+    sensors' frames, print, cameras) stays the seed's; the stances, noise and outliers are drawn from their own
+    stream for this stance seed, so the session shares no reading with the seed's own (`naocal verify` on it)."""
     import json
 
     from naocal.body.pybullet_quiet import c_output_silenced, pybullet
@@ -651,6 +656,8 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
                                           physicsClientId=client)
             return np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3), np.array(state[4])
 
+        if stance_seed is not None:  # the robot above is the seed's; what is measured of it, this session's
+            rng = np.random.default_rng([seed, 24, 3, stance_seed])
         rows, pose_labels = [], []
         tries = colliding = 0
         while len(pose_labels) < n_poses:
@@ -739,7 +746,9 @@ def simulate_dualarm(out, *, seed=0, n_poses=600, sessions=3, noise_m=5e-5, nois
             "sensors": {"cam_left": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "cam_right": dict({"kind": "camera", "noise_px": noise_px, "link": "torso"}, **DUAL_CAMERA),
                         "tracker": {"kind": "points", "noise_m": noise_m}},
-            "source": f"naocal simulate --robot dualarm --seed {seed} (PyBullet; {n_poses} stances in {sessions} "
+            "source": f"naocal simulate --robot dualarm --seed {seed}"
+                      + (f" --stance-seed {stance_seed}" if stance_seed is not None else "")
+                      + f" (PyBullet; {n_poses} stances in {sessions} "
                       "sessions)",
         }
         write_arm_dataset(out, meta, model.joint_names, obs, sensors, result["points"],

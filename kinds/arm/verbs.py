@@ -386,9 +386,10 @@ def run_simulate(args) -> int:
         raise NaocalError(f"{out}: already exists and is not a directory (nothing was changed)")
     if args.robot == DUALARM:
         return run_simulate_dualarm(args, out)
-    if args.camera_error or args.print_scale_error is not None:
-        raise NaocalError(f"{'--camera-error' if args.camera_error else '--print-scale-error'}: only with --robot "
-                          "dualarm")
+    dual_only = [o for o, given in (("--camera-error", args.camera_error), ("--print-scale-error",
+                 args.print_scale_error is not None), ("--stance-seed", args.stance_seed is not None)) if given]
+    if dual_only:
+        raise NaocalError(f"{dual_only[0]}: only with --robot dualarm")
     if args.robot is None:
         raise NaocalError("--robot kuka_iiwa|franka_panda|URDF is needed with --chain")
     urdf, base, tip = resolve_robot(args.robot, args.chain)
@@ -425,20 +426,23 @@ def run_simulate_dualarm(args, out) -> int:
     if args.hidden != "joint_offsets,link_lengths":
         raise NaocalError("--hidden: the dual-arm robot hides joint offsets, link lengths, tool mounts and marker "
                           "positions (not chosen)")
+    if args.stance_seed is not None and args.stance_seed < 0:
+        raise NaocalError(f"--stance-seed: a seed, 0 or more, got {args.stance_seed}")
     print_scale_error = PRINT_SCALE_ERROR if args.print_scale_error is None else args.print_scale_error
     if not 0.0 <= print_scale_error <= MAX_PRINT_SCALE_ERROR:  # NaN refused too
         raise NaocalError(f"--print-scale-error: a relative spread in [0, {MAX_PRINT_SCALE_ERROR:g}], got "
                           f"{args.print_scale_error}")
     command = shlex.join(["naocal", "simulate", "--robot", DUALARM, "--out", str(out), "--seed", str(args.seed),
                           "--poses", str(args.poses)] + (["--camera-error"] if args.camera_error else [])
-                         + ["--print-scale-error", f"{print_scale_error:g}"])
+                         + ["--print-scale-error", f"{print_scale_error:g}"]
+                         + (["--stance-seed", str(args.stance_seed)] if args.stance_seed is not None else []))
     with RunLock(out, command):
         if entries(out):
             raise NaocalError(f"{out}: already exists and is not an empty directory (nothing was changed)")
         info = simulate_dualarm(out, seed=args.seed, n_poses=args.poses, noise_m=args.noise_m,
                                 noise_px=args.noise_px,
                                 camera_error=dict(CAMERA_FILING_ERROR) if args.camera_error else None,
-                                print_scale_error=print_scale_error)
+                                print_scale_error=print_scale_error, stance_seed=args.stance_seed)
     print(f"naocal simulate: wrote {out}: {len(info['observations'])} observations in {info['n_poses']} poses of "
           f"the dual-arm robot (chains left, right; cameras cam_left, cam_right on its torso; tracker); "
           f"{info['refused_colliding']} drawn stances refused as colliding (arms, tools, torso); hidden truth in "

@@ -1,0 +1,100 @@
+"""verify of a camera calibration on a new camera session of the same simulated dual arm (issue 24): an unchanged
+robot is "still good" at 30 poses although 2 % of the new session's corners are mis-detected (identify set its own
+aside; verify used to keep them: ratio 3-10, "drifted"), and a joint moved by 0.1 deg or a tool knocked by 1 mm is
+"drifted" (what verify sets aside is decided against a refit, which follows a drift)."""
+
+import json
+import math
+import shutil
+
+import pytest
+
+from tests.cli_runner import naocal
+
+EFFECTS = "joint_offsets,link_lengths,tool,points,marker_scale"  # docs/ARM.md's dual-arm walk-through
+
+
+def cameras_only(source, out):
+    """A copy of the simulated dataset `source` without the tracker's rows (docs/ARM.md, "Fit from the cameras")."""
+    out.mkdir()
+    for name in ("dataset.json", "robot.urdf"):
+        shutil.copy(source / name, out / name)
+    lines = (source / "observations.csv").read_text().splitlines()
+    sensor = lines[0].split(",").index("sensor")
+    kept = [lines[0]] + [line for line in lines[1:] if line.split(",")[sensor] != "tracker"]
+    (out / "observations.csv").write_text("\n".join(kept) + "\n")
+    return out
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """(the calibration from the cameras of 120 stances, the new session's camera data: 30 other stances of the
+    same robot, its own noise and mis-detected corners)."""
+    from naocal.kinds.arm.sim import simulate_dualarm
+
+    tmp = tmp_path_factory.mktemp("session")
+    simulate_dualarm(tmp / "first", seed=3, n_poses=120)
+    simulate_dualarm(tmp / "next", seed=3, n_poses=30, stance_seed=1)
+    cal = tmp / "cal.json"
+    run = naocal("identify", cameras_only(tmp / "first", tmp / "first_cams"), "--effects", EFFECTS, "--cv-folds",
+                 "0", "--out", cal)
+    assert run.returncode == 0, run.stdout + run.stderr
+    return cal, cameras_only(tmp / "next", tmp / "next_cams")
+
+
+def test_another_session_shares_the_robot_and_none_of_the_stances():
+    from naocal.kinds.arm.sim import simulate_dualarm
+
+    first = simulate_dualarm(None, seed=3, n_poses=3, write=False, outlier_fraction=0.0)
+    other = simulate_dualarm(None, seed=3, n_poses=3, write=False, outlier_fraction=0.0, stance_seed=1)
+    assert first["truth"] == other["truth"] and first["print_scale"] == other["print_scale"]
+    assert not (first["observations"].theta[0] == other["observations"].theta[0]).any()
+
+
+def test_an_unchanged_arm_is_still_good_on_a_new_session_with_mis_detected_corners(sessions):
+    cal, next_session = sessions
+    run = naocal("verify", next_session, "--offsets", cal, "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert all(0.8 < s["ratio"] < 1.25 for s in verdict["per_sensor"].values()), verdict["per_sensor"]
+    assert max(o["size"] for o in verdict["outliers"]) > 8.0  # the mis-detections (8-40 px), listed
+    assert "outliers:" in naocal("verify", next_session, "--offsets", cal).stdout
+
+
+def _moved(cal, out, name, delta):
+    """A copy of the calibration `cal` with parameter `name` moved by `delta` (SI; both of the file's copies)."""
+    doc = json.loads(cal.read_text())
+    entry = doc["model"]["parameters"][name]
+    entry["value"] += delta
+    kind, _, key = name.partition(".")
+    if kind == "joint_offset":
+        doc["joint_offsets_rad"][key] = entry["value"]
+    out.write_text(json.dumps(doc))
+    return out
+
+
+@pytest.mark.parametrize("name, delta", [("joint_offset.right_j2", math.radians(0.1)), ("tool.left.x", 1e-3)])
+def test_a_moved_joint_or_knocked_tool_is_still_drifted(sessions, tmp_path, name, delta):
+    cal, next_session = sessions
+    run = naocal("verify", next_session, "--offsets", _moved(cal, tmp_path / "moved.json", name, delta), "--json")
+    assert run.returncode == 1, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["ratio"] > 1.5 and len(verdict["outliers"]) < 0.05 * sum(
+        s["n"] for s in verdict["per_sensor"].values()) * 4  # the drift was not set aside as mis-detections
+
+
+@pytest.mark.parametrize("argv, problem", [(("--robot", "franka_panda", "--stance-seed", "1"), "--stance-seed: only "
+                                            "with --robot dualarm"),
+                                           (("--robot", "dualarm", "--stance-seed", "-1"), "--stance-seed: a seed")])
+def test_simulate_stance_seed_bad_options_are_one_line_exit_2(tmp_path, argv, problem):
+    run = naocal("simulate", *argv, "--out", tmp_path / "x")
+    assert run.returncode == 2 and problem in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert not (tmp_path / "x" / "dataset.json").exists()
+
+
+def test_simulate_writes_another_session_of_the_dual_arm(tmp_path):
+    run = naocal("simulate", "--robot", "dualarm", "--seed", "3", "--stance-seed", "2", "--poses", "10", "--out",
+                 tmp_path / "next")
+    assert run.returncode == 0, run.stderr
+    meta = json.loads((tmp_path / "next" / "dataset.json").read_text())
+    assert "--stance-seed 2" in meta["source"] and meta["robot"]["id"] == "simulated-dualarm-3"
