@@ -241,3 +241,30 @@ def test_the_writer_checks_everything_before_writing(tmp_path):
     with pytest.raises(DataError, match="encoders.csv, line 3"):
         write_drive_log(directory, meta(), *good, ([0.0, 0.0], [0, 1], [0, 1]))
     assert write_drive_log(directory, meta(), *good).frame_files == ("f.png",)
+
+
+def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """`jpeg` with an APP1 Exif segment whose one tag is the orientation (6: shown turned 90 deg clockwise), as
+    phones and some exporters write it."""
+    import struct
+
+    tiff = b"II*\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHIHH", 0x0112, 3, 1, orientation, 0) + b"\0" * 4
+    app1 = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+
+
+def test_a_jpeg_frame_is_read_as_the_sensor_gave_it_whatever_its_exif_orientation(log):
+    # OpenCV turns a JPEG by its EXIF orientation unless told not to: a 64 x 48 frame read as 48 x 64 (refused, or a
+    # turned camera); the size check, which decodes it unchanged, passed it
+    pixels = np.zeros((H, W), np.uint8)
+    pixels[:8, :16] = 255
+    ok, jpeg = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 100])
+    (log / "frames" / "0002.jpg").write_bytes(with_exif_orientation(jpeg.tobytes(), 6))
+    drive = read_drive_log(log)
+    grey = drive.load_frame(2, cv2.IMREAD_GRAYSCALE)
+    assert grey.shape == (H, W) and grey[:8, :16].mean() > 200 and grey[8:, 16:].mean() < 50
+    assert drive.load_frame(2).shape == (H, W, 3)
+    from naocal.kinds.duckiebot.robot import decoded_frame
+
+    image, why = decoded_frame((log / "frames" / "0002.jpg").read_bytes(), W, H)
+    assert why is None and image.shape == (H, W)

@@ -272,13 +272,19 @@ def frame_file_problem(name: str, log_dir: Path) -> str | None:
     return None
 
 
+def raw_pixels(flags: int) -> int:
+    """`flags` for cv2.imdecode that keep the pixels as the sensor gave them: OpenCV turns a JPEG by its EXIF
+    orientation tag unless told not to (IMREAD_UNCHANGED never turns it), and a turned frame is another camera."""
+    return flags if flags < 0 else flags | cv2.IMREAD_IGNORE_ORIENTATION
+
+
 def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     """The PNG or JPEG image in `data` (read from `path`), or DataError naming the file."""
     suffix = Path(path).suffix.lower()
     signature = IMAGE_SIGNATURES.get(suffix)
     if signature is None or not data.startswith(signature):
         fail(path, f"not a {'PNG' if suffix == '.png' else 'JPEG'} image (its first bytes do not say so)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), raw_pixels(flags))
     if image is None or image.size == 0:
         fail(path, "not a readable image (the decoder refused it: damaged or truncated)")
     return image

@@ -159,9 +159,11 @@ def decoded_frame(data, width_px: int = IMAGE_WIDTH_PX, height_px: int = IMAGE_H
     not `width_px` x `height_px`."""
     import cv2  # here: the description itself needs no OpenCV
 
+    from naocal.kinds.duckiebot.drive_log import raw_pixels
+
     if not isinstance(data, (bytes, bytearray)) or not data:
         return None, f"no image bytes (got {type(data).__name__} of {len(data) if hasattr(data, '__len__') else '?'})"
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), raw_pixels(cv2.IMREAD_GRAYSCALE))
     if image is None or image.size == 0:
         return None, f"does not decode as an image ({len(data)} bytes)"
     if image.shape != (height_px, width_px):
