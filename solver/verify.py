@@ -185,7 +185,7 @@ def apparent_changes(model: Model, registry: Registry, values: np.ndarray, step_
         reading's error, which moves whole boards as a changed offset would; weighted as if independent (W = I)
         those shared errors pass for a change (realistic mock seed 1, the run's own data under its own offsets:
         LHipRoll +0.06 deg at 5.0 standard deviations; with W nothing above 0.5)."""
-    from naocal.solver.identify import NormalEquations, identifiability, parameter_covariance
+    from naocal.solver.identify import NormalEquations
     from naocal.solver.scoretest import stance_cluster_of_image
 
     if step_rad is not None and np.any(np.asarray(step_rad) > 0):
@@ -195,17 +195,28 @@ def apparent_changes(model: Model, registry: Registry, values: np.ndarray, step_
         equations = normal_at.equations
     else:
         normal_at = equations = NormalEquations(model.data, registry, values)
-    scales = equations.scales
-    free = registry.pack(values)
+    return forward_changes(normal_at, equations.scales, registry.pack(values), 2 * model.data.n_rows,
+                           stance_cluster_of_image(equations.model.data))
+
+
+def forward_changes(normal_at, scales, free, n: int, cluster, refitted=()) -> list:
+    """apparent_changes' forward selection, of any model's normal equations (the NAO's, the arm's
+    kinds.arm.identify.ArmEquations): [(free index, change, std, z)], the most telling first.
+
+    normal_at(free) : solver.identify.Normal at a free vector (scaled variables); scales : the free parameters';
+    n : the residual components; cluster : each score row's cluster (stance, pose); refitted : free indices refitted
+    with every candidate and never named (the arm's sensors' frames and nuisances, found from the new data)."""
+    from naocal.solver.identify import identifiability, parameter_covariance
+
     normal = normal_at(free)
     A, g, chi2 = normal.A, normal.g, 2.0 * normal.cost  # scaled units
     eigenvalues, vectors = np.linalg.eigh(A)
     usable = eigenvalues > 1e-12 * max(eigenvalues.max(initial=0.0), 1e-300)
     blind = np.abs(vectors[:, ~usable]).max(axis=1, initial=0.0) > 0.05  # in an unidentifiable direction
-    n, cluster = 2 * model.data.n_rows, stance_cluster_of_image(equations.model.data)  # (images as scored)
-    chosen, found = [], []
+    refitted = list(refitted)
+    chosen, found = list(refitted), []
     while len(chosen) < len(g):
-        C_inverse = np.linalg.inv(A[np.ix_(chosen, chosen)]) if chosen else np.zeros((0, 0))
+        C_inverse = np.linalg.pinv(A[np.ix_(chosen, chosen)]) if chosen else np.zeros((0, 0))
         left = max(chi2 - float(g[chosen] @ C_inverse @ g[chosen]), 0.0)
         rest_g = g - A[:, chosen] @ (C_inverse @ g[chosen])  # the gradient once the chosen ones are refitted
         rest_a = np.diag(A) - np.einsum("ij,jk,ki->i", A[:, chosen], C_inverse, A[chosen, :])
@@ -218,7 +229,7 @@ def apparent_changes(model: Model, registry: Registry, values: np.ndarray, step_
             break
         trial = chosen + [best]
         step = np.zeros(len(g))
-        step[trial] = -np.linalg.solve(A[np.ix_(trial, trial)], g[trial])
+        step[trial] = -np.linalg.lstsq(A[np.ix_(trial, trial)], g[trial], rcond=None)[0]
         after = normal_at(free + step * scales)  # its residuals and each image's score after the refit
         _, sv, Vt = identifiability(A[np.ix_(trial, trial)])
         rss = 2.0 * after.cost
@@ -229,7 +240,7 @@ def apparent_changes(model: Model, registry: Registry, values: np.ndarray, step_
         if not abs(change[-1]) >= DRIFT_Z * std[-1]:
             break
         chosen, found = trial, list(zip(trial, change, std))
-    return [(k, float(c), float(sd), float(abs(c) / sd)) for k, c, sd in found]
+    return [(k, float(c), float(sd), float(abs(c) / sd)) for k, c, sd in found if k not in refitted]
 
 
 def _group(p) -> str:
@@ -246,6 +257,13 @@ def moved_text(entry: dict) -> str:
     """One `moved` entry as verify prints it (the NAO's and the arm's)."""
     return (f"moved: {entry['parameter']} {entry['display'][0]:+.4f} {entry['display'][1]} "
             f"({entry['z']:.0f} standard deviations)")
+
+
+def still_good(ratio: float, moved: list) -> bool:
+    """The verdict's rule (the NAO's and the arm's): drifted when the RMS is beyond DRIFT_RATIO times the reference,
+    or when a calibrated value has moved (the new data place it DRIFT_Z standard deviations away: a 0.1 deg knee adds
+    0.07 px to a 0.33 px RMS, far inside DRIFT_RATIO, but is 5-10 standard deviations)."""
+    return bool(ratio <= DRIFT_RATIO) and not moved
 
 
 def verdict_text(good: bool, head: str, moved: list, suspects: list, unexplained: str) -> str:
@@ -358,9 +376,7 @@ def _verdict(new: _SetAside, offsets, pixel_noise_px, angles) -> Verdict:
             moved.append({"parameter": name, "group": _group(p), "change": change, "std": std, "z": z,
                           "unit": p.unit, "display": [float(shown), unit], "size": float(abs(change) / p.scale)})
     suspects = list(dict.fromkeys(e["group"] for e in moved))
-    # drifted: the RMS beyond the reference, or a calibrated value the new data place DRIFT_Z standard deviations
-    # away (a 0.1 deg knee adds 0.07 px to a 0.33 px RMS, far inside DRIFT_RATIO, but is 5-10 standard deviations)
-    good = bool(ratio <= DRIFT_RATIO) and not moved
+    good = still_good(ratio, moved)
     board_summary = locate(fit, worst=0).board_summary if not good else ""
 
     warnings = []

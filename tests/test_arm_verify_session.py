@@ -42,6 +42,16 @@ def sessions(tmp_path_factory):
     return cal, cameras_only(tmp / "next", tmp / "next_cams")
 
 
+@pytest.fixture(scope="module")
+def other_session(tmp_path_factory):
+    """The camera data of a third session of the same robot: 30 other stances (stance seed 2)."""
+    from naocal.kinds.arm.sim import simulate_dualarm
+
+    tmp = tmp_path_factory.mktemp("other")
+    simulate_dualarm(tmp / "next", seed=3, n_poses=30, stance_seed=2)
+    return cameras_only(tmp / "next", tmp / "next_cams")
+
+
 def test_another_session_shares_the_robot_and_none_of_the_stances():
     from naocal.kinds.arm.sim import simulate_dualarm
 
@@ -98,3 +108,46 @@ def test_simulate_writes_another_session_of_the_dual_arm(tmp_path):
     assert run.returncode == 0, run.stderr
     meta = json.loads((tmp_path / "next" / "dataset.json").read_text())
     assert "--stance-seed 2" in meta["source"] and meta["robot"]["id"] == "simulated-dualarm-3"
+
+
+@pytest.mark.parametrize("refit", [(), ("--refit", "sensors,points")])
+@pytest.mark.parametrize("session", ["sessions", "other_session"])
+def test_an_unchanged_arm_names_nothing_moved_and_no_tool_moved_together(sessions, request, session, refit):
+    """No false alarm of the moved test or of the tools' common motion: two sessions of the unchanged robot."""
+    cal, next_session = sessions[0], request.getfixturevalue(session)
+    next_session = next_session[1] if session == "sessions" else next_session
+    run = naocal("verify", next_session, "--offsets", cal, *refit, "--json")
+    assert run.returncode == 0, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["moved"] == [] and all(0.8 < s["ratio"] < 1.25 for s in verdict["per_sensor"].values())
+    assert all(e["chi2"] < e["bound"] for e in verdict["together"]), verdict["together"]
+    assert len(verdict["together"]) == (2 if refit else 0)  # both tools judged when their markers are refitted
+
+
+def test_a_knocked_tool_is_drifted_with_its_markers_refitted(sessions, tmp_path):
+    """Refitting each marker's position as a nuisance absorbed a 1 mm knock of the left tool (every marker shifted
+    by 1 mm, plausible for each marker's gluing: ratio 0.96 / 0.98, "still good"); the markers' common motion is
+    now judged as the tool's mount: drifted, naming the tool."""
+    cal, next_session = sessions
+    knocked = _moved(cal, tmp_path / "knocked.json", "tool.left.x", 1e-3)
+    run = naocal("verify", next_session, "--offsets", knocked, "--refit", "sensors,points", "--json")
+    assert run.returncode == 1, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["ratio"] < 1.25  # the residual alone is fooled: the markers absorbed the knock
+    left = {e["tool"]: e for e in verdict["together"]}["left"]
+    assert left["beyond"] and 0.8e-3 < left["shift"] < 1.3e-3 and left["chi2"] > 10 * left["bound"]
+    assert "tool left" in verdict["suspects"]
+    assert "the markers of tool left moved together by" in verdict["verdict"]
+
+
+def test_a_joint_moved_below_the_drift_ratio_is_drifted_naming_it(sessions, tmp_path):
+    """right_j2 moved by 0.03 deg: the cameras' RMS stays under DRIFT_RATIO x the reference (ratio about 1.2), but
+    the new data place the offset many standard deviations away: drifted, as the NAO's verify rules."""
+    cal, next_session = sessions
+    run = naocal("verify", next_session, "--offsets", _moved(cal, tmp_path / "moved.json", "joint_offset.right_j2",
+                                                             math.radians(0.03)), "--json")
+    assert run.returncode == 1, run.stdout + run.stderr
+    verdict = json.loads(run.stdout)
+    assert verdict["ratio"] < 1.5
+    assert [e["parameter"] for e in verdict["moved"]] == ["joint_offset.right_j2"] and verdict["moved"][0]["z"] > 10
+    assert verdict["verdict"].startswith("drifted") and "joint right_j2" in verdict["verdict"]
