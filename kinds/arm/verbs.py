@@ -33,7 +33,7 @@ def add_arm_options(parser, *, simulate=False, verb="") -> None:
         parser.add_argument("--refit", default="sensors", metavar="sensors[,points][,intrinsics]",
                             help="arm: what the new data refit with the calibration's arm held (default: sensors, the "
                                  "sensors' frames; points: also where the reflectors / markers sit on the tool, "
-                                 "e.g. a tracker's reflector; intrinsics: the cameras' fx, fy, cx, cy and lens "
+                                 "e.g. a tracker's reflector; what a tool's markers move together is judged as its mount moving; intrinsics: the cameras' fx, fy, cx, cy and lens "
                                  "distortion k1, k2, p1, p2, k3 of the new session)")
         parser.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
                             help="arm: hold a refitted parameter (repeatable), at VALUE in the units the report "

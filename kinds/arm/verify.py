@@ -305,11 +305,23 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     from naocal.kinds.arm.identify import ArmEquations
     from naocal.solver.effect import shown
 
+    from naocal.kinds.arm.identify import prior_sizes
+    from naocal.solver.identify import Prior
+
     candidate = refit.free & np.array([p.effect != "sensors" and p.name not in nuisance for p in model.parameters])
     equations = ArmEquations(model, obs, fixed.x, fixed.free | candidate, fixed.sigma)
+    # the nuisances under their prior, as fitted (without it the reflectors take a flange's 10 deg whole and the
+    # joint's score is nil); the candidates under none: theirs is about the URDF, not the calibration's values
+    size = prior_sizes(model)[equations.index]
+    held_about = np.flatnonzero(np.isin(np.array(model.names)[equations.index], nuisance) & (size > 0) & priors)
+    prior = Prior(held_about, np.zeros(len(held_about)), size[held_about])
+
+    def normal_at(free):
+        return prior.added(equations(free), free, equations.scales)
+
     mask = model.component_mask(obs)
     moved = []
-    for k, change, std, z in forward_changes(equations, equations.scales, fixed.x[equations.index], int(mask.sum()),
+    for k, change, std, z in forward_changes(normal_at, equations.scales, fixed.x[equations.index], int(mask.sum()),
                                              np.unique(obs.pose, return_inverse=True)[1].reshape(-1),
                                              np.flatnonzero(fixed.free[equations.index])):
         p = model.parameters[equations.index[k]]
