@@ -1,7 +1,9 @@
 """verify of a camera calibration on a new camera session of the same simulated dual arm (issue 24): an unchanged
 robot is "still good" at 30 poses although 2 % of the new session's corners are mis-detected (identify set its own
 aside; verify used to keep them: ratio 3-10, "drifted"), and a joint moved by 0.1 deg or a tool knocked by 1 mm is
-"drifted" (what verify sets aside is decided against a refit, which follows a drift)."""
+"drifted" (what verify sets aside is decided against a refit, which follows a drift); with the markers refitted as
+nuisances a knocked tool is "drifted" (their common motion is the tool's mount), and a joint moved too little for the
+RMS ratio is "drifted" when the new data place it many standard deviations away (the NAO's rule)."""
 
 import json
 import math

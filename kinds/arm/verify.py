@@ -302,16 +302,14 @@ def verify_arm(dataset, cal, *, refit_effects=(), priors: bool = True, held=(), 
     # sensors' frames and nuisances refitted with each candidate. A refit of every calibrated parameter at once
     # shares a change among its correlated neighbours (30 poses of the dual arm: right_j2 moved 0.04 deg, ratio
     # 1.41, refitted at 2.5 of its standard deviations), as the NAO's docstring says of the leg's pitch joints.
-    from naocal.kinds.arm.identify import ArmEquations
+    from naocal.kinds.arm.identify import ArmEquations, prior_sizes
     from naocal.solver.effect import shown
-
-    from naocal.kinds.arm.identify import prior_sizes
     from naocal.solver.identify import Prior
 
     candidate = refit.free & np.array([p.effect != "sensors" and p.name not in nuisance for p in model.parameters])
     equations = ArmEquations(model, obs, fixed.x, fixed.free | candidate, fixed.sigma)
-    # the nuisances under their prior, as fitted (without it the reflectors take a flange's 10 deg whole and the
-    # joint's score is nil); the candidates under none: theirs is about the URDF, not the calibration's values
+    # the nuisances under their prior, as the fit the tests start from put them (its gradient is nil only with it);
+    # the candidates under none: theirs is about the URDF, and would pull them from the calibration's values
     size = prior_sizes(model)[equations.index]
     held_about = np.flatnonzero(np.isin(np.array(model.names)[equations.index], nuisance) & (size > 0) & priors)
     prior = Prior(held_about, np.zeros(len(held_about)), size[held_about])
