@@ -32,7 +32,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
-from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, robot_name_problem
+from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, raw_pixels, robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
 from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
@@ -270,12 +270,6 @@ def frame_file_problem(name: str, log_dir: Path) -> str | None:
     if os.path.commonpath([real_dir, real]) != real_dir:
         return f"{name[:60]!r} leads outside the log directory (a symbolic link)"
     return None
-
-
-def raw_pixels(flags: int) -> int:
-    """`flags` for cv2.imdecode that keep the pixels as the sensor gave them: OpenCV turns a JPEG by its EXIF
-    orientation tag unless told not to (IMREAD_UNCHANGED never turns it), and a turned frame is another camera."""
-    return flags if flags < 0 else flags | cv2.IMREAD_IGNORE_ORIENTATION
 
 
 def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:

@@ -153,13 +153,19 @@ def robot_name_problem(name) -> str | None:
     return None
 
 
+def raw_pixels(flags: int) -> int:
+    """`flags` for cv2.imdecode that keep the pixels as the sensor gave them: OpenCV turns a JPEG by its EXIF
+    orientation tag unless told not to (IMREAD_UNCHANGED never turns it), and a turned frame is another camera."""
+    import cv2  # here: the description itself needs no OpenCV
+
+    return flags if flags < 0 else flags | cv2.IMREAD_IGNORE_ORIENTATION
+
+
 def decoded_frame(data, width_px: int = IMAGE_WIDTH_PX, height_px: int = IMAGE_HEIGHT_PX):
     """The 8-bit grey image a compressed camera frame (PNG or JPEG bytes) holds, checked before it is used or echoed
     (the ROS driver's frames, the bridge client's): (image, None), or (None, why not) when it does not decode or is
     not `width_px` x `height_px`."""
     import cv2  # here: the description itself needs no OpenCV
-
-    from naocal.kinds.duckiebot.drive_log import raw_pixels
 
     if not isinstance(data, (bytes, bytearray)) or not data:
         return None, f"no image bytes (got {type(data).__name__} of {len(data) if hasattr(data, '__len__') else '?'})"
