@@ -35,7 +35,7 @@ class Kind(Protocol):
     model_help: str
     # Optional: True when its verify finds the calibration without --offsets (the Duckiebot's, in Duckietown's
     # calibrations directory); without it, `naocal verify` without --offsets is a usage error (tools/cmd_verify.py).
-    # verify_finds_calibration: bool
+    # verify_finds_calibration: bool, and verify_help: str (what its verify does, for `naocal verify --help`)
     # What the effect registry (solver/effects/) has for its model, for identify's and diagnose's --effects (a
     # property: it reads the registry when --help is built); what diagnose's --help says of its output: the sections
     # it prints (help_blocks_by_kind) and its --json object.

@@ -1,5 +1,5 @@
 """`naocal verify DATASET --offsets FILE`: is a calibration still good on new data? (its values are not refitted; a
-Duckiebot's `naocal verify LOG` finds its calibration without --offsets, docs/DUCKIEBOT.md)"""
+kind whose `verify_finds_calibration` is true finds its robot's calibration without --offsets)"""
 
 import naocal.kinds as kinds
 from naocal.solver.errors import NaocalError
@@ -16,20 +16,15 @@ def register(subparsers):
             "overall and per part of the data (camera, target, image; an arm's sensor and pose), against the "
             "calibration's own error and the data's noise floor. Verdict 'still good' or 'drifted' (the error beyond "
             "1.5 x both, or a calibrated value moved by 5 standard deviations), naming what the new data say has "
-            "moved. Exit 0 still good, 1 drifted, 2 bad input (docs/DIAGNOSTICS.md; an arm's: docs/ARM.md). A "
-            "Duckiebot's drive log: gain and trim refitted, the 2 m straight drive at 0.3 m/s predicted under the "
-            "calibration (--offsets CAL.json, or a Duckietown calibrations DIR; without --offsets the robot's files "
-            "in /data/config/calibrations, else the log's own camera under Duckietown's default kinematics): still "
-            "good within 10 cm (0), drifted (1), bad input or no calibration (2), a fit failed (3) "
-            "(docs/DUCKIEBOT.md)."
+            "moved. Exit 0 still good, 1 drifted, 2 bad input (docs/DIAGNOSTICS.md; an arm's: docs/ARM.md). "
+            + kinds.help_by_kind("verify_help", "verify")
         ),
     )
     add_dataset_argument(p, "verify")
     p.add_argument("--offsets", metavar="FILE",
                    help="the calibration (identify --out's), by kind: " + kinds.help_by_kind("calibration_help",
                                                                                             "verify")
-                   + "; required unless the kind finds its robot's calibration itself (a Duckiebot's: "
-                     "see --robot-name)")
+                   + "; required unless the kind finds its robot's calibration itself (above)")
     p.add_argument("--json", action="store_true", help="print one JSON object (docs/DIAGNOSTICS.md) instead of text")
     kinds.add_options(p, "verify")  # each kind's own, its help saying whose
     p.set_defaults(run=run)

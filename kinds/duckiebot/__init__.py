@@ -59,6 +59,11 @@ class DuckiebotKind:
     # `naocal verify LOG` without --offsets: the robot's files in Duckietown's calibrations directory, else the log's
     # own camera under Duckietown's default kinematics (verbs.judged_calibration)
     verify_finds_calibration = True
+    verify_help = ("a drive log: gain and trim refitted, the 2 m straight drive at 0.3 m/s predicted under the "
+                   "calibration (--offsets CAL.json, or a Duckietown calibrations DIR; without --offsets the robot's "
+                   "files in /data/config/calibrations, else the log's own camera under Duckietown's default "
+                   "kinematics): still good within 10 cm (0), drifted (1), bad input or no calibration (2), a fit "
+                   "failed (3) (docs/DUCKIEBOT.md)")
     model_help = ("the wheels' gain, trim and baseline, the camera's lens and pose on the body and the floor markers' "
                   "poses on the pixel error of the marker corners")
     diagnose_help = """\
