@@ -3,6 +3,7 @@ show|validate|diff|export CAL`, `naocal verify LOG [--offsets CAL|DIR]`, bad log
 written). Independent data: a small log made by kinds/duckiebot/render.py (OpenCV, not PyBullet)."""
 
 import json
+import re
 import shutil
 from types import SimpleNamespace
 
@@ -120,6 +121,72 @@ def test_verify_reads_duckietowns_calibration_files_as_it_reads_the_calibration(
     kinematics.write_text(good)
     (out / "camera_extrinsic" / "rendered.yaml").unlink()
     one_line_error(naocal("verify", calibrated.log, "--offsets", out), out / "camera_extrinsic" / "rendered.yaml")
+
+
+def _shown(text: str, label: str) -> float:
+    """The number after `label ` in `offsets show`'s output."""
+    return float(re.search(rf"(?:^|[ (]){re.escape(label)} ([-+0-9.e]+)", text, re.M).group(1))
+
+
+def test_offsets_show_reads_duckietowns_calibrations_directory(calibrated, tmp_path):
+    """`offsets show DIR` on the files `offsets export --format duckietown` wrote says what CAL.json says: the
+    kinematics, the lens, and the camera's pose on the body recovered from the homography (to the printed digits);
+    validate says ok; with several robots' files, --robot-name picks one and without it one line names them."""
+    out = tmp_path / "calibrations"
+    assert naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out).returncode == 0
+    cal = read_calibration_file(calibrated.cal)
+    shown = naocal("offsets", "show", out)
+    assert shown.returncode == 0, shown.stderr
+    text = shown.stdout
+    assert "robot rendered" in text and "recovered from the homography" in text
+    kin = cal.kinematics
+    for label, value, unit in (("gain", kin.gain, 1e-4), ("trim", kin.trim, 1e-5), ("baseline", kin.baseline_m * 1e3,
+                               0.01), ("radius", kin.radius_m * 1e3, 1e-3), ("k", kin.k, 1e-3),
+                               ("limit", kin.limit, 1e-3)):
+        assert _shown(text, label) == pytest.approx(value, abs=unit), label
+    for axis in "xyz":
+        assert _shown(text, axis) == pytest.approx(cal.value(f"camera.{axis}_m") * 1e3, abs=0.051), axis
+    for angle in ("roll", "pitch", "yaw"):
+        assert _shown(text, angle) == pytest.approx(np.degrees(cal.value(f"camera.{angle}_rad")), abs=0.0051), angle
+    K = cal.lenses["plumb_bob"].K
+    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1]), ("cx", K[0, 2]), ("cy", K[1, 2])):
+        assert _shown(text, label) == pytest.approx(value, abs=0.0051), label
+    assert naocal("offsets", "validate", out).stdout == "ok\n"
+    # several robots: one line naming them; --robot-name picks one; a file is not a directory
+    shutil.copy(out / "kinematics" / "rendered.yaml", out / "kinematics" / "autobot07.yaml")
+    one_line_error(naocal("offsets", "show", out), "rendered", "autobot07", "--robot-name")
+    assert _shown(naocal("offsets", "show", out, "--robot-name", "rendered").stdout, "trim") == \
+        pytest.approx(kin.trim, abs=1e-5)
+    one_line_error(naocal("offsets", "show", out, "--robot-name", "autobot07"),
+                   out / "camera_intrinsic" / "autobot07.yaml")
+    one_line_error(naocal("offsets", "show", calibrated.cal, "--robot-name", "rendered"), "is a file")
+    (tmp_path / "empty" / "kinematics").mkdir(parents=True)
+    one_line_error(naocal("offsets", "show", tmp_path / "empty"), "no robot's calibration files")
+
+
+BAD_FILES = {  # a broken file of a calibrations DIR: (its folder, the edit, what the one line names)
+    "missing key": ("kinematics", lambda t: t.replace("gain:", "gains:"), "gain"),
+    "yaml error": ("camera_intrinsic", lambda t: t.replace("rows: 3", "rows: [3", 1), "line"),
+    "nan": ("kinematics", lambda t: t.replace("trim: ", "trim: .nan #"), "trim"),
+    "nan in the homography": ("camera_extrinsic", lambda t: t.replace("homography: [", "homography: [.nan, "
+                              ).replace(", 1.0]", "]"), "homography"),
+    "impossible homography": ("camera_extrinsic", lambda t: "homography: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, "
+                                                            "1.0]\n", "homography"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_offsets_show_names_a_broken_calibrations_file(tmp_path, case):
+    from tests.test_duckiebot_calibration_files import calibration
+    from naocal.kinds.duckiebot.calibration_files import write_calibration
+
+    write_calibration(tmp_path, calibration("autobot01"))
+    assert naocal("offsets", "show", tmp_path).returncode == 0
+    folder, edit, field = BAD_FILES[case]
+    path = tmp_path / folder / "autobot01.yaml"
+    path.write_text(edit(path.read_text()))
+    one_line_error(naocal("offsets", "show", tmp_path), path, field)
+    one_line_error(naocal("offsets", "validate", tmp_path), path, field)
 
 
 def test_bare_verify_judges_the_logs_own_camera_under_duckietowns_defaults(calibrated, tmp_path, monkeypatch):

@@ -23,6 +23,9 @@ COMMANDS_HELP = """commands:
                                   compensated command = requested + c, corrected reading = measured - c
 An arm's naocal.arm_calibration/1 (docs/ARM.md) works with show, diff, validate, apply and export --format
 urdf (its URDF with the calibration in the joint origins) or json.
+A Duckiebot's naocal.duckiebot_calibration/1 (docs/DUCKIEBOT.md) works with show, diff, validate and export
+--format duckietown|json; show and validate also take a Duckietown calibrations DIR (kinematics/,
+camera_intrinsic/, camera_extrinsic/<robot>.yaml; --robot-name NAME when it holds several robots' files).
 """
 
 
@@ -78,6 +81,7 @@ def register(subparsers):
 
     show = commands.add_parser("show", help="print a file's contents as tables (angles in deg, lengths in mm)")
     show.add_argument("file", metavar="FILE")
+    kinds.add_options(show, "offsets")  # a kind's own (the Duckiebot's --robot-name of a calibrations DIR)
 
     diff = commands.add_parser(
         "diff", help="compare two files parameter by parameter",
@@ -95,6 +99,7 @@ def register(subparsers):
     validate = commands.add_parser(
         "validate", help="check a file: prints 'ok' (exit 0) or one line with the reason (exit 2)")
     validate.add_argument("file", metavar="FILE")
+    kinds.add_options(validate, "offsets")
 
     export = commands.add_parser(
         "export", help="write the offsets for other software (B-Human, HULKs, Nao Devils, URDF, JSON)",
@@ -138,4 +143,4 @@ def register(subparsers):
 
 def run(args) -> int:
     files = (args.file_a, args.file_b) if args.offsets_command == "diff" else (args.file,)
-    return kinds.for_data(*files).offsets(args, args.offsets_command, sys.stdout)
+    return kinds.for_args(args, *files).offsets(args, args.offsets_command, sys.stdout)

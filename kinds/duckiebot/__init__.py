@@ -31,6 +31,8 @@ NAME = "duckiebot"
 LOG_SCHEMA = "naocal.drive_log/1"  # kinds.duckiebot.drive_log.SCHEMA (not imported here: it imports cv2)
 CALIBRATION_SCHEMA = "naocal.duckiebot_calibration/1"  # kinds.duckiebot.calibration.SCHEMA
 LOG_FILES = ("log.json", "wheels.csv", "frames.csv")  # kinds.duckiebot.drive_log's required files
+# Duckietown's calibrations DIR: these folders of <robot>.yaml (calibration_files.KINEMATICS_DIR, ...)
+CALIBRATION_DIRS = ("kinematics", "camera_intrinsic", "camera_extrinsic")
 # The verbs whose bodies live in a module of their own, each with add_options(parser) and the body's function.
 VERB_MODULES = {"calibrate": ("calibrate", "run"), "diagnose": ("diagnose", "run_diagnose"),
                 "simulate": ("simulate", "run_simulate")}
@@ -88,9 +90,11 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
             return getattr(source, "robot", None) == NAME or any(
                 getattr(source, option, None) is not None for option in ("refine", "max_step", "robot_name"))
         path = Path(source)
-        if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset
+        if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset;
+            # or Duckietown's calibrations DIR
             return json_schema(path / "log.json") == LOG_SCHEMA or (
-                any((path / name).is_file() for name in LOG_FILES) and not (path / "dataset.json").exists())
+                any((path / name).is_file() for name in LOG_FILES)
+                and not (path / "dataset.json").exists()) or any((path / name).is_dir() for name in CALIBRATION_DIRS)
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:
@@ -109,6 +113,10 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
                                      "; default: the log's robot.id. Without --offsets and without the robot's three "
                                      "files there, the log's own camera (its board views) is judged under the "
                                      "robot's kinematics file there, else Duckietown's defaults (gain 1, trim 0)")
+        if verb == "offsets":  # show and validate of a calibrations DIR (verbs.run_offsets)
+            parser.add_argument("--robot-name", default=None, metavar="NAME",
+                                help="duckiebot, with a Duckietown calibrations DIR: read NAME's files "
+                                     "(<kind>/NAME.yaml); default: the only robot whose files DIR holds")
         if verb in VERB_MODULES:
             module = _verb_module(verb)
             if module is not None:

@@ -303,6 +303,18 @@ def default_calibrations_dir() -> Path:
     return Path(os.environ.get(CALIBRATIONS_DIR_VARIABLE) or DEFAULT_CALIBRATIONS_DIR)
 
 
+DEFAULT_ROBOT = "default"  # Duckietown's fallback files (<kind>/default.yaml): what a robot without its own reads
+
+
+def robots_in(directory) -> list[str]:
+    """The robots with a file (<kind>/<robot>.yaml) in the calibrations `directory`, sorted; Duckietown's fallback
+    'default' only when no robot has one."""
+    directory = Path(directory)
+    names = {path.stem for kind in (KINEMATICS_DIR, INTRINSIC_DIR, EXTRINSIC_DIR)
+             for path in (directory / kind).glob("*.yaml") if path.is_file()}
+    return sorted(names - {DEFAULT_ROBOT} or names)
+
+
 def calibration_paths(directory, robot: str) -> dict:
     """{'kinematics', 'camera_intrinsic', 'camera_extrinsic'} -> DIR/<kind>/<robot>.yaml (robot name checked)."""
     problem = robot_name_problem(robot)

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -161,22 +162,34 @@ def _pm(value: float, std: float, scale: float = 1.0, digits: int = 4) -> str:
 
 def format_calibration(cal, title: str = "") -> str:
     """A calibration file's content (kinds.duckiebot.calibration.CalibrationFile) as a few lines: the kinematics,
-    the camera's pose on the body and the lens chosen, with the joint fit's cluster-robust stds."""
+    the camera's pose on the body and the lens chosen, with the joint fit's cluster-robust stds; of Duckietown's
+    files (calibration.from_duckietown: no fit, no stds) the values alone, the pose recovered from the homography."""
     kin = cal.kinematics
+    fitted = cal.fit["rms_px"] is not None
+
+    def shown(name, scale=1.0, digits=4):
+        return _pm(cal.value(name), cal.std(name), scale, digits) if fitted else f"{cal.value(name) * scale:.{digits}f}"
+
     lines = [title] if title else []
-    lines.append(f"kinematics: gain {_pm(cal.value('gain'), cal.std('gain'))}, trim "
-                 f"{_pm(cal.value('trim'), cal.std('trim'), digits=5)}, baseline "
-                 f"{_pm(cal.value('baseline_m'), cal.std('baseline_m'), 1e3, 2)} mm (k {kin.k:g}, radius "
-                 f"{kin.radius_m * 1e3:g} mm, limit {kin.limit:g})")
-    pose = [f"{axis} {_pm(cal.value(f'camera.{axis}_m'), cal.std(f'camera.{axis}_m'), 1e3, 1)} mm" for axis in "xyz"]
-    pose += [f"{angle} {_pm(cal.value(f'camera.{angle}_rad'), cal.std(f'camera.{angle}_rad'), 180 / math.pi, 2)} deg"
-             for angle in ("roll", "pitch", "yaw")]
-    lines.append("camera on the body (from the wheel axle's midpoint on the floor): " + ", ".join(pose))
+    lines.append(f"kinematics: gain {shown('gain')}, trim {shown('trim', digits=5)}, baseline "
+                 f"{shown('baseline_m', 1e3, 2)} mm (k {kin.k:g}, radius {kin.radius_m * 1e3:g} mm, limit "
+                 f"{kin.limit:g})")
+    pose = [f"{axis} {shown(f'camera.{axis}_m', 1e3, 1)} mm" for axis in "xyz"]
+    pose += [f"{angle} {shown(f'camera.{angle}_rad', 180 / math.pi, 2)} deg" for angle in ("roll", "pitch", "yaw")]
+    lines.append("camera on the body (from the wheel axle's midpoint on the floor"
+                 + ("" if fitted else "; recovered from the homography") + "): " + ", ".join(pose))
     K = cal.lens.K
-    held = ", ".join(f"{m} {e['held_out_rms_px']:.3f} px" for m, e in cal.lens_errors.items())
-    lines.append(f"lens: {cal.lens_model} (held-out RMS: {held}; {cal.lens_errors[cal.lens_model]['views']} board "
-                 f"views), fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px, distortion "
+    if cal.lens_errors:
+        held = ", ".join(f"{m} {e['held_out_rms_px']:.3f} px" for m, e in cal.lens_errors.items())
+        chosen = f" (held-out RMS: {held}; {cal.lens_errors[cal.lens_model]['views']} board views)"
+    else:
+        chosen = ""
+    lines.append(f"lens: {cal.lens_model}{chosen}, {cal.width_px} x {cal.height_px} px, fx {K[0, 0]:.2f} fy "
+                 f"{K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px, distortion "
                  + " ".join(f"{d:.4g}" for d in cal.lens.distortion))
+    if not fitted:
+        lines.append("fit: none recorded (Duckietown's files hold the values, no stds)")
+        return "\n".join(lines)
     markers = sum(1 for n in cal.parameters if n.endswith(".yaw_rad") and n.startswith("marker")) + 1
     fit = cal.fit
     lines.append(f"fit: RMS {fit['rms_px']:.3f} px over {fit['corners']} marker corners ({fit['outliers']} set "
@@ -214,15 +227,36 @@ class Judged:
     detections: object = None
 
 
-def duckietown_directory(directory, robot: str):
+def duckietown_directory(directory, robot: str, verb: str = "verify"):
     """The calibration in Duckietown's three files of `robot` under `directory` (calibration_files.read_calibration:
-    DataError naming the file and field), its warnings shown."""
+    DataError naming the file and field), its warnings shown as `verb`'s."""
     from naocal.kinds.duckiebot.calibration import from_duckietown
     from naocal.kinds.duckiebot.calibration_files import read_calibration
 
     files, findings = read_calibration(directory, robot)
-    _warn("verify", findings)
-    return from_duckietown(files, str(directory), findings)
+    calibration = from_duckietown(files, str(directory), findings)  # a broken homography: one line, no warnings
+    _warn(verb, findings)
+    return calibration
+
+
+def directory_robot(directory, given) -> str:
+    """Whose files in the calibrations `directory` to read: `given` (--robot-name), else the only robot there.
+    NaocalError (exit 2) when it holds none or several."""
+    from naocal.kinds.duckiebot.calibration_files import robots_in
+    from naocal.kinds.duckiebot.robot import robot_name_problem
+
+    if given is not None:
+        if robot_name_problem(given):
+            raise NaocalError(f"--robot-name: {robot_name_problem(given)}")
+        return given
+    robots = robots_in(directory)
+    if not robots:
+        raise NaocalError(f"{directory}: no robot's calibration files (kinematics/, camera_intrinsic/, "
+                          "camera_extrinsic/<robot>.yaml) in it")
+    if len(robots) > 1:
+        shown = ", ".join(robots[:10]) + (f" and {len(robots) - 10} more" if len(robots) > 10 else "")
+        raise NaocalError(f"{directory} holds the files of {len(robots)} robots ({shown}): give --robot-name NAME")
+    return robots[0]
 
 
 def judged_calibration(args, log) -> Judged:
@@ -384,14 +418,22 @@ def run_offsets(args, action: str, out) -> int:
                           "duckietown --out DIR)")
     if action == "diff":
         return _diff(read_calibration_file(args.file_a), read_calibration_file(args.file_b), args, out)
-    cal = read_calibration_file(args.file)
+    robot_name = getattr(args, "robot_name", None)
+    if Path(args.file).is_dir():  # Duckietown's calibrations DIR: its warnings shown as it is read
+        if action not in ("show", "validate"):
+            raise NaocalError(f"offsets {action} takes naocal's calibration file: {args.file} is a directory "
+                              "(Duckietown's calibrations: offsets show or validate)")
+        cal = duckietown_directory(args.file, directory_robot(args.file, robot_name), "offsets")
+    else:
+        if robot_name is not None:
+            raise NaocalError(f"--robot-name picks a robot's files in a calibrations directory: {args.file} is a file")
+        cal = read_calibration_file(args.file)
+        _warn("offsets", cal.findings)
     if action == "show":
         out.write(format_calibration(cal, f"{args.file}: robot {cal.robot_id}, {cal.source}, {cal.created}") + "\n")
-        _warn("offsets", cal.findings)
         return 0
     if action == "validate":
         out.write("ok\n")
-        _warn("offsets", cal.findings)
         return 0
     return _export(cal, args, out)
 
