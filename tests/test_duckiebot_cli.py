@@ -224,6 +224,37 @@ def test_bare_verify_with_no_calibration_and_no_boards_is_one_line(tmp_path, mon
     one_line_error(naocal("verify", tmp_path / "nao"), "--offsets FILE is required")
 
 
+def test_bare_verify_of_a_log_without_boards_searches_a_sample_only(tmp_path, monkeypatch):
+    """A log with no board in view and no calibration: the board search runs on board_sample_frames only (about one
+    searched frame in MIN_BOARD_VIEWS), not on every frame board_search_frames picks, before the one-line refusal;
+    the sample is a subset of those frames and any MIN_BOARD_VIEWS consecutive ones hold a sampled frame."""
+    import naocal.kinds.duckiebot.identify as identify
+    from naocal.kinds.duckiebot.drive_log import SCHEMA, write_drive_log, write_frame
+
+    rng = np.random.default_rng(3)
+    for frame_t_s in (np.arange(45) / 15.0, np.cumsum(rng.uniform(0.01, 0.6, 400))):  # a camera; any timing
+        searched, sampled = identify.board_search_frames(frame_t_s), identify.board_sample_frames(frame_t_s)
+        assert sampled.any() and not (sampled & ~searched).any()
+        runs = np.convolve(sampled[searched].astype(int), np.ones(identify.MIN_BOARD_VIEWS, int), "valid")
+        assert runs.min() >= 1
+    log = tmp_path / "LANE"
+    times = np.arange(45) / 15.0  # 3 s at 15 fps, nothing but noise in view
+    names = [f"frames/{i:03d}.png" for i in range(len(times))]
+    for name in names:
+        write_frame(log, name, rng.integers(0, 255, (120, 160), dtype=np.uint8))
+    meta = {"schema": SCHEMA, "robot": {"id": "lane01", "model": "DB21"}, "camera": {"width_px": 160, "height_px": 120},
+            "wheels": {"radius_m": 0.0318, "baseline_m": 0.1, "k": 27.0, "limit": 1.0},
+            "markers": {"family": "tag36h11", "size_m": 0.065}, "boards": {"inner_corners": [7, 5], "square_m": 0.031},
+            "source": "test"}
+    write_drive_log(log, meta, ([0.0, 3.0], [0.2, 0.0], [0.2, 0.0]), (times, names))
+    searches = []
+    detect_boards = identify.detect_boards
+    monkeypatch.setattr(identify, "detect_boards", lambda *a, **k: searches.append(1) or detect_boards(*a, **k))
+    monkeypatch.setenv("NAOCAL_DUCKIETOWN_CALIBRATIONS", str(tmp_path / "none"))
+    one_line_error(naocal("verify", log), "board views", "none in 2 frames sampled")
+    assert len(searches) == identify.board_sample_frames(times).sum() == 2 < identify.board_search_frames(times).sum()
+
+
 def test_verify_takes_the_robots_kinematics_file_when_it_has_no_camera_files(tmp_path):
     """With only kinematics/<robot>.yaml in the default directory, the log's own camera is judged under that file
     (what the robot runs), not under Duckietown's defaults."""

@@ -45,10 +45,12 @@ class Detections:
     boards: list
 
 
-def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
+def detect_log(log: DriveLog, *, boards: bool = True, searched: dict | None = None) -> Detections:
     """Markers in every frame and (unless `boards` is False: a drive with none, e.g. kinds.duckiebot.refine's lane
-    pass) boards in the frames board_search_frames picks."""
+    pass) boards in the frames board_search_frames picks; `searched`: {frame: its boards} of frames already searched
+    (sample_boards'), not searched again."""
     markers, found = [], []
+    searched = searched or {}
     search = board_search_frames(log.frame_t_s) if boards else np.zeros(len(log.frame_files), bool)
     for i in range(len(log.frame_files)):
         image = log.load_frame(i, cv2.IMREAD_GRAYSCALE)
@@ -59,8 +61,31 @@ def detect_log(log: DriveLog, *, boards: bool = True) -> Detections:
             fail(log.frame_path(i), f"marker id {repeated[0]} is on several markers in this frame: naocal tells "
                  "the floor markers apart by their ids, which must differ")
         markers.append(sightings)
-        found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if search[i] else [])
+        if i in searched:
+            found.append(searched[i])
+        else:
+            found.append(detect_boards(image, log.board_inner_corners, log.board_square_m) if search[i] else [])
     return Detections(markers, found)
+
+
+def board_sample_frames(frame_t_s) -> np.ndarray:
+    """A coarse first board search (bool per frame): of the frames board_search_frames picks, those its rule picks
+    again at MIN_BOARD_VIEWS times the interval. At most MIN_BOARD_VIEWS - 1 searched frames lie between two sampled
+    ones (searched frames are at least the interval apart), so any MIN_BOARD_VIEWS consecutive searched frames hold
+    a sampled one: a log whose boards stay in view that long is found at about 1 / MIN_BOARD_VIEWS of the cost."""
+    search = np.flatnonzero(board_search_frames(frame_t_s))
+    chosen = np.zeros(len(frame_t_s), bool)
+    chosen[search[board_search_frames(np.asarray(frame_t_s)[search],
+                                      BOARD_SEARCH_INTERVAL_S * MIN_BOARD_VIEWS)]] = True
+    return chosen
+
+
+def sample_boards(log: DriveLog) -> dict:
+    """{frame: its boards} of the board_sample_frames of `log` (detect_log's `searched`): whether a full board
+    search can find anything, for a fraction of its cost."""
+    return {int(i): detect_boards(log.load_frame(int(i), cv2.IMREAD_GRAYSCALE), log.board_inner_corners,
+                                  log.board_square_m)
+            for i in np.flatnonzero(board_sample_frames(log.frame_t_s))}
 
 
 def board_search_frames(frame_t_s, interval_s: float = BOARD_SEARCH_INTERVAL_S) -> np.ndarray:
