@@ -101,6 +101,27 @@ def test_encoders_without_ticks_per_revolution(log):
                      "model")
 
 
+def test_encoder_counters_wrapping_around_int32_are_unwrapped(log):
+    """Duckietown's counters are int32 since boot: 2147483600 -> -2147483626 is 70 ticks forward (and back for the
+    other wheel), read on from the first count; counts written as floats ('12.0') are whole numbers."""
+    (log / "encoders.csv").write_text("t_s,left_ticks,right_ticks\n0,2147483600,-2147483600\n"
+                                      "0.5,-2147483626,2147483626.0\n1.0,-2147483600,2147483600\n")
+    drive = read_drive_log(log)
+    np.testing.assert_array_equal(drive.left_ticks, [2147483600, 2147483670, 2147483696])
+    np.testing.assert_array_equal(drive.right_ticks, [-2147483600, -2147483670, -2147483696])
+    assert drive.left_ticks.dtype == np.int64
+
+
+def test_an_encoder_step_beyond_what_the_wheel_can_turn_is_refused(log):
+    """At the limit duty 1, k 27 and gain 0.3 (the lowest real robots have) a wheel turns 90 rad/s: 0.5 s is
+    at most 967 ticks of 135 a revolution (+2 for rounding); 1000 is refused naming its line, 960 is read."""
+    (log / "encoders.csv").write_text("t_s,left_ticks,right_ticks\n0,0,0\n0.5,960,-960\n1.0,960,-900\n")
+    np.testing.assert_array_equal(read_drive_log(log).right_ticks, [0, -960, -900])
+    (log / "encoders.csv").write_text("t_s,left_ticks,right_ticks\n0,0,0\n0.5,40,41\n1.0,40,1041\n")
+    message = refused(log, r"encoders.csv, line 4, field 'right_ticks': \+1000 ticks since the previous row")
+    assert "969 ticks at most" in message
+
+
 def test_windows_and_ros_bag_exports_read_as_written(log):
     # CRLF line endings, a UTF-8 byte order mark, a trailing blank line; Unix-epoch times (a ROS bag's), each file
     # starting at its own time

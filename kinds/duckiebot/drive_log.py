@@ -32,6 +32,7 @@ from pathlib import Path, PurePosixPath
 import cv2
 import numpy as np
 
+from naocal.kinds.duckiebot.calibration_files import USUAL
 from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, raw_pixels, robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
@@ -49,6 +50,8 @@ IMAGE_SIGNATURES = {".png": b"\x89PNG\r\n\x1a\n", ".jpg": b"\xff\xd8\xff", ".jpe
 MAX_IMAGE_BYTES = 16 * 1024 ** 2  # a 640 x 480 PNG is under 1 MB
 MAX_TICKS = 2 ** 53  # cumulative ticks beyond this lose integer precision as floats
 MAX_TIME_S = 1e10  # seconds: any clock (Unix time included) for centuries
+INT32_MIN, INT32_MAX = -2 ** 31, 2 ** 31 - 1  # Duckietown's encoder counters (WheelEncoderStamped.data)
+MIN_REAL_GAIN = USUAL["gain"][0]  # the lowest gain real robots' files hold: the fastest a wheel turns at a duty
 
 
 @dataclass(frozen=True)
@@ -202,9 +205,10 @@ def _rows(path, header: tuple[str, ...], text: str | None = None):
 
 
 def _int_cell(text, path, line, field) -> int:
-    if not text.lstrip("+-").isdigit() or len(text) > 20:
+    whole, point, fraction = text.partition(".")  # '12.0': an exporter writing counts as floats
+    if not whole.lstrip("+-").isdigit() or len(text) > 24 or (point and fraction.strip("0")):
         fail(path, f"expected a whole number of ticks, got {text[:40]!r}", field, line)
-    value = int(text)
+    value = int(whole)
     if abs(value) >= MAX_TICKS:
         fail(path, f"{value} ticks is beyond any drive (at most 2^53 in size)", field, line)
     return value
@@ -245,14 +249,47 @@ def read_wheels(path, text: str | None = None):
     return t, duties[:, 0], duties[:, 1]
 
 
-def read_encoders(path, text: str | None = None):
-    """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64)."""
+def unwrap_int32(ticks: np.ndarray) -> np.ndarray:
+    """Cumulative ticks with int32 wrap-arounds undone (Duckietown's WheelEncoderStamped.data is an int32 counted
+    since boot: past 2^31 - 1 it goes on from -2^31). Only a column whose every value is an int32 can have wrapped;
+    a step of 2^31 or more between two rows is then a wrap (no wheel turns half the counter between two readings:
+    see max_tick_step), and the counts go on from the first."""
+    if len(ticks) < 2 or ticks.min() < INT32_MIN or ticks.max() > INT32_MAX:
+        return ticks
+    steps = np.diff(ticks)
+    steps = np.where(steps >= 2 ** 31, steps - 2 ** 32, np.where(steps <= -2 ** 31, steps + 2 ** 32, steps))
+    return np.concatenate([ticks[:1], ticks[0] + np.cumsum(steps)])
+
+
+def max_tick_step(dt_s: np.ndarray, wheels: Wheels, ticks_per_revolution: int) -> np.ndarray:
+    """The most ticks a wheel can turn in `dt_s` (s): at the log's limit duty through Duckietown's forward map
+    w = u k / (gain - |trim|) with the lowest gain real robots' files hold (MIN_REAL_GAIN: a DB21 at limit 1, k 27:
+    90 rad/s, 2.9 m/s on the ground, three times its top speed), and a tick either end for the counts' rounding."""
+    rate_radps = wheels.limit * wheels.k / MIN_REAL_GAIN
+    return rate_radps * np.asarray(dt_s) * ticks_per_revolution / (2 * math.pi) + 2.0
+
+
+def read_encoders(path, text: str | None = None, wheels: Wheels | None = None):
+    """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64, '12.0' read as 12), int32
+    wrap-arounds undone (unwrap_int32). With `wheels` (ticks_per_revolution given): a step between rows larger than
+    the wheel can turn (max_tick_step) is refused, naming its line."""
     rows = _rows(path, ENCODERS_HEADER, text)
     t = _times(rows, path)
     ticks = [tuple(_int_cell(cells[c], path, line, ENCODERS_HEADER[c]) for c in (1, 2)) for line, cells in rows]
-    _, t, ticks = _repeats_dropped(path, rows, t, ticks)
+    rows, t, ticks = _repeats_dropped(path, rows, t, ticks)
     ticks = np.array(ticks, dtype=np.int64)
-    return t, ticks[:, 0], ticks[:, 1]
+    left, right = unwrap_int32(ticks[:, 0]), unwrap_int32(ticks[:, 1])
+    if wheels is not None and wheels.ticks_per_revolution is not None and len(t) > 1:
+        bound = max_tick_step(np.diff(t), wheels, wheels.ticks_per_revolution)
+        for name, column in (("left_ticks", left), ("right_ticks", right)):
+            beyond = np.flatnonzero(np.abs(np.diff(column)) > bound)
+            if len(beyond):
+                i = int(beyond[0])
+                fail(path, f"{int(column[i + 1] - column[i]):+d} ticks since the previous row ({float(t[i + 1] - t[i]):.4g} "
+                     f"s before): more than the wheel can turn ({bound[i]:.0f} ticks at most: the limit duty "
+                     f"{wheels.limit:g} at k {wheels.k:g} with gain {MIN_REAL_GAIN:g}, "
+                     f"{wheels.ticks_per_revolution} ticks a revolution)", name, rows[i + 1][0])
+    return t, left, right
 
 
 def frame_file_problem(name: str, log_dir: Path) -> str | None:
@@ -332,7 +369,7 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
                      f"{', '.join(ENCODER_MODELS)})", "wheels.ticks_per_revolution")
             meta["wheels"] = dataclasses.replace(
                 meta["wheels"], ticks_per_revolution=duckiebot(meta["model"]).ticks_per_revolution)
-        encoders = read_encoders(encoders_path)
+        encoders = read_encoders(encoders_path, wheels=meta["wheels"])
     return DriveLog(path=directory, **meta, wheel_t_s=wheel_t, left_duty=left, right_duty=right, frame_t_s=frame_t,
                     frame_files=files, encoder_t_s=encoders[0], left_ticks=encoders[1], right_ticks=encoders[2])
 
@@ -361,7 +398,7 @@ def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> Dri
     read_frames(directory / FRAMES_FILE, directory, checked["width_px"], checked["height_px"],
                 text=texts[FRAMES_FILE])
     if encoders is not None:
-        read_encoders(directory / ENCODERS_FILE, texts[ENCODERS_FILE])
+        read_encoders(directory / ENCODERS_FILE, texts[ENCODERS_FILE], wheels=checked["wheels"])
     directory.mkdir(parents=True, exist_ok=True)
     for name, text in texts.items():
         atomic_write_text(directory / name, text)
