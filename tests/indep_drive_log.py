@@ -8,7 +8,8 @@ What differs from render.py on purpose:
   frame times, with many decimals; then it drives along the marker line forward and back at its own speed, with a
   gentle S-curve and an in-place wiggle in view of the markers; encoders.csv only with `encoders`.
 - kinematics: integrated here from the issue's formulas (w_r = u_r k / (gain + trim), w_l = u_l k / (gain - trim),
-  v = r (w_r + w_l) / 2, omega = r (w_r - w_l) / b), by exact arcs between breakpoints.
+  v = r (w_r + w_l) / 2, omega = r (w_r - w_l) / b), by exact arcs between breakpoints; `Truth.turn_slip` hides a
+  slip in turns (omega scaled by 1 - turn_slip, the encoders counting the wheels' turn as commanded).
 - camera: OpenCV's own convention (z forward, x right, y down), rays from cv2.undistortPoints (iterated to
   1e-12), truth pixels from cv2.projectPoints; frames written as JPEG by cv2.imwrite; each frame an instant but
   `blur_frames`, averaged over 5 poses across a long exposure (motion blur).
@@ -93,6 +94,9 @@ class Truth:
     frame_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     radius_m: float = 0.0318
     k: float = 27.0
+    # the share of the wheels' turning the ground does not follow (tyres scrubbing in turns): the body turns at
+    # (1 - turn_slip) r (w_r - w_l) / b while the wheels (and their encoders) turn as commanded
+    turn_slip: float = 0.0
 
 
 def default_truth(seed: int = 0) -> Truth:
@@ -224,7 +228,7 @@ def simulate(var: Variation, truth: Truth):
             if i >= 0 and tk > t_prev:
                 w_l, w_r = wheel_rates(wl[i], wr[i], truth)
                 v = truth.radius_m * (w_r + w_l) / 2
-                om = truth.radius_m * (w_r - w_l) / truth.baseline_m
+                om = (1.0 - truth.turn_slip) * truth.radius_m * (w_r - w_l) / truth.baseline_m
                 pose = arc(pose, v, om, tk - t_prev)
             t_prev = max(t_prev, float(tk))
             if float(tk) in want:
@@ -242,6 +246,16 @@ def wheel_angles(wheel_rows, times, truth: Truth):
     i = np.clip(np.searchsorted(wt, times, side="right") - 1, 0, None)
     held = np.asarray(times) >= wt[0]
     return np.where(held, at_rows[:, i] + rates[:, i] * (np.asarray(times) - wt[i]), 0.0)
+
+
+def encoder_rows(var: Variation, wheel_rows, truth: Truth):
+    """(times, ticks (2, n) int64) of encoders.csv: the wheels' angles (as commanded: slip or not) counted at
+    135 a revolution from var.encoder_start_ticks, at var.encoder_rate_hz, as Duckietown's int32 counters."""
+    wt = wheel_rows[0]
+    enc_t = np.round(var.t0_s + 0.0071 + np.arange(0.0, wt[-1] - var.t0_s, 1.0 / var.encoder_rate_hz), 6)
+    angles = wheel_angles(wheel_rows, enc_t, truth)
+    ticks = np.floor(angles * 135 / (2 * math.pi)).astype(np.int64) + np.array(var.encoder_start_ticks)[:, None]
+    return enc_t, (ticks + 2 ** 31) % 2 ** 32 - 2 ** 31  # Duckietown's counters are int32
 
 
 # ------------------------------------------------------------------------------------------------ scene
@@ -416,10 +430,7 @@ def make_log(directory, var: Variation = Variation(), truth: Truth | None = None
     if var.encoders:
         if var.ticks_per_revolution is not None:
             wheels["ticks_per_revolution"] = var.ticks_per_revolution
-        enc_t = np.round(var.t0_s + 0.0071 + np.arange(0.0, wt[-1] - var.t0_s, 1.0 / var.encoder_rate_hz), 6)
-        angles = wheel_angles((wt, wl, wr), enc_t, truth)
-        ticks = np.floor(angles * 135 / (2 * math.pi)).astype(np.int64) + np.array(var.encoder_start_ticks)[:, None]
-        ticks = (ticks + 2 ** 31) % 2 ** 32 - 2 ** 31  # Duckietown's counters are int32
+        enc_t, ticks = encoder_rows(var, (wt, wl, wr), truth)
         write_csv(directory / "encoders.csv", "t_s,left_ticks,right_ticks",
                   [f"{t:.6f},{a},{b}" for t, a, b in zip(enc_t, ticks[0], ticks[1])], var)
     meta = {"schema": "naocal.drive_log/1", "robot": {"id": "indep", "model": var.model},

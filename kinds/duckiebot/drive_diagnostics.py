@@ -81,6 +81,23 @@ class LensVerdict:
 
 
 @dataclass
+class EncoderEvidence:
+    """Each wheel's turn from encoders.csv against the fitted model's ground travel of that wheel (encoder_evidence),
+    by phase: {"straight"|"curving"|"in place": {"segments", "encoder_rad": [l, r], "model_rad": [l, r], "ratio": [l, r],
+    "both": f, "tolerance": f}}; `slip` (the wheels turn more than the ground moves in turns than straight) and
+    `radius_ratio` (straight: encoder over model, both wheels; None without straight drives) decide `verdict`."""
+
+    phases: dict
+    slip: bool
+    radius_ratio: float | None
+    radius_off: bool
+    verdict: str
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
 class DriveDiagnosis:
     effects: tuple  # in the model
     lens: str  # the lens model the corners were rectified with
@@ -94,6 +111,7 @@ class DriveDiagnosis:
     lens_verdict: LensVerdict | None = None
     after: dict | None = None  # refit_summary of the refit with the named one added
     fit_error: str = ""  # why the model in use could not be fitted (then fit is None)
+    encoders: EncoderEvidence | None = None  # None: the log has no encoders.csv (or no fit)
 
     @property
     def named(self) -> str | None:
@@ -108,6 +126,7 @@ class DriveDiagnosis:
                 "tests": [t.as_dict() for t in self.tests], "threshold": self.threshold,
                 "lens_verdict": None if self.lens_verdict is None else self.lens_verdict.as_dict(),
                 "named": self.named, "after": self.after, "fit_error": self.fit_error,
+                "encoders": None if self.encoders is None else self.encoders.as_dict(),
                 "parameters": None if self.fit is None else self.fit.parameters_dict()}
 
 
@@ -289,6 +308,108 @@ def refit_summary(refit: DriveFit, effects) -> dict:
             "values": {n: {"value": refit.value(n), "std": refit.stdev(n)} for e in effects for n in EFFECTS.get(e, ())}}
 
 
+# ------------------------------------------------------------------------------------------------ encoders
+
+# The wheels' turn from the encoders and the model's ground travel agree within this share on a sound robot: the
+# model's own error (gain and trim to about 1 %) and the axle, which the in-place turns' travel is taken with
+# (log.json's baseline: Duckietown's 0.1 m; a real wheel's contact is a 2 cm wide tyre, and the independent
+# generator's robot has 0.102 m: 2 %); the counts' rounding (a tick a segment) is added.
+ENCODER_TOLERANCE = 0.05
+STRAIGHT_DUTY_SHARE = 0.1  # a command drives straight when its duties differ by at most this share of the larger
+MIN_PHASE_RAD = 2 * np.pi  # a phase whose wheels turned less than a revolution in all is not judged
+
+
+def encoder_evidence(log, drive: Drive, values: dict) -> EncoderEvidence | None:
+    """Each wheel's turned angle from encoders.csv against the fitted model's: the model's trajectory (fit.trajectory
+    with the fitted `values`: gain, trim, baseline_m and any effect's parameters) between consecutive encoder rows
+    within the frames' span, as the wheel's ground travel with log.json's radius and baseline (the arc length
+    ds -+ dtheta b / 2, over r), summed over segments of one command: straight (STRAIGHT_DUTY_SHARE), curving, or
+    turning in place (the duties of opposite signs).
+    A wheel that slips turns more than the ground moves: the encoder's angle over the model's is above 1, in turns
+    (the camera-only fit hides it in a larger baseline) beyond what it is straight; a wrong radius (or tick count)
+    is one ratio in every phase. None without encoders."""
+    from naocal.kinds.duckiebot.fit import trajectory
+
+    if log.encoder_t_s is None:
+        return None
+    t = log.encoder_t_s
+    inside = np.flatnonzero((t >= drive.frame_t_s[0]) & (t <= drive.frame_t_s[-1]))
+    if len(inside) < 2:
+        return None
+    t = t[inside]
+    ticks = np.column_stack([log.left_ticks[inside], log.right_ticks[inside]]).astype(float)
+    tick_rad = 2 * np.pi / log.wheels.ticks_per_revolution
+    encoder = np.diff(ticks, axis=0) * tick_rad
+    effects = {n: float(values[n]) for e in EFFECTS for n in EFFECTS[e] if n in values}
+    poses, _ = trajectory(drive, values["gain"], values["trim"], values["baseline_m"], np.zeros(3), float(t[0]), t,
+                          effects)
+    turn = np.diff(poses[:, 2])
+    chord = np.diff(poses[:, :2], axis=0)
+    mid = poses[:-1, 2] + turn / 2
+    half = turn / 2
+    arc = np.where(np.abs(half) > 1e-9, half / np.sin(np.where(np.abs(half) > 1e-9, half, 1.0)), 1.0)
+    ds = (chord[:, 0] * np.cos(mid) + chord[:, 1] * np.sin(mid)) * arc
+    b, r = log.wheels.baseline_m, log.wheels.radius_m
+    model = np.column_stack([ds - turn * b / 2, ds + turn * b / 2]) / r
+    # the command at each interval's start; segments: runs of one command (republished rows included)
+    row = np.searchsorted(drive.wheel_t_s, t[:-1], side="right") - 1
+    u_l = np.where(row >= 0, drive.left_duty[np.maximum(row, 0)], 0.0)
+    u_r = np.where(row >= 0, drive.right_duty[np.maximum(row, 0)], 0.0)
+    moving = (u_l != 0) | (u_r != 0)
+    straight = np.abs(u_r - u_l) <= STRAIGHT_DUTY_SHARE * np.maximum(np.abs(u_l), np.abs(u_r))
+    starts = np.concatenate([[True], (u_l[1:] != u_l[:-1]) | (u_r[1:] != u_r[:-1])])
+    segment = np.cumsum(starts) - 1
+    in_place = u_l * u_r < 0  # the wheels turning opposite ways: the ground travel is all turning
+    phases = {}
+    for name, chosen in (("straight", moving & straight), ("curving", moving & ~straight & ~in_place),
+                         ("in place", moving & in_place)):
+        ids = np.unique(segment[chosen])
+        if not len(ids):
+            continue
+        enc = np.abs(np.array([encoder[segment == i].sum(axis=0) for i in ids])).sum(axis=0)
+        mod = np.abs(np.array([model[segment == i].sum(axis=0) for i in ids])).sum(axis=0)
+        if mod.sum() < MIN_PHASE_RAD:
+            continue
+        phases[name] = {"segments": int(len(ids)), "encoder_rad": enc.tolist(), "model_rad": mod.tolist(),
+                        "ratio": (enc / np.maximum(mod, 1e-12)).tolist(), "both": float(enc.sum() / mod.sum()),
+                        "tolerance": ENCODER_TOLERANCE + 2 * len(ids) * tick_rad / float(mod.sum())}
+    if not phases:
+        return None
+    straight_phase = phases.get("straight")
+    turns = {name: phase for name, phase in phases.items() if name != "straight"}
+    radius_ratio = None if straight_phase is None else straight_phase["both"]
+    radius_off = radius_ratio is not None and abs(radius_ratio - 1) > straight_phase["tolerance"]
+    slipping = [] if straight_phase is None else [
+        name for name, phase in turns.items()
+        if phase["both"] - straight_phase["both"] > max(straight_phase["tolerance"], phase["tolerance"])]
+    words = []
+    if slipping:
+        worst = max(slipping, key=lambda name: turns[name]["both"])
+        words.append(f"slip in turns: {worst}, the wheels turned {100 * (turns[worst]['both'] - 1):.0f} % more than "
+                     f"the ground moved under them (straight: {100 * (straight_phase['both'] - 1):+.0f} %; the "
+                     f"fitted baseline {values['baseline_m'] * 1e3:.1f} mm takes it up, log.json's {b * 1e3:g} mm)")
+    if radius_off:
+        words.append(f"one ratio {radius_ratio:.3f} straight: the wheels' radius is {r / radius_ratio * 1e3:.2f} mm, "
+                     f"not log.json's {r * 1e3:g} mm (or the encoders count other than "
+                     f"{log.wheels.ticks_per_revolution} a revolution)")
+    if straight_phase is None and any(abs(phase["both"] - 1) > phase["tolerance"] for phase in turns.values()):
+        words.append("the wheels' turn and the ground travel differ in turns: slip or a wrong radius (no straight "
+                     "drive to tell them apart)")
+    slip = bool(slipping)
+    verdict = "; ".join(words) or ("the encoders agree with the model in every phase: no slip, the radius as "
+                                   "log.json's")
+    return EncoderEvidence(phases, slip, radius_ratio, radius_off, verdict)
+
+
+def add_encoder_evidence(diagnosis: DriveDiagnosis, log, drive: Drive) -> DriveDiagnosis:
+    """The encoders' evidence (encoder_evidence) on the diagnosis's fit (through its model of the wheel driver),
+    in place; the fit and what is named stay as they are."""
+    if diagnosis.fit is not None:
+        diagnosis.encoders = encoder_evidence(log, replace(drive, pwm_driver=diagnosis.fit.pwm_driver),
+                                              dict(zip(diagnosis.fit.names, diagnosis.fit.x)))
+    return diagnosis
+
+
 # ------------------------------------------------------------------------------------------------ a drive log
 
 @dataclass
@@ -323,7 +444,8 @@ def diagnose_log(log_dir, effects=(), lens: str = "plumb_bob") -> DriveDiagnosis
     if lens not in lens_fits:
         raise NaocalError(f"{log_dir}: the {lens} lens model could not be fitted to the board views")
     source = LogFit(log, Drive.of_log(log), detections, lens_fits)
-    return diagnose_lenses(source.drive, source.fit, log.marker_size_m, effects, lens, lens_fits)
+    diagnosis = diagnose_lenses(source.drive, source.fit, log.marker_size_m, effects, lens, lens_fits)
+    return add_encoder_evidence(diagnosis, log, source.drive)
 
 
 def diagnose_lenses(drive: Drive, fit_with, marker_size_m: float, effects=(), lens: str = "plumb_bob",
@@ -405,6 +527,15 @@ def format_diagnosis(d: DriveDiagnosis, log_label="LOG") -> str:
                      + (f", refitted {t.refit_rms_px:.3f} px" if np.isfinite(t.refit_rms_px) else "")
                      + (f"; its refit cannot be made: {t.refit_error}" if t.refit_error else "")
                      + (f"; {values}" if t.significant and values else ""))
+    if d.encoders is not None:
+        lines += ["", "ENCODERS (each wheel's turn from encoders.csv over the fitted model's ground travel of it, with "
+                      "log.json's radius and baseline)"]
+        for name, phase in d.encoders.phases.items():
+            lines.append(f"  {name:9s} {phase['segments']:4d} segments: left {phase['ratio'][0]:.3f}, right "
+                         f"{phase['ratio'][1]:.3f} ({phase['encoder_rad'][0]:.1f} / {phase['model_rad'][0]:.1f} and "
+                         f"{phase['encoder_rad'][1]:.1f} / {phase['model_rad'][1]:.1f} rad); both {phase['both']:.3f}, "
+                         f"agreement within {phase['tolerance']:.3f}")
+        lines.append(f"  evidence: {d.encoders.verdict}")
     lines.append("")
     if d.named is None:
         lines.append("VERDICT: no missing effect: the model explains the drive to the noise floor's test")
