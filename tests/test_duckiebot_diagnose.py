@@ -243,7 +243,7 @@ def test_bad_hidden_and_effects_are_refused_in_one_line():
 @pytest.mark.slow
 def test_simulate_then_diagnose_a_clean_rendered_log(tmp_path, capsys):
     """`naocal simulate --robot duckiebot` writes a drive log and its truth; `naocal diagnose` on it (rendered,
-    detected, lens fitted, joint fit) names nothing; a second simulate into the same directory is refused and
+    detected, lens fitted, joint fit) names nothing, and its encoders' evidence says no slip; a second simulate into the same directory is refused and
     changes nothing."""
     out = tmp_path / "LOG"
     assert run_simulate(argparse.Namespace(seed=1, out=str(out), hidden_effects="")) == 0
@@ -260,6 +260,9 @@ def test_simulate_then_diagnose_a_clean_rendered_log(tmp_path, capsys):
     assert report["named"] is None and report["after"] is None
     assert report["lens_verdict"]["best"] in ("plumb_bob", "rational") and not report["lens_verdict"]["wrong"]
     assert [t["effect"] for t in report["tests"] if t["significant"]] == []
+    # its encoders.csv agrees with the fitted model: evidence of neither slip nor a wrong radius
+    assert report["encoders"] is not None and "straight" in report["encoders"]["phases"]
+    assert not report["encoders"]["slip"] and not report["encoders"]["radius_off"], report["encoders"]
 
 
 def test_a_marker_tied_to_no_other_is_set_aside():

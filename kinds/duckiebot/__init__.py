@@ -74,9 +74,13 @@ LOCATE   the corners' RMS by the drive phase before each frame (turning or strai
 LENS     each lens model's held-out board RMS: one well below the lens in use's is named first.
 NAMES    a score test per wheel effect not in the model (clustered by frame; Bonferroni, family-wise 0.001), each
          significant one refitted; pwm_driver, without a parameter, judged by its refit.
+ENCODERS with encoders.csv: each wheel's turn from the encoders over the fitted model's ground travel of it
+         (log.json's radius and baseline), straight, curving and in place: slip in turns (the wheels turn more than
+         the ground moves, beyond what they do straight) or a wrong radius (one ratio); evidence only, the fit and
+         what is named are the same without it.
 VERDICT  the missing effect or lens, the command that adds it, and the RMS before and after."""
     diagnose_json_help = ('{"rms_px": f, "floor_px": f, "tests": [...], "named": NAME or null, "after": {...}, '
-                          '...}')
+                          '"encoders": {"phases", "slip", "radius_ratio", "verdict"} or null, ...}')
 
     @property
     def effects_help(self) -> str:
