@@ -97,8 +97,9 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
         if path.is_dir():  # a drive log, even a broken one (its reader names what is wrong), never a NAO's dataset;
             # or Duckietown's calibrations DIR
             return json_schema(path / "log.json") == LOG_SCHEMA or (
-                any((path / name).is_file() for name in LOG_FILES)
-                and not (path / "dataset.json").exists()) or any((path / name).is_dir() for name in CALIBRATION_DIRS)
+                (any((path / name).is_file() for name in LOG_FILES)
+                 or any((path / name).is_dir() for name in CALIBRATION_DIRS))
+                and not (path / "dataset.json").exists())
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:
