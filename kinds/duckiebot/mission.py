@@ -148,8 +148,10 @@ class Session:
         self.grabbed = 0  # frames grabbed or replayed: the last one is the log's frame grabbed - 1
         self.log = DriveLogAppender(log_dir, meta)
         self.t_start_s = self.log.wheels[0][0] if self.log.wheels else t_start_s  # the budget runs from the first run
-        events = [(t, 0, ("wheels", left, right)) for t, left, right in self.log.wheels]
-        events += [(t, 1, ("frame", name)) for t, name in self.log.frames]
+        # at one time a frame came first: a frame is never older than the command before it (grab), but the next
+        # command may carry its time (a ROS camera's stamp: the fake peer's frames and commands share a clock tick)
+        events = [(t, 1, ("wheels", left, right)) for t, left, right in self.log.wheels]
+        events += [(t, 0, ("frame", name)) for t, name in self.log.frames]
         self.replay = [e[2] for e in sorted(events)]
         self.cursor = 0
         self.duties = (0.0, 0.0)  # the command in force, as logged
@@ -187,6 +189,8 @@ class Session:
         """Go on live where the replay ended, the robot wherever it now stands: the wheels commanded stopped, a break
         in the log (drive_log's segments.csv: the joint fit gives what follows its own start pose), settled. The
         robot-time budget counts the time the robot was driven, not the time it stood dead."""
+        self.robot.command(0.0, 0.0)
+        self.robot.advance(self.settings.settle_s)  # at rest before the segment starts (and its clock past the log)
         t = self.robot.command(0.0, 0.0)
         last = self.log.last_time_s()
         if not t > last:
@@ -197,7 +201,7 @@ class Session:
         self.log.add_break(t)
         self.log.add_wheels(t, 0.0, 0.0)
         self.duties, self.resumed = (0.0, 0.0), True
-        self.wait(self.settings.settle_s)
+        self.wait(self.settings.settle_s)  # the phase's first row after the stop's, on any robot clock
 
     def _send(self, left: float, right: float) -> None:
         t = self.robot.command(left, right)
