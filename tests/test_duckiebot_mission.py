@@ -205,6 +205,70 @@ def test_a_killed_run_resumes_without_repeating_a_capture(tmp_path):
     assert resumed_commands < len(whole.wheel_t_s)  # the replayed part was not sent again
 
 
+class StoppedMidDrive:
+    """The mock stopped (KeyboardInterrupt: what Ctrl-C and SIGTERM raise) as it is to drive straight at `duty` for
+    the `at`-th time."""
+
+    def __init__(self, robot, duty, at):
+        self.robot, self.duty, self.at, self.seen = robot, duty, at, 0
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def advance(self, duration_s, poses=None):
+        if np.allclose(self.robot.duties, self.duty):
+            self.seen += 1
+            if self.seen >= self.at:
+                raise KeyboardInterrupt("stopped by the test")
+        self.robot.advance(duration_s, poses)
+
+
+UP_TO_DRIVES = {("boards", "ok"): "camera", ("camera", "ok"): "face_markers", ("face_markers", "ok"): "marker_drives",
+                ("marker_drives", "ok"): DONE}
+
+
+def test_a_run_stopped_mid_drive_and_carried_resumes_where_the_robot_stands(tmp_path):
+    """Resumed as on the real robot (restart_phase: the mock's saved pose is not used): stopped in the marker drives'
+    second leg, the robot carried 3 cm and turned 5.7 deg by hand, the run goes on: the captures kept, a break in
+    the log with the wheels stopped there, the marker line found again (a frame before any drive), the drives done.
+    The joint fit on such a log: tests/test_duckiebot_fit.py; the calibration against an uninterrupted run's:
+    benchmarks/bench_duckiebot_resume.py."""
+    states = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives)
+    state = tmp_path / "mock_state.json"
+    robot = short_mock(state_path=state)
+    try:
+        result, _ = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[1], 2), tmp_path, SHORT, states=states,
+                                transitions=UP_TO_DRIVES)
+    finally:
+        robot.close()
+    assert result.final == INTERRUPTED and result.history[-1].state == "marker_drives", result.reason
+    before = read_drive_log(tmp_path / "log")
+    kept = {name: (tmp_path / "log" / name).read_bytes() for name in before.frame_files}
+    robot = short_mock(state_path=state)
+    try:
+        robot.carry(-0.03, 0.02, 0.1)
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=states, transitions=UP_TO_DRIVES,
+                                  restart_phase=True)
+    finally:
+        robot.close()
+    assert result.final == DONE, result.reason
+    assert ctx.restarted == "marker_drives" and ctx.driven
+    after = read_drive_log(tmp_path / "log")
+    (t_break,) = after.segment_t_s
+    assert t_break > max(before.wheel_t_s[-1], before.frame_t_s[-1])
+    assert after.frame_files[:len(before.frame_files)] == before.frame_files
+    assert all((tmp_path / "log" / name).read_bytes() == data for name, data in kept.items())
+    first = np.searchsorted(after.wheel_t_s, t_break)
+    assert after.wheel_t_s[first] == t_break and (after.left_duty[first], after.right_duty[first]) == (0.0, 0.0)
+    # the line found again before any drive: a frame at rest after the stop, before the segment's next command
+    assert np.any((after.frame_t_s > t_break) & (after.frame_t_s < after.wheel_t_s[first + 1]))
+    # every leg driven after the break: both duties, out and back
+    segment = after.wheel_t_s >= t_break
+    for duty in SHORT.drive_duties[:2]:
+        assert np.any(np.isclose(after.left_duty[segment], duty) & np.isclose(after.right_duty[segment], duty))
+        assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
+
+
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):
     """Driving where no marker lies (facing the boards, away from the line), the robot stops once it has driven
     max_blind_m without seeing one: never farther than that and one check."""
