@@ -327,6 +327,8 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
         check_out_dir(tmp_path, record, resume=False)
     for change, message in (({"backend": "naoqi"}, "runs on --backend mock or ros or bridge"),
                             ({"backend": "bridge"}, "needs --endpoint"), ({"seed": -1}, "--seed"),
+                            ({"backend": "bridge", "endpoint": "tcp://db21.local:7790"},
+                             "--resume is not usable over the bridge yet"),
                             ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))
