@@ -21,8 +21,8 @@ from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 from naocal.kinds.duckiebot.intrinsics import LensCamera
 from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
-                                            MissionContext, MissionSettings, Session, Validation, drive_watching,
-                                            log_meta, run_mission)
+                                            MissionContext, MissionSettings, ReplayEnded, Session, Validation,
+                                            drive_watching, log_meta, run_mission)
 from naocal.kinds.duckiebot.mock import DuckiebotMock
 from naocal.solver.errors import NaocalError, SafetyError
 
@@ -267,6 +267,35 @@ def test_a_run_stopped_mid_drive_and_carried_resumes_where_the_robot_stands(tmp_
     for duty in SHORT.drive_duties[:2]:
         assert np.any(np.isclose(after.left_duty[segment], duty) & np.isclose(after.right_duty[segment], duty))
         assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
+
+
+def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_a_final_stop(tmp_path):
+    """restart_phase: nothing is sent while the log replays; the first action past it ends the phase's replay
+    (ReplayEnded), as does a stop an interrupted run logged where the phase goes on otherwise (a grab here), which
+    the mock's own resume refuses as another run's."""
+    robot = short_mock()
+    try:
+        first = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        first.command(0.3, 0.3)
+        robot.advance(0.1)
+        first.stop()  # Ctrl-C during the wait: run_mission's finally logs the stop
+        sent = len(robot.received)
+        for restart in (True, False):
+            again = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0, restart_phase=restart)
+            again.command(0.3, 0.3)
+            with pytest.raises(ReplayEnded if restart else NaocalError):
+                again.grab()
+        again = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0, restart_phase=True)
+        again.command(0.3, 0.3)
+        again.command(0.0, 0.0)  # the logged stop, replayed
+        with pytest.raises(ReplayEnded):
+            again.wait(0.1)
+        assert len(robot.received) == sent
+        again.new_segment()
+        assert robot.received[sent][1:] == (0.0, 0.0) and again.live
+        assert again.log.breaks == [again.log.wheels[-1][0]] and again.log.wheels[-1][1:] == (0.0, 0.0)
+    finally:
+        robot.close()
 
 
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):

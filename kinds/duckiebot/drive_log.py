@@ -454,7 +454,7 @@ class DriveLogAppender:
             atomic_write_text(self.directory / META_FILE, json.dumps(meta, indent=2) + "\n")
 
     def last_time_s(self) -> float:
-        return max([-math.inf] + [self.wheels[-1][0]] * bool(self.wheels) + [self.frames[-1][0]] * bool(self.frames))
+        return max((rows[-1][0] for rows in (self.wheels, self.frames) if rows), default=-math.inf)
 
     def _check_time(self, t_s: float, rows, what: str) -> None:
         if not math.isfinite(t_s) or (rows and t_s <= rows[-1][0]):
