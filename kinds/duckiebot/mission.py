@@ -29,7 +29,11 @@ budget (a deadline over every wait); `run_mission`'s finally commands zero duty,
 Resume: the decisions are a function of the frames, so a resumed run replays its log (RUN/log, RUN/validation):
 each command must be the one recorded (else refused: another run), each grab returns the saved frame, nothing is
 sent to the robot; at the log's end the run goes live (a command in force when it stopped is sent again). No
-capture is repeated.
+capture is repeated. That holds where the robot's state is saved with the run (the mock). On the robot
+(`restart_phase`) the replay only rebuilds the run: the wheels are commanded stopped first, and at the first live
+action the phase the replay ended in starts again from its start conditions where the robot now stands
+(RestartedPhase), after a break in the log (Session.new_segment): the joint fit gives each segment its own start
+pose (kinds.duckiebot.fit).
 """
 
 from __future__ import annotations
