@@ -10,8 +10,8 @@ import pytest
 
 from naocal.kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
 from naocal.kinds.duckiebot.detect import detect_markers
-from naocal.kinds.duckiebot.fit import (CAMERA, PWM_DRIVER, Drive, DriveEquations, Sightings, _compose, _inverse,
-                                        fit_drive, pose_parameters, secant_gain, trajectory)
+from naocal.kinds.duckiebot.fit import (CAMERA, PWM_DRIVER, Drive, DriveEquations, PoseEquations, Sightings,
+                                        _compose, _inverse, fit_drive, pose_parameters, secant_gain, trajectory)
 from naocal.kinds.duckiebot.kinematics import body_velocity, duty_to_pwm, integrate_pose
 from naocal.kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
 from naocal.kinds.duckiebot.intrinsics import LensCamera
@@ -158,6 +158,23 @@ def test_the_equations_jacobian_is_exact(moved):
         numeric[:, :, j] = (eq.predict(x + step, jacobian=False)[0] - eq.predict(x - step, jacobian=False)[0]) / 2e-6
     assert len(x) > 15 and np.abs(J).max() > 1.0
     np.testing.assert_allclose(J, numeric, atol=2e-4 * np.abs(J).max(), rtol=1e-5)
+
+
+def test_the_start_poses_jacobian_is_exact_for_each_segments_anchor():
+    """drive_start's problem (PoseEquations) in segments: every column, both anchors', against central differences."""
+    robot, drive, sightings, K = synthetic(1, moved=CARRIED)
+    fit = fit_drive(drive, sightings, K, 0.065, camera_mount())
+    frames = np.unique(fit.sightings.frame)
+    seen = np.random.default_rng(0).normal(0.0, 0.01, (len(frames), 3))
+    eq = PoseEquations(drive, frames, seen, fit.names, fit.x, np.ones(len(fit.x), bool))
+    assert [fit.names[i] for i in eq.index][-3:] == ["anchor1.x_m", "anchor1.y_m", "anchor1.theta_rad"]
+    x = fit.x[eq.index] + 1e-3
+    _, J = eq.dense(x)
+    for j in range(len(x)):
+        step = np.zeros(len(x))
+        step[j] = 1e-6
+        np.testing.assert_allclose(J[:, j], (eq.dense(x + step)[0] - eq.dense(x - step)[0]) / 2e-6, atol=1e-6,
+                                   rtol=1e-6, err_msg=fit.names[eq.index[j]])
 
 
 @pytest.mark.parametrize("seed", [1, 2])

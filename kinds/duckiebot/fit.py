@@ -723,7 +723,8 @@ def _segments_kept(drive: Drive, sightings: Sightings, rows) -> tuple[np.ndarray
         seen = len(np.unique(sightings.frame[mine]))
         if seen < MIN_SEGMENT_FRAMES:
             rows &= ~mine
-            warnings.append(f"segment {int(s)} of the drive (after break {int(s)}) left out: markers seen in {seen} "
+            part = "before the first break" if s == 0 else f"after break {int(s)}"
+            warnings.append(f"segment {int(s)} of the drive ({part}) left out: markers seen in {seen} "
                             f"frame{'s' * (seen != 1)}, fewer than {MIN_SEGMENT_FRAMES} (its start pose and its "
                             "motion cannot both be told)")
     if not rows.any():
@@ -779,7 +780,8 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     # them through shared frames): its corners are set aside (with the outliers), as are such frames'
     connected = np.isin(sightings.frame, list(frames)) & np.isin(sightings.marker, list(markers))
     connected, left_out = _segments_kept(drive, sightings, connected)
-    frames = {f: pose for f, pose in frames.items() if f in set(sightings.frame[connected].tolist())}
+    seen_frames = set(sightings.frame[connected].tolist())
+    frames = {f: pose for f, pose in frames.items() if f in seen_frames}
     ids = sorted({int(m) for m in sightings.marker[connected]} - {reference})
     anchors = anchor_times(drive, sorted(frames))
     added = effect_parameters(effects)
