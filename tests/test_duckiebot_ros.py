@@ -512,8 +512,12 @@ def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phas
         assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
         assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
         assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
-        # the phase started again: both passes after the break, more frames than the crashed run's one pass
-        assert np.sum(resumed.frame_t_s > resumed.segment_t_s[0]) > len(log.frame_files)
+        # the phase started again from the start board for the pass not yet done only (right, to board 0: every
+        # step after the break turns right), the first pass's views kept
+        after = resumed.wheel_t_s > resumed.segment_t_s[0]
+        left, right = resumed.left_duty[after], resumed.right_duty[after]
+        assert np.sum(resumed.frame_t_s > resumed.segment_t_s[0]) >= 3 and np.any(left > 0)
+        assert np.all((left >= 0) & (right <= 0))
         assert resumed.encoder_t_s is not None and journal_rows(out / "encoders.csv")[:len(rows)] == rows
         assert stopped(graph)
     finally:

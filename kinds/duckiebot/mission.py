@@ -6,7 +6,8 @@ however it ends.
 
 - boards: one-wheel steps (a step, stop, settle, grab: sharp frames), turning left, right, left over the semicircle
   of boards, tracking which board is in view (identical boards: by continuity from the one in view at the start);
-  recovery when none is: keep turning towards the next board for a bounded number of steps.
+  recovery when none is: keep turning towards the next board for a bounded number of steps. Started again after
+  a resume on the robot: from the start board in view again (the robot put back facing it), the passes not yet done.
 - camera: the intrinsics from every board view (kinds.duckiebot.identify.fit_intrinsics: lens model by held-out
   error).
 - face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
@@ -310,6 +311,7 @@ class MissionContext:
     last_seen: object = None  # (distance driven, markers) of the last frame with markers of a compensated drive
     on_calibration: object = None  # callable(calibration): the caller writes it (RUN/offsets.json)
     board_views: dict = field(default_factory=dict)  # {frame index: boards detected}: kept when a phase restarts
+    board_passes_done: int = 0  # the boards' passes done: a boards phase started again turns the others only
     restarted: str | None = None  # the phase started again after a resume (RestartedPhase)
 
     @property
@@ -432,7 +434,9 @@ class Boards(State):
         look(+1)
         goals = [(+1, s.n_boards - 1), (-1, 0), (+1, s.start_board)]  # turn until this board passes the centre
         step = 0
-        for direction, goal in (goals * s.board_passes)[:s.board_passes]:
+        passes = (goals * s.board_passes)[:s.board_passes]
+        for index in range(ctx.board_passes_done, len(passes)):  # started again: the passes not yet done
+            direction, goal = passes[index]
             blind = 0
             for _ in range(s.max_board_steps):
                 turn_step(session, s, direction, step)
@@ -448,6 +452,7 @@ class Boards(State):
             else:
                 raise NaocalError(f"board {goal} did not come into the middle of the view within "
                                   f"{s.max_board_steps} steps")
+            ctx.board_passes_done = index + 1
         detections = [ctx.board_views.get(i, []) for i in range(session.grabbed)]
         ctx.board_detections = detections
         n_views = sum(len(d) for d in detections)
