@@ -777,11 +777,11 @@ def run_mission(robot, out_dir, settings: MissionSettings = MissionSettings(), *
     (RestartedPhase); else the run goes on from the log's end (the mock's world is saved with it)."""
     out_dir = Path(out_dir)
     meta = log_meta(robot_id, source)
-    if restart_phase:
-        robot.command(0.0, 0.0)  # the wheels first: a killed run may have left them turning (logged at the break)
     t0 = robot.now()
     ctx = MissionContext(robot, out_dir, settings, Session(robot, out_dir / CALIBRATION_LOG, meta, settings, t0,
                                                            restart_phase), on_calibration=on_calibration)
+    if restart_phase and not ctx.session.live:  # resumed: the wheels first, a killed run may have left them turning
+        robot.command(0.0, 0.0)  # (logged where the phase starts again: Session.new_segment)
     try:
         if (out_dir / VALIDATION_LOG).exists():  # a resumed run that had begun its validation
             ctx.validation_session = Session(robot, out_dir / VALIDATION_LOG, meta, settings, t0, restart_phase)
