@@ -344,6 +344,21 @@ def test_a_bad_calibration_file_is_refused_naming_its_field(calibrated, tmp_path
     assert not out.exists()
 
 
+def test_a_calibration_from_a_log_in_segments_reads_with_each_segments_anchor(calibrated, tmp_path):
+    """A log in segments (segments.csv) is fitted with one anchor per segment, `anchor<s>.*` after a break: the
+    calibration file holds them and reads; a misspelt one is still refused."""
+    doc = json.loads(calibrated.cal.read_text())
+    for axis in ("x_m", "y_m", "theta_rad"):
+        doc["parameters"][f"anchor1.{axis}"] = {"value": 0.1, "std": 0.01, "fixed": False}
+    good = tmp_path / "segments.json"
+    good.write_text(json.dumps(doc))
+    assert naocal("offsets", "validate", good).returncode == 0
+    doc["parameters"]["anchor0x.x_m"] = doc["parameters"].pop("anchor1.x_m")
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    one_line_error(naocal("offsets", "validate", bad), bad, "parameters.anchor0x.x_m")
+
+
 def test_an_implausible_calibration_is_never_written(calibrated, tmp_path):
     """The writer checks the document with the reader first: a trim beyond any working Duckiebot (0.6) is refused
     (exit 3, the fit's fault) and the file already there is kept."""

@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from naocal.kinds.duckiebot.drive_log import SCHEMA, read_drive_log, write_drive_log, write_frame
+from naocal.kinds.duckiebot.drive_log import (SCHEMA, DriveLogAppender, read_drive_log, write_drive_log,
+                                              write_frame)
 from naocal.solver.errors import DataError
 
 W, H = 64, 48  # small frames keep the tests fast; the reader takes the size from log.json
@@ -68,6 +69,25 @@ def test_encoders_are_optional(log):
     doc["wheels"]["ticks_per_revolution"] = None  # an exporter's way of leaving it out
     (log / "log.json").write_text(json.dumps(doc))
     assert read_drive_log(log).wheels.ticks_per_revolution is None
+
+
+def test_a_log_in_segments_reads_its_breaks_and_one_without_has_none(log):
+    assert read_drive_log(log).segment_t_s.shape == (0,)  # no segments.csv: one drive, as before
+    (log / "segments.csv").write_text("t_s\n0.55\n0.55\n0.8\n")  # a break written twice is one break
+    np.testing.assert_array_equal(read_drive_log(log).segment_t_s, [0.55, 0.8])
+
+
+def test_the_appender_records_a_break_after_every_row_and_keeps_it(tmp_path):
+    appender = DriveLogAppender(tmp_path / "LOG", meta())
+    appender.add_wheels(1.0, 0.3, 0.3)
+    appender.add_frame(1.5, "frames/000000.png", np.zeros((H, W), np.uint8))
+    with pytest.raises(ValueError, match="does not follow the log's last row"):
+        appender.add_break(1.5)  # a break belongs between rows: the frame at 1.5 s was before it
+    appender.add_break(2.0)
+    appender.add_wheels(2.0, 0.0, 0.0)
+    again = DriveLogAppender(tmp_path / "LOG", meta())
+    assert again.breaks == [2.0] and len(again.wheels) == 2
+    np.testing.assert_array_equal(read_drive_log(tmp_path / "LOG").segment_t_s, [2.0])
 
 
 def refused(log, match):
@@ -197,6 +217,10 @@ def test_log_json_keys_the_format_does_not_define_are_ignored_with_a_warning(log
     ("frames.csv", "t_s,file\n0.1,frames/0000.bmp\n", r"line 2, field 'file'.*not a PNG or JPEG"),
     ("frames.csv", "t_s,file\n0.1,frames/0000.png\n0.2,frames/./0000.png\n", r"line 3, field 'file'.*already"),
     ("frames.csv", "t_s,file\n0.1,frames/absent.png\n", r"absent.png: file not found"),
+    ("segments.csv", "t_s\n0.7\n0.4\n", r"segments.csv, line 3, field 't_s'.*before the previous"),
+    ("segments.csv", "t_s\nnan\n", r"segments.csv, line 2, field 't_s'.*finite"),
+    ("segments.csv", "t_s,reason\n0.7,crash\n", r"segments.csv, line 1: expected the header t_s"),
+    ("segments.csv", "t_s\n", r"segments.csv.*no data rows"),
 ])
 def test_bad_csv_files(log, name, text, match):
     (log / name).write_text(text)

@@ -21,8 +21,8 @@ from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
 from naocal.kinds.duckiebot.intrinsics import LensCamera
 from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
-                                            MissionContext, MissionSettings, Session, Validation, drive_watching,
-                                            log_meta, run_mission)
+                                            MissionContext, MissionSettings, ReplayEnded, Session, Validation,
+                                            drive_watching, log_meta, run_mission)
 from naocal.kinds.duckiebot.mock import DuckiebotMock
 from naocal.solver.errors import NaocalError, SafetyError
 
@@ -205,6 +205,99 @@ def test_a_killed_run_resumes_without_repeating_a_capture(tmp_path):
     assert resumed_commands < len(whole.wheel_t_s)  # the replayed part was not sent again
 
 
+class StoppedMidDrive:
+    """The mock stopped (KeyboardInterrupt: what Ctrl-C and SIGTERM raise) as it is to drive straight at `duty` for
+    the `at`-th time."""
+
+    def __init__(self, robot, duty, at):
+        self.robot, self.duty, self.at, self.seen = robot, duty, at, 0
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def advance(self, duration_s, poses=None):
+        if np.allclose(self.robot.duties, self.duty):
+            self.seen += 1
+            if self.seen >= self.at:
+                raise KeyboardInterrupt("stopped by the test")
+        self.robot.advance(duration_s, poses)
+
+
+UP_TO_DRIVES = {("boards", "ok"): "camera", ("camera", "ok"): "face_markers", ("face_markers", "ok"): "marker_drives",
+                ("marker_drives", "ok"): DONE}
+
+
+def test_a_run_stopped_mid_drive_and_carried_resumes_where_the_robot_stands(tmp_path):
+    """Resumed as on the real robot (restart_phase: the mock's saved pose is not used): stopped in the marker drives'
+    second leg, the robot carried 3 cm and turned 5.7 deg by hand, the run goes on: the captures kept, a break in
+    the log with the wheels stopped there, the marker line found again (a frame before any drive), the drives done.
+    The joint fit on such a log: tests/test_duckiebot_fit.py; the calibration against an uninterrupted run's:
+    benchmarks/bench_duckiebot_resume.py."""
+    states = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives)
+    state = tmp_path / "mock_state.json"
+    robot = short_mock(state_path=state)
+    try:
+        result, _ = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[1], 2), tmp_path, SHORT, states=states,
+                                transitions=UP_TO_DRIVES)
+    finally:
+        robot.close()
+    assert result.final == INTERRUPTED and result.history[-1].state == "marker_drives", result.reason
+    before = read_drive_log(tmp_path / "log")
+    kept = {name: (tmp_path / "log" / name).read_bytes() for name in before.frame_files}
+    robot = short_mock(state_path=state)
+    try:
+        robot.carry(-0.03, 0.02, 0.1)
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=states, transitions=UP_TO_DRIVES,
+                                  restart_phase=True)
+    finally:
+        robot.close()
+    assert result.final == DONE, result.reason
+    assert ctx.restarted == "marker_drives" and ctx.driven
+    after = read_drive_log(tmp_path / "log")
+    (t_break,) = after.segment_t_s
+    assert t_break > max(before.wheel_t_s[-1], before.frame_t_s[-1])
+    assert after.frame_files[:len(before.frame_files)] == before.frame_files
+    assert all((tmp_path / "log" / name).read_bytes() == data for name, data in kept.items())
+    first = np.searchsorted(after.wheel_t_s, t_break)
+    assert after.wheel_t_s[first] == t_break and (after.left_duty[first], after.right_duty[first]) == (0.0, 0.0)
+    # the line found again before any drive: a frame at rest after the stop, before the segment's next command
+    assert np.any((after.frame_t_s > t_break) & (after.frame_t_s < after.wheel_t_s[first + 1]))
+    # every leg driven after the break: both duties, out and back
+    segment = after.wheel_t_s >= t_break
+    for duty in SHORT.drive_duties[:2]:
+        assert np.any(np.isclose(after.left_duty[segment], duty) & np.isclose(after.right_duty[segment], duty))
+        assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
+
+
+def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_a_final_stop(tmp_path):
+    """restart_phase: nothing is sent while the log replays; the first action past it ends the phase's replay
+    (ReplayEnded), as does a stop an interrupted run logged where the phase goes on otherwise (a grab here), which
+    the mock's own resume refuses as another run's."""
+    robot = short_mock()
+    try:
+        first = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0)
+        first.command(0.3, 0.3)
+        robot.advance(0.1)
+        first.stop()  # Ctrl-C during the wait: run_mission's finally logs the stop
+        sent = len(robot.received)
+        for restart in (True, False):
+            again = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0, restart_phase=restart)
+            again.command(0.3, 0.3)
+            with pytest.raises(ReplayEnded if restart else NaocalError):
+                again.grab()
+        again = Session(robot, tmp_path / "log", log_meta("t", "test"), SHORT, 0.0, restart_phase=True)
+        again.command(0.3, 0.3)
+        again.command(0.0, 0.0)  # the logged stop, replayed
+        with pytest.raises(ReplayEnded):
+            again.wait(0.1)
+        assert len(robot.received) == sent
+        again.new_segment()
+        assert robot.received[sent][1:] == (0.0, 0.0) and again.live
+        assert again.log.breaks == [again.log.wheels[-1][0]] and again.log.wheels[-1][1:] == (0.0, 0.0)
+    finally:
+        robot.close()
+
+
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):
     """Driving where no marker lies (facing the boards, away from the line), the robot stops once it has driven
     max_blind_m without seeing one: never farther than that and one check."""
@@ -263,6 +356,8 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
         check_out_dir(tmp_path, record, resume=False)
     for change, message in (({"backend": "naoqi"}, "runs on --backend mock or ros or bridge"),
                             ({"backend": "bridge"}, "needs --endpoint"), ({"seed": -1}, "--seed"),
+                            ({"backend": "bridge", "endpoint": "tcp://db21.local:7790"},
+                             "--resume is not usable over the bridge yet"),
                             ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))

@@ -340,7 +340,7 @@ def test_calibrate_ros_bad_setups_are_one_line_exit_2_nothing_written(tmp_path, 
         assert err.count("\n") == 1 and message in err and not out.exists()
     monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
     monkeypatch.setitem(sys.modules, "rospy", None)  # not on the robot
-    for extra, message in (([], "dt-ros-commons"), (["--resume"], "a run on the robot cannot be resumed"),
+    for extra, message in (([], "dt-ros-commons"), (["--resume"], "dt-ros-commons"),
                            (["--mock", "ideal"], "--mock chooses")):
         assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
         err = capsys.readouterr().err
@@ -460,7 +460,10 @@ class Crash(Exception):
     """A bug that kills the process (the CLI keeps its traceback)."""
 
 
-def test_calibrate_ros_a_crash_keeps_the_ticks_and_the_run_is_not_resumed(tmp_path, monkeypatch, capsys):
+def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phase_again_where_it_stands(
+        tmp_path, monkeypatch, capsys):
+    """A run on the fake peer dies (the ticks kept), the robot is carried by hand, and `--resume` goes on: the wheels
+    stopped first, the captures kept, a break in the log where the phase started again, the ticks appended."""
     import naocal.kinds.duckiebot.mission as mission
     from naocal.tools.cli import main
 
@@ -483,10 +486,39 @@ def test_calibrate_ros_a_crash_keeps_the_ticks_and_the_run_is_not_resumed(tmp_pa
         assert len(rows) > 10 and rows[0][0] <= log.wheel_t_s[-1] and rows[-1][1] != rows[0][1]
         before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
         capsys.readouterr()
-        for extra in ([], ["--resume"]):
-            assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", *extra, "--out", str(out)]) == 2
-            err = capsys.readouterr().err
-            assert err.count("\n") == 1 and "a run on the robot cannot be resumed" in err, err
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "continue it with --resume" in err, err
         assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
+        frames = {name: (out / "log" / name).read_bytes() for name in log.frame_files}
+
+        # hands set it down again facing the start board, as the boards phase starts (not where it stopped)
+        x, y, theta = graph.robot.pose()
+        c, s_ = math.cos(theta), math.sin(theta)
+        graph.robot.carry(c * (0.02 - x) + s_ * (-0.01 - y), -s_ * (0.02 - x) + c * (-0.01 - y), 0.05 - theta)
+        sent = len(graph.received)
+
+        def boards_twice(robot, out, settings, **kw):  # the resumed run goes on past the crashed one's end
+            return whole(robot, out, MissionSettings(board_passes=2), **kw, states=(Boards,),
+                         transitions={("boards", "ok"): DONE})
+
+        monkeypatch.setattr(mission, "run_mission", boards_twice)
+        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--resume", "--out", str(out)]) == 0
+        resumed = read_drive_log(out / "log")
+        assert graph.received[sent][1:] == (0.0, 0.0)  # the wheels stopped before anything else was sent
+        assert len(resumed.segment_t_s) == 1 and resumed.segment_t_s[0] > log.wheel_t_s[-1]
+        at_break = np.searchsorted(resumed.wheel_t_s, resumed.segment_t_s[0])
+        assert resumed.wheel_t_s[at_break] == resumed.segment_t_s[0]
+        assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
+        assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
+        assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
+        # the phase started again from the start board for the pass not yet done only (right, to board 0: every
+        # step after the break turns right), the first pass's views kept
+        after = resumed.wheel_t_s > resumed.segment_t_s[0]
+        left, right = resumed.left_duty[after], resumed.right_duty[after]
+        assert np.sum(resumed.frame_t_s > resumed.segment_t_s[0]) >= 3 and np.any(left > 0)
+        assert np.all((left >= 0) & (right <= 0))
+        assert resumed.encoder_t_s is not None and journal_rows(out / "encoders.csv")[:len(rows)] == rows
+        assert stopped(graph)
     finally:
         graph.close()

@@ -6,7 +6,7 @@ docs/DEPLOY.md "Duckiebot (DB21)"), or from a laptop through `naocal bridge serv
 
     naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
                      [--max-blind-m M]
-    naocal calibrate --robot duckiebot --backend ros --out RUN [--max-blind-m M]
+    naocal calibrate --robot duckiebot --backend ros --out RUN [--resume] [--max-blind-m M]
     naocal calibrate --robot duckiebot --backend bridge --endpoint URL --out RUN [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
@@ -18,8 +18,14 @@ RUN/truth.json (the mock's hidden robot in the same names and units), RUN/summar
 validation, the truth beside the result), RUN/run.json (the options: --resume must repeat them), RUN/mission.json
 (written last: the run is finished), RUN/mock_state.json (the mock's world: where its robot stands).
 Exit 0 when calibrated and validated, 2 on bad input (nothing changed), 3 when the mission failed (the wheels are
-stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues on the
-mock; a run on the robot is not resumed: ROS_NO_RESUME).
+stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues).
+
+--resume keeps every capture saved. On the mock, whose world is saved with the run, the run goes on from where it
+stopped. On the robot (--backend ros), whose pose is not saved (it may have been moved, or have rolled on after a
+crash), the wheels are commanded stopped first, the logs replayed to rebuild the run, and the phase they end in
+started again from its start conditions wherever the robot now stands (the marker line found again first); the
+drive log gets a break there (segments.csv) and the joint fit a start pose per segment (mission.RestartedPhase).
+Not over the bridge yet (BRIDGE_NO_RESUME).
 """
 
 from __future__ import annotations
@@ -34,11 +40,9 @@ FINISHED_NAME = "mission.json"
 ENCODER_JOURNAL = "encoders.csv"  # --backend ros: every encoder row as it came (ros_driver.keep_encoders)
 ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
                      "mock_state.json", ".naocal.lock", ENCODER_JOURNAL})
-# Why a run on the real robot is not resumed (docs/DEPLOY.md): the mock's world is saved with the run
-# (mock_state.json), a real robot's is not.
-ROS_NO_RESUME = ("a run on the robot cannot be resumed: the robot may have moved since it stopped (a killed agent "
-                 "leaves the wheels turning; hands lift it), while its drive log and 600 s budget assume one unbroken "
-                 "drive on one clock; start again with a new --out (docs/DEPLOY.md)")
+# Over the bridge the mission would resume as on the robot (restart_phase), but that path is not tested yet
+BRIDGE_NO_RESUME = ("--resume is not usable over the bridge yet (not tested there): resume on the robot with "
+                    "--backend ros, or start a new --out")
 DEFAULT_MAX_BLIND_M = 0.3
 
 
@@ -75,10 +79,11 @@ def _record(args) -> dict:
         if not getattr(args, "endpoint", None):
             raise NaocalError("--backend bridge needs --endpoint URL (the address `naocal bridge serve --robot "
                               "duckiebot` prints)")
-        if getattr(args, "mock", None) is not None or getattr(args, "resume", False):
+        if getattr(args, "mock", None) is not None:
             raise NaocalError("--backend bridge: --mock is the server's option (naocal bridge serve --robot duckiebot "
-                              "--driver mock --mock ...), and --resume is not usable over the bridge yet: start a "
-                              "new --out")
+                              "--driver mock --mock ...)")
+        if getattr(args, "resume", False):
+            raise NaocalError(f"--backend bridge: {BRIDGE_NO_RESUME}")
     if args.backend == "ros":
         import os
 
@@ -88,8 +93,6 @@ def _record(args) -> dict:
                               "robot's name: run inside dt-ros-commons on the robot; docs/DEPLOY.md)")
         if getattr(args, "mock", None) is not None:
             raise NaocalError("--mock chooses the simulated robot; --backend ros drives the real one")
-        if getattr(args, "resume", False):
-            raise NaocalError(f"--resume with --backend ros: {ROS_NO_RESUME}")
     for option, given in (("--effect", getattr(args, "effect", None)),
                           ("--endpoint", args.backend != "bridge" and getattr(args, "endpoint", None)),
                           ("--report", getattr(args, "report", None))):
@@ -120,8 +123,6 @@ def check_out_dir(out: Path, record: dict, resume: bool) -> None:
     if (out / FINISHED_NAME).exists():
         raise NaocalError(f"{out} holds a finished calibration (offsets {out / 'offsets.json'}, summary "
                           f"{out / 'summary.txt'}): nothing to resume; choose another --out (nothing was changed)")
-    if record["backend"] == "ros" and any(n in ENTRIES for n in names):
-        raise NaocalError(f"{out} already holds a Duckiebot calibration run; {ROS_NO_RESUME} (nothing was changed)")
     check_resumable(out, names, resume=resume, own_entries=ENTRIES, what="a Duckiebot calibration run")
     recorded = read_json(out / RECORD_NAME)
     differ = [f"{key} {record[key]!r} (the run: {recorded.get(key)!r})" for key in RECORD_KEYS
@@ -208,8 +209,9 @@ def run(args) -> int:
                 for finding in findings:
                     print(f"naocal calibrate: warning: {finding}", file=sys.stderr)
 
+            # the robot's pose is not saved with the run (the mock's is): a resumed phase starts again where it stands
             result, ctx = run_mission(robot, out, settings, robot_id=robot_id, source=source,
-                                      on_calibration=write_offsets)
+                                      on_calibration=write_offsets, restart_phase=record["backend"] != "mock")
             if hasattr(robot, "save_encoders"):  # a DB21's ticks, into the drive logs (a DB18 has none)
                 for session in (ctx.session, ctx.validation_session):
                     if session is not None and session.log.wheels:
@@ -223,7 +225,7 @@ def run(args) -> int:
                                                                   indent=1) + "\n")
                 return 0
             if result.final == INTERRUPTED:
-                print(f"naocal calibrate: {ROS_NO_RESUME}" if record["backend"] == "ros" else
+                print(f"naocal calibrate: {BRIDGE_NO_RESUME}" if record["backend"] == "bridge" else
                       f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
                 return 130
             print(f"naocal calibrate: error: {result.reason} (the wheels are stopped; {out / 'summary.txt'})",

@@ -31,7 +31,7 @@ import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, Finding, check_calibration, \
     duckietown_calibration
-from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC, camera_transform
+from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC, SEGMENT_ANCHOR, camera_transform
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
@@ -201,8 +201,9 @@ def _parameters(value, path) -> dict:
     parameters = {}
     for name, entry in fields.json_object(value, path, "parameters").items():
         field = f"parameters.{name}"
-        if name not in KNOWN_PARAMETERS and not MARKER_PARAMETER.fullmatch(name):
+        if name not in KNOWN_PARAMETERS and not MARKER_PARAMETER.fullmatch(name) and not SEGMENT_ANCHOR.fullmatch(name):
             fail(path, "unknown parameter (expected the joint fit's: gain, trim, baseline_m, camera.*, anchor.*, "
+                 "anchor<segment>.*, "
                  f"{BIAS}, marker<id>.*, or an effect's: {', '.join(n for e in EFFECTS.values() for n in e)})",
                   field)
         entry = fields.json_object(entry, path, field, ("value", "std", "fixed"), ())

@@ -9,6 +9,8 @@
     LOG/frames.csv   t_s,file                     one row per frame (t_s mid-exposure, the same clock), file
                                                   relative to LOG (PNG or JPEG)
     LOG/encoders.csv t_s,left_ticks,right_ticks   optional: cumulative signed ticks
+    LOG/segments.csv t_s                          optional: one row per break (the robot may have been moved
+                                                  between the rows before t_s and those at or after it)
 
 Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
 header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
@@ -26,7 +28,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 import cv2
@@ -41,9 +43,13 @@ from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_wri
 
 SCHEMA = "naocal.drive_log/1"
 META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE = "log.json", "wheels.csv", "frames.csv", "encoders.csv"
+# A log in parts: each break's time, after which the robot's pose is unknown (a run stopped and resumed wherever the
+# robot then stood: kinds.duckiebot.mission); every row at or after a break belongs to the part it starts
+SEGMENTS_FILE = "segments.csv"
 WHEELS_HEADER = ("t_s", "left_duty", "right_duty")
 FRAMES_HEADER = ("t_s", "file")
 ENCODERS_HEADER = ("t_s", "left_ticks", "right_ticks")
+SEGMENTS_HEADER = ("t_s",)
 MARKER_FAMILIES = ("tag36h11",)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 IMAGE_SIGNATURES = {".png": b"\x89PNG\r\n\x1a\n", ".jpg": b"\xff\xd8\xff", ".jpeg": b"\xff\xd8\xff"}
@@ -89,6 +95,7 @@ class DriveLog:
     encoder_t_s: np.ndarray | None = None  # (e,) strictly increasing, None without encoders.csv
     left_ticks: np.ndarray | None = None  # (e,) int64, cumulative signed
     right_ticks: np.ndarray | None = None
+    segment_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (b,) the breaks, strictly increasing
 
     def meta(self) -> dict:
         """The log.json document of this log."""
@@ -292,6 +299,14 @@ def read_encoders(path, text: str | None = None, wheels: Wheels | None = None):
     return t, left, right
 
 
+def read_segments(path, text: str | None = None) -> np.ndarray:
+    """The break times of segments.csv, strictly increasing (a row repeated exactly read once)."""
+    rows = _rows(path, SEGMENTS_HEADER, text)
+    t = _times(rows, path)
+    _, t, _ = _repeats_dropped(path, rows, t, [None] * len(rows))
+    return t
+
+
 def frame_file_problem(name: str, log_dir: Path) -> str | None:
     """Why a frames.csv `file` cell cannot name a frame inside LOG, or None. Relative POSIX paths only, no '..',
     and the file (symbolic links followed) must lie inside LOG."""
@@ -370,8 +385,10 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
             meta["wheels"] = dataclasses.replace(
                 meta["wheels"], ticks_per_revolution=duckiebot(meta["model"]).ticks_per_revolution)
         encoders = read_encoders(encoders_path, wheels=meta["wheels"])
+    segments = read_segments(directory / SEGMENTS_FILE) if os.path.lexists(directory / SEGMENTS_FILE) else np.zeros(0)
     return DriveLog(path=directory, **meta, wheel_t_s=wheel_t, left_duty=left, right_duty=right, frame_t_s=frame_t,
-                    frame_files=files, encoder_t_s=encoders[0], left_ticks=encoders[1], right_ticks=encoders[2])
+                    frame_files=files, encoder_t_s=encoders[0], left_ticks=encoders[1], right_ticks=encoders[2],
+                    segment_t_s=segments)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -380,10 +397,11 @@ def csv_text(header, rows) -> str:
     return ",".join(header) + "\n" + "".join(",".join(cells) + "\n" for cells in rows)
 
 
-def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> DriveLog:
+def write_drive_log(directory, meta: dict, wheels, frames, encoders=None, segments=None) -> DriveLog:
     """Write a drive log's text files atomically and return it as read back (the frames' image files must already
     be in `directory`). meta: the log.json document; wheels: (t_s, left_duty, right_duty) arrays; frames:
-    (t_s, files); encoders: (t_s, left_ticks, right_ticks) or None. Floats as repr(): a round trip is exact.
+    (t_s, files); encoders: (t_s, left_ticks, right_ticks) or None; segments: the breaks' times or None (no
+    segments.csv). Floats as repr(): a round trip is exact.
     Every file's content is checked as the reader would before anything is written (DataError naming it)."""
     directory = Path(directory)
     checked = parse_meta(meta, directory / META_FILE)
@@ -393,12 +411,16 @@ def write_drive_log(directory, meta: dict, wheels, frames, encoders=None) -> Dri
     if encoders is not None:
         texts[ENCODERS_FILE] = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(int(a)), str(int(b))]
                                                            for t, a, b in zip(*encoders)))
+    if segments is not None:
+        texts[SEGMENTS_FILE] = csv_text(SEGMENTS_HEADER, ([repr(float(t))] for t in segments))
     texts[META_FILE] = json.dumps(meta, indent=2) + "\n"
     read_wheels(directory / WHEELS_FILE, texts[WHEELS_FILE])
     read_frames(directory / FRAMES_FILE, directory, checked["width_px"], checked["height_px"],
                 text=texts[FRAMES_FILE])
     if encoders is not None:
         read_encoders(directory / ENCODERS_FILE, texts[ENCODERS_FILE], wheels=checked["wheels"])
+    if segments is not None:
+        read_segments(directory / SEGMENTS_FILE, texts[SEGMENTS_FILE])
     directory.mkdir(parents=True, exist_ok=True)
     for name, text in texts.items():
         atomic_write_text(directory / name, text)
@@ -451,7 +473,7 @@ class DriveLogAppender:
         self.directory = Path(directory)
         self.meta = meta
         parse_meta(meta, self.directory / META_FILE)
-        self.wheels, self.frames = [], []
+        self.wheels, self.frames, self.breaks = [], [], []
         if (self.directory / META_FILE).exists():
             stored = read_json(self.directory / META_FILE)
             if stored != json.loads(json.dumps(meta)):
@@ -462,12 +484,14 @@ class DriveLogAppender:
             if (self.directory / FRAMES_FILE).exists():
                 t, files = read_frames(self.directory / FRAMES_FILE, self.directory, 1, 1, check_images=False)
                 self.frames = list(zip(t.tolist(), files))
+            if (self.directory / SEGMENTS_FILE).exists():
+                self.breaks = read_segments(self.directory / SEGMENTS_FILE).tolist()
         else:
             self.directory.mkdir(parents=True, exist_ok=True)
             atomic_write_text(self.directory / META_FILE, json.dumps(meta, indent=2) + "\n")
 
     def last_time_s(self) -> float:
-        return max([-math.inf] + [self.wheels[-1][0]] * bool(self.wheels) + [self.frames[-1][0]] * bool(self.frames))
+        return max((rows[-1][0] for rows in (self.wheels, self.frames) if rows), default=-math.inf)
 
     def _check_time(self, t_s: float, rows, what: str) -> None:
         if not math.isfinite(t_s) or (rows and t_s <= rows[-1][0]):
@@ -481,6 +505,13 @@ class DriveLogAppender:
         self.wheels.append((float(t_s), float(left_duty), float(right_duty)))
         atomic_write_text(self.directory / WHEELS_FILE, csv_text(WHEELS_HEADER, (
             [repr(t), repr(a), repr(b)] for t, a, b in self.wheels)))
+
+    def add_break(self, t_s: float) -> None:
+        """Start a new segment at t_s, after every row so far: the robot may have moved since the last one."""
+        if not (math.isfinite(t_s) and t_s > self.last_time_s()):
+            raise ValueError(f"a break at {t_s!r} s does not follow the log's last row ({self.last_time_s()!r} s)")
+        self.breaks.append(float(t_s))
+        atomic_write_text(self.directory / SEGMENTS_FILE, csv_text(SEGMENTS_HEADER, ([repr(t)] for t in self.breaks)))
 
     def add_frame(self, t_s: float, name: str, image: np.ndarray) -> None:
         self._check_time(t_s, self.frames, "frame")

@@ -10,7 +10,11 @@ Unknowns (`DriveFit.names`):
 - `anchor.x_m .y_m .theta_rad`: the robot's pose at the first frame with a marker in view (the start of the
   observed drive). Anchored there, not at the log's first row: no frame before it sees a marker, so a free pose at
   the log's start would absorb all motion before the anchor exactly; anchoring at the first seen frame is the same
-  model without the long lever arm of the turns before it;
+  model without the long lever arm of the turns before it. A log in segments (Drive.segment_t_s: a run stopped
+  and resumed wherever the robot then stood, drive_log's segments.csv) has one anchor per segment,
+  `anchor<s>.x_m .y_m .theta_rad` for segment s >= 1 (anchor_names), at that segment's first frame with a marker
+  in view, driven by that segment's commands only; the wheels, the camera and the markers are shared. A segment
+  seen in fewer than MIN_SEGMENT_FRAMES frames is left out, with a warning;
 - `corner_bias_px`: the detector's corners lie inside the true ones (BIAS);
 - optional wheel effects, each off unless named (`fit_drive(effects=...)`; the registry's differential-drive
   effects, solver/effects/ with the drive_parameters hook: WHEEL_EFFECTS): `dead_zone`, `slip_s_per_m`,
@@ -38,6 +42,7 @@ far too few for the sandwich.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -60,6 +65,9 @@ KINEMATIC = ("gain", "trim", "baseline_m")
 BIAS = "corner_bias_px"
 CAMERA = ("camera.x_m", "camera.y_m", "camera.z_m", "camera.roll_rad", "camera.pitch_rad", "camera.yaw_rad")
 ANCHOR = ("anchor.x_m", "anchor.y_m", "anchor.theta_rad")
+SEGMENT_ANCHOR = re.compile(r"anchor([1-9]\d{0,8})\.(x_m|y_m|theta_rad)")  # a later segment's anchor (anchor_names)
+# a segment seen in fewer frames is left out of the fit: one frame fixes its anchor and tells nothing of the wheels
+MIN_SEGMENT_FRAMES = 2
 # The variables' scales (solver.identify.levenberg_marquardt conditions on them; the identifiability policy judges
 # the columns scaled by them): about the prior uncertainty of each.
 SCALES = {"gain": 0.1, "trim": 0.05, "baseline_m": 0.003, "camera.x_m": 0.005, "camera.y_m": 0.005,
@@ -134,11 +142,25 @@ class Drive:
     # motors receive motor_duties(), not the duties logged. Only where the log's robot is known to have that driver
     # (the mission's mock and ROS bridge): an independent log generator may send exact duties
     pwm_driver: bool = False
+    # the log's breaks (drive_log's segments.csv): a command before a break does not move the robot after it
+    segment_t_s: tuple = ()
 
     @classmethod
     def of_log(cls, log, *, pwm_driver: bool = False) -> "Drive":
         return cls(log.wheel_t_s, log.left_duty, log.right_duty, log.frame_t_s, log.wheels.k, log.wheels.radius_m,
-                   log.wheels.baseline_m, log.wheels.limit, pwm_driver)
+                   log.wheels.baseline_m, log.wheels.limit, pwm_driver, tuple(float(t) for t in log.segment_t_s))
+
+    def segment_of(self, t_s) -> np.ndarray:
+        """The segment (0, 1, ...) each time in t_s belongs to: the number of breaks at or before it."""
+        return np.searchsorted(np.asarray(self.segment_t_s, dtype=float), np.asarray(t_s, dtype=float), side="right")
+
+    def segment(self, s: int) -> "Drive":
+        """Segment s alone: its wheel commands (the robot at rest before the first), every frame's time."""
+        if not self.segment_t_s:
+            return self
+        rows = self.segment_of(self.wheel_t_s) == s
+        return replace(self, wheel_t_s=self.wheel_t_s[rows], left_duty=self.left_duty[rows],
+                       right_duty=self.right_duty[rows], segment_t_s=())
 
     def motor_duties(self) -> tuple[np.ndarray, np.ndarray]:
         """(left, right) duties as the motors receive them: as logged, or with pwm_driver driver_duty's."""
@@ -316,6 +338,41 @@ def _arc(pose, J, v, omega, dv, domega, dt):
     return new, Phi @ J + G @ np.vstack([dv, domega])
 
 
+def anchor_names(segment: int) -> tuple:
+    """The names of segment `segment`'s anchor: ANCHOR for the first, anchor<s>.* after a break."""
+    return ANCHOR if segment == 0 else tuple(f"anchor{segment}.{n.split('.', 1)[1]}" for n in ANCHOR)
+
+
+def anchor_times(drive: Drive, frames) -> dict:
+    """{segment: the time of its first frame among `frames` (indices, increasing)}: where its anchor is."""
+    times = drive.frame_t_s[np.asarray(frames, dtype=int)]
+    segments = drive.segment_of(times)
+    return {int(s): float(times[np.argmax(segments == s)]) for s in np.unique(segments)}
+
+
+def drive_poses(drive: Drive, x, column: dict, effects, times_s, anchors: dict):
+    """(poses (F, 3), d poses / d x[columns] (F, 3, C), columns (C,)) at times_s (increasing), each pose from its
+    segment's anchor (anchor_names, at anchors[segment]: anchor_times) through that segment's commands
+    (trajectory); `columns`: x's indices (of `column`) of the kinematics, every anchor and the effects' parameters
+    `effects`, those the poses depend on."""
+    times_s = np.asarray(times_s, dtype=float)
+    segments = drive.segment_of(times_s)
+    names = list(KINEMATIC) + [n for s in sorted(anchors) for n in anchor_names(s)] + list(effects)
+    columns = np.array([column[n] for n in names], dtype=int)
+    local = {n: i for i, n in enumerate(names)}
+    poses, J = np.zeros((len(times_s), 3)), np.zeros((len(times_s), 3, len(names)))
+    kin = [x[column[n]] for n in KINEMATIC]
+    values = {n: x[column[n]] for n in effects}
+    for s in np.unique(segments):
+        rows = np.flatnonzero(segments == s)
+        order = KINEMATIC + anchor_names(int(s)) + tuple(effects)
+        p, dp = trajectory(drive.segment(int(s)), *kin, x[[column[n] for n in anchor_names(int(s))]],
+                           anchors[int(s)], times_s[rows], values)
+        poses[rows] = p
+        J[np.ix_(rows, range(3), [local[n] for n in order])] = dp
+    return poses, J, columns
+
+
 # ------------------------------------------------------------------------------------------------ the equations
 
 class DriveEquations:
@@ -336,9 +393,14 @@ class DriveEquations:
         self.column = {n: i for i, n in enumerate(self.names)}
         self.effect_parameters = tuple(n for names in EFFECTS.values() for n in names if n in self.column)
         self.frames = np.unique(sightings.frame)
-        self.anchor_t_s = float(drive.frame_t_s[self.frames[0]])
+        self.anchors = anchor_times(drive, self.frames)  # {segment: its anchor's time}
         self.row_frame = np.searchsorted(self.frames, sightings.frame)
         self.inverse_sigma = 1.0 / sightings.sigma_px
+
+    @property
+    def anchor_t_s(self) -> float:
+        """The first segment's anchor time."""
+        return self.anchors[min(self.anchors)]
 
     def values(self, free) -> np.ndarray:
         x = self.base.copy()
@@ -366,9 +428,8 @@ class DriveEquations:
         """(pixels (N, 2), d pixels / d x) of the points at offsets o (N, 2) in each row's marker frame."""
         c = self.column
         obs, N, P = self.obs, len(self.obs.frame), len(self.names)
-        poses, dposes = trajectory(self.drive, x[c["gain"]], x[c["trim"]], x[c["baseline_m"]],
-                                   x[[c[n] for n in ANCHOR]], self.anchor_t_s, self.drive.frame_t_s[self.frames],
-                                   {n: x[c[n]] for n in self.effect_parameters})
+        poses, dposes, pose_columns = drive_poses(self.drive, x, c, self.effect_parameters,
+                                                  self.drive.frame_t_s[self.frames], self.anchors)
         pose, dpose = poses[self.row_frame], dposes[self.row_frame]
         # markers: the reference at the origin, the others from x
         m_xy, m_yaw = np.zeros((N, 2)), np.zeros(N)
@@ -405,9 +466,7 @@ class DriveEquations:
         RT = np.stack([np.stack([ct, st], -1), np.stack([-st, ct], -1)], axis=1)  # (N, 2, 2) R(theta)^T
         dRT = np.stack([np.stack([-st, ct], -1), np.stack([-ct, -st], -1)], axis=1)
         d_base_d_pose = np.concatenate([-RT, np.einsum("nij,nj->ni", dRT, rel)[:, :, None]], axis=2)  # (N, 2, 3)
-        through_pose = B @ d_base_d_pose @ dpose  # (N, 2, 6)
-        for j, name in enumerate(KINEMATIC + ANCHOR + self.effect_parameters):
-            Jx[:, :, c[name]] += through_pose[:, :, j]
+        Jx[:, :, pose_columns] += B @ d_base_d_pose @ dpose
         BR = B @ RT  # d uv / d world xy
         d_world_d_yaw = np.stack([-sy * o[:, 0] - cy * o[:, 1], cy * o[:, 0] - sy * o[:, 1]], axis=1)
         rows = np.flatnonzero(others)
@@ -452,8 +511,14 @@ def sighting_runs(frame, marker, max_gap: int = SIGHTING_GAP_FRAMES) -> np.ndarr
 
 
 def parameter_scales(names) -> np.ndarray:
-    return np.array([SCALES[n] if n in SCALES else MARKER_SCALES[("x_m", "y_m", "yaw_rad").index(n.split(".")[1])]
-                     for n in names])
+    def scale(n):
+        if n in SCALES:
+            return SCALES[n]
+        if SEGMENT_ANCHOR.fullmatch(n):  # a later segment's anchor: the first's
+            return SCALES[f"anchor.{n.split('.', 1)[1]}"]
+        return MARKER_SCALES[("x_m", "y_m", "yaw_rad").index(n.split(".")[1])]
+
+    return np.array([scale(n) for n in names])
 
 
 # ------------------------------------------------------------------------------------------------ start values
@@ -511,17 +576,19 @@ def chain_floor(seen: dict, reference: int) -> tuple[dict, dict]:
 
 class PoseEquations:
     """drive_start's problem for solver.identify.solve: the frames' planar poses seen from the markers (`seen`,
-    (F, 3)) against the drive's from the anchor at the first of them (trajectory), residuals (F, 3) in POSE_SCALE_M
-    (the heading's POSE_SCALE_M / POSE_HEADING_M rad); unknowns the kinematics, the anchor and the effects'
-    parameters (`columns` of the joint fit's `names`, those `free`)."""
+    (F, 3), at the frames `frames`) against the drive's from each segment's anchor at its first of them
+    (drive_poses), residuals (F, 3) in POSE_SCALE_M (the heading's POSE_SCALE_M / POSE_HEADING_M rad); unknowns
+    the kinematics, the anchors and the effects' parameters (`columns` of the joint fit's `names`, those `free`)."""
 
-    def __init__(self, drive: Drive, times_s, seen, names, base, free):
-        self.drive, self.times_s, self.seen = drive, np.asarray(times_s), np.asarray(seen)
+    def __init__(self, drive: Drive, frames, seen, names, base, free):
+        self.drive, self.times_s, self.seen = drive, drive.frame_t_s[np.asarray(frames)], np.asarray(seen)
+        self.anchors = anchor_times(drive, frames)
         self.column = {n: i for i, n in enumerate(names)}
         self.effects = tuple(n for ns in EFFECTS.values() for n in ns if n in self.column)
-        order = KINEMATIC + ANCHOR + self.effects
-        self.unknowns = [j for j, n in enumerate(order) if free[self.column[n]]]  # trajectory's columns
-        self.index = np.array([self.column[order[j]] for j in self.unknowns], dtype=int)
+        _, _, columns = drive_poses(drive, np.asarray(base, dtype=float), self.column, self.effects,
+                                    self.times_s[:1], {s: self.anchors[s] for s in self.anchors})
+        self.unknowns = [j for j, i in enumerate(columns) if free[i]]  # drive_poses' columns
+        self.index = columns[self.unknowns]
         self.base = np.asarray(base, dtype=float)
         self.scales = parameter_scales(names)[self.index]
         self.unit = np.array([POSE_SCALE_M, POSE_SCALE_M, POSE_SCALE_M / POSE_HEADING_M])
@@ -533,9 +600,7 @@ class PoseEquations:
 
     def dense(self, free):
         """(r (3F,), J (3F, P)) unscaled."""
-        x, c = self.values(free), self.column
-        poses, J = trajectory(self.drive, x[c["gain"]], x[c["trim"]], x[c["baseline_m"]], x[[c[n] for n in ANCHOR]],
-                              self.times_s[0], self.times_s, {n: x[c[n]] for n in self.effects})
+        poses, J, _ = drive_poses(self.drive, self.values(free), self.column, self.effects, self.times_s, self.anchors)
         d = poses - self.seen
         d[:, 2] = np.remainder(d[:, 2] + np.pi, 2 * np.pi) - np.pi
         return (d / self.unit).reshape(-1), (J[:, :, self.unknowns] / self.unit[None, :, None]).reshape(
@@ -560,7 +625,7 @@ def drive_start(drive: Drive, frames: dict, names, x0, free) -> np.ndarray:
     ordered = sorted(frames)
     if len(ordered) < 3:
         return x0
-    equations = PoseEquations(drive, drive.frame_t_s[ordered], [frames[f] for f in ordered], names, x0, free)
+    equations = PoseEquations(drive, ordered, [frames[f] for f in ordered], names, x0, free)
     if not len(equations.index):
         return x0
 
@@ -587,18 +652,23 @@ def start_values(drive: Drive, obs: Sightings, K, marker_size_m, T_base_camera, 
         rows = np.flatnonzero((obs.frame == f) & (obs.marker == m))
         seen[(f, m)] = marker_on_floor(obs.uv_px[rows], obs.corner[rows], K, T_base_camera, marker_size_m)
     frames, markers = chain_floor(seen, int(reference))
-    ordered = sorted(frames)
-    nominal, _ = trajectory(drive, 1.0, 0.0, drive.baseline_m, np.zeros(3), drive.frame_t_s[ordered[0]],
-                            drive.frame_t_s[ordered])
-    # over chords of at least START_GAIN_CHORD_M on the nominal path: summed frame to frame, the seen positions'
-    # noise outgrew the distance driven at a camera's 15-30 fps (an independent log at 15 fps: gain started at
-    # 0.46 for 0.93, and the fit ended at a baseline of -2.9 m)
-    picked = [0]
-    for i in range(1, len(ordered)):
-        if np.linalg.norm(nominal[i, :2] - nominal[picked[-1], :2]) >= START_GAIN_CHORD_M:
-            picked.append(i)
-    driven = np.sum(np.linalg.norm(np.diff(nominal[picked, :2], axis=0), axis=1))
-    seen_moved = np.sum(np.linalg.norm(np.diff(np.array([frames[ordered[i]][:2] for i in picked]), axis=0), axis=1))
+    ordered = np.array(sorted(frames))
+    segments = drive.segment_of(drive.frame_t_s[ordered])
+    driven = seen_moved = 0.0
+    for s in np.unique(segments):  # within each segment: a break moves the robot by hand
+        here = ordered[segments == s]
+        nominal, _ = trajectory(drive.segment(int(s)), 1.0, 0.0, drive.baseline_m, np.zeros(3),
+                                drive.frame_t_s[here[0]], drive.frame_t_s[here])
+        # over chords of at least START_GAIN_CHORD_M on the nominal path: summed frame to frame, the seen positions'
+        # noise outgrew the distance driven at a camera's 15-30 fps (an independent log at 15 fps: gain started at
+        # 0.46 for 0.93, and the fit ended at a baseline of -2.9 m)
+        picked = [0]
+        for i in range(1, len(here)):
+            if np.linalg.norm(nominal[i, :2] - nominal[picked[-1], :2]) >= START_GAIN_CHORD_M:
+                picked.append(i)
+        driven += np.sum(np.linalg.norm(np.diff(nominal[picked, :2], axis=0), axis=1))
+        seen_moved += np.sum(np.linalg.norm(np.diff(np.array([frames[here[i]][:2] for i in picked]), axis=0),
+                                            axis=1))
     gain = driven / seen_moved if seen_moved > 1e-3 and driven > 1e-3 else 1.0
     return frames, markers, gain
 
@@ -626,6 +696,7 @@ class DriveFit:
     warnings: list = field(default_factory=list)
     covariance: np.ndarray | None = field(default=None, repr=False)  # cluster-robust, names' order (0: fixed)
     pwm_driver: bool = False  # fitted through Duckietown's wheel driver (Drive.pwm_driver)
+    anchors: dict = field(default_factory=dict)  # {segment: its anchor's time} of the segments fitted
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -639,6 +710,27 @@ class DriveFit:
 
     def parameters_dict(self) -> dict:
         return {n: {"value": float(v), "std": float(s)} for n, v, s in zip(self.names, self.x, self.std)}
+
+
+def _segments_kept(drive: Drive, sightings: Sightings, rows) -> tuple[np.ndarray, list]:
+    """(rows without those of segments seen in fewer than MIN_SEGMENT_FRAMES frames, a warning for each left out).
+    SolveError when none is left."""
+    rows = np.asarray(rows, dtype=bool).copy()
+    segment = drive.segment_of(drive.frame_t_s[sightings.frame])
+    warnings = []
+    for s in np.unique(segment[rows]):
+        mine = rows & (segment == s)
+        seen = len(np.unique(sightings.frame[mine]))
+        if seen < MIN_SEGMENT_FRAMES:
+            rows &= ~mine
+            part = "before the first break" if s == 0 else f"after break {int(s)}"
+            warnings.append(f"segment {int(s)} of the drive ({part}) left out: markers seen in {seen} "
+                            f"frame{'s' * (seen != 1)}, fewer than {MIN_SEGMENT_FRAMES} (its start pose and its "
+                            "motion cannot both be told)")
+    if not rows.any():
+        raise SolveError(f"no segment of the drive has markers seen in {MIN_SEGMENT_FRAMES} frames or more: the drive "
+                         "cannot be fitted")
+    return rows, warnings
 
 
 def _reference_marker(obs: Sightings) -> int:
@@ -684,16 +776,21 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     K = np.asarray(K, dtype=float)
     frames, markers, gain0 = start_values(drive, sightings, K, marker_size_m, np.asarray(T_base_camera_start),
                                           reference)
-    ids = sorted(m for m in markers if m != reference)
-    added = effect_parameters(effects)
-    names = list(KINEMATIC + CAMERA + ANCHOR) + [BIAS] + list(added) + [f"marker{m}.{a}" for m in ids
-                                                                        for a in ("x_m", "y_m", "yaw_rad")]
     # a marker seen only in frames that see no marker tied to the reference has no start value (start_values chains
     # them through shared frames): its corners are set aside (with the outliers), as are such frames'
     connected = np.isin(sightings.frame, list(frames)) & np.isin(sightings.marker, list(markers))
-    first = int(np.min(sightings.frame[connected]))
-    x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start), frames[first], [0.0],
-                         [EFFECT_START.get(n, 0.0) for n in added]] + [markers[m] for m in ids])
+    connected, left_out = _segments_kept(drive, sightings, connected)
+    seen_frames = set(sightings.frame[connected].tolist())
+    frames = {f: pose for f, pose in frames.items() if f in seen_frames}
+    ids = sorted({int(m) for m in sightings.marker[connected]} - {reference})
+    anchors = anchor_times(drive, sorted(frames))
+    added = effect_parameters(effects)
+    names = list(KINEMATIC + CAMERA) + [n for s in anchors for n in anchor_names(s)] + [BIAS] + list(added) + [
+        f"marker{m}.{a}" for m in ids for a in ("x_m", "y_m", "yaw_rad")]
+    firsts = [min(f for f in frames if drive.segment_of(drive.frame_t_s[f]) == s) for s in anchors]
+    x0 = np.concatenate([[gain0, 0.0, drive.baseline_m], pose_parameters(T_base_camera_start)]
+                        + [frames[f] for f in firsts] + [[0.0], [EFFECT_START.get(n, 0.0) for n in added]]
+                        + [markers[m] for m in ids])
     if not start:  # a start given (the fit without the lags, a known calibration) is closer than the poses'
         x0 = drive_start(drive, frames, names, x0, np.array([n not in fixed for n in names]))
     for name in fixed:
@@ -725,7 +822,7 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
         def judge(fitted, keep):
             x, _, equations, _ = fitted
             judged = DriveEquations(drive, every, K, marker_size_m, reference, names, x, free)
-            judged.anchor_t_s = equations.anchor_t_s  # the fit's anchor frame, should it have lost its corners
+            judged.anchors = equations.anchors  # the fit's anchor frames, should they have lost their corners
             r = judged(x[judged.index], jacobian=False).residuals
             scale = MAD_TO_SIGMA * float(np.median(np.abs(r[keep])))
             return np.linalg.norm(r, axis=1) / max(scale, 1e-12), OUTLIER_SCALES
@@ -743,8 +840,8 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
     outliers = all_obs.subset(np.setdiff1d(np.arange(len(all_obs.frame)), kept))
     return DriveFit(names, x, std, std_iid, free, reference, residuals, obs, outliers,
                     float(np.sqrt(np.mean(residuals ** 2))), solution.success, solution.message, solution.n_jac,
-                    spread.condition_number, spread.weak_directions, equations.anchor_t_s, spread.warnings(),
-                    covariance, drive.pwm_driver)
+                    spread.condition_number, spread.weak_directions, equations.anchor_t_s, left_out + spread.warnings(),
+                    covariance, drive.pwm_driver, dict(equations.anchors))
 
 
 def duty_offset(fit: DriveFit) -> tuple[float, np.ndarray]:

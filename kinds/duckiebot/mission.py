@@ -6,7 +6,8 @@ however it ends.
 
 - boards: one-wheel steps (a step, stop, settle, grab: sharp frames), turning left, right, left over the semicircle
   of boards, tracking which board is in view (identical boards: by continuity from the one in view at the start);
-  recovery when none is: keep turning towards the next board for a bounded number of steps.
+  recovery when none is: keep turning towards the next board for a bounded number of steps. Started again after
+  a resume on the robot: from the start board in view again (the robot put back facing it), the passes not yet done.
 - camera: the intrinsics from every board view (kinds.duckiebot.identify.fit_intrinsics: lens model by held-out
   error).
 - face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
@@ -29,7 +30,11 @@ budget (a deadline over every wait); `run_mission`'s finally commands zero duty,
 Resume: the decisions are a function of the frames, so a resumed run replays its log (RUN/log, RUN/validation):
 each command must be the one recorded (else refused: another run), each grab returns the saved frame, nothing is
 sent to the robot; at the log's end the run goes live (a command in force when it stopped is sent again). No
-capture is repeated.
+capture is repeated. That holds where the robot's state is saved with the run (the mock). On the robot
+(`restart_phase`) the replay only rebuilds the run: the wheels are commanded stopped first, and at the first live
+action the phase the replay ended in starts again from its start conditions where the robot now stands
+(RestartedPhase), after a break in the log (Session.new_segment): the joint fit gives each segment its own start
+pose (kinds.duckiebot.fit).
 """
 
 from __future__ import annotations
@@ -127,16 +132,31 @@ def log_meta(robot_id: str, source: str) -> dict:
 
 # ------------------------------------------------------------------------------------------------ the session
 
+class ReplayEnded(Exception):
+    """A resumed run's replay has reached the log's end inside a phase, on a robot whose state was not saved (the
+    real one): the phase starts again from its start conditions (RestartedPhase), never from the old pose."""
+
+    def __init__(self, session):
+        super().__init__("the replay reached the log's end")
+        self.session = session
+
+
 class Session:
     """The agent's one path to the robot for one drive log: commands, waits, grabs, each saved at once; replays a
     log recorded before (resume) without moving the robot."""
 
-    def __init__(self, robot, log_dir: Path, meta: dict, settings: MissionSettings, t_start_s: float):
+    def __init__(self, robot, log_dir: Path, meta: dict, settings: MissionSettings, t_start_s: float,
+                 restart_phase: bool = False):
         self.robot, self.settings = robot, settings
+        # the robot's state was not saved with the log: at the replay's end the phase starts again (ReplayEnded)
+        self.restart_phase = restart_phase
+        self.grabbed = 0  # frames grabbed or replayed: the last one is the log's frame grabbed - 1
         self.log = DriveLogAppender(log_dir, meta)
         self.t_start_s = self.log.wheels[0][0] if self.log.wheels else t_start_s  # the budget runs from the first run
-        events = [(t, 0, ("wheels", left, right)) for t, left, right in self.log.wheels]
-        events += [(t, 1, ("frame", name)) for t, name in self.log.frames]
+        # at one time a frame came first: a frame is never older than the command before it (grab), but the next
+        # command may carry its time (a ROS camera's stamp: the fake peer's frames and commands share a clock tick)
+        events = [(t, 1, ("wheels", left, right)) for t, left, right in self.log.wheels]
+        events += [(t, 0, ("frame", name)) for t, name in self.log.frames]
         self.replay = [e[2] for e in sorted(events)]
         self.cursor = 0
         self.duties = (0.0, 0.0)  # the command in force, as logged
@@ -146,10 +166,24 @@ class Session:
     def live(self) -> bool:
         return self.cursor >= len(self.replay)
 
-    def _next_recorded(self, kind: str):
+    def _only_stops_left(self) -> bool:
+        """With restart_phase, the log's remaining events are all stops: a run interrupted (Ctrl-C, SIGTERM) logs its
+        final stop where the phase would have gone on. The replay ends there: the phase starts again anyway."""
+        if not self.restart_phase:
+            return False
+        if all(e[0] == "wheels" and e[1] == e[2] == 0.0 for e in self.replay[self.cursor:]):
+            self.cursor = len(self.replay)
+            return True
+        return False
+
+    def _next_recorded(self, kind: str, duties=None):
         if self.live:
             return None
         event = self.replay[self.cursor]
+        differs = event[0] != kind or (duties is not None and max(abs(event[1] - duties[0]),
+                                                                  abs(event[2] - duties[1])) > REPLAY_TOLERANCE)
+        if differs and self._only_stops_left():
+            return None
         if event[0] != kind:
             raise NaocalError(f"{self.log.directory}: the recorded run took a {event[0]} where this one takes a {kind} "
                               f"(event {self.cursor + 1}): it was recorded with other options or another robot; "
@@ -159,10 +193,34 @@ class Session:
 
     def _go_on(self) -> None:
         """At the end of a replay: a command in force when the run stopped is sent again (the robot stopped)."""
-        if self.live and not self.resumed:
+        if self.live and not self.resumed and not self.restart_phase:
             self.resumed = True
             if self.duties != (0.0, 0.0):
                 self._send(*self.duties)
+
+    def _live(self) -> None:
+        """Before anything live: with `restart_phase`, the first live action after a replay ends the phase's replay
+        (ReplayEnded), so that a phase the log holds whole is not started again."""
+        if not self.resumed:
+            raise ReplayEnded(self)
+
+    def new_segment(self) -> None:
+        """Go on live where the replay ended, the robot wherever it now stands: the wheels commanded stopped, a break
+        in the log (drive_log's segments.csv: the joint fit gives what follows its own start pose), settled. The
+        robot-time budget counts the time the robot was driven, not the time it stood dead."""
+        self.robot.command(0.0, 0.0)
+        self.robot.advance(self.settings.settle_s)  # at rest before the segment starts (and its clock past the log)
+        t = self.robot.command(0.0, 0.0)
+        last = self.log.last_time_s()
+        if not t > last:
+            raise NaocalError(f"the robot's clock ({t:.3f} s) is not after the log's last row ({last:.3f} s): it "
+                              f"cannot continue {self.log.directory} (nothing was sent but a stop)")
+        if self.log.wheels:
+            self.t_start_s += t - last
+        self.log.add_break(t)
+        self.log.add_wheels(t, 0.0, 0.0)
+        self.duties, self.resumed = (0.0, 0.0), True
+        self.wait(self.settings.settle_s)  # the phase's first row after the stop's, on any robot clock
 
     def _send(self, left: float, right: float) -> None:
         t = self.robot.command(left, right)
@@ -175,8 +233,9 @@ class Session:
             if problem:
                 raise SafetyError(f"refused wheel command: {problem}")
         left, right = float(left), float(right)
-        recorded = self._next_recorded("wheels")
+        recorded = self._next_recorded("wheels", (left, right))
         if recorded is None:
+            self._live()
             self._send(left, right)
         elif max(abs(recorded[1] - left), abs(recorded[2] - right)) > REPLAY_TOLERANCE:
             raise NaocalError(f"{self.log.directory}: the recorded run commanded {recorded[1]!r}, {recorded[2]!r} "
@@ -190,6 +249,7 @@ class Session:
     def wait(self, duration_s: float) -> None:
         if not self.live:
             return
+        self._live()
         if self.robot.now() - self.t_start_s + duration_s > self.settings.max_robot_time_s:
             raise NaocalError(f"the mission's robot-time budget ({self.settings.max_robot_time_s:g} s) is spent: "
                               "stopped")
@@ -205,11 +265,13 @@ class Session:
     def grab(self) -> np.ndarray:
         """A grey frame: the saved one when replaying, else a new one from the robot, saved before it is used."""
         recorded = self._next_recorded("frame")
+        self.grabbed += 1
         if recorded is not None:
             path = self.log.directory / recorded[1]
             image = decode_image(read_bytes(path, max_bytes=MAX_IMAGE_BYTES), path, cv2.IMREAD_GRAYSCALE)
             self._go_on()
             return image
+        self._live()
         t_command = self.log.wheels[-1][0] if self.log.wheels else -math.inf
         t, image = self.robot.grab()
         if not t > t_command:  # a frame exposed before the last command is stale: never decide on it
@@ -248,6 +310,9 @@ class MissionContext:
     blind_m: float = 0.0  # distance driven (upper bound) since a marker was last in view
     last_seen: object = None  # (distance driven, markers) of the last frame with markers of a compensated drive
     on_calibration: object = None  # callable(calibration): the caller writes it (RUN/offsets.json)
+    board_views: dict = field(default_factory=dict)  # {frame index: boards detected}: kept when a phase restarts
+    board_passes_done: int = 0  # the boards' passes done: a boards phase started again turns the others only
+    restarted: str | None = None  # the phase started again after a resume (RestartedPhase)
 
     @property
     def pwm_driver(self) -> bool:
@@ -358,19 +423,20 @@ class Boards(State):
         s, session = ctx.settings, ctx.session
         width = duckiebot("DB21").camera.width_px
         tracker = BoardTracker(s.n_boards, s.start_board, width)
-        detections = []
 
         def look(direction):
             image = session.grab()
             boards = detect_boards(image, BOARD_INNER_CORNERS, BOARD_SQUARE_M)
-            detections.append(boards)
+            ctx.board_views[session.grabbed - 1] = boards  # the views of a phase restarted are kept
             return tracker.update([float(b.corners_px[..., 0].mean()) for b in boards], direction)
 
         session.command(0.0, 0.0)  # the safe state first
         look(+1)
         goals = [(+1, s.n_boards - 1), (-1, 0), (+1, s.start_board)]  # turn until this board passes the centre
         step = 0
-        for direction, goal in (goals * s.board_passes)[:s.board_passes]:
+        passes = (goals * s.board_passes)[:s.board_passes]
+        for index in range(ctx.board_passes_done, len(passes)):  # started again: the passes not yet done
+            direction, goal = passes[index]
             blind = 0
             for _ in range(s.max_board_steps):
                 turn_step(session, s, direction, step)
@@ -386,6 +452,8 @@ class Boards(State):
             else:
                 raise NaocalError(f"board {goal} did not come into the middle of the view within "
                                   f"{s.max_board_steps} steps")
+            ctx.board_passes_done = index + 1
+        detections = [ctx.board_views.get(i, []) for i in range(session.grabbed)]
         ctx.board_detections = detections
         n_views = sum(len(d) for d in detections)
         return Outcome("ok", f"{len(detections)} frames, {n_views} board views")
@@ -511,22 +579,28 @@ def lens_views(ctx: MissionContext, session: Session) -> int:
     return frames
 
 
+def acquire_line(ctx: MissionContext, lens, T_base_camera, session: Session) -> dict:
+    """Spin on the spot in steps until floor markers are in view, then align with their line (align); returns the
+    last frame's markers. From wherever the robot stands: the start of facing the markers, and of a phase started
+    again after a resume."""
+    s = ctx.settings
+    for _ in range(s.max_spin_steps):
+        markers = markers_on_floor(session.grab(), lens, T_base_camera)
+        if markers:
+            return align(ctx, lens, T_base_camera, session, markers)
+        session.hold(-s.spin_duty, s.spin_duty, s.spin_s)
+    raise NaocalError(f"no floor marker in view after {s.max_spin_steps} turns on the spot")
+
+
 class FaceMarkers(State):
     name = "face_markers"
     needs = ("lens",)
     produces = ("facing",)
 
     def run(self, ctx: MissionContext) -> Outcome:
-        s, session = ctx.settings, ctx.session
+        session = ctx.session
         mount = duckiebot("DB21").T_base_camera  # the nominal mount: its pose is the joint fit's to find
-        for _ in range(s.max_spin_steps):
-            markers = markers_on_floor(session.grab(), ctx.lens, mount)
-            if markers:
-                break
-            session.hold(-s.spin_duty, s.spin_duty, s.spin_s)
-        else:
-            raise NaocalError(f"no floor marker in view after {s.max_spin_steps} turns on the spot")
-        align(ctx, ctx.lens, mount, session, markers)
+        acquire_line(ctx, ctx.lens, mount, session)
         views = lens_views(ctx, session)
         align(ctx, ctx.lens, mount, session)
         ctx.facing = True
@@ -541,6 +615,8 @@ class MarkerDrives(State):
     def run(self, ctx: MissionContext) -> Outcome:
         s, session = ctx.settings, ctx.session
         mount = duckiebot("DB21").T_base_camera
+        if ctx.restarted == self.name:  # resumed wherever the robot stands: the line found again first
+            acquire_line(ctx, ctx.lens, mount, session)
 
         def drive(duty):
             session.hold(duty, duty, s.drive_s)
@@ -624,11 +700,11 @@ class Validation(State):
         s = ctx.settings
         if ctx.validation_session is None:
             ctx.validation_session = Session(ctx.robot, ctx.out_dir / VALIDATION_LOG, ctx.session.log.meta, s,
-                                             ctx.session.t_start_s)
+                                             ctx.session.t_start_s, ctx.session.restart_phase)
         session = ctx.validation_session
         lens, mount = ctx.calibration.lens, ctx.calibration.T_base_camera
         session.command(0.0, 0.0)
-        markers = align(ctx, lens, mount, session)
+        markers = acquire_line(ctx, lens, mount, session)
         heading, before = line_error(markers)
         ctx.blind_m, ctx.last_seen = 0.0, None
         # curving off the marker line (the PWM floor alone may: `pwm_bound_m`) stops the drive where the markers
@@ -672,21 +748,45 @@ class Leave(State):
 MISSION_STATES = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives, IdentifyDrive, Validation, Leave)
 
 
+class RestartedPhase(State):
+    """A phase that starts again from its start conditions when a resumed run's replay ends inside it (ReplayEnded:
+    the robot's state was not saved): the log gets a break (Session.new_segment), the captures before it are kept,
+    the out-of-area count starts anew."""
+
+    def __init__(self, phase: State):
+        self.phase = phase
+        self.name, self.needs, self.produces = phase.name, phase.needs, phase.produces
+
+    def run(self, ctx: MissionContext) -> Outcome:
+        try:
+            return self.phase.run(ctx)
+        except ReplayEnded as end:
+            log.info("phase %s: the replay ended inside it; starting it again where the robot stands", self.name)
+            end.session.new_segment()
+            ctx.blind_m, ctx.restarted = 0.0, self.name
+            return self.phase.run(ctx)
+
+
 def run_mission(robot, out_dir, settings: MissionSettings = MissionSettings(), *, robot_id: str = "duckiebot",
                 source: str = "naocal calibrate", on_calibration=None, states=MISSION_STATES,
-                transitions=None, start: str = "boards"):
+                transitions=None, start: str = "boards", restart_phase: bool = False):
     """Run the mission on `robot` (DuckiebotMock's interface: now, command, advance, grab), logging to
     out_dir/log and out_dir/validation. Returns (RunResult, MissionContext). The wheels are at zero duty when this
-    returns or raises, whatever happened (the finally)."""
+    returns or raises, whatever happened (the finally). `restart_phase`: the robot's state was not saved with a run
+    being resumed (the real robot): the phase the replay ends in starts again where the robot stands
+    (RestartedPhase); else the run goes on from the log's end (the mock's world is saved with it)."""
     out_dir = Path(out_dir)
     meta = log_meta(robot_id, source)
     t0 = robot.now()
-    ctx = MissionContext(robot, out_dir, settings, Session(robot, out_dir / CALIBRATION_LOG, meta, settings, t0),
-                         on_calibration=on_calibration)
+    ctx = MissionContext(robot, out_dir, settings, Session(robot, out_dir / CALIBRATION_LOG, meta, settings, t0,
+                                                           restart_phase), on_calibration=on_calibration)
+    if restart_phase and not ctx.session.live:  # resumed: the wheels first, a killed run may have left them turning
+        robot.command(0.0, 0.0)  # (logged where the phase starts again: Session.new_segment)
     try:
         if (out_dir / VALIDATION_LOG).exists():  # a resumed run that had begun its validation
-            ctx.validation_session = Session(robot, out_dir / VALIDATION_LOG, meta, settings, t0)
-        machine = Machine([cls() for cls in states], TRANSITIONS if transitions is None else transitions, start)
+            ctx.validation_session = Session(robot, out_dir / VALIDATION_LOG, meta, settings, t0, restart_phase)
+        phases = [RestartedPhase(cls()) if restart_phase else cls() for cls in states]
+        machine = Machine(phases, TRANSITIONS if transitions is None else transitions, start)
         result = machine.run(ctx, clock=robot.now)
     finally:
         for session in (ctx.validation_session, ctx.session):

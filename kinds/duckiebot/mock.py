@@ -253,6 +253,15 @@ class DuckiebotMock:
         axle = np.asarray(position) - R @ COM_IN_BASE_M
         return np.array([axle[0], axle[1], math.atan2(R[1, 0], R[0, 0])])
 
+    def carry(self, forward_m: float, left_m: float, turn_rad: float) -> None:
+        """Pick the robot up and set it down elsewhere, at rest (what hands do between a stopped run and its resume;
+        tests only): moved by (forward, left) in its own frame and turned counter-clockwise by turn_rad."""
+        x, y, theta = self.pose()
+        c, s = math.cos(theta), math.sin(theta)
+        self._place((x + c * forward_m - s * left_m, y + s * forward_m + c * left_m, theta + turn_rad))
+        self.duties, self.wheel_w = np.zeros(2), np.zeros(2)
+        self._save()
+
     # ------------------------------------------------------------------------------------------ the motors
     def motor_speeds(self, duties) -> np.ndarray:
         """Steady wheel speeds (rad/s, left, right) the motors reach for duties."""
