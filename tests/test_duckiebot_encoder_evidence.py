@@ -76,3 +76,33 @@ def test_a_wrong_radius_is_one_ratio_in_every_phase(tmp_path):
     assert evidence.radius_off and not evidence.slip, evidence
     assert evidence.radius_ratio == pytest.approx(0.0318 / 0.0345, rel=0.01)
     assert "34.5" in evidence.verdict
+
+
+def test_a_log_with_a_break_is_compared_segment_by_segment(tmp_path):
+    """A run killed mid-command and resumed 5 s later (drive_log's segments.csv: the robot carried, its wheels not
+    turning): the model drives each segment from rest by its own commands, and the interval across the break is left
+    out. Integrated as one drive, the killed command would drive on through the pause where the encoders stand
+    still."""
+    log, drive, values = generated(tmp_path)
+    moving = np.flatnonzero((drive.left_duty[:-1] != 0) & (drive.right_duty[:-1] != 0))
+    k = int(moving[len(moving) // 2])
+    cut, gap = (drive.wheel_t_s[k] + drive.wheel_t_s[k + 1]) / 2, 5.0
+
+    def later(t):
+        return np.where(t >= cut, t + gap, t)
+
+    # the resumed run sends the killed command again (from rest) when it goes on
+    wheel_t = np.concatenate([drive.wheel_t_s[:k + 1], [cut + gap], later(drive.wheel_t_s[k + 1:])])
+    left = np.concatenate([drive.left_duty[:k + 1], [drive.left_duty[k]], drive.left_duty[k + 1:]])
+    right = np.concatenate([drive.right_duty[:k + 1], [drive.right_duty[k]], drive.right_duty[k + 1:]])
+    split = dataclasses.replace(drive, wheel_t_s=wheel_t, left_duty=left, right_duty=right,
+                                frame_t_s=later(drive.frame_t_s), segment_t_s=(cut + gap / 2,))
+    resumed = SimpleNamespace(**{**vars(log), "encoder_t_s": later(log.encoder_t_s)})
+    evidence = encoder_evidence(resumed, split, values)
+    assert not evidence.slip and not evidence.radius_off, evidence
+    for phase in evidence.phases.values():
+        assert abs(phase["both"] - 1) < phase["tolerance"], evidence.phases
+    # the killed command (an in-place turn here) driven on through the pause: 5 s of turning the encoders never saw
+    as_one_drive = encoder_evidence(resumed, dataclasses.replace(split, segment_t_s=()), values)
+    assert as_one_drive.phases["in place"]["both"] < 0.8, as_one_drive.phases
+    assert "in place: the wheels turned 3" in as_one_drive.verdict and "agree" not in as_one_drive.verdict

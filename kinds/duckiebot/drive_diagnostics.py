@@ -323,7 +323,7 @@ def encoder_evidence(log, drive: Drive, values: dict) -> EncoderEvidence | None:
     """Each wheel's turned angle from encoders.csv against the fitted model's: the model's trajectory (fit.trajectory
     with the fitted `values`: gain, trim, baseline_m and any effect's parameters) between consecutive encoder rows
     within the frames' span, as the wheel's ground travel with log.json's radius and baseline (the arc length
-    ds -+ dtheta b / 2, over r), summed over segments of one command: straight (STRAIGHT_DUTY_SHARE), curving, or
+    ds -+ dtheta b / 2, over r; segment by segment where the log has breaks), summed over runs of one command: straight (STRAIGHT_DUTY_SHARE), curving, or
     turning in place (the duties of opposite signs).
     A wheel that slips turns more than the ground moves: the encoder's angle over the model's is above 1, in turns
     (the camera-only fit hides it in a larger baseline) beyond what it is straight; a wrong radius (or tick count)
@@ -341,33 +341,41 @@ def encoder_evidence(log, drive: Drive, values: dict) -> EncoderEvidence | None:
     tick_rad = 2 * np.pi / log.wheels.ticks_per_revolution
     encoder = np.diff(ticks, axis=0) * tick_rad
     effects = {n: float(values[n]) for e in EFFECTS for n in EFFECTS[e] if n in values}
-    poses, _ = trajectory(drive, values["gain"], values["trim"], values["baseline_m"], np.zeros(3), float(t[0]), t,
-                          effects)
-    turn = np.diff(poses[:, 2])
-    chord = np.diff(poses[:, :2], axis=0)
-    mid = poses[:-1, 2] + turn / 2
-    half = turn / 2
-    arc = np.where(np.abs(half) > 1e-9, half / np.sin(np.where(np.abs(half) > 1e-9, half, 1.0)), 1.0)
-    ds = (chord[:, 0] * np.cos(mid) + chord[:, 1] * np.sin(mid)) * arc
     b, r = log.wheels.baseline_m, log.wheels.radius_m
-    model = np.column_stack([ds - turn * b / 2, ds + turn * b / 2]) / r
-    # the command at each interval's start; segments: runs of one command (republished rows included)
+    # the model's wheel angles segment by segment (a break in the log: the robot carried, each segment driven from
+    # rest by its own commands, fit.Drive.segment); an interval across a break is left out (NaN)
+    model = np.full((len(t) - 1, 2), np.nan)
+    part = drive.segment_of(t)
+    for s in np.unique(part):
+        rows = np.flatnonzero(part == s)  # consecutive: t increases
+        if len(rows) < 2:
+            continue
+        poses, _ = trajectory(drive.segment(int(s)), values["gain"], values["trim"], values["baseline_m"],
+                              np.zeros(3), float(t[rows[0]]), t[rows], effects)
+        turn = np.diff(poses[:, 2])
+        chord = np.diff(poses[:, :2], axis=0)
+        mid = poses[:-1, 2] + turn / 2
+        half = turn / 2
+        arc = np.where(np.abs(half) > 1e-9, half / np.sin(np.where(np.abs(half) > 1e-9, half, 1.0)), 1.0)
+        ds = (chord[:, 0] * np.cos(mid) + chord[:, 1] * np.sin(mid)) * arc
+        model[rows[:-1]] = np.column_stack([ds - turn * b / 2, ds + turn * b / 2]) / r
+    # the command at each interval's start; runs of one command (republished rows included)
     row = np.searchsorted(drive.wheel_t_s, t[:-1], side="right") - 1
     u_l = np.where(row >= 0, drive.left_duty[np.maximum(row, 0)], 0.0)
     u_r = np.where(row >= 0, drive.right_duty[np.maximum(row, 0)], 0.0)
-    moving = (u_l != 0) | (u_r != 0)
+    moving = ((u_l != 0) | (u_r != 0)) & np.isfinite(model).all(axis=1)
     straight = np.abs(u_r - u_l) <= STRAIGHT_DUTY_SHARE * np.maximum(np.abs(u_l), np.abs(u_r))
     starts = np.concatenate([[True], (u_l[1:] != u_l[:-1]) | (u_r[1:] != u_r[:-1])])
-    segment = np.cumsum(starts) - 1
+    run = np.cumsum(starts) - 1
     in_place = u_l * u_r < 0  # the wheels turning opposite ways: the ground travel is all turning
     phases = {}
     for name, chosen in (("straight", moving & straight), ("curving", moving & ~straight & ~in_place),
                          ("in place", moving & in_place)):
-        ids = np.unique(segment[chosen])
+        ids = np.unique(run[chosen])
         if not len(ids):
             continue
-        enc = np.abs(np.array([encoder[segment == i].sum(axis=0) for i in ids])).sum(axis=0)
-        mod = np.abs(np.array([model[segment == i].sum(axis=0) for i in ids])).sum(axis=0)
+        enc = np.abs(np.array([encoder[(run == i) & chosen].sum(axis=0) for i in ids])).sum(axis=0)
+        mod = np.abs(np.array([model[(run == i) & chosen].sum(axis=0) for i in ids])).sum(axis=0)
         if mod.sum() < MIN_PHASE_RAD:
             continue
         phases[name] = {"segments": int(len(ids)), "encoder_rad": enc.tolist(), "model_rad": mod.tolist(),
@@ -382,6 +390,10 @@ def encoder_evidence(log, drive: Drive, values: dict) -> EncoderEvidence | None:
     slipping = [] if straight_phase is None else [
         name for name, phase in turns.items()
         if phase["both"] - straight_phase["both"] > max(straight_phase["tolerance"], phase["tolerance"])]
+    # the other way round: no slip does that; encoders missing counts, or a model that turns more than the robot did
+    short = [] if straight_phase is None else [
+        name for name, phase in turns.items()
+        if straight_phase["both"] - phase["both"] > max(straight_phase["tolerance"], phase["tolerance"])]
     words = []
     if slipping:
         worst = max(slipping, key=lambda name: turns[name]["both"])
@@ -392,6 +404,11 @@ def encoder_evidence(log, drive: Drive, values: dict) -> EncoderEvidence | None:
         words.append(f"one ratio {radius_ratio:.3f} straight: the wheels' radius is {r / radius_ratio * 1e3:.2f} mm, "
                      f"not log.json's {r * 1e3:g} mm (or the encoders count other than "
                      f"{log.wheels.ticks_per_revolution} a revolution)")
+    if short:
+        worst = min(short, key=lambda name: turns[name]["both"])
+        words.append(f"{worst}: the wheels turned {100 * (1 - turns[worst]['both']):.0f} % less than the model's ground "
+                     f"travel (straight: {100 * (straight_phase['both'] - 1):+.0f} %): the encoders miss counts there, "
+                     "or the model turns more than the robot did")
     if straight_phase is None and any(abs(phase["both"] - 1) > phase["tolerance"] for phase in turns.values()):
         words.append("the wheels' turn and the ground travel differ in turns: slip or a wrong radius (no straight "
                      "drive to tell them apart)")
