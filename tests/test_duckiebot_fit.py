@@ -11,7 +11,8 @@ import pytest
 from naocal.kinds.duckiebot.calibration_files import apply_homography, read_calibration, write_calibration
 from naocal.kinds.duckiebot.detect import detect_markers
 from naocal.kinds.duckiebot.fit import (CAMERA, PWM_DRIVER, Drive, DriveEquations, PoseEquations, Sightings,
-                                        _compose, _inverse, fit_drive, pose_parameters, secant_gain, trajectory)
+                                        _compose, _inverse, fit_drive, pose_parameters, secant_gain, sighting_runs,
+                                        trajectory)
 from naocal.kinds.duckiebot.kinematics import body_velocity, duty_to_pwm, integrate_pose
 from naocal.kinds.duckiebot.identify import Detections, identify_log, rectified_sightings
 from naocal.kinds.duckiebot.intrinsics import LensCamera
@@ -371,3 +372,17 @@ def test_an_error_shared_along_a_markers_sighting_run_is_in_the_stds(seed):
                     camera_mount())
     z = {name: (fit.value(name) - value) / fit.stdev(name) for name, value in truth_of(robot).items()}
     assert max(abs(v) for v in z.values()) < Z_LIMIT, z
+
+
+def test_a_break_in_the_log_ends_a_markers_sighting_run():
+    """The cluster-robust stds' clusters: marker 3 seen in frames 0-5 without a gap is one run, unless the log has a
+    break between frames 2 and 3 (the robot carried: its sightings after are another run's); marker 4 alongside."""
+    frame = np.array([0, 1, 2, 3, 4, 5, 0, 1, 4, 5])
+    marker = np.array([3, 3, 3, 3, 3, 3, 4, 4, 4, 4])
+    one = sighting_runs(frame, marker)
+    assert len(set(one[:6])) == 1 and len(set(one[6:])) == 1 and one[0] != one[6]
+    segment = (frame >= 3).astype(int)
+    split = sighting_runs(frame, marker, segment)
+    assert len(set(split[:3])) == 1 and len(set(split[3:6])) == 1 and split[0] != split[3]
+    assert split[6] == split[7] and split[8] == split[9] and split[6] != split[8]
+    assert len(set(split)) == 4

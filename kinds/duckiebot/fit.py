@@ -496,13 +496,15 @@ class DriveEquations:
             -1, len(self.index))
 
 
-def sighting_runs(frame, marker, max_gap: int = SIGHTING_GAP_FRAMES) -> np.ndarray:
+def sighting_runs(frame, marker, segment=None, max_gap: int = SIGHTING_GAP_FRAMES) -> np.ndarray:
     """(N,) the cluster of each corner (frame and marker id per row): its marker's run of sightings, frames that
-    see it no more than `max_gap` frames apart (the module docstring's clusters)."""
+    see it no more than `max_gap` frames apart (the module docstring's clusters). `segment` (N,), the log's segment
+    of each row (Drive.segment_of): a break ends a run (the robot was carried: what follows is another run's)."""
     frame, marker = np.asarray(frame), np.asarray(marker)
+    segment = np.zeros(len(frame), dtype=int) if segment is None else np.asarray(segment)
     labels, first = np.zeros(len(frame), dtype=int), 0
-    for m in np.unique(marker):
-        rows = np.flatnonzero(marker == m)
+    for m, s in np.unique(np.column_stack([marker, segment]), axis=0):
+        rows = np.flatnonzero((marker == m) & (segment == s))
         seen = np.unique(frame[rows])
         run = np.concatenate([[0], np.cumsum(np.diff(seen) > max_gap)])
         labels[rows] = first + run[np.searchsorted(seen, frame[rows])]
@@ -830,7 +832,8 @@ def fit_drive(drive: Drive, sightings: Sightings, K, marker_size_m: float, T_bas
         fitted, keep, _ = trimmed(fitted, lambda keep, fitted: fit_rows(keep, fitted[0]), judge, every.frame, keep)
     x, solution, equations, obs = fitted
     kept = connected_rows[keep]
-    spread = solution.spread(sighting_runs(obs.frame, obs.marker), [names[i] for i in equations.index])
+    clusters = sighting_runs(obs.frame, obs.marker, drive.segment_of(drive.frame_t_s[obs.frame]))
+    spread = solution.spread(clusters, [names[i] for i in equations.index])
     std, std_iid = np.zeros(len(x)), np.zeros(len(x))
     covariance = np.zeros((len(x), len(x)))
     covariance[np.ix_(free, free)] = spread.covariance
