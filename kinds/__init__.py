@@ -35,7 +35,8 @@ class Kind(Protocol):
     model_help: str
     # Optional: True when its verify finds the calibration without --offsets (the Duckiebot's, in Duckietown's
     # calibrations directory); without it, `naocal verify` without --offsets is a usage error (tools/cmd_verify.py).
-    # verify_finds_calibration: bool, and verify_help: str (what its verify does, for `naocal verify --help`)
+    # verify_finds_calibration: bool, and verify_help: str (what its verify does, for `naocal verify --help`);
+    # offsets_help: str (its files in `naocal offsets --help`, when they are not the default kind's)
     # What the effect registry (solver/effects/) has for its model, for identify's and diagnose's --effects (a
     # property: it reads the registry when --help is built); what diagnose's --help says of its output: the sections
     # it prints (help_blocks_by_kind) and its --json object.

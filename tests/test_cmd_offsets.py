@@ -394,8 +394,10 @@ def test_help_documents_the_verbs(capsys):
         tools.cli.main(["offsets", "--help"])
     out = capsys.readouterr().out
     assert info.value.code == 0
-    for text in ("show", "diff", "validate", "export", "apply", "--command|--reading"):
-        assert text in out
+    for text in ("show", "diff", "validate", "export", "apply", "--command|--reading",
+                 "arm:\n  naocal.arm_calibration/1", "duckiebot:\n  naocal.duckiebot_calibration/1",
+                 "Duckietown calibrations DIR"):  # each kind's own paragraph (offsets_help)
+        assert text in out, text
     with pytest.raises(SystemExit):
         tools.cli.main(["offsets", "export", "--help"])
     out = capsys.readouterr().out

@@ -21,11 +21,6 @@ COMMANDS_HELP = """commands:
                                   export never replaces an existing file, a replaced one is kept as NAME.bak)
   apply FILE --command|--reading JOINT=ANGLE ...
                                   compensated command = requested + c, corrected reading = measured - c
-An arm's naocal.arm_calibration/1 (docs/ARM.md) works with show, diff, validate, apply and export --format
-urdf (its URDF with the calibration in the joint origins) or json.
-A Duckiebot's naocal.duckiebot_calibration/1 (docs/DUCKIEBOT.md) works with show, diff, validate and export
---format duckietown|json; show and validate also take a Duckietown calibrations DIR (kinematics/,
-camera_intrinsic/, camera_extrinsic/<robot>.yaml; --robot-name NAME when it holds several robots' files).
 """
 
 
@@ -75,7 +70,8 @@ def _release_year(text: str) -> int:
 def register(subparsers):
     parser = subparsers.add_parser(
         "offsets", help="inspect, compare, validate, export and apply offset files",
-        description=__doc__, epilog=COMMANDS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=COMMANDS_HELP + kinds.help_blocks_by_kind("offsets_help", "offsets"))  # each kind says its own files
     commands = parser.add_subparsers(dest="offsets_command", metavar="COMMAND")
     commands.required = True
 

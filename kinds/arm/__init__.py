@@ -11,6 +11,8 @@ class ArmKind:
     rank = 20  # before the NAO: a pair of an arm's file and a NAO's reaches the arm's reader, which names the mismatch
     data_help = "a naocal.arm_dataset/1 directory (docs/ARM.md)"
     calibration_help = "a naocal.arm_calibration/1 file"
+    offsets_help = ("naocal.arm_calibration/1 (docs/ARM.md) works with show, diff, validate, apply and export\n"
+                    "--format urdf (its URDF with the calibration in the joint origins) or json.")
     model_help = ("its sensors' frames plus joint_offsets and link_lengths, or the --effects named (docs/ARM.md), on "
                   "the 3-D and pixel error of its sensors' readings")
     diagnose_help = """\

@@ -56,6 +56,10 @@ class DuckiebotKind:
     served_drivers = {"mock": "the simulated Duckiebot",
                       "ros": "a Duckiebot through its ROS topics (in dt-ros-commons on the robot, docs/DEPLOY.md)"}
     data_help = f"a drive log directory (log.json of {LOG_SCHEMA}, wheels.csv, frames.csv; docs/DUCKIEBOT.md)"
+    offsets_help = (f"{CALIBRATION_SCHEMA} (docs/DUCKIEBOT.md) works with show, diff, validate and export\n"
+                    "--format duckietown|json; show and validate also take a Duckietown calibrations DIR\n"
+                    "(kinematics/, camera_intrinsic/, camera_extrinsic/<robot>.yaml; --robot-name NAME when it holds\n"
+                    "several robots' files).")
     calibration_help = (f"a {CALIBRATION_SCHEMA} file, or a directory of Duckietown's calibration files "
                         "(kinematics/, camera_intrinsic/, camera_extrinsic/<robot>.yaml)")
     # `naocal verify LOG` without --offsets: the robot's files in Duckietown's calibrations directory, else the log's
