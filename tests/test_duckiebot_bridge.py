@@ -489,3 +489,142 @@ def test_the_deploy_wrapper_publishes_zero_duties_however_the_server_ended(tmp_p
     assert lines[-1] == ("rostopic pub -1 /db21/wheels_driver_node/wheels_cmd duckietown_msgs/WheelsCmdStamped "
                          "{header: auto, vel_left: 0.0, vel_right: 0.0}")
     assert ("stopped" in lines) == (ending == "the wrapper SIGTERMed")  # a signal reaches the server: its own stop
+
+
+# --------------------------------------------------------------------------------- --resume over the bridge
+
+class Killed(BaseException):
+    """The laptop's process dies (SIGKILL, a flat battery): from now on it sends nothing, not even a stop."""
+
+
+def carry_to(robot, pose) -> None:
+    """Hands set the robot down at `pose` (x, y, theta), at rest."""
+    x, y, theta = robot.pose()
+    c, s = math.cos(theta), math.sin(theta)
+    robot.carry(c * (pose[0] - x) + s * (pose[1] - y), -s * (pose[0] - x) + c * (pose[1] - y), pose[2] - theta)
+
+
+@pytest.mark.parametrize("driver, server_restarts", [("mock", False), ("ros", False), ("ros", True)])
+def test_a_run_killed_mid_phase_resumes_over_the_bridge(tmp_path, monkeypatch, capsys, driver, server_restarts):
+    """`calibrate --backend bridge` killed mid-turn (the wheels left turning until the server's watchdog; the lease
+    still held), the robot put back facing the start board, then `--resume` (the server restarted meanwhile, or not):
+    the wheels are stopped before anything else reaches the robot, the lease taken back, the replay rebuilds the run,
+    the phase starts again after one break in the log, the captures are kept, the run ends done."""
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    if driver == "ros":
+        sys.path.insert(0, str(ROOT / "tests"))
+        from duckiebot_ros_peer import FakeRosGraph
+        from naocal.kinds.duckiebot.ros_driver import RosDuckiebot
+
+        graph = FakeRosGraph("db21", seed=4).install(monkeypatch)
+        robot, clock = graph.robot, "wall"
+
+        def new_served():
+            return ServedDuckiebot(RosDuckiebot("db21", watchdog_s=30.0), robot_id="db21", watchdog_s=0.3)
+    else:
+        robot, clock = DuckiebotMock(4, "ideal", supersample=1), "simulated"
+
+        def new_served():
+            return ServedDuckiebot(robot, robot_id="mock4", watchdog_s=0.3)
+    whole = mission.run_mission
+    monkeypatch.setattr(mission, "run_mission", lambda robot_, out_, settings, **kw: whole(
+        robot_, out_, MissionSettings(board_passes=2), **kw, states=(Boards,), transitions=BOARDS_ONLY))
+    start, out = robot.pose(), tmp_path / "run"
+    served = new_served()
+    servers = [served]
+    try:
+        server = serving(served, ipc(tmp_path), driver=driver, clock=clock)
+        endpoint = server.__enter__().endpoint
+        argv = ["calibrate", "--robot", "duckiebot", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out)]
+        call, dead, turns = DuckiebotBridge._call, [], []
+
+        def dies_mid_turn(self, cmd, args=None, **kw):
+            if dead:
+                raise Killed()
+            result = call(self, cmd, args, **kw)
+            if cmd == "wheels" and len(turns) < 4:
+                turns.append(args)
+                dead.extend([True] * (len(turns) == 4))  # the fourth step's duties in force: the process dies
+            return result
+
+        monkeypatch.setattr(DuckiebotBridge, "_call", dies_mid_turn)
+        with pytest.raises(Killed):
+            main(argv)
+        monkeypatch.setattr(DuckiebotBridge, "_call", call)
+        assert (out / "bridge.token").stat().st_mode & 0o777 == 0o600  # the lease's secret, kept for the resume
+        deadline = time.monotonic() + 5.0
+        while robot.duties.any() and time.monotonic() < deadline:  # the server's watchdog stops them
+            time.sleep(0.02)
+        assert not robot.duties.any()
+        log = read_drive_log(out / "log")
+        assert log.left_duty.any() and len(log.frame_files) >= 3 and not (out / "mission.json").exists()
+        frames = {name: (out / "log" / name).read_bytes() for name in log.frame_files}
+        if server_restarts:  # the bridge died (its wheels stopped with it) and came back: a new lease, same clock
+            server.__exit__(None, None, None)
+            served.close()
+            served = new_served()
+            servers.append(served)
+            server = serving(served, ipc(tmp_path), driver=driver, clock=clock)
+            server.__enter__()
+
+        carry_to(robot, start)  # hands put it back facing the start board, as the boards phase starts
+        reached = []  # every command that reached the robot's end of the server, in order
+        dispatch = served.dispatch
+        monkeypatch.setattr(served, "dispatch", lambda cmd, args: reached.append(cmd) or dispatch(cmd, args))
+        capsys.readouterr()
+        assert main(argv + ["--resume"]) == 0, capsys.readouterr().err
+        moving = [i for i, cmd in enumerate(reached) if cmd in ("wheels", "sleep", "grab")]
+        assert "stop" in reached[:moving[0]] and reached.index("wheels") > reached.index("sleep")  # stopped, settled
+        resumed = read_drive_log(out / "log")
+        assert len(resumed.segment_t_s) == 1 and resumed.segment_t_s[0] > max(log.wheel_t_s[-1], log.frame_t_s[-1])
+        at_break = np.searchsorted(resumed.wheel_t_s, resumed.segment_t_s[0])
+        assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
+        assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
+        assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
+        assert np.sum(resumed.frame_t_s > resumed.segment_t_s[0]) >= 3 and (out / "mission.json").exists()
+        assert not robot.duties.any() and not (out / "bridge.token").exists()  # stopped, the lease released
+        server.__exit__(None, None, None)
+    finally:
+        for each in servers:
+            each.close()
+        if driver == "ros":
+            graph.close()
+        else:
+            robot.close()
+
+
+class Outlives:
+    """The robot outlives its server (a real one does): closing the server leaves it there."""
+
+    def __init__(self, robot):
+        self.robot = robot
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def close(self):
+        pass
+
+
+def test_a_server_that_restarted_under_a_run_ends_it_even_when_the_robot_keeps_its_state(tmp_path, mock):
+    """The server stops the wheels when it ends: a client that reconnects to a new server (its `state_persists`, as
+    the ROS driver's) must not go on as if the duties it set were still in force (its log would not be what
+    happened); it ends with one line saying --resume continues, nothing executed."""
+    served = ServedDuckiebot(Outlives(mock), robot_id="mock4", watchdog_s=10.0)
+    try:
+        with serving(served, ipc(tmp_path), state_persists=True) as server:
+            client = DuckiebotBridge(server.endpoint, timeout_s=0.5, retries=2)
+            client.command(0.2, 0.2)
+        served.close()  # what `naocal bridge serve` does on SIGTERM: the wheels stopped
+        assert not mock.duties.any()
+        served = ServedDuckiebot(Outlives(mock), robot_id="mock4", watchdog_s=10.0)
+        t_s = mock.t_s
+        with serving(served, ipc(tmp_path), state_persists=True):
+            with pytest.raises(BridgeError, match="server restarted during 'sleep'.*continue it with --resume"):
+                client.advance(0.2)
+            assert not mock.duties.any() and mock.t_s == t_s  # nothing executed
+            client.close()
+    finally:
+        served.close()

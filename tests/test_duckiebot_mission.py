@@ -356,11 +356,14 @@ def test_calibrate_refuses_other_options_on_resume_and_bad_backends(tmp_path, ca
         check_out_dir(tmp_path, record, resume=False)
     for change, message in (({"backend": "naoqi"}, "runs on --backend mock or ros or bridge"),
                             ({"backend": "bridge"}, "needs --endpoint"), ({"seed": -1}, "--seed"),
-                            ({"backend": "bridge", "endpoint": "tcp://db21.local:7790"},
-                             "--resume is not usable over the bridge yet"),
+                            ({"backend": "bridge", "endpoint": "tcp://db21.local:7790", "mock": "ideal"},
+                             "--mock is the server's option"),
                             ({"effect": ["x=1"]}, "--effect")):
         with pytest.raises(NaocalError, match=message):
             _record(SimpleNamespace(**{**vars(args), **change}))
+    # --resume over the bridge: as with --backend ros (tests/test_duckiebot_bridge.py resumes a killed run)
+    assert _record(SimpleNamespace(**{**vars(args), "backend": "bridge", "endpoint": "tcp://db21.local:7790"}))[
+        "endpoint"] == "tcp://db21.local:7790"
 
 
 def test_calibrate_cli_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys):

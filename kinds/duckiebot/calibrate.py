@@ -7,7 +7,7 @@ docs/DEPLOY.md "Duckiebot (DB21)"), or from a laptop through `naocal bridge serv
     naocal calibrate --robot duckiebot --backend mock [--mock ideal|realistic] [--seed N] --out RUN [--resume]
                      [--max-blind-m M]
     naocal calibrate --robot duckiebot --backend ros --out RUN [--resume] [--max-blind-m M]
-    naocal calibrate --robot duckiebot --backend bridge --endpoint URL --out RUN [--max-blind-m M]
+    naocal calibrate --robot duckiebot --backend bridge --endpoint URL --out RUN [--resume] [--max-blind-m M]
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
 validation drive and leaving the area, the same format), RUN/encoders.csv (--backend ros on a DB21: every
@@ -16,16 +16,17 @@ RUN/offsets.json (the calibration, naocal.duckiebot_calibration/1, written once 
 makes Duckietown's files of it),
 RUN/truth.json (the mock's hidden robot in the same names and units), RUN/summary.txt (what happened, the
 validation, the truth beside the result), RUN/run.json (the options: --resume must repeat them), RUN/mission.json
-(written last: the run is finished), RUN/mock_state.json (the mock's world: where its robot stands).
+(written last: the run is finished), RUN/mock_state.json (the mock's world: where its robot stands), RUN/bridge.token
+(--backend bridge: the motion lease's secret, mode 0600, while the run holds it: a resumed run takes the robot back).
 Exit 0 when calibrated and validated, 2 on bad input (nothing changed), 3 when the mission failed (the wheels are
 stopped; summary.txt says why), 130 after Ctrl-C or SIGTERM (the wheels are stopped; --resume continues).
 
 --resume keeps every capture saved. On the mock, whose world is saved with the run, the run goes on from where it
-stopped. On the robot (--backend ros), whose pose is not saved (it may have been moved, or have rolled on after a
-crash), the wheels are commanded stopped first, the logs replayed to rebuild the run, and the phase they end in
+stopped. On the robot (--backend ros or bridge), whose pose is not saved (it may have been moved, or have rolled on
+after a crash), the wheels are commanded stopped first, the logs replayed to rebuild the run, and the phase they end in
 started again from its start conditions wherever the robot now stands (the marker line found again first); the
 drive log gets a break there (segments.csv) and the joint fit a start pose per segment (mission.RestartedPhase).
-Not over the bridge yet (BRIDGE_NO_RESUME).
+Over the bridge by the same path: the client takes its lease back (RUN/bridge.token; DuckiebotBridge).
 """
 
 from __future__ import annotations
@@ -35,14 +36,13 @@ import shlex
 import sys
 from pathlib import Path
 
+from naocal.agent.rundir import BRIDGE_TOKEN_NAME
+
 RECORD_KEYS = ("robot", "backend", "mock_seed", "mock", "max_blind_m", "vehicle")
 FINISHED_NAME = "mission.json"
 ENCODER_JOURNAL = "encoders.csv"  # --backend ros: every encoder row as it came (ros_driver.keep_encoders)
 ENTRIES = frozenset({"run.json", "log", "validation", "offsets.json", "truth.json", "summary.txt", FINISHED_NAME,
-                     "mock_state.json", ".naocal.lock", ENCODER_JOURNAL})
-# Over the bridge the mission would resume as on the robot (restart_phase), but that path is not tested yet
-BRIDGE_NO_RESUME = ("--resume is not usable over the bridge yet (not tested there): resume on the robot with "
-                    "--backend ros, or start a new --out")
+                     "mock_state.json", ".naocal.lock", ENCODER_JOURNAL, BRIDGE_TOKEN_NAME})
 DEFAULT_MAX_BLIND_M = 0.3
 
 
@@ -82,8 +82,6 @@ def _record(args) -> dict:
         if getattr(args, "mock", None) is not None:
             raise NaocalError("--backend bridge: --mock is the server's option (naocal bridge serve --robot duckiebot "
                               "--driver mock --mock ...)")
-        if getattr(args, "resume", False):
-            raise NaocalError(f"--backend bridge: {BRIDGE_NO_RESUME}")
     if args.backend == "ros":
         import os
 
@@ -177,7 +175,7 @@ def run(args) -> int:
     elif record["backend"] == "bridge":  # the server asked before anything is written, as the ROS topics
         from naocal.kinds.duckiebot.bridge import DuckiebotBridge
 
-        robot = DuckiebotBridge(record["endpoint"])
+        robot = DuckiebotBridge(record["endpoint"], lease_file=out / BRIDGE_TOKEN_NAME)  # a resume takes it back
         try:
             robot_id = robot.robot_id
         except BaseException:
@@ -225,8 +223,7 @@ def run(args) -> int:
                                                                   indent=1) + "\n")
                 return 0
             if result.final == INTERRUPTED:
-                print(f"naocal calibrate: {BRIDGE_NO_RESUME}" if record["backend"] == "bridge" else
-                      f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
+                print(f"naocal calibrate: to continue: {command_line(record, out)}", file=sys.stderr)
                 return 130
             print(f"naocal calibrate: error: {result.reason} (the wheels are stopped; {out / 'summary.txt'})",
                   file=sys.stderr)
