@@ -504,13 +504,41 @@ def carry_to(robot, pose) -> None:
     robot.carry(c * (pose[0] - x) + s * (pose[1] - y), -s * (pose[0] - x) + c * (pose[1] - y), pose[2] - theta)
 
 
+def killed_mid_turn(monkeypatch, argv) -> None:
+    """`naocal calibrate argv` (the boards phase) killed once its fourth one-wheel step's duties are in force."""
+    from naocal.tools.cli import main
+
+    call, dead, turns = DuckiebotBridge._call, [], []
+
+    def dies_mid_turn(self, cmd, args=None, **kw):
+        if dead:
+            raise Killed()
+        result = call(self, cmd, args, **kw)
+        if cmd == "wheels" and len(turns) < 4:
+            turns.append(args)
+            dead.extend([True] * (len(turns) == 4))
+        return result
+
+    monkeypatch.setattr(DuckiebotBridge, "_call", dies_mid_turn)
+    with pytest.raises(Killed):
+        main(argv)
+    monkeypatch.setattr(DuckiebotBridge, "_call", call)
+
+
+def boards_only(monkeypatch, board_passes=2) -> None:
+    import naocal.kinds.duckiebot.mission as mission
+
+    whole = mission.run_mission
+    monkeypatch.setattr(mission, "run_mission", lambda robot_, out_, settings, **kw: whole(
+        robot_, out_, MissionSettings(board_passes=board_passes), **kw, states=(Boards,), transitions=BOARDS_ONLY))
+
+
 @pytest.mark.parametrize("driver, server_restarts", [("mock", False), ("ros", False), ("ros", True)])
 def test_a_run_killed_mid_phase_resumes_over_the_bridge(tmp_path, monkeypatch, capsys, driver, server_restarts):
     """`calibrate --backend bridge` killed mid-turn (the wheels left turning until the server's watchdog; the lease
     still held), the robot put back facing the start board, then `--resume` (the server restarted meanwhile, or not):
     the wheels are stopped before anything else reaches the robot, the lease taken back, the replay rebuilds the run,
     the phase starts again after one break in the log, the captures are kept, the run ends done."""
-    import naocal.kinds.duckiebot.mission as mission
     from naocal.tools.cli import main
 
     if driver == "ros":
@@ -528,9 +556,7 @@ def test_a_run_killed_mid_phase_resumes_over_the_bridge(tmp_path, monkeypatch, c
 
         def new_served():
             return ServedDuckiebot(robot, robot_id="mock4", watchdog_s=0.3)
-    whole = mission.run_mission
-    monkeypatch.setattr(mission, "run_mission", lambda robot_, out_, settings, **kw: whole(
-        robot_, out_, MissionSettings(board_passes=2), **kw, states=(Boards,), transitions=BOARDS_ONLY))
+    boards_only(monkeypatch)
     start, out = robot.pose(), tmp_path / "run"
     served = new_served()
     servers = [served]
@@ -538,21 +564,7 @@ def test_a_run_killed_mid_phase_resumes_over_the_bridge(tmp_path, monkeypatch, c
         server = serving(served, ipc(tmp_path), driver=driver, clock=clock)
         endpoint = server.__enter__().endpoint
         argv = ["calibrate", "--robot", "duckiebot", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out)]
-        call, dead, turns = DuckiebotBridge._call, [], []
-
-        def dies_mid_turn(self, cmd, args=None, **kw):
-            if dead:
-                raise Killed()
-            result = call(self, cmd, args, **kw)
-            if cmd == "wheels" and len(turns) < 4:
-                turns.append(args)
-                dead.extend([True] * (len(turns) == 4))  # the fourth step's duties in force: the process dies
-            return result
-
-        monkeypatch.setattr(DuckiebotBridge, "_call", dies_mid_turn)
-        with pytest.raises(Killed):
-            main(argv)
-        monkeypatch.setattr(DuckiebotBridge, "_call", call)
+        killed_mid_turn(monkeypatch, argv)
         assert (out / "bridge.token").stat().st_mode & 0o777 == 0o600  # the lease's secret, kept for the resume
         deadline = time.monotonic() + 5.0
         while robot.duties.any() and time.monotonic() < deadline:  # the server's watchdog stops them
@@ -628,3 +640,31 @@ def test_a_server_that_restarted_under_a_run_ends_it_even_when_the_robot_keeps_i
             client.close()
     finally:
         served.close()
+
+
+def test_a_resume_on_a_mock_server_whose_clock_restarted_moves_nothing_and_says_why(tmp_path, monkeypatch, capsys):
+    """`--driver mock` restarted: a new simulated world whose clock starts again at 0, before the run's log. The
+    resumed run stops the wheels, reads the clock back and ends there (exit 3, one line): nothing but stops sent."""
+    from naocal.tools.cli import main
+
+    boards_only(monkeypatch)
+    first, out = DuckiebotMock(4, "ideal", supersample=1), tmp_path / "run"
+    argv = ["calibrate", "--robot", "duckiebot", "--backend", "bridge", "--endpoint", ipc(tmp_path), "--out", str(out)]
+    served = ServedDuckiebot(first, robot_id="mock4", watchdog_s=0.3)
+    try:
+        with serving(served, ipc(tmp_path), driver="mock"):
+            killed_mid_turn(monkeypatch, argv)
+    finally:
+        served.close()
+    second = DuckiebotMock(4, "ideal", supersample=1)
+    served = ServedDuckiebot(second, robot_id="mock4", watchdog_s=0.3)
+    try:
+        with serving(served, ipc(tmp_path), driver="mock"):
+            capsys.readouterr()
+            assert main(argv + ["--resume"]) == 3
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "is not after the log's last row" in err, err
+            assert second.received and not any(l or r for _, l, r in second.received)
+    finally:
+        served.close()
+    assert len(read_drive_log(out / "log").segment_t_s) == 0
