@@ -9,7 +9,8 @@ and `sensor_msgs.msg` modules (put into sys.modules by the test) over a simulate
   its thread ends when the connection is done, whatever is queued);
 - a camera node publishing, every 1/30 s of robot time, a JPEG of kinds.duckiebot.render's Renderer at the hidden
   robot's pose (rendered and encoded only when a subscriber reads msg.data: most frames are never looked at);
-- two encoder nodes publishing cumulative ticks (135 per revolution) of the hidden wheels' angles.
+- two encoder nodes publishing cumulative ticks (135 per revolution) of the hidden wheels' angles (the right one
+  `right_tick_lag_steps` physics steps after the left: each node has its own timer).
 
 Robot time is simulated (ROS sim time): rospy.sleep(d) steps the hidden robot by d and delivers the messages that
 fell due, outside the graph's lock (rospy's callbacks run on other threads: the driver's locks must not nest in the
@@ -77,9 +78,10 @@ class LazyJpeg:
 
 class FakeRosGraph:
     def __init__(self, vehicle="db21", seed=4, realism="ideal", *, encoders=True, wheels_node=True,
-                 start_pose=(0, 0, 0), scene=None, queued=False, send_delay_s=0.02):
+                 start_pose=(0, 0, 0), scene=None, queued=False, send_delay_s=0.02, right_tick_lag_steps=0):
         self.vehicle = vehicle
         self.queued, self.send_delay_s = queued, send_delay_s
+        self.right_tick_lag_steps = right_tick_lag_steps  # the two encoder nodes' timers out of phase (real ones are)
         self.robot = DuckiebotMock(seed, realism, supersample=1, start_pose=start_pose, scene=scene)
         self.lock = threading.RLock()
         self.subscribers = {}  # topic -> [Subscriber]
@@ -136,8 +138,10 @@ class FakeRosGraph:
                 t = self.robot.t_s
                 if self.camera_on and self.steps % STEPS_PER_FRAME == 0:
                     due.append((f"/{self.vehicle}/camera_node/image/compressed", self._frame(t)))
-                if self.encoders and self.steps % STEPS_PER_TICK == 0:
+                if self.encoders:
                     for i, side in enumerate(("left", "right")):
+                        if self.steps % STEPS_PER_TICK != (self.right_tick_lag_steps if i else 0):
+                            continue
                         msg = WheelEncoderStamped(Header(self.Time(t)), int(math.floor(
                             self.angles[i] / (2 * math.pi) * 135)), 135)
                         msg = self.tick_hook(side, msg) if self.tick_hook else msg

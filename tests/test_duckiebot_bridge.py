@@ -253,6 +253,30 @@ def test_frames_and_encoder_rows_are_checked_before_they_are_echoed(tmp_path, mo
         served.close()
 
 
+def test_encoder_rows_that_jump_are_not_written_into_the_drive_log(tmp_path, mock):
+    """The laptop writes the robot's ticks into LOG/encoders.csv (save_encoders): with the reader's jump check
+    (drive_log.impossible_tick_step), so a log it writes is one the reader takes; the line is named, nothing written."""
+    from naocal.kinds.duckiebot.drive_log import DriveLogAppender
+    from naocal.kinds.duckiebot.mission import log_meta
+    from naocal.solver.errors import DataError
+
+    bad = BadFrames(mock)
+    bad.rows = [(0.1, 0, 0), (0.2, 3, 4), (0.3, 6, 8), (0.4, 6 + 900, 12)]  # 900 ticks in 0.1 s: 195 at most
+    served = ServedDuckiebot(bad, robot_id="mock4")
+    DriveLogAppender(tmp_path / "log", log_meta("mock4", "a test"))
+    try:
+        with serving(served, ipc(tmp_path)) as server:
+            client = DuckiebotBridge(server.endpoint)
+            with pytest.raises(DataError, match=r"encoders.csv, line 5, field 'left_ticks': \+900 ticks since the "
+                                                r"previous row .*more than the wheel can turn"):
+                client.save_encoders(tmp_path / "log", 0.0, 1.0)
+            assert not (tmp_path / "log" / "encoders.csv").exists()
+            assert client.save_encoders(tmp_path / "log", 0.0, 0.35) == 3
+            client.close()
+    finally:
+        served.close()
+
+
 def test_kinds_are_told_apart_and_the_nao_client_is_unchanged(tmp_path, served):
     with serving(served, ipc(tmp_path)) as server:
         hello = BridgeBackend(server.endpoint).server_info  # a NAO client meets a Duckiebot server

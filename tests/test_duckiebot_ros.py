@@ -292,7 +292,8 @@ def left_damaged_after(n, change):
 
 
 @pytest.mark.parametrize("change, message", [
-    (lambda msg: setattr(msg, "data", msg.data + 500), "the count jumped \\+5\\d\\d ticks"),
+    (lambda msg: setattr(msg, "data", msg.data + 500), "encoder row \\d+, field 'left_ticks': \\+5\\d\\d ticks since the "
+                                                        "previous row .* more than the wheel can turn"),
     (lambda msg: setattr(msg, "data", math.nan), "tick count nan is not a whole number"),
     (lambda msg: setattr(msg, "data", 12.5), "tick count 12.5 is not a whole number"),
     (lambda msg: setattr(msg, "resolution", 100), "resolution 100 ticks per revolution, expected 135"),
@@ -304,6 +305,49 @@ def test_an_encoder_reading_that_cannot_be_is_refused(graph, change, message):
     graph.tick_hook = left_damaged_after(2, change)
     with pytest.raises(NaocalError, match=f"{LEFT_TICKS}: .*{message}"):
         robot.advance(0.5)
+    assert stopped(graph)
+    robot.close()
+
+
+def rows_as_the_reader_reads_them(robot):
+    """The driver's encoder rows through encoders.csv's reader with the drive log's wheels (its jump check)."""
+    from naocal.kinds.duckiebot.drive_log import ENCODERS_HEADER, csv_text
+
+    text = csv_text(ENCODERS_HEADER, ([repr(t), str(a), str(b)] for t, a, b in robot.encoder_rows))
+    return read_encoders("encoders.csv", text, wheels=robot.wheels)
+
+
+def test_encoder_rows_from_two_nodes_out_of_phase_are_rows_the_reader_takes(monkeypatch):
+    """Each encoder node has its own timer: the right count 2 ms after the left. A row at each message, the other
+    side's count held, put a whole interval's ticks 2 ms after the row before: the mission ran, and its log was then
+    refused by the reader as a jump. A row once both have counted steps as the wheels turned."""
+    graph = FakeRosGraph(VEHICLE, right_tick_lag_steps=1).install(monkeypatch)
+    robot = driver()
+    try:
+        robot.command(0.6, 0.6)
+        robot.advance(1.0)
+        robot.command(0.0, 0.0)
+        t, left, right = rows_as_the_reader_reads_them(robot)
+        assert len(t) > 25 and right[-1] - right[0] > 300 and np.all(np.diff(t) > 0.03)
+    finally:
+        robot.close()
+        graph.close()
+
+
+def test_an_int32_counter_wrapping_mid_drive_is_undone_as_the_reader_does(graph):
+    """Duckietown's tick counts are int32 since boot: past 2^31 - 1 they go on from -2^31. The reader undoes it
+    (drive_log.unwrap_int32); the driver refused it as a jump of -2^32 and stopped the mission."""
+    def near_the_top(side, msg):
+        msg.data = (msg.data + 2 ** 31 - 60 + 2 ** 31) % 2 ** 32 - 2 ** 31
+        return msg
+
+    graph.tick_hook = near_the_top
+    robot = driver()
+    robot.command(0.4, 0.4)
+    robot.advance(1.0)
+    robot.command(0.0, 0.0)
+    t, left, right = rows_as_the_reader_reads_them(robot)
+    assert left[0] < 2 ** 31 < left[-1] and np.all(np.diff(left) >= 0) and np.all(np.diff(left) < 20)
     assert stopped(graph)
     robot.close()
 

@@ -276,6 +276,25 @@ def max_tick_step(dt_s: np.ndarray, wheels: Wheels, ticks_per_revolution: int) -
     return rate_radps * np.asarray(dt_s) * ticks_per_revolution / (2 * math.pi) + 2.0
 
 
+def impossible_tick_step(t_s, ticks, wheels: Wheels):
+    """The first row of a count column (`ticks`: cumulative, int32 wrap-arounds undone, at strictly increasing times
+    `t_s`) that steps from the row before by more than the wheel can turn in between (max_tick_step): (its index,
+    why), or None. The one check of encoders.csv's reader and of what writes it (write_encoders, the ROS driver's rows
+    as they come)."""
+    ticks = np.asarray(ticks, dtype=np.int64)
+    if wheels.ticks_per_revolution is None or len(ticks) < 2:
+        return None
+    bound = max_tick_step(np.diff(t_s), wheels, wheels.ticks_per_revolution)
+    beyond = np.flatnonzero(np.abs(np.diff(ticks)) > bound)
+    if not len(beyond):
+        return None
+    i = int(beyond[0])
+    return i + 1, (f"{int(ticks[i + 1] - ticks[i]):+d} ticks since the previous row ({float(t_s[i + 1] - t_s[i]):.4g} "
+                   f"s before): more than the wheel can turn ({bound[i]:.0f} ticks at most: the limit duty "
+                   f"{wheels.limit:g} at k {wheels.k:g} with gain {MIN_REAL_GAIN:g}, "
+                   f"{wheels.ticks_per_revolution} ticks a revolution)")
+
+
 def read_encoders(path, text: str | None = None, wheels: Wheels | None = None):
     """(t_s, left_ticks, right_ticks) of encoders.csv; ticks whole numbers (int64, '12.0' read as 12), int32
     wrap-arounds undone (unwrap_int32). With `wheels` (ticks_per_revolution given): a step between rows larger than
@@ -286,16 +305,10 @@ def read_encoders(path, text: str | None = None, wheels: Wheels | None = None):
     rows, t, ticks = _repeats_dropped(path, rows, t, ticks)
     ticks = np.array(ticks, dtype=np.int64)
     left, right = unwrap_int32(ticks[:, 0]), unwrap_int32(ticks[:, 1])
-    if wheels is not None and wheels.ticks_per_revolution is not None and len(t) > 1:
-        bound = max_tick_step(np.diff(t), wheels, wheels.ticks_per_revolution)
-        for name, column in (("left_ticks", left), ("right_ticks", right)):
-            beyond = np.flatnonzero(np.abs(np.diff(column)) > bound)
-            if len(beyond):
-                i = int(beyond[0])
-                fail(path, f"{int(column[i + 1] - column[i]):+d} ticks since the previous row ({float(t[i + 1] - t[i]):.4g} "
-                     f"s before): more than the wheel can turn ({bound[i]:.0f} ticks at most: the limit duty "
-                     f"{wheels.limit:g} at k {wheels.k:g} with gain {MIN_REAL_GAIN:g}, "
-                     f"{wheels.ticks_per_revolution} ticks a revolution)", name, rows[i + 1][0])
+    for name, column in (("left_ticks", left), ("right_ticks", right)):
+        found = impossible_tick_step(t, column, wheels) if wheels is not None else None
+        if found:
+            fail(path, found[1], name, rows[found[0]][0])
     return t, left, right
 
 
@@ -437,8 +450,10 @@ def write_encoders(log_dir, rows, ticks_per_revolution: int) -> int:
         return 0
     log_dir = Path(log_dir)
     text = csv_text(ENCODERS_HEADER, ([repr(float(t)), str(a), str(b)] for t, a, b in rows))
-    read_encoders(log_dir / ENCODERS_FILE, text)
     meta = read_json(log_dir / META_FILE)
+    wheels = dataclasses.replace(parse_meta(meta, log_dir / META_FILE)["wheels"],
+                                 ticks_per_revolution=ticks_per_revolution)
+    read_encoders(log_dir / ENCODERS_FILE, text, wheels)  # as read_drive_log will: a jump is refused, naming its line
     if meta.get("wheels", {}).get("ticks_per_revolution") != ticks_per_revolution:
         meta["wheels"]["ticks_per_revolution"] = ticks_per_revolution
         parse_meta(meta, log_dir / META_FILE)

@@ -27,7 +27,9 @@ Safety (the safe state = both duties 0):
   (image_timeout_s), the robot's clock advancing (advance: duration + clock_slack_s of wall time);
 - every reading is checked before use: a frame that does not decode, is not 640 x 480, or whose stamp does not
   follow the previous one; an encoder count that is not a whole number, of another resolution, with a stamp going
-  back or jumping more than the wheels can turn: refused (RobotError naming the topic), wheels stopped.
+  back, or a row of counts (both sides) that steps more than the wheels can turn (drive_log.impossible_tick_step,
+  the drive log reader's own check, int32 wrap-arounds undone as it does): refused (RobotError naming the topic and
+  the row's line), wheels stopped.
 
 Times are the robot's ROS clock (rospy.get_time(), the messages' header.stamp): one clock for commands, frames and
 ticks, as the drive log wants. A frame's stamp is taken as its mid-exposure time (the camera node stamps each frame
@@ -43,16 +45,15 @@ import time
 
 import numpy as np
 
-from naocal.kinds.duckiebot.drive_log import EncoderJournal, write_encoders
+from naocal.kinds.duckiebot.drive_log import (EncoderJournal, Wheels, impossible_tick_step, unwrap_int32,
+                                             write_encoders)
 from naocal.kinds.duckiebot.kinematics import duty_problem
-from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, IMAGE_HEIGHT_PX, IMAGE_WIDTH_PX, decoded_frame,
-                                         robot_name_problem)
+from naocal.kinds.duckiebot.robot import (DB21_TICKS_PER_REVOLUTION, DEFAULT_K, DEFAULT_LIMIT, IMAGE_HEIGHT_PX,
+                                         IMAGE_WIDTH_PX, decoded_frame, duckiebot, robot_name_problem)
 from naocal.solver.errors import NaocalError, SafetyError
 
 log = logging.getLogger(__name__)
 
-MAX_WHEEL_RADPS = 60.0  # no Duckiebot wheel turns faster (k 27 rad/s per duty, real robots up to 40 % more): 2x
-TICK_SLACK = 3  # ticks an encoder may count beyond MAX_WHEEL_RADPS over one interval (edges, jitter)
 MAX_ADVANCE_S = 60.0  # one advance() longer than this is a caller's bug (the mission waits at most seconds)
 ENCODER_SAVE_S = 0.2  # the ticks are appended to the journal (keep_encoders) at least this often (wall time)
 STOP_CONFIRM_S = 0.5  # close(): how long (wall time) to wait for the wheels driver to report the stop executed
@@ -93,14 +94,16 @@ class RosDuckiebot:
         self.vehicle, self.topics = vehicle, topics(vehicle)
         self.watchdog_s, self.image_timeout_s, self.clock_slack_s = watchdog_s, image_timeout_s, clock_slack_s
         self.ticks_per_revolution = int(ticks_per_revolution)
+        nominal = duckiebot("DB21")  # the drive log's wheels (mission.log_meta): its reader's jump check, run on each row
+        self.wheels = Wheels(nominal.radius_m, nominal.baseline_m, DEFAULT_K, DEFAULT_LIMIT, self.ticks_per_revolution)
         self._lock = threading.RLock()
         self._fault = None  # the first refused reading / watchdog stop: raised at the agent's next call
         self._duties = (0.0, 0.0)  # as last published
         self._last_call = time.monotonic()
         self._last_now = -math.inf
         self._frame = None  # (stamp s, message) of the newest frame: decoded only when grabbed (30 Hz on a Pi)
-        self._ticks = {"left": None, "right": None}  # side -> (stamp s, ticks) newest
-        self.encoder_rows = []  # (t_s, left_ticks, right_ticks): every time either side ticked, both known
+        self._ticks = {"left": None, "right": None}  # side -> (stamp s, count as sent, count unwrapped) newest
+        self.encoder_rows = []  # (t_s, left_ticks, right_ticks): each time both sides have counted since the last
         self._journal = None  # EncoderJournal (keep_encoders): encoder_rows saved as they come
         self._unsaved = []  # encoder_rows not yet in the journal
         self._journal_lock = threading.Lock()  # one append at a time, in order (taken before self._lock)
@@ -227,21 +230,33 @@ class RosDuckiebot:
                                     f"{self.ticks_per_revolution} (another encoder?)")
             if not math.isfinite(stamp):
                 return self._refuse(f"{topic}: stamp {stamp!r} s is not a time")
-            previous = self._ticks[side]
+            previous, count = self._ticks[side], int(ticks)
             if previous is not None:
-                dt = stamp - previous[0]
-                if dt <= 0:
+                if stamp <= previous[0]:
                     return self._refuse(f"{topic}: a count stamped {stamp!r} s, not after the previous one "
                                         f"({previous[0]!r} s)")
-                bound = MAX_WHEEL_RADPS / (2 * math.pi) * self.ticks_per_revolution * dt + TICK_SLACK
-                if abs(int(ticks) - previous[1]) > bound:
-                    return self._refuse(f"{topic}: the count jumped {int(ticks) - previous[1]:+d} ticks in {dt:.3f} s "
-                                        f"(the wheel cannot turn more than {bound:.0f}): a reset or a glitch")
-            self._ticks[side] = (stamp, int(ticks))
+                # Duckietown's int32 counter wrapping, undone as the reader does (drive_log.unwrap_int32)
+                count = previous[2] + int(np.diff(unwrap_int32(np.array([previous[1], count], np.int64)))[0])
+            self._ticks[side] = (stamp, int(ticks), count)
             left, right = self._ticks["left"], self._ticks["right"]
-            if left is not None and right is not None and (not self.encoder_rows or stamp > self.encoder_rows[-1][0]):
-                self.encoder_rows.append((stamp, left[1], right[1]))
-                self._unsaved.append(self.encoder_rows[-1])
+            last_t = self.encoder_rows[-1][0] if self.encoder_rows else -math.inf
+            # a row once both sides have counted since the last one, at the later stamp: each column's step then
+            # spans about the rows' spacing (the other side's count held in a row right after its own would show a
+            # whole interval's ticks within a millisecond, which the reader refuses as a jump)
+            if left is not None and right is not None and min(left[0], right[0]) > last_t:
+                row = (max(left[0], right[0]), left[2], right[2])
+                if self.encoder_rows:  # the reader's jump check (drive_log.impossible_tick_step), at once
+                    t_s = np.array([last_t, row[0]])
+                    for name, column in (("left_ticks", 1), ("right_ticks", 2)):
+                        found = impossible_tick_step(t_s, [self.encoder_rows[-1][column], row[column]], self.wheels)
+                        if found:
+                            n = len(self.encoder_rows) + 1  # the journal holds every row, after its header
+                            where = f"{self._journal.path}, line {n + 1}" if self._journal is not None else \
+                                f"encoder row {n}"
+                            return self._refuse(f"{self.topics[name]}: {where}, field '{name}': {found[1]}: a reset "
+                                                "or a glitch")
+                self.encoder_rows.append(row)
+                self._unsaved.append(row)
         if self._journal is not None and time.monotonic() - self._saved_at >= ENCODER_SAVE_S:
             self._save_ticks()
 
