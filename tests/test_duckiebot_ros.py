@@ -311,10 +311,14 @@ def test_an_encoder_reading_that_cannot_be_is_refused(graph, change, message):
 
 def rows_as_the_reader_reads_them(robot):
     """The driver's encoder rows through encoders.csv's reader with the drive log's wheels (its jump check)."""
-    from naocal.kinds.duckiebot.drive_log import ENCODERS_HEADER, csv_text
+    import dataclasses
 
+    from naocal.kinds.duckiebot.drive_log import ENCODERS_HEADER, csv_text, parse_meta
+    from naocal.kinds.duckiebot.mission import log_meta
+
+    wheels = dataclasses.replace(parse_meta(log_meta(VEHICLE, "a test"), "log.json")["wheels"], ticks_per_revolution=135)
     text = csv_text(ENCODERS_HEADER, ([repr(t), str(a), str(b)] for t, a, b in robot.encoder_rows))
-    return read_encoders("encoders.csv", text, wheels=robot.wheels)
+    return read_encoders("encoders.csv", text, wheels=wheels)
 
 
 def test_encoder_rows_from_two_nodes_out_of_phase_are_rows_the_reader_takes(monkeypatch):
