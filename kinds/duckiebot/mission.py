@@ -54,7 +54,7 @@ from naocal.kinds.duckiebot.fit import PWM_DRIVER, duty_offset, marker_on_floor
 from naocal.kinds.duckiebot.identify import Detections, fit_intrinsics, identify_log
 from naocal.kinds.duckiebot.kinematics import duty_problem, inverse_kinematics, pwm_drift_bound_m
 from naocal.kinds.duckiebot.render import BOARD_INNER_CORNERS, BOARD_SQUARE_M, MARKER_SIZE_M
-from naocal.kinds.duckiebot.robot import duckiebot
+from naocal.kinds.duckiebot.robot import DEFAULT_K, DEFAULT_LIMIT, duckiebot
 from naocal.solver.errors import NaocalError, SafetyError
 from naocal.solver.fileio import read_bytes
 
@@ -125,7 +125,8 @@ def log_meta(robot_id: str, source: str) -> dict:
     nominal = duckiebot("DB21")
     return {"schema": SCHEMA, "robot": {"id": robot_id, "model": nominal.model},
             "camera": {"width_px": nominal.camera.width_px, "height_px": nominal.camera.height_px},
-            "wheels": {"radius_m": nominal.radius_m, "baseline_m": nominal.baseline_m, "k": 27.0, "limit": 1.0},
+            "wheels": {"radius_m": nominal.radius_m, "baseline_m": nominal.baseline_m, "k": DEFAULT_K,
+                       "limit": DEFAULT_LIMIT},  # the ROS driver checks its encoder rows with these (its `wheels`)
             "markers": {"family": "tag36h11", "size_m": MARKER_SIZE_M},
             "boards": {"inner_corners": list(BOARD_INNER_CORNERS), "square_m": BOARD_SQUARE_M}, "source": source}
 
