@@ -223,6 +223,59 @@ class StoppedMidDrive:
         self.robot.advance(duration_s, poses)
 
 
+class StoppedMidTurn:
+    """The mock stopped (KeyboardInterrupt) as it is to turn one-wheel step `at` (counting from 1)."""
+
+    def __init__(self, robot, at):
+        self.robot, self.at, self.seen = robot, at, 0
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def advance(self, duration_s, poses=None):
+        if self.robot.duties.any():
+            self.seen += 1
+            if self.seen >= self.at:
+                raise KeyboardInterrupt("stopped by the test")
+        self.robot.advance(duration_s, poses)
+
+
+def test_a_boards_phase_stopped_mid_pass_goes_on_with_that_pass_where_the_replay_left_it(tmp_path):
+    """Resumed as on the robot (restart_phase), the robot left where it stopped, in the second pass (turning right,
+    one step after the first pass ended facing the last board): the boards are tracked on from the replay's last view
+    of them and the pass goes on to its board. It was started again as from the start board, which was not in view:
+    the boards were misnamed and the pass ended one board early. The views before are kept."""
+    robot = short_mock()
+    try:
+        result, _ = run_mission(robot, tmp_path / "whole", SHORT, states=(Boards,), transitions=BOARDS_ONLY)
+        assert result.final == DONE, result.reason
+        heading_rad = robot.pose()[2]
+    finally:
+        robot.close()
+    whole = read_drive_log(tmp_path / "whole" / "log", check_images=False)
+    robot = short_mock()
+    try:
+        result, _ = run_mission(StoppedMidTurn(robot, 6), tmp_path / "run", SHORT, states=(Boards,),
+                                transitions=BOARDS_ONLY)
+        assert result.final == INTERRUPTED
+        before = read_drive_log(tmp_path / "run" / "log", check_images=False)
+        assert 0 < np.sum(before.left_duty > 0) < np.sum(whole.left_duty > 0)  # the second pass under way
+        result, ctx = run_mission(robot, tmp_path / "run", SHORT, states=(Boards,), transitions=BOARDS_ONLY,
+                                  restart_phase=True)
+        resumed_heading_rad = robot.pose()[2]
+    finally:
+        robot.close()
+    assert result.final == DONE and ctx.restarted == "boards", result.reason
+    after = read_drive_log(tmp_path / "run" / "log", check_images=False)
+    (t_break,) = after.segment_t_s
+    assert after.frame_files[:len(before.frame_files)] == before.frame_files
+    segment = after.wheel_t_s > t_break  # right turns only: the second pass went on
+    assert np.all((after.left_duty[segment] >= 0) & (after.right_duty[segment] <= 0))
+    # it ended where the uninterrupted run's did (a step is about 12 deg), with its views and one at the restart
+    assert abs(math.remainder(resumed_heading_rad - heading_rad, 2 * math.pi)) < math.radians(6.0)
+    assert len(whole.frame_files) <= len(after.frame_files) <= len(whole.frame_files) + 1
+
+
 UP_TO_DRIVES = {("boards", "ok"): "camera", ("camera", "ok"): "face_markers", ("face_markers", "ok"): "marker_drives",
                 ("marker_drives", "ok"): DONE}
 

@@ -510,7 +510,8 @@ class Crash(Exception):
 
 def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phase_again_where_it_stands(
         tmp_path, monkeypatch, capsys):
-    """A run on the fake peer dies (the ticks kept), the robot is carried by hand, and `--resume` goes on: the wheels
+    """A run on the fake peer dies (the ticks kept), and `--resume` goes on where the robot stands: refused while hands
+    have moved it (the boards not where the run left them: nothing moved, nothing logged), then, put back, the wheels
     stopped first, the captures kept, a break in the log where the phase started again, the ticks appended."""
     import naocal.kinds.duckiebot.mission as mission
     from naocal.tools.cli import main
@@ -540,18 +541,29 @@ def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phas
         assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
         frames = {name: (out / "log" / name).read_bytes() for name in log.frame_files}
 
-        # hands set it down again facing the start board, as the boards phase starts (not where it stopped)
-        x, y, theta = graph.robot.pose()
-        c, s_ = math.cos(theta), math.sin(theta)
-        graph.robot.carry(c * (0.02 - x) + s_ * (-0.01 - y), -s_ * (0.02 - x) + c * (-0.01 - y), 0.05 - theta)
-        sent = len(graph.received)
-
         def boards_twice(robot, out, settings, **kw):  # the resumed run goes on past the crashed one's end
             return whole(robot, out, MissionSettings(board_passes=2), **kw, states=(Boards,),
                          transitions={("boards", "ok"): DONE})
 
         monkeypatch.setattr(mission, "run_mission", boards_twice)
-        assert main(["calibrate", "--robot", "duckiebot", "--backend", "ros", "--resume", "--out", str(out)]) == 0
+        resume = ["calibrate", "--robot", "duckiebot", "--backend", "ros", "--resume", "--out", str(out)]
+        # hands moved it (turned 22 deg): the boards are not where the run left them; nothing moves, nothing logged
+        graph.robot.carry(0.0, 0.0, 0.38)
+        def captures():  # the commands and frames logged (log.json and encoders.csv get the ticks as a run ends)
+            return {p: p.read_bytes() for p in (out / "log").rglob("*")
+                    if p.is_file() and p.name not in ("log.json", "encoders.csv")}
+
+        sent, logged = len(graph.received), captures()
+        capsys.readouterr()
+        assert main(resume) == 3
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "boards are not where the stopped run last saw them (board 2" in err, err
+        assert graph.received[sent:] and all((l, r) == (0.0, 0.0) for _, l, r in graph.received[sent:])
+        assert captures() == logged and not (out / "log" / "segments.csv").exists()
+        # put back as it stood: the boards phase goes on from where the replay says it turned to
+        graph.robot.carry(0.0, 0.0, -0.38)
+        sent = len(graph.received)
+        assert main(resume) == 0
         resumed = read_drive_log(out / "log")
         assert graph.received[sent][1:] == (0.0, 0.0)  # the wheels stopped before anything else was sent
         assert len(resumed.segment_t_s) == 1 and resumed.segment_t_s[0] > log.wheel_t_s[-1]
@@ -560,8 +572,8 @@ def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phas
         assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
         assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
         assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
-        # the phase started again from the start board for the pass not yet done only (right, to board 0: every
-        # step after the break turns right), the first pass's views kept
+        # the phase went on with the pass not yet done only (right, to board 0: every step after the break turns
+        # right), the first pass's views kept
         after = resumed.wheel_t_s > resumed.segment_t_s[0]
         left, right = resumed.left_duty[after], resumed.right_duty[after]
         assert np.sum(resumed.frame_t_s > resumed.segment_t_s[0]) >= 3 and np.any(left > 0)

@@ -11,7 +11,7 @@ docs/DEPLOY.md "Duckiebot (DB21)"), or from a laptop through `naocal bridge serv
 
 RUN/log (the calibration drive: every command and frame as it happened, naocal.drive_log/1), RUN/validation (the
 validation drive and leaving the area, the same format), RUN/encoders.csv (--backend ros on a DB21: every
-encoder row as it came, appended and fsync'd; written into the logs' encoders.csv when the run ends),
+encoder row as it came, appended and fsync'd; written into the logs' encoders.csv when the run is done),
 RUN/offsets.json (the calibration, naocal.duckiebot_calibration/1, written once identified: `naocal offsets export`
 makes Duckietown's files of it),
 RUN/truth.json (the mock's hidden robot in the same names and units), RUN/summary.txt (what happened, the
@@ -210,7 +210,10 @@ def run(args) -> int:
             # the robot's pose is not saved with the run (the mock's is): a resumed phase starts again where it stands
             result, ctx = run_mission(robot, out, settings, robot_id=robot_id, source=source,
                                       on_calibration=write_offsets, restart_phase=record["backend"] != "mock")
-            if hasattr(robot, "save_encoders"):  # a DB21's ticks, into the drive logs (a DB18 has none)
+            # a DB21's ticks into the drive logs (a DB18 has none) once finished: log.json then gives their resolution,
+            # and a resumable run's log.json must stay the one it was started with (DriveLogAppender); until then
+            # RUN/encoders.csv (--backend ros) or the server's driver (--backend bridge) keeps them
+            if result.final == DONE and hasattr(robot, "save_encoders"):
                 for session in (ctx.session, ctx.validation_session):
                     if session is not None and session.log.wheels:
                         robot.save_encoders(session.log.directory, session.log.wheels[0][0],

@@ -7,7 +7,9 @@ however it ends.
 - boards: one-wheel steps (a step, stop, settle, grab: sharp frames), turning left, right, left over the semicircle
   of boards, tracking which board is in view (identical boards: by continuity from the one in view at the start);
   recovery when none is: keep turning towards the next board for a bounded number of steps. Started again after
-  a resume on the robot: from the start board in view again (the robot put back facing it), the passes not yet done.
+  a resume on the robot: the pass under way goes on from where the replay says the robot turned to (the boards
+  tracked on from the replay's last view of them: the robot left where it stopped, or put back so); from the start
+  board in view when the replay had seen none.
 - camera: the intrinsics from every board view (kinds.duckiebot.identify.fit_intrinsics: lens model by held-out
   error).
 - face_markers: spin in steps until floor markers are in view, then one-wheel steps until coaxial with the marker
@@ -313,6 +315,7 @@ class MissionContext:
     on_calibration: object = None  # callable(calibration): the caller writes it (RUN/offsets.json)
     board_views: dict = field(default_factory=dict)  # {frame index: boards detected}: kept when a phase restarts
     board_passes_done: int = 0  # the boards' passes done: a boards phase started again turns the others only
+    board_tracker: object = None  # BoardTracker: a boards phase started again goes on from the replay's last view
     restarted: str | None = None  # the phase started again after a resume (RestartedPhase)
 
     @property
@@ -364,6 +367,9 @@ def turn_step(session: Session, settings: MissionSettings, direction: int, step:
 
 # ------------------------------------------------------------------------------------------------ boards
 
+TRACK_PX = 120.0  # a board in this frame within this of where the last frame's was expected is the same board
+
+
 class BoardTracker:
     """Which of the identical boards are in view: continuity from the previous frame (boards move across the image
     as the robot turns: left turns move them right), the image order (boards numbered counter-clockwise appear
@@ -401,7 +407,7 @@ class BoardTracker:
             for index, u_before in self.previous.items():
                 distances = [abs(u - (u_before + guess)) for u in us]
                 rank = int(np.argmin(distances))
-                if distances[rank] < 120.0 and (best is None or distances[rank] < best[0]):
+                if distances[rank] < TRACK_PX and (best is None or distances[rank] < best[0]):
                     best = (distances[rank], index + rank)
             if best is not None:
                 return best[1]
@@ -423,7 +429,9 @@ class Boards(State):
     def run(self, ctx: MissionContext) -> Outcome:
         s, session = ctx.settings, ctx.session
         width = duckiebot("DB21").camera.width_px
-        tracker = BoardTracker(s.n_boards, s.start_board, width)
+        tracker = ctx.board_tracker
+        if tracker is None:
+            tracker = ctx.board_tracker = BoardTracker(s.n_boards, s.start_board, width)
 
         def look(direction):
             image = session.grab()
@@ -432,11 +440,12 @@ class Boards(State):
             return tracker.update([float(b.corners_px[..., 0].mean()) for b in boards], direction)
 
         session.command(0.0, 0.0)  # the safe state first
-        look(+1)
+        # started again after the replay saw boards (check_restart): no step since its last view; else the start board
+        look(0 if tracker.previous else +1)
         goals = [(+1, s.n_boards - 1), (-1, 0), (+1, s.start_board)]  # turn until this board passes the centre
         step = 0
         passes = (goals * s.board_passes)[:s.board_passes]
-        for index in range(ctx.board_passes_done, len(passes)):  # started again: the passes not yet done
+        for index in range(ctx.board_passes_done, len(passes)):  # started again: the pass under way goes on
             direction, goal = passes[index]
             blind = 0
             for _ in range(s.max_board_steps):
@@ -458,6 +467,25 @@ class Boards(State):
         ctx.board_detections = detections
         n_views = sum(len(d) for d in detections)
         return Outcome("ok", f"{len(detections)} frames, {n_views} board views")
+
+
+    @staticmethod
+    def check_restart(ctx: MissionContext, session: Session) -> None:
+        """The start conditions of a boards phase started again (RestartedPhase), checked before its break is logged:
+        after the replay saw boards, the robot stands where it stopped, so a board is in view within TRACK_PX of where
+        the replay's last view had one (the tracker goes on from it). Else NaocalError naming the board to face,
+        nothing logged (the frame looked at is not kept): the robot put back as it stood, the run resumes again."""
+        last = ctx.board_tracker.previous if ctx.board_tracker is not None else {}
+        if not last:
+            return  # the replay saw no board: the start board in view, as when a run starts
+        _, image = session.robot.grab()
+        us = [float(b.corners_px[..., 0].mean()) for b in detect_boards(image, BOARD_INNER_CORNERS, BOARD_SQUARE_M)]
+        if not any(abs(u - u_last) < TRACK_PX for u in us for u_last in last.values()):
+            width = duckiebot("DB21").camera.width_px
+            facing = min(last, key=lambda i: abs(last[i] - width / 2))
+            raise NaocalError(f"the boards are not where the stopped run last saw them (board {facing}, counted "
+                              f"counter-clockwise from 0, at u {last[facing]:.0f} px): the robot was moved since; put "
+                              "it back as it stood and resume again (nothing was logged, nothing moved)")
 
 
 class CalibrateCamera(State):
@@ -763,6 +791,9 @@ class RestartedPhase(State):
             return self.phase.run(ctx)
         except ReplayEnded as end:
             log.info("phase %s: the replay ended inside it; starting it again where the robot stands", self.name)
+            check_restart = getattr(self.phase, "check_restart", None)  # a phase's own start conditions, if any
+            if check_restart is not None:
+                check_restart(ctx, end.session)
             end.session.new_segment()
             ctx.blind_m, ctx.restarted = 0.0, self.name
             return self.phase.run(ctx)
