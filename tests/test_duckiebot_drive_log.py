@@ -142,6 +142,29 @@ def test_an_encoder_step_beyond_what_the_wheel_can_turn_is_refused(log):
     assert "969 ticks at most" in message
 
 
+def test_a_row_per_encoder_message_export_reads_and_a_spike_is_still_refused(log):
+    """A ROS bag export writing one row per encoder message (Duckietown's two nodes at 30 Hz, 2 ms apart), the other
+    wheel's count held: at 1 m/s (31 rad/s, 22 ticks a period) a wheel's ticks of a whole period land 2 ms after the
+    row before. The wheel turned them since its count last changed (33 ms), not in 2 ms: read. A spike of 200 ticks
+    in a period stays impossible (66 at most)."""
+    def export(spike_at=None):
+        rows, left, right = ["t_s,left_ticks,right_ticks"], 0, 0
+        for i in range(30):
+            t = i / 30.0
+            left += 22
+            rows.append(f"{t:.4f},{left},{right}")
+            right += 200 if i == spike_at else 22
+            rows.append(f"{t + 0.002:.4f},{left},{right}")
+        (log / "encoders.csv").write_text("\n".join(rows) + "\n")
+
+    export()
+    drive = read_drive_log(log)
+    assert drive.left_ticks[-1] == drive.right_ticks[-1] == 660
+    export(spike_at=12)
+    refused(log, r"encoders.csv, line 27, field 'right_ticks': \+200 ticks since the previous row \(0.002 s before; "
+                 r"the count last changed 0.0333 s before\): more than the wheel can turn \(66 ticks at most")
+
+
 def test_windows_and_ros_bag_exports_read_as_written(log):
     # CRLF line endings, a UTF-8 byte order mark, a trailing blank line; Unix-epoch times (a ROS bag's), each file
     # starting at its own time

@@ -268,6 +268,11 @@ def unwrap_int32(ticks: np.ndarray) -> np.ndarray:
     return np.concatenate([ticks[:1], ticks[0] + np.cumsum(steps)])
 
 
+# The longest a count may be held unchanged in a row while its wheel turns: a row-per-message export holds the other
+# wheel's count one publication period (Duckietown's encoder nodes: 30 Hz, 33 ms); 8 periods of margin.
+HELD_COUNT_MAX_S = 0.25
+
+
 def max_tick_step(dt_s: np.ndarray, wheels: Wheels, ticks_per_revolution: int) -> np.ndarray:
     """The most ticks a wheel can turn in `dt_s` (s): at the log's limit duty through Duckietown's forward map
     w = u k / (gain - |trim|) with the lowest gain real robots' files hold (MIN_REAL_GAIN: a DB21 at limit 1, k 27:
@@ -276,21 +281,32 @@ def max_tick_step(dt_s: np.ndarray, wheels: Wheels, ticks_per_revolution: int) -
     return rate_radps * np.asarray(dt_s) * ticks_per_revolution / (2 * math.pi) + 2.0
 
 
-def impossible_tick_step(t_s, ticks, wheels: Wheels):
+def impossible_tick_step(t_s, ticks, wheels: Wheels, *, counts_held: bool = True):
     """The first row of a count column (`ticks`: cumulative, int32 wrap-arounds undone, at strictly increasing times
     `t_s`) that steps from the row before by more than the wheel can turn in between (max_tick_step): (its index,
     why), or None. The one check of encoders.csv's reader and of what writes it (write_encoders, the ROS driver's rows
-    as they come)."""
-    ticks = np.asarray(ticks, dtype=np.int64)
+    as they come).
+
+    "In between" starts where the count last changed, up to HELD_COUNT_MAX_S before the row before: a ROS bag export
+    writes a row per encoder message with the other wheel's count held, so a wheel's ticks of a whole publication
+    period (Duckietown's encoder nodes: 30 Hz) may land a few ms after the row before (the other wheel's message); the
+    first row's count may have been held from before the log. `counts_held=False`: every row was formed once both
+    wheels had counted since the row before (the ROS driver's rows), so a step spans the rows' interval alone."""
+    t_s, ticks = np.asarray(t_s, dtype=float), np.asarray(ticks, dtype=np.int64)
     if wheels.ticks_per_revolution is None or len(ticks) < 2:
         return None
-    bound = max_tick_step(np.diff(t_s), wheels, wheels.ticks_per_revolution)
+    changed = np.concatenate([[True], np.diff(ticks) != 0])
+    held_since = t_s[np.maximum.accumulate(np.where(changed, np.arange(len(ticks)), 0))]
+    held_since[held_since == t_s[0]] = -np.inf  # the first count: when it last changed is before the log
+    interval_s = np.diff(t_s) + (np.minimum(t_s[:-1] - held_since[:-1], HELD_COUNT_MAX_S) if counts_held else 0.0)
+    bound = max_tick_step(interval_s, wheels, wheels.ticks_per_revolution)
     beyond = np.flatnonzero(np.abs(np.diff(ticks)) > bound)
     if not len(beyond):
         return None
     i = int(beyond[0])
     return i + 1, (f"{int(ticks[i + 1] - ticks[i]):+d} ticks since the previous row ({float(t_s[i + 1] - t_s[i]):.4g} "
-                   f"s before): more than the wheel can turn ({bound[i]:.0f} ticks at most: the limit duty "
+                   f"s before; the count last changed {float(interval_s[i]):.4g} s before): more than the wheel can "
+                   f"turn ({bound[i]:.0f} ticks at most: the limit duty "
                    f"{wheels.limit:g} at k {wheels.k:g} with gain {MIN_REAL_GAIN:g}, "
                    f"{wheels.ticks_per_revolution} ticks a revolution)")
 

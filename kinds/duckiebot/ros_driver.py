@@ -248,7 +248,8 @@ class RosDuckiebot:
                 if self.encoder_rows:  # the reader's jump check (drive_log.impossible_tick_step), at once
                     t_s = np.array([last_t, row[0]])
                     for name, column in (("left_ticks", 1), ("right_ticks", 2)):
-                        found = impossible_tick_step(t_s, [self.encoder_rows[-1][column], row[column]], self.wheels)
+                        found = impossible_tick_step(t_s, [self.encoder_rows[-1][column], row[column]], self.wheels,
+                                                     counts_held=False)
                         if found:
                             n = len(self.encoder_rows) + 1  # the journal holds every row, after its header
                             where = f"{self._journal.path}, line {n + 1}" if self._journal is not None else \
