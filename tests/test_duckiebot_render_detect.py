@@ -69,7 +69,7 @@ def test_the_rendered_log_reads_and_holds_the_drive(rendered):
 
 
 def test_markers_are_detected_at_their_true_pixels(rendered):
-    errors, seen, small = [], set(), []
+    errors, seen = [], set()
     for i in range(len(rendered.log.frame_files)):
         truth = rendered.marker_px[i]
         for sighting in detect_markers(rendered.log.load_frame(i)):
