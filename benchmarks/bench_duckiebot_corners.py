@@ -29,6 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from naocal.kinds.duckiebot import detect  # noqa: E402
+from naocal.kinds.duckiebot.detect import refinement_window_px  # noqa: E402
 from naocal.kinds.duckiebot.render import Renderer, calibration_scene, hidden_robot  # noqa: E402
 
 EDGE_BINS_PX = (10, 15, 20, 25, 30, 40, 50, 65, 80, 120)
@@ -45,15 +46,6 @@ def detector(refine: str) -> cv2.aruco.ArucoDetector:
     parameters = base.getDetectorParameters()
     parameters.cornerRefinementMethod = REFINEMENTS[refine]
     return cv2.aruco.ArucoDetector(base.getDictionary(), parameters)
-
-
-def refinement_window_px(quad: np.ndarray) -> int:
-    """The half-width of OpenCV's cornerSubPix window for a detected quad with detect.py's settings (ArucoDetector:
-    relativeCornerRefinmentWinSize x the mean marker cell, rounded, 1 at least, at most cornerRefinementWinSize)."""
-    parameters = detect._marker_detector("tag36h11").getDetectorParameters()
-    cell = np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).sum() / (4 * 8)  # tag36h11: 8 cells a side
-    return int(min(parameters.cornerRefinementWinSize,
-                   max(1, round(parameters.relativeCornerRefinmentWinSize * cell))))
 
 
 def corner_errors(seeds, frames: int, blur_px: float, noise_grey: float, refine: str = "subpix"):
