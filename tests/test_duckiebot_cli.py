@@ -61,8 +61,8 @@ def test_identify_says_which_part_of_each_std_is_statistical_and_which_a_conside
         parts = cal.parameters[name]["std_parts"]
         assert set(parts) == {"fit", "lens", "corner_window"} and parts["corner_window"] > 0, parts
         assert np.isclose(np.sqrt(sum(v ** 2 for v in parts.values())), cal.std(name), rtol=1e-6)
-    line = next(line for line in calibrated.identify.stdout.splitlines() if line.startswith("std parts"))
-    assert "statistical / lens / corner_window" in line and "trim" in line and "camera z mm" in line
+    line = next(line for line in calibrated.identify.stdout.splitlines() if line.startswith("std parts:"))
+    assert "statistical / lens / detector's corner error" in line and "trim" in line and "camera z mm" in line
 
 
 def test_the_calibration_exports_duckietowns_three_files(calibrated, tmp_path):
@@ -387,7 +387,7 @@ def test_an_implausible_calibration_is_never_written(calibrated, tmp_path):
                  for (m, c), e in zip(cal.lenses.items(), cal.lens_errors.values())}
     fit = SimpleNamespace(names=names, x=x, std=np.full(len(x), 1e-3), free=np.ones(len(x), bool), rms_px=0.3,
                           sightings=SimpleNamespace(frame=np.zeros(8)), outliers=SimpleNamespace(frame=np.zeros(0)),
-                          reference_marker=0, success=True, warnings=[], pwm_driver=False)
+                          reference_marker=0, success=True, warnings=[], pwm_driver=False, considered={})
     fake = SimpleNamespace(robot_id="rendered", kinematics=kinematics, lens=lens_fits[cal.lens_model],
                            lens_fits=lens_fits, drive_fit=fit)
     target = tmp_path / "CAL.json"

@@ -78,3 +78,33 @@ def test_with_a_hidden_size_dependent_corner_error_the_considered_stds_cover_the
     z = {n: (fit.value(n) - v) / fit.stdev(n) for n, v in truth.items()}
     assert max(abs(v) for v in z.values()) < Z_LIMIT, z
     assert fit.stdev("trim") < 0.0005  # the trim's std does not balloon
+
+
+def test_a_refined_trim_drops_the_calibrations_std_parts_and_the_file_still_reads(tmp_path):
+    """A refinement's trim std is the lane pass's own (no parts): the refined file must not keep the calibration's
+    parts beside it (the reader refuses parts that do not make up the std)."""
+    from types import SimpleNamespace
+
+    from naocal.kinds.duckiebot.calibration import check_document, checked_document
+    from naocal.kinds.duckiebot.fit import CAMERA, KINEMATIC, LENS, DriveFit, Sightings, pose_parameters
+    from naocal.kinds.duckiebot.identify import DuckiebotCalibration
+    from naocal.kinds.duckiebot.intrinsics import LensFit
+    from naocal.kinds.duckiebot.refine import refined_document
+    from naocal.kinds.duckiebot.render import hidden_robot
+
+    robot = hidden_robot(3)
+    kin = robot.kinematics
+    none = Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+    values = np.r_[kin.gain, kin.trim, kin.baseline_m, pose_parameters(robot.T_base_camera)]
+    fit = DriveFit(list(KINEMATIC + CAMERA), values, np.full(9, 13e-4), np.full(9, 3e-4), np.ones(9, bool), 0,
+                   np.zeros((0, 2)), none, none, 0.1, True, "", 1, 1.0, [], 0.0,
+                   considered={LENS: np.full(9, 3e-4), CORNER_WINDOW: np.full(9, 4e-4)})
+    lens = LensFit(LensCamera.from_intrinsics(robot.camera), 0.0, 0.0, 1)
+    doc, read = checked_document(DuckiebotCalibration("rendered", kin, lens, {"plumb_bob": lens}, fit),
+                                 tmp_path / "cal.json")
+    assert read.parameters["trim"]["std_parts"] == pytest.approx({STATISTICAL: 12e-4, LENS: 3e-4,
+                                                                  CORNER_WINDOW: 4e-4})
+    refinement = SimpleNamespace(trim=kin.trim + 0.01, trim_std=2e-4, gain_refined=False, kinematics=kin)
+    refined = check_document(refined_document(doc, refinement, "a lane pass"), tmp_path / "new.json")
+    assert refined.std("trim") == 2e-4 and "std_parts" not in refined.parameters["trim"]
+    assert refined.parameters["gain"]["std_parts"] == read.parameters["gain"]["std_parts"]  # not refined: kept

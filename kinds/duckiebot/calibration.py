@@ -130,7 +130,7 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
         "kinematics": {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m, "k": kin.k,
                        "radius_m": kin.radius_m, "limit": kin.limit},
         "parameters": {n: {"value": float(v), "std": float(s), "fixed": not bool(free),
-                           **({"std_parts": {part: float(stds[i]) for part, stds in parts.items()}} if free else {})}
+                           **({"std_parts": {part: float(stds[i]) for part, stds in parts.items()}} if free and parts else {})}
                        for i, (n, v, s, free) in enumerate(zip(fit.names, fit.x, fit.std, fit.free))},
         "fit": {"rms_px": float(fit.rms_px), "corners": int(len(fit.sightings.frame)),
                 "outliers": int(len(fit.outliers.frame)), "reference_marker": int(fit.reference_marker),

@@ -211,15 +211,16 @@ PARTS_SHOWN = (("gain", "gain", 1.0, 4), ("trim", "trim", 1.0, 5), ("baseline_m"
 def _std_parts_line(cal) -> str:
     """One line: which part of each std is statistical (the fit's, cluster-robust) and which the model errors the
     fit considered (the lens's intrinsics, the detector's corner error; calibration's std_parts); "" without."""
-    from naocal.kinds.duckiebot.fit import STD_PARTS
+    from naocal.kinds.duckiebot.fit import CORNER_WINDOW, LENS, STATISTICAL, STD_PARTS
 
+    labels = {STATISTICAL: "statistical", LENS: "lens", CORNER_WINDOW: "detector's corner error"}
     shown = [(n, label, scale, digits) for n, label, scale, digits in PARTS_SHOWN
              if "std_parts" in cal.parameters.get(n, {})]
     if not shown:
         return ""
     names = [p for p in STD_PARTS if any(p in cal.parameters[n]["std_parts"] for n, *_ in shown)]
-    return (f"std parts ({' / '.join({'fit': 'statistical'}.get(p, p) for p in names)}; model errors considered, "
-            "the std their root sum of squares): " + ", ".join(
+    return (f"std parts: {' / '.join(labels.get(p, p) for p in names)} (all but the first model errors carried "
+            "in; the std is their root sum of squares): " + ", ".join(
                 f"{label} " + " / ".join(f"{cal.parameters[n]['std_parts'].get(p, 0.0) * scale:.{digits}f}"
                                          for p in names) for n, label, scale, digits in shown))
 
