@@ -36,7 +36,9 @@ A marker seen from nearly the same place in consecutive frames is detected with 
 bias at that size, blur and angle), so a run's corners share one error; one cluster per frame counted each of a
 run's frames as independent, and the stds came out small (realistic mock, seeds 1-5: camera.pitch_rad 1.6, 2.4, 2.9,
 0.8, 3.5 stds off; 1.2, 1.2, 1.7, 0.4, 1.9 by runs). Drive segments would leave 2-4 clusters for 20-50 parameters,
-far too few for the sandwich.
+far too few for the sandwich. Errors shared by the whole log (the lens's intrinsics, the detector's corner error
+over its window) are no cluster's: kinds.duckiebot.identify carries them into the covariance as considered
+nuisances (DriveFit.considered, std_parts).
 """
 
 from __future__ import annotations

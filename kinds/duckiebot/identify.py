@@ -246,6 +246,8 @@ def add_corner_covariance(fit: DriveFit, drive: Drive, detections: Detections, c
     considered nuisance (considered_effect): every raw corner moved outward along its diagonal by c / w (w its
     cornerSubPix window half-width), c kept at 0 by the fit (its one corner_bias_px takes a constant shift), of std
     `std_px2` (CORNER_WINDOW_STD_PX2). An error shared by every frame of a log: no cluster-robust std sees it."""
+    if fit.covariance is None:
+        return
     raw = marker_sightings(detections)
     shifts = corner_window_shifts(detections)
 
@@ -260,7 +262,8 @@ def add_corner_covariance(fit: DriveFit, drive: Drive, detections: Detections, c
 class DuckiebotCalibration:
     """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
     camera (the chosen lens; its plumb_bob fit for Duckietown's files), the camera's pose on the body, the floor
-    markers, with the joint fit's cluster-robust stds (the lens's own: `lens.std`, clusters the board views)."""
+    markers, with the joint fit's stds: cluster-robust, the considered model errors carried in (drive_fit.std_parts():
+    the lens's, the detector's corner error's; the lens's own stds: `lens.std`, clusters the board views)."""
 
     robot_id: str
     kinematics: Kinematics
