@@ -7,7 +7,8 @@ Each corner's error (detected - true) is split along the marker's image diagonal
 mean is an inward shift, the marker seen too small) and across it; both in px and as a share of the local edge
 length (the mean of the two true edges meeting at the corner). Rows are bins of that edge length; columns the
 foreshortening (the marker's image height along the view over its width) and the renders' blur / noise; a second
-table groups the same corners by the half-width of the window OpenCV's cornerSubPix refined them in.
+table groups the same corners by the half-width of the window OpenCV's cornerSubPix refined them in, and the
+outward error fitted as b0 + c / window (c: the samples of kinds/duckiebot/identify.py's CORNER_WINDOW_STD_PX2).
 
 Robot poses: facing the marker line (render.calibration_scene: markers along -x), at random places along it, a
 few cm aside, turned up to +-0.5 rad, as the mission's drives see them. Deterministic (seeded).
@@ -29,6 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from naocal.kinds.duckiebot import detect  # noqa: E402
+from naocal.kinds.duckiebot.detect import refinement_window_px  # noqa: E402
 from naocal.kinds.duckiebot.render import Renderer, calibration_scene, hidden_robot  # noqa: E402
 
 EDGE_BINS_PX = (10, 15, 20, 25, 30, 40, 50, 65, 80, 120)
@@ -45,15 +47,6 @@ def detector(refine: str) -> cv2.aruco.ArucoDetector:
     parameters = base.getDetectorParameters()
     parameters.cornerRefinementMethod = REFINEMENTS[refine]
     return cv2.aruco.ArucoDetector(base.getDictionary(), parameters)
-
-
-def refinement_window_px(quad: np.ndarray) -> int:
-    """The half-width of OpenCV's cornerSubPix window for a detected quad with detect.py's settings (ArucoDetector:
-    relativeCornerRefinmentWinSize x the mean marker cell, rounded, 1 at least, at most cornerRefinementWinSize)."""
-    parameters = detect._marker_detector("tag36h11").getDetectorParameters()
-    cell = np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).sum() / (4 * 8)  # tag36h11: 8 cells a side
-    return int(min(parameters.cornerRefinementWinSize,
-                   max(1, round(parameters.relativeCornerRefinmentWinSize * cell))))
 
 
 def corner_errors(seeds, frames: int, blur_px: float, noise_grey: float, refine: str = "subpix"):
@@ -118,7 +111,21 @@ def table(rows: np.ndarray, title: str) -> str:
         if len(out) >= 8:
             lines.append(f"| {window:.0f} | {len(out)} | {out.mean():+.3f} ({out.std() / np.sqrt(len(out)):.3f}) | "
                          f"{out.mean() * window:+.3f} |")
+    fitted = window_fit(rows)
+    if fitted is not None:
+        lines += ["", f"outward px = b0 + c / window over windows 2-4 (least squares on the corners): b0 "
+                      f"{fitted[0]:+.3f} px, c {fitted[1]:+.3f} px^2 (identify.CORNER_WINDOW_STD_PX2's samples)"]
     return "\n".join(lines)
+
+
+def window_fit(rows: np.ndarray):
+    """(b0 px, c px^2) of the outward error as b0 + c / w over the corners refined in windows of 2-4 px (the
+    windows of 1 px: too few corners, none at blur 1 px), or None with fewer than two windows."""
+    sel = rows[(rows[:, 4] >= 2)] if len(rows) else rows
+    if len(np.unique(sel[:, 4])) < 2:
+        return None
+    X = np.column_stack([np.ones(len(sel)), 1.0 / sel[:, 4]])
+    return np.linalg.lstsq(X, sel[:, 2], rcond=None)[0]
 
 
 def main(argv=None) -> int:

@@ -52,6 +52,19 @@ def test_identify_calibrates_a_rendered_log(calibrated):
         assert text in calibrated.identify.stdout, text
 
 
+def test_identify_says_which_part_of_each_std_is_statistical_and_which_a_considered_model_error(calibrated):
+    """The file keeps each std's parts (the fit's cluster-robust one, the lens's, the detector's corner error over
+    its window: kinds.duckiebot.identify's considered nuisances), their root sum of squares the std; the printout
+    shows them in one line."""
+    cal = read_calibration_file(calibrated.cal)
+    for name in ("gain", "trim", "camera.z_m"):
+        parts = cal.parameters[name]["std_parts"]
+        assert set(parts) == {"fit", "lens", "corner_window"} and parts["corner_window"] > 0, parts
+        assert np.isclose(np.sqrt(sum(v ** 2 for v in parts.values())), cal.std(name), rtol=1e-6)
+    line = next(line for line in calibrated.identify.stdout.splitlines() if line.startswith("std parts:"))
+    assert "statistical / lens / detector's corner error" in line and "trim" in line and "camera z mm" in line
+
+
 def test_the_calibration_exports_duckietowns_three_files(calibrated, tmp_path):
     out = tmp_path / "calibrations"
     result = naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out)
@@ -329,6 +342,8 @@ def test_identify_never_writes_over_its_input(calibrated, tmp_path):
     (("robot", "id"), "no/such robot", "robot.id"),
     (("fit", "extra"), 1, "fit.extra"),
     (("fit", "pwm_driver"), "yes", "fit.pwm_driver"),
+    (("parameters", "trim", "std_parts", "corner_window"), 1.0, "parameters.trim.std_parts"),  # not the std's
+    (("parameters", "trim", "std_parts", "seen"), 0.0, "parameters.trim.std_parts.seen"),
 ])
 def test_a_bad_calibration_file_is_refused_naming_its_field(calibrated, tmp_path, where, value, field):
     doc = json.loads(calibrated.cal.read_text())
@@ -372,7 +387,7 @@ def test_an_implausible_calibration_is_never_written(calibrated, tmp_path):
                  for (m, c), e in zip(cal.lenses.items(), cal.lens_errors.values())}
     fit = SimpleNamespace(names=names, x=x, std=np.full(len(x), 1e-3), free=np.ones(len(x), bool), rms_px=0.3,
                           sightings=SimpleNamespace(frame=np.zeros(8)), outliers=SimpleNamespace(frame=np.zeros(0)),
-                          reference_marker=0, success=True, warnings=[], pwm_driver=False)
+                          reference_marker=0, success=True, warnings=[], pwm_driver=False, considered={})
     fake = SimpleNamespace(robot_id="rendered", kinematics=kinematics, lens=lens_fits[cal.lens_model],
                            lens_fits=lens_fits, drive_fit=fit)
     target = tmp_path / "CAL.json"

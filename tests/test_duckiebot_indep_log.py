@@ -187,6 +187,7 @@ def test_a_fit_gone_astray_is_a_failed_fit_not_a_bad_log(tmp_path, monkeypatch):
     astray = SimpleNamespace(value={"baseline_m": -2.9, "trim": 0.01}.get)
     monkeypatch.setattr(identify, "fit_drive", lambda *a, **k: astray)
     monkeypatch.setattr(identify, "add_lens_covariance", lambda *a, **k: None)
+    monkeypatch.setattr(identify, "add_corner_covariance", lambda *a, **k: None)
     monkeypatch.setattr(identify, "secant_gain", lambda *a, **k: (1.0, 0.0))
     log = _blank_log(tmp_path, [0.0, 0.1])
     lens = SimpleNamespace(camera=SimpleNamespace(K=np.eye(3)))

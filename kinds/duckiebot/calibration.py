@@ -7,7 +7,10 @@
                 "lenses": {MODEL: {"K": 3 x 3, "distortion": [...], "train_rms_px", "held_out_rms_px", "views"}}},
                 (plumb_bob always: Duckietown's files hold it)
      "kinematics": {"gain", "trim", "baseline_m", "k", "radius_m", "limit"},
-     "parameters": {NAME: {"value", "std", "fixed"}}   the joint fit (kinds.duckiebot.fit), SI, cluster-robust stds
+     "parameters": {NAME: {"value", "std", "fixed", "std_parts"}}   the joint fit (kinds.duckiebot.fit), SI; std:
+            the cluster-robust std with the considered model errors carried in; std_parts (optional): its parts,
+            {"fit": statistical, "lens": the intrinsics', "corner_window": the detector's corner error} (fit.STD_PARTS;
+            std is their root sum of squares)
      "fit": {"rms_px", "corners", "outliers", "reference_marker", "converged", "warnings", "pwm_driver"},
             (pwm_driver: fitted through Duckietown's wheel driver, identify --effects pwm_driver; absent: false)
      "source", "created"}
@@ -31,7 +34,8 @@ import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, Finding, check_calibration, \
     duckietown_calibration
-from naocal.kinds.duckiebot.fit import ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC, SEGMENT_ANCHOR, camera_transform
+from naocal.kinds.duckiebot.fit import (ANCHOR, BIAS, CAMERA, EFFECTS, KINEMATIC, SEGMENT_ANCHOR, STD_PARTS,
+                                        camera_transform)
 from naocal.kinds.duckiebot.intrinsics import LENS_MODELS, LensCamera
 from naocal.kinds.duckiebot.robot import Kinematics, robot_name_problem
 from naocal.solver.camera import CameraIntrinsics
@@ -110,6 +114,7 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
     the calibration does not hold it)."""
     fit = calibration.drive_fit
     kin = calibration.kinematics
+    parts = fit.std_parts() if fit.considered else {}
     return {
         "schema": SCHEMA,
         "robot": {"id": calibration.robot_id},
@@ -124,8 +129,9 @@ def calibration_document(calibration, *, width_px: int = 640, height_px: int = 4
                               for model, f in calibration.lens_fits.items()}},
         "kinematics": {"gain": kin.gain, "trim": kin.trim, "baseline_m": kin.baseline_m, "k": kin.k,
                        "radius_m": kin.radius_m, "limit": kin.limit},
-        "parameters": {n: {"value": float(v), "std": float(s), "fixed": not bool(free)}
-                       for n, v, s, free in zip(fit.names, fit.x, fit.std, fit.free)},
+        "parameters": {n: {"value": float(v), "std": float(s), "fixed": not bool(free),
+                           **({"std_parts": {part: float(stds[i]) for part, stds in parts.items()}} if free and parts else {})}
+                       for i, (n, v, s, free) in enumerate(zip(fit.names, fit.x, fit.std, fit.free))},
         "fit": {"rms_px": float(fit.rms_px), "corners": int(len(fit.sightings.frame)),
                 "outliers": int(len(fit.outliers.frame)), "reference_marker": int(fit.reference_marker),
                 "converged": bool(fit.success), "warnings": [str(w) for w in fit.warnings],
@@ -206,15 +212,28 @@ def _parameters(value, path) -> dict:
                  "anchor<segment>.*, "
                  f"{BIAS}, marker<id>.*, or an effect's: {', '.join(n for e in EFFECTS.values() for n in e)})",
                   field)
-        entry = fields.json_object(entry, path, field, ("value", "std", "fixed"), ())
+        entry = fields.json_object(entry, path, field, ("value", "std", "fixed"), ("std_parts",))
         parameters[name] = {"value": fields.number(entry["value"], path, f"{field}.value", limit=MAX_PARAMETER_SIZE),
                             "std": fields.number(entry["std"], path, f"{field}.std", limit=MAX_PARAMETER_SIZE,
                                                  non_negative=True),
                             "fixed": fields.flag(entry["fixed"], path, f"{field}.fixed")}
+        if "std_parts" in entry:
+            parameters[name]["std_parts"] = _std_parts(entry["std_parts"], parameters[name]["std"], path,
+                                                       f"{field}.std_parts")
     for name in REQUIRED_PARAMETERS:
         if name not in parameters:
             fail(path, "missing parameter", f"parameters.{name}")
     return parameters
+
+
+def _std_parts(value, std: float, path, field) -> dict:
+    """A parameter's std_parts (fit.STD_PARTS' names, each a std) checked: their root sum of squares is its std."""
+    parts = {part: fields.number(v, path, f"{field}.{part}", limit=MAX_PARAMETER_SIZE, non_negative=True)
+             for part, v in fields.json_object(value, path, field, (STD_PARTS[0],), STD_PARTS[1:]).items()}
+    total = math.sqrt(sum(v ** 2 for v in parts.values()))
+    if abs(total - std) > 1e-6 * std + 1e-12:
+        fail(path, f"the parts' root sum of squares is {total:.6g}, not the std {std:.6g}", field)
+    return parts
 
 
 def parse_calibration(doc, path, *, strict: bool = True) -> CalibrationFile:

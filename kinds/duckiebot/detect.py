@@ -54,6 +54,17 @@ def _marker_detector(family: str) -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(MARKER_FAMILIES[family]), parameters)
 
 
+def refinement_window_px(quad: np.ndarray, family: str = "tag36h11") -> int:
+    """The half-width of OpenCV's cornerSubPix window for a detected quad (4, 2) with this module's settings
+    (ArucoDetector: relativeCornerRefinmentWinSize x the mean marker cell, rounded, 1 at least, at most
+    cornerRefinementWinSize). The corners' inward bias is about 1 px^2 over it (docs/DUCKIEBOT.md, "The detector's
+    corner error, measured")."""
+    parameters = _marker_detector(family).getDetectorParameters()
+    cell = np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).sum() / (4 * 8)  # tag36h11: 8 cells a side
+    return int(min(parameters.cornerRefinementWinSize,
+                   max(1, round(parameters.relativeCornerRefinmentWinSize * cell))))
+
+
 def detect_markers(image: np.ndarray, family: str = "tag36h11") -> list[MarkerSighting]:
     """The markers of `family` in a BGR or grey uint8 image, sorted by id (each id once: a second sighting of an id
     is dropped with the first, since which is the true one cannot be told)."""

@@ -36,7 +36,9 @@ A marker seen from nearly the same place in consecutive frames is detected with 
 bias at that size, blur and angle), so a run's corners share one error; one cluster per frame counted each of a
 run's frames as independent, and the stds came out small (realistic mock, seeds 1-5: camera.pitch_rad 1.6, 2.4, 2.9,
 0.8, 3.5 stds off; 1.2, 1.2, 1.7, 0.4, 1.9 by runs). Drive segments would leave 2-4 clusters for 20-50 parameters,
-far too few for the sandwich.
+far too few for the sandwich. Errors shared by the whole log (the lens's intrinsics, the detector's corner error
+over its window) are no cluster's: kinds.duckiebot.identify carries them into the covariance as considered
+nuisances (DriveFit.considered, std_parts).
 """
 
 from __future__ import annotations
@@ -92,6 +94,12 @@ PWM_DRIVER = "pwm_driver"  # the effect whose term is Drive.pwm_driver (kinemati
 LAG_EFFECTS = tuple(name for name, e in WHEEL_EFFECTS.items() if e.drive_from_base_fit)
 LAG_SUBSTEP_S = 0.01  # with wheel_lag: one arc per this much time, at the exact mean lagged wheel speeds
 MAX_ITERATIONS = 100
+# DriveFit.std_parts: the statistical std (cluster-robust), then the considered nuisances' (model errors the fit
+# takes as known, their effect on the estimate carried into the stds: kinds.duckiebot.identify.add_considered)
+STATISTICAL = "fit"
+LENS = "lens"  # the intrinsics, fitted beforehand (identify.add_lens_covariance)
+CORNER_WINDOW = "corner_window"  # the detector's corner error over its window's size (identify.add_corner_covariance)
+STD_PARTS = (STATISTICAL, LENS, CORNER_WINDOW)
 # sighting_runs: a marker missed in up to this many frames less one (a failed detection) stays in one run
 SIGHTING_GAP_FRAMES = 3
 # drive_start: the planar poses' scale (m; the heading's, POSE_SCALE_M / POSE_HEADING_M rad) and iterations
@@ -699,6 +707,8 @@ class DriveFit:
     covariance: np.ndarray | None = field(default=None, repr=False)  # cluster-robust, names' order (0: fixed)
     pwm_driver: bool = False  # fitted through Duckietown's wheel driver (Drive.pwm_driver)
     anchors: dict = field(default_factory=dict)  # {segment: its anchor's time} of the segments fitted
+    # {nuisance (STD_PARTS): the std it adds to each parameter (names' order)}, carried into covariance and std
+    considered: dict = field(default_factory=dict)
 
     def value(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -709,6 +719,12 @@ class DriveFit:
     @property
     def T_base_camera(self) -> np.ndarray:
         return camera_transform(self.x[[self.names.index(n) for n in CAMERA]])
+
+    def std_parts(self) -> dict:
+        """{STATISTICAL: the cluster-robust std, then each considered nuisance's} (names' order): std is their root
+        sum of squares."""
+        considered = sum((part ** 2 for part in self.considered.values()), np.zeros(len(self.x)))
+        return {STATISTICAL: np.sqrt(np.clip(self.std ** 2 - considered, 0.0, None)), **self.considered}
 
     def parameters_dict(self) -> dict:
         return {n: {"value": float(v), "std": float(s)} for n, v, s in zip(self.names, self.x, self.std)}

@@ -6,15 +6,16 @@ dispatch is redesigned (issue 22); it writes nothing.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from naocal.kinds.duckiebot.calibration_files import DuckietownCalibration, duckietown_calibration
-from naocal.kinds.duckiebot.detect import detect_boards, detect_markers_and_repeats
+from naocal.kinds.duckiebot.detect import detect_boards, detect_markers_and_repeats, refinement_window_px
 from naocal.kinds.duckiebot.drive_log import DriveLog, read_drive_log
-from naocal.kinds.duckiebot.fit import PWM_DRIVER, Drive, DriveFit, Sightings, fit_drive, secant_gain
+from naocal.kinds.duckiebot.fit import (CORNER_WINDOW, LENS, PWM_DRIVER, Drive, DriveEquations, DriveFit, Sightings,
+                                        fit_drive, secant_gain)
 from naocal.kinds.duckiebot.intrinsics import FloorMarkers, LensCamera, LensFit, board_points, choose_lens
 from naocal.kinds.duckiebot.robot import Kinematics, nominal_for
 from naocal.solver.camera import CameraIntrinsics
@@ -35,6 +36,15 @@ MIN_BOARD_VIEWS = 6  # two per group at least, so that each fit without one grou
 # not independent as the lens fit's view clusters assume. The mission's logs (frames grabbed standing still, 0.5 s
 # or more apart) are searched in full.
 BOARD_SEARCH_INTERVAL_S = 0.25
+# The detector's corners lie inside the true ones by about b0 + c / w px, w cornerSubPix's window half-width
+# (detect.refinement_window_px: half a marker cell, 1-4 px), c depending on the image's blur, which a log does not
+# state. The joint fit fits one constant shift (fit.BIAS, b0's) and keeps c at 0; c's effect is considered
+# (add_corner_covariance) with this std: the root mean square about 0 of c fitted to the outward error by window
+# (2-4 px, weighted by corners) in benchmarks/bench_duckiebot_corners.py's four blur / noise conditions (seeds 1-3,
+# 40 poses each): -1.41 (blur 0.5 px, noise 1.5: the mock's), -1.63 (sharp), -1.66 (blur 0.5, no noise), -0.12
+# (blur 1.0, noise 1.5). The fit's c = 0 is biased by their mean (-1.2), so the std covers the mean and the spread
+# (sd 0.73) together: the considered covariance is then the estimate's mean squared error, not its variance.
+CORNER_WINDOW_STD_PX2 = 1.36
 
 
 @dataclass(frozen=True)
@@ -139,7 +149,11 @@ def marker_sightings(detections: Detections) -> Sightings:
 def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings:
     """Every detected marker corner, undistorted with `camera` and re-projected with its K (rectified pixels), with
     its expected noise (marker_sightings)."""
-    raw = marker_sightings(detections)
+    return rectify(marker_sightings(detections), camera)
+
+
+def rectify(raw: Sightings, camera: LensCamera) -> Sightings:
+    """Raw corners (marker_sightings') undistorted with `camera` and re-projected with its K, their noise kept."""
     if not len(raw.frame):
         return Sightings(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
     normalised = camera.normalised(raw.uv_px)
@@ -149,51 +163,107 @@ def rectified_sightings(detections: Detections, camera: LensCamera) -> Sightings
     return Sightings(raw.frame, raw.marker, raw.corner, rect, raw.noise_px)
 
 
-def add_lens_covariance(fit: DriveFit, drive: Drive, detections: Detections, lens: LensFit,
-                        marker_size_m: float) -> None:
-    """Carry the lens's uncertainty into the joint fit's covariance and stds (in place): the joint fit takes the
-    intrinsics as known, but they are estimated (lens.covariance, clustered by board view, independent of the
-    drive), and every rectified corner moves with them. Each lens parameter's effect on the fit is one Gauss-Newton
-    step from the solution with the corners rectified (and projected) through the lens moved by a small step; the
-    covariance adds S cov(lens) S^T. Without it the stds left the realistic mock's gain 3-26 stds off (seeds 1-5)."""
-    if lens.covariance is None or fit.covariance is None:
-        return
-    from naocal.kinds.duckiebot.fit import DriveEquations
-
+def considered_effect(fit: DriveFit, drive: Drive, marker_size_m: float, observed, p0, steps) -> np.ndarray:
+    """S (free parameters x nuisances) = d x_hat / d p: how far the joint fit's estimate moves per unit of a nuisance
+    p the fit takes as known at p0 (Schmidt's "consider" parameters). `observed(p)`: (every corner as rectified
+    Sightings, the camera matrix K) were the nuisance p. One Gauss-Newton step from the solution per nuisance, each
+    moved by its `steps` entry: the fit's gradient at x_hat is 0 with p0, so the step is the refit's first-order
+    response to the nuisance."""
     keys = {(f, m, c): i for i, (f, m, c) in enumerate(zip(fit.sightings.frame, fit.sightings.marker,
                                                            fit.sightings.corner))}
 
-    def step_of(camera):
-        everything = rectified_sightings(detections, camera)
+    def step_of(p):
+        everything, K = observed(p)
         rows = np.full(len(keys), -1)
         for i, key in enumerate(zip(everything.frame, everything.marker, everything.corner)):
             if key in keys:
                 rows[keys[key]] = i
-        obs = everything.subset(rows)
-        equations = DriveEquations(drive, obs, camera.K, marker_size_m, fit.reference_marker, fit.names, fit.x,
-                                   fit.free)
+        equations = DriveEquations(drive, everything.subset(rows), K, marker_size_m, fit.reference_marker, fit.names,
+                                   fit.x, fit.free)
         normal = equations(fit.x[equations.index])
         return normal.A, normal.g, equations.scales
 
-    A, g0, scales = step_of(lens.camera)
-    p0 = lens.camera.parameters
+    p0 = np.asarray(p0, dtype=float)
+    A, g0, scales = step_of(p0)
     S = np.zeros((int(fit.free.sum()), len(p0)))
-    for j in range(len(p0)):
-        h = 1e-4 * max(abs(p0[j]), 1e-2)
+    for j, h in enumerate(steps):
         p = p0.copy()
         p[j] += h
-        _, g, _ = step_of(type(lens.camera).of_parameters(lens.camera.model, p))
+        _, g, _ = step_of(p)
         S[:, j] = -np.linalg.solve(A, g - g0) * scales / h
-    added = S @ lens.covariance @ S.T
+    return S
+
+
+def add_considered(fit: DriveFit, nuisance: str, S: np.ndarray, covariance) -> None:
+    """Add a considered nuisance's S cov S^T (considered_effect's S) to the joint fit's covariance and stds (in
+    place); fit.considered[nuisance]: the std it alone adds to each parameter (names' order), so the statistical
+    part stays known (DriveFit.std_parts)."""
+    if fit.covariance is None:
+        return
+    added = S @ np.atleast_2d(covariance) @ S.T
     fit.covariance[np.ix_(fit.free, fit.free)] += added
     fit.std[fit.free] = np.sqrt(np.clip(np.diag(fit.covariance)[fit.free], 0.0, None))
+    part = np.zeros(len(fit.x))
+    part[fit.free] = np.sqrt(np.clip(np.diag(added), 0.0, None))
+    fit.considered[nuisance] = part
+
+
+def add_lens_covariance(fit: DriveFit, drive: Drive, detections: Detections, lens: LensFit,
+                        marker_size_m: float) -> None:
+    """Carry the lens's uncertainty into the joint fit's covariance and stds (in place): the joint fit takes the
+    intrinsics as known, but they are estimated (lens.covariance, clustered by board view, independent of the
+    drive), and every rectified corner moves with them: considered_effect of the lens's parameters (each moved by a
+    small step), S cov(lens) S^T added. Without it the stds left the realistic mock's gain 3-26 stds off (seeds
+    1-5)."""
+    if lens.covariance is None or fit.covariance is None:
+        return
+    raw = marker_sightings(detections)
+    model = type(lens.camera)
+
+    def observed(p):
+        camera = model.of_parameters(lens.camera.model, p)
+        return rectify(raw, camera), camera.K
+
+    p0 = lens.camera.parameters
+    S = considered_effect(fit, drive, marker_size_m, observed, p0, 1e-4 * np.maximum(np.abs(p0), 1e-2))
+    add_considered(fit, LENS, S, lens.covariance)
+
+
+def corner_window_shifts(detections: Detections) -> np.ndarray:
+    """(N, 2), marker_sightings' rows: each corner's outward unit diagonal (from its quad's centre) over its
+    cornerSubPix window half-width (detect.refinement_window_px): the corner's move per px^2 of CORNER_WINDOW."""
+    shifts = []
+    for sightings in detections.markers:
+        for s in sightings:
+            out = s.corners_px - s.corners_px.mean(axis=0)
+            shifts.append(out / np.linalg.norm(out, axis=1)[:, None] / refinement_window_px(s.corners_px))
+    return np.concatenate(shifts) if shifts else np.zeros((0, 2))
+
+
+def add_corner_covariance(fit: DriveFit, drive: Drive, detections: Detections, camera: LensCamera,
+                          marker_size_m: float, std_px2: float = CORNER_WINDOW_STD_PX2) -> None:
+    """Carry the detector's size-dependent corner error into the joint fit's covariance and stds (in place), as a
+    considered nuisance (considered_effect): every raw corner moved outward along its diagonal by c / w (w its
+    cornerSubPix window half-width), c kept at 0 by the fit (its one corner_bias_px takes a constant shift), of std
+    `std_px2` (CORNER_WINDOW_STD_PX2). An error shared by every frame of a log: no cluster-robust std sees it."""
+    if fit.covariance is None:
+        return
+    raw = marker_sightings(detections)
+    shifts = corner_window_shifts(detections)
+
+    def observed(p):
+        return rectify(replace(raw, uv_px=raw.uv_px + p[0] * shifts), camera), camera.K
+
+    S = considered_effect(fit, drive, marker_size_m, observed, np.zeros(1), np.array([std_px2]))
+    add_considered(fit, CORNER_WINDOW, S, np.array([[std_px2 ** 2]]))
 
 
 @dataclass
 class DuckiebotCalibration:
     """A Duckiebot calibrated from a drive log: kinematics (Duckietown's parameters, k and radius the log's), the
     camera (the chosen lens; its plumb_bob fit for Duckietown's files), the camera's pose on the body, the floor
-    markers, with the joint fit's cluster-robust stds (the lens's own: `lens.std`, clusters the board views)."""
+    markers, with the joint fit's stds: cluster-robust, the considered model errors carried in (drive_fit.std_parts():
+    the lens's, the detector's corner error's; the lens's own stds: `lens.std`, clusters the board views)."""
 
     robot_id: str
     kinematics: Kinematics
@@ -247,6 +317,7 @@ def calibrate(log: DriveLog, detections: Detections, lens: LensFit, lens_fits: d
     drive_fit = fit_drive(drive, sightings, lens.camera.K, log.marker_size_m,
                           nominal_for(log.model).T_base_camera, **fit_options)
     add_lens_covariance(drive_fit, drive, detections, lens, log.marker_size_m)
+    add_corner_covariance(drive_fit, drive, detections, lens.camera, log.marker_size_m)
     gain, _ = secant_gain(drive, drive_fit, speed_mps)
     try:
         kin = Kinematics(baseline_m=drive_fit.value("baseline_m"), radius_m=log.wheels.radius_m,

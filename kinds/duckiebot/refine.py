@@ -130,6 +130,8 @@ def refined_document(doc: dict, refinement: Refinement, source: str) -> dict:
         changed["gain"] = (refinement.kinematics.gain, refinement.gain_std)
     for name, (value, std) in changed.items():
         new["kinematics"][name] = float(value)
-        new["parameters"][name] = {**new["parameters"][name], "value": float(value), "std": float(std)}
+        # the pass's std has no parts (calibration's std_parts: the calibration's own fit's)
+        kept = {k: v for k, v in new["parameters"][name].items() if k != "std_parts"}
+        new["parameters"][name] = {**kept, "value": float(value), "std": float(std)}
     new["source"], new["created"] = source, time.strftime("%Y-%m-%dT%H:%M:%S%z")
     return new

@@ -195,8 +195,34 @@ def format_calibration(cal, title: str = "") -> str:
     lines.append(f"fit: RMS {fit['rms_px']:.3f} px over {fit['corners']} marker corners ({fit['outliers']} set "
                  f"aside), {markers} markers (reference {fit['reference_marker']}); stds clustered by sighting run"
                  + ("" if fit["converged"] else "; NOT CONVERGED"))
+    parts = _std_parts_line(cal)
+    if parts:
+        lines.append(parts)
     lines += [f"fit warning: {w}" for w in fit["warnings"]]
     return "\n".join(lines)
+
+
+# (name, label, scale, digits) of the parameters whose std's parts format_calibration shows
+PARTS_SHOWN = (("gain", "gain", 1.0, 4), ("trim", "trim", 1.0, 5), ("baseline_m", "baseline mm", 1e3, 2)) + tuple(
+    (f"camera.{a}_m", f"camera {a} mm", 1e3, 2) for a in "xyz") + tuple(
+    (f"camera.{a}_rad", f"{a} deg", 180 / math.pi, 3) for a in ("roll", "pitch", "yaw"))
+
+
+def _std_parts_line(cal) -> str:
+    """One line: which part of each std is statistical (the fit's, cluster-robust) and which the model errors the
+    fit considered (the lens's intrinsics, the detector's corner error; calibration's std_parts); "" without."""
+    from naocal.kinds.duckiebot.fit import CORNER_WINDOW, LENS, STATISTICAL, STD_PARTS
+
+    labels = {STATISTICAL: "statistical", LENS: "lens", CORNER_WINDOW: "detector's corner error"}
+    shown = [(n, label, scale, digits) for n, label, scale, digits in PARTS_SHOWN
+             if "std_parts" in cal.parameters.get(n, {})]
+    if not shown:
+        return ""
+    names = [p for p in STD_PARTS if any(p in cal.parameters[n]["std_parts"] for n, *_ in shown)]
+    return (f"std parts: {' / '.join(labels.get(p, p) for p in names)} (all but the first model errors carried "
+            "in; the std is their root sum of squares): " + ", ".join(
+                f"{label} " + " / ".join(f"{cal.parameters[n]['std_parts'].get(p, 0.0) * scale:.{digits}f}"
+                                         for p in names) for n, label, scale, digits in shown))
 
 
 # ------------------------------------------------------------------------------------------------ verify
