@@ -75,7 +75,7 @@ def main(argv=None) -> int:
         print(f"| {seed} | " + ", ".join(f"{n} {a:+.1f} -> {b:+.1f}" for n, (a, b) in z.items()) +
               f" | {without[t]:.5f} -> {fit.std[t]:.5f} ({parts[STATISTICAL][t]:.5f}, {parts[LENS][t]:.5f}, "
               f"{parts[CORNER_WINDOW][t]:.5f}) | {abs(z[worst][1]):.2f} ({worst}) | {cpu:.0f} |", flush=True)
-        print(f"|  | std ratio with / without: " + ", ".join(
+        print("|  | std ratio with / without: " + ", ".join(
             f"{n} {fit.std[fit.names.index(n)] / without[fit.names.index(n)]:.2f}" for n in SHOWN) + " | | | |")
     for name, values in every.items():
         values = np.abs(values)
