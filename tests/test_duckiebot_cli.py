@@ -97,6 +97,10 @@ def test_verify_says_whether_the_robot_still_drives_straight(calibrated, tmp_pat
     report = json.loads(drifted.stdout)
     assert drifted.returncode == 1 and report["verdict"] == "drifted"
     assert abs(report["lateral_deviation_m"]) > 0.1 and report["lateral_deviation_std_m"] < 0.05
+    # the trim's std carries the detector's corner error as identify's does (the whole log shares it)
+    parts = report["now"]["trim"]["std_parts"]
+    assert set(parts) == {"fit", "corner_window"} and parts["corner_window"] > 0, parts
+    assert np.isclose(np.hypot(parts["fit"], parts["corner_window"]), report["now"]["trim"]["std"], rtol=1e-6)
 
 
 def _verify_json(*argv):

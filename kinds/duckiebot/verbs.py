@@ -372,7 +372,7 @@ def run_verify(args, kind) -> int:
     Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed."""
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
-    from naocal.kinds.duckiebot.identify import detect_log, rectified_sightings
+    from naocal.kinds.duckiebot.identify import add_corner_covariance, detect_log, rectified_sightings
     from naocal.kinds.duckiebot.robot import Kinematics
 
     check_options(args, kind)
@@ -388,8 +388,11 @@ def run_verify(args, kind) -> int:
                     cal.T_base_camera, fixed=CAMERA + ("baseline_m",))
     if not fit.success:
         raise SolveError(f"the fit of {log.path} did not converge ({fit.message})")
+    # the detector's corner error, shared by the whole log, as identify carries it (no cluster-robust std sees it)
+    add_corner_covariance(fit, drive, detections, cal.lens, log.marker_size_m)
     now = {"gain": fit.value("gain"), "trim": fit.value("trim")}
     std = {"gain": fit.stdev("gain"), "trim": fit.stdev("trim")}
+    parts = {part: {n: float(values[fit.names.index(n)]) for n in now} for part, values in fit.std_parts().items()}
 
     def predicted(gain, trim):
         true = Kinematics(baseline_m=drive.baseline_m, radius_m=drive.radius_m, gain=gain, trim=trim, k=drive.k,
@@ -408,7 +411,8 @@ def run_verify(args, kind) -> int:
     calibration_rms = cal.fit["rms_px"]  # None: Duckietown's files record no fit
     report = {"log": str(log.path), "calibration": judged.label, "calibration_source": judged.source,
               "calibrated": {"gain": cal.kinematics.gain, "trim": cal.kinematics.trim},
-              "now": {n: {"value": now[n], "std": std[n]} for n in now}, "fit_rms_px": fit.rms_px,
+              "now": {n: {"value": now[n], "std": std[n], "std_parts": {p: parts[p][n] for p in parts}} for n in now},
+              "fit_rms_px": fit.rms_px,
               "calibration_rms_px": calibration_rms, "distance_m": STRAIGHT_DISTANCE_M,
               "speed_mps": STRAIGHT_SPEED_MPS, "lateral_deviation_m": lateral, "lateral_deviation_std_m": lateral_std,
               "predicted_speed_mps": speed, "rule_m": DUCKIETOWN_RULE_M, "goal_m": GOAL_M,
