@@ -123,3 +123,30 @@ def test_a_lola_server_restarted_under_a_run_ends_it_the_robot_limp(tmp_path):
         finally:
             server.stop()
             backend.close()
+
+
+@pytest.mark.parametrize("first_keeps, second_keeps, carries_on", [(True, True, True), (True, False, False),
+                                                                   (False, True, False)])
+def test_a_restarted_server_is_carried_on_with_only_if_both_servers_say_the_robot_kept_the_commands(
+        tmp_path, first_keeps, second_keeps, carries_on):
+    """The server that ended says what its end did to the robot, the new one what its start did (a LoLA driver
+    starts limp): both must keep the commands (NAOqi's), else the run ends, the robot as the servers left it."""
+    endpoint = f"ipc://{tmp_path}/bridge.sock"
+
+    def fake(keeps):
+        backend = FakeBackend()
+        backend.keeps_commands_on_close = keeps
+        return backend
+
+    first, second = fake(first_keeps), fake(second_keeps)
+    with serving(first, endpoint, state_persists=True):
+        agent = BridgeBackend(endpoint, timeout_s=0.5, retries=3)
+        agent.command(TARGETS[0], 0.2)
+    with serving(second, endpoint, state_persists=True):
+        if carries_on:
+            agent.command(TARGETS[1], 0.2)
+        else:
+            with pytest.raises(BridgeError, match="restarted during 'command' and it made the robot safe"):
+                agent.command(TARGETS[1], 0.2)
+        agent.close()
+    assert sent_targets(second) == (TARGETS[1:2] if carries_on else [])
