@@ -120,6 +120,12 @@ class Backend(abc.ABC):
         """Gravity in the torso frame (m/s^2). A robot lying on its back: (-9.81, 0, 0)."""
         return np.array([-9.81, 0.0, 0.0])
 
+    # What the controller commanded stays in force when this driver is closed and a new one opened on the same robot
+    # (NAOqi keeps the last targets and stiffness); False where closing makes the robot safe or a new driver starts
+    # afresh (the LoLA driver ramps the joints limp and starts limp; the mock's world is gone). A bridge client whose
+    # server restarted carries on only if True (BridgeClient._check_same_server).
+    keeps_commands_on_close = False
+
     def release_control(self) -> None:
         """The client that controlled motion let go: it released the robot or went silent past its lease.
 

@@ -10,9 +10,15 @@ sends the secret token the server answered with on every request. With `lease_fi
 disk (mode 0600), so the same agent, killed and resumed, takes its lease back at once instead of waiting for it
 to time out; a stranger without the file still cannot.
 
-A retry that succeeds may have reached a restarted server. The client then asks the server who it is: if the
-robot behind it keeps its state across restarts (a NAO) it carries on; if not (a mock the server created), the
-robot's state and clock are gone, and it raises BridgeError rather than go on with a different robot.
+A resumed agent's first motion request takes its lease back and first hears, with zero-length sleeps that move
+nothing, the stops the server told the killed process's lease while it was gone (another client's `stop`, a
+Duckiebot's watchdog): they were about that process's plans, not the resumed run's (take_back_lease).
+
+A retry that succeeds may have reached a restarted server. The client then asks the server who it is: it carries
+on only if the robot kept both its state and what this client commanded (NAOqi keeps its last targets and
+stiffness); a mock the server created started afresh, and a server whose end made the robot safe (the LoLA
+driver ramps the joints limp, a Duckiebot's wheels stop) left a robot that no longer does what the run believes.
+Either way it raises BridgeError (the run ends; `--resume` continues it) rather than go on.
 
 Not thread-safe: one BridgeBackend per thread.
 """
@@ -42,6 +48,9 @@ log = logging.getLogger("naocal.bridge.client")
 MAX_TIMEOUT_S = 3600.0  # the longest a request may wait for its reply
 FIRST_CONTACT_TIMEOUT_S = 5.0  # check_server_answers: longer than a wall-clock server's longest sleep chunk
 WALL_CLOCK_SLEEP_CHUNK_S = 1.0  # a wall-clock server blocks while it sleeps: keep each sleep short
+# A resumed client hears at most two stops it missed (the server's stop notice, the served robot's own: a Duckiebot's
+# watchdog), each once; a third refusal is the robot refusing motion now (a driver's latched fault)
+MAX_MISSED_STOPS = 3
 HANDSHAKE_FAILURES = (zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_AUTH
                       | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 
@@ -274,7 +283,10 @@ class BridgeClient:
         return self._server
 
     def _check_same_server(self, cmd: str) -> None:
-        """After a reconnection: did the server restart? Fatal if the robot behind it lost its state."""
+        """After a reconnection: did the server restart? Then carry on only if the robot kept its state and what
+        this client commanded, by the word of both servers (hello's `keeps_commands_on_close`, True only: an older
+        server that does not say is taken not to); else BridgeError: the run's record would no longer follow the
+        robot (a fresh mock; a LoLA robot ramped limp; a Duckiebot's wheels stopped)."""
         if self._server is None:
             return
         before = self._server
@@ -282,12 +294,15 @@ class BridgeClient:
         after = self._server_info()
         if after.get("server_id") == before.get("server_id"):
             return
-        if not after.get("state_persists", False):
-            raise BridgeError(
-                f"{self.endpoint}: the bridge server restarted during '{cmd}' and its {after.get('driver')} robot "
-                "started afresh (state and clock lost); rerun the calibration with --resume"
-            )
-        log.warning("%s: bridge server restarted; the robot kept its state, carrying on", self.endpoint)
+        if after.get("state_persists") is not True:
+            why = "its robot started afresh (state and clock lost)"
+        elif not all(hello.get("keeps_commands_on_close") is True for hello in (before, after)):
+            why = "it made the robot safe as it ended (what this run commanded no longer holds)"
+        else:
+            log.warning("%s: bridge server restarted; the robot kept its state and commands, carrying on", self.endpoint)
+            return
+        raise BridgeError(f"{self.endpoint}: the bridge server restarted during '{cmd}' and {why}: this run no longer "
+                          "follows the robot; continue it with --resume")
 
     def server_info(self) -> dict:
         """The server's hello: protocol, server_id, driver, robot_id, clock, state_persists, controlled."""
@@ -326,8 +341,26 @@ class BridgeClient:
         self._token = token
         if token == had and from_file:
             log.info("%s: took back the motion lease of an earlier run (token in %s)", self.endpoint, self.lease_file)
+            self.take_back_lease()
         elif token != had and self.lease_file:
             self._write_lease_file(token)
+
+    def take_back_lease(self) -> None:
+        """The lease of an earlier process of this run, taken back (a resume): the stops the server made or passed on
+        while that process was gone (another client's `stop`; a Duckiebot's watchdog, its lease lapsing) are told to
+        the next motion requests, once each (RobotFault). They were about that process's plans; the resumed run
+        starts again from its own records. So they are heard here, with zero-length sleeps that move nothing, and
+        logged; a refusal that persists (a fault of the robot now) is a BridgeError, nothing moved."""
+        refused = None
+        for _ in range(MAX_MISSED_STOPS):
+            try:
+                self._call("sleep", {"duration_s": 0.0})
+                return
+            except RobotFault as err:
+                refused = str(err)
+                log.warning("%s: while the run being resumed was away: %s", self.endpoint, refused)
+        raise BridgeError(f"{self.endpoint}: the server still refuses motion after telling the run being resumed "
+                          f"{MAX_MISSED_STOPS - 1} stops it missed: {refused}")
 
     def _read_lease_file(self) -> str | None:
         if not self.lease_file:

@@ -442,6 +442,7 @@ class BridgeServer:
                 "robot_id": self._robot_id,
                 "clock": self.clock,
                 "state_persists": self.state_persists,
+                "keeps_commands_on_close": self._robot.keeps_commands_on_close,
                 "controlled": lease is not None and lease.idle_s() < self.lease_timeout_s,  # by whom is not said
                 "lease_timeout_s": self.lease_timeout_s,
                 "max_request_bytes": protocol.MAX_REQUEST_BYTES,
@@ -484,6 +485,10 @@ class ServedRobot:
     """A robot as the bridge serves it, one per kind (ServedNao; kinds.duckiebot.bridge.ServedDuckiebot)."""
 
     kind: str  # its protocol.KIND_COMMANDS key: the commands the server answers
+    # Does what the controller commanded stay in force when this server ends and another starts? Not where the end
+    # makes the robot safe (close, below): a client that finds the server restarted then ends its run
+    # (BridgeClient._check_same_server)
+    keeps_commands_on_close = False
 
     def robot_identity(self) -> dict:
         """{"id": ..., ...}: the robot the hello names."""
@@ -516,6 +521,7 @@ class ServedNao(ServedRobot):
 
     def __init__(self, backend: Backend):
         self.backend = backend
+        self.keeps_commands_on_close = getattr(backend, "keeps_commands_on_close", False) is True  # the driver's word
 
     def robot_identity(self) -> dict:
         return self.backend.robot_identity()

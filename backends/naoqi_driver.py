@@ -74,6 +74,7 @@ class NaoqiBackend(JointTables, Backend):
     """
 
     name = "naoqi"
+    keeps_commands_on_close = True  # close() only unsubscribes the cameras: NAOqi keeps the last targets and stiffness
 
     def __init__(
         self,

@@ -31,6 +31,7 @@ class FakeBackend(Backend):
     """
 
     name = "fake"
+    keeps_commands_on_close = True  # as NAOqi: a restarted server finds the robot as its client left it
 
     def __init__(self, seed: int = 0):
         self.seed = seed

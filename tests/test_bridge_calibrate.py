@@ -135,7 +135,8 @@ def start_server_at(seed, endpoint):
 @pytest.mark.slow
 def test_an_agent_killed_with_sigkill_resumes_at_once_under_its_own_lease(tmp_path):
     """SIGKILL sends no `release`: the server keeps the lease for its timeout, here an hour. The resumed run takes
-    it back with the token in DIR/bridge.token instead of failing or waiting; a stranger still cannot."""
+    it back with the token in DIR/bridge.token instead of failing or waiting; a stranger still cannot, though it may
+    stop the robot (`naocal bridge stop`): the resumed run hears that stop before it moves, and goes on."""
     from naocal.backends.bridge import BridgeBackend
     from naocal.backends.protocol import ControlError
     from naocal.solver.dataset import read_dataset
@@ -156,6 +157,7 @@ def test_an_agent_killed_with_sigkill_resumes_at_once_under_its_own_lease(tmp_pa
         stranger = BridgeBackend(endpoint, timeout_s=30.0)
         with pytest.raises(ControlError, match="another client controls the robot"):
             stranger.command({"HeadYaw": 0.0}, 0.1)
+        stranger.stop()
         stranger.close()
         resumed = subprocess.run(naocal("calibrate", "--backend", "bridge", "--endpoint", endpoint, "--out", str(out),
                                         "--resume", *SMALL_PLAN), cwd=ROOT, capture_output=True, text=True,
@@ -164,7 +166,8 @@ def test_an_agent_killed_with_sigkill_resumes_at_once_under_its_own_lease(tmp_pa
         server.send_signal(signal.SIGTERM)
         server.wait(timeout=60)
     assert resumed.returncode == 0, resumed.stderr
-    assert "took back the motion lease" in (out / "calibrate.log").read_text()
+    log = (out / "calibrate.log").read_text()
+    assert "took back the motion lease" in log and "was away: another client stopped the robot" in log
     images = list(read_dataset(out / "dataset").columns["image"])
     assert len(images) == 24 * len(set(images))  # every capture once
     assert not (out / "bridge.token").exists()  # released at the end

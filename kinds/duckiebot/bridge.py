@@ -50,7 +50,6 @@ log = logging.getLogger("naocal.bridge.duckiebot")
 DEFAULT_WATCHDOG_S = 1.0  # as the ROS driver's: the mission never leaves the wheels turning longer without a call
 MAX_ENCODER_ROWS = 200_000  # per encoder_ticks reply (about 4 MB): 30 Hz for 1.8 h
 IMAGE_FORMATS = {"png": ".png", "jpeg": ".jpg"}
-MAX_MISSED_STOPS = 3  # a resumed client hears at most two stops it missed (the server's stop notice, the driver's)
 PNG_COMPRESSION = 1  # fastest: a 640 x 480 grey frame in about 5 ms, lossless (the mission sees what the robot saw)
 
 # The Duckiebot's commands (protocol revision 2; docs/PROTOCOL.md), beside the session commands every kind has.
@@ -313,8 +312,9 @@ class DuckiebotBridge(BridgeClient):
     restart_phase): the wheels commanded stopped first (`stop` needs no lease), the logs replayed without a call to
     the robot, then the phase started again after a break in the log (Session.new_segment: a stop, a settle, a stop
     whose time must follow the log's). Its first motion request takes back the lease of the process it resumes
-    (lease_file) and first hears what the server told that process while it was gone (take_back_lease). A server
-    that restarted under a run is fatal to it (_check_same_server): the server stops the wheels when it ends."""
+    (lease_file) and first hears what the server told that process while it was gone (BridgeClient.take_back_lease).
+    A server that restarted under a run is fatal to it (BridgeClient._check_same_server): the server stops the wheels
+    when it ends (ServedDuckiebot keeps no command on close)."""
 
     kind = "duckiebot"
 
@@ -322,40 +322,6 @@ class DuckiebotBridge(BridgeClient):
         super().__init__(endpoint, **kwargs)
         self._facts = None
         self._last_t = -math.inf  # the newest robot time the server told: its clock never goes back
-
-    def _acquire_lease(self) -> None:
-        earlier = self._read_lease_file() if self._token is None else None
-        super()._acquire_lease()
-        if earlier is not None and self._token == earlier:
-            self.take_back_lease()
-
-    def take_back_lease(self) -> None:
-        """The lease of an earlier process of this run, taken back (a resume): the stops the server made or passed on
-        while that process was gone (its watchdog, the lease lapsing, another client's `stop`) are told to the next
-        motion requests, once each (RobotFault). They were about that process's plans; this one starts its phase
-        again after a break in the log. So they are heard here, with zero-length sleeps that move nothing, and
-        logged; a refusal that persists (a fault of the robot now) is a BridgeError."""
-        refused = None
-        for _ in range(MAX_MISSED_STOPS):
-            try:
-                self._call("sleep", {"duration_s": 0.0})
-                return
-            except RobotFault as err:
-                refused = str(err)
-                log.warning("%s: while the run being resumed was away: %s", self.endpoint, refused)
-        raise BridgeError(f"{self.endpoint}: the server still refuses motion after telling the run being resumed "
-                          f"{MAX_MISSED_STOPS - 1} stops it missed: {refused}")
-
-    def _check_same_server(self, cmd: str) -> None:
-        """After a reconnection: a server that restarted stopped the wheels as it ended (ServedDuckiebot.close, the
-        ROS driver's shutdown hook, the deploy wrapper), whatever its robot keeps: the drive log this run writes would
-        no longer be what the robot did. BridgeError: the run ends; `--resume` goes on after a break in the log."""
-        before = self._server
-        super()._check_same_server(cmd)
-        if before is not None and self._server is not None and self._server.get("server_id") != before.get(
-                "server_id"):
-            raise BridgeError(f"{self.endpoint}: the bridge server restarted during '{cmd}' (the wheels were stopped "
-                              "with it): this run's log no longer follows the robot; continue it with --resume")
 
     def _robot_time(self, value, what: str) -> float:
         try:
