@@ -61,6 +61,9 @@ def test_the_calibration_exports_duckietowns_three_files(calibrated, tmp_path):
     assert not [f for f in findings if f.level == "refuse"]
     assert files.kinematics.trim == pytest.approx(cal.kinematics.trim, abs=1e-12)
     assert np.allclose(files.camera.K, cal.lenses["plumb_bob"].K)
+    assert "replaced" not in result.stderr
+    again = naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out)
+    assert again.returncode == 0 and again.stderr.count("replaced the previous") == 3, again.stderr  # never silently
     for action in ("show", "validate"):
         assert naocal("offsets", action, calibrated.cal).returncode == 0
     diff = naocal("offsets", "diff", calibrated.cal, calibrated.cal, "--fail-on-difference")

@@ -488,8 +488,10 @@ def _export(cal, args, out) -> int:
     paths = calibration_paths(args.out, cal.robot_id)  # the robot's name checked first
     for path in paths.values():
         check_not_an_input(path, [args.file])
+    # the robot's calibrations directory is where these go: a file already there is replaced, and said so
+    existed = {path: path.exists() for path in paths.values()}
     findings = write_calibration(args.out, cal.duckietown())
     for path in paths.values():
-        print(f"wrote {path}", file=sys.stderr)
+        print(f"{'replaced the previous' if existed[path] else 'wrote'} {path}", file=sys.stderr)
     _warn("offsets", findings)
     return 0
