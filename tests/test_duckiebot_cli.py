@@ -322,6 +322,11 @@ def test_identify_never_writes_over_its_input(calibrated, tmp_path):
     before = (log / "wheels.csv").read_bytes()
     one_line_error(naocal("identify", log, "--out", log / "wheels.csv"), "wheels.csv")
     assert (log / "wheels.csv").read_bytes() == before
+    files = sorted(log.rglob("*"))
+    for out in (log / "CAL.json", log / "frames" / "CAL.json"):  # nothing written into the log, not even beside it
+        one_line_error(naocal("identify", log, "--out", out), out, "inside the drive log")
+        one_line_error(naocal("identify", log, "--refine", calibrated.cal, "--out", out), "inside the drive log")
+    assert sorted(log.rglob("*")) == files
 
 
 @pytest.mark.parametrize("where, value, field", [

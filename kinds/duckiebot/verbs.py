@@ -51,6 +51,20 @@ def log_inputs(log) -> list:
     return files + [log.frame_path(i) for i in range(len(log.frame_files))]
 
 
+def check_log_output(out, log, inputs) -> None:
+    """DataError unless `out` can be written (check_output_file: never over one of `inputs`) and lies outside the
+    drive log's directory: a log is a record, and naocal writes nothing into it."""
+    import os
+
+    from naocal.solver.fileio import check_output_file
+
+    check_output_file(out, inputs=inputs)
+    log_dir = os.path.realpath(log.path)
+    if os.path.commonpath([log_dir, os.path.realpath(out)]) == log_dir:
+        raise DataError(out, f"is inside the drive log {log.path}: naocal writes nothing into a log; give a name "
+                             "outside it (nothing was changed)")
+
+
 def _no_marker(log) -> DataError:
     from naocal.kinds.duckiebot.drive_log import FRAMES_FILE
 
@@ -66,8 +80,6 @@ def run_identify(args, kind) -> int:
     from naocal.kinds.duckiebot.calibration import checked_document, write_document
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.identify import calibrate, detect_log, fit_intrinsics
-    from naocal.solver.fileio import check_output_file
-
     from naocal.kinds.duckiebot.diagnose import parse_effects
 
     check_options(args, kind)
@@ -80,7 +92,7 @@ def run_identify(args, kind) -> int:
     log = read_drive_log(args.dataset)
     inputs = log_inputs(log)
     if args.out:
-        check_output_file(args.out, inputs=inputs)  # before a minute of work, not after
+        check_log_output(args.out, log, inputs)  # before a minute of work, not after
     detections = detect_log(log)
     if not any(detections.markers):
         raise _no_marker(log)
@@ -116,7 +128,7 @@ def run_refine(args) -> int:
     from naocal.kinds.duckiebot.calibration import check_document, parse_calibration, write_document
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.refine import MAX_STEP, refine_trim, refined_document
-    from naocal.solver.fileio import check_output_file, json_safe, read_json
+    from naocal.solver.fileio import json_safe, read_json
 
     for option, given in (("--effects", args.effects), ("--fix", args.fix), ("--loss", args.loss != "linear"),
                           ("--keep-outliers", args.keep_outliers)):
@@ -131,7 +143,7 @@ def run_refine(args) -> int:
     log = read_drive_log(args.dataset)
     inputs = [args.refine] + log_inputs(log)
     if args.out:
-        check_output_file(args.out, inputs=inputs)  # before the work, not after
+        check_log_output(args.out, log, inputs)  # before the work, not after
     refinement = refine_trim(log.path, calibration, max_step=max_step)  # RefinementRefused: exit 3
     source = (f"naocal identify {log.path} --refine {args.refine}: trim {refinement.trim_before:+.5f} -> "
               f"{refinement.trim:+.5f} +- {refinement.trim_std:.5f}")
