@@ -95,6 +95,16 @@ def _verify_json(*argv):
     return json.loads(result.stdout)
 
 
+def test_verify_gives_no_verdict_from_a_handful_of_marker_frames(calibrated, tmp_path):
+    log = tmp_path / "LOG"
+    shutil.copytree(calibrated.log, log)
+    rows = (log / "frames.csv").read_text().splitlines()
+    (log / "frames.csv").write_text("\n".join(rows[:1] + rows[-3:]) + "\n")  # the last 3 frames: markers in view
+    result = naocal("verify", log, "--offsets", calibrated.cal)
+    assert result.returncode == 3, (result.stdout, result.stderr)
+    assert "3 frames with a marker in view, at least 8" in result.stderr and "verdict" not in result.stdout
+
+
 def test_verify_reads_duckietowns_calibration_files_as_it_reads_the_calibration(calibrated, tmp_path, monkeypatch):
     """`verify LOG --offsets DIR` on the files `offsets export --format duckietown` wrote judges as `--offsets
     CAL.json` does (the camera's pose recovered from the homography), and so does a bare `verify LOG` with them in

@@ -355,10 +355,12 @@ def run_verify(args, kind) -> int:
     """Does the robot still drive straight under the calibration (judged_calibration)? Refit gain and trim on the
     new log (the camera's pose and the baseline held at the calibration's: a lane pass without turns cannot tell the
     baseline from trim), predict the 2 m straight drive at 0.3 m/s commanded with the calibration's gain and trim.
-    Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed."""
+    Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed or too few frames with a
+    marker (refine's MIN_MARKER_FRAMES) for a verdict."""
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
     from naocal.kinds.duckiebot.identify import detect_log, rectified_sightings
+    from naocal.kinds.duckiebot.refine import MIN_MARKER_FRAMES
     from naocal.kinds.duckiebot.robot import Kinematics
 
     check_options(args, kind)
@@ -368,6 +370,10 @@ def run_verify(args, kind) -> int:
     detections = judged.detections or detect_log(log, boards=False)
     if not any(detections.markers):
         raise _no_marker(log)
+    marker_frames = sum(1 for markers in detections.markers if markers)
+    if marker_frames < MIN_MARKER_FRAMES:  # as few as refine's: its stds would speak for a handful of poses
+        raise SolveError(f"{log.path}: {marker_frames} frames with a marker in view, at least {MIN_MARKER_FRAMES} "
+                         "are needed to tell whether the robot still drives straight: no verdict")
     # through the calibration's model of the wheel driver (its trim is that model's)
     drive = dataclasses.replace(Drive.of_log(log, pwm_driver=cal.pwm_driver), baseline_m=cal.value("baseline_m"))
     fit = fit_drive(drive, rectified_sightings(detections, cal.lens), cal.lens.K, log.marker_size_m,
