@@ -262,6 +262,12 @@ def test_a_symbolic_link_out_of_the_log_is_refused(log, tmp_path):
     (log / "frames" / "0000.png").unlink()
     (log / "frames" / "0000.png").symlink_to(outside)
     refused(log, r"frames.csv, line 2, field 'file'.*outside the log directory")
+    (log / "frames" / "0000.png").unlink()
+    (log / "frames" / "0000.png").write_bytes(outside.read_bytes())
+    (tmp_path / "wheels.csv").write_bytes((log / "wheels.csv").read_bytes())  # a CSV is read from LOG only, too
+    (log / "wheels.csv").unlink()
+    (log / "wheels.csv").symlink_to(tmp_path / "wheels.csv")
+    refused(log, r"wheels.csv: a symbolic link leading outside the log directory")
 
 
 @pytest.mark.parametrize("change, match", [

@@ -14,7 +14,7 @@
 
 Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
 header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
-images of the camera's size, paths that leave LOG). Tolerant of what valid exports write (docs/DUCKIEBOT.md): any
+images of the camera's size, paths that leave LOG, a text file that is a symbolic link out of LOG). Tolerant of what valid exports write (docs/DUCKIEBOT.md): any
 clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines, log.json keys the format does not
 define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
 """
@@ -320,11 +320,15 @@ def frame_file_problem(name: str, log_dir: Path) -> str | None:
         return f"{name[:60]!r} leaves the log directory (absolute or '..')"
     if pure.suffix.lower() not in IMAGE_SUFFIXES:
         return f"{name[:60]!r} is not a PNG or JPEG file name ({', '.join(IMAGE_SUFFIXES)})"
-    real_dir = os.path.realpath(log_dir)
-    real = os.path.realpath(log_dir / pure)
-    if os.path.commonpath([real_dir, real]) != real_dir:
+    if not inside_log(log_dir, log_dir / pure):
         return f"{name[:60]!r} leads outside the log directory (a symbolic link)"
     return None
+
+
+def inside_log(log_dir, path) -> bool:
+    """Whether `path` (symbolic links followed) lies inside the log directory: a log is read from itself only."""
+    real_dir = os.path.realpath(log_dir)
+    return os.path.commonpath([real_dir, os.path.realpath(path)]) == real_dir
 
 
 def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
@@ -381,6 +385,9 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     directory = Path(directory)
     if not directory.is_dir():
         fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
+    for name in (META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE, SEGMENTS_FILE):
+        if os.path.lexists(directory / name) and not inside_log(directory, directory / name):
+            fail(directory / name, "a symbolic link leading outside the log directory (a log is read from itself only)")
     meta = parse_meta(read_json(directory / META_FILE), directory / META_FILE)
     wheel_t, left, right = read_wheels(directory / WHEELS_FILE)
     frame_t, files = read_frames(directory / FRAMES_FILE, directory, meta["width_px"], meta["height_px"],
