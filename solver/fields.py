@@ -92,7 +92,8 @@ def number_text(text, path, field, *, line=None, **limits) -> float:
 
 def count_text(text, path, field, low: int = 0, high: int = MAX_COUNT, *, line=None) -> int:
     """The whole number a text holds in decimal digits (a CSV cell, a YAML scalar), from `low` to `high`."""
-    if not isinstance(text, str) or not (text.isascii() and text.isdigit()) or len(text) > 20 or not low <= int(text) <= high:
+    if (not isinstance(text, str) or not (text.isascii() and text.isdigit()) or len(text) > 20
+            or not low <= int(text) <= high):
         span = f"at least {low}" if high == MAX_COUNT else f"from {low} to {high}"
         fail(path, f"expected a whole number {span}, got {shown(text)}", field, line)
     return int(text)

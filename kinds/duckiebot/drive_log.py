@@ -14,7 +14,8 @@
 
 Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
 header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
-images of the camera's size, paths that leave LOG, a text file that is a symbolic link out of LOG). Tolerant of what valid exports write (docs/DUCKIEBOT.md): any
+images of the camera's size or are damaged, paths or symbolic links that leave LOG). Tolerant of what valid exports
+write (docs/DUCKIEBOT.md): any
 clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines, log.json keys the format does not
 define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
 """
