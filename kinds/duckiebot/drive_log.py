@@ -15,9 +15,8 @@
 Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
 header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
 images of the camera's size or are damaged, paths or symbolic links that leave LOG). Tolerant of what valid exports
-write (docs/DUCKIEBOT.md): any
-clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines, log.json keys the format does not
-define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
+write (docs/DUCKIEBOT.md): any clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines,
+log.json keys the format does not define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
 """
 
 from __future__ import annotations
