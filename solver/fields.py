@@ -79,8 +79,10 @@ def count(value, path, field, low: int = 0, high: int = MAX_COUNT, *, line=None)
 
 def number_text(text, path, field, *, line=None, **limits) -> float:
     """The finite number a text holds (a CSV cell, a YAML scalar), checked as `number` with `limits`."""
+    # Python's float() also reads '1_000' and other scripts' digits ('\u0663'): no file writes those as numbers
+    plain = isinstance(text, str) and len(text) <= 100 and text.isascii() and "_" not in text
     try:
-        value = float(text) if isinstance(text, str) and len(text) <= 100 else None
+        value = float(text) if plain else None
     except ValueError:
         value = None
     if value is None or not math.isfinite(value):
@@ -90,7 +92,8 @@ def number_text(text, path, field, *, line=None, **limits) -> float:
 
 def count_text(text, path, field, low: int = 0, high: int = MAX_COUNT, *, line=None) -> int:
     """The whole number a text holds in decimal digits (a CSV cell, a YAML scalar), from `low` to `high`."""
-    if not isinstance(text, str) or not text.isdigit() or len(text) > 20 or not low <= int(text) <= high:
+    if (not isinstance(text, str) or not (text.isascii() and text.isdigit()) or len(text) > 20
+            or not low <= int(text) <= high):
         span = f"at least {low}" if high == MAX_COUNT else f"from {low} to {high}"
         fail(path, f"expected a whole number {span}, got {shown(text)}", field, line)
     return int(text)

@@ -74,6 +74,9 @@ def test_the_calibration_exports_duckietowns_three_files(calibrated, tmp_path):
     assert not [f for f in findings if f.level == "refuse"]
     assert files.kinematics.trim == pytest.approx(cal.kinematics.trim, abs=1e-12)
     assert np.allclose(files.camera.K, cal.lenses["plumb_bob"].K)
+    assert "replaced" not in result.stderr
+    again = naocal("offsets", "export", calibrated.cal, "--format", "duckietown", "--out", out)
+    assert again.returncode == 0 and again.stderr.count("replaced the previous") == 3, again.stderr  # never silently
     for action in ("show", "validate"):
         assert naocal("offsets", action, calibrated.cal).returncode == 0
     diff = naocal("offsets", "diff", calibrated.cal, calibrated.cal, "--fail-on-difference")
@@ -107,6 +110,16 @@ def _verify_json(*argv):
     result = naocal("verify", *argv, "--json")
     assert result.returncode in (0, 1), result.stdout + result.stderr
     return json.loads(result.stdout)
+
+
+def test_verify_gives_no_verdict_from_a_handful_of_marker_frames(calibrated, tmp_path):
+    log = tmp_path / "LOG"
+    shutil.copytree(calibrated.log, log)
+    rows = (log / "frames.csv").read_text().splitlines()
+    (log / "frames.csv").write_text("\n".join(rows[:1] + rows[-3:]) + "\n")  # the last 3 frames: markers in view
+    result = naocal("verify", log, "--offsets", calibrated.cal)
+    assert result.returncode == 3, (result.stdout, result.stderr)
+    assert "3 frames with a marker in view, at least 8" in result.stderr and "verdict" not in result.stdout
 
 
 def test_verify_reads_duckietowns_calibration_files_as_it_reads_the_calibration(calibrated, tmp_path, monkeypatch):
@@ -336,6 +349,11 @@ def test_identify_never_writes_over_its_input(calibrated, tmp_path):
     before = (log / "wheels.csv").read_bytes()
     one_line_error(naocal("identify", log, "--out", log / "wheels.csv"), "wheels.csv")
     assert (log / "wheels.csv").read_bytes() == before
+    files = sorted(log.rglob("*"))
+    for out in (log / "CAL.json", log / "frames" / "CAL.json"):  # nothing written into the log, not even beside it
+        one_line_error(naocal("identify", log, "--out", out), out, "inside the drive log")
+        one_line_error(naocal("identify", log, "--refine", calibrated.cal, "--out", out), "inside the drive log")
+    assert sorted(log.rglob("*")) == files
 
 
 @pytest.mark.parametrize("where, value, field", [

@@ -244,6 +244,10 @@ def test_log_json_keys_the_format_does_not_define_are_ignored_with_a_warning(log
     ("segments.csv", "t_s\nnan\n", r"segments.csv, line 2, field 't_s'.*finite"),
     ("segments.csv", "t_s,reason\n0.7,crash\n", r"segments.csv, line 1: expected the header t_s"),
     ("segments.csv", "t_s\n", r"segments.csv.*no data rows"),
+    # what Python's int() / float() read but no exporter writes as a number (the first one escaped as a ValueError)
+    ("encoders.csv", "t_s,left_ticks,right_ticks\n0,+-5,0\n", r"encoders.csv, line 2, field 'left_ticks'"),
+    ("encoders.csv", "t_s,left_ticks,right_ticks\n0,0,\u0663\n", r"encoders.csv, line 2, field 'right_ticks'"),
+    ("wheels.csv", "t_s,left_duty,right_duty\n0,0,0\n1_0,0,0\n", r"wheels.csv, line 3, field 't_s'.*'1_0'"),
 ])
 def test_bad_csv_files(log, name, text, match):
     (log / name).write_text(text)
@@ -263,12 +267,30 @@ def test_frames_that_are_not_images(log):
     refused(log, r"0001.png: is a FIFO")
 
 
+def test_a_damaged_frame_is_one_line_with_the_decoders_words_and_nothing_on_native_stderr(log, capfd):
+    jpeg = (log / "frames" / "0002.jpg").read_bytes()
+    # its second half lost, the end marker kept: libjpeg decodes it, grey below, with a 'Corrupt JPEG data' warning
+    (log / "frames" / "0002.jpg").write_bytes(jpeg[:len(jpeg) // 2] + jpeg[-2:])
+    refused(log, r"0002.jpg: a damaged image \(the decoder said: Corrupt JPEG data")
+    png = bytearray((log / "frames" / "0001.png").read_bytes())
+    png[len(png) // 2:len(png) // 2 + 16] = bytes(16)
+    (log / "frames" / "0001.png").write_bytes(bytes(png))
+    refused(log, r"0001.png: not a readable image \(the decoder refused it: damaged or truncated: libpng error")
+    assert capfd.readouterr().err == ""  # libpng's and libjpeg's own lines are in the one line, not beside it
+
+
 def test_a_symbolic_link_out_of_the_log_is_refused(log, tmp_path):
     outside = tmp_path / "outside.png"
     outside.write_bytes((log / "frames" / "0000.png").read_bytes())
     (log / "frames" / "0000.png").unlink()
     (log / "frames" / "0000.png").symlink_to(outside)
     refused(log, r"frames.csv, line 2, field 'file'.*outside the log directory")
+    (log / "frames" / "0000.png").unlink()
+    (log / "frames" / "0000.png").write_bytes(outside.read_bytes())
+    (tmp_path / "wheels.csv").write_bytes((log / "wheels.csv").read_bytes())  # a CSV is read from LOG only, too
+    (log / "wheels.csv").unlink()
+    (log / "wheels.csv").symlink_to(tmp_path / "wheels.csv")
+    refused(log, r"wheels.csv: a symbolic link leading outside the log directory")
 
 
 @pytest.mark.parametrize("change, match", [

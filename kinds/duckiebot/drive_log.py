@@ -14,9 +14,9 @@
 
 Strict: every problem is one DataError naming the file and the line or field (missing files or fields, another
 header row, times that decrease or repeat with other values, NaN or out-of-range duties, frames that are not PNG/JPEG
-images of the camera's size, paths that leave LOG). Tolerant of what valid exports write (docs/DUCKIEBOT.md): any
-clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines, log.json keys the format does not
-define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
+images of the camera's size or are damaged, paths or symbolic links that leave LOG). Tolerant of what valid exports
+write (docs/DUCKIEBOT.md): any clock, a row repeated exactly (read once), a byte order mark, CRLF, blank lines,
+log.json keys the format does not define (ignored, with a warning). Every file is read through solver.fileio (regular files, bounded size).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import json
 import logging
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
@@ -38,6 +39,7 @@ from naocal.kinds.duckiebot.calibration_files import USUAL
 from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, raw_pixels, robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
+from naocal.tools.cmd_detect import native_stderr_held
 from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
                                   read_bytes, read_json, read_text)
 
@@ -57,6 +59,7 @@ MAX_IMAGE_BYTES = 16 * 1024 ** 2  # a 640 x 480 PNG is under 1 MB
 MAX_TICKS = 2 ** 53  # cumulative ticks beyond this lose integer precision as floats
 MAX_TIME_S = 1e10  # seconds: any clock (Unix time included) for centuries
 INT32_MIN, INT32_MAX = -2 ** 31, 2 ** 31 - 1  # Duckietown's encoder counters (WheelEncoderStamped.data)
+WHOLE_NUMBER = re.compile(r"[+-]?[0-9]+")  # one sign at most, ASCII digits (int() takes others' digits too)
 MIN_REAL_GAIN = USUAL["gain"][0]  # the lowest gain real robots' files hold: the fastest a wheel turns at a duty
 
 
@@ -213,7 +216,7 @@ def _rows(path, header: tuple[str, ...], text: str | None = None):
 
 def _int_cell(text, path, line, field) -> int:
     whole, point, fraction = text.partition(".")  # '12.0': an exporter writing counts as floats
-    if not whole.lstrip("+-").isdigit() or len(text) > 24 or (point and fraction.strip("0")):
+    if not WHOLE_NUMBER.fullmatch(whole) or len(text) > 24 or (point and fraction.strip("0")):
         fail(path, f"expected a whole number of ticks, got {text[:40]!r}", field, line)
     value = int(whole)
     if abs(value) >= MAX_TICKS:
@@ -346,11 +349,15 @@ def frame_file_problem(name: str, log_dir: Path) -> str | None:
         return f"{name[:60]!r} leaves the log directory (absolute or '..')"
     if pure.suffix.lower() not in IMAGE_SUFFIXES:
         return f"{name[:60]!r} is not a PNG or JPEG file name ({', '.join(IMAGE_SUFFIXES)})"
-    real_dir = os.path.realpath(log_dir)
-    real = os.path.realpath(log_dir / pure)
-    if os.path.commonpath([real_dir, real]) != real_dir:
+    if not inside_log(log_dir, log_dir / pure):
         return f"{name[:60]!r} leads outside the log directory (a symbolic link)"
     return None
+
+
+def inside_log(log_dir, path) -> bool:
+    """Whether `path` (symbolic links followed) lies inside the log directory: a log is read from itself only."""
+    real_dir = os.path.realpath(log_dir)
+    return os.path.commonpath([real_dir, os.path.realpath(path)]) == real_dir
 
 
 def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
@@ -359,9 +366,18 @@ def decode_image(data: bytes, path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray
     signature = IMAGE_SIGNATURES.get(suffix)
     if signature is None or not data.startswith(signature):
         fail(path, f"not a {'PNG' if suffix == '.png' else 'JPEG'} image (its first bytes do not say so)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), raw_pixels(flags))
+    said = []  # what libpng / libjpeg print on a damaged file: into our one line, not onto stderr beside it
+    with native_stderr_held(said):
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), raw_pixels(flags))
+    words = " ".join(said[0].split())[:160] if said else ""
     if image is None or image.size == 0:
-        fail(path, "not a readable image (the decoder refused it: damaged or truncated)")
+        fail(path, "not a readable image (the decoder refused it: damaged or truncated"
+             + (f": {words})" if words else ")"))
+    # libjpeg decodes a damaged JPEG with a warning, grey blocks where the data were lost: a frame with invented
+    # pixels. Only 'extraneous bytes before marker' is harmless (padding some cameras, the Pi's among them, write).
+    damage = [w for w in said[0].splitlines() if w.strip() and "extraneous bytes" not in w] if said else []
+    if damage:
+        fail(path, f"a damaged image (the decoder said: {' '.join(damage[0].split())[:160]})")
     return image
 
 
@@ -398,6 +414,9 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     directory = Path(directory)
     if not directory.is_dir():
         fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
+    for name in (META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE, SEGMENTS_FILE):
+        if os.path.lexists(directory / name) and not inside_log(directory, directory / name):
+            fail(directory / name, "a symbolic link leading outside the log directory (a log is read from itself only)")
     meta = parse_meta(read_json(directory / META_FILE), directory / META_FILE)
     wheel_t, left, right = read_wheels(directory / WHEELS_FILE)
     frame_t, files = read_frames(directory / FRAMES_FILE, directory, meta["width_px"], meta["height_px"],

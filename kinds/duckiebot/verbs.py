@@ -51,6 +51,20 @@ def log_inputs(log) -> list:
     return files + [log.frame_path(i) for i in range(len(log.frame_files))]
 
 
+def check_log_output(out, log, inputs) -> None:
+    """DataError unless `out` can be written (check_output_file: never over one of `inputs`) and lies outside the
+    drive log's directory: a log is a record, and naocal writes nothing into it."""
+    import os
+
+    from naocal.solver.fileio import check_output_file
+
+    check_output_file(out, inputs=inputs)
+    log_dir = os.path.realpath(log.path)
+    if os.path.commonpath([log_dir, os.path.realpath(out)]) == log_dir:
+        raise DataError(out, f"is inside the drive log {log.path}: naocal writes nothing into a log; give a name "
+                             "outside it (nothing was changed)")
+
+
 def _no_marker(log) -> DataError:
     from naocal.kinds.duckiebot.drive_log import FRAMES_FILE
 
@@ -66,8 +80,6 @@ def run_identify(args, kind) -> int:
     from naocal.kinds.duckiebot.calibration import checked_document, write_document
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.identify import calibrate, detect_log, fit_intrinsics
-    from naocal.solver.fileio import check_output_file
-
     from naocal.kinds.duckiebot.diagnose import parse_effects
 
     check_options(args, kind)
@@ -80,7 +92,7 @@ def run_identify(args, kind) -> int:
     log = read_drive_log(args.dataset)
     inputs = log_inputs(log)
     if args.out:
-        check_output_file(args.out, inputs=inputs)  # before a minute of work, not after
+        check_log_output(args.out, log, inputs)  # before a minute of work, not after
     detections = detect_log(log)
     if not any(detections.markers):
         raise _no_marker(log)
@@ -116,7 +128,7 @@ def run_refine(args) -> int:
     from naocal.kinds.duckiebot.calibration import check_document, parse_calibration, write_document
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.refine import MAX_STEP, refine_trim, refined_document
-    from naocal.solver.fileio import check_output_file, json_safe, read_json
+    from naocal.solver.fileio import json_safe, read_json
 
     for option, given in (("--effects", args.effects), ("--fix", args.fix), ("--loss", args.loss != "linear"),
                           ("--keep-outliers", args.keep_outliers)):
@@ -131,7 +143,7 @@ def run_refine(args) -> int:
     log = read_drive_log(args.dataset)
     inputs = [args.refine] + log_inputs(log)
     if args.out:
-        check_output_file(args.out, inputs=inputs)  # before the work, not after
+        check_log_output(args.out, log, inputs)  # before the work, not after
     refinement = refine_trim(log.path, calibration, max_step=max_step)  # RefinementRefused: exit 3
     source = (f"naocal identify {log.path} --refine {args.refine}: trim {refinement.trim_before:+.5f} -> "
               f"{refinement.trim:+.5f} +- {refinement.trim_std:.5f}")
@@ -369,10 +381,12 @@ def run_verify(args, kind) -> int:
     """Does the robot still drive straight under the calibration (judged_calibration)? Refit gain and trim on the
     new log (the camera's pose and the baseline held at the calibration's: a lane pass without turns cannot tell the
     baseline from trim), predict the 2 m straight drive at 0.3 m/s commanded with the calibration's gain and trim.
-    Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed."""
+    Exit 0 still good, 1 drifted, 2 bad input (or no calibration to judge), 3 a fit failed or too few frames with a
+    marker (refine's MIN_MARKER_FRAMES) for a verdict."""
     from naocal.kinds.duckiebot.drive_log import read_drive_log
     from naocal.kinds.duckiebot.fit import CAMERA, Drive, fit_drive
     from naocal.kinds.duckiebot.identify import add_corner_covariance, detect_log, rectified_sightings
+    from naocal.kinds.duckiebot.refine import MIN_MARKER_FRAMES
     from naocal.kinds.duckiebot.robot import Kinematics
 
     check_options(args, kind)
@@ -382,6 +396,10 @@ def run_verify(args, kind) -> int:
     detections = judged.detections or detect_log(log, boards=False)
     if not any(detections.markers):
         raise _no_marker(log)
+    marker_frames = sum(1 for markers in detections.markers if markers)
+    if marker_frames < MIN_MARKER_FRAMES:  # as few as refine's: its stds would speak for a handful of poses
+        raise SolveError(f"{log.path}: {marker_frames} frames with a marker in view, at least {MIN_MARKER_FRAMES} "
+                         "are needed to tell whether the robot still drives straight: no verdict")
     # through the calibration's model of the wheel driver (its trim is that model's)
     drive = dataclasses.replace(Drive.of_log(log, pwm_driver=cal.pwm_driver), baseline_m=cal.value("baseline_m"))
     fit = fit_drive(drive, rectified_sightings(detections, cal.lens), cal.lens.K, log.marker_size_m,
@@ -518,8 +536,10 @@ def _export(cal, args, out) -> int:
     paths = calibration_paths(args.out, cal.robot_id)  # the robot's name checked first
     for path in paths.values():
         check_not_an_input(path, [args.file])
+    # the robot's calibrations directory is where these go: a file already there is replaced, and said so
+    existed = {path: path.exists() for path in paths.values()}
     findings = write_calibration(args.out, cal.duckietown())
     for path in paths.values():
-        print(f"wrote {path}", file=sys.stderr)
+        print(f"{'replaced the previous' if existed[path] else 'wrote'} {path}", file=sys.stderr)
     _warn("offsets", findings)
     return 0
