@@ -386,3 +386,27 @@ def test_a_break_in_the_log_ends_a_markers_sighting_run():
     assert len(set(split[:3])) == 1 and len(set(split[3:6])) == 1 and split[0] != split[3]
     assert split[6] == split[7] and split[8] == split[9] and split[6] != split[8]
     assert len(set(split)) == 4
+
+
+def test_a_drive_leaves_out_repeated_commands_and_moves_the_same():
+    """A recorder republishing each command at 100 Hz: the rows that repeat the row before hold what already holds,
+    so the drive keeps one row per change (and the first row after a break, which starts its segment from rest), and
+    the trajectory is the same as the log's rows give."""
+    from types import SimpleNamespace
+
+    changes = [(0.0, 0.0, 0.0), (0.5, 0.3, 0.35), (1.7, -0.2, 0.2), (2.4, 0.3, 0.3), (3.5, 0.0, 0.0)]
+    t = np.round(np.arange(0.0, 4.0, 0.01), 6)
+    at = np.searchsorted([c[0] for c in changes], t, side="right") - 1
+    left, right = np.array([changes[i][1] for i in at]), np.array([changes[i][2] for i in at])
+    wheels = SimpleNamespace(k=27.0, radius_m=0.0318, baseline_m=0.1, limit=1.0)
+    log = SimpleNamespace(wheel_t_s=t, left_duty=left, right_duty=right, frame_t_s=np.arange(0.2, 4.0, 0.3),
+                          wheels=wheels, segment_t_s=np.array([2.0]))
+    drive = Drive.of_log(log)
+    np.testing.assert_array_equal(drive.wheel_t_s, [0.0, 0.5, 1.7, 2.0, 2.4, 3.5])
+    every = replace(drive, wheel_t_s=t, left_duty=left, right_duty=right)
+    times = np.arange(0.25, 1.95, 0.1)
+    for a, b in zip(trajectory(drive, 0.9, 0.02, 0.1, (0.1, 0.2, 0.3), 0.2, times),
+                    trajectory(every, 0.9, 0.02, 0.1, (0.1, 0.2, 0.3), 0.2, times)):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    second = drive.segment(1)
+    assert second.wheel_t_s[0] == 2.0 and (second.left_duty[0], second.right_duty[0]) == (-0.2, 0.2)

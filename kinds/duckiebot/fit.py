@@ -155,8 +155,14 @@ class Drive:
 
     @classmethod
     def of_log(cls, log, *, pwm_driver: bool = False) -> "Drive":
-        return cls(log.wheel_t_s, log.left_duty, log.right_duty, log.frame_t_s, log.wheels.k, log.wheels.radius_m,
-                   log.wheels.baseline_m, log.wheels.limit, pwm_driver, tuple(float(t) for t in log.segment_t_s))
+        """The log's drive, a row that repeats the row before it in its segment left out: it holds what already
+        holds (a recorder republishing commands at a high rate would otherwise cost an arc a row)."""
+        segment_t_s = tuple(float(t) for t in log.segment_t_s)
+        segment = np.searchsorted(np.asarray(segment_t_s, dtype=float), log.wheel_t_s, side="right")
+        new = np.ones(len(log.wheel_t_s), dtype=bool)
+        new[1:] = ((np.diff(log.left_duty) != 0) | (np.diff(log.right_duty) != 0) | (np.diff(segment) != 0))
+        return cls(log.wheel_t_s[new], log.left_duty[new], log.right_duty[new], log.frame_t_s, log.wheels.k,
+                   log.wheels.radius_m, log.wheels.baseline_m, log.wheels.limit, pwm_driver, segment_t_s)
 
     def segment_of(self, t_s) -> np.ndarray:
         """The segment (0, 1, ...) each time in t_s belongs to: the number of breaks at or before it."""
@@ -220,7 +226,8 @@ def trajectory(drive: Drive, gain: float, trim: float, baseline_m: float, anchor
     p = {"gain": gain, "trim": trim, "baseline_m": baseline_m, **effects}
     lag = "wheel_lag_s" in effects or "wheel_lag_difference_s" in effects
     start = min(float(drive.wheel_t_s[0]), float(anchor_t_s)) if lag and len(drive.wheel_t_s) else float(anchor_t_s)
-    knots = np.union1d(drive.wheel_t_s[drive.wheel_t_s > start], times_s)
+    end = float(times_s.max()) if len(times_s) else start  # the commands after the last time wanted move nothing wanted
+    knots = np.union1d(drive.wheel_t_s[(drive.wheel_t_s > start) & (drive.wheel_t_s <= end)], times_s)
     if lag:
         knots = np.union1d(knots, [anchor_t_s])
     pose = np.asarray(anchor, dtype=float).copy()
