@@ -460,3 +460,12 @@ def test_identify_adds_the_wheel_effects_diagnose_names(calibrated, tmp_path):
     bad = naocal("identify", calibrated.log, "--effects", "wobble", "--out", tmp_path / "BAD.json")
     one_line_error(bad, "wobble")
     assert not (tmp_path / "BAD.json").exists()
+
+
+def test_a_drive_logs_file_named_for_its_folder_is_one_line_naming_the_folder(calibrated, tmp_path):
+    for verb, name in (("identify", "log.json"), ("diagnose", "wheels.csv"), ("verify", "frames.csv")):
+        extra = ("--out", tmp_path / "CAL.json") if verb == "identify" else ()
+        result = naocal(verb, calibrated.log / name, *extra)
+        assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+        assert result.stderr.count("\n") == 1 and f"name its folder, {calibrated.log}" in result.stderr, result.stderr
+    assert not (tmp_path / "CAL.json").exists()

@@ -104,6 +104,8 @@ VERDICT  the missing effect or lens, the command that adds it, and the RMS befor
                 (any((path / name).is_file() for name in LOG_FILES)
                  or any((path / name).is_dir() for name in CALIBRATION_DIRS))
                 and not (path / "dataset.json").exists())
+        if path.is_file() and path.name in LOG_FILES + ("encoders.csv", "segments.csv") and self.claims(path.parent):
+            return True  # a drive log's own file named for its folder: its reader says to name the folder
         return json_schema(path) == CALIBRATION_SCHEMA
 
     def add_options(self, parser, verb: str) -> None:

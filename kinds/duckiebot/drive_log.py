@@ -413,7 +413,9 @@ def read_drive_log(directory, *, check_images: bool = True) -> DriveLog:
     line or field) on any problem; nothing is written. `check_images`: decode every frame now (default)."""
     directory = Path(directory)
     if not directory.is_dir():
-        fail(directory, "not a directory: expected a drive log (log.json, wheels.csv, frames.csv)")
+        hint = f" (name its folder, {directory.parent})" if directory.is_file() and (directory.parent / META_FILE).is_file() \
+            else ""
+        fail(directory, f"not a directory: expected a drive log (log.json, wheels.csv, frames.csv){hint}")
     for name in (META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE, SEGMENTS_FILE):
         if os.path.lexists(directory / name) and not inside_log(directory, directory / name):
             fail(directory / name, "a symbolic link leading outside the log directory (a log is read from itself only)")
