@@ -322,6 +322,54 @@ def test_a_run_stopped_mid_drive_and_carried_resumes_where_the_robot_stands(tmp_
         assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
 
 
+def test_a_run_resumed_twice_as_on_the_robot_goes_on_at_each_break_and_still_identifies(tmp_path):
+    """Resumed as on the real robot (restart_phase), stopped in the marker drives, resumed (the robot carried), stopped
+    again inside the phase that resume started again, resumed again: the replay restarts the phase at the log's
+    break as the first resume did (it refused the run as recorded with other options: the phase's own next action
+    is not the break's stop), nothing sent but the stop before the second break, every capture kept byte for byte,
+    two breaks, and the joint fit identifies the ideal robot from the log's three segments."""
+    states = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives, IdentifyDrive)
+    state = tmp_path / "mock_state.json"
+    robot = short_mock(state_path=state)
+    try:
+        result, _ = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[1], 2), tmp_path, SHORT, states=states,
+                                transitions=UP_TO_IDENTIFICATION)
+        assert result.final == INTERRUPTED and result.history[-1].state == "marker_drives", result.reason
+        robot.carry(-0.03, 0.02, 0.1)
+        # killed again in the phase started again: its second stretch out at the first leg's duty
+        result, ctx = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[0], 2), tmp_path, SHORT, states=states,
+                                  transitions=UP_TO_IDENTIFICATION, restart_phase=True)
+        assert result.final == INTERRUPTED and ctx.restarted == "marker_drives", result.reason
+        before = read_drive_log(tmp_path / "log")
+        assert len(before.segment_t_s) == 1 and before.frame_t_s[-1] > before.segment_t_s[0]
+        kept = {name: (tmp_path / "log" / name).read_bytes() for name in before.frame_files}
+        robot.carry(0.02, -0.01, -0.05)
+        sent = len(robot.received)
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=states, transitions=UP_TO_IDENTIFICATION,
+                                  restart_phase=True)
+        truth = robot.truth.kinematics()
+    finally:
+        robot.close()
+    assert result.final == DONE and ctx.restarted == "marker_drives" and ctx.driven, result.reason
+    after = read_drive_log(tmp_path / "log")
+    assert after.segment_t_s[0] == before.segment_t_s[0] and len(after.segment_t_s) == 2
+    t_break = after.segment_t_s[1]
+    assert t_break > max(before.wheel_t_s[-1], before.frame_t_s[-1])
+    assert all((l, r) == (0.0, 0.0) for t, l, r in robot.received[sent:] if t <= t_break)  # the replay sent nothing
+    assert after.frame_files[:len(before.frame_files)] == before.frame_files
+    assert all((tmp_path / "log" / name).read_bytes() == data for name, data in kept.items())
+    first = np.searchsorted(after.wheel_t_s, t_break)
+    assert after.wheel_t_s[first] == t_break and (after.left_duty[first], after.right_duty[first]) == (0.0, 0.0)
+    segment = after.wheel_t_s >= t_break  # the drives done again after the second break: both duties, out and back
+    for duty in SHORT.drive_duties[:2]:
+        assert np.any(np.isclose(after.left_duty[segment], duty) & np.isclose(after.right_duty[segment], duty))
+        assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
+    fit, kin = ctx.calibration.drive_fit, ctx.calibration.kinematics
+    assert {"anchor1.x_m", "anchor2.x_m"} <= set(fit.names)  # a start pose for each segment after a break
+    assert abs(kin.trim - truth.trim) < 0.001 and abs(kin.gain / truth.gain - 1) < 0.01
+    assert abs(kin.baseline_m - truth.baseline_m) < 0.002
+
+
 def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_a_final_stop(tmp_path):
     """restart_phase: nothing is sent while the log replays; the first action past it ends the phase's replay
     (ReplayEnded), as does a stop an interrupted run logged where the phase goes on otherwise (a grab here), which
