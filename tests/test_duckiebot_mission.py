@@ -402,6 +402,78 @@ def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_
         robot.close()
 
 
+def test_a_break_the_log_holds_ends_the_phases_replay_and_is_replayed_as_it_was_made(tmp_path):
+    """restart_phase on a log with a break (a run resumed once, then stopped again): the replay ends at the break at
+    the first action past it, as at the log's end (it refused the phase's next action as another run's), nothing
+    sent; replay_break replays the break's stop and leaves the robot-time budget where new_segment had it; at the
+    log's end the next break follows. A break with no row of its own (new_segment cut short) is an empty part; one
+    not at a stop is refused naming segments.csv, as is a log with breaks resumed as on the mock."""
+    robot = short_mock()
+    meta = log_meta("t", "test")
+
+    def session():
+        return Session(robot, tmp_path / "log", meta, SHORT, 0.0, restart_phase=True)
+
+    try:
+        first = Session(robot, tmp_path / "log", meta, SHORT, 0.0)
+        first.command(0.3, 0.3)
+        robot.advance(0.1)
+        first.stop()
+        once = session()
+        once.command(0.3, 0.3)
+        once.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            once.wait(0.1)
+        robot.advance(5.0)  # the robot stood dead before the resume
+        once.new_segment()
+        budget_s = once.t_start_s
+        once.command(0.2, -0.2)
+        robot.advance(0.1)
+        once.stop()
+        sent = len(robot.received)
+        twice = session()
+        twice.command(0.3, 0.3)
+        twice.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            twice.wait(0.1)  # the break: the first resume's phase started again here
+        assert not twice.live
+        twice.replay_break()
+        assert twice.t_start_s == budget_s and twice.duties == (0.0, 0.0)
+        twice.wait(SHORT.settle_s)
+        twice.command(0.2, -0.2)  # the phase as it went after the break, replayed
+        with pytest.raises(ReplayEnded):
+            twice.grab()  # the final stop left, then the log's end
+        assert twice.live and len(robot.received) == sent
+        twice.new_segment()
+        assert len(twice.log.breaks) == 2 and all(r[1:] == (0.0, 0.0) for r in robot.received[sent:])
+        breaks = tmp_path / "log" / "segments.csv"
+        # new_segment cut short after a break was saved, before its stop: its part is empty
+        text = breaks.read_text()
+        t_empty = (once.log.breaks[0] + once.log.wheels[np.searchsorted([w[0] for w in once.log.wheels],
+                                                                       once.log.breaks[0]) - 1][0]) / 2
+        breaks.write_text(text.split("\n", 1)[0] + f"\n{t_empty!r}\n" + text.split("\n", 1)[1])
+        again = session()
+        again.command(0.3, 0.3)
+        again.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            again.command(0.3, 0.3)
+        again.replay_break()
+        assert again.part == 2 and again.t_start_s == budget_s
+        breaks.write_text(text.replace(repr(once.log.breaks[0]), repr(once.log.breaks[0] - 1e-3)))
+        again = session()
+        again.command(0.3, 0.3)
+        again.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            again.grab()
+        with pytest.raises(NaocalError, match="segments.csv: the break at .* is not where a resumed run stopped"):
+            again.replay_break()
+        with pytest.raises(NaocalError, match="the log has breaks"):
+            Session(robot, tmp_path / "log", meta, SHORT, 0.0)
+        assert len(robot.received) == sent + 2  # new_segment's stops only
+    finally:
+        robot.close()
+
+
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):
     """Driving where no marker lies (facing the boards, away from the line), the robot stops once it has driven
     max_blind_m without seeing one: never farther than that and one check."""

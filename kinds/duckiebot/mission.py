@@ -139,10 +139,11 @@ def log_meta(robot_id: str, source: str) -> dict:
 
 class ReplayEnded(Exception):
     """A resumed run's replay has reached the log's end inside a phase, on a robot whose state was not saved (the
-    real one): the phase starts again from its start conditions (RestartedPhase), never from the old pose."""
+    real one): the phase starts again from its start conditions (RestartedPhase), never from the old pose. Or it
+    has reached a break the log holds (Session._end_of_part): the phase is replayed again from there."""
 
     def __init__(self, session):
-        super().__init__("the replay reached the log's end")
+        super().__init__("the replay reached the log's end or a break")
         self.session = session
 
 
@@ -247,6 +248,8 @@ class Session:
     def replay_break(self) -> None:
         """Replay a break the log holds (the replay at its part's end: _end_of_part) as new_segment made it: its stop
         row, the budget's dead time left out; nothing is sent. The phase is then replayed again from its start."""
+        while self.part + 1 < len(self.log.breaks) and self.part_ends[self.part + 1] == self.cursor:
+            self.part += 1  # a break with no row of its own (new_segment cut short before its stop): an empty part
         t = self.log.breaks[self.part]
         event = self.replay[self.cursor]
         if self.replay_t_s[self.cursor] != t or event != ("wheels", 0.0, 0.0):
