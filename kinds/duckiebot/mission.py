@@ -36,7 +36,8 @@ capture is repeated. That holds where the robot's state is saved with the run (t
 (`restart_phase`) the replay only rebuilds the run: the wheels are commanded stopped first, and at the first live
 action the phase the replay ended in starts again from its start conditions where the robot now stands
 (RestartedPhase), after a break in the log (Session.new_segment): the joint fit gives each segment its own start
-pose (kinds.duckiebot.fit).
+pose (kinds.duckiebot.fit). A log with breaks is replayed in parts: at each break the phase's replay ends and the
+phase is replayed again from it (Session.replay_break), so a run resumes any number of times, one break each.
 """
 
 from __future__ import annotations
