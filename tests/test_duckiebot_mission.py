@@ -474,6 +474,45 @@ def test_a_break_the_log_holds_ends_the_phases_replay_and_is_replayed_as_it_was_
         robot.close()
 
 
+class CameraNotUp:
+    """The mock whose camera gives no frame the first time it is asked (a camera node not started yet: the grab's
+    deadline fails the run)."""
+
+    def __init__(self, robot):
+        self.robot, self.asked = robot, False
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def grab(self):
+        if not self.asked:
+            self.asked = True
+            raise NaocalError("no camera frame within 2 s")
+        return self.robot.grab()
+
+
+def test_a_run_whose_first_grab_failed_resumes_with_each_board_view_on_its_frame(tmp_path):
+    """The first frame never came (the run failed there, its log a stop and no frame), then `--resume` as on the
+    robot: the grab the replay ended at is not counted as a frame, so the boards phase's views stay on the frames
+    they were seen in (they were one frame off, one view more than frames) and the camera is fitted from them."""
+    settings = MissionSettings(board_passes=1)
+    to_camera = {("boards", "ok"): "camera", ("camera", "ok"): DONE}
+    robot = short_mock()
+    try:
+        result, _ = run_mission(CameraNotUp(robot), tmp_path, settings, states=(Boards, CalibrateCamera),
+                                transitions=to_camera)
+        assert result.final == "failed" and "no camera frame" in result.reason
+        assert not (tmp_path / "log" / "frames.csv").exists()
+        result, ctx = run_mission(robot, tmp_path, settings, states=(Boards, CalibrateCamera), transitions=to_camera,
+                                  restart_phase=True)
+    finally:
+        robot.close()
+    assert result.final == DONE, result.reason
+    frames = read_drive_log(tmp_path / "log", check_images=False).frame_files
+    assert len(ctx.board_detections) == len(frames) and set(ctx.board_views) == set(range(len(frames)))
+    assert [bool(views) for views in ctx.board_detections][:2] == [True, True]  # the start board, from the first
+
+
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):
     """Driving where no marker lies (facing the boards, away from the line), the robot stops once it has driven
     max_blind_m without seeing one: never farther than that and one check."""

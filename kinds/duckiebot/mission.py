@@ -308,10 +308,10 @@ class Session:
     def grab(self) -> np.ndarray:
         """A grey frame: the saved one when replaying, else a new one from the robot, saved before it is used."""
         recorded = self._next_recorded("frame")
-        self.grabbed += 1
         if recorded is not None:
             path = self.log.directory / recorded[1]
             image = decode_image(read_bytes(path, max_bytes=MAX_IMAGE_BYTES), path, cv2.IMREAD_GRAYSCALE)
+            self.grabbed += 1
             self._go_on()
             return image
         self._live()
@@ -320,6 +320,7 @@ class Session:
         if not t > t_command:  # a frame exposed before the last command is stale: never decide on it
             raise NaocalError(f"the camera returned a frame of {t:.3f} s, before the last command ({t_command:.3f} s)")
         self.log.add_frame(t, f"frames/{len(self.log.frames):06d}.png", image)
+        self.grabbed += 1  # counted once saved: a grab the replay ended at, or that failed, is no frame
         return image
 
     def stop(self) -> None:
