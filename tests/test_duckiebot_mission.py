@@ -460,13 +460,8 @@ def test_a_break_the_log_holds_ends_the_phases_replay_and_is_replayed_as_it_was_
         again.replay_break()
         assert again.part == 2 and again.t_start_s == budget_s
         breaks.write_text(text.replace(repr(once.log.breaks[0]), repr(once.log.breaks[0] - 1e-3)))
-        again = session()
-        again.command(0.3, 0.3)
-        again.command(0.0, 0.0)
-        with pytest.raises(ReplayEnded):
-            again.grab()
         with pytest.raises(NaocalError, match="segments.csv: the break at .* is not where a resumed run stopped"):
-            again.replay_break()
+            session()
         with pytest.raises(NaocalError, match="the log has breaks"):
             Session(robot, tmp_path / "log", meta, SHORT, 0.0)
         assert len(robot.received) == sent + 2  # new_segment's stops only

@@ -172,6 +172,12 @@ class Session:
             raise NaocalError(f"{self.log.directory}: the log has breaks (segments.csv: a run resumed on the robot); "
                               "resume it on the robot's backend (nothing was sent to the robot)")
         self.part_ends = [bisect.bisect_left(self.replay_t_s, t) for t in self.log.breaks] + [len(self.replay)]
+        for t, start, end in zip(self.log.breaks, self.part_ends, self.part_ends[1:]):
+            # each part starts with new_segment's stop at its break, or is empty (new_segment cut short before it)
+            if start < end and (self.replay_t_s[start] != t or self.replay[start] != ("wheels", 0.0, 0.0)):
+                raise NaocalError(f"{self.log.directory / SEGMENTS_FILE}: the break at {t!r} s is not where a resumed "
+                                  "run stopped the wheels (a stop at that time in wheels.csv): not a log this mission "
+                                  "wrote (nothing was sent to the robot)")
         self.part = 0  # the part being replayed
         self.duties = (0.0, 0.0)  # the command in force, as logged
         self.resumed = self.live  # a replay has ended and the run gone on live
@@ -249,14 +255,9 @@ class Session:
     def replay_break(self) -> None:
         """Replay a break the log holds (the replay at its part's end: _end_of_part) as new_segment made it: its stop
         row, the budget's dead time left out; nothing is sent. The phase is then replayed again from its start."""
-        while self.part + 1 < len(self.log.breaks) and self.part_ends[self.part + 1] == self.cursor:
+        while self.part_ends[self.part + 1] == self.cursor:
             self.part += 1  # a break with no row of its own (new_segment cut short before its stop): an empty part
-        t = self.log.breaks[self.part]
-        event = self.replay[self.cursor]
-        if self.replay_t_s[self.cursor] != t or event != ("wheels", 0.0, 0.0):
-            raise NaocalError(f"{self.log.directory / SEGMENTS_FILE}: the break at {t!r} s is not where a resumed run "
-                              "stopped the wheels (a stop at that time in wheels.csv): not a log this mission wrote "
-                              "(nothing was sent to the robot)")
+        t = self.log.breaks[self.part]  # its stop row at the cursor (checked when the log was opened)
         if self.log.wheels[0][0] < t:  # as new_segment: the time the robot stood dead is not the mission's
             self.t_start_s += t - self.replay_t_s[self.cursor - 1]
         self.cursor += 1
