@@ -521,8 +521,9 @@ class Killed(BaseException):
     """The laptop's process dies (SIGKILL, a flat battery): from now on it sends nothing, not even a stop."""
 
 
-def killed_mid_turn(monkeypatch, argv) -> None:
-    """`naocal calibrate argv` (the boards phase) killed once its fourth one-wheel step's duties are in force."""
+def killed_mid_turn(monkeypatch, argv, steps: int = 4) -> None:
+    """`naocal calibrate argv` (the boards phase) killed once its `steps`-th one-wheel step's duties are in force
+    (counting those sent to the robot: stops go as "stop", a resume's replay sends nothing)."""
     from naocal.tools.cli import main
 
     call, dead, turns = DuckiebotBridge._call, [], []
@@ -531,9 +532,9 @@ def killed_mid_turn(monkeypatch, argv) -> None:
         if dead:
             raise Killed()
         result = call(self, cmd, args, **kw)
-        if cmd == "wheels" and len(turns) < 4:
+        if cmd == "wheels" and len(turns) < steps:
             turns.append(args)
-            dead.extend([True] * (len(turns) == 4))
+            dead.extend([True] * (len(turns) == steps))
         return result
 
     monkeypatch.setattr(DuckiebotBridge, "_call", dies_mid_turn)
@@ -622,6 +623,53 @@ def test_a_run_killed_mid_phase_resumes_over_the_bridge(tmp_path, monkeypatch, c
             graph.close()
         else:
             robot.close()
+
+
+def test_a_run_killed_again_in_the_phase_its_resume_started_again_resumes_again_over_the_bridge(
+        tmp_path, monkeypatch, capsys, mock):
+    """`calibrate --backend bridge` killed mid-turn, resumed, killed again mid-turn inside the phase that resume
+    started again (the wheels left to the server's watchdog each time), resumed again: the replay starts the phase
+    again at the log's break as the first resume did (it refused the run as recorded with other options), nothing
+    but stops reaches the robot before the second break, every capture kept byte for byte, two breaks, done."""
+    from naocal.tools.cli import main
+
+    boards_only(monkeypatch)
+    out = tmp_path / "run"
+    served = ServedDuckiebot(mock, robot_id="mock4", watchdog_s=0.3)
+    try:
+        with serving(served, ipc(tmp_path), driver="mock", clock="simulated") as server:
+            argv = ["calibrate", "--robot", "duckiebot", "--backend", "bridge", "--endpoint", server.endpoint,
+                    "--out", str(out)]
+
+            def killed_and_stopped(argv, steps):
+                killed_mid_turn(monkeypatch, argv, steps)
+                deadline = time.monotonic() + 5.0
+                while mock.duties.any() and time.monotonic() < deadline:  # the server's watchdog stops them
+                    time.sleep(0.02)
+                assert not mock.duties.any()
+
+            killed_and_stopped(argv, 4)
+            killed_and_stopped(argv + ["--resume"], 2)
+            log = read_drive_log(out / "log")
+            (t_first,) = log.segment_t_s
+            assert np.sum(log.frame_t_s > t_first) >= 1 and np.any((log.left_duty != 0) | (log.right_duty != 0), where=log.wheel_t_s > t_first)
+            frames = {name: (out / "log" / name).read_bytes() for name in log.frame_files}
+            sent = len(mock.received)
+            capsys.readouterr()
+            assert main(argv + ["--resume"]) == 0, capsys.readouterr().err
+        resumed = read_drive_log(out / "log")
+        assert resumed.segment_t_s[0] == t_first and len(resumed.segment_t_s) == 2
+        t_second = resumed.segment_t_s[1]
+        assert t_second > max(log.wheel_t_s[-1], log.frame_t_s[-1])
+        assert all((l, r) == (0.0, 0.0) for t, l, r in mock.received[sent:] if t <= t_second)  # only stops
+        at_break = np.searchsorted(resumed.wheel_t_s, t_second)
+        assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
+        assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
+        assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
+        assert np.sum(resumed.frame_t_s > t_second) >= 3 and (out / "mission.json").exists()
+        assert not mock.duties.any() and not (out / "bridge.token").exists()
+    finally:
+        served.close()
 
 
 class Outlives:

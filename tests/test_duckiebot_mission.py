@@ -19,6 +19,7 @@ import pytest
 from naocal.agent.machine import DONE, INTERRUPTED
 from naocal.kinds.duckiebot.drive_log import read_drive_log
 from naocal.kinds.duckiebot.fit import CAMERA, pose_parameters
+from naocal.kinds.duckiebot.identify import calibrate, detect_log
 from naocal.kinds.duckiebot.intrinsics import LensCamera
 from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers, IdentifyDrive, MarkerDrives,
                                             MissionContext, MissionSettings, ReplayEnded, Session, Validation,
@@ -322,6 +323,56 @@ def test_a_run_stopped_mid_drive_and_carried_resumes_where_the_robot_stands(tmp_
         assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
 
 
+def test_a_run_resumed_twice_as_on_the_robot_goes_on_at_each_break_and_still_identifies(tmp_path):
+    """Resumed as on the real robot (restart_phase), stopped in the marker drives, resumed (the robot carried), stopped
+    again inside the phase that resume started again, resumed again: the replay restarts the phase at the log's
+    break as the first resume did (it refused the run as recorded with other options: the phase's own next action
+    is not the break's stop), nothing sent but the stop before the second break, every capture kept byte for byte,
+    two breaks, and the joint fit identifies the ideal robot from the log's three segments (through the run's own
+    lens: identify_log's board search over every frame would take 40 s more)."""
+    states = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives)
+    state = tmp_path / "mock_state.json"
+    robot = short_mock(state_path=state)
+    try:
+        result, _ = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[1], 2), tmp_path, SHORT, states=states,
+                                transitions=UP_TO_DRIVES)
+        assert result.final == INTERRUPTED and result.history[-1].state == "marker_drives", result.reason
+        robot.carry(-0.03, 0.02, 0.1)
+        # killed again in the phase started again: its second stretch out at the first leg's duty
+        result, ctx = run_mission(StoppedMidDrive(robot, SHORT.drive_duties[0], 2), tmp_path, SHORT, states=states,
+                                  transitions=UP_TO_DRIVES, restart_phase=True)
+        assert result.final == INTERRUPTED and ctx.restarted == "marker_drives", result.reason
+        before = read_drive_log(tmp_path / "log")
+        assert len(before.segment_t_s) == 1 and before.frame_t_s[-1] > before.segment_t_s[0]
+        kept = {name: (tmp_path / "log" / name).read_bytes() for name in before.frame_files}
+        robot.carry(0.02, -0.01, -0.05)
+        sent = len(robot.received)
+        result, ctx = run_mission(robot, tmp_path, SHORT, states=states, transitions=UP_TO_DRIVES,
+                                  restart_phase=True)
+        truth = robot.truth.kinematics()
+    finally:
+        robot.close()
+    assert result.final == DONE and ctx.restarted == "marker_drives" and ctx.driven, result.reason
+    after = read_drive_log(tmp_path / "log")
+    assert after.segment_t_s[0] == before.segment_t_s[0] and len(after.segment_t_s) == 2
+    t_break = after.segment_t_s[1]
+    assert t_break > max(before.wheel_t_s[-1], before.frame_t_s[-1])
+    assert all((l, r) == (0.0, 0.0) for t, l, r in robot.received[sent:] if t <= t_break)  # the replay sent nothing
+    assert after.frame_files[:len(before.frame_files)] == before.frame_files
+    assert all((tmp_path / "log" / name).read_bytes() == data for name, data in kept.items())
+    first = np.searchsorted(after.wheel_t_s, t_break)
+    assert after.wheel_t_s[first] == t_break and (after.left_duty[first], after.right_duty[first]) == (0.0, 0.0)
+    segment = after.wheel_t_s >= t_break  # the drives done again after the second break: both duties, out and back
+    for duty in SHORT.drive_duties[:2]:
+        assert np.any(np.isclose(after.left_duty[segment], duty) & np.isclose(after.right_duty[segment], duty))
+        assert np.any(np.isclose(after.left_duty[segment], -duty) & np.isclose(after.right_duty[segment], -duty))
+    calibration = calibrate(after, detect_log(after, boards=False), ctx.lens, ctx.lens_fits)
+    fit, kin = calibration.drive_fit, calibration.kinematics
+    assert {"anchor1.x_m", "anchor2.x_m"} <= set(fit.names) and fit.rms_px < 1.0  # a start pose for each segment after a break
+    assert abs(kin.trim - truth.trim) < 0.001 and abs(kin.gain / truth.gain - 1) < 0.01
+    assert abs(kin.baseline_m - truth.baseline_m) < 0.002
+
+
 def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_a_final_stop(tmp_path):
     """restart_phase: nothing is sent while the log replays; the first action past it ends the phase's replay
     (ReplayEnded), as does a stop an interrupted run logged where the phase goes on otherwise (a grab here), which
@@ -349,6 +400,112 @@ def test_resumed_as_on_the_robot_the_replay_ends_at_the_first_live_action_or_at_
         assert again.log.breaks == [again.log.wheels[-1][0]] and again.log.wheels[-1][1:] == (0.0, 0.0)
     finally:
         robot.close()
+
+
+def test_a_break_the_log_holds_ends_the_phases_replay_and_is_replayed_as_it_was_made(tmp_path):
+    """restart_phase on a log with a break (a run resumed once, then stopped again): the replay ends at the break at
+    the first action past it, as at the log's end (it refused the phase's next action as another run's), nothing
+    sent; replay_break replays the break's stop and leaves the robot-time budget where new_segment had it; at the
+    log's end the next break follows. A break with no row of its own (new_segment cut short) is an empty part; one
+    not at a stop is refused naming segments.csv, as is a log with breaks resumed as on the mock."""
+    robot = short_mock()
+    meta = log_meta("t", "test")
+
+    def session():
+        return Session(robot, tmp_path / "log", meta, SHORT, 0.0, restart_phase=True)
+
+    try:
+        first = Session(robot, tmp_path / "log", meta, SHORT, 0.0)
+        first.command(0.3, 0.3)
+        robot.advance(0.1)
+        first.stop()
+        once = session()
+        once.command(0.3, 0.3)
+        once.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            once.wait(0.1)
+        robot.advance(5.0)  # the robot stood dead before the resume
+        once.new_segment()
+        budget_s = once.t_start_s
+        once.command(0.2, -0.2)
+        robot.advance(0.1)
+        once.stop()
+        sent = len(robot.received)
+        twice = session()
+        twice.command(0.3, 0.3)
+        twice.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            twice.wait(0.1)  # the break: the first resume's phase started again here
+        assert not twice.live
+        twice.replay_break()
+        assert twice.t_start_s == budget_s and twice.duties == (0.0, 0.0)
+        twice.wait(SHORT.settle_s)
+        twice.command(0.2, -0.2)  # the phase as it went after the break, replayed
+        with pytest.raises(ReplayEnded):
+            twice.grab()  # the final stop left, then the log's end
+        assert twice.live and len(robot.received) == sent
+        twice.new_segment()
+        assert len(twice.log.breaks) == 2 and all(r[1:] == (0.0, 0.0) for r in robot.received[sent:])
+        breaks = tmp_path / "log" / "segments.csv"
+        # new_segment cut short after a break was saved, before its stop: its part is empty
+        text = breaks.read_text()
+        t_empty = (once.log.breaks[0] + once.log.wheels[np.searchsorted([w[0] for w in once.log.wheels],
+                                                                       once.log.breaks[0]) - 1][0]) / 2
+        breaks.write_text(text.split("\n", 1)[0] + f"\n{t_empty!r}\n" + text.split("\n", 1)[1])
+        again = session()
+        again.command(0.3, 0.3)
+        again.command(0.0, 0.0)
+        with pytest.raises(ReplayEnded):
+            again.command(0.3, 0.3)
+        again.replay_break()
+        assert again.part == 2 and again.t_start_s == budget_s
+        breaks.write_text(text.replace(repr(once.log.breaks[0]), repr(once.log.breaks[0] - 1e-3)))
+        with pytest.raises(NaocalError, match="segments.csv: the break at .* is not where a resumed run stopped"):
+            session()
+        with pytest.raises(NaocalError, match="the log has breaks"):
+            Session(robot, tmp_path / "log", meta, SHORT, 0.0)
+        assert len(robot.received) == sent + 2  # new_segment's stops only
+    finally:
+        robot.close()
+
+
+class CameraNotUp:
+    """The mock whose camera gives no frame the first time it is asked (a camera node not started yet: the grab's
+    deadline fails the run)."""
+
+    def __init__(self, robot):
+        self.robot, self.asked = robot, False
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def grab(self):
+        if not self.asked:
+            self.asked = True
+            raise NaocalError("no camera frame within 2 s")
+        return self.robot.grab()
+
+
+def test_a_run_whose_first_grab_failed_resumes_with_each_board_view_on_its_frame(tmp_path):
+    """The first frame never came (the run failed there, its log a stop and no frame), then `--resume` as on the
+    robot: the grab the replay ended at is not counted as a frame, so the boards phase's views stay on the frames
+    they were seen in (they were one frame off, one view more than frames) and the camera is fitted from them."""
+    settings = MissionSettings(board_passes=1)
+    to_camera = {("boards", "ok"): "camera", ("camera", "ok"): DONE}
+    robot = short_mock()
+    try:
+        result, _ = run_mission(CameraNotUp(robot), tmp_path, settings, states=(Boards, CalibrateCamera),
+                                transitions=to_camera)
+        assert result.final == "failed" and "no camera frame" in result.reason
+        assert not (tmp_path / "log" / "frames.csv").exists()
+        result, ctx = run_mission(robot, tmp_path, settings, states=(Boards, CalibrateCamera), transitions=to_camera,
+                                  restart_phase=True)
+    finally:
+        robot.close()
+    assert result.final == DONE, result.reason
+    frames = read_drive_log(tmp_path / "log", check_images=False).frame_files
+    assert len(ctx.board_detections) == len(frames) and set(ctx.board_views) == set(range(len(frames)))
+    assert [bool(views) for views in ctx.board_detections][:2] == [True, True]  # the start board, from the first
 
 
 def test_no_marker_in_view_stops_within_the_bound(tmp_path):

@@ -582,3 +582,70 @@ def test_calibrate_ros_a_crash_keeps_the_ticks_and_a_resumed_run_starts_the_phas
         assert stopped(graph)
     finally:
         graph.close()
+
+
+class StoppedAtStep:
+    """The robot as the run is stopped (KeyboardInterrupt: Ctrl-C, SIGTERM) when it is to turn its `at`-th one-wheel
+    step, counting what it drives only (a resumed run's replay drives nothing)."""
+
+    def __init__(self, robot, at):
+        self.robot, self.at, self.steps, self.duties = robot, at, 0, (0.0, 0.0)
+
+    def __getattr__(self, name):
+        return getattr(self.robot, name)
+
+    def command(self, left, right):
+        self.duties = (left, right)
+        return self.robot.command(left, right)
+
+    def advance(self, duration_s):
+        if self.duties != (0.0, 0.0):
+            self.steps += 1
+            if self.steps >= self.at:
+                raise KeyboardInterrupt()
+        self.robot.advance(duration_s)
+
+
+def test_calibrate_ros_a_run_stopped_again_in_the_phase_its_resume_started_again_resumes_again(
+        tmp_path, monkeypatch, capsys):
+    """Ctrl-C in the boards phase, `--resume`, Ctrl-C again inside the phase that resume started again, `--resume`
+    again: the replay starts the phase again at the log's break as the first resume did (it refused the run as
+    recorded with other options: the phase's own next step is not the break's stop), the wheels stopped before
+    anything else, nothing else sent during the replay, every capture kept byte for byte, two breaks, done."""
+    import naocal.kinds.duckiebot.mission as mission
+    from naocal.tools.cli import main
+
+    graph = FakeRosGraph(VEHICLE).install(monkeypatch)
+    monkeypatch.setenv("VEHICLE_NAME", VEHICLE)
+    whole, stop_at = mission.run_mission, [3, 2, None]  # each run's step stopped at (live steps only)
+
+    def boards_stopped(robot, out, settings, **kw):
+        at = stop_at.pop(0)
+        return whole(robot if at is None else StoppedAtStep(robot, at), out, SHORT, **kw, states=(Boards,),
+                     transitions={("boards", "ok"): DONE})
+
+    monkeypatch.setattr(mission, "run_mission", boards_stopped)
+    out = tmp_path / "run"
+    argv = ["calibrate", "--robot", "duckiebot", "--backend", "ros", "--out", str(out)]
+    try:
+        assert main(argv) == 130
+        assert main(argv + ["--resume"]) == 130
+        log = read_drive_log(out / "log")
+        (t_first,) = log.segment_t_s
+        assert np.sum(log.frame_t_s > t_first) >= 1 and np.any((log.left_duty != 0) | (log.right_duty != 0), where=log.wheel_t_s > t_first)  # turned again
+        frames = {name: (out / "log" / name).read_bytes() for name in log.frame_files}
+        sent = len(graph.received)
+        capsys.readouterr()
+        assert main(argv + ["--resume"]) == 0, capsys.readouterr().err
+        resumed = read_drive_log(out / "log")
+        assert resumed.segment_t_s[0] == t_first and len(resumed.segment_t_s) == 2
+        t_second = resumed.segment_t_s[1]
+        assert t_second > max(log.wheel_t_s[-1], log.frame_t_s[-1])
+        assert all((l, r) == (0.0, 0.0) for t, l, r in graph.received[sent:] if t <= t_second)  # only stops
+        at_break = np.searchsorted(resumed.wheel_t_s, t_second)
+        assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
+        assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
+        assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
+        assert np.sum(resumed.frame_t_s > t_second) >= 3 and (out / "mission.json").exists() and stopped(graph)
+    finally:
+        graph.close()

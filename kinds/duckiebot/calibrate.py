@@ -26,6 +26,7 @@ stopped. On the robot (--backend ros or bridge), whose pose is not saved (it may
 after a crash), the wheels are commanded stopped first, the logs replayed to rebuild the run, and the phase they end in
 started again from its start conditions wherever the robot now stands (the marker line found again first); the
 drive log gets a break there (segments.csv) and the joint fit a start pose per segment (mission.RestartedPhase).
+A resumed run stopped again resumes again: the replay starts the phase again at each break as it went then.
 Over the bridge by the same path: the client takes its lease back (RUN/bridge.token; DuckiebotBridge).
 """
 

@@ -36,11 +36,13 @@ capture is repeated. That holds where the robot's state is saved with the run (t
 (`restart_phase`) the replay only rebuilds the run: the wheels are commanded stopped first, and at the first live
 action the phase the replay ended in starts again from its start conditions where the robot now stands
 (RestartedPhase), after a break in the log (Session.new_segment): the joint fit gives each segment its own start
-pose (kinds.duckiebot.fit).
+pose (kinds.duckiebot.fit). A log with breaks is replayed in parts: at each break the phase's replay ends and the
+phase is replayed again from it (Session.replay_break), so a run resumes any number of times, one break each.
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 from dataclasses import dataclass, field
@@ -51,7 +53,8 @@ import numpy as np
 
 from naocal.agent.machine import DONE, FAILED, Machine, Outcome, State
 from naocal.kinds.duckiebot.detect import detect_boards, detect_markers
-from naocal.kinds.duckiebot.drive_log import MAX_IMAGE_BYTES, SCHEMA, DriveLogAppender, decode_image, read_drive_log
+from naocal.kinds.duckiebot.drive_log import (MAX_IMAGE_BYTES, SCHEMA, SEGMENTS_FILE, DriveLogAppender, decode_image,
+                                              read_drive_log)
 from naocal.kinds.duckiebot.fit import PWM_DRIVER, duty_offset, marker_on_floor
 from naocal.kinds.duckiebot.identify import Detections, fit_intrinsics, identify_log
 from naocal.kinds.duckiebot.kinematics import duty_problem, inverse_kinematics, pwm_drift_bound_m
@@ -137,10 +140,11 @@ def log_meta(robot_id: str, source: str) -> dict:
 
 class ReplayEnded(Exception):
     """A resumed run's replay has reached the log's end inside a phase, on a robot whose state was not saved (the
-    real one): the phase starts again from its start conditions (RestartedPhase), never from the old pose."""
+    real one): the phase starts again from its start conditions (RestartedPhase), never from the old pose. Or it
+    has reached a break the log holds (Session._end_of_part): the phase is replayed again from there."""
 
     def __init__(self, session):
-        super().__init__("the replay reached the log's end")
+        super().__init__("the replay reached the log's end or a break")
         self.session = session
 
 
@@ -158,10 +162,23 @@ class Session:
         self.t_start_s = self.log.wheels[0][0] if self.log.wheels else t_start_s  # the budget runs from the first run
         # at one time a frame came first: a frame is never older than the command before it (grab), but the next
         # command may carry its time (a ROS camera's stamp: the fake peer's frames and commands share a clock tick)
-        events = [(t, 1, ("wheels", left, right)) for t, left, right in self.log.wheels]
-        events += [(t, 0, ("frame", name)) for t, name in self.log.frames]
-        self.replay = [e[2] for e in sorted(events)]
+        events = sorted([(t, 1, ("wheels", left, right)) for t, left, right in self.log.wheels]
+                        + [(t, 0, ("frame", name)) for t, name in self.log.frames])
+        self.replay, self.replay_t_s = [e[2] for e in events], [e[0] for e in events]
         self.cursor = 0
+        # the replay in parts, one per break (a resume started the phase again there: new_segment): each part's end
+        # ends the phase's replay as the log's end does, and the phase is replayed again from the break (replay_break)
+        if self.log.breaks and not restart_phase:
+            raise NaocalError(f"{self.log.directory}: the log has breaks (segments.csv: a run resumed on the robot); "
+                              "resume it on the robot's backend (nothing was sent to the robot)")
+        self.part_ends = [bisect.bisect_left(self.replay_t_s, t) for t in self.log.breaks] + [len(self.replay)]
+        for t, start, end in zip(self.log.breaks, self.part_ends, self.part_ends[1:]):
+            # each part starts with new_segment's stop at its break, or is empty (new_segment cut short before it)
+            if start < end and (self.replay_t_s[start] != t or self.replay[start] != ("wheels", 0.0, 0.0)):
+                raise NaocalError(f"{self.log.directory / SEGMENTS_FILE}: the break at {t!r} s is not where a resumed "
+                                  "run stopped the wheels (a stop at that time in wheels.csv): not a log this mission "
+                                  "wrote (nothing was sent to the robot)")
+        self.part = 0  # the part being replayed
         self.duties = (0.0, 0.0)  # the command in force, as logged
         self.resumed = self.live  # a replay has ended and the run gone on live
 
@@ -174,18 +191,28 @@ class Session:
         final stop where the phase would have gone on. The replay ends there: the phase starts again anyway."""
         if not self.restart_phase:
             return False
-        if all(e[0] == "wheels" and e[1] == e[2] == 0.0 for e in self.replay[self.cursor:]):
-            self.cursor = len(self.replay)
+        end = self.part_ends[self.part]
+        if all(e[0] == "wheels" and e[1] == e[2] == 0.0 for e in self.replay[self.cursor:end]):
+            self.cursor = end
             return True
         return False
+
+    def _end_of_part(self) -> bool:
+        """The replay stands at a break the log holds, not at its end: what follows was logged after the phase was
+        started again there, so the phase's replay ends here (ReplayEnded; RestartedPhase calls replay_break)."""
+        return not self.live and self.cursor == self.part_ends[self.part]
 
     def _next_recorded(self, kind: str, duties=None):
         if self.live:
             return None
+        if self._end_of_part():
+            raise ReplayEnded(self)
         event = self.replay[self.cursor]
         differs = event[0] != kind or (duties is not None and max(abs(event[1] - duties[0]),
                                                                   abs(event[2] - duties[1])) > REPLAY_TOLERANCE)
         if differs and self._only_stops_left():
+            if self._end_of_part():
+                raise ReplayEnded(self)
             return None
         if event[0] != kind:
             raise NaocalError(f"{self.log.directory}: the recorded run took a {event[0]} where this one takes a {kind} "
@@ -225,6 +252,18 @@ class Session:
         self.duties, self.resumed = (0.0, 0.0), True
         self.wait(self.settings.settle_s)  # the phase's first row after the stop's, on any robot clock
 
+    def replay_break(self) -> None:
+        """Replay a break the log holds (the replay at its part's end: _end_of_part) as new_segment made it: its stop
+        row, the budget's dead time left out; nothing is sent. The phase is then replayed again from its start."""
+        while self.part_ends[self.part + 1] == self.cursor:
+            self.part += 1  # a break with no row of its own (new_segment cut short before its stop): an empty part
+        t = self.log.breaks[self.part]  # its stop row at the cursor (checked when the log was opened)
+        if self.log.wheels[0][0] < t:  # as new_segment: the time the robot stood dead is not the mission's
+            self.t_start_s += t - self.replay_t_s[self.cursor - 1]
+        self.cursor += 1
+        self.part += 1
+        self.duties = (0.0, 0.0)
+
     def _send(self, left: float, right: float) -> None:
         t = self.robot.command(left, right)
         self.log.add_wheels(t, left, right)
@@ -250,6 +289,8 @@ class Session:
         self._go_on()
 
     def wait(self, duration_s: float) -> None:
+        if self._end_of_part():  # as at the log's end (_live): the phase's replay ends at the first action past it
+            raise ReplayEnded(self)
         if not self.live:
             return
         self._live()
@@ -268,10 +309,10 @@ class Session:
     def grab(self) -> np.ndarray:
         """A grey frame: the saved one when replaying, else a new one from the robot, saved before it is used."""
         recorded = self._next_recorded("frame")
-        self.grabbed += 1
         if recorded is not None:
             path = self.log.directory / recorded[1]
             image = decode_image(read_bytes(path, max_bytes=MAX_IMAGE_BYTES), path, cv2.IMREAD_GRAYSCALE)
+            self.grabbed += 1
             self._go_on()
             return image
         self._live()
@@ -280,6 +321,7 @@ class Session:
         if not t > t_command:  # a frame exposed before the last command is stale: never decide on it
             raise NaocalError(f"the camera returned a frame of {t:.3f} s, before the last command ({t_command:.3f} s)")
         self.log.add_frame(t, f"frames/{len(self.log.frames):06d}.png", image)
+        self.grabbed += 1  # counted once saved: a grab the replay ended at, or that failed, is no frame
         return image
 
     def stop(self) -> None:
@@ -787,16 +829,20 @@ class RestartedPhase(State):
         self.name, self.needs, self.produces = phase.name, phase.needs, phase.produces
 
     def run(self, ctx: MissionContext) -> Outcome:
-        try:
-            return self.phase.run(ctx)
-        except ReplayEnded as end:
-            log.info("phase %s: the replay ended inside it; starting it again where the robot stands", self.name)
-            check_restart = getattr(self.phase, "check_restart", None)  # a phase's own start conditions, if any
-            if check_restart is not None:
-                check_restart(ctx, end.session)
-            end.session.new_segment()
-            ctx.blind_m, ctx.restarted = 0.0, self.name
-            return self.phase.run(ctx)
+        while True:  # once per break the log holds, then once live: each pass ends a part of the replay or goes live
+            try:
+                return self.phase.run(ctx)
+            except ReplayEnded as end:
+                if end.session.live:
+                    log.info("phase %s: the replay ended inside it; starting it again where the robot stands",
+                             self.name)
+                    check_restart = getattr(self.phase, "check_restart", None)  # the phase's start conditions, if any
+                    if check_restart is not None:
+                        check_restart(ctx, end.session)
+                    end.session.new_segment()
+                else:  # an earlier resume started the phase again here: replayed as it went then
+                    end.session.replay_break()
+                ctx.blind_m, ctx.restarted = 0.0, self.name
 
 
 def run_mission(robot, out_dir, settings: MissionSettings = MissionSettings(), *, robot_id: str = "duckiebot",
