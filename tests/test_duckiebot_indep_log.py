@@ -86,19 +86,32 @@ def _blank_log(directory, frame_t_s, image=None):
     return write_drive_log(directory, meta, ([frame_t_s[0]], [0.0], [0.0]), (frame_t_s, names))
 
 
-def test_a_streaming_camera_is_searched_for_boards_at_a_bounded_rate(tmp_path, monkeypatch):
-    # 30 fps for 2 s on a Unix clock: a board search (0.35 s CPU a frame) on every frame made a 30 fps log of a
-    # minute cost 10 minutes; near-identical views add nothing
-    log = _blank_log(tmp_path, 1.7e9 + np.arange(60) / 30.0)
-    searched = []
-    monkeypatch.setattr(identify, "detect_boards", lambda image, *a, **k: searched.append(image) or [])
-    detections = identify.detect_log(log)
-    assert len(detections.boards) == len(detections.markers) == 60
-    assert 8 <= len(searched) <= 9  # every 0.25 s
-    # frames grabbed standing still, 0.5 s apart (the mission's), are all searched
-    searched.clear()
-    identify.detect_log(_blank_log(tmp_path / "still", np.arange(10) * 0.5))
-    assert len(searched) == 10
+def test_boards_are_searched_at_a_bounded_rate_and_in_full_around_those_found(tmp_path, monkeypatch):
+    """A board search costs about 0.4 s CPU a frame: at 30 fps a camera gives near-identical views 33 ms apart, so
+    frames are searched at most every 0.25 s (board_search_frames); of those, a coarse sample first, then all of
+    them between the sampled frames either side of one holding a board. Every view the full search finds is found."""
+    def run(frame_t_s, board_frames):
+        log = _blank_log(tmp_path / str(len(frame_t_s)), frame_t_s)
+        monkeypatch.setattr(type(log), "load_frame", lambda self, i, *flags: np.full((48, 64), i, np.uint8))
+        searched = []
+
+        def detect_boards(image, *a, **k):
+            searched.append(int(image[0, 0]))
+            return ["a board"] if int(image[0, 0]) in board_frames else []
+
+        monkeypatch.setattr(identify, "detect_boards", detect_boards)
+        detections = identify.detect_log(log)
+        candidates = set(np.flatnonzero(identify.board_search_frames(frame_t_s)).tolist())
+        assert len(searched) == len(set(searched)) and set(searched) <= candidates
+        assert {i for i, b in enumerate(detections.boards) if b} == candidates & set(board_frames)
+        return len(searched), len(candidates)
+
+    # 30 fps for 8 s on a Unix clock, a board in view from 3 s to 4 s
+    searched, candidates = run(1.7e9 + np.arange(240) / 30.0, range(90, 120))
+    assert candidates == 30 and searched <= 15, searched
+    # frames grabbed standing still, 0.5 s apart (the mission's), a board in frames 40-55 of 100
+    searched, candidates = run(np.arange(100) * 0.5, range(40, 56))
+    assert candidates == 100 and searched <= 50, searched
 
 
 def test_markers_sharing_an_id_are_refused_as_such(tmp_path):
