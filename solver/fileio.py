@@ -551,3 +551,24 @@ def read_image_bytes(path) -> tuple[bytes, tuple[int, int]]:
         raise DataError(path, f"{kind} header claims {width} x {height} pixels ({width * height / 1e6:.0f} Mpx): "
                               f"at most {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx are read (4096 x 4096; docs/CONVENTIONS.md)")
     return data, (width, height)
+
+
+@contextlib.contextmanager
+def native_stderr_held(said: list):
+    """Hold what C libraries write to file descriptor 2 during the block (libpng's 'libpng error: ...' on a damaged
+    file) and append it to `said`, so that the user sees one line; Python's sys.stderr is flushed first."""
+    import os
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            said.append(held.read(4096).decode("utf-8", "replace"))

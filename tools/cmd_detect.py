@@ -47,7 +47,6 @@ input (an unreadable image, a bad --board) - then nothing is detected.
 from __future__ import annotations
 
 import argparse
-import contextlib
 
 YUYV_SIZES = ((160, 120), (320, 240), (640, 480), (1280, 960))
 RAW_SUFFIXES = (".yuv", ".yuyv", ".raw")
@@ -148,7 +147,7 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     import numpy as np
 
     from naocal.solver.errors import DataError
-    from naocal.solver.fileio import read_bytes, read_image_bytes
+    from naocal.solver.fileio import native_stderr_held, read_bytes, read_image_bytes
 
     file = Path(path)
     if not file.exists():
@@ -192,27 +191,6 @@ def read_image(path: str, raw_size: tuple[int, int] | None = None):
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
         raise DataError(path, f"{image.shape} pixels: expected grey or colour")
     return np.ascontiguousarray(image)
-
-
-@contextlib.contextmanager
-def native_stderr_held(said: list):
-    """Hold what C libraries write to file descriptor 2 during the block (libpng's 'libpng error: ...' on a damaged
-    file) and append it to `said`, so that the user sees one line; Python's sys.stderr is flushed first."""
-    import os
-    import sys
-    import tempfile
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as held:
-        os.dup2(held.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            held.seek(0)
-            said.append(held.read(4096).decode("utf-8", "replace"))
 
 
 def detect_one(path: str, image, board, channel: str) -> dict:

@@ -39,9 +39,8 @@ from naocal.kinds.duckiebot.calibration_files import USUAL
 from naocal.kinds.duckiebot.robot import ENCODER_MODELS, duckiebot, raw_pixels, robot_name_problem
 from naocal.solver import fields
 from naocal.solver.fields import fail
-from naocal.tools.cmd_detect import native_stderr_held
 from naocal.solver.fileio import (append_durably, atomic_write_bytes, atomic_write_text, disk_full_as_error,
-                                  read_bytes, read_json, read_text)
+                                  native_stderr_held, read_bytes, read_json, read_text)
 
 SCHEMA = "naocal.drive_log/1"
 META_FILE, WHEELS_FILE, FRAMES_FILE, ENCODERS_FILE = "log.json", "wheels.csv", "frames.csv", "encoders.csv"
