@@ -450,11 +450,12 @@ class LensEquations:
 
 
 def fit_camera(object_points, image_points, size, model: str, K_guess=None, *, with_covariance: bool = False,
-               floor: FloorMarkers | None = None):
-    """(camera, training RMS px per board corner[, covariance of camera.parameters]) of one lens model fitted to
-    board views (lists of (n, 3) and (n, 2)) and the floor markers if given; `size` (w, h). OpenCV's calibration of
-    the boards gives the start; naocal's LM (solver.identify.solve) the fit; the covariance is cluster-robust with a
-    view, and a floor frame, per cluster."""
+               floor: FloorMarkers | None = None, trim_floor: bool = True):
+    """(camera, training RMS px per board corner[, covariance of camera.parameters, the floor markers fitted (None
+    without)]) of one lens model fitted to board views (lists of (n, 3) and (n, 2)) and the floor markers if given,
+    their mis-detected sightings set aside (unless not `trim_floor`: _floor_outliers_trimmed); `size` (w, h).
+    OpenCV's calibration of the boards gives the start; naocal's LM (solver.identify.solve) the fit; the covariance
+    is cluster-robust with a view, and a floor frame, per cluster."""
     if model not in LENS_MODELS:
         raise NaocalError(f"unknown lens model {model!r}: expected one of {', '.join(LENS_MODELS)}")
     if len(object_points) < 3:
@@ -471,7 +472,7 @@ def fit_camera(object_points, image_points, size, model: str, K_guess=None, *, w
         return equations, solution
 
     equations, solution = fit(floor)
-    if equations.floor is not None:
+    if equations.floor is not None and trim_floor:
         equations, solution = _floor_outliers_trimmed(fit, floor, (equations, solution))
     camera = equations.camera(solution.free)
     boards = solution.final.residuals[:equations.first_row[-1]]
@@ -479,7 +480,9 @@ def fit_camera(object_points, image_points, size, model: str, K_guess=None, *, w
     if not with_covariance:
         return camera, train
     spread = solution.spread(np.arange(len(solution.final.image_scores)), equations.names)
-    return camera, train, spread.covariance[:equations.q, :equations.q]
+    fitted = None if equations.floor is None else FloorMarkers(equations.floor.obs, floor.size_m,
+                                                                floor.T_base_camera_start)
+    return camera, train, spread.covariance[:equations.q, :equations.q], fitted
 
 
 def _floor_outliers_trimmed(fit, floor: FloorMarkers, result):
@@ -549,17 +552,18 @@ def view_rms_px(camera: LensCamera, object_points, image_points) -> float:
 def fit_lens(object_points, image_points, size, model: str, groups, K_guess=None, floor=None) -> LensFit:
     """One lens model: fitted to all views (with its stds), and held out group by group (`groups`: a label per
     board view, at least two different ones); the floor markers (optional) are in every fit, none held out (a
-    marker's four corners give no pose of their own to judge it by)."""
+    marker's four corners give no pose of their own to judge it by): those the fit to all views kept (its outlier
+    trimming not repeated per group: the same sightings, and each round is a fit)."""
     labels = _group_labels(groups)
     groups = np.asarray(groups)
-    camera, train, covariance = fit_camera(object_points, image_points, size, model, K_guess, with_covariance=True,
-                                           floor=floor)
+    camera, train, covariance, floor = fit_camera(object_points, image_points, size, model, K_guess,
+                                                  with_covariance=True, floor=floor)
     squares = np.full(len(object_points), np.inf)
     for label in labels:
         train_idx, test_idx = np.flatnonzero(groups != label), np.flatnonzero(groups == label)
         try:
             held, _ = fit_camera([object_points[i] for i in train_idx], [image_points[i] for i in train_idx], size,
-                                 model, K_guess, floor=floor)
+                                 model, K_guess, floor=floor, trim_floor=False)
             squares[test_idx] = [view_rms_px(held, object_points[i], image_points[i]) ** 2 for i in test_idx]
         except (cv2.error, NaocalError):  # too few views left, or the fit diverged: the model cannot be judged
             pass
