@@ -253,9 +253,10 @@ def test_floor_markers_fix_the_lower_half_the_boards_leave_open(floor_case):
 
 
 def test_a_mis_detected_floor_marker_is_set_aside(floor_case):
-    """One floor sighting mis-detected (two corners pushed apart along its diagonal, 4.2 px each; realistic mock seed 8:
-    a sighting 5.4 times its expected noise left the lens 1.9 px off over the whole image, 0.17 without it) is set
-    aside by the outlier rule of every kind: the lens is the one fitted without it (1.9 px from it if kept)."""
+    """One floor sighting mis-detected (two corners pushed apart along its diagonal, 4.2 px each; realistic mock
+    seed 8: two sightings 5.4 and 15 times their expected noise left the lens 1.9 px off over the whole image, 0.17
+    without them) is set aside by the outlier rule of every kind: the lens is the one fitted without it (1.96 px
+    from it if kept)."""
     truth, _, O, I, _, floor = floor_case
     s = floor.sightings
     rows = np.flatnonzero((s.frame == s.frame[0]) & (s.marker == s.marker[0]))

@@ -489,9 +489,9 @@ def _floor_outliers_trimmed(fit, floor: FloorMarkers, result):
     """(equations, solution) of `fit(floor markers)` with the floor's mis-detected sightings set aside by the outlier
     rule of every kind (solver.identify.trimmed: a sighting's RMS whitened corner distance beyond OUTLIER_SCALES
     robust scales of the kept corners', the worst of a frame each round, those the final fit explains taken back).
-    A marker's corners are judged together (its pose comes from its four alone). On the realistic mock's seed 8 one
-    sighting 5.4 times its expected noise (the others 0.1-1.5) took the lens from 0.16 px off the true camera over
-    the whole image to 1.9 (fx, fy 1.9 stds off)."""
+    A marker's corners are judged together (its pose comes from its four alone). On the realistic mock's seed 8 two
+    sightings 5.4 and 15 times their expected noise (RMS; the other 64 0.1-1.5) took the lens from 0.16 px off the
+    true camera over the whole image to 1.9 (fx, fy 1.9 stds off)."""
     s = floor.sightings
     pairs = np.column_stack([s.frame, s.marker])
     keys, row_sighting = np.unique(pairs, axis=0, return_inverse=True)
