@@ -239,3 +239,22 @@ class FakeRosGraph:
 
     def close(self):
         self.robot.close()
+
+
+def check_resumed_again(log_dir, before, frames: dict, received: list) -> None:
+    """A run resumed a second time (tests of --resume on the robot and over the bridge): `before` the log after the
+    first resume (one break), `frames` its frames' bytes, `received` the wheel commands (t, left, right) the robot
+    got during the second resume. Two breaks, only stops before the second, which is a stop row; every frame kept
+    byte for byte, not redone; frames after it."""
+    from naocal.kinds.duckiebot.drive_log import read_drive_log
+
+    resumed = read_drive_log(log_dir)
+    assert resumed.segment_t_s[0] == before.segment_t_s[0] and len(resumed.segment_t_s) == 2
+    t_second = resumed.segment_t_s[1]
+    assert t_second > max(before.wheel_t_s[-1], before.frame_t_s[-1])
+    assert all((left, right) == (0.0, 0.0) for t, left, right in received if t <= t_second)  # only stops
+    at_break = np.searchsorted(resumed.wheel_t_s, t_second)
+    assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
+    assert resumed.frame_files[:len(before.frame_files)] == before.frame_files
+    assert all((log_dir / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
+    assert np.sum(resumed.frame_t_s > t_second) >= 3

@@ -20,7 +20,7 @@ from naocal.kinds.duckiebot.mission import (Boards, CalibrateCamera, FaceMarkers
 from naocal.solver.errors import NaocalError, SafetyError
 
 sys.path.insert(0, os.path.dirname(__file__))
-from duckiebot_ros_peer import FakeRosGraph  # noqa: E402
+from duckiebot_ros_peer import FakeRosGraph, check_resumed_again  # noqa: E402
 
 VEHICLE = "db21"
 CAMERA_TOPIC = f"/{VEHICLE}/camera_node/image/compressed"
@@ -637,15 +637,7 @@ def test_calibrate_ros_a_run_stopped_again_in_the_phase_its_resume_started_again
         sent = len(graph.received)
         capsys.readouterr()
         assert main(argv + ["--resume"]) == 0, capsys.readouterr().err
-        resumed = read_drive_log(out / "log")
-        assert resumed.segment_t_s[0] == t_first and len(resumed.segment_t_s) == 2
-        t_second = resumed.segment_t_s[1]
-        assert t_second > max(log.wheel_t_s[-1], log.frame_t_s[-1])
-        assert all((l, r) == (0.0, 0.0) for t, l, r in graph.received[sent:] if t <= t_second)  # only stops
-        at_break = np.searchsorted(resumed.wheel_t_s, t_second)
-        assert (resumed.left_duty[at_break], resumed.right_duty[at_break]) == (0.0, 0.0)
-        assert resumed.frame_files[:len(log.frame_files)] == log.frame_files
-        assert all((out / "log" / name).read_bytes() == data for name, data in frames.items())  # kept, not redone
-        assert np.sum(resumed.frame_t_s > t_second) >= 3 and (out / "mission.json").exists() and stopped(graph)
+        check_resumed_again(out / "log", log, frames, graph.received[sent:])
+        assert (out / "mission.json").exists() and stopped(graph)
     finally:
         graph.close()
