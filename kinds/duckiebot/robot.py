@@ -14,6 +14,7 @@ calibration files (camera prior: fx 336.5 px, cx 316, cy 233, k1 -0.283, k2 0.05
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import re
@@ -123,10 +124,16 @@ def nominal_for(model: str) -> Duckiebot:
     the model."""
     if model in MODELS:
         return duckiebot(model)
+    warn_unknown_model(model)
+    return duckiebot("DB21")
+
+
+@functools.lru_cache(maxsize=None)
+def warn_unknown_model(model: str) -> None:
+    """Once per model and process: identify and diagnose ask for the nominal robot at every step."""
     logging.getLogger(__name__).warning(
         "robot.model %s is not a model naocal knows (%s): the DB21's camera mount and lens prior start the fit",
         fields.shown(model), ", ".join(MODELS))
-    return duckiebot("DB21")
 
 
 def duckiebot(model: str = "DB21") -> Duckiebot:
