@@ -329,7 +329,7 @@ def test_a_run_resumed_twice_as_on_the_robot_goes_on_at_each_break_and_still_ide
     break as the first resume did (it refused the run as recorded with other options: the phase's own next action
     is not the break's stop), nothing sent but the stop before the second break, every capture kept byte for byte,
     two breaks, and the joint fit identifies the ideal robot from the log's three segments (through the run's own
-    lens: identify_log's board search over every frame would take 40 s more)."""
+    lens: identify_log would search the frames for boards again, tens of CPU seconds more)."""
     states = (Boards, CalibrateCamera, FaceMarkers, MarkerDrives)
     state = tmp_path / "mock_state.json"
     robot = short_mock(state_path=state)
